@@ -1,0 +1,469 @@
+//! Domain values to JSON and back, and the JSON shapes of the REST API.
+
+use std::time::SystemTime;
+
+use serde::Serialize;
+use serde_json::{Number, Value as Json};
+use utoipa::ToSchema;
+
+use crate::cache::{Device, Diagnostics, Link, Sample};
+use crate::codec::{IecType, Value};
+use crate::config::Transport;
+use crate::profile::{LayoutEntry, Profile, fb_layout};
+use crate::writes::WriteRecord;
+
+/// A value as the JSON of its type: BOOL as true/false, numbers as numbers, STRING as a
+/// string, TIME as milliseconds.
+pub fn value_to_json(value: &Value) -> Json {
+    match value {
+        Value::Bool(b) => Json::Bool(*b),
+        Value::Int(i) | Value::Time(i) => Json::from(*i),
+        Value::UInt(u) => Json::from(*u),
+        // The shortest text that reads back as the same f32, so 0.1 stays 0.1.
+        Value::Real(r) => r
+            .to_string()
+            .parse::<f64>()
+            .ok()
+            .and_then(Number::from_f64)
+            .map_or(Json::Null, Json::Number),
+        Value::LReal(r) => Number::from_f64(*r).map_or(Json::Null, Json::Number),
+        Value::String(s) => Json::String(s.clone()),
+    }
+}
+
+/// A JSON value for a field of type `ty`. BOOL also takes 0 and 1; TIME takes milliseconds
+/// or a literal such as `"T#1s500ms"`; integer types take whole numbers only.
+pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, String> {
+    let found = describe(json);
+    let result = match (ty, json) {
+        (IecType::Bool, Json::Bool(b)) => Ok(Value::Bool(*b)),
+        (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(0) => Ok(Value::Bool(false)),
+        (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(1) => Ok(Value::Bool(true)),
+        (IecType::String, Json::String(s)) => Ok(Value::String(s.clone())),
+        (IecType::Time, Json::String(s)) => crate::duration::parse_ms(s).map(Value::Time),
+        (t, Json::Number(n)) if t != IecType::Bool && t != IecType::String => {
+            if let Some(i) = n.as_i64() {
+                Value::from_int(t, i.into()).map_err(|e| e.to_string())
+            } else if let Some(u) = n.as_u64() {
+                Value::from_int(t, u.into()).map_err(|e| e.to_string())
+            } else {
+                let x = n.as_f64().unwrap_or(f64::NAN);
+                Value::from_real(t, x).map_err(|e| e.to_string())
+            }
+        }
+        _ => Err(format!("{ty} needs {}, got {found}", expected(ty))),
+    };
+    result
+}
+
+fn expected(ty: IecType) -> &'static str {
+    match ty {
+        IecType::Bool => "true or false",
+        IecType::String => "a string",
+        IecType::Time => "milliseconds or a duration such as \"T#1s500ms\"",
+        IecType::Real | IecType::Lreal => "a number",
+        _ => "a whole number",
+    }
+}
+
+fn describe(json: &Json) -> &'static str {
+    match json {
+        Json::Null => "null",
+        Json::Bool(_) => "a boolean",
+        Json::Number(_) => "a number",
+        Json::String(_) => "a string",
+        Json::Array(_) => "an array",
+        Json::Object(_) => "an object",
+    }
+}
+
+pub fn rfc3339(t: SystemTime) -> String {
+    humantime::format_rfc3339_millis(t).to_string()
+}
+
+/// A field's value with its type, quality and timestamp.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct FieldValue {
+    pub device: String,
+    pub field: String,
+    /// IEC 61131-3 type, e.g. `REAL`.
+    #[serde(rename = "type")]
+    pub ty: String,
+    pub direction: String,
+    /// The value as the JSON of its type; null until first read.
+    #[schema(value_type = Object)]
+    pub value: Json,
+    /// `good`, `stale`, `never_read` or `bad`.
+    pub quality: String,
+    /// When the value was last refreshed (RFC 3339).
+    pub timestamp: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unit: Option<String>,
+    /// Why the quality is bad.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// The latest write to this field, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_write: Option<WriteInfo>,
+}
+
+pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
+    let field = device.field(idx);
+    let now = tokio::time::Instant::now();
+    FieldValue {
+        device: device.name().to_owned(),
+        field: field.name.clone(),
+        ty: field.ty.name().to_owned(),
+        direction: field.direction.name().to_owned(),
+        value: sample.value.as_ref().map_or(Json::Null, value_to_json),
+        quality: sample
+            .quality_at(now, device.stale_after())
+            .name()
+            .to_owned(),
+        timestamp: sample.updated.map(|(_, wall)| rfc3339(wall)),
+        unit: field.register.unit.clone(),
+        error: sample.error.clone(),
+        last_write: None,
+    }
+}
+
+/// Where a write stands.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WriteInfo {
+    pub generation: u64,
+    pub device: String,
+    pub field: String,
+    #[schema(value_type = Object)]
+    pub value: Json,
+    /// `pending`, `written`, `superseded` or `failed`.
+    pub status: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    pub requested: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub finished: Option<String>,
+}
+
+impl From<&WriteRecord> for WriteInfo {
+    fn from(r: &WriteRecord) -> Self {
+        WriteInfo {
+            generation: r.generation,
+            device: r.device.clone(),
+            field: r.field.clone(),
+            value: value_to_json(&r.value),
+            status: r.status.name().to_owned(),
+            error: r.error.clone(),
+            requested: rfc3339(r.requested),
+            finished: r.finished.map(rfc3339),
+        }
+    }
+}
+
+/// A device with its diagnostics.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DeviceInfo {
+    pub name: String,
+    pub profile: String,
+    pub protocol: String,
+    pub link: Option<String>,
+    pub slave_id: Option<u8>,
+    pub refresh_rate_ms: u64,
+    pub timeout_ms: u64,
+    pub connected: bool,
+    /// 0 OK, 1 no link, 2 no slave, 10 communication error.
+    pub error_code: i16,
+    pub io_cycles: u64,
+    pub last_response_ms: f64,
+}
+
+pub fn device_info(device: &Device) -> DeviceInfo {
+    let Diagnostics {
+        connected,
+        error_code,
+        io_cycles,
+        last_response_ms,
+    } = device.diagnostics();
+    DeviceInfo {
+        name: device.name().to_owned(),
+        profile: device.profile.name.clone(),
+        protocol: device.profile.protocol.name().to_owned(),
+        link: device.config.link.clone(),
+        slave_id: device.config.slave_id,
+        refresh_rate_ms: device.config.refresh_rate.as_millis() as u64,
+        timeout_ms: device.config.timeout.as_millis() as u64,
+        connected,
+        error_code,
+        io_cycles,
+        last_response_ms,
+    }
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DeviceList {
+    pub devices: Vec<DeviceInfo>,
+}
+
+/// A device with its diagnostics and every field's value, in profile order.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DeviceDetail {
+    #[serde(flatten)]
+    pub device: DeviceInfo,
+    /// Field name to value object.
+    #[schema(value_type = Object)]
+    pub fields: serde_json::Map<String, Json>,
+}
+
+/// A device's diagnostics, as sent on the event stream.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DiagnosticsEvent {
+    pub device: String,
+    pub connected: bool,
+    pub error_code: i16,
+    pub io_cycles: u64,
+    pub last_response_ms: f64,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LinkInfo {
+    pub name: String,
+    /// `serial` or `tcp`.
+    pub kind: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub port: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baud: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parity: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub data_bits: Option<u8>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stop_bits: Option<u8>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tcp_port: Option<u16>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub framing: Option<String>,
+    pub connected: bool,
+    /// 0 OK, 1 no port configured, 2 open failed, 3 port lost.
+    pub error_code: i16,
+    pub devices: Vec<String>,
+}
+
+pub fn link_info(link: &Link, devices: Vec<String>) -> LinkInfo {
+    let diag = link.diagnostics();
+    let mut info = LinkInfo {
+        name: link.config.name.clone(),
+        kind: String::new(),
+        port: None,
+        baud: None,
+        parity: None,
+        data_bits: None,
+        stop_bits: None,
+        host: None,
+        tcp_port: None,
+        framing: None,
+        connected: diag.connected,
+        error_code: diag.error_code,
+        devices,
+    };
+    match &link.config.transport {
+        Transport::Serial(s) => {
+            info.kind = "serial".into();
+            info.port = Some(s.port.clone());
+            info.baud = Some(s.baud);
+            info.parity = Some(s.parity.letter().to_string());
+            info.data_bits = Some(s.data_bits);
+            info.stop_bits = Some(s.stop_bits);
+        }
+        Transport::Tcp {
+            host,
+            port,
+            framing,
+        } => {
+            info.kind = "tcp".into();
+            info.host = Some(host.clone());
+            info.tcp_port = Some(*port);
+            info.framing = Some(framing.name().into());
+        }
+    }
+    info
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LinkList {
+    pub links: Vec<LinkInfo>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ProfileSummary {
+    pub name: String,
+    pub vendor: Option<String>,
+    pub protocol: String,
+    pub description: Option<String>,
+    pub field_count: usize,
+    pub source: String,
+}
+
+pub fn profile_summary(p: &Profile) -> ProfileSummary {
+    ProfileSummary {
+        name: p.name.clone(),
+        vendor: p.vendor.clone(),
+        protocol: p.protocol.name().to_owned(),
+        description: p.description.clone(),
+        field_count: p.fields.len(),
+        source: p.source.clone(),
+    }
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ProfileList {
+    pub profiles: Vec<ProfileSummary>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct RegisterInfo {
+    pub address: u16,
+    pub kind: String,
+    pub bit: Option<u8>,
+    pub scale: f64,
+    pub offset: f64,
+    pub unit: Option<String>,
+    pub byte_order: String,
+    pub word_count: u16,
+    pub raw_type: Option<String>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct FieldInfo {
+    pub name: String,
+    #[serde(rename = "type")]
+    pub ty: String,
+    pub direction: String,
+    pub register: RegisterInfo,
+    pub description: Option<String>,
+}
+
+/// One member of the generated function block.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LayoutInfo {
+    pub name: String,
+    #[serde(rename = "type")]
+    pub ty: String,
+    /// `VAR_INPUT` or `VAR`.
+    pub section: String,
+    /// `link`, `parameter`, `diagnostic` or `field`.
+    pub role: String,
+    pub description: String,
+}
+
+impl From<LayoutEntry> for LayoutInfo {
+    fn from(e: LayoutEntry) -> Self {
+        LayoutInfo {
+            name: e.name,
+            ty: e.ty.name().to_owned(),
+            section: e.section.name().to_owned(),
+            role: e.role.to_owned(),
+            description: e.description,
+        }
+    }
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ProfileDetail {
+    #[serde(flatten)]
+    pub summary: ProfileSummary,
+    pub fields: Vec<FieldInfo>,
+    /// The generated function block's members, in order.
+    pub layout: Vec<LayoutInfo>,
+}
+
+pub fn profile_detail(p: &Profile) -> ProfileDetail {
+    ProfileDetail {
+        summary: profile_summary(p),
+        fields: p
+            .fields
+            .iter()
+            .map(|f| FieldInfo {
+                name: f.name.clone(),
+                ty: f.ty.name().to_owned(),
+                direction: f.direction.name().to_owned(),
+                description: f.description.clone(),
+                register: RegisterInfo {
+                    address: f.register.address,
+                    kind: f.register.kind.name().to_owned(),
+                    bit: f.register.bit,
+                    scale: f.register.scale,
+                    offset: f.register.offset,
+                    unit: f.register.unit.clone(),
+                    byte_order: f.register.byte_order.name().to_owned(),
+                    word_count: f.register.word_count,
+                    raw_type: f.register.raw_type.map(|t| t.name().to_owned()),
+                },
+            })
+            .collect(),
+        layout: fb_layout(p).into_iter().map(LayoutInfo::from).collect(),
+    }
+}
+
+/// The answer to an accepted write.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WriteAccepted {
+    pub device: String,
+    pub field: String,
+    pub generation: u64,
+    /// Always `pending`: follow it at `/api/v1/writes/{generation}`.
+    pub status: String,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WritesAccepted {
+    pub writes: Vec<WriteAccepted>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn reals_print_as_written() {
+        assert_eq!(value_to_json(&Value::Real(0.1)).to_string(), "0.1");
+        assert_eq!(value_to_json(&Value::Real(21.5)).to_string(), "21.5");
+        assert_eq!(value_to_json(&Value::LReal(0.1)).to_string(), "0.1");
+    }
+
+    #[test]
+    fn json_values_are_checked_against_the_type() {
+        assert_eq!(
+            json_to_value(IecType::Bool, &json!(1)),
+            Ok(Value::Bool(true))
+        );
+        assert!(json_to_value(IecType::Bool, &json!(2)).is_err());
+        assert!(json_to_value(IecType::Bool, &json!("true")).is_err());
+        assert_eq!(json_to_value(IecType::Int, &json!(-3)), Ok(Value::Int(-3)));
+        assert_eq!(json_to_value(IecType::Int, &json!(3.0)), Ok(Value::Int(3)));
+        let err = json_to_value(IecType::Usint, &json!(300)).expect_err("range");
+        assert!(err.contains("out of range for USINT"), "{err}");
+        assert!(json_to_value(IecType::Int, &json!(2.5)).is_err());
+        assert_eq!(
+            json_to_value(IecType::Ulint, &json!(u64::MAX)),
+            Ok(Value::UInt(u64::MAX))
+        );
+        assert_eq!(
+            json_to_value(IecType::Real, &json!(12.5)),
+            Ok(Value::Real(12.5))
+        );
+        assert_eq!(
+            json_to_value(IecType::Time, &json!("T#1s500ms")),
+            Ok(Value::Time(1500))
+        );
+        assert_eq!(
+            json_to_value(IecType::Time, &json!(250)),
+            Ok(Value::Time(250))
+        );
+        let err = json_to_value(IecType::Real, &json!("hot")).expect_err("type");
+        assert_eq!(err, "REAL needs a number, got a string");
+        assert!(json_to_value(IecType::String, &json!(null)).is_err());
+    }
+}

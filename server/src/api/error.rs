@@ -1,0 +1,76 @@
+//! The one mapping from domain errors to HTTP status and JSON error bodies.
+
+use axum::Json;
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use crate::cache::AccessError;
+
+/// An error answer: `{"error": {"code": "...", "message": "..."}}`.
+#[derive(Debug)]
+pub struct ApiError {
+    pub status: StatusCode,
+    pub code: &'static str,
+    pub message: String,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ErrorDetail {
+    /// A stable, machine-readable code, e.g. `unknown_device`.
+    pub code: String,
+    /// What is wrong, for people.
+    pub message: String,
+}
+
+impl ApiError {
+    pub fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> Self {
+        ApiError {
+            status,
+            code,
+            message: message.into(),
+        }
+    }
+
+    pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
+        ApiError::new(StatusCode::BAD_REQUEST, code, message)
+    }
+
+    pub fn not_found(code: &'static str, message: impl Into<String>) -> Self {
+        ApiError::new(StatusCode::NOT_FOUND, code, message)
+    }
+}
+
+impl From<AccessError> for ApiError {
+    fn from(e: AccessError) -> Self {
+        let (status, code) = match &e {
+            AccessError::UnknownDevice(_) => (StatusCode::NOT_FOUND, "unknown_device"),
+            AccessError::UnknownField { .. } => (StatusCode::NOT_FOUND, "unknown_field"),
+            AccessError::UnknownLink(_) => (StatusCode::NOT_FOUND, "unknown_link"),
+            AccessError::UnknownProfile(_) => (StatusCode::NOT_FOUND, "unknown_profile"),
+            AccessError::NotWritable { .. } => (StatusCode::CONFLICT, "not_writable"),
+            AccessError::NotAnInput { .. } => (StatusCode::CONFLICT, "not_an_input"),
+            AccessError::NotSimulated(_) => (StatusCode::CONFLICT, "not_simulated"),
+            AccessError::InvalidValue { .. } => (StatusCode::BAD_REQUEST, "invalid_value"),
+        };
+        ApiError::new(status, code, e.to_string())
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let body = ErrorBody {
+            error: ErrorDetail {
+                code: self.code.to_owned(),
+                message: self.message,
+            },
+        };
+        (self.status, Json(body)).into_response()
+    }
+}

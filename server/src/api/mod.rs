@@ -1,0 +1,91 @@
+//! The HTTP side: REST under `/api/v1`, Server-Sent Events, health, OpenAPI.
+
+pub mod convert;
+pub mod error;
+pub mod events;
+pub mod rest;
+
+use std::sync::Arc;
+
+use axum::Json;
+use axum::Router;
+use axum::http::Uri;
+use axum::routing::{get, put};
+use tower_http::trace::TraceLayer;
+use utoipa::OpenApi;
+
+use crate::app::AppState;
+use error::ApiError;
+
+pub const API_PREFIX: &str = "/api/v1";
+
+#[derive(OpenApi)]
+#[openapi(
+    info(title = "iogate", description = "I/O gateway for industrial devices: cached field values, last-value-wins writes."),
+    paths(
+        rest::livez, rest::readyz,
+        rest::list_links, rest::get_link,
+        rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
+        rest::patch_fields, rest::simulate_field, rest::get_write,
+        rest::list_profiles, rest::get_profile,
+        events::events,
+    ),
+    tags(
+        (name = "devices", description = "devices, fields, writes and change events"),
+        (name = "links", description = "serial and TCP links"),
+        (name = "profiles", description = "device profiles and their function-block layout"),
+        (name = "health", description = "liveness and readiness"),
+    )
+)]
+pub struct ApiDoc;
+
+/// The OpenAPI document of the REST API.
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    ApiDoc::openapi()
+}
+
+async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
+    Json(openapi())
+}
+
+async fn not_found(uri: Uri) -> ApiError {
+    ApiError::not_found(
+        "no_route",
+        format!(
+            "no such endpoint: {} (see {API_PREFIX}/openapi.json)",
+            uri.path()
+        ),
+    )
+}
+
+pub fn router(state: Arc<AppState>) -> Router {
+    let api = Router::new()
+        .route("/openapi.json", get(openapi_json))
+        .route("/links", get(rest::list_links))
+        .route("/links/{link}", get(rest::get_link))
+        .route("/devices", get(rest::list_devices))
+        .route("/devices/{device}", get(rest::get_device))
+        .route(
+            "/devices/{device}/fields",
+            axum::routing::patch(rest::patch_fields),
+        )
+        .route(
+            "/devices/{device}/fields/{field}",
+            get(rest::get_field).put(rest::put_field),
+        )
+        .route(
+            "/devices/{device}/fields/{field}/simulate",
+            put(rest::simulate_field),
+        )
+        .route("/writes/{generation}", get(rest::get_write))
+        .route("/profiles", get(rest::list_profiles))
+        .route("/profiles/{profile}", get(rest::get_profile))
+        .route("/events", get(events::events));
+    Router::new()
+        .route("/livez", get(rest::livez))
+        .route("/readyz", get(rest::readyz))
+        .nest(API_PREFIX, api)
+        .fallback(not_found)
+        .layer(TraceLayer::new_for_http())
+        .with_state(state)
+}

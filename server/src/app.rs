@@ -1,0 +1,236 @@
+//! Builds the gateway from its configuration, runs it, and shuts it down.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use tokio::net::TcpListener;
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+use crate::cache::Cache;
+use crate::config::{self, Config};
+use crate::profile::{self, Catalog};
+use crate::yaml::{Problems, Report};
+
+/// The config file looked for in the working directory when none is given.
+pub const DEFAULT_CONFIG: &str = "iogate.yaml";
+/// How long shutdown waits for tasks before giving up on them.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_millis(1500);
+
+/// A checked configuration with its profiles: what `check` validates and `serve` runs.
+#[derive(Debug, Clone)]
+pub struct Setup {
+    pub config: Config,
+    pub catalog: Catalog,
+    /// The profiles directory used, if any.
+    pub profiles_dir: Option<PathBuf>,
+    /// Whether this is the built-in demo.
+    pub demo: bool,
+}
+
+impl Setup {
+    /// `path` if given; else `iogate.yaml` in the working directory; else the built-in demo.
+    pub fn load(path: Option<&Path>) -> Result<Setup, Problems> {
+        match path {
+            Some(p) => Setup::from_file(p),
+            None if Path::new(DEFAULT_CONFIG).is_file() => {
+                Setup::from_file(Path::new(DEFAULT_CONFIG))
+            }
+            None => Setup::demo(),
+        }
+    }
+
+    pub fn demo() -> Result<Setup, Problems> {
+        let (config, catalog) = crate::demo::load()?;
+        Ok(Setup {
+            config,
+            catalog,
+            profiles_dir: None,
+            demo: true,
+        })
+    }
+
+    /// Loads a config file, then its profiles, then checks the devices against both.
+    /// Every problem of every file is reported.
+    pub fn from_file(path: &Path) -> Result<Setup, Problems> {
+        let config = Config::load(path)?;
+        let base = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        Setup::from_config(config, base)
+    }
+
+    /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in
+    /// `base` or up to six parents) and checks its devices.
+    pub fn from_config(config: Config, base: &Path) -> Result<Setup, Problems> {
+        let dir = profile::find_dir(config.profiles.as_deref(), base);
+        let catalog = match &dir {
+            Some(dir) => profile::load_catalog(dir)?,
+            None if config.devices.is_empty() => Catalog::default(),
+            None => {
+                let mut report = Report::new(&config.source);
+                report.push(
+                    1,
+                    "profiles",
+                    format!(
+                        "no profiles directory found in {} or its {} parents; set `profiles:`",
+                        base.display(),
+                        profile::PARENT_SEARCH_DEPTH
+                    ),
+                );
+                return Err(report.into_problems());
+            }
+        };
+        config::check_devices(&config, &catalog)?;
+        Ok(Setup {
+            config,
+            catalog,
+            profiles_dir: dir,
+            demo: false,
+        })
+    }
+}
+
+/// Shared state of the running gateway.
+#[derive(Debug)]
+pub struct AppState {
+    pub cache: Arc<Cache>,
+    pub ready: AtomicBool,
+    pub token: CancellationToken,
+}
+
+impl AppState {
+    pub fn is_ready(&self) -> bool {
+        self.ready.load(Ordering::Relaxed) && !self.token.is_cancelled()
+    }
+}
+
+/// A started gateway.
+pub struct Running {
+    pub state: Arc<AppState>,
+    pub http_addr: SocketAddr,
+    tracker: TaskTracker,
+}
+
+impl Running {
+    pub fn token(&self) -> &CancellationToken {
+        &self.state.token
+    }
+
+    /// Cancels every task and waits for them, at most [`SHUTDOWN_GRACE`].
+    pub async fn shutdown(self) {
+        self.state.ready.store(false, Ordering::Relaxed);
+        self.state.token.cancel();
+        self.tracker.close();
+        if tokio::time::timeout(SHUTDOWN_GRACE, self.tracker.wait())
+            .await
+            .is_err()
+        {
+            tracing::warn!(
+                tasks = self.tracker.len(),
+                "tasks did not finish within the shutdown grace period"
+            );
+        }
+    }
+}
+
+/// Binds the listeners and starts every task. The HTTP listener's address (port 0 picks a
+/// free port) is in the result.
+pub async fn start(setup: Setup) -> anyhow::Result<Running> {
+    let Setup {
+        config, catalog, ..
+    } = setup;
+    let token = CancellationToken::new();
+    let tracker = TaskTracker::new();
+    let cache = Arc::new(Cache::new(&config, catalog));
+
+    for device in &cache.devices {
+        if device.is_simulated() {
+            tracker.spawn(crate::sim::run(device.clone(), token.child_token()));
+        }
+    }
+    for link in &cache.links {
+        let devices = cache.devices_on(&link.config.name).count();
+        tracing::warn!(
+            link = %link.config.name,
+            devices,
+            "Modbus links are not polled by this build; their devices stay never_read and writes stay pending"
+        );
+    }
+
+    let state = Arc::new(AppState {
+        cache,
+        ready: AtomicBool::new(false),
+        token: token.clone(),
+    });
+    let listener = TcpListener::bind(config.http)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
+    let http_addr = listener.local_addr()?;
+    let router = crate::api::router(state.clone());
+    let shutdown = token.clone();
+    tracker.spawn(async move {
+        let served = axum::serve(listener, router)
+            .with_graceful_shutdown(shutdown.cancelled_owned())
+            .await;
+        if let Err(e) = served {
+            tracing::error!(error = %e, "HTTP server failed");
+        }
+    });
+    state.ready.store(true, Ordering::Relaxed);
+    Ok(Running {
+        state,
+        http_addr,
+        tracker,
+    })
+}
+
+/// Runs the gateway until SIGINT or SIGTERM.
+pub async fn run(setup: Setup) -> anyhow::Result<()> {
+    let demo = setup.demo;
+    let running = start(setup).await?;
+    let base = format!("http://{}", running.http_addr);
+    if demo {
+        println!("iogate is running its built-in demo (simulated devices sim and plant).");
+    }
+    println!("REST API:  {base}/api/v1/devices");
+    println!("Events:    {base}/api/v1/events");
+    println!("OpenAPI:   {base}/api/v1/openapi.json");
+    println!("Health:    {base}/livez  {base}/readyz");
+    tracing::info!(http = %running.http_addr, "iogate started");
+    shutdown_signal().await;
+    tracing::info!("shutting down");
+    running.shutdown().await;
+    Ok(())
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!(error = %e, "cannot listen for SIGINT");
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::error!(error = %e, "cannot listen for SIGTERM");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}

@@ -1,0 +1,20 @@
+//! iogate: an I/O gateway for industrial devices.
+//!
+//! Device profiles describe fields; links own the field buses; the cache keeps every
+//! field's latest value; the APIs serve the cache and accept last-value-wins writes.
+#![forbid(unsafe_code)]
+
+pub mod api;
+pub mod app;
+pub mod cache;
+pub mod codec;
+pub mod config;
+pub mod demo;
+pub mod duration;
+pub mod profile;
+pub mod sim;
+pub mod writes;
+pub mod yaml;
+
+/// Exit status of `iogate check` (and `serve`) when the configuration has problems.
+pub const EXIT_CONFIG: i32 = 64;

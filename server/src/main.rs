@@ -1,0 +1,86 @@
+//! The `iogate` command: `serve` runs the gateway, `check` validates its configuration.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use iogate::app::{self, Setup};
+
+#[derive(Parser)]
+#[command(name = "iogate", version, about = "I/O gateway for industrial devices")]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the gateway (the built-in demo when no config is given or found).
+    Serve {
+        /// The config file; default: ./iogate.yaml, else the built-in demo.
+        #[arg(long, short)]
+        config: Option<PathBuf>,
+    },
+    /// Check the config and profiles; print every problem and exit 64 if there is any.
+    Check {
+        /// The config file; default: ./iogate.yaml, else the built-in demo.
+        #[arg(long, short)]
+        config: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let (config, serve) = match cli.command {
+        None => (None, true),
+        Some(Command::Serve { config }) => (config, true),
+        Some(Command::Check { config }) => (config, false),
+    };
+    let setup = match Setup::load(config.as_deref()) {
+        Ok(setup) => setup,
+        Err(problems) => {
+            eprintln!("{problems}");
+            eprintln!(
+                "{} problem{} found; nothing was started",
+                problems.len(),
+                if problems.len() == 1 { "" } else { "s" }
+            );
+            return ExitCode::from(iogate::EXIT_CONFIG as u8);
+        }
+    };
+    if !serve {
+        let what = if setup.demo {
+            "built-in demo".to_owned()
+        } else {
+            setup.config.source.clone()
+        };
+        println!(
+            "{what}: ok ({} profiles, {} links, {} devices)",
+            setup.catalog.len(),
+            setup.config.links.len(),
+            setup.config.devices.len()
+        );
+        return ExitCode::SUCCESS;
+    }
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(app::run(setup)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("iogate: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

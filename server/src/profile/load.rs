@@ -1,0 +1,721 @@
+//! Profile YAML to [`Profile`], reporting every problem with file, line and field.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use super::{Direction, Field, Profile, Protocol, Register, RegisterKind, raw_of};
+use crate::codec::{ByteOrder, Encoding, IecType};
+use crate::yaml::{self, MapReader, Node, Problems, Report};
+
+const PROFILE_KEYS: &[&str] = &["name", "vendor", "protocol", "description", "fields"];
+const FIELD_KEYS: &[&str] = &["name", "type", "direction", "register", "description"];
+const REGISTER_KEYS: &[&str] = &[
+    "address",
+    "kind",
+    "bit",
+    "scale",
+    "offset",
+    "unit",
+    "byte_order",
+    "word_count",
+    "raw_type",
+];
+
+/// Names a profile field may not take: the generated function block already has them.
+pub const RESERVED_NAMES: &[&str] = &[
+    "link",
+    "slave_id",
+    "refresh_rate",
+    "connected",
+    "error_code",
+    "io_cycles",
+    "last_response_ms",
+];
+
+/// The longest STRING field: what one read transaction can carry.
+const MAX_STRING_WORDS: u16 = 125;
+
+/// Loads every `*.yaml`/`*.yml` file of `dir`. Nothing is returned if any file has a problem.
+pub fn load_dir(dir: &Path) -> Result<Vec<Profile>, Problems> {
+    let shown = dir.display().to_string();
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) => {
+            let mut report = Report::new(shown);
+            report.push(0, "", format!("cannot read the profiles directory: {e}"));
+            return Err(report.into_problems());
+        }
+    };
+    let mut paths: Vec<_> = entries
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.is_file()
+                && p.extension()
+                    .is_some_and(|ext| ext == "yaml" || ext == "yml")
+        })
+        .collect();
+    paths.sort();
+    let mut files = Vec::with_capacity(paths.len());
+    let mut problems = Problems::default();
+    for path in paths {
+        let name = path.display().to_string();
+        match std::fs::read_to_string(&path) {
+            Ok(text) => files.push((name, text)),
+            Err(e) => {
+                let mut report = Report::new(name);
+                report.push(0, "", format!("cannot read the file: {e}"));
+                problems.extend(report.into_problems());
+            }
+        }
+    }
+    match load_files(files.iter().map(|(n, t)| (n.as_str(), t.as_str()))) {
+        Ok(profiles) if problems.is_empty() => Ok(profiles),
+        Ok(_) => Err(problems),
+        Err(more) => {
+            problems.extend(more);
+            Err(problems)
+        }
+    }
+}
+
+/// Loads profiles from `(file name, text)` pairs; profile names must be unique across them.
+pub fn load_files<'a>(
+    files: impl IntoIterator<Item = (&'a str, &'a str)>,
+) -> Result<Vec<Profile>, Problems> {
+    let mut problems = Problems::default();
+    let mut profiles: Vec<Profile> = Vec::new();
+    let mut seen: HashMap<String, (String, u64)> = HashMap::new();
+    for (file, text) in files {
+        match load_str(file, text) {
+            Ok(profile) => {
+                let key = profile.name.to_ascii_lowercase();
+                if let Some((other, line)) = seen.get(&key) {
+                    let mut report = Report::new(file);
+                    report.push(
+                        1,
+                        format!("profile {}", profile.name),
+                        format!("profile name already used in {other}:{line}"),
+                    );
+                    problems.extend(report.into_problems());
+                } else {
+                    seen.insert(key, (file.to_owned(), 1));
+                    profiles.push(profile);
+                }
+            }
+            Err(more) => problems.extend(more),
+        }
+    }
+    if problems.is_empty() {
+        Ok(profiles)
+    } else {
+        Err(problems)
+    }
+}
+
+/// Loads one profile from YAML text; `file` names it in problems.
+pub fn load_str(file: &str, text: &str) -> Result<Profile, Problems> {
+    let mut report = Report::new(file);
+    let profile = yaml::parse(text, &mut report).and_then(|root| read_profile(&root, &mut report));
+    match profile {
+        Some(p) if !report.has_problems() => Ok(p),
+        _ => Err(report.into_problems()),
+    }
+}
+
+fn read_profile(root: &Node, report: &mut Report) -> Option<Profile> {
+    let mut map = root.map(report, "profile")?;
+    let name = map
+        .require("name", report, "profile")
+        .and_then(|n| identifier(n, report, "profile: name"));
+    let ctx = match &name {
+        Some(n) => format!("profile {n}"),
+        None => "profile".to_owned(),
+    };
+    let vendor = map
+        .get("vendor")
+        .and_then(|n| n.scalar_text(report, &format!("{ctx}: vendor")));
+    let description = map
+        .get("description")
+        .and_then(|n| n.scalar_text(report, &format!("{ctx}: description")));
+    let protocol = match map.get("protocol") {
+        None => Some(Protocol::ModbusRtu),
+        Some(n) => one_of(
+            n,
+            report,
+            &format!("{ctx}: protocol"),
+            &Protocol::ALL,
+            |p| p.name(),
+        ),
+    };
+    let field_nodes = map
+        .require("fields", report, &ctx)
+        .and_then(|n| n.seq(report, &format!("{ctx}: fields")));
+    map.finish(report, &ctx, PROFILE_KEYS);
+
+    let mut fields = Vec::new();
+    if let Some(nodes) = field_nodes {
+        if nodes.is_empty() {
+            report.push(root.line, &ctx, "a profile needs at least one field");
+        }
+        for (i, node) in nodes.iter().enumerate() {
+            if let Some(field) = read_field(node, i, protocol, report) {
+                fields.push(field);
+            }
+        }
+    }
+    check_names(&fields, report);
+    check_overlaps(&fields, report);
+    Some(Profile {
+        name: name?,
+        vendor,
+        protocol: protocol?,
+        description,
+        fields,
+        source: report.file().to_owned(),
+    })
+}
+
+fn read_field(
+    node: &Node,
+    index: usize,
+    protocol: Option<Protocol>,
+    report: &mut Report,
+) -> Option<Field> {
+    let fallback = format!("fields[{index}]");
+    let mut map = node.map(report, &fallback)?;
+    let name = map
+        .require("name", report, &fallback)
+        .and_then(|n| identifier(n, report, &format!("{fallback}: name")));
+    let ctx = name.as_ref().map_or(fallback, |n| format!("field {n}"));
+    let ty = map
+        .require("type", report, &ctx)
+        .and_then(|n| iec_type(n, report, &format!("{ctx}: type")));
+    let direction = map.require("direction", report, &ctx).and_then(|n| {
+        one_of(
+            n,
+            report,
+            &format!("{ctx}: direction"),
+            &Direction::ALL,
+            |d| d.name(),
+        )
+    });
+    let description = map
+        .get("description")
+        .and_then(|n| n.scalar_text(report, &format!("{ctx}: description")));
+    let register = map
+        .require("register", report, &ctx)
+        .and_then(|n| read_register(n, &ctx, ty, direction, protocol, report));
+    map.finish(report, &ctx, FIELD_KEYS);
+    let (name, ty, direction, register) = (name?, ty?, direction?, register?);
+    let encoding = Encoding {
+        ty,
+        raw: raw_of(ty, &register),
+        order: register.byte_order,
+        scale: register.scale,
+        offset: register.offset,
+    };
+    Some(Field {
+        name,
+        ty,
+        direction,
+        register,
+        description,
+        encoding,
+        line: node.line,
+    })
+}
+
+/// Reads a field's `register` block and checks it against the field's type and direction.
+fn read_register(
+    node: &Node,
+    field: &str,
+    ty: Option<IecType>,
+    direction: Option<Direction>,
+    protocol: Option<Protocol>,
+    report: &mut Report,
+) -> Option<Register> {
+    let ctx = format!("{field}: register");
+    let mut map: MapReader<'_> = node.map(report, &ctx)?;
+    let at = |key: &str| format!("{ctx}.{key}");
+    let address = map
+        .require("address", report, &ctx)
+        .and_then(|n| n.int_in(report, &at("address"), 0, 65535))
+        .map(|a| a as u16);
+    let kind_node = map.require("kind", report, &ctx);
+    let kind =
+        kind_node.and_then(|n| one_of(n, report, &at("kind"), &RegisterKind::ALL, |k| k.name()));
+    let bit_node = map.get("bit");
+    let bit = bit_node
+        .and_then(|n| n.int_in(report, &at("bit"), 0, 15))
+        .map(|b| b as u8);
+    let scale_node = map.get("scale");
+    let scale = scale_node.and_then(|n| n.number(report, &at("scale")));
+    let offset_node = map.get("offset");
+    let offset = offset_node.and_then(|n| n.number(report, &at("offset")));
+    let unit = map
+        .get("unit")
+        .and_then(|n| n.scalar_text(report, &at("unit")));
+    let order_node = map.get("byte_order");
+    let byte_order = match order_node {
+        None => Some(ByteOrder::BigEndian),
+        Some(n) => one_of(n, report, &at("byte_order"), &ByteOrder::ALL, |o| o.name()),
+    };
+    let words_node = map.get("word_count");
+    let word_count = words_node
+        .and_then(|n| n.int_in(report, &at("word_count"), 1, i128::from(MAX_STRING_WORDS)))
+        .map(|w| w as u16);
+    let raw_node = map.get("raw_type");
+    let raw_type = raw_node.and_then(|n| iec_type(n, report, &at("raw_type")));
+    map.finish(report, &ctx, REGISTER_KEYS);
+
+    let line = node.line;
+    let line_of = |n: Option<&Node>| n.map_or(line, |n| n.line);
+
+    // Everything below needs the kind; problems of the type alone were reported already.
+    let kind = kind?;
+    if kind == RegisterKind::Virtual && protocol.is_some_and(|p| p != Protocol::Simulated) {
+        report.push(
+            line_of(kind_node),
+            &at("kind"),
+            "`virtual` registers exist only in simulated profiles (protocol: simulated)",
+        );
+    }
+    if let Some(d) = direction {
+        if d.is_writable() && kind.is_read_only() {
+            report.push(
+                line_of(kind_node),
+                &ctx,
+                format!(
+                    "direction `{}` on a read-only {} (only coils and holding registers can be written)",
+                    d.name(),
+                    kind.name()
+                ),
+            );
+        }
+    }
+    if kind == RegisterKind::Virtual {
+        for (key, n) in [
+            ("bit", bit_node),
+            ("scale", scale_node),
+            ("offset", offset_node),
+            ("byte_order", order_node),
+            ("raw_type", raw_node),
+        ] {
+            if let Some(n) = n {
+                report.push(
+                    n.line,
+                    &at(key),
+                    "has no effect on a virtual register (simulated fields hold typed values)",
+                );
+            }
+        }
+    }
+    if kind.is_bit() {
+        if ty.is_some_and(|t| t != IecType::Bool) {
+            report.push(
+                line_of(kind_node),
+                &ctx,
+                format!(
+                    "a {} holds one bit: the type must be BOOL, not {}",
+                    kind.name(),
+                    ty.map_or("?", IecType::name)
+                ),
+            );
+        }
+        for (key, n) in [
+            ("bit", bit_node),
+            ("scale", scale_node),
+            ("offset", offset_node),
+            ("byte_order", order_node),
+            ("raw_type", raw_node),
+        ] {
+            if let Some(n) = n {
+                report.push(
+                    n.line,
+                    &at(key),
+                    format!("does not apply to a {}", kind.name()),
+                );
+            }
+        }
+        if word_count.is_some_and(|w| w != 1) {
+            report.push(
+                line_of(words_node),
+                &at("word_count"),
+                format!("a {} is one bit: word_count must be 1", kind.name()),
+            );
+        }
+    }
+
+    let ty = ty?;
+    if bit.is_some() && ty != IecType::Bool {
+        report.push(
+            line_of(bit_node),
+            &at("bit"),
+            format!("`bit` is for BOOL fields packed into a register, not {ty}"),
+        );
+    }
+    if !ty.is_numeric() {
+        for (key, n) in [("scale", scale_node), ("offset", offset_node)] {
+            if let Some(n) = n {
+                report.push(n.line, &at(key), format!("{ty} values cannot be scaled"));
+            }
+        }
+    }
+    if scale == Some(0.0) {
+        report.push(
+            line_of(scale_node),
+            &at("scale"),
+            "scale must not be zero (writes divide by it)",
+        );
+    }
+    if let Some(raw) = raw_type {
+        if !ty.is_real() {
+            report.push(
+                line_of(raw_node),
+                &at("raw_type"),
+                format!("raw_type is for REAL/LREAL fields stored as integers, not {ty}"),
+            );
+        } else if raw.int_bits().is_none() || raw == IecType::Time {
+            report.push(
+                line_of(raw_node),
+                &at("raw_type"),
+                format!("raw_type must be an integer type, not {raw}"),
+            );
+        }
+    }
+    let raw_words = raw_type
+        .filter(|r| ty.is_real() && r.int_bits().is_some() && *r != IecType::Time)
+        .map(IecType::default_words);
+    let word_count = match (word_count, raw_words) {
+        (Some(w), Some(r)) if w != r => {
+            report.push(
+                line_of(words_node),
+                &at("word_count"),
+                format!(
+                    "word_count {w} does not fit raw_type {} ({r} registers)",
+                    raw_type.map_or("?", IecType::name)
+                ),
+            );
+            w
+        }
+        (Some(w), _) => w,
+        (None, Some(r)) => r,
+        (None, None) if kind.is_bit() => 1,
+        (None, None) => ty.default_words(),
+    };
+    if !kind.is_bit() && raw_words.is_none() && !word_count_fits(ty, word_count) {
+        report.push(
+            line_of(words_node),
+            &at("word_count"),
+            format!(
+                "{ty} does not fit in {word_count} register(s) (allowed: {})",
+                allowed_word_counts(ty)
+            ),
+        );
+    }
+    let address = address?;
+    let span = if kind.is_bit() {
+        1
+    } else {
+        u32::from(word_count)
+    };
+    if u32::from(address) + span - 1 > 65535 {
+        report.push(
+            line_of(words_node).max(line),
+            &ctx,
+            format!("address {address} + {span} registers runs past 65535"),
+        );
+    }
+    Some(Register {
+        address,
+        kind,
+        bit,
+        scale: scale.unwrap_or(1.0),
+        offset: offset.unwrap_or(0.0),
+        unit,
+        byte_order: byte_order?,
+        word_count,
+        raw_type,
+    })
+}
+
+fn word_count_fits(ty: IecType, words: u16) -> bool {
+    match ty {
+        IecType::Bool => words == 1,
+        IecType::String => (1..=MAX_STRING_WORDS).contains(&words),
+        IecType::Real => matches!(words, 1 | 2),
+        IecType::Lreal => matches!(words, 1 | 2 | 4),
+        IecType::Time => matches!(words, 2 | 4),
+        t => words == t.default_words(),
+    }
+}
+
+fn allowed_word_counts(ty: IecType) -> String {
+    match ty {
+        IecType::String => format!("1 to {MAX_STRING_WORDS}, two characters each"),
+        IecType::Real => "1 = scaled 16-bit integer, 2 = IEEE-754 single".to_owned(),
+        IecType::Lreal => {
+            "1 = scaled 16-bit integer, 2 = IEEE-754 single, 4 = IEEE-754 double".to_owned()
+        }
+        IecType::Time => "2 = 32-bit milliseconds, 4 = 64-bit milliseconds".to_owned(),
+        t => t.default_words().to_string(),
+    }
+}
+
+/// Duplicate names (IEC identifiers ignore case) and names the FB layout already uses.
+fn check_names(fields: &[Field], report: &mut Report) {
+    let mut seen: HashMap<String, &Field> = HashMap::new();
+    for f in fields {
+        let key = f.name.to_ascii_lowercase();
+        if RESERVED_NAMES.contains(&key.as_str()) {
+            report.push(
+                f.line,
+                format!("field {}", f.name),
+                "name is taken by the device's own parameters and diagnostics",
+            );
+        }
+        if let Some(first) = seen.get(&key) {
+            report.push(
+                f.line,
+                format!("field {}", f.name),
+                format!(
+                    "duplicate field name (first defined as {} on line {})",
+                    first.name, first.line
+                ),
+            );
+        } else {
+            seen.insert(key, f);
+        }
+    }
+}
+
+/// Two fields of one register kind may not share a register, except BOOL fields on
+/// different bits of one register.
+fn check_overlaps(fields: &[Field], report: &mut Report) {
+    for (i, a) in fields.iter().enumerate() {
+        for b in &fields[..i] {
+            if a.register.kind != b.register.kind {
+                continue;
+            }
+            let (a0, b0) = (u32::from(a.register.address), u32::from(b.register.address));
+            let (a1, b1) = (a0 + a.span() - 1, b0 + b.span() - 1);
+            if a1 < b0 || b1 < a0 {
+                continue;
+            }
+            if let (Some(x), Some(y)) = (a.register.bit, b.register.bit) {
+                if x != y {
+                    continue;
+                }
+            }
+            let what = match (a.register.bit, b.register.bit) {
+                (Some(bit), Some(_)) => format!("bit {bit} of {} {a0}", a.register.kind.name()),
+                _ => format!("{} {}-{}", a.register.kind.name(), a0.max(b0), a1.min(b1)),
+            };
+            report.push(
+                a.line,
+                format!("field {}", a.name),
+                format!("overlaps field {} (line {}) at {what}", b.name, b.line),
+            );
+            break;
+        }
+    }
+}
+
+fn identifier(node: &Node, report: &mut Report, ctx: &str) -> Option<String> {
+    let text = node.str(report, ctx)?;
+    let mut chars = text.chars();
+    let valid = chars
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+        && !text.contains("__");
+    if valid {
+        Some(text.to_owned())
+    } else {
+        report.push(
+            node.line,
+            ctx,
+            format!(
+                "`{text}` is not an IEC identifier (letters, digits and single underscores, not starting with a digit)"
+            ),
+        );
+        None
+    }
+}
+
+fn iec_type(node: &Node, report: &mut Report, ctx: &str) -> Option<IecType> {
+    let text = node.str(report, ctx)?;
+    let ty = IecType::parse(text);
+    if ty.is_none() {
+        let names: Vec<_> = IecType::ALL.iter().map(|t| t.name()).collect();
+        report.push(
+            node.line,
+            ctx,
+            format!(
+                "unknown type `{text}` (expected one of: {})",
+                names.join(", ")
+            ),
+        );
+    }
+    ty
+}
+
+/// One of a fixed set of names.
+fn one_of<T: Copy>(
+    node: &Node,
+    report: &mut Report,
+    ctx: &str,
+    all: &[T],
+    name: impl Fn(T) -> &'static str,
+) -> Option<T> {
+    let text = node.str(report, ctx)?;
+    let found = all.iter().copied().find(|v| name(*v) == text);
+    if found.is_none() {
+        let names: Vec<_> = all.iter().map(|v| name(*v)).collect();
+        report.push(
+            node.line,
+            ctx,
+            format!(
+                "unknown value `{text}` (expected one of: {})",
+                names.join(", ")
+            ),
+        );
+    }
+    found
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::Raw;
+
+    fn problems(text: &str) -> Vec<String> {
+        match load_str("p.yaml", text) {
+            Ok(p) => panic!("loaded {p:?}"),
+            Err(problems) => problems.iter().map(|p| p.to_string()).collect(),
+        }
+    }
+
+    fn assert_problem(text: &str, line: u64, needle: &str) {
+        let all = problems(text);
+        assert!(
+            all.iter()
+                .any(|p| p.starts_with(&format!("p.yaml:{line}:")) && p.contains(needle)),
+            "no problem on line {line} containing {needle:?} in {all:#?}"
+        );
+    }
+
+    #[test]
+    fn seed_waveshare_profile_loads() {
+        let text = "name: WaveshareAnalogInput\nvendor: Waveshare\nprotocol: modbus-rtu\nfields:\n  - { name: AI1, type: INT, direction: input, register: { address: 0, kind: input_register } }\n  - { name: AI2, type: INT, direction: input, register: { address: 1, kind: input_register } }\n";
+        let p = load_str("w.yaml", text).expect("loads");
+        assert_eq!(p.name, "WaveshareAnalogInput");
+        assert_eq!(p.fields.len(), 2);
+        assert_eq!(p.fields[1].register.address, 1);
+        assert_eq!(p.fields[1].line, 6);
+        assert_eq!(
+            p.fields[0].encoding.raw,
+            Raw::Int {
+                bits: 16,
+                signed: true
+            }
+        );
+    }
+
+    #[test]
+    fn output_on_input_register_is_rejected() {
+        assert_problem(
+            "name: X\nfields:\n  - name: A\n    type: INT\n    direction: output\n    register: { address: 0, kind: input_register }\n",
+            6,
+            "read-only input_register",
+        );
+    }
+
+    #[test]
+    fn every_problem_is_reported_at_once() {
+        let text = "name: X\ncolour: red\nfields:\n  - { name: A, type: INT, direction: input, register: { address: 0, kind: input_register } }\n  - { name: a, type: INT, direction: input, register: { address: 5, kind: input_register } }\n  - { name: B, type: BOOL, direction: input, register: { address: 1, kind: holding_register, bit: 16 } }\n  - { name: C, type: INT, direction: input, register: { address: 2, kind: input_register, scale: 0 } }\n";
+        let all = problems(text);
+        assert_eq!(all.len(), 4, "{all:#?}");
+        assert_problem(text, 2, "unknown key `colour`");
+        assert_problem(text, 5, "duplicate field name");
+        assert_problem(text, 6, "bit: 16 is outside");
+        assert_problem(text, 7, "scale must not be zero");
+    }
+
+    #[test]
+    fn overlapping_fields_are_rejected_but_distinct_bits_share() {
+        let text = "name: X\nfields:\n  - { name: A, type: REAL, direction: input, register: { address: 0, kind: input_register, word_count: 2 } }\n  - { name: B, type: INT, direction: input, register: { address: 1, kind: input_register } }\n  - { name: F0, type: BOOL, direction: input, register: { address: 9, kind: holding_register, bit: 0 } }\n  - { name: F1, type: BOOL, direction: input, register: { address: 9, kind: holding_register, bit: 1 } }\n";
+        let all = problems(text);
+        assert_eq!(all.len(), 1, "{all:#?}");
+        assert_problem(text, 4, "overlaps field A (line 3) at input_register 1-1");
+    }
+
+    #[test]
+    fn type_must_fit_kind_and_word_count() {
+        let text = "name: X\nfields:\n  - { name: A, type: INT, direction: input, register: { address: 0, kind: coil } }\n  - { name: B, type: DINT, direction: input, register: { address: 0, kind: input_register, word_count: 1 } }\n  - { name: S, type: STRING, direction: input, register: { address: 5, kind: input_register, word_count: 8 } }\n";
+        assert_problem(text, 3, "type must be BOOL, not INT");
+        assert_problem(text, 4, "DINT does not fit in 1 register");
+        assert_eq!(problems(text).len(), 2);
+    }
+
+    #[test]
+    fn virtual_registers_need_a_simulated_profile() {
+        assert_problem(
+            "name: X\nprotocol: modbus-rtu\nfields:\n  - { name: A, type: BOOL, direction: input, register: { address: 0, kind: virtual } }\n",
+            4,
+            "only in simulated profiles",
+        );
+    }
+
+    #[test]
+    fn address_past_the_end_is_rejected() {
+        assert_problem(
+            "name: X\nfields:\n  - { name: A, type: LREAL, direction: input, register: { address: 65534, kind: input_register, word_count: 4 } }\n",
+            3,
+            "runs past 65535",
+        );
+        assert_problem(
+            "name: X\nfields:\n  - { name: A, type: INT, direction: input, register: { address: 70000, kind: input_register } }\n",
+            3,
+            "70000 is outside the allowed range 0-65535",
+        );
+    }
+
+    #[test]
+    fn raw_type_chooses_an_unsigned_register() {
+        let p = load_str(
+            "p.yaml",
+            "name: X\nfields:\n  - { name: T, type: REAL, direction: input, register: { address: 0, kind: input_register, raw_type: UINT, scale: 0.1 } }\n  - { name: E, type: LREAL, direction: input, register: { address: 1, kind: input_register, raw_type: UDINT, scale: 0.01 } }\n",
+        )
+        .expect("loads");
+        assert_eq!(
+            p.fields[0].encoding.raw,
+            Raw::Int {
+                bits: 16,
+                signed: false
+            }
+        );
+        assert_eq!(p.fields[1].register.word_count, 2);
+        assert_problem(
+            "name: X\nfields:\n  - { name: T, type: INT, direction: input, register: { address: 0, kind: input_register, raw_type: UINT } }\n",
+            3,
+            "raw_type is for REAL/LREAL",
+        );
+    }
+
+    #[test]
+    fn reserved_and_invalid_names_are_rejected() {
+        let text = "name: 9lives\nfields:\n  - { name: connected, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n";
+        assert_problem(text, 1, "not an IEC identifier");
+        assert_problem(text, 3, "name is taken");
+    }
+
+    #[test]
+    fn duplicate_profile_names_across_files_are_rejected() {
+        let a = "name: Same\nfields:\n  - { name: A, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n";
+        let err = load_files([("a.yaml", a), ("b.yaml", a)]).expect_err("duplicate");
+        assert!(err.to_string().contains("b.yaml:1"), "{err}");
+        assert!(err.to_string().contains("already used in a.yaml"), "{err}");
+    }
+}

@@ -1,0 +1,289 @@
+//! Device profiles: the model, loading with validation, and the generated FB layout.
+
+mod layout;
+mod load;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use crate::codec::{ByteOrder, Encoding, IecType, Raw};
+use crate::yaml::Problems;
+
+pub use layout::{LayoutEntry, LayoutSection, fb_layout};
+pub use load::{load_dir, load_files, load_str};
+
+/// How many parent directories are searched for a `profiles/` folder.
+pub const PARENT_SEARCH_DEPTH: usize = 6;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Protocol {
+    ModbusRtu,
+    ModbusTcp,
+    Simulated,
+}
+
+impl Protocol {
+    pub const ALL: [Protocol; 3] = [
+        Protocol::ModbusRtu,
+        Protocol::ModbusTcp,
+        Protocol::Simulated,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Protocol::ModbusRtu => "modbus-rtu",
+            Protocol::ModbusTcp => "modbus-tcp",
+            Protocol::Simulated => "simulated",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Direction {
+    Input,
+    Output,
+    Inout,
+}
+
+impl Direction {
+    pub const ALL: [Direction; 3] = [Direction::Input, Direction::Output, Direction::Inout];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Direction::Input => "input",
+            Direction::Output => "output",
+            Direction::Inout => "inout",
+        }
+    }
+
+    /// Whether clients may write the field.
+    pub fn is_writable(self) -> bool {
+        self != Direction::Input
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum RegisterKind {
+    Coil,
+    DiscreteInput,
+    HoldingRegister,
+    InputRegister,
+    Virtual,
+}
+
+impl RegisterKind {
+    pub const ALL: [RegisterKind; 5] = [
+        RegisterKind::Coil,
+        RegisterKind::DiscreteInput,
+        RegisterKind::HoldingRegister,
+        RegisterKind::InputRegister,
+        RegisterKind::Virtual,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            RegisterKind::Coil => "coil",
+            RegisterKind::DiscreteInput => "discrete_input",
+            RegisterKind::HoldingRegister => "holding_register",
+            RegisterKind::InputRegister => "input_register",
+            RegisterKind::Virtual => "virtual",
+        }
+    }
+
+    /// Coils and discrete inputs hold single bits.
+    pub fn is_bit(self) -> bool {
+        matches!(self, RegisterKind::Coil | RegisterKind::DiscreteInput)
+    }
+
+    pub fn is_read_only(self) -> bool {
+        matches!(
+            self,
+            RegisterKind::DiscreteInput | RegisterKind::InputRegister
+        )
+    }
+}
+
+/// Where a field lives on the device and how its value is stored there.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Register {
+    pub address: u16,
+    pub kind: RegisterKind,
+    pub bit: Option<u8>,
+    pub scale: f64,
+    pub offset: f64,
+    pub unit: Option<String>,
+    pub byte_order: ByteOrder,
+    pub word_count: u16,
+    /// For REAL/LREAL fields stored as integers: the integer type of the register value.
+    pub raw_type: Option<IecType>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Field {
+    pub name: String,
+    pub ty: IecType,
+    pub direction: Direction,
+    pub register: Register,
+    pub description: Option<String>,
+    pub encoding: Encoding,
+    /// The line of the profile file the field starts on.
+    pub line: u64,
+}
+
+impl Field {
+    /// The registers (or coils) the field takes, from its address. A virtual field is one
+    /// value at its address.
+    pub fn span(&self) -> u32 {
+        if self.register.kind.is_bit() || self.register.kind == RegisterKind::Virtual {
+            1
+        } else {
+            u32::from(self.register.word_count)
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Profile {
+    pub name: String,
+    pub vendor: Option<String>,
+    pub protocol: Protocol,
+    pub description: Option<String>,
+    pub fields: Vec<Field>,
+    /// The file the profile was loaded from.
+    pub source: String,
+}
+
+impl Profile {
+    /// A field by name; IEC identifiers ignore case.
+    pub fn field_index(&self, name: &str) -> Option<usize> {
+        self.fields
+            .iter()
+            .position(|f| f.name.eq_ignore_ascii_case(name))
+    }
+}
+
+/// The raw storage of a field, derived from its type and register options. Validation has
+/// already made sure the combination is possible.
+pub(crate) fn raw_of(ty: IecType, register: &Register) -> Raw {
+    if ty == IecType::Bool {
+        return match (register.kind.is_bit(), register.bit) {
+            (true, _) => Raw::Bit,
+            (false, Some(bit)) => Raw::RegisterBit(bit),
+            (false, None) => Raw::RegisterFlag,
+        };
+    }
+    if ty == IecType::String {
+        return Raw::Str {
+            words: register.word_count,
+        };
+    }
+    if let Some(raw) = register.raw_type.and_then(IecType::int_bits) {
+        return Raw::Int {
+            bits: raw.0,
+            signed: raw.1,
+        };
+    }
+    match (ty, register.word_count) {
+        (IecType::Real | IecType::Lreal, 1) => Raw::Int {
+            bits: 16,
+            signed: true,
+        },
+        (IecType::Real | IecType::Lreal, 2) => Raw::F32,
+        (IecType::Real | IecType::Lreal, _) => Raw::F64,
+        (IecType::Time, 2) => Raw::Int {
+            bits: 32,
+            signed: true,
+        },
+        (t, _) => {
+            let (bits, signed) = t.int_bits().unwrap_or((16, false));
+            Raw::Int { bits, signed }
+        }
+    }
+}
+
+/// Every loaded profile, by name.
+#[derive(Debug, Clone, Default)]
+pub struct Catalog {
+    profiles: BTreeMap<String, Arc<Profile>>,
+}
+
+impl Catalog {
+    pub fn new(profiles: impl IntoIterator<Item = Profile>) -> Self {
+        Catalog {
+            profiles: profiles
+                .into_iter()
+                .map(|p| (p.name.clone(), Arc::new(p)))
+                .collect(),
+        }
+    }
+
+    pub fn get(&self, name: &str) -> Option<&Arc<Profile>> {
+        self.profiles.get(name)
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = &Arc<Profile>> {
+        self.profiles.values()
+    }
+
+    pub fn len(&self) -> usize {
+        self.profiles.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.profiles.is_empty()
+    }
+}
+
+/// The `profiles/` directory: `configured` if given, else `./profiles` in `start` or one of
+/// up to [`PARENT_SEARCH_DEPTH`] parent directories.
+pub fn find_dir(configured: Option<&Path>, start: &Path) -> Option<PathBuf> {
+    if let Some(dir) = configured {
+        return Some(dir.to_path_buf());
+    }
+    start
+        .ancestors()
+        .take(PARENT_SEARCH_DEPTH + 1)
+        .map(|dir| dir.join("profiles"))
+        .find(|dir| dir.is_dir())
+}
+
+/// Loads a catalog from a directory, or says every problem.
+pub fn load_catalog(dir: &Path) -> Result<Catalog, Problems> {
+    load_dir(dir).map(Catalog::new)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn profiles_dir_is_found_in_a_parent() {
+        let root = std::env::temp_dir().join(format!("iogate-find-{}", std::process::id()));
+        let deep = root.join("a/b/c");
+        std::fs::create_dir_all(&deep).expect("mkdir");
+        std::fs::create_dir_all(root.join("profiles")).expect("mkdir");
+        assert_eq!(find_dir(None, &deep), Some(root.join("profiles")));
+        let configured = Path::new("/somewhere/else");
+        assert_eq!(
+            find_dir(Some(configured), &deep),
+            Some(configured.to_path_buf())
+        );
+        std::fs::remove_dir_all(&root).expect("cleanup");
+    }
+
+    #[test]
+    fn search_stops_after_six_parents() {
+        let root = std::env::temp_dir().join(format!("iogate-depth-{}", std::process::id()));
+        let deep = root.join("1/2/3/4/5/6/7");
+        std::fs::create_dir_all(&deep).expect("mkdir");
+        std::fs::create_dir_all(root.join("profiles")).expect("mkdir");
+        // root is 7 levels above `deep`: one too many.
+        assert_ne!(find_dir(None, &deep), Some(root.join("profiles")));
+        assert_eq!(
+            find_dir(None, &root.join("1/2/3/4/5/6")),
+            Some(root.join("profiles"))
+        );
+        std::fs::remove_dir_all(&root).expect("cleanup");
+    }
+}

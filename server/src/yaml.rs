@@ -1,0 +1,481 @@
+//! The one place that parses YAML.
+//!
+//! Profiles and the gateway config are parsed into a small tree that keeps the line of every
+//! key and value, then validated by hand. Deserializing straight into structs would stop at the
+//! first unknown key or wrong type; walking the tree lets validation report every problem of a
+//! file at once, each with its line.
+
+use std::fmt;
+
+use serde::de::{Deserialize, Deserializer, MapAccess, SeqAccess, Visitor};
+use serde_saphyr::Spanned;
+
+/// One problem found in a YAML file: where it is, what it concerns, what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Problem {
+    pub file: String,
+    pub line: u64,
+    /// What the problem concerns, e.g. `field DO_0: register.bit`.
+    pub context: String,
+    pub message: String,
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.context.is_empty() {
+            write!(f, "{}:{}: {}", self.file, self.line, self.message)
+        } else {
+            write!(
+                f,
+                "{}:{}: {}: {}",
+                self.file, self.line, self.context, self.message
+            )
+        }
+    }
+}
+
+/// Every problem found in one or more files.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Problems(pub Vec<Problem>);
+
+impl Problems {
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = &Problem> {
+        self.0.iter()
+    }
+
+    pub fn extend(&mut self, other: Problems) {
+        self.0.extend(other.0);
+    }
+}
+
+impl fmt::Display for Problems {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, p) in self.0.iter().enumerate() {
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{p}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Problems {}
+
+/// Collects the problems of one file.
+#[derive(Debug)]
+pub struct Report {
+    file: String,
+    problems: Vec<Problem>,
+}
+
+impl Report {
+    pub fn new(file: impl Into<String>) -> Self {
+        Self {
+            file: file.into(),
+            problems: Vec::new(),
+        }
+    }
+
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+
+    pub fn push(&mut self, line: u64, context: impl Into<String>, message: impl Into<String>) {
+        self.problems.push(Problem {
+            file: self.file.clone(),
+            line,
+            context: context.into(),
+            message: message.into(),
+        });
+    }
+
+    pub fn has_problems(&self) -> bool {
+        !self.problems.is_empty()
+    }
+
+    pub fn into_problems(self) -> Problems {
+        Problems(self.problems)
+    }
+}
+
+/// A YAML value with the line it starts on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Node {
+    pub line: u64,
+    pub kind: Kind,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Kind {
+    Null,
+    Bool(bool),
+    Int(i128),
+    Float(f64),
+    Str(String),
+    Seq(Vec<Node>),
+    Map(Vec<(Key, Node)>),
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Key {
+    pub name: String,
+    pub line: u64,
+}
+
+/// Parses YAML text into a [`Node`] tree; a syntax error is one problem with its line.
+/// An empty document is `Null`.
+pub fn parse(text: &str, report: &mut Report) -> Option<Node> {
+    // YAML 1.2 booleans only: `parity: N` is the letter N, not false.
+    let options = serde_saphyr::options! { with_snippet: false, strict_booleans: true };
+    match serde_saphyr::from_str_with_options::<Option<Node>>(text, options) {
+        Ok(node) => Some(node.unwrap_or(Node {
+            line: 1,
+            kind: Kind::Null,
+        })),
+        Err(e) => {
+            let line = e.location().map(|l| l.line()).unwrap_or(1).max(1);
+            report.push(
+                line,
+                "",
+                format!("invalid YAML: {}", strip_location(&e.to_string())),
+            );
+            None
+        }
+    }
+}
+
+/// The YAML crate's messages start with `error: line N column M: `; the line is reported
+/// separately, so keep only the message.
+fn strip_location(msg: &str) -> &str {
+    let msg = msg.strip_prefix("error: ").unwrap_or(msg);
+    if msg.starts_with("line ") {
+        if let Some((_, rest)) = msg.split_once(": ") {
+            return rest;
+        }
+    }
+    msg
+}
+
+impl Node {
+    pub fn describe(&self) -> &'static str {
+        match self.kind {
+            Kind::Null => "nothing",
+            Kind::Bool(_) => "a boolean",
+            Kind::Int(_) => "an integer",
+            Kind::Float(_) => "a number",
+            Kind::Str(_) => "a string",
+            Kind::Seq(_) => "a list",
+            Kind::Map(_) => "a mapping",
+        }
+    }
+
+    /// A string scalar. Numbers and booleans are not silently turned into strings.
+    pub fn str(&self, report: &mut Report, ctx: &str) -> Option<&str> {
+        match &self.kind {
+            Kind::Str(s) => Some(s),
+            _ => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("expected a string, found {}", self.describe()),
+                );
+                None
+            }
+        }
+    }
+
+    /// A string, or a scalar number written without quotes (host names, port paths, addresses).
+    pub fn scalar_text(&self, report: &mut Report, ctx: &str) -> Option<String> {
+        match &self.kind {
+            Kind::Str(s) => Some(s.clone()),
+            Kind::Int(i) => Some(i.to_string()),
+            Kind::Float(f) => Some(f.to_string()),
+            _ => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("expected a string, found {}", self.describe()),
+                );
+                None
+            }
+        }
+    }
+
+    /// An integer within `min..=max`.
+    pub fn int_in(&self, report: &mut Report, ctx: &str, min: i128, max: i128) -> Option<i128> {
+        match self.kind {
+            Kind::Int(i) if (min..=max).contains(&i) => Some(i),
+            Kind::Int(i) => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("{i} is outside the allowed range {min}-{max}"),
+                );
+                None
+            }
+            _ => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("expected an integer, found {}", self.describe()),
+                );
+                None
+            }
+        }
+    }
+
+    /// A finite number (integers are accepted as numbers).
+    pub fn number(&self, report: &mut Report, ctx: &str) -> Option<f64> {
+        let value = match self.kind {
+            Kind::Int(i) => i as f64,
+            Kind::Float(f) => f,
+            _ => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("expected a number, found {}", self.describe()),
+                );
+                return None;
+            }
+        };
+        if value.is_finite() {
+            Some(value)
+        } else {
+            report.push(self.line, ctx, "the number must be finite");
+            None
+        }
+    }
+
+    pub fn seq(&self, report: &mut Report, ctx: &str) -> Option<&[Node]> {
+        match &self.kind {
+            Kind::Seq(items) => Some(items),
+            _ => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("expected a list, found {}", self.describe()),
+                );
+                None
+            }
+        }
+    }
+
+    /// Opens a mapping for reading its keys; anything else is reported.
+    pub fn map<'a>(&'a self, report: &mut Report, ctx: &str) -> Option<MapReader<'a>> {
+        match &self.kind {
+            Kind::Map(entries) => Some(MapReader {
+                line: self.line,
+                entries,
+                used: vec![false; entries.len()],
+            }),
+            _ => {
+                report.push(
+                    self.line,
+                    ctx,
+                    format!("expected a mapping, found {}", self.describe()),
+                );
+                None
+            }
+        }
+    }
+}
+
+/// Reads the keys of a mapping; [`MapReader::finish`] reports every key nobody asked for.
+pub struct MapReader<'a> {
+    pub line: u64,
+    entries: &'a [(Key, Node)],
+    used: Vec<bool>,
+}
+
+impl<'a> MapReader<'a> {
+    /// The value of `key`, if present (a `null` value counts as absent).
+    pub fn get(&mut self, key: &str) -> Option<&'a Node> {
+        let idx = self.entries.iter().position(|(k, _)| k.name == key)?;
+        self.used[idx] = true;
+        let node = &self.entries[idx].1;
+        (node.kind != Kind::Null).then_some(node)
+    }
+
+    /// The value of a key that must be present.
+    pub fn require(&mut self, key: &str, report: &mut Report, ctx: &str) -> Option<&'a Node> {
+        let node = self.get(key);
+        if node.is_none() {
+            report.push(self.line, ctx, format!("missing required key `{key}`"));
+        }
+        node
+    }
+
+    /// Reports every key that was not read, naming the keys that are allowed.
+    pub fn finish(self, report: &mut Report, ctx: &str, allowed: &[&str]) {
+        for ((key, _), used) in self.entries.iter().zip(&self.used) {
+            if !used {
+                report.push(
+                    key.line,
+                    ctx,
+                    format!(
+                        "unknown key `{}` (expected one of: {})",
+                        key.name,
+                        allowed.join(", ")
+                    ),
+                );
+            }
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Node {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let spanned = Spanned::<Kind>::deserialize(d)?;
+        Ok(Node {
+            line: spanned.referenced.line(),
+            kind: spanned.value,
+        })
+    }
+}
+
+impl<'de> Deserialize<'de> for Key {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let spanned = Spanned::<String>::deserialize(d)?;
+        Ok(Key {
+            line: spanned.referenced.line(),
+            name: spanned.value,
+        })
+    }
+}
+
+impl<'de> Deserialize<'de> for Kind {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct KindVisitor;
+        impl<'de> Visitor<'de> for KindVisitor {
+            type Value = Kind;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a YAML value")
+            }
+            fn visit_unit<E>(self) -> Result<Kind, E> {
+                Ok(Kind::Null)
+            }
+            fn visit_none<E>(self) -> Result<Kind, E> {
+                Ok(Kind::Null)
+            }
+            fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<Kind, D::Error> {
+                Kind::deserialize(d)
+            }
+            fn visit_bool<E>(self, v: bool) -> Result<Kind, E> {
+                Ok(Kind::Bool(v))
+            }
+            fn visit_i64<E>(self, v: i64) -> Result<Kind, E> {
+                Ok(Kind::Int(v.into()))
+            }
+            fn visit_u64<E>(self, v: u64) -> Result<Kind, E> {
+                Ok(Kind::Int(v.into()))
+            }
+            fn visit_i128<E>(self, v: i128) -> Result<Kind, E> {
+                Ok(Kind::Int(v))
+            }
+            fn visit_u128<E: serde::de::Error>(self, v: u128) -> Result<Kind, E> {
+                i128::try_from(v)
+                    .map(Kind::Int)
+                    .map_err(|_| E::custom("integer too large"))
+            }
+            fn visit_f64<E>(self, v: f64) -> Result<Kind, E> {
+                Ok(Kind::Float(v))
+            }
+            fn visit_str<E>(self, v: &str) -> Result<Kind, E> {
+                Ok(Kind::Str(v.to_owned()))
+            }
+            fn visit_string<E>(self, v: String) -> Result<Kind, E> {
+                Ok(Kind::Str(v))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Kind, A::Error> {
+                let mut items = Vec::new();
+                while let Some(item) = seq.next_element()? {
+                    items.push(item);
+                }
+                Ok(Kind::Seq(items))
+            }
+            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Kind, A::Error> {
+                let mut entries = Vec::new();
+                while let Some(entry) = map.next_entry()? {
+                    entries.push(entry);
+                }
+                Ok(Kind::Map(entries))
+            }
+        }
+        d.deserialize_any(KindVisitor)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse_ok(text: &str) -> Node {
+        let mut report = Report::new("t.yaml");
+        let node = parse(text, &mut report);
+        assert!(!report.has_problems(), "{}", report.into_problems());
+        node.expect("parsed")
+    }
+
+    #[test]
+    fn values_keep_their_lines() {
+        let node = parse_ok("a: 1\nb:\n  - x\n  - { c: 2.5 }\n");
+        let Kind::Map(entries) = &node.kind else {
+            panic!("not a map")
+        };
+        assert_eq!(entries[0].0.name, "a");
+        assert_eq!(entries[0].1.kind, Kind::Int(1));
+        assert_eq!(entries[1].0.line, 2);
+        let Kind::Seq(items) = &entries[1].1.kind else {
+            panic!("not a seq")
+        };
+        assert_eq!(items[1].line, 4);
+    }
+
+    #[test]
+    fn syntax_error_names_its_line() {
+        let mut report = Report::new("bad.yaml");
+        assert!(parse("a: 1\nb: [1, 2\nc: d\n", &mut report).is_none());
+        let problems = report.into_problems();
+        assert_eq!(problems.len(), 1);
+        assert!(problems.0[0].line >= 2, "{problems}");
+        assert!(problems.0[0].message.starts_with("invalid YAML"));
+    }
+
+    #[test]
+    fn duplicate_keys_are_an_error() {
+        let mut report = Report::new("dup.yaml");
+        assert!(parse("a: 1\na: 2\n", &mut report).is_none());
+        let problems = report.into_problems();
+        assert_eq!(problems.0[0].line, 2);
+        assert!(problems.0[0].message.contains("duplicate"), "{problems}");
+    }
+
+    #[test]
+    fn unknown_keys_are_reported_with_their_lines() {
+        let node = parse_ok("name: x\ncolour: red\nsize: 3\n");
+        let mut report = Report::new("t.yaml");
+        let mut map = node.map(&mut report, "").expect("map");
+        assert!(map.get("name").is_some());
+        map.finish(&mut report, "profile", &["name"]);
+        let problems = report.into_problems();
+        assert_eq!(problems.len(), 2);
+        assert_eq!(problems.0[0].line, 2);
+        assert!(problems.0[0].message.contains("`colour`"));
+        assert_eq!(problems.0[1].line, 3);
+    }
+
+    #[test]
+    fn empty_document_is_null() {
+        assert_eq!(parse_ok("").kind, Kind::Null);
+        assert_eq!(parse_ok("# only a comment\n").kind, Kind::Null);
+    }
+}

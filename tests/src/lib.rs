@@ -1,0 +1,145 @@
+//! Fixtures for the end-to-end tests: a gateway started on port 0 from real YAML files.
+
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use iogate::app::{self, Running, Setup};
+
+/// How long `eventually` waits for a condition.
+pub const PATIENCE: Duration = Duration::from_secs(10);
+
+/// The repository's `profiles/` directory.
+pub fn profiles_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles")
+}
+
+/// The directory of test fixtures.
+pub fn fixtures_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
+}
+
+/// A gateway running in this process, serving HTTP on a free loopback port.
+pub struct TestGateway {
+    pub base: String,
+    pub client: reqwest::Client,
+    running: Option<Running>,
+}
+
+impl TestGateway {
+    /// Starts the gateway from config text, with the repository's profiles.
+    pub async fn start(config_yaml: &str) -> anyhow::Result<TestGateway> {
+        let mut config =
+            iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
+        config.http = "127.0.0.1:0".parse()?;
+        if config.profiles.is_none() {
+            config.profiles = Some(profiles_dir());
+        }
+        let setup =
+            Setup::from_config(config, Path::new(".")).map_err(|p| anyhow::anyhow!("{p}"))?;
+        TestGateway::start_setup(setup).await
+    }
+
+    /// Starts the built-in demo.
+    pub async fn demo() -> anyhow::Result<TestGateway> {
+        let mut setup = Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
+        setup.config.http = "127.0.0.1:0".parse()?;
+        TestGateway::start_setup(setup).await
+    }
+
+    async fn start_setup(setup: Setup) -> anyhow::Result<TestGateway> {
+        let running = app::start(setup).await?;
+        let gateway = TestGateway {
+            base: format!("http://{}", running.http_addr),
+            client: reqwest::Client::new(),
+            running: Some(running),
+        };
+        let ready = gateway.url("/readyz");
+        let client = gateway.client.clone();
+        eventually("gateway ready", || {
+            let ready = ready.clone();
+            let client = client.clone();
+            async move {
+                client
+                    .get(&ready)
+                    .send()
+                    .await
+                    .is_ok_and(|r| r.status().is_success())
+            }
+        })
+        .await?;
+        Ok(gateway)
+    }
+
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    /// GET a path; answers the status and JSON body.
+    pub async fn get(&self, path: &str) -> anyhow::Result<(u16, serde_json::Value)> {
+        let response = self.client.get(self.url(path)).send().await?;
+        json_of(response).await
+    }
+
+    /// Sends a body with a method; answers the status and JSON body.
+    pub async fn send(
+        &self,
+        method: reqwest::Method,
+        path: &str,
+        body: impl Into<reqwest::Body>,
+    ) -> anyhow::Result<(u16, serde_json::Value)> {
+        let response = self
+            .client
+            .request(method, self.url(path))
+            .header("content-type", "application/json")
+            .body(body)
+            .send()
+            .await?;
+        json_of(response).await
+    }
+
+    pub fn token(&self) -> Option<&tokio_util::sync::CancellationToken> {
+        self.running.as_ref().map(Running::token)
+    }
+
+    /// Shuts the gateway down and waits for its tasks.
+    pub async fn shutdown(mut self) {
+        if let Some(running) = self.running.take() {
+            running.shutdown().await;
+        }
+    }
+}
+
+impl Drop for TestGateway {
+    fn drop(&mut self) {
+        if let Some(running) = &self.running {
+            running.token().cancel();
+        }
+    }
+}
+
+async fn json_of(response: reqwest::Response) -> anyhow::Result<(u16, serde_json::Value)> {
+    let status = response.status().as_u16();
+    let text = response.text().await?;
+    let json = serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("status {status}, body is not JSON ({e}): {text}"))?;
+    Ok((status, json))
+}
+
+/// Waits until `check` is true, polling every 20 ms, for at most [`PATIENCE`].
+pub async fn eventually<F, Fut>(what: &str, mut check: F) -> anyhow::Result<()>
+where
+    F: FnMut() -> Fut,
+    Fut: Future<Output = bool>,
+{
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        if check().await {
+            return Ok(());
+        }
+        if tokio::time::Instant::now() > deadline {
+            anyhow::bail!("timed out waiting for: {what}");
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
