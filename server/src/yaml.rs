@@ -102,7 +102,9 @@ impl Report {
         !self.problems.is_empty()
     }
 
-    pub fn into_problems(self) -> Problems {
+    /// The problems, in line order.
+    pub fn into_problems(mut self) -> Problems {
+        self.problems.sort_by_key(|p| p.line);
         Problems(self.problems)
     }
 }
