@@ -296,16 +296,16 @@ impl Device {
             return Err(invalid(format!("a {} value is needed", field.ty)));
         }
         if self.is_simulated() || field.register.kind == RegisterKind::Virtual {
-            if let Value::String(s) = value {
-                if s.len() > SIM_STRING_MAX {
-                    return Err(invalid(
-                        CodecError::TooLong {
-                            len: s.len(),
-                            max: SIM_STRING_MAX,
-                        }
-                        .to_string(),
-                    ));
-                }
+            if let Value::String(s) = value
+                && s.len() > SIM_STRING_MAX
+            {
+                return Err(invalid(
+                    CodecError::TooLong {
+                        len: s.len(),
+                        max: SIM_STRING_MAX,
+                    }
+                    .to_string(),
+                ));
             }
             return Ok(());
         }

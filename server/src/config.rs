@@ -148,11 +148,11 @@ impl Config {
             report.into_problems()
         })?;
         let mut config = parse(&file, &text)?;
-        if let Some(dir) = &config.profiles {
-            if dir.is_relative() {
-                let base = path.parent().unwrap_or(Path::new("."));
-                config.profiles = Some(base.join(dir));
-            }
+        if let Some(dir) = &config.profiles
+            && dir.is_relative()
+        {
+            let base = path.parent().unwrap_or(Path::new("."));
+            config.profiles = Some(base.join(dir));
         }
         Ok(config)
     }
@@ -266,10 +266,10 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
     let port = map
         .require("port", report, &ctx)
         .and_then(|n| n.scalar_text(report, &at("port")));
-    if let (Some(p), Some(n)) = (&port, map.get("port")) {
-        if p.trim().is_empty() {
-            report.push(n.line, at("port"), "no port configured (the port is empty)");
-        }
+    if let (Some(p), Some(n)) = (&port, map.get("port"))
+        && p.trim().is_empty()
+    {
+        report.push(n.line, at("port"), "no port configured (the port is empty)");
     }
     let baud = map
         .require("baud", report, &ctx)
@@ -685,6 +685,27 @@ mod tests {
             "c.yaml:7: device e: unknown link `other` (known: bus)",
         ] {
             assert!(all.contains(needle), "missing {needle:?} in\n{all}");
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn arbitrary_text_never_panics(text in "\\PC{0,300}") {
+            let _ = parse("fuzz.yaml", &text);
+        }
+
+        #[test]
+        fn mutated_configs_never_panic(
+            at in proptest::prelude::any::<proptest::sample::Index>(),
+            insert in "[ \\-:{}\\[\\],#'\"a-z0-9\n]{0,4}",
+            cut in 0usize..6,
+        ) {
+            let mut chars: Vec<char> = GOOD.chars().collect();
+            let i = at.index(chars.len());
+            let end = (i + cut).min(chars.len());
+            chars.splice(i..end, insert.chars());
+            let mutated: String = chars.into_iter().collect();
+            let _ = parse("fuzz.yaml", &mutated);
         }
     }
 

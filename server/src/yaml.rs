@@ -159,10 +159,10 @@ pub fn parse(text: &str, report: &mut Report) -> Option<Node> {
 /// separately, so keep only the message.
 fn strip_location(msg: &str) -> &str {
     let msg = msg.strip_prefix("error: ").unwrap_or(msg);
-    if msg.starts_with("line ") {
-        if let Some((_, rest)) = msg.split_once(": ") {
-            return rest;
-        }
+    if msg.starts_with("line ")
+        && let Some((_, rest)) = msg.split_once(": ")
+    {
+        return rest;
     }
     msg
 }

@@ -143,3 +143,67 @@ where
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
+
+/// Reads a Server-Sent Events response event by event.
+pub struct SseReader {
+    stream:
+        std::pin::Pin<Box<dyn futures_util::Stream<Item = reqwest::Result<bytes::Bytes>> + Send>>,
+    buffer: String,
+}
+
+impl SseReader {
+    pub async fn open(gateway: &TestGateway, path: &str) -> anyhow::Result<SseReader> {
+        let response = gateway.client.get(gateway.url(path)).send().await?;
+        anyhow::ensure!(
+            response.status().is_success(),
+            "status {} for {path}",
+            response.status()
+        );
+        Ok(SseReader {
+            stream: Box::pin(response.bytes_stream()),
+            buffer: String::new(),
+        })
+    }
+
+    /// The next event's name and JSON data; `None` when the stream ended.
+    pub async fn next(&mut self) -> anyhow::Result<Option<(String, serde_json::Value)>> {
+        use futures_util::StreamExt;
+        loop {
+            if let Some(end) = self.buffer.find("\n\n") {
+                let block: String = self.buffer.drain(..end + 2).collect();
+                let mut name = String::from("message");
+                let mut data = String::new();
+                for line in block.lines() {
+                    if let Some(v) = line.strip_prefix("event:") {
+                        name = v.trim().to_owned();
+                    } else if let Some(v) = line.strip_prefix("data:") {
+                        data.push_str(v.trim());
+                    }
+                }
+                if data.is_empty() {
+                    continue; // a keep-alive comment
+                }
+                return Ok(Some((name, serde_json::from_str(&data)?)));
+            }
+            match tokio::time::timeout(PATIENCE, self.stream.next()).await {
+                Err(_) => anyhow::bail!("no event within {PATIENCE:?}"),
+                Ok(None) => return Ok(None),
+                Ok(Some(chunk)) => self.buffer.push_str(&String::from_utf8_lossy(&chunk?)),
+            }
+        }
+    }
+
+    /// Skips events until one satisfies `want`.
+    pub async fn until(
+        &mut self,
+        mut want: impl FnMut(&str, &serde_json::Value) -> bool,
+    ) -> anyhow::Result<serde_json::Value> {
+        loop {
+            match self.next().await? {
+                Some((name, data)) if want(&name, &data) => return Ok(data),
+                Some(_) => {}
+                None => anyhow::bail!("the stream ended"),
+            }
+        }
+    }
+}

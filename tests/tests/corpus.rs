@@ -134,10 +134,10 @@ fn the_example_configs_are_valid() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples");
     for entry in std::fs::read_dir(&dir).expect("examples/") {
         let path = entry.expect("entry").path();
-        if path.extension().is_some_and(|e| e == "yaml") {
-            if let Err(problems) = Setup::from_file(&path) {
-                panic!("{}:\n{problems}", path.display());
-            }
+        if path.extension().is_some_and(|e| e == "yaml")
+            && let Err(problems) = Setup::from_file(&path)
+        {
+            panic!("{}:\n{problems}", path.display());
         }
     }
 }

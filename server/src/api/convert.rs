@@ -35,7 +35,8 @@ pub fn value_to_json(value: &Value) -> Json {
 /// or a literal such as `"T#1s500ms"`; integer types take whole numbers only.
 pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, String> {
     let found = describe(json);
-    let result = match (ty, json) {
+
+    match (ty, json) {
         (IecType::Bool, Json::Bool(b)) => Ok(Value::Bool(*b)),
         (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(0) => Ok(Value::Bool(false)),
         (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(1) => Ok(Value::Bool(true)),
@@ -52,8 +53,7 @@ pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, String> {
             }
         }
         _ => Err(format!("{ty} needs {}, got {found}", expected(ty))),
-    };
-    result
+    }
 }
 
 fn expected(ty: IecType) -> &'static str {

@@ -277,13 +277,15 @@ fn read_register(
     if kind == RegisterKind::Virtual && protocol.is_some_and(|p| p != Protocol::Simulated) {
         report.push(
             line_of(kind_node),
-            &at("kind"),
+            at("kind"),
             "`virtual` registers exist only in simulated profiles (protocol: simulated)",
         );
     }
-    if let Some(d) = direction {
-        if d.is_writable() && kind.is_read_only() {
-            report.push(
+    if let Some(d) = direction
+        && d.is_writable()
+        && kind.is_read_only()
+    {
+        report.push(
                 line_of(kind_node),
                 &ctx,
                 format!(
@@ -292,7 +294,6 @@ fn read_register(
                     kind.name()
                 ),
             );
-        }
     }
     if kind == RegisterKind::Virtual {
         for (key, n) in [
@@ -305,7 +306,7 @@ fn read_register(
             if let Some(n) = n {
                 report.push(
                     n.line,
-                    &at(key),
+                    at(key),
                     "has no effect on a virtual register (simulated fields hold typed values)",
                 );
             }
@@ -333,7 +334,7 @@ fn read_register(
             if let Some(n) = n {
                 report.push(
                     n.line,
-                    &at(key),
+                    at(key),
                     format!("does not apply to a {}", kind.name()),
                 );
             }
@@ -341,7 +342,7 @@ fn read_register(
         if word_count.is_some_and(|w| w != 1) {
             report.push(
                 line_of(words_node),
-                &at("word_count"),
+                at("word_count"),
                 format!("a {} is one bit: word_count must be 1", kind.name()),
             );
         }
@@ -351,21 +352,21 @@ fn read_register(
     if bit.is_some() && ty != IecType::Bool {
         report.push(
             line_of(bit_node),
-            &at("bit"),
+            at("bit"),
             format!("`bit` is for BOOL fields packed into a register, not {ty}"),
         );
     }
     if !ty.is_numeric() {
         for (key, n) in [("scale", scale_node), ("offset", offset_node)] {
             if let Some(n) = n {
-                report.push(n.line, &at(key), format!("{ty} values cannot be scaled"));
+                report.push(n.line, at(key), format!("{ty} values cannot be scaled"));
             }
         }
     }
     if scale == Some(0.0) {
         report.push(
             line_of(scale_node),
-            &at("scale"),
+            at("scale"),
             "scale must not be zero (writes divide by it)",
         );
     }
@@ -373,13 +374,13 @@ fn read_register(
         if !ty.is_real() {
             report.push(
                 line_of(raw_node),
-                &at("raw_type"),
+                at("raw_type"),
                 format!("raw_type is for REAL/LREAL fields stored as integers, not {ty}"),
             );
         } else if raw.int_bits().is_none() || raw == IecType::Time {
             report.push(
                 line_of(raw_node),
-                &at("raw_type"),
+                at("raw_type"),
                 format!("raw_type must be an integer type, not {raw}"),
             );
         }
@@ -391,7 +392,7 @@ fn read_register(
         (Some(w), Some(r)) if w != r => {
             report.push(
                 line_of(words_node),
-                &at("word_count"),
+                at("word_count"),
                 format!(
                     "word_count {w} does not fit raw_type {} ({r} registers)",
                     raw_type.map_or("?", IecType::name)
@@ -407,7 +408,7 @@ fn read_register(
     if !kind.is_bit() && raw_words.is_none() && !word_count_fits(ty, word_count) {
         report.push(
             line_of(words_node),
-            &at("word_count"),
+            at("word_count"),
             format!(
                 "{ty} does not fit in {word_count} register(s) (allowed: {})",
                 allowed_word_counts(ty)
@@ -503,10 +504,10 @@ fn check_overlaps(fields: &[Field], report: &mut Report) {
             if a1 < b0 || b1 < a0 {
                 continue;
             }
-            if let (Some(x), Some(y)) = (a.register.bit, b.register.bit) {
-                if x != y {
-                    continue;
-                }
+            if let (Some(x), Some(y)) = (a.register.bit, b.register.bit)
+                && x != y
+            {
+                continue;
             }
             let what = match (a.register.bit, b.register.bit) {
                 (Some(bit), Some(_)) => format!("bit {bit} of {} {a0}", a.register.kind.name()),
@@ -709,6 +710,29 @@ mod tests {
         let text = "name: 9lives\nfields:\n  - { name: connected, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n";
         assert_problem(text, 1, "not an IEC identifier");
         assert_problem(text, 3, "name is taken");
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn arbitrary_text_never_panics(text in "\\PC{0,300}") {
+            let _ = load_str("fuzz.yaml", &text);
+        }
+
+        #[test]
+        fn mutated_shipped_profiles_never_panic(
+            which in 0..crate::demo::PROFILES.len(),
+            at in proptest::prelude::any::<proptest::sample::Index>(),
+            insert in "[ \\-:{}\\[\\],#'\"a-z0-9\n]{0,4}",
+            cut in 0usize..6,
+        ) {
+            let (name, text) = crate::demo::PROFILES[which];
+            let mut chars: Vec<char> = text.chars().collect();
+            let i = at.index(chars.len());
+            let end = (i + cut).min(chars.len());
+            chars.splice(i..end, insert.chars());
+            let mutated: String = chars.into_iter().collect();
+            let _ = load_str(name, &mutated);
+        }
     }
 
     #[test]

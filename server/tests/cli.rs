@@ -1,0 +1,129 @@
+//! The `iogate` binary as a user runs it.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+fn iogate() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_iogate"))
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("iogate-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+#[test]
+fn check_lists_every_problem_and_exits_64() {
+    let out = iogate()
+        .args(["check", "--config"])
+        .arg(repo().join("tests/fixtures/bad_configs/bad_devices.yaml"))
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(64));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("bad_devices.yaml:13: device io: unknown profile `NoSuchProfile`"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("bad_devices.yaml:16: device sim: a simulated device has no slave_id"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("6 problems found"), "{stderr}");
+}
+
+#[test]
+fn check_accepts_the_example_and_the_demo() {
+    let out = iogate()
+        .args(["check", "--config"])
+        .arg(repo().join("examples/demo.yaml"))
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("ok (6 profiles, 0 links, 2 devices)"));
+
+    // With nothing configured, the built-in demo is checked.
+    let empty = temp_dir("empty");
+    let out = iogate()
+        .arg("check")
+        .current_dir(&empty)
+        .output()
+        .expect("runs");
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stdout).starts_with("built-in demo: ok"));
+}
+
+#[test]
+fn serve_refuses_a_broken_config() {
+    let out = iogate()
+        .args(["serve", "--config"])
+        .arg(repo().join("tests/fixtures/bad_configs/serial_mismatch.yaml"))
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(64));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("Baudrate configuration mismatch"));
+    assert!(out.stdout.is_empty(), "nothing was started");
+}
+
+#[test]
+fn serve_runs_until_sigterm_and_exits_promptly() {
+    let dir = temp_dir("serve");
+    let config = dir.join("iogate.yaml");
+    std::fs::write(
+        &config,
+        format!(
+            "listen: {{ http: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}\n",
+            repo().join("profiles").display()
+        ),
+    )
+    .expect("write config");
+    let mut child = iogate()
+        .args(["serve", "--config"])
+        .arg(&config)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starts");
+    let stdout = child.stdout.take().expect("stdout");
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let line = rx
+        .recv_timeout(Duration::from_secs(20))
+        .expect("prints its URLs");
+    assert!(line.starts_with("REST API:  http://127.0.0.1:"), "{line}");
+    assert!(!line.contains(":0/"), "prints the bound port: {line}");
+
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(killed.success());
+    let started = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            assert!(status.success(), "{status}");
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(2),
+            "still running 2 s after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}

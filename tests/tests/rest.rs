@@ -1,0 +1,622 @@
+//! The REST API, driven over HTTP against a gateway running the built-in demo.
+
+use reqwest::Method;
+use serde_json::{Value, json};
+
+use iogate_tests::{SseReader, TestGateway, eventually};
+
+async fn demo() -> TestGateway {
+    TestGateway::demo().await.expect("demo starts")
+}
+
+/// Waits until `path`'s JSON satisfies `check`.
+async fn until_json(gw: &TestGateway, path: &str, what: &str, check: impl Fn(&Value) -> bool) {
+    eventually(what, || async {
+        matches!(gw.get(path).await, Ok((200, body)) if check(&body))
+    })
+    .await
+    .expect(what);
+}
+
+fn error_code(body: &Value) -> &str {
+    body["error"]["code"].as_str().unwrap_or("<no error code>")
+}
+
+#[tokio::test]
+async fn devices_are_listed_with_diagnostics() {
+    let gw = demo().await;
+    until_json(&gw, "/api/v1/devices", "both devices polled", |b| {
+        b["devices"].as_array().is_some_and(|d| {
+            d.len() == 2
+                && d.iter()
+                    .all(|d| d["connected"] == true && d["io_cycles"].as_u64() > Some(0))
+        })
+    })
+    .await;
+    let (status, body) = gw.get("/api/v1/devices").await.expect("get");
+    assert_eq!(status, 200);
+    let sim = &body["devices"][0];
+    assert_eq!(sim["name"], "sim");
+    assert_eq!(sim["profile"], "SimIo");
+    assert_eq!(sim["error_code"], 0);
+    assert!(sim["last_response_ms"].is_number());
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_field_carries_type_quality_and_timestamp() {
+    let gw = demo().await;
+    until_json(&gw, "/api/v1/devices/sim/fields/DI_0", "DI_0 read", |b| {
+        b["quality"] == "good"
+    })
+    .await;
+    let (status, body) = gw
+        .get("/api/v1/devices/sim/fields/di_0")
+        .await
+        .expect("get");
+    assert_eq!(status, 200, "field names ignore case");
+    assert_eq!(body["field"], "DI_0");
+    assert_eq!(body["type"], "BOOL");
+    assert_eq!(body["direction"], "input");
+    assert_eq!(body["value"], false);
+    let ts = body["timestamp"].as_str().expect("timestamp");
+    assert!(ts.ends_with('Z') && ts.contains('T'), "RFC 3339: {ts}");
+
+    let (status, body) = gw.get("/api/v1/devices/plant").await.expect("get");
+    assert_eq!(status, 200);
+    let names: Vec<&String> = body["fields"].as_object().expect("fields").keys().collect();
+    assert_eq!(
+        names.first().map(|s| s.as_str()),
+        Some("PumpRunning"),
+        "profile order"
+    );
+    assert_eq!(names.len(), 19);
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_write_to_an_output_lands_and_reports_written() {
+    let gw = demo().await;
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DO_0",
+            r#"{"value": true}"#,
+        )
+        .await
+        .expect("put");
+    assert_eq!(status, 202, "{body}");
+    assert_eq!(body["status"], "pending");
+    let generation = body["generation"].as_u64().expect("generation");
+    let write = format!("/api/v1/writes/{generation}");
+    until_json(&gw, &write, "write done", |b| b["status"] == "written").await;
+    let (_, body) = gw
+        .get("/api/v1/devices/sim/fields/DO_0")
+        .await
+        .expect("get");
+    assert_eq!(body["value"], true);
+    assert_eq!(body["last_write"]["generation"], generation);
+    assert_eq!(body["last_write"]["status"], "written");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn every_type_round_trips_through_the_api() {
+    let gw = demo().await;
+    // Outputs and inouts are written; inputs are set on the simulated device.
+    let cases = [
+        ("PumpRunning", json!(true), "simulate"),
+        ("PumpStart", json!(true), "write"),
+        ("Level", json!(42.25), "simulate"),
+        ("TemperatureSetpoint", json!(0.1), "write"),
+        ("FlowTotal", json!(12345.678901234), "simulate"),
+        ("TrimOffset", json!(-128), "write"),
+        ("Pressure", json!(-32768), "simulate"),
+        ("BatchCount", json!(-2147483648i64), "simulate"),
+        ("TotalCycles", json!(i64::MIN), "simulate"),
+        ("Recipe", json!(255), "write"),
+        ("SpeedRpm", json!(65535), "simulate"),
+        ("RunSeconds", json!(4294967295u64), "simulate"),
+        ("SerialNumber", json!(u64::MAX), "simulate"),
+        ("AlarmBits", json!(170), "simulate"),
+        ("StatusWord", json!(43690), "simulate"),
+        ("ErrorMask", json!(4294967295u64), "write"),
+        ("Signature", json!(u64::MAX), "simulate"),
+        ("BatchName", json!("Batch 17 ÄÖ"), "write"),
+        ("MixTime", json!(90500), "write"),
+    ];
+    for (field, value, how) in &cases {
+        let path = match *how {
+            "write" => format!("/api/v1/devices/plant/fields/{field}"),
+            _ => format!("/api/v1/devices/plant/fields/{field}/simulate"),
+        };
+        let (status, body) = gw
+            .send(Method::PUT, &path, json!({ "value": value }).to_string())
+            .await
+            .expect("put");
+        assert_eq!(status, 202, "{field}: {body}");
+    }
+    for (field, value, _) in &cases {
+        let path = format!("/api/v1/devices/plant/fields/{field}");
+        until_json(&gw, &path, field, |b| &b["value"] == value).await;
+    }
+    // TIME also takes IEC literals.
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant/fields/MixTime",
+            r#"{"value": "T#1m30s"}"#,
+        )
+        .await
+        .expect("put");
+    assert_eq!(status, 202);
+    until_json(
+        &gw,
+        "/api/v1/devices/plant/fields/MixTime",
+        "MixTime 90000",
+        |b| b["value"] == 90000,
+    )
+    .await;
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn caller_mistakes_get_json_errors_with_the_right_status() {
+    let gw = demo().await;
+    let put = |path: &'static str, body: &'static str| {
+        let gw = &gw;
+        async move { gw.send(Method::PUT, path, body).await.expect("request") }
+    };
+    let cases: Vec<(u16, &str, (u16, Value))> = vec![
+        (
+            404,
+            "unknown_device",
+            gw.get("/api/v1/devices/nope").await.expect("get"),
+        ),
+        (
+            404,
+            "unknown_field",
+            gw.get("/api/v1/devices/sim/fields/NOPE")
+                .await
+                .expect("get"),
+        ),
+        (
+            404,
+            "unknown_link",
+            gw.get("/api/v1/links/nope").await.expect("get"),
+        ),
+        (
+            404,
+            "unknown_profile",
+            gw.get("/api/v1/profiles/nope").await.expect("get"),
+        ),
+        (
+            404,
+            "no_route",
+            gw.get("/api/v2/devices").await.expect("get"),
+        ),
+        (
+            409,
+            "not_writable",
+            put("/api/v1/devices/sim/fields/DI_0", r#"{"value": true}"#).await,
+        ),
+        (
+            400,
+            "invalid_value",
+            put("/api/v1/devices/plant/fields/Recipe", r#"{"value": 256}"#).await,
+        ),
+        (
+            400,
+            "invalid_value",
+            put("/api/v1/devices/plant/fields/Recipe", r#"{"value": 2.5}"#).await,
+        ),
+        (
+            400,
+            "invalid_value",
+            put("/api/v1/devices/sim/fields/DO_0", r#"{"value": "on"}"#).await,
+        ),
+        (
+            400,
+            "invalid_value",
+            put(
+                "/api/v1/devices/plant/fields/TemperatureSetpoint",
+                r#"{"value": 1e39}"#,
+            )
+            .await,
+        ),
+        (
+            400,
+            "invalid_value",
+            put(
+                "/api/v1/devices/plant/fields/MixTime",
+                r#"{"value": "soon"}"#,
+            )
+            .await,
+        ),
+        (
+            400,
+            "invalid_json",
+            put("/api/v1/devices/sim/fields/DO_0", r#"{"value": tru"#).await,
+        ),
+        (
+            400,
+            "missing_body",
+            put("/api/v1/devices/sim/fields/DO_0", "").await,
+        ),
+        (
+            404,
+            "unknown_device",
+            put("/api/v1/devices/nope/fields/DO_0", r#"{"value": true}"#).await,
+        ),
+        (
+            409,
+            "not_an_input",
+            put(
+                "/api/v1/devices/sim/fields/DO_0/simulate",
+                r#"{"value": true}"#,
+            )
+            .await,
+        ),
+        (
+            400,
+            "invalid_generation",
+            gw.get("/api/v1/writes/abc").await.expect("get"),
+        ),
+        (
+            404,
+            "unknown_write",
+            gw.get("/api/v1/writes/999999").await.expect("get"),
+        ),
+        (
+            404,
+            "unknown_device",
+            gw.get("/api/v1/events?device=nope").await.expect("get"),
+        ),
+        (
+            400,
+            "invalid_query",
+            gw.get("/api/v1/events?devices=sim").await.expect("get"),
+        ),
+    ];
+    for (want_status, want_code, (status, body)) in cases {
+        assert_eq!(
+            (status, error_code(&body)),
+            (want_status, want_code),
+            "{body}"
+        );
+        let message = body["error"]["message"].as_str().expect("message");
+        assert!(!message.is_empty());
+    }
+    let (_, body) = put("/api/v1/devices/plant/fields/Recipe", r#"{"value": 256}"#).await;
+    assert_eq!(
+        body["error"]["message"],
+        "field plant.Recipe (USINT): 256 is out of range for USINT (0 to 255)"
+    );
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn patch_writes_all_fields_or_none() {
+    let gw = demo().await;
+    let (status, body) = gw
+        .send(
+            Method::PATCH,
+            "/api/v1/devices/plant/fields",
+            r#"{"PumpStart": true, "Recipe": 999, "PumpRunning": true}"#,
+        )
+        .await
+        .expect("patch");
+    assert_eq!(status, 400, "{body}");
+    let message = body["error"]["message"].as_str().expect("message");
+    assert!(message.starts_with("nothing was written"), "{message}");
+    assert!(
+        message.contains("Recipe") && message.contains("PumpRunning"),
+        "every problem: {message}"
+    );
+    let (_, field) = gw
+        .get("/api/v1/devices/plant/fields/PumpStart")
+        .await
+        .expect("get");
+    assert!(
+        field.get("last_write").is_none(),
+        "nothing written: {field}"
+    );
+
+    let (status, body) = gw
+        .send(
+            Method::PATCH,
+            "/api/v1/devices/plant/fields",
+            r#"{"PumpStart": true, "Recipe": 7}"#,
+        )
+        .await
+        .expect("patch");
+    assert_eq!(status, 202, "{body}");
+    assert_eq!(body["writes"].as_array().map(Vec::len), Some(2));
+    until_json(
+        &gw,
+        "/api/v1/devices/plant/fields/Recipe",
+        "Recipe 7",
+        |b| b["value"] == 7,
+    )
+    .await;
+    until_json(
+        &gw,
+        "/api/v1/devices/plant/fields/PumpStart",
+        "PumpStart",
+        |b| b["value"] == true,
+    )
+    .await;
+
+    for bad in ["[1, 2]", "{}", "\"DO_0\""] {
+        let (status, body) = gw
+            .send(Method::PATCH, "/api/v1/devices/plant/fields", bad)
+            .await
+            .expect("patch");
+        assert_eq!((status, error_code(&body)), (400, "invalid_body"), "{bad}");
+    }
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_burst_of_writes_ends_with_the_last_value_and_every_write_resolved() {
+    let gw = demo().await;
+    let mut generations = Vec::new();
+    for i in 0..100 {
+        let (status, body) = gw
+            .send(
+                Method::PUT,
+                "/api/v1/devices/plant/fields/TemperatureSetpoint",
+                json!({ "value": i }).to_string(),
+            )
+            .await
+            .expect("put");
+        assert_eq!(status, 202);
+        generations.push(body["generation"].as_u64().expect("generation"));
+    }
+    until_json(
+        &gw,
+        "/api/v1/devices/plant/fields/TemperatureSetpoint",
+        "last value",
+        |b| b["value"].as_f64() == Some(99.0),
+    )
+    .await;
+    let last = *generations.last().expect("100 writes");
+    until_json(
+        &gw,
+        &format!("/api/v1/writes/{last}"),
+        "last written",
+        |b| b["status"] == "written",
+    )
+    .await;
+    let mut written = 0;
+    for g in &generations {
+        let (_, body) = gw.get(&format!("/api/v1/writes/{g}")).await.expect("get");
+        match body["status"].as_str() {
+            Some("written") => written += 1,
+            Some("superseded") => {}
+            other => panic!("write {g} ended as {other:?}"),
+        }
+    }
+    // The demo's plant device refreshes every 250 ms: a burst lands in a few cycles.
+    assert!(written < 10, "{written} of 100 writes reached the device");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn events_stream_current_values_then_changes() {
+    let gw = demo().await;
+    let mut events = SseReader::open(&gw, "/api/v1/events?device=sim")
+        .await
+        .expect("open");
+    let first = events.next().await.expect("event").expect("not ended");
+    assert!(["value", "diagnostics"].contains(&first.0.as_str()));
+    assert_eq!(first.1["device"], "sim");
+    events
+        .until(|name, d| name == "diagnostics" && d["connected"] == true)
+        .await
+        .expect("connected");
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DI_0/simulate",
+            "true",
+        )
+        .await
+        .expect("simulate");
+    assert_eq!(status, 202);
+    let change = events
+        .until(|name, d| name == "value" && d["field"] == "DI_0" && d["value"] == true)
+        .await
+        .expect("DI_0 change");
+    assert_eq!(change["quality"], "good");
+    assert_eq!(change["type"], "BOOL");
+
+    // Shutdown ends the stream instead of holding the server open.
+    let started = std::time::Instant::now();
+    gw.shutdown().await;
+    assert!(started.elapsed() < std::time::Duration::from_secs(2));
+    let ended = loop {
+        match events.next().await {
+            Ok(Some(_)) => continue,
+            Ok(None) => break true,
+            // A connection closed mid-chunk ends the stream too; waiting in vain does not.
+            Err(e) => break !e.to_string().contains("no event within"),
+        }
+    };
+    assert!(ended, "the event stream ends on shutdown");
+}
+
+#[tokio::test]
+async fn profiles_show_their_function_block_layout() {
+    let gw = demo().await;
+    let (status, body) = gw.get("/api/v1/profiles").await.expect("get");
+    assert_eq!(status, 200);
+    assert_eq!(body["profiles"].as_array().map(Vec::len), Some(6));
+    let (status, body) = gw
+        .get("/api/v1/profiles/WaveshareAnalogInput")
+        .await
+        .expect("get");
+    assert_eq!(status, 200);
+    let layout: Vec<(String, String, String)> = body["layout"]
+        .as_array()
+        .expect("layout")
+        .iter()
+        .map(|e| {
+            (
+                e["name"].as_str().unwrap_or_default().to_owned(),
+                e["type"].as_str().unwrap_or_default().to_owned(),
+                e["section"].as_str().unwrap_or_default().to_owned(),
+            )
+        })
+        .collect();
+    let expected_head = [
+        ("link", "STRING", "VAR_INPUT"),
+        ("slave_id", "INT", "VAR_INPUT"),
+        ("refresh_rate", "TIME", "VAR_INPUT"),
+        ("connected", "BOOL", "VAR"),
+        ("error_code", "INT", "VAR"),
+        ("io_cycles", "UDINT", "VAR"),
+        ("last_response_ms", "REAL", "VAR"),
+        ("AI1", "INT", "VAR"),
+    ];
+    for (got, want) in layout.iter().zip(expected_head) {
+        assert_eq!((got.0.as_str(), got.1.as_str(), got.2.as_str()), want);
+    }
+    assert_eq!(layout.len(), 7 + 8);
+    assert_eq!(body["fields"][0]["register"]["kind"], "input_register");
+    let (_, sim) = gw.get("/api/v1/profiles/SimIo").await.expect("get");
+    assert_eq!(
+        sim["layout"][0]["name"], "refresh_rate",
+        "simulated: no link"
+    );
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn links_and_modbus_devices_from_a_config_are_listed() {
+    let gw = TestGateway::start(
+        "links:\n  - { name: rs485, serial: { port: /dev/ttyUSB0, baud: 19200, parity: E } }\n  - { name: plant, tcp: { host: 127.0.0.1, port: 1502 } }\ndevices:\n  - { name: meter, profile: EastronSDM630, link: rs485, slave_id: 3, refresh_rate: 1s }\n  - { name: sim, profile: SimIo }\n",
+    )
+    .await
+    .expect("start");
+    let (status, body) = gw.get("/api/v1/links").await.expect("get");
+    assert_eq!(status, 200);
+    let links = body["links"].as_array().expect("links");
+    assert_eq!(links.len(), 2);
+    assert_eq!(links[0]["kind"], "serial");
+    assert_eq!(links[0]["baud"], 19200);
+    assert_eq!(links[0]["parity"], "E");
+    assert_eq!(links[0]["devices"], json!(["meter"]));
+    assert_eq!(links[1]["kind"], "tcp");
+    assert_eq!(links[1]["tcp_port"], 1502);
+    let (_, meter) = gw.get("/api/v1/devices/meter").await.expect("get");
+    assert_eq!(meter["slave_id"], 3);
+    assert_eq!(meter["link"], "rs485");
+    assert_eq!(meter["fields"]["Frequency"]["quality"], "never_read");
+    assert_eq!(meter["fields"]["Frequency"]["value"], Value::Null);
+    let (status, body) = gw
+        .send(Method::PUT, "/api/v1/devices/meter/fields/Frequency", "50")
+        .await
+        .expect("put");
+    assert_eq!((status, error_code(&body)), (409, "not_writable"));
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/meter/fields/Frequency/simulate",
+            "50",
+        )
+        .await
+        .expect("put");
+    assert_eq!((status, error_code(&body)), (409, "not_simulated"));
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn health_and_openapi_are_served() {
+    let gw = demo().await;
+    assert_eq!(gw.get("/livez").await.expect("livez").0, 200);
+    assert_eq!(
+        gw.get("/readyz").await.expect("readyz").1["status"],
+        "ready"
+    );
+    let (status, doc) = gw.get("/api/v1/openapi.json").await.expect("openapi");
+    assert_eq!(status, 200);
+    let paths = doc["paths"].as_object().expect("paths");
+    for path in [
+        "/api/v1/devices",
+        "/api/v1/devices/{device}",
+        "/api/v1/devices/{device}/fields",
+        "/api/v1/devices/{device}/fields/{field}",
+        "/api/v1/devices/{device}/fields/{field}/simulate",
+        "/api/v1/writes/{generation}",
+        "/api/v1/links",
+        "/api/v1/links/{link}",
+        "/api/v1/profiles",
+        "/api/v1/profiles/{profile}",
+        "/api/v1/events",
+        "/livez",
+        "/readyz",
+    ] {
+        assert!(
+            paths.contains_key(path),
+            "{path} missing from the OpenAPI document"
+        );
+    }
+    assert!(paths["/api/v1/devices/{device}/fields/{field}"]["put"].is_object());
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn malformed_requests_never_cause_a_server_error() {
+    let gw = demo().await;
+    let bodies: Vec<Vec<u8>> = vec![
+        b"".to_vec(),
+        b"{".to_vec(),
+        b"null".to_vec(),
+        b"[]".to_vec(),
+        b"{\"value\": {\"nested\": 1}}".to_vec(),
+        b"{\"value\": 1e400}".to_vec(),
+        b"{\"value\": -0}".to_vec(),
+        b"{\"value\": 18446744073709551616}".to_vec(),
+        b"\xff\xfe\x00garbage".to_vec(),
+        vec![b'['; 10_000],
+        format!("{{\"value\": \"{}\"}}", "x".repeat(100_000)).into_bytes(),
+        b"{\"value\": true, \"extra\": 1}".to_vec(),
+    ];
+    let fields = [
+        "sim/fields/DO_0",
+        "plant/fields/BatchName",
+        "plant/fields/MixTime",
+        "plant/fields/ErrorMask",
+    ];
+    for field in fields {
+        for body in &bodies {
+            for (method, suffix) in [(Method::PUT, ""), (Method::PUT, "/simulate")] {
+                let path = format!("/api/v1/devices/{field}{suffix}");
+                let response = gw
+                    .client
+                    .request(method.clone(), gw.url(&path))
+                    .body(body.clone())
+                    .send()
+                    .await
+                    .expect("request");
+                let status = response.status().as_u16();
+                assert!(status < 500, "{method} {path} answered {status}");
+            }
+        }
+        let device = field.split('/').next().unwrap_or_default();
+        for body in &bodies {
+            let path = format!("/api/v1/devices/{device}/fields");
+            let response = gw
+                .client
+                .patch(gw.url(&path))
+                .body(body.clone())
+                .send()
+                .await
+                .expect("request");
+            assert!(response.status().as_u16() < 500);
+        }
+    }
+    assert_eq!(gw.get("/livez").await.expect("still alive").0, 200);
+    gw.shutdown().await;
+}
