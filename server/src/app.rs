@@ -192,6 +192,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
 /// Runs the gateway until SIGINT or SIGTERM.
 pub async fn run(setup: Setup) -> anyhow::Result<()> {
     let demo = setup.demo;
+    let signal = shutdown_signal();
     let running = start(setup).await?;
     let base = format!("http://{}", running.http_addr);
     if demo {
@@ -202,35 +203,39 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     println!("OpenAPI:   {base}/api/v1/openapi.json");
     println!("Health:    {base}/livez  {base}/readyz");
     tracing::info!(http = %running.http_addr, "iogate started");
-    shutdown_signal().await;
+    signal.await;
     tracing::info!("shutting down");
     running.shutdown().await;
     Ok(())
 }
 
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        if let Err(e) = tokio::signal::ctrl_c().await {
-            tracing::error!(error = %e, "cannot listen for SIGINT");
+/// Registers for SIGINT and SIGTERM now (so a signal that comes during start-up is not
+/// lost) and returns a future that resolves on the first of them.
+fn shutdown_signal() -> impl std::future::Future<Output = ()> {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let interrupt = signal(SignalKind::interrupt());
+        let terminate = signal(SignalKind::terminate());
+        async move {
+            match (interrupt, terminate) {
+                (Ok(mut interrupt), Ok(mut terminate)) => {
+                    tokio::select! {
+                        _ = interrupt.recv() => {}
+                        _ = terminate.recv() => {}
+                    }
+                }
+                (Err(e), _) | (_, Err(e)) => {
+                    tracing::error!(error = %e, "cannot listen for signals; stop with SIGKILL");
+                    std::future::pending::<()>().await;
+                }
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    async {
+        if tokio::signal::ctrl_c().await.is_err() {
             std::future::pending::<()>().await;
         }
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(e) => {
-                tracing::error!(error = %e, "cannot listen for SIGTERM");
-                std::future::pending::<()>().await;
-            }
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! {
-        _ = ctrl_c => {}
-        _ = term => {}
     }
 }
