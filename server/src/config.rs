@@ -700,12 +700,7 @@ mod tests {
             insert in "[ \\-:{}\\[\\],#'\"a-z0-9\n]{0,4}",
             cut in 0usize..6,
         ) {
-            let mut chars: Vec<char> = GOOD.chars().collect();
-            let i = at.index(chars.len());
-            let end = (i + cut).min(chars.len());
-            chars.splice(i..end, insert.chars());
-            let mutated: String = chars.into_iter().collect();
-            let _ = parse("fuzz.yaml", &mutated);
+            let _ = parse("fuzz.yaml", &crate::yaml::mutate(GOOD, at, &insert, cut));
         }
     }
 

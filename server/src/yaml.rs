@@ -416,6 +416,17 @@ impl<'de> Deserialize<'de> for Kind {
     }
 }
 
+/// Replaces `cut` characters at `at` of `text` with `insert`: the mutation the loaders'
+/// never-panic properties apply to valid files.
+#[cfg(test)]
+pub(crate) fn mutate(text: &str, at: proptest::sample::Index, insert: &str, cut: usize) -> String {
+    let mut chars: Vec<char> = text.chars().collect();
+    let i = at.index(chars.len());
+    let end = (i + cut).min(chars.len());
+    chars.splice(i..end, insert.chars());
+    chars.into_iter().collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

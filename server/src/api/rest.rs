@@ -13,7 +13,8 @@ use utoipa::ToSchema;
 use super::convert::{self, *};
 use super::error::{ApiError, ErrorBody};
 use crate::app::AppState;
-use crate::cache::Device;
+use crate::cache::{AccessError, Device};
+use crate::codec::Value;
 use crate::writes::Lookup;
 
 type AppStateRef = State<Arc<AppState>>;
@@ -160,31 +161,28 @@ fn parse_body(body: &Bytes) -> Result<Json_, ApiError> {
     })
 }
 
-/// Converts and checks one value for a write; nothing is written.
-fn prepare(
-    device: &Device,
-    field: &str,
-    json: &Json_,
-) -> Result<(usize, crate::codec::Value), ApiError> {
-    let idx = device.field_index(field)?;
+/// The JSON as a value of field `idx`'s type.
+fn typed(device: &Device, idx: usize, json: &Json_) -> Result<Value, ApiError> {
     let f = device.field(idx);
-    let value = convert::json_to_value(f.ty, json).map_err(|reason| {
-        ApiError::from(crate::cache::AccessError::InvalidValue {
+    convert::json_to_value(f.ty, json).map_err(|reason| {
+        ApiError::from(AccessError::InvalidValue {
             device: device.name().to_owned(),
             field: f.name.clone(),
             ty: f.ty,
             reason,
         })
-    })?;
+    })
+}
+
+/// Converts and checks one value for a write; nothing is written.
+fn prepare(device: &Device, field: &str, json: &Json_) -> Result<(usize, Value), ApiError> {
+    let idx = device.field_index(field)?;
+    let value = typed(device, idx, json)?;
     device.check_write(idx, &value)?;
     Ok((idx, value))
 }
 
-fn accept(
-    device: &Device,
-    idx: usize,
-    value: crate::codec::Value,
-) -> Result<WriteAccepted, ApiError> {
+fn accept(device: &Device, idx: usize, value: Value) -> Result<WriteAccepted, ApiError> {
     let generation = device.request_write(idx, value)?;
     Ok(WriteAccepted {
         device: device.name().to_owned(),
@@ -300,23 +298,14 @@ pub async fn simulate_field(
 ) -> Result<(StatusCode, Json<Simulated>), ApiError> {
     let device = state.cache.device(&name)?;
     let idx = device.field_index(&field)?;
-    let f = device.field(idx);
-    let json = value_of(parse_body(&body)?);
-    let value = convert::json_to_value(f.ty, &json).map_err(|reason| {
-        ApiError::from(crate::cache::AccessError::InvalidValue {
-            device: device.name().to_owned(),
-            field: f.name.clone(),
-            ty: f.ty,
-            reason,
-        })
-    })?;
+    let value = typed(device, idx, &value_of(parse_body(&body)?))?;
     let shown = convert::value_to_json(&value);
     device.simulate(idx, value)?;
     Ok((
         StatusCode::ACCEPTED,
         Json(Simulated {
             device: device.name().to_owned(),
-            field: f.name.clone(),
+            field: device.field(idx).name.clone(),
             value: shown,
         }),
     ))

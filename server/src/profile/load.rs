@@ -726,12 +726,7 @@ mod tests {
             cut in 0usize..6,
         ) {
             let (name, text) = crate::demo::PROFILES[which];
-            let mut chars: Vec<char> = text.chars().collect();
-            let i = at.index(chars.len());
-            let end = (i + cut).min(chars.len());
-            chars.splice(i..end, insert.chars());
-            let mutated: String = chars.into_iter().collect();
-            let _ = load_str(name, &mutated);
+            let _ = load_str(name, &crate::yaml::mutate(text, at, &insert, cut));
         }
     }
 
