@@ -154,7 +154,8 @@ pub struct Device {
     /// Values of a simulated device's fields.
     sim: Option<Mutex<Vec<Value>>>,
     log: Arc<WriteLog>,
-    wake: Notify,
+    /// Wakes the task that owns the device (its link's task, or its simulator).
+    wake: Arc<Notify>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -163,7 +164,12 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Device {
-    pub fn new(config: DeviceConfig, profile: Arc<Profile>, log: Arc<WriteLog>) -> Self {
+    pub fn new(
+        config: DeviceConfig,
+        profile: Arc<Profile>,
+        log: Arc<WriteLog>,
+        wake: Arc<Notify>,
+    ) -> Self {
         let n = profile.fields.len();
         let simulated = profile.protocol == Protocol::Simulated;
         let error_code = match (simulated, &config.link, config.slave_id) {
@@ -187,7 +193,7 @@ impl Device {
             config,
             profile,
             log,
-            wake: Notify::new(),
+            wake,
         }
     }
 
@@ -373,20 +379,35 @@ impl Device {
     }
 
     /// Reports the outcome of a taken write.
-    pub fn finish_write(&self, write: &TakenWrite, result: Result<(), String>) {
+    pub fn finish_write(&self, generation: u64, result: Result<(), String>) {
         match result {
-            Ok(()) => self
-                .log
-                .finish(write.generation, WriteStatus::Written, None),
-            Err(e) => self
-                .log
-                .finish(write.generation, WriteStatus::Failed, Some(e)),
+            Ok(()) => self.log.finish(generation, WriteStatus::Written, None),
+            Err(e) => self.log.finish(generation, WriteStatus::Failed, Some(e)),
         }
     }
 
-    /// Resolves when a write is requested (or at once if one came since the last wait).
-    pub async fn write_requested(&self) {
-        self.wake.notified().await;
+    /// Whether any value was ever requested for an output.
+    pub fn has_requested_values(&self) -> bool {
+        lock(&self.writes).iter().any(|s| s.latest.is_some())
+    }
+
+    /// Marks every field read from the bus as bad, keeping the last good values.
+    pub fn fail_reads(&self, reason: &str) {
+        for (idx, field) in self.profile.fields.iter().enumerate() {
+            if field.register.kind != RegisterKind::Virtual {
+                self.publish(idx, Err(reason.to_owned()));
+            }
+        }
+    }
+
+    /// Records that the device could not be reached at all (its link is down).
+    pub fn set_unreachable(&self) {
+        self.diagnostics.send_if_modified(|d| {
+            let changed = d.connected || d.error_code != DEVICE_COMM_ERROR;
+            d.connected = false;
+            d.error_code = DEVICE_COMM_ERROR;
+            changed
+        });
     }
 
     /// Sets an input (or inout) of a simulated device; it shows on the next cycle.
@@ -422,11 +443,14 @@ impl Device {
 pub struct Link {
     pub config: LinkConfig,
     diagnostics: watch::Sender<LinkDiagnostics>,
+    /// Wakes the link's task when a write to one of its devices is requested.
+    pub wake: Arc<Notify>,
 }
 
 impl Link {
     pub fn new(config: LinkConfig) -> Self {
         Link {
+            wake: Arc::new(Notify::new()),
             config,
             diagnostics: watch::Sender::new(LinkDiagnostics {
                 connected: false,
@@ -462,12 +486,26 @@ impl Cache {
     /// Builds the cache for a config whose devices were checked against `catalog`.
     pub fn new(config: &Config, catalog: Catalog) -> Self {
         let writes = Arc::new(WriteLog::default());
+        let links: Vec<_> = config
+            .links
+            .iter()
+            .map(|l| Arc::new(Link::new(l.clone())))
+            .collect();
         let devices: Vec<_> = config
             .devices
             .iter()
             .filter_map(|d| {
                 let profile = catalog.get(&d.profile)?.clone();
-                Some(Arc::new(Device::new(d.clone(), profile, writes.clone())))
+                let wake = links
+                    .iter()
+                    .find(|l| Some(&l.config.name) == d.link.as_ref())
+                    .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+                Some(Arc::new(Device::new(
+                    d.clone(),
+                    profile,
+                    writes.clone(),
+                    wake,
+                )))
             })
             .collect();
         let by_name = devices
@@ -476,11 +514,7 @@ impl Cache {
             .map(|(i, d)| (d.name().to_owned(), i))
             .collect();
         Cache {
-            links: config
-                .links
-                .iter()
-                .map(|l| Arc::new(Link::new(l.clone())))
-                .collect(),
+            links,
             devices,
             writes,
             by_name,
@@ -553,7 +587,7 @@ mod tests {
             };
             assert_eq!(r.status, WriteStatus::Superseded);
         }
-        io.finish_write(&taken[0], Ok(()));
+        io.finish_write(taken[0].generation, Ok(()));
         let Lookup::Found(r) = cache.writes.get(gens[4]) else {
             panic!("missing")
         };

@@ -20,7 +20,7 @@ pub const MAX_READ_REGISTERS: u16 = 125;
 
 const TOP_KEYS: &[&str] = &["listen", "profiles", "links", "devices"];
 const LISTEN_KEYS: &[&str] = &["http", "grpc"];
-const LINK_KEYS: &[&str] = &["name", "serial", "tcp"];
+const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 const DEVICE_KEYS: &[&str] = &[
@@ -51,6 +51,8 @@ pub struct Config {
 pub struct LinkConfig {
     pub name: String,
     pub transport: Transport,
+    /// Extra silence kept between frames, on top of the 3.5 characters.
+    pub guard_time: Duration,
     pub line: u64,
 }
 
@@ -239,6 +241,9 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     let (name, ctx) = name_of(&mut map, report, "link", index);
     let serial = map.get("serial");
     let tcp = map.get("tcp");
+    let guard_time = map.get("guard_time").map_or(Some(Duration::ZERO), |n| {
+        duration_value(n, report, &format!("{ctx}: guard_time"), Duration::ZERO)
+    });
     map.finish(report, &ctx, LINK_KEYS);
     let transport = match (serial, tcp) {
         (Some(s), None) => read_serial(s, &ctx, report).map(Transport::Serial),
@@ -255,6 +260,7 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     Some(LinkConfig {
         name: name?,
         transport: transport?,
+        guard_time: guard_time?,
         line: node.line,
     })
 }
@@ -363,6 +369,44 @@ fn read_tcp(node: &Node, link: &str, report: &mut Report) -> Option<Transport> {
     })
 }
 
+/// A duration such as `50ms` or `T#1s`, at least `min`.
+fn duration_value(node: &Node, report: &mut Report, ctx: &str, min: Duration) -> Option<Duration> {
+    let text = match &node.kind {
+        yaml::Kind::Str(s) => s.clone(),
+        yaml::Kind::Int(i) => {
+            report.push(
+                node.line,
+                ctx,
+                format!("`{i}` has no unit (write e.g. `{i}ms`)"),
+            );
+            return None;
+        }
+        _ => {
+            report.push(
+                node.line,
+                ctx,
+                format!("expected a duration, found {}", node.describe()),
+            );
+            return None;
+        }
+    };
+    match duration::parse(&text) {
+        Ok(d) if d >= min => Some(d),
+        Ok(_) => {
+            report.push(
+                node.line,
+                ctx,
+                format!("must be at least {}ms", min.as_millis()),
+            );
+            None
+        }
+        Err(e) => {
+            report.push(node.line, ctx, e);
+            None
+        }
+    }
+}
+
 fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceConfig> {
     let mut map = node.map(report, &format!("devices[{index}]"))?;
     let (name, ctx) = name_of(&mut map, report, "device", index);
@@ -378,43 +422,9 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
         .and_then(|n| n.int_in(report, &at("slave_id"), 1, 247))
         .map(|s| s as u8);
     let mut duration_of = |key: &str, default: Duration, min: Duration| -> Option<Duration> {
-        let Some(node) = map.get(key) else {
-            return Some(default);
-        };
-        let text = match &node.kind {
-            yaml::Kind::Str(s) => s.clone(),
-            yaml::Kind::Int(i) => {
-                report.push(
-                    node.line,
-                    at(key),
-                    format!("`{i}` has no unit (write e.g. `{i}ms`)"),
-                );
-                return None;
-            }
-            _ => {
-                report.push(
-                    node.line,
-                    at(key),
-                    format!("expected a duration, found {}", node.describe()),
-                );
-                return None;
-            }
-        };
-        match duration::parse(&text) {
-            Ok(d) if d >= min => Some(d),
-            Ok(_) => {
-                report.push(
-                    node.line,
-                    at(key),
-                    format!("must be at least {}ms", min.as_millis()),
-                );
-                None
-            }
-            Err(e) => {
-                report.push(node.line, at(key), e);
-                None
-            }
-        }
+        map.get(key).map_or(Some(default), |node| {
+            duration_value(node, report, &at(key), min)
+        })
     };
     let refresh_rate = duration_of("refresh_rate", DEFAULT_REFRESH, Duration::from_millis(1));
     let timeout = duration_of("timeout", DEFAULT_TIMEOUT, Duration::from_millis(1));

@@ -23,7 +23,7 @@ pub async fn run(device: Arc<Device>, token: CancellationToken) {
             break;
         };
         for w in &writes {
-            device.finish_write(w, Ok(()));
+            device.finish_write(w.generation, Ok(()));
         }
         for (idx, value) in values.into_iter().enumerate() {
             device.publish(idx, Ok(value));

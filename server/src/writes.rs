@@ -3,7 +3,7 @@
 //! Generations are handed out in increasing order across the whole gateway. The log keeps the
 //! most recent [`WRITE_LOG_CAPACITY`] writes; an older generation is reported as expired.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::Mutex;
 use std::time::SystemTime;
 
@@ -55,6 +55,8 @@ pub struct WriteLog {
 struct Inner {
     next: u64,
     records: VecDeque<WriteRecord>,
+    /// Final outcomes per device and status, for metrics.
+    outcomes: BTreeMap<(String, &'static str), u64>,
 }
 
 /// What the log knows of a generation.
@@ -73,6 +75,7 @@ impl Default for WriteLog {
             inner: Mutex::new(Inner {
                 next: 1,
                 records: VecDeque::with_capacity(WRITE_LOG_CAPACITY),
+                outcomes: BTreeMap::new(),
             }),
         }
     }
@@ -114,7 +117,18 @@ impl WriteLog {
             record.status = status;
             record.error = error;
             record.finished = Some(SystemTime::now());
+            let key = (record.device.clone(), status.name());
+            *inner.outcomes.entry(key).or_default() += 1;
         }
+    }
+
+    /// How many writes ended with each status, per device.
+    pub fn outcome_counts(&self) -> Vec<(String, &'static str, u64)> {
+        self.lock()
+            .outcomes
+            .iter()
+            .map(|((device, status), n)| (device.clone(), *status, *n))
+            .collect()
     }
 
     pub fn get(&self, generation: u64) -> Lookup {

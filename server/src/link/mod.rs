@@ -1,0 +1,163 @@
+//! Links: the connection to a field bus (a serial port, a TCP socket) and the Modbus
+//! transactions on it. Bytes belong here; values belong to `codec`.
+
+pub mod frame;
+pub mod rtu;
+pub mod tcp;
+pub mod timing;
+
+use std::io;
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::net::TcpStream;
+
+use crate::config::{Framing, LinkConfig, Parity, Transport};
+use frame::{Exception, Request, Response};
+use rtu::RtuTransport;
+use tcp::MbapTransport;
+use timing::LineTiming;
+
+/// SerialLink error codes (seed 000).
+pub const LINK_OK: i16 = 0;
+pub const LINK_NO_PORT: i16 = 1;
+pub const LINK_OPEN_FAILED: i16 = 2;
+pub const LINK_LOST: i16 = 3;
+
+/// Anything a link can carry frames over.
+pub trait ByteStream: AsyncRead + AsyncWrite + Unpin + Send {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> ByteStream for T {}
+
+/// Byte counts of a connection.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counters {
+    pub bytes_sent: u64,
+    pub bytes_received: u64,
+    /// Received bytes that belonged to no transaction (late replies, noise).
+    pub bytes_discarded: u64,
+}
+
+/// Why a transaction failed. An exception is the device's answer; everything else is a
+/// failure to talk to it.
+#[derive(Debug, thiserror::Error)]
+pub enum TxError {
+    #[error("{0}")]
+    Exception(Exception),
+    #[error("timeout")]
+    Timeout,
+    #[error("CRC mismatch")]
+    Crc,
+    #[error("invalid response: {0}")]
+    Invalid(String),
+    /// The connection failed: the port or socket must be reopened.
+    #[error("I/O error: {0}")]
+    Io(io::Error),
+}
+
+impl TxError {
+    /// A label for metrics.
+    pub fn outcome(&self) -> &'static str {
+        match self {
+            TxError::Exception(_) => "exception",
+            TxError::Timeout => "timeout",
+            TxError::Crc => "crc_error",
+            TxError::Invalid(_) => "invalid_response",
+            TxError::Io(_) => "io_error",
+        }
+    }
+}
+
+/// An open connection.
+pub enum Connection {
+    Rtu(RtuTransport),
+    Mbap(MbapTransport),
+}
+
+impl Connection {
+    pub async fn transact(
+        &mut self,
+        slave: u8,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Response, TxError> {
+        match self {
+            Connection::Rtu(t) => t.transact(slave, request, timeout).await,
+            Connection::Mbap(t) => t.transact(slave, request, timeout).await,
+        }
+    }
+
+    pub fn counters(&self) -> Counters {
+        match self {
+            Connection::Rtu(t) => t.counters,
+            Connection::Mbap(t) => t.counters,
+        }
+    }
+}
+
+/// Why a link could not be opened, with the SerialLink error code it maps to.
+#[derive(Debug, thiserror::Error)]
+#[error("{message}")]
+pub struct OpenError {
+    pub code: i16,
+    pub message: String,
+}
+
+/// Opens the link's port or socket.
+pub async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, OpenError> {
+    match &config.transport {
+        Transport::Serial(s) => {
+            if s.port.trim().is_empty() {
+                return Err(OpenError {
+                    code: LINK_NO_PORT,
+                    message: "no port configured".into(),
+                });
+            }
+            let parity = match s.parity {
+                Parity::None => tokio_serial::Parity::None,
+                Parity::Even => tokio_serial::Parity::Even,
+                Parity::Odd => tokio_serial::Parity::Odd,
+            };
+            let data_bits = if s.data_bits == 7 {
+                tokio_serial::DataBits::Seven
+            } else {
+                tokio_serial::DataBits::Eight
+            };
+            let stop_bits = if s.stop_bits == 2 {
+                tokio_serial::StopBits::Two
+            } else {
+                tokio_serial::StopBits::One
+            };
+            let builder = tokio_serial::new(&s.port, s.baud)
+                .parity(parity)
+                .data_bits(data_bits)
+                .stop_bits(stop_bits)
+                .flow_control(tokio_serial::FlowControl::None);
+            let stream = tokio_serial::SerialStream::open(&builder).map_err(|e| OpenError {
+                code: LINK_OPEN_FAILED,
+                message: format!("cannot open {}: {e}", s.port),
+            })?;
+            Ok(Connection::Rtu(RtuTransport::new(
+                Box::new(stream),
+                Some(LineTiming::new(s)),
+                guard,
+            )))
+        }
+        Transport::Tcp {
+            host,
+            port,
+            framing,
+        } => {
+            let stream = TcpStream::connect((host.as_str(), *port))
+                .await
+                .map_err(|e| OpenError {
+                    code: LINK_OPEN_FAILED,
+                    message: format!("cannot connect to {host}:{port}: {e}"),
+                })?;
+            let _ = stream.set_nodelay(true);
+            Ok(match framing {
+                Framing::Mbap => Connection::Mbap(MbapTransport::new(Box::new(stream))),
+                Framing::Rtu => Connection::Rtu(RtuTransport::new(Box::new(stream), None, guard)),
+            })
+        }
+    }
+}

@@ -1,0 +1,376 @@
+//! Modbus RTU transactions over a byte stream (a serial port, or a TCP socket to a serial
+//! device server).
+//!
+//! This layer exists because a client that only wraps calls in a timeout cannot be made safe
+//! on a shared RS-485 line: it keeps no inter-frame silence, and after a timeout it reads a
+//! late reply as the answer to the next request. Here every transaction:
+//! - waits for the line to have been silent for 3.5 characters (1.75 ms above 19200 baud)
+//!   plus the link's guard time, discarding anything that arrived in between;
+//! - reads exactly the response its request calls for, with a deadline;
+//! - checks slave, function, byte count, CRC and write echo, and rejects anything else;
+//! - after a timeout or a rejected frame, discards input until the line has been quiet for
+//!   half the timeout (at least the silence plus guard), so a late reply is dropped rather
+//!   than taken as the answer to the next request.
+
+use std::io;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::time::{Instant, timeout_at};
+
+use super::frame::{Request, Response, ResponseError, crc16, rtu_frame};
+use super::timing::LineTiming;
+use super::{ByteStream, Counters, TxError};
+
+/// Room for the longest frame a byte count can announce: 5 + 255 bytes.
+const MAX_FRAME: usize = 260;
+
+pub struct RtuTransport {
+    io: Box<dyn ByteStream>,
+    /// Wire timing of a serial line; `None` over TCP, where there is no line to keep quiet.
+    timing: Option<LineTiming>,
+    guard: Duration,
+    /// When the line was last busy (the end of the last frame sent or received).
+    last_activity: Instant,
+    pub counters: Counters,
+}
+
+impl RtuTransport {
+    pub fn new(io: Box<dyn ByteStream>, timing: Option<LineTiming>, guard: Duration) -> Self {
+        RtuTransport {
+            io,
+            timing,
+            guard,
+            last_activity: Instant::now(),
+            counters: Counters::default(),
+        }
+    }
+
+    fn silence(&self) -> Duration {
+        self.timing.map_or(Duration::ZERO, |t| t.silence()) + self.guard
+    }
+
+    fn frame_time(&self, bytes: usize) -> Duration {
+        self.timing.map_or(Duration::ZERO, |t| t.frame_time(bytes))
+    }
+
+    /// One request and its response. `timeout` runs from the end of the request on the wire.
+    pub async fn transact(
+        &mut self,
+        slave: u8,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Response, TxError> {
+        self.quiet_line(self.silence()).await?;
+        let frame = rtu_frame(slave, request);
+        self.io.write_all(&frame).await.map_err(TxError::Io)?;
+        self.io.flush().await.map_err(TxError::Io)?;
+        self.counters.bytes_sent += frame.len() as u64;
+        let sent = Instant::now() + self.frame_time(frame.len());
+        self.last_activity = sent;
+        let result = self.read_response(slave, request, sent + timeout).await;
+        match &result {
+            Ok(_) | Err(TxError::Exception(_)) | Err(TxError::Io(_)) => {}
+            Err(_) => {
+                // The quiet window starts now: a reply still on its way is discarded.
+                self.last_activity = Instant::now();
+                let window = (timeout / 2).max(self.silence());
+                self.quiet_line(window).await?;
+            }
+        }
+        result
+    }
+
+    async fn read_response(
+        &mut self,
+        slave: u8,
+        request: &Request,
+        deadline: Instant,
+    ) -> Result<Response, TxError> {
+        let mut buf = [0u8; MAX_FRAME];
+        self.read_into(&mut buf[..3], deadline).await?;
+        let fc = request.function().code();
+        let total = if buf[1] == fc | 0x80 {
+            5
+        } else if buf[1] != fc {
+            return Err(TxError::Invalid(format!(
+                "function {:#04x} in the answer to {}",
+                buf[1],
+                request.function()
+            )));
+        } else if request.is_read() {
+            let expected = request.response_len() - 2;
+            if usize::from(buf[2]) != expected {
+                return Err(TxError::Invalid(format!(
+                    "byte count {}, expected {expected}",
+                    buf[2]
+                )));
+            }
+            // slave, function, byte count, data, CRC
+            5 + expected
+        } else {
+            8
+        };
+        self.read_into(&mut buf[3..total], deadline).await?;
+        self.last_activity = Instant::now();
+        let frame = &buf[..total];
+        let crc = u16::from_le_bytes([frame[total - 2], frame[total - 1]]);
+        if crc16(&frame[..total - 2]) != crc {
+            return Err(TxError::Crc);
+        }
+        if frame[0] != slave {
+            return Err(TxError::Invalid(format!(
+                "answer from slave {}, expected {slave}",
+                frame[0]
+            )));
+        }
+        request
+            .parse_response(&frame[1..total - 2])
+            .map_err(|e| match e {
+                ResponseError::Exception(x) => TxError::Exception(x),
+                ResponseError::Invalid(msg) => TxError::Invalid(msg),
+            })
+    }
+
+    async fn read_into(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), TxError> {
+        match timeout_at(deadline, self.io.read_exact(buf)).await {
+            Err(_) => Err(TxError::Timeout),
+            Ok(Err(e)) => Err(TxError::Io(e)),
+            Ok(Ok(_)) => {
+                self.counters.bytes_received += buf.len() as u64;
+                Ok(())
+            }
+        }
+    }
+
+    /// Waits until the line has been silent for `quiet`, discarding whatever arrives.
+    async fn quiet_line(&mut self, quiet: Duration) -> Result<(), TxError> {
+        let mut scratch = [0u8; MAX_FRAME];
+        loop {
+            let until = self.last_activity + quiet;
+            if Instant::now() >= until {
+                // Anything already buffered means the line was not quiet after all.
+                match timeout_at(Instant::now(), self.io.read(&mut scratch)).await {
+                    Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                    Ok(Ok(n)) => {
+                        self.discard(n);
+                        continue;
+                    }
+                    Ok(Err(e)) => return Err(TxError::Io(e)),
+                    Err(_) => return Ok(()),
+                }
+            }
+            match timeout_at(until, self.io.read(&mut scratch)).await {
+                Err(_) => {}
+                Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                Ok(Ok(n)) => self.discard(n),
+                Ok(Err(e)) => return Err(TxError::Io(e)),
+            }
+        }
+    }
+
+    fn discard(&mut self, n: usize) {
+        self.counters.bytes_received += n as u64;
+        self.counters.bytes_discarded += n as u64;
+        self.last_activity = Instant::now();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Parity, SerialSettings};
+    use crate::link::frame::Exception;
+    use tokio::io::DuplexStream;
+
+    const TIMEOUT: Duration = Duration::from_millis(100);
+
+    fn line_9600() -> LineTiming {
+        LineTiming::new(&SerialSettings {
+            port: "test".into(),
+            baud: 9600,
+            parity: Parity::None,
+            data_bits: 8,
+            stop_bits: 1,
+        })
+    }
+
+    fn read2() -> Request {
+        Request::ReadHoldingRegisters {
+            address: 0,
+            count: 2,
+        }
+    }
+
+    /// A response frame with a correct CRC.
+    fn frame(bytes: &[u8]) -> Vec<u8> {
+        let mut f = bytes.to_vec();
+        f.extend_from_slice(&crc16(bytes).to_le_bytes());
+        f
+    }
+
+    fn registers(slave: u8, a: u16, b: u16) -> Vec<u8> {
+        let [a0, a1] = a.to_be_bytes();
+        let [b0, b1] = b.to_be_bytes();
+        frame(&[slave, 0x03, 4, a0, a1, b0, b1])
+    }
+
+    async fn request(device: &mut DuplexStream) -> (Vec<u8>, Instant) {
+        let mut buf = [0u8; 8];
+        device.read_exact(&mut buf).await.expect("request");
+        (buf.to_vec(), Instant::now())
+    }
+
+    fn transport(gateway: DuplexStream, guard: Duration) -> RtuTransport {
+        RtuTransport::new(Box::new(gateway), Some(line_9600()), guard)
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn frames_are_separated_by_the_silence_and_guard_time() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let guard = Duration::from_millis(5);
+        let mut t = transport(gateway, guard);
+        let dev = tokio::spawn(async move {
+            let (req, _) = request(&mut device).await;
+            assert_eq!(req, rtu_frame(1, &read2()));
+            device.write_all(&registers(1, 1, 2)).await.expect("write");
+            let answered = Instant::now();
+            let (_, second) = request(&mut device).await;
+            device.write_all(&registers(1, 3, 4)).await.expect("write");
+            second - answered
+        });
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("first"),
+            Response::Registers(vec![1, 2])
+        );
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("second"),
+            Response::Registers(vec![3, 4])
+        );
+        let gap = dev.await.expect("device");
+        assert!(gap >= line_9600().silence() + guard, "{gap:?}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_late_reply_is_never_taken_as_the_next_answer() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO);
+        tokio::spawn(async move {
+            request(&mut device).await;
+            // Answers 20% after the timeout, with data that must never be seen.
+            tokio::time::sleep(TIMEOUT * 6 / 5).await;
+            device
+                .write_all(&registers(1, 0xBAD0, 0xBAD0))
+                .await
+                .expect("write");
+            request(&mut device).await;
+            device.write_all(&registers(1, 7, 8)).await.expect("write");
+        });
+        let started = Instant::now();
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Timeout)
+        ));
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("second"),
+            Response::Registers(vec![7, 8])
+        );
+        assert_eq!(
+            t.counters.bytes_discarded, 9,
+            "the late frame was discarded"
+        );
+        assert!(started.elapsed() < TIMEOUT * 3);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_device_costs_its_timeout_and_half_of_it_again() {
+        let (gateway, _device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO);
+        let started = Instant::now();
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Timeout)
+        ));
+        let cost = started.elapsed();
+        let request_on_wire = line_9600().frame_time(8);
+        assert!(cost >= TIMEOUT + request_on_wire + TIMEOUT / 2, "{cost:?}");
+        assert!(cost < TIMEOUT * 2, "{cost:?}");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn wrong_length_bad_crc_and_wrong_slave_are_rejected_and_the_line_recovers() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO);
+        tokio::spawn(async move {
+            // One register short, with a valid CRC.
+            request(&mut device).await;
+            device
+                .write_all(&frame(&[1, 0x03, 2, 0, 1]))
+                .await
+                .expect("write");
+            // A corrupted CRC.
+            request(&mut device).await;
+            let mut bad = registers(1, 1, 2);
+            let last = bad.len() - 1;
+            bad[last] ^= 0xFF;
+            device.write_all(&bad).await.expect("write");
+            // Another slave's answer.
+            request(&mut device).await;
+            device.write_all(&registers(9, 1, 2)).await.expect("write");
+            // An exception.
+            request(&mut device).await;
+            device
+                .write_all(&frame(&[1, 0x83, 0x02]))
+                .await
+                .expect("write");
+            // And a good answer.
+            request(&mut device).await;
+            device.write_all(&registers(1, 5, 6)).await.expect("write");
+        });
+        assert!(
+            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.contains("byte count 2"))
+        );
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Crc)
+        ));
+        assert!(
+            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.contains("slave 9"))
+        );
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Exception(Exception::ILLEGAL_DATA_ADDRESS))
+        ));
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("good"),
+            Response::Registers(vec![5, 6])
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_closed_port_is_an_io_error() {
+        let (gateway, device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO);
+        drop(device);
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Io(_))
+        ));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn noise_on_the_line_before_a_request_is_discarded() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO);
+        device.write_all(&[0x55, 0xAA, 0x01]).await.expect("noise");
+        tokio::spawn(async move {
+            request(&mut device).await;
+            device.write_all(&registers(1, 1, 1)).await.expect("write");
+        });
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("good"),
+            Response::Registers(vec![1, 1])
+        );
+        assert_eq!(t.counters.bytes_discarded, 3);
+    }
+}

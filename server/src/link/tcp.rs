@@ -1,0 +1,184 @@
+//! Modbus TCP transactions (MBAP header). Each request carries a transaction id; an answer
+//! with another id (a late reply to a request that timed out) is discarded, so it is never
+//! taken as the answer to a later request.
+
+use std::io;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::time::{Instant, timeout_at};
+
+use super::frame::{Request, Response, ResponseError};
+use super::{ByteStream, Counters, TxError};
+
+pub struct MbapTransport {
+    io: Box<dyn ByteStream>,
+    next_id: u16,
+    pub counters: Counters,
+}
+
+impl MbapTransport {
+    pub fn new(io: Box<dyn ByteStream>) -> Self {
+        MbapTransport {
+            io,
+            next_id: 1,
+            counters: Counters::default(),
+        }
+    }
+
+    pub async fn transact(
+        &mut self,
+        unit: u8,
+        request: &Request,
+        timeout: Duration,
+    ) -> Result<Response, TxError> {
+        let id = self.next_id;
+        self.next_id = self.next_id.wrapping_add(1);
+        let mut pdu = Vec::with_capacity(6 + 2 * usize::from(request.count()));
+        request.encode(&mut pdu);
+        let mut frame = Vec::with_capacity(7 + pdu.len());
+        frame.extend_from_slice(&id.to_be_bytes());
+        frame.extend_from_slice(&[0, 0]);
+        frame.extend_from_slice(&(pdu.len() as u16 + 1).to_be_bytes());
+        frame.push(unit);
+        frame.extend_from_slice(&pdu);
+        self.io.write_all(&frame).await.map_err(TxError::Io)?;
+        self.io.flush().await.map_err(TxError::Io)?;
+        self.counters.bytes_sent += frame.len() as u64;
+
+        let deadline = Instant::now() + timeout;
+        loop {
+            let mut header = [0u8; 7];
+            self.read_into(&mut header, deadline).await?;
+            let answer_id = u16::from_be_bytes([header[0], header[1]]);
+            let protocol = u16::from_be_bytes([header[2], header[3]]);
+            let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
+            if protocol != 0 || !(2..=254).contains(&len) {
+                // The stream is out of step; only a new connection can recover it.
+                return Err(TxError::Io(io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!("MBAP header with protocol {protocol} and length {len}"),
+                )));
+            }
+            let mut body = vec![0u8; len - 1];
+            self.read_into(&mut body, deadline).await?;
+            if answer_id != id {
+                self.counters.bytes_discarded += (7 + body.len()) as u64;
+                continue;
+            }
+            if header[6] != unit {
+                return Err(TxError::Invalid(format!(
+                    "answer from unit {}, expected {unit}",
+                    header[6]
+                )));
+            }
+            return request.parse_response(&body).map_err(|e| match e {
+                ResponseError::Exception(x) => TxError::Exception(x),
+                ResponseError::Invalid(msg) => TxError::Invalid(msg),
+            });
+        }
+    }
+
+    /// Fills `buf` by `deadline`. A timeout in the middle of a frame leaves the stream out of
+    /// step, which only a new connection recovers, so it is reported as an I/O error.
+    async fn read_into(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), TxError> {
+        let mut filled = 0;
+        while filled < buf.len() {
+            match timeout_at(deadline, self.io.read(&mut buf[filled..])).await {
+                Err(_) if filled == 0 => return Err(TxError::Timeout),
+                Err(_) => {
+                    return Err(TxError::Io(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        "timed out in the middle of a frame",
+                    )));
+                }
+                Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                Ok(Ok(n)) => {
+                    filled += n;
+                    self.counters.bytes_received += n as u64;
+                }
+                Ok(Err(e)) => return Err(TxError::Io(e)),
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::DuplexStream;
+
+    const TIMEOUT: Duration = Duration::from_millis(100);
+
+    fn read1() -> Request {
+        Request::ReadInputRegisters {
+            address: 4,
+            count: 1,
+        }
+    }
+
+    fn answer(id: u16, unit: u8, value: u16) -> Vec<u8> {
+        let mut f = id.to_be_bytes().to_vec();
+        f.extend_from_slice(&[0, 0, 0, 5, unit, 0x04, 2]);
+        f.extend_from_slice(&value.to_be_bytes());
+        f
+    }
+
+    async fn request(device: &mut DuplexStream) -> u16 {
+        let mut buf = [0u8; 12];
+        device.read_exact(&mut buf).await.expect("request");
+        assert_eq!(&buf[2..], &[0, 0, 0, 6, 7, 0x04, 0, 4, 0, 1]);
+        u16::from_be_bytes([buf[0], buf[1]])
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn late_replies_with_an_old_transaction_id_are_skipped() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = MbapTransport::new(Box::new(gateway));
+        tokio::spawn(async move {
+            let first = request(&mut device).await;
+            // Arrives while the gateway waits for its second answer.
+            tokio::time::sleep(TIMEOUT * 3 / 2).await;
+            device
+                .write_all(&answer(first, 7, 0xBAD0))
+                .await
+                .expect("late");
+            let second = request(&mut device).await;
+            device
+                .write_all(&answer(second, 7, 42))
+                .await
+                .expect("good");
+        });
+        assert!(matches!(
+            t.transact(7, &read1(), TIMEOUT).await,
+            Err(TxError::Timeout)
+        ));
+        assert_eq!(
+            t.transact(7, &read1(), TIMEOUT).await.expect("second"),
+            Response::Registers(vec![42])
+        );
+        assert_eq!(t.counters.bytes_discarded, 11);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_bad_header_or_wrong_unit_is_rejected() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = MbapTransport::new(Box::new(gateway));
+        tokio::spawn(async move {
+            let id = request(&mut device).await;
+            device.write_all(&answer(id, 9, 1)).await.expect("write");
+            let id = request(&mut device).await;
+            let mut bad = answer(id, 7, 1);
+            bad[2] = 1; // protocol id must be 0
+            device.write_all(&bad).await.expect("write");
+        });
+        assert!(
+            matches!(t.transact(7, &read1(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.contains("unit 9"))
+        );
+        assert!(matches!(
+            t.transact(7, &read1(), TIMEOUT).await,
+            Err(TxError::Io(_))
+        ));
+    }
+}

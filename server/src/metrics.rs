@@ -1,0 +1,336 @@
+//! Prometheus metrics at `/metrics`: names are consts, labels stay bounded (link, device,
+//! function, outcome, exception code; never a value).
+//!
+//! Counters of transactions are recorded by the link tasks as they happen. States that the
+//! cache already holds (connected, error codes, I/O cycles, write outcomes) are copied into
+//! the registry when it is scraped, so there is one source of truth.
+
+use std::sync::atomic::AtomicU64;
+use std::time::Duration;
+
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
+use prometheus_client::registry::Registry;
+
+use crate::cache::Cache;
+use crate::link::TxError;
+use crate::link::frame::Function;
+
+pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+
+// Counter names get `_total` appended by the encoder.
+pub const LINK_UP: &str = "iogate_link_up";
+pub const LINK_ERROR_CODE: &str = "iogate_link_error_code";
+pub const LINK_RECONNECTS: &str = "iogate_link_reconnects";
+pub const LINK_SENT_BYTES: &str = "iogate_link_sent_bytes";
+pub const LINK_RECEIVED_BYTES: &str = "iogate_link_received_bytes";
+pub const LINK_DISCARDED_BYTES: &str = "iogate_link_discarded_bytes";
+pub const LINK_PLANNED_UTILISATION: &str = "iogate_link_planned_utilisation_ratio";
+pub const LINK_UTILISATION: &str = "iogate_link_utilisation_ratio";
+pub const DEVICE_CONNECTED: &str = "iogate_device_connected";
+pub const DEVICE_ERROR_CODE: &str = "iogate_device_error_code";
+pub const DEVICE_IO_CYCLES: &str = "iogate_device_io_cycles";
+pub const DEVICE_RESPONSE_TIME: &str = "iogate_device_response_time_seconds";
+pub const DEVICE_REQUESTS: &str = "iogate_device_requests";
+pub const DEVICE_TIMEOUTS: &str = "iogate_device_timeouts";
+pub const DEVICE_CRC_ERRORS: &str = "iogate_device_crc_errors";
+pub const DEVICE_EXCEPTIONS: &str = "iogate_device_exceptions";
+pub const DEVICE_WRITES: &str = "iogate_device_writes";
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct LinkLabels {
+    pub link: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct DeviceLabels {
+    pub device: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct RequestLabels {
+    pub device: String,
+    pub function: String,
+    pub outcome: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ExceptionLabels {
+    pub device: String,
+    pub code: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct WriteLabels {
+    pub device: String,
+    pub outcome: String,
+}
+
+type Ratio = Gauge<f64, AtomicU64>;
+
+fn response_histogram() -> Histogram {
+    // 0.5 ms to about 4 s.
+    Histogram::new(exponential_buckets(0.0005, 2.0, 14))
+}
+
+pub struct Metrics {
+    registry: Registry,
+    link_up: Family<LinkLabels, Gauge>,
+    link_error_code: Family<LinkLabels, Gauge>,
+    link_reconnects: Family<LinkLabels, Counter>,
+    link_sent: Family<LinkLabels, Counter>,
+    link_received: Family<LinkLabels, Counter>,
+    link_discarded: Family<LinkLabels, Counter>,
+    link_planned: Family<LinkLabels, Ratio>,
+    link_utilisation: Family<LinkLabels, Ratio>,
+    device_connected: Family<DeviceLabels, Gauge>,
+    device_error_code: Family<DeviceLabels, Gauge>,
+    device_io_cycles: Family<DeviceLabels, Counter>,
+    response_time: Family<DeviceLabels, Histogram, fn() -> Histogram>,
+    requests: Family<RequestLabels, Counter>,
+    timeouts: Family<DeviceLabels, Counter>,
+    crc_errors: Family<DeviceLabels, Counter>,
+    exceptions: Family<ExceptionLabels, Counter>,
+    writes: Family<WriteLabels, Counter>,
+}
+
+impl std::fmt::Debug for Metrics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Metrics")
+    }
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        Metrics::new()
+    }
+}
+
+impl Metrics {
+    pub fn new() -> Self {
+        let mut registry = Registry::default();
+        let m = Metrics {
+            link_up: Family::default(),
+            link_error_code: Family::default(),
+            link_reconnects: Family::default(),
+            link_sent: Family::default(),
+            link_received: Family::default(),
+            link_discarded: Family::default(),
+            link_planned: Family::default(),
+            link_utilisation: Family::default(),
+            device_connected: Family::default(),
+            device_error_code: Family::default(),
+            device_io_cycles: Family::default(),
+            response_time: Family::new_with_constructor(response_histogram),
+            requests: Family::default(),
+            timeouts: Family::default(),
+            crc_errors: Family::default(),
+            exceptions: Family::default(),
+            writes: Family::default(),
+            registry: Registry::default(),
+        };
+        registry.register(
+            LINK_UP,
+            "1 while the link's port or connection is open",
+            m.link_up.clone(),
+        );
+        registry.register(
+            LINK_ERROR_CODE,
+            "SerialLink error code: 0 OK, 1 no port configured, 2 open failed, 3 port lost",
+            m.link_error_code.clone(),
+        );
+        registry.register(
+            LINK_RECONNECTS,
+            "Times the link was reopened after it was lost",
+            m.link_reconnects.clone(),
+        );
+        registry.register(
+            LINK_SENT_BYTES,
+            "Bytes sent on the link",
+            m.link_sent.clone(),
+        );
+        registry.register(
+            LINK_RECEIVED_BYTES,
+            "Bytes received on the link",
+            m.link_received.clone(),
+        );
+        registry.register(
+            LINK_DISCARDED_BYTES,
+            "Received bytes that answered no request (late replies, noise)",
+            m.link_discarded.clone(),
+        );
+        registry.register(
+            LINK_PLANNED_UTILISATION,
+            "Share of the line's time the refresh rates demand (serial links)",
+            m.link_planned.clone(),
+        );
+        registry.register(
+            LINK_UTILISATION,
+            "Share of the last interval the link spent in transactions",
+            m.link_utilisation.clone(),
+        );
+        registry.register(
+            DEVICE_CONNECTED,
+            "1 while the device answers",
+            m.device_connected.clone(),
+        );
+        registry.register(
+            DEVICE_ERROR_CODE,
+            "Device error code: 0 OK, 1 no link, 2 no slave, 10 communication error",
+            m.device_error_code.clone(),
+        );
+        registry.register(
+            DEVICE_IO_CYCLES,
+            "Successful I/O cycles",
+            m.device_io_cycles.clone(),
+        );
+        registry.register(
+            DEVICE_RESPONSE_TIME,
+            "Time from request to good response",
+            m.response_time.clone(),
+        );
+        registry.register(
+            DEVICE_REQUESTS,
+            "Modbus requests by function and outcome",
+            m.requests.clone(),
+        );
+        registry.register(
+            DEVICE_TIMEOUTS,
+            "Requests that got no answer in time",
+            m.timeouts.clone(),
+        );
+        registry.register(
+            DEVICE_CRC_ERRORS,
+            "Responses with a bad CRC",
+            m.crc_errors.clone(),
+        );
+        registry.register(
+            DEVICE_EXCEPTIONS,
+            "Modbus exception responses by code",
+            m.exceptions.clone(),
+        );
+        registry.register(
+            DEVICE_WRITES,
+            "Writes by final outcome: written, superseded, failed",
+            m.writes.clone(),
+        );
+        Metrics { registry, ..m }
+    }
+
+    /// Records one transaction's outcome.
+    pub fn transaction<T>(
+        &self,
+        device: &str,
+        function: Function,
+        result: &Result<T, TxError>,
+        elapsed: Duration,
+    ) {
+        let outcome = match result {
+            Ok(_) => "ok",
+            Err(e) => e.outcome(),
+        };
+        self.requests
+            .get_or_create(&RequestLabels {
+                device: device.to_owned(),
+                function: function.label().to_owned(),
+                outcome: outcome.to_owned(),
+            })
+            .inc();
+        let labels = DeviceLabels {
+            device: device.to_owned(),
+        };
+        match result {
+            Ok(_) => self
+                .response_time
+                .get_or_create(&labels)
+                .observe(elapsed.as_secs_f64()),
+            Err(TxError::Timeout) => {
+                self.timeouts.get_or_create(&labels).inc();
+            }
+            Err(TxError::Crc) => {
+                self.crc_errors.get_or_create(&labels).inc();
+            }
+            Err(TxError::Exception(x)) => {
+                self.exceptions
+                    .get_or_create(&ExceptionLabels {
+                        device: device.to_owned(),
+                        code: format!("{:02}", x.0),
+                    })
+                    .inc();
+            }
+            Err(_) => {}
+        }
+    }
+
+    pub fn link_bytes(&self, link: &str, sent: u64, received: u64, discarded: u64) {
+        let labels = LinkLabels {
+            link: link.to_owned(),
+        };
+        self.link_sent.get_or_create(&labels).inc_by(sent);
+        self.link_received.get_or_create(&labels).inc_by(received);
+        self.link_discarded.get_or_create(&labels).inc_by(discarded);
+    }
+
+    pub fn link_reconnected(&self, link: &str) {
+        self.link_reconnects
+            .get_or_create(&LinkLabels {
+                link: link.to_owned(),
+            })
+            .inc();
+    }
+
+    pub fn link_utilisation(&self, link: &str, planned: Option<f64>, measured: f64) {
+        let labels = LinkLabels {
+            link: link.to_owned(),
+        };
+        if let Some(p) = planned {
+            self.link_planned.get_or_create(&labels).set(p);
+        }
+        self.link_utilisation.get_or_create(&labels).set(measured);
+    }
+
+    /// The registry in OpenMetrics text, with states copied from the cache first.
+    pub fn render(&self, cache: &Cache) -> String {
+        for link in &cache.links {
+            let labels = LinkLabels {
+                link: link.config.name.clone(),
+            };
+            let d = link.diagnostics();
+            self.link_up
+                .get_or_create(&labels)
+                .set(i64::from(d.connected));
+            self.link_error_code
+                .get_or_create(&labels)
+                .set(i64::from(d.error_code));
+        }
+        for device in &cache.devices {
+            let labels = DeviceLabels {
+                device: device.name().to_owned(),
+            };
+            let d = device.diagnostics();
+            self.device_connected
+                .get_or_create(&labels)
+                .set(i64::from(d.connected));
+            self.device_error_code
+                .get_or_create(&labels)
+                .set(i64::from(d.error_code));
+            let cycles = self.device_io_cycles.get_or_create(&labels);
+            cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
+        }
+        for (device, outcome, n) in cache.writes.outcome_counts() {
+            let counter = self.writes.get_or_create(&WriteLabels {
+                device,
+                outcome: outcome.to_owned(),
+            });
+            counter.inc_by(n.saturating_sub(counter.get()));
+        }
+        let mut out = String::new();
+        if prometheus_client::encoding::text::encode(&mut out, &self.registry).is_err() {
+            tracing::error!("cannot encode the metrics");
+        }
+        out
+    }
+}
