@@ -12,6 +12,8 @@ use tokio_util::task::TaskTracker;
 
 use crate::cache::Cache;
 use crate::config::{self, Config};
+use crate::metrics::Metrics;
+use crate::poller::LinkTask;
 use crate::profile::{self, Catalog};
 use crate::yaml::{Problems, Report};
 
@@ -99,6 +101,7 @@ impl Setup {
 #[derive(Debug)]
 pub struct AppState {
     pub cache: Arc<Cache>,
+    pub metrics: Arc<Metrics>,
     pub ready: AtomicBool,
     pub token: CancellationToken,
 }
@@ -153,17 +156,16 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             tracker.spawn(crate::sim::run(device.clone(), token.child_token()));
         }
     }
+    let metrics = Arc::new(Metrics::new());
     for link in &cache.links {
-        let devices = cache.devices_on(&link.config.name).count();
-        tracing::warn!(
-            link = %link.config.name,
-            devices,
-            "Modbus links are not polled by this build; their devices stay never_read and writes stay pending"
-        );
+        let devices = cache.devices_on(&link.config.name).cloned().collect();
+        let task = LinkTask::new(link.clone(), devices, metrics.clone());
+        tracker.spawn(task.run(token.child_token()));
     }
 
     let state = Arc::new(AppState {
         cache,
+        metrics,
         ready: AtomicBool::new(false),
         token: token.clone(),
     });
@@ -201,6 +203,7 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     println!("REST API:  {base}/api/v1/devices");
     println!("Events:    {base}/api/v1/events");
     println!("OpenAPI:   {base}/api/v1/openapi.json");
+    println!("Metrics:   {base}/metrics");
     println!("Health:    {base}/livez  {base}/readyz");
     tracing::info!(http = %running.http_addr, "iogate started");
     signal.await;

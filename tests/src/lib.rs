@@ -6,6 +6,8 @@ use std::time::Duration;
 
 use iogate::app::{self, Running, Setup};
 
+pub mod devices;
+
 /// How long `eventually` waits for a condition.
 pub const PATIENCE: Duration = Duration::from_secs(10);
 
@@ -48,6 +50,11 @@ impl TestGateway {
     }
 
     async fn start_setup(setup: Setup) -> anyhow::Result<TestGateway> {
+        // Logs show with `RUST_LOG=iogate=debug cargo test -- --nocapture`.
+        let _ = tracing_subscriber::fmt()
+            .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+            .with_test_writer()
+            .try_init();
         let running = app::start(setup).await?;
         let gateway = TestGateway {
             base: format!("http://{}", running.http_addr),
@@ -96,6 +103,39 @@ impl TestGateway {
             .send()
             .await?;
         json_of(response).await
+    }
+
+    /// Waits until the JSON at `path` satisfies `check`; answers that JSON.
+    pub async fn until(
+        &self,
+        path: &str,
+        what: &str,
+        check: impl Fn(&serde_json::Value) -> bool,
+    ) -> anyhow::Result<serde_json::Value> {
+        let deadline = tokio::time::Instant::now() + PATIENCE;
+        loop {
+            let last = self.get(path).await;
+            if let Ok((200, body)) = &last {
+                if check(body) {
+                    return Ok(body.clone());
+                }
+            }
+            if tokio::time::Instant::now() > deadline {
+                anyhow::bail!("timed out waiting for {what}; last answer: {last:?}");
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    /// The Prometheus text at `/metrics`.
+    pub async fn metrics(&self) -> anyhow::Result<String> {
+        Ok(self
+            .client
+            .get(self.url("/metrics"))
+            .send()
+            .await?
+            .text()
+            .await?)
     }
 
     pub fn token(&self) -> Option<&tokio_util::sync::CancellationToken> {

@@ -9,7 +9,9 @@ use std::sync::Arc;
 
 use axum::Json;
 use axum::Router;
-use axum::http::Uri;
+use axum::extract::State;
+use axum::http::{Uri, header};
+use axum::response::IntoResponse;
 use axum::routing::{get, put};
 use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
@@ -48,6 +50,13 @@ async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
     Json(openapi())
 }
 
+async fn metrics(State(state): State<Arc<AppState>>) -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, crate::metrics::CONTENT_TYPE)],
+        state.metrics.render(&state.cache),
+    )
+}
+
 async fn not_found(uri: Uri) -> ApiError {
     ApiError::not_found(
         "no_route",
@@ -84,6 +93,7 @@ pub fn router(state: Arc<AppState>) -> Router {
     Router::new()
         .route("/livez", get(rest::livez))
         .route("/readyz", get(rest::readyz))
+        .route("/metrics", get(metrics))
         .nest(API_PREFIX, api)
         .fallback(not_found)
         .layer(TraceLayer::new_for_http())
