@@ -1,4 +1,5 @@
-//! The `iogate` command: `serve` runs the gateway, `check` validates its configuration.
+//! The `iogate` command: `serve` runs the gateway, `check` validates its configuration,
+//! `plan` prints the poll plan of its links.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -27,6 +28,18 @@ enum Command {
         #[arg(long, short)]
         config: Option<PathBuf>,
     },
+    /// Print each link's poll plan: transactions per cycle, wire time, bus utilisation.
+    Plan {
+        /// The config file; default: ./iogate.yaml, else the built-in demo.
+        #[arg(long, short)]
+        config: Option<PathBuf>,
+    },
+}
+
+enum Action {
+    Serve,
+    Check,
+    Plan,
 }
 
 fn main() -> ExitCode {
@@ -38,10 +51,11 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
-    let (config, serve) = match cli.command {
-        None => (None, true),
-        Some(Command::Serve { config }) => (config, true),
-        Some(Command::Check { config }) => (config, false),
+    let (config, action) = match cli.command {
+        None => (None, Action::Serve),
+        Some(Command::Serve { config }) => (config, Action::Serve),
+        Some(Command::Check { config }) => (config, Action::Check),
+        Some(Command::Plan { config }) => (config, Action::Plan),
     };
     let setup = match Setup::load(config.as_deref()) {
         Ok(setup) => setup,
@@ -55,7 +69,11 @@ fn main() -> ExitCode {
             return ExitCode::from(iogate::EXIT_CONFIG as u8);
         }
     };
-    if !serve {
+    if let Action::Plan = action {
+        print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
+        return ExitCode::SUCCESS;
+    }
+    if let Action::Check = action {
         let what = if setup.demo {
             "built-in demo".to_owned()
         } else {

@@ -127,3 +127,50 @@ fn serve_runs_until_sigterm_and_exits_promptly() {
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+#[test]
+fn plan_prints_transactions_wire_time_and_utilisation() {
+    let dir = temp_dir("plan");
+    let config = dir.join("iogate.yaml");
+    std::fs::write(
+        &config,
+        format!(
+            "profiles: {}\nlinks:\n  - {{ name: rs485, serial: {{ port: /dev/ttyUSB0, baud: 9600, parity: E }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: rs485, slave_id: 1, refresh_rate: 100ms }}\n  - {{ name: io, profile: MyIoModule, link: rs485, slave_id: 2, refresh_rate: 50ms }}\n",
+            repo().join("profiles").display()
+        ),
+    )
+    .expect("write config");
+    let out = iogate()
+        .args(["plan", "--config"])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("link rs485: serial /dev/ttyUSB0 9600 8E1 (11 bits per character"),
+        "{text}"
+    );
+    // The meter's floats sit in 8 runs of input registers: 0-17, 30-35, 52-53, 56-57, 60-63,
+    // 70-75, 200-205, 342-343.
+    assert!(text.contains("device meter (profile EastronSDM630, slave 1, every 100 ms): 8 transaction(s) per cycle"), "{text}");
+    assert!(
+        text.contains("FC04 slave   1 address     0 count   18"),
+        "{text}"
+    );
+    assert!(
+        text.contains(
+            "device io (profile MyIoModule, slave 2, every 50 ms): 4 transaction(s) per cycle"
+        ),
+        "{text}"
+    );
+    assert!(text.contains("bus utilisation:"), "{text}");
+    assert!(
+        text.contains("WARNING"),
+        "9600 baud cannot carry these rates: {text}"
+    );
+}

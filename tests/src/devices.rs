@@ -299,11 +299,11 @@ fn respond(slave: &mut Slave, function: u8, address: u16, count: u16, request: &
     if reads && slave.refused.iter().any(|a| r.contains(&usize::from(*a))) {
         return exception(2);
     }
-    if function == 4 {
-        if let Some(c) = slave.counter.filter(|c| r.contains(&usize::from(*c))) {
-            let i = usize::from(c);
-            slave.tables.input[i] = slave.tables.input[i].wrapping_add(1);
-        }
+    if function == 4
+        && let Some(c) = slave.counter.filter(|c| r.contains(&usize::from(*c)))
+    {
+        let i = usize::from(c);
+        slave.tables.input[i] = slave.tables.input[i].wrapping_add(1);
     }
     let t = &mut slave.tables;
     let bits = |table: &[bool]| {

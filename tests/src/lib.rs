@@ -115,10 +115,10 @@ impl TestGateway {
         let deadline = tokio::time::Instant::now() + PATIENCE;
         loop {
             let last = self.get(path).await;
-            if let Ok((200, body)) = &last {
-                if check(body) {
-                    return Ok(body.clone());
-                }
+            if let Ok((200, body)) = &last
+                && check(body)
+            {
+                return Ok(body.clone());
             }
             if tokio::time::Instant::now() > deadline {
                 anyhow::bail!("timed out waiting for {what}; last answer: {last:?}");

@@ -494,9 +494,14 @@ async fn profiles_show_their_function_block_layout() {
 
 #[tokio::test]
 async fn links_and_modbus_devices_from_a_config_are_listed() {
-    let gw = TestGateway::start(
-        "links:\n  - { name: rs485, serial: { port: /dev/ttyUSB0, baud: 19200, parity: E } }\n  - { name: plant, tcp: { host: 127.0.0.1, port: 1502 } }\ndevices:\n  - { name: meter, profile: EastronSDM630, link: rs485, slave_id: 3, refresh_rate: 1s }\n  - { name: sim, profile: SimIo }\n",
-    )
+    // A TCP endpoint that accepts connections but never answers.
+    let silent = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let tcp_port = silent.local_addr().expect("addr").port();
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: rs485, serial: {{ port: /nonexistent/ttyIOGATE, baud: 19200, parity: E }} }}\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {tcp_port} }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: rs485, slave_id: 3, refresh_rate: 1s }}\n  - {{ name: sim, profile: SimIo }}\n",
+    ))
     .await
     .expect("start");
     let (status, body) = gw.get("/api/v1/links").await.expect("get");
@@ -508,12 +513,34 @@ async fn links_and_modbus_devices_from_a_config_are_listed() {
     assert_eq!(links[0]["parity"], "E");
     assert_eq!(links[0]["devices"], json!(["meter"]));
     assert_eq!(links[1]["kind"], "tcp");
-    assert_eq!(links[1]["tcp_port"], 1502);
-    let (_, meter) = gw.get("/api/v1/devices/meter").await.expect("get");
+    assert_eq!(links[1]["tcp_port"], tcp_port);
+    // The port does not exist: the link reports "open failed", its devices a communication
+    // error, and their fields say why they have no value.
+    let link = gw
+        .until("/api/v1/links/rs485", "open failed", |b| {
+            b["error_code"] == 2
+        })
+        .await
+        .expect("link state");
+    assert_eq!(link["connected"], false);
+    let meter = gw
+        .until("/api/v1/devices/meter", "unreachable", |b| {
+            b["error_code"] == 10
+        })
+        .await
+        .expect("device state");
     assert_eq!(meter["slave_id"], 3);
     assert_eq!(meter["link"], "rs485");
-    assert_eq!(meter["fields"]["Frequency"]["quality"], "never_read");
-    assert_eq!(meter["fields"]["Frequency"]["value"], Value::Null);
+    assert_eq!(meter["connected"], false);
+    let frequency = &meter["fields"]["Frequency"];
+    assert_eq!(frequency["quality"], "bad");
+    assert_eq!(frequency["value"], Value::Null);
+    assert!(
+        frequency["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("/nonexistent/ttyIOGATE")),
+        "{frequency}"
+    );
     let (status, body) = gw
         .send(Method::PUT, "/api/v1/devices/meter/fields/Frequency", "50")
         .await

@@ -1,0 +1,145 @@
+//! Modbus TCP links on loopback: tokio-modbus's TCP server as the device, and RTU frames
+//! over a TCP socket as a serial device server carries them.
+
+use reqwest::Method;
+use tokio::net::TcpListener;
+
+use iogate_tests::devices::{ModbusDevice, RtuBus};
+use iogate_tests::{TestGateway, eventually};
+
+/// Serves `device` with tokio-modbus's TCP server on a free loopback port.
+async fn modbus_tcp_server(device: ModbusDevice) -> (u16, tokio::task::JoinHandle<()>) {
+    let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    let task = tokio::spawn(async move {
+        let on_connected = move |stream, addr| {
+            let device = device.clone();
+            async move {
+                tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, move |_| {
+                    Ok(Some(device.clone()))
+                })
+            }
+        };
+        let _ = server.serve(&on_connected, |_| {}).await;
+    });
+    (port, task)
+}
+
+#[tokio::test]
+async fn an_energy_meter_and_a_drive_over_modbus_tcp() {
+    let device = ModbusDevice::default();
+    {
+        let mut t = device.tables.lock().expect("tables");
+        for (address, value) in [
+            (0usize, 230.1f32),
+            (2, 231.2),
+            (4, 229.8),
+            (70, 50.02),
+            (342, 12_345.6),
+        ] {
+            let bits = value.to_bits();
+            t.input[address] = (bits >> 16) as u16;
+            t.input[address + 1] = bits as u16;
+        }
+    }
+    let (port, server) = modbus_tcp_server(device.clone()).await;
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {port} }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: plant, slave_id: 1, refresh_rate: 50ms }}\n  - {{ name: vfd, profile: GenericVfd, link: plant, slave_id: 2, refresh_rate: 50ms }}\n"
+    ))
+    .await
+    .expect("gateway");
+    let meter = gw
+        .until("/api/v1/devices/meter", "meter read", |b| {
+            b["fields"]["Frequency"]["quality"] == "good"
+        })
+        .await
+        .expect("meter");
+    assert_eq!(meter["fields"]["L1_Voltage"]["value"], 230.1);
+    assert_eq!(meter["fields"]["L3_Voltage"]["value"], 229.8);
+    assert_eq!(meter["fields"]["Frequency"]["value"], 50.02);
+    assert_eq!(meter["fields"]["Total_Energy"]["value"], 12_345.6);
+    assert_eq!(meter["fields"]["Frequency"]["unit"], "Hz");
+
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/vfd/fields/FrequencySetpoint",
+            "{\"value\": 35.5}",
+        )
+        .await
+        .expect("put");
+    assert_eq!(status, 202);
+    eventually("setpoint on the device", || async {
+        device.tables.lock().map(|t| t.holding[1]).ok() == Some(3550)
+    })
+    .await
+    .expect("written");
+    let link = gw.get("/api/v1/links/plant").await.expect("link").1;
+    assert_eq!(
+        (link["connected"].clone(), link["error_code"].clone()),
+        (true.into(), 0.into())
+    );
+    gw.shutdown().await;
+    server.abort();
+}
+
+#[tokio::test]
+async fn rtu_frames_over_tcp_and_a_dropped_connection_is_reopened() {
+    let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    let bus = RtuBus::default();
+    bus.slave(5, |s| s.counter = Some(0));
+    let serving = bus.clone();
+    let (dropped_tx, mut dropped_rx) = tokio::sync::mpsc::channel::<()>(1);
+    let server = tokio::spawn(async move {
+        // The first connection is cut after a moment; later ones are served.
+        let mut first = true;
+        while let Ok((stream, _)) = listener.accept().await {
+            let task = serving.serve(stream);
+            if first {
+                first = false;
+                tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+                task.abort();
+                let _ = dropped_tx.send(()).await;
+            }
+        }
+    });
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: server, tcp: {{ host: 127.0.0.1, port: {port}, framing: rtu }} }}\ndevices:\n  - {{ name: counter, profile: Counter, link: server, slave_id: 5, refresh_rate: 20ms, timeout: 100ms }}\nprofiles: {}\n",
+        counter_profiles().display()
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/devices/counter", "counting", |b| {
+        b["fields"]["Count"]["value"].as_u64() > Some(2)
+    })
+    .await
+    .expect("counts");
+    dropped_rx.recv().await.expect("connection cut");
+    let (_, before) = gw.get("/api/v1/devices/counter").await.expect("get");
+    let before = before["io_cycles"].as_u64().unwrap_or(0);
+    gw.until("/api/v1/devices/counter", "counting again", |b| {
+        b["connected"] == true && b["io_cycles"].as_u64() > Some(before + 5)
+    })
+    .await
+    .expect("reconnected");
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains("iogate_link_reconnects_total{link=\"server\"} 1"),
+        "{metrics}"
+    );
+    gw.shutdown().await;
+    server.abort();
+}
+
+/// A profile directory with one profile: a single-register counter.
+fn counter_profiles() -> std::path::PathBuf {
+    let dir = iogate_tests::devices::temp_dir("tcp-profiles");
+    std::fs::write(
+        dir.join("counter.yaml"),
+        "name: Counter\nfields:\n  - { name: Count, type: UINT, direction: input, register: { address: 0, kind: input_register } }\n",
+    )
+    .expect("profile");
+    dir
+}
