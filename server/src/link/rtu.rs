@@ -15,6 +15,7 @@
 use std::io;
 use std::time::Duration;
 
+use futures_util::FutureExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
@@ -147,21 +148,21 @@ impl RtuTransport {
     async fn quiet_line(&mut self, quiet: Duration) -> Result<(), TxError> {
         let mut scratch = [0u8; MAX_FRAME];
         loop {
-            let until = self.last_activity + quiet;
-            if Instant::now() >= until {
-                // Anything already buffered means the line was not quiet after all.
-                match timeout_at(Instant::now(), self.io.read(&mut scratch)).await {
-                    Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
-                    Ok(Ok(n)) => {
-                        self.discard(n);
-                        continue;
-                    }
-                    Ok(Err(e)) => return Err(TxError::Io(e)),
-                    Err(_) => return Ok(()),
+            // Drop what is already buffered, without a timer: tokio's timers tick in whole
+            // milliseconds, which would cost every transaction up to a millisecond.
+            while let Some(read) = self.io.read(&mut scratch).now_or_never() {
+                match read {
+                    Ok(0) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                    Ok(n) => self.discard(n),
+                    Err(e) => return Err(TxError::Io(e)),
                 }
             }
+            let until = self.last_activity + quiet;
+            if Instant::now() >= until {
+                return Ok(());
+            }
             match timeout_at(until, self.io.read(&mut scratch)).await {
-                Err(_) => {}
+                Err(_) => return Ok(()),
                 Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
                 Ok(Ok(n)) => self.discard(n),
                 Ok(Err(e)) => return Err(TxError::Io(e)),
