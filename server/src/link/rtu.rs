@@ -9,8 +9,10 @@
 //! - reads exactly the response its request calls for, with a deadline;
 //! - checks slave, function, byte count, CRC and write echo, and rejects anything else;
 //! - after a timeout or a rejected frame, discards input until the line has been quiet for
-//!   half the timeout (at least the silence plus guard), so a late reply is dropped rather
-//!   than taken as the answer to the next request.
+//!   the late-reply window (half the timeout, at most 50 ms, at least the silence plus guard),
+//!   so a late reply is dropped rather than taken as the answer to the next request. The
+//!   window restarts with every byte, so it only has to cover the gap before a late frame's
+//!   first byte; a dead device costs its timeout plus that window.
 
 use std::io;
 use std::time::Duration;
@@ -25,6 +27,8 @@ use super::{ByteStream, Counters, TxError};
 
 /// Room for the longest frame a byte count can announce: 5 + 255 bytes.
 const MAX_FRAME: usize = 260;
+/// The longest late-reply window.
+pub const MAX_LATE_WINDOW: Duration = Duration::from_millis(50);
 
 pub struct RtuTransport {
     io: Box<dyn ByteStream>,
@@ -75,7 +79,7 @@ impl RtuTransport {
             Err(_) => {
                 // The quiet window starts now: a reply still on its way is discarded.
                 self.last_activity = Instant::now();
-                let window = (timeout / 2).max(self.silence());
+                let window = (timeout / 2).min(MAX_LATE_WINDOW).max(self.silence());
                 self.quiet_line(window).await?;
             }
         }
@@ -284,18 +288,36 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
-    async fn a_silent_device_costs_its_timeout_and_half_of_it_again() {
+    async fn a_silent_device_costs_its_timeout_and_the_late_reply_window() {
         let (gateway, _device) = tokio::io::duplex(1024);
         let mut t = transport(gateway, Duration::ZERO);
+        let request_on_wire = line_9600().frame_time(8);
         let started = Instant::now();
         assert!(matches!(
             t.transact(1, &read2(), TIMEOUT).await,
             Err(TxError::Timeout)
         ));
         let cost = started.elapsed();
-        let request_on_wire = line_9600().frame_time(8);
-        assert!(cost >= TIMEOUT + request_on_wire + TIMEOUT / 2, "{cost:?}");
-        assert!(cost < TIMEOUT * 2, "{cost:?}");
+        // The silence before the first frame, the frame, the timeout, the window. Time is
+        // paused, but timers fire on whole milliseconds.
+        let expected = line_9600().silence() + request_on_wire + TIMEOUT + TIMEOUT / 2;
+        assert!(
+            cost >= expected && cost <= expected + Duration::from_millis(2),
+            "{cost:?}"
+        );
+        // A long timeout keeps a window of at most 50 ms.
+        let long = Duration::from_secs(1);
+        let started = Instant::now();
+        assert!(matches!(
+            t.transact(1, &read2(), long).await,
+            Err(TxError::Timeout)
+        ));
+        let cost = started.elapsed();
+        let expected = request_on_wire + long + MAX_LATE_WINDOW;
+        assert!(
+            cost >= expected && cost <= expected + line_9600().silence() + Duration::from_millis(2),
+            "{cost:?}"
+        );
     }
 
     #[tokio::test(start_paused = true)]
