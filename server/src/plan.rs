@@ -287,14 +287,17 @@ pub fn rtu_sizes(request: &Request) -> (usize, usize) {
     (pdu.len() + 3, request.response_len() + 3)
 }
 
+/// The bus time of one transaction: both frames, each after the silence and guard time.
+pub fn transaction_time(request: &Request, timing: &LineTiming, guard: Duration) -> Duration {
+    let (req, resp) = rtu_sizes(request);
+    timing.transaction_time(req, resp) + guard * 2
+}
+
 /// The bus time one poll cycle of a device needs at `timing`.
-pub fn cycle_time(batches: &[ReadBatch], timing: &LineTiming) -> Duration {
+pub fn cycle_time(batches: &[ReadBatch], timing: &LineTiming, guard: Duration) -> Duration {
     batches
         .iter()
-        .map(|b| {
-            let (req, resp) = rtu_sizes(&b.request());
-            timing.transaction_time(req, resp)
-        })
+        .map(|b| transaction_time(&b.request(), timing, guard))
         .sum()
 }
 
@@ -302,11 +305,13 @@ pub fn cycle_time(batches: &[ReadBatch], timing: &LineTiming) -> Duration {
 pub fn utilisation<'a>(
     devices: impl IntoIterator<Item = (&'a DeviceConfig, &'a [ReadBatch])>,
     timing: &LineTiming,
+    guard: Duration,
 ) -> f64 {
     devices
         .into_iter()
         .map(|(d, batches)| {
-            cycle_time(batches, timing).as_secs_f64() / d.refresh_rate.as_secs_f64().max(1e-6)
+            cycle_time(batches, timing, guard).as_secs_f64()
+                / d.refresh_rate.as_secs_f64().max(1e-6)
         })
         .sum()
 }
@@ -329,7 +334,7 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                 let t = LineTiming::new(s);
                 let _ = writeln!(
                     out,
-                    "link {}: serial {} {} {}{}{} ({} bits per character, {:.3} ms per character, {:.3} ms inter-frame silence)",
+                    "link {}: serial {} {} {}{}{} ({} bits per character, {:.3} ms per character, {:.3} ms inter-frame silence{})",
                     link.name,
                     s.port,
                     s.baud,
@@ -338,7 +343,12 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                     s.stop_bits,
                     t.bits_per_char,
                     ms(t.char_time()),
-                    ms(t.silence())
+                    ms(t.silence()),
+                    if link.guard_time.is_zero() {
+                        String::new()
+                    } else {
+                        format!(" + {:.3} ms guard time", ms(link.guard_time))
+                    }
                 );
                 Some(t)
             }
@@ -377,8 +387,8 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                     .collect();
                 let wire = timing
                     .map(|t| {
-                        let (req, resp) = rtu_sizes(&request);
-                        format!(" {:>8.3} ms", ms(t.transaction_time(req, resp)))
+                        let time = transaction_time(&request, &t, link.guard_time);
+                        format!(" {:>8.3} ms", ms(time))
                     })
                     .unwrap_or_default();
                 let _ = writeln!(
@@ -395,13 +405,17 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                 let _ = writeln!(
                     out,
                     "    cycle: {:.3} ms of bus time",
-                    ms(cycle_time(&batches, &t))
+                    ms(cycle_time(&batches, &t, link.guard_time))
                 );
             }
             all.push((d, batches));
         }
         if let Some(t) = timing {
-            let u = utilisation(all.iter().map(|(d, b)| (*d, b.as_slice())), &t);
+            let u = utilisation(
+                all.iter().map(|(d, b)| (*d, b.as_slice())),
+                &t,
+                link.guard_time,
+            );
             let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
             if u > 1.0 {
                 let _ = writeln!(

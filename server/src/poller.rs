@@ -146,6 +146,7 @@ impl LinkTask {
                     .iter()
                     .map(|p| (&p.device.config, p.reads.as_slice())),
                 &LineTiming::new(s),
+                link.config.guard_time,
             )),
             Transport::Tcp { .. } => None,
         };

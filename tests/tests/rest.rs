@@ -419,9 +419,11 @@ async fn events_stream_current_values_then_changes() {
         initial.into_iter().collect::<Vec<_>>(),
         ["diagnostics:", "value:DI_0", "value:DO_0"]
     );
-    gw.until("/api/v1/devices/sim", "sim polled", |b| b["connected"] == true)
-        .await
-        .expect("connected");
+    gw.until("/api/v1/devices/sim", "sim polled", |b| {
+        b["connected"] == true
+    })
+    .await
+    .expect("connected");
     let (status, _) = gw
         .send(
             Method::PUT,
