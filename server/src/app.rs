@@ -10,7 +10,7 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use crate::cache::Cache;
+use crate::cache::{Cache, Device, Link};
 use crate::config::{self, Config};
 use crate::metrics::Metrics;
 use crate::poller::LinkTask;
@@ -97,9 +97,31 @@ impl Setup {
     }
 }
 
+/// Starts the tasks that own links and simulated devices, at start-up and when one is
+/// declared at run time.
+#[derive(Debug)]
+pub struct Tasks {
+    tracker: TaskTracker,
+    token: CancellationToken,
+    metrics: Arc<Metrics>,
+}
+
+impl Tasks {
+    pub fn spawn_link(&self, link: Arc<Link>) {
+        let task = LinkTask::new(link, self.metrics.clone());
+        self.tracker.spawn(task.run(self.token.child_token()));
+    }
+
+    pub fn spawn_sim(&self, device: Arc<Device>) {
+        self.tracker
+            .spawn(crate::sim::run(device, self.token.child_token()));
+    }
+}
+
 /// Shared state of the running gateway.
 #[derive(Debug)]
 pub struct AppState {
+    pub tasks: Tasks,
     pub cache: Arc<Cache>,
     pub metrics: Arc<Metrics>,
     pub ready: AtomicBool,
@@ -151,21 +173,24 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let tracker = TaskTracker::new();
     let cache = Arc::new(Cache::new(&config, catalog));
 
-    for device in &cache.devices {
+    let tasks = Tasks {
+        tracker: tracker.clone(),
+        token: token.clone(),
+        metrics: Arc::new(Metrics::new()),
+    };
+    for device in cache.devices() {
         if device.is_simulated() {
-            tracker.spawn(crate::sim::run(device.clone(), token.child_token()));
+            tasks.spawn_sim(device);
         }
     }
-    let metrics = Arc::new(Metrics::new());
-    for link in &cache.links {
-        let devices = cache.devices_on(&link.config.name).cloned().collect();
-        let task = LinkTask::new(link.clone(), devices, metrics.clone());
-        tracker.spawn(task.run(token.child_token()));
+    for link in cache.links() {
+        tasks.spawn_link(link);
     }
 
     let state = Arc::new(AppState {
         cache,
-        metrics,
+        metrics: tasks.metrics.clone(),
+        tasks,
         ready: AtomicBool::new(false),
         token: token.clone(),
     });

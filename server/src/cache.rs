@@ -5,8 +5,8 @@
 //! writer out, and subscribers are woken only when the value or its quality changes, so a
 //! slow subscriber sees the newest value rather than a backlog.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, SystemTime};
 
 use tokio::sync::{Notify, watch};
@@ -438,13 +438,17 @@ impl Device {
     }
 }
 
-/// A configured link and its diagnostics.
+/// A link, its diagnostics and the devices on it.
 #[derive(Debug)]
 pub struct Link {
     pub config: LinkConfig,
     diagnostics: watch::Sender<LinkDiagnostics>,
-    /// Wakes the link's task when a write to one of its devices is requested.
+    /// Wakes the link's task when a write to one of its devices is requested, or a device
+    /// is added.
     pub wake: Arc<Notify>,
+    members: RwLock<Vec<Arc<Device>>>,
+    /// Counts changes of `members`, so the link's task notices new devices.
+    version: AtomicU64,
 }
 
 impl Link {
@@ -456,7 +460,13 @@ impl Link {
                 connected: false,
                 error_code: 0,
             }),
+            members: RwLock::new(Vec::new()),
+            version: AtomicU64::new(0),
         }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.config.name
     }
 
     pub fn diagnostics(&self) -> LinkDiagnostics {
@@ -470,69 +480,132 @@ impl Link {
             changed
         });
     }
+
+    /// The devices on the link, in the order they were added.
+    pub fn members(&self) -> Vec<Arc<Device>> {
+        read(&self.members).clone()
+    }
+
+    pub fn version(&self) -> u64 {
+        self.version.load(Ordering::Acquire)
+    }
+
+    fn add_member(&self, device: Arc<Device>) {
+        write(&self.members).push(device);
+        self.version.fetch_add(1, Ordering::AcqRel);
+        self.wake.notify_one();
+    }
 }
 
-/// Everything the APIs read: profiles, links, devices, write outcomes.
+fn read<T>(l: &RwLock<T>) -> RwLockReadGuard<'_, T> {
+    l.read().unwrap_or_else(|e| e.into_inner())
+}
+
+fn write<T>(l: &RwLock<T>) -> RwLockWriteGuard<'_, T> {
+    l.write().unwrap_or_else(|e| e.into_inner())
+}
+
+#[derive(Debug, Default)]
+pub(crate) struct Registry {
+    pub(crate) links: Vec<Arc<Link>>,
+    pub(crate) devices: Vec<Arc<Device>>,
+}
+
+impl Registry {
+    pub(crate) fn device(&self, name: &str) -> Option<&Arc<Device>> {
+        self.devices.iter().find(|d| d.name() == name)
+    }
+
+    pub(crate) fn link(&self, name: &str) -> Option<&Arc<Link>> {
+        self.links.iter().find(|l| l.name() == name)
+    }
+}
+
+/// Everything the APIs read: profiles, links, devices, write outcomes. Links and devices
+/// come from the config and can be added at run time (`EnsureLink`, `EnsureDevice`).
 #[derive(Debug)]
 pub struct Cache {
     pub catalog: Catalog,
-    pub links: Vec<Arc<Link>>,
-    pub devices: Vec<Arc<Device>>,
     pub writes: Arc<WriteLog>,
-    by_name: HashMap<String, usize>,
+    registry: RwLock<Registry>,
 }
 
 impl Cache {
     /// Builds the cache for a config whose devices were checked against `catalog`.
     pub fn new(config: &Config, catalog: Catalog) -> Self {
-        let writes = Arc::new(WriteLog::default());
-        let links: Vec<_> = config
-            .links
-            .iter()
-            .map(|l| Arc::new(Link::new(l.clone())))
-            .collect();
-        let devices: Vec<_> = config
-            .devices
-            .iter()
-            .filter_map(|d| {
-                let profile = catalog.get(&d.profile)?.clone();
-                let wake = links
-                    .iter()
-                    .find(|l| Some(&l.config.name) == d.link.as_ref())
-                    .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
-                Some(Arc::new(Device::new(
-                    d.clone(),
-                    profile,
-                    writes.clone(),
-                    wake,
-                )))
-            })
-            .collect();
-        let by_name = devices
-            .iter()
-            .enumerate()
-            .map(|(i, d)| (d.name().to_owned(), i))
-            .collect();
-        Cache {
-            links,
-            devices,
-            writes,
-            by_name,
+        let cache = Cache {
             catalog,
+            writes: Arc::new(WriteLog::default()),
+            registry: RwLock::new(Registry::default()),
+        };
+        {
+            let mut registry = write(&cache.registry);
+            for l in &config.links {
+                cache.insert_link(&mut registry, l.clone());
+            }
+            for d in &config.devices {
+                if let Some(profile) = cache.catalog.get(&d.profile).cloned() {
+                    cache.insert_device(&mut registry, d.clone(), profile);
+                }
+            }
         }
+        cache
     }
 
-    pub fn device(&self, name: &str) -> Result<&Arc<Device>, AccessError> {
-        self.by_name
-            .get(name)
-            .map(|&i| &self.devices[i])
+    pub(crate) fn insert_link(&self, registry: &mut Registry, config: LinkConfig) -> Arc<Link> {
+        let link = Arc::new(Link::new(config));
+        registry.links.push(link.clone());
+        link
+    }
+
+    pub(crate) fn insert_device(
+        &self,
+        registry: &mut Registry,
+        config: DeviceConfig,
+        profile: Arc<Profile>,
+    ) -> Arc<Device> {
+        let link = config
+            .link
+            .as_ref()
+            .and_then(|name| registry.link(name))
+            .cloned();
+        let wake = link
+            .as_ref()
+            .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let device = Arc::new(Device::new(config, profile, self.writes.clone(), wake));
+        registry.devices.push(device.clone());
+        if let Some(link) = link {
+            link.add_member(device.clone());
+        }
+        device
+    }
+
+    /// Runs `f` with the registry locked for changes: checks and inserts happen at once.
+    pub(crate) fn change<T>(&self, f: impl FnOnce(&mut Registry) -> T) -> T {
+        f(&mut write(&self.registry))
+    }
+
+    /// Every device, in the order they were added.
+    pub fn devices(&self) -> Vec<Arc<Device>> {
+        read(&self.registry).devices.clone()
+    }
+
+    /// Every link, in the order they were added.
+    pub fn links(&self) -> Vec<Arc<Link>> {
+        read(&self.registry).links.clone()
+    }
+
+    pub fn device(&self, name: &str) -> Result<Arc<Device>, AccessError> {
+        read(&self.registry)
+            .device(name)
+            .cloned()
             .ok_or_else(|| AccessError::UnknownDevice(name.to_owned()))
     }
 
-    pub fn link(&self, name: &str) -> Result<&Arc<Link>, AccessError> {
-        self.links
-            .iter()
-            .find(|l| l.config.name == name)
+    pub fn link(&self, name: &str) -> Result<Arc<Link>, AccessError> {
+        read(&self.registry)
+            .link(name)
+            .cloned()
             .ok_or_else(|| AccessError::UnknownLink(name.to_owned()))
     }
 
@@ -540,13 +613,6 @@ impl Cache {
         self.catalog
             .get(name)
             .ok_or_else(|| AccessError::UnknownProfile(name.to_owned()))
-    }
-
-    /// Devices that use `link`.
-    pub fn devices_on<'a>(&'a self, link: &'a str) -> impl Iterator<Item = &'a Arc<Device>> {
-        self.devices
-            .iter()
-            .filter(move |d| d.config.link.as_deref() == Some(link))
     }
 }
 

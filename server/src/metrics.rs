@@ -294,7 +294,7 @@ impl Metrics {
 
     /// The registry in OpenMetrics text, with states copied from the cache first.
     pub fn render(&self, cache: &Cache) -> String {
-        for link in &cache.links {
+        for link in &cache.links() {
             let labels = LinkLabels {
                 link: link.config.name.clone(),
             };
@@ -306,7 +306,7 @@ impl Metrics {
                 .get_or_create(&labels)
                 .set(i64::from(d.error_code));
         }
-        for device in &cache.devices {
+        for device in &cache.devices() {
             let labels = DeviceLabels {
                 device: device.name().to_owned(),
             };

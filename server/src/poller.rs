@@ -115,6 +115,8 @@ enum Ended {
 pub struct LinkTask {
     link: Arc<Link>,
     devices: Vec<Polled>,
+    /// The link's member version `devices` reflects.
+    version: u64,
     metrics: Arc<Metrics>,
     /// The bus utilisation the refresh rates demand (serial links).
     planned: Option<f64>,
@@ -123,11 +125,30 @@ pub struct LinkTask {
 }
 
 impl LinkTask {
-    pub fn new(link: Arc<Link>, devices: Vec<Arc<Device>>, metrics: Arc<Metrics>) -> Self {
+    pub fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
+        let mut task = LinkTask {
+            link,
+            devices: Vec::new(),
+            version: u64::MAX,
+            metrics,
+            planned: None,
+            cursor: 0,
+        };
+        task.sync_members();
+        task
+    }
+
+    /// Takes in devices added to the link since the last look.
+    fn sync_members(&mut self) {
+        let version = self.link.version();
+        if version == self.version {
+            return;
+        }
+        self.version = version;
         let now = Instant::now();
-        let devices: Vec<Polled> = devices
-            .into_iter()
-            .map(|device| Polled {
+        for device in self.link.members().into_iter().skip(self.devices.len()) {
+            tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
+            self.devices.push(Polled {
                 slave: device.config.slave_id.unwrap_or(0),
                 reads: plan::read_batches(
                     &device.profile,
@@ -138,30 +159,24 @@ impl LinkTask {
                 next_due: now,
                 backoff: None,
                 rewrite: true,
-            })
-            .collect();
-        let planned = match &link.config.transport {
+            });
+        }
+        self.planned = match &self.link.config.transport {
             Transport::Serial(s) => Some(plan::utilisation(
-                devices
+                self.devices
                     .iter()
                     .map(|p| (&p.device.config, p.reads.as_slice())),
                 &LineTiming::new(s),
-                link.config.guard_time,
+                self.link.config.guard_time,
             )),
             Transport::Tcp { .. } => None,
         };
-        if let Some(u) = planned {
-            metrics.link_utilisation(&link.config.name, planned, 0.0);
+        if let Some(u) = self.planned {
+            self.metrics
+                .link_utilisation(self.link.name(), self.planned, 0.0);
             if u > 1.0 {
-                tracing::warn!(link = %link.config.name, utilisation = format!("{:.0}%", u * 100.0), "the refresh rates need more than the line can carry");
+                tracing::warn!(link = %self.link.name(), utilisation = format!("{:.0}%", u * 100.0), "the refresh rates need more than the line can carry");
             }
-        }
-        LinkTask {
-            link,
-            devices,
-            metrics,
-            planned,
-            cursor: 0,
         }
     }
 
@@ -171,6 +186,7 @@ impl LinkTask {
         let mut lost = false;
         let mut last_error = String::new();
         loop {
+            self.sync_members();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
                 r = tokio::time::timeout(CONNECT_TIMEOUT, link::open(&self.link.config, self.link.config.guard_time)) => r,
@@ -267,6 +283,8 @@ impl LinkTask {
             if token.is_cancelled() {
                 return Ended::Shutdown;
             }
+            self.sync_members();
+            bus.planned = self.planned;
             let step = if let Some(i) = self.next_writer() {
                 self.write_device(i, &mut bus).await
             } else if let Some(i) = self.next_due(Instant::now()) {
@@ -553,8 +571,8 @@ mod tests {
         .expect("profile");
         let cache = Cache::new(&config, Catalog::new([profile]));
         let metrics = Arc::new(Metrics::new());
-        let link = cache.links[0].clone();
-        let mut task = LinkTask::new(link, cache.devices.clone(), metrics.clone());
+        let link = cache.links()[0].clone();
+        let mut task = LinkTask::new(link, metrics.clone());
 
         let (gateway, device_end) = tokio::io::duplex(4096);
         let asked: Arc<[AtomicU32; 3]> = Arc::new(Default::default());

@@ -250,8 +250,9 @@ pub struct LinkInfo {
     pub devices: Vec<String>,
 }
 
-pub fn link_info(link: &Link, devices: Vec<String>) -> LinkInfo {
+pub fn link_info(link: &Link) -> LinkInfo {
     let diag = link.diagnostics();
+    let devices = link.members().iter().map(|d| d.name().to_owned()).collect();
     let mut info = LinkInfo {
         name: link.config.name.clone(),
         kind: String::new(),

@@ -53,8 +53,8 @@ pub async fn events(
         ));
     }
     let devices = match query.get("device") {
-        Some(name) => vec![state.cache.device(name)?.clone()],
-        None => state.cache.devices.clone(),
+        Some(name) => vec![state.cache.device(name)?],
+        None => state.cache.devices(),
     };
     let mut streams: StreamMap<(usize, usize), EventStream> = StreamMap::new();
     for (d, device) in devices.iter().enumerate() {

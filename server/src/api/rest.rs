@@ -56,18 +56,9 @@ pub async fn readyz(State(state): AppStateRef) -> (StatusCode, Json<Health>) {
 /// Every link with its settings and diagnostics.
 #[utoipa::path(get, path = "/api/v1/links", tag = "links", responses((status = 200, body = LinkList)))]
 pub async fn list_links(State(state): AppStateRef) -> Json<LinkList> {
-    let cache = &state.cache;
     Json(LinkList {
-        links: cache
-            .links
-            .iter()
-            .map(|l| link_info(l, device_names(cache.devices_on(&l.config.name))))
-            .collect(),
+        links: state.cache.links().iter().map(|l| link_info(l)).collect(),
     })
-}
-
-fn device_names<'a>(devices: impl Iterator<Item = &'a Arc<Device>>) -> Vec<String> {
-    devices.map(|d| d.name().to_owned()).collect()
 }
 
 /// One link.
@@ -78,18 +69,19 @@ pub async fn get_link(
     State(state): AppStateRef,
     Path(name): Path<String>,
 ) -> Result<Json<LinkInfo>, ApiError> {
-    let link = state.cache.link(&name)?;
-    Ok(Json(link_info(
-        link,
-        device_names(state.cache.devices_on(&name)),
-    )))
+    Ok(Json(link_info(state.cache.link(&name)?.as_ref())))
 }
 
 /// Every device with its diagnostics.
 #[utoipa::path(get, path = "/api/v1/devices", tag = "devices", responses((status = 200, body = DeviceList)))]
 pub async fn list_devices(State(state): AppStateRef) -> Json<DeviceList> {
     Json(DeviceList {
-        devices: state.cache.devices.iter().map(|d| device_info(d)).collect(),
+        devices: state
+            .cache
+            .devices()
+            .iter()
+            .map(|d| device_info(d))
+            .collect(),
     })
 }
 
@@ -112,13 +104,13 @@ pub async fn get_device(
     let device = state.cache.device(&name)?;
     let fields = (0..device.profile.fields.len())
         .map(|i| {
-            let value = field_json(device, i, &state);
+            let value = field_json(&device, i, &state);
             let json = serde_json::to_value(&value).unwrap_or(Json_::Null);
             (value.field, json)
         })
         .collect();
     Ok(Json(DeviceDetail {
-        device: device_info(device),
+        device: device_info(&device),
         fields,
     }))
 }
@@ -134,7 +126,7 @@ pub async fn get_field(
 ) -> Result<Json<FieldValue>, ApiError> {
     let device = state.cache.device(&name)?;
     let idx = device.field_index(&field)?;
-    Ok(Json(field_json(device, idx, &state)))
+    Ok(Json(field_json(&device, idx, &state)))
 }
 
 /// The body of a single-field write.
@@ -219,8 +211,8 @@ pub async fn put_field(
 ) -> Result<(StatusCode, Json<WriteAccepted>), ApiError> {
     let device = state.cache.device(&name)?;
     let json = value_of(parse_body(&body)?);
-    let (idx, value) = prepare(device, &field, &json)?;
-    Ok((StatusCode::ACCEPTED, Json(accept(device, idx, value)?)))
+    let (idx, value) = prepare(&device, &field, &json)?;
+    Ok((StatusCode::ACCEPTED, Json(accept(&device, idx, value)?)))
 }
 
 /// Writes several fields of one device: `{"DO_0": true, "AO_1": 3}`. Every value is checked
@@ -249,7 +241,7 @@ pub async fn patch_fields(
     let mut prepared = Vec::with_capacity(map.len());
     let mut errors: Vec<ApiError> = Vec::new();
     for (field, json) in &map {
-        match prepare(device, field, json) {
+        match prepare(&device, field, json) {
             Ok(p) => prepared.push(p),
             Err(e) => errors.push(e),
         }
@@ -268,7 +260,7 @@ pub async fn patch_fields(
     }
     let writes = prepared
         .into_iter()
-        .map(|(idx, value)| accept(device, idx, value))
+        .map(|(idx, value)| accept(&device, idx, value))
         .collect::<Result<_, _>>()?;
     Ok((StatusCode::ACCEPTED, Json(WritesAccepted { writes })))
 }
@@ -298,7 +290,7 @@ pub async fn simulate_field(
 ) -> Result<(StatusCode, Json<Simulated>), ApiError> {
     let device = state.cache.device(&name)?;
     let idx = device.field_index(&field)?;
-    let value = typed(device, idx, &value_of(parse_body(&body)?))?;
+    let value = typed(&device, idx, &value_of(parse_body(&body)?))?;
     let shown = convert::value_to_json(&value);
     device.simulate(idx, value)?;
     Ok((
