@@ -9,6 +9,7 @@ pub mod app;
 pub mod cache;
 pub mod codec;
 pub mod config;
+pub mod declare;
 pub mod demo;
 pub mod duration;
 pub mod link;

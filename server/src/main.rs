@@ -34,12 +34,30 @@ enum Command {
         #[arg(long, short)]
         config: Option<PathBuf>,
     },
+    /// Profiles: `iogate profile st NAME` prints a profile's ST function-block declaration.
+    Profile {
+        #[command(subcommand)]
+        command: ProfileCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum ProfileCommand {
+    /// Print the profile's function block as an IEC 61131-3 ST declaration.
+    St {
+        /// The profile name.
+        name: String,
+        /// The config file whose profiles to use; default: ./iogate.yaml, else the demo's.
+        #[arg(long, short)]
+        config: Option<PathBuf>,
+    },
 }
 
 enum Action {
     Serve,
     Check,
     Plan,
+    St(String),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +74,9 @@ fn main() -> ExitCode {
         Some(Command::Serve { config }) => (config, Action::Serve),
         Some(Command::Check { config }) => (config, Action::Check),
         Some(Command::Plan { config }) => (config, Action::Plan),
+        Some(Command::Profile {
+            command: ProfileCommand::St { name, config },
+        }) => (config, Action::St(name)),
     };
     let setup = match Setup::load(config.as_deref()) {
         Ok(setup) => setup,
@@ -69,6 +90,19 @@ fn main() -> ExitCode {
             return ExitCode::from(iogate::EXIT_CONFIG as u8);
         }
     };
+    if let Action::St(name) = &action {
+        return match setup.catalog.get(name) {
+            Some(profile) => {
+                print!("{}", iogate::profile::st_declaration(profile));
+                ExitCode::SUCCESS
+            }
+            None => {
+                let known: Vec<_> = setup.catalog.iter().map(|p| p.name.as_str()).collect();
+                eprintln!("unknown profile `{name}` (known: {})", known.join(", "));
+                ExitCode::from(iogate::EXIT_CONFIG as u8)
+            }
+        };
+    }
     if let Action::Plan = action {
         print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
         return ExitCode::SUCCESS;

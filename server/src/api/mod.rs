@@ -29,7 +29,7 @@ pub const API_PREFIX: &str = "/api/v1";
         rest::list_links, rest::get_link,
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
-        rest::list_profiles, rest::get_profile,
+        rest::list_profiles, rest::get_profile, rest::get_profile_st,
         events::events,
     ),
     tags(
@@ -89,6 +89,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/writes/{generation}", get(rest::get_write))
         .route("/profiles", get(rest::list_profiles))
         .route("/profiles/{profile}", get(rest::get_profile))
+        .route("/profiles/{profile}/st", get(rest::get_profile_st))
         .route("/events", get(events::events));
     Router::new()
         .route("/livez", get(rest::livez))

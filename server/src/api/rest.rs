@@ -349,6 +349,25 @@ pub async fn list_profiles(State(state): AppStateRef) -> Json<ProfileList> {
     })
 }
 
+/// The profile's function block as an IEC 61131-3 ST declaration (text/plain).
+#[utoipa::path(get, path = "/api/v1/profiles/{profile}/st", tag = "profiles",
+    params(("profile" = String, Path, description = "profile name")),
+    responses((status = 200, description = "the declaration", content_type = "text/plain"),
+              (status = 404, body = ErrorBody)))]
+pub async fn get_profile_st(
+    State(state): AppStateRef,
+    Path(name): Path<String>,
+) -> Result<([(axum::http::HeaderName, &'static str); 1], String), ApiError> {
+    let profile = state.cache.profile(&name)?;
+    Ok((
+        [(
+            axum::http::header::CONTENT_TYPE,
+            "text/plain; charset=utf-8",
+        )],
+        crate::profile::st_declaration(profile),
+    ))
+}
+
 /// One profile: its fields and its generated function-block layout.
 #[utoipa::path(get, path = "/api/v1/profiles/{profile}", tag = "profiles",
     params(("profile" = String, Path, description = "profile name")),

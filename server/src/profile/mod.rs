@@ -10,7 +10,7 @@ use std::sync::Arc;
 use crate::codec::{ByteOrder, Encoding, IecType, Raw};
 use crate::yaml::Problems;
 
-pub use layout::{LayoutEntry, LayoutSection, fb_layout};
+pub use layout::{LayoutEntry, LayoutSection, fb_layout, st_declaration};
 pub use load::{load_dir, load_files, load_str};
 
 /// How many parent directories are searched for a `profiles/` folder.
