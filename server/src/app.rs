@@ -138,6 +138,7 @@ impl AppState {
 pub struct Running {
     pub state: Arc<AppState>,
     pub http_addr: SocketAddr,
+    pub grpc_addr: SocketAddr,
     tracker: TaskTracker,
 }
 
@@ -198,6 +199,21 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
     let http_addr = listener.local_addr()?;
+    let grpc_listener = TcpListener::bind(config.grpc)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc): {e}", config.grpc))?;
+    let grpc_addr = grpc_listener.local_addr()?;
+    let grpc = grpc_router(state.clone()).await?;
+    let shutdown = token.clone();
+    tracker.spawn(async move {
+        let incoming = tokio_stream::wrappers::TcpListenerStream::new(grpc_listener);
+        if let Err(e) = grpc
+            .serve_with_incoming_shutdown(incoming, shutdown.cancelled_owned())
+            .await
+        {
+            tracing::error!(error = %e, "gRPC server failed");
+        }
+    });
     let router = crate::api::router(state.clone());
     let shutdown = token.clone();
     tracker.spawn(async move {
@@ -212,8 +228,31 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     Ok(Running {
         state,
         http_addr,
+        grpc_addr,
         tracker,
     })
+}
+
+/// The gRPC service with health checking and server reflection.
+async fn grpc_router(state: Arc<AppState>) -> anyhow::Result<tonic::transport::server::Router> {
+    use iogate_proto::pb::gateway_server::GatewayServer;
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health
+        .set_serving::<GatewayServer<crate::api::grpc::GrpcApi>>()
+        .await;
+    let reflection_v1 = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+    let reflection_v1alpha = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1alpha()?;
+    Ok(tonic::transport::Server::builder()
+        .add_service(health_service)
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
+        .add_service(GatewayServer::new(crate::api::grpc::GrpcApi::new(state))))
 }
 
 /// Runs the gateway until SIGINT or SIGTERM.
@@ -226,6 +265,10 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
         println!("iogate is running its built-in demo (simulated devices sim and plant).");
     }
     println!("REST API:  {base}/api/v1/devices");
+    println!(
+        "gRPC:      {} (iogate.v1.Gateway, reflection, health)",
+        running.grpc_addr
+    );
     println!("Events:    {base}/api/v1/events");
     println!("OpenAPI:   {base}/api/v1/openapi.json");
     println!("Metrics:   {base}/metrics");

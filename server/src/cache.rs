@@ -359,6 +359,11 @@ impl Device {
             .collect()
     }
 
+    /// The newest value requested for field `idx`.
+    pub fn latest_value(&self, idx: usize) -> Option<Value> {
+        lock(&self.writes)[idx].latest.clone()
+    }
+
     /// The generation of the newest write to field `idx`.
     pub fn last_write(&self, idx: usize) -> Option<u64> {
         lock(&self.writes)[idx].last_generation

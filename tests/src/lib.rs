@@ -24,6 +24,8 @@ pub fn fixtures_dir() -> PathBuf {
 /// A gateway running in this process, serving HTTP on a free loopback port.
 pub struct TestGateway {
     pub base: String,
+    /// The gRPC endpoint, e.g. `http://127.0.0.1:40123`.
+    pub grpc: String,
     pub client: reqwest::Client,
     running: Option<Running>,
 }
@@ -34,6 +36,7 @@ impl TestGateway {
         let mut config =
             iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
         config.http = "127.0.0.1:0".parse()?;
+        config.grpc = "127.0.0.1:0".parse()?;
         if config.profiles.is_none() {
             config.profiles = Some(profiles_dir());
         }
@@ -46,6 +49,7 @@ impl TestGateway {
     pub async fn demo() -> anyhow::Result<TestGateway> {
         let mut setup = Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
         setup.config.http = "127.0.0.1:0".parse()?;
+        setup.config.grpc = "127.0.0.1:0".parse()?;
         TestGateway::start_setup(setup).await
     }
 
@@ -58,6 +62,7 @@ impl TestGateway {
         let running = app::start(setup).await?;
         let gateway = TestGateway {
             base: format!("http://{}", running.http_addr),
+            grpc: format!("http://{}", running.grpc_addr),
             client: reqwest::Client::new(),
             running: Some(running),
         };
@@ -76,6 +81,11 @@ impl TestGateway {
         })
         .await?;
         Ok(gateway)
+    }
+
+    /// A gRPC client connected to the gateway.
+    pub async fn client(&self) -> anyhow::Result<iogate_client::Client> {
+        Ok(iogate_client::Client::connect(&self.grpc).await?)
     }
 
     pub fn url(&self, path: &str) -> String {

@@ -3,6 +3,8 @@
 pub mod convert;
 pub mod error;
 pub mod events;
+pub mod grpc;
+pub mod pb;
 pub mod rest;
 
 use std::sync::Arc;

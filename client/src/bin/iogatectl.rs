@@ -1,0 +1,410 @@
+//! `iogatectl`: look at and drive an iogate gateway over gRPC.
+
+use std::collections::BTreeMap;
+use std::io::{IsTerminal, Write};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::{Parser, Subcommand};
+use futures_util::StreamExt;
+use iogate_client::{Client, FieldValue, Selection, Update, Value, WriteOutcome};
+use serde::Serialize;
+
+#[derive(Parser)]
+#[command(
+    name = "iogatectl",
+    version,
+    about = "Look at and drive an iogate gateway over gRPC"
+)]
+struct Cli {
+    /// The gateway's gRPC address.
+    #[arg(
+        long,
+        short,
+        env = "IOGATE_SERVER",
+        default_value = "http://127.0.0.1:50051"
+    )]
+    server: String,
+    /// Print JSON (one document, or one line per update for `watch`) for scripts.
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Devices with their diagnostics.
+    Devices,
+    /// Links with their state.
+    Links,
+    /// Loaded profiles.
+    Profiles,
+    /// A device's fields (`get DEVICE`) or one field (`get DEVICE.FIELD`).
+    Get { target: String },
+    /// Writes a field: `set DEVICE.FIELD VALUE`; waits for the outcome.
+    Set {
+        target: String,
+        value: String,
+        /// How long to wait for the write's outcome, in milliseconds (0: don't wait).
+        #[arg(long, default_value_t = 2000)]
+        wait_ms: u64,
+    },
+    /// A live table of values; `watch DEVICE...` for some devices only.
+    Watch { devices: Vec<String> },
+    /// A device (`describe device NAME`) or a profile (`describe profile NAME`).
+    Describe {
+        #[command(subcommand)]
+        what: Describe,
+    },
+}
+
+#[derive(Subcommand)]
+enum Describe {
+    Device {
+        name: String,
+    },
+    Profile {
+        name: String,
+        /// Print only the ST function-block declaration.
+        #[arg(long)]
+        st: bool,
+    },
+}
+
+fn split_target(target: &str) -> (&str, Option<&str>) {
+    match target.split_once('.') {
+        Some((d, f)) => (d, Some(f)),
+        None => (target, None),
+    }
+}
+
+fn print_json(value: &impl Serialize) -> anyhow::Result<()> {
+    println!("{}", serde_json::to_string_pretty(value)?);
+    Ok(())
+}
+
+fn show(v: &FieldValue) -> String {
+    v.value
+        .as_ref()
+        .map_or_else(|| "-".to_owned(), Value::to_string)
+}
+
+fn age(v: &FieldValue) -> String {
+    v.timestamp.and_then(|t| t.elapsed().ok()).map_or_else(
+        || "-".to_owned(),
+        |d| format!("{:.1}s ago", d.as_secs_f64()),
+    )
+}
+
+fn field_table(values: &[FieldValue]) -> String {
+    let mut out = format!(
+        "{:<28} {:<7} {:<24} {:<11} {}\n",
+        "FIELD", "TYPE", "VALUE", "QUALITY", "UPDATED"
+    );
+    for v in values {
+        out.push_str(&format!(
+            "{:<28} {:<7} {:<24} {:<11} {}{}\n",
+            format!("{}.{}", v.device, v.field),
+            v.ty.map_or("", |t| t.name()),
+            show(v),
+            v.quality.name(),
+            age(v),
+            v.error
+                .as_ref()
+                .map(|e| format!("  ({e})"))
+                .unwrap_or_default()
+        ));
+    }
+    out
+}
+
+async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    let mut client = Client::connect(&cli.server).await?;
+    match cli.command {
+        Command::Devices => {
+            let devices = client.devices().await?;
+            if cli.json {
+                print_json(&devices)?;
+            } else {
+                println!(
+                    "{:<16} {:<22} {:<10} {:>5} {:>9} {:>5} {:>10} {:>9}",
+                    "DEVICE",
+                    "PROFILE",
+                    "LINK",
+                    "SLAVE",
+                    "CONNECTED",
+                    "ERROR",
+                    "IO_CYCLES",
+                    "LAST_MS"
+                );
+                for d in devices {
+                    let diag = d.diagnostics.clone().unwrap_or(iogate_client::Diagnostics {
+                        device: d.name.clone(),
+                        connected: false,
+                        error_code: 0,
+                        io_cycles: 0,
+                        last_response_ms: 0.0,
+                    });
+                    println!(
+                        "{:<16} {:<22} {:<10} {:>5} {:>9} {:>5} {:>10} {:>9.3}",
+                        d.name,
+                        d.profile,
+                        d.link.as_deref().unwrap_or("-"),
+                        d.slave_id.map_or_else(|| "-".to_owned(), |s| s.to_string()),
+                        diag.connected,
+                        diag.error_code,
+                        diag.io_cycles,
+                        diag.last_response_ms
+                    );
+                }
+            }
+        }
+        Command::Links => {
+            let links = client.links().await?;
+            if cli.json {
+                print_json(&links)?;
+            } else {
+                println!(
+                    "{:<16} {:<40} {:>9} {:>5}  DEVICES",
+                    "LINK", "ENDPOINT", "CONNECTED", "ERROR"
+                );
+                for l in links {
+                    println!(
+                        "{:<16} {:<40} {:>9} {:>5}  {}",
+                        l.name,
+                        l.endpoint,
+                        l.connected,
+                        l.error_code,
+                        l.devices.join(", ")
+                    );
+                }
+            }
+        }
+        Command::Profiles => {
+            let profiles = client.profiles().await?;
+            if cli.json {
+                print_json(&profiles)?;
+            } else {
+                println!(
+                    "{:<24} {:<12} {:>6}  DESCRIPTION",
+                    "PROFILE", "PROTOCOL", "FIELDS"
+                );
+                for p in profiles {
+                    println!(
+                        "{:<24} {:<12} {:>6}  {}",
+                        p.name, p.protocol, p.field_count, p.description
+                    );
+                }
+            }
+        }
+        Command::Get { target } => {
+            let (device, field) = split_target(&target);
+            let selection = match field {
+                Some(f) => Selection::field(device, f),
+                None => Selection::device(device),
+            };
+            let values = client.read(&selection).await?;
+            if cli.json {
+                match (field, values.as_slice()) {
+                    (Some(_), [one]) => print_json(one)?,
+                    _ => print_json(&values)?,
+                }
+            } else {
+                print!("{}", field_table(&values));
+            }
+        }
+        Command::Set {
+            target,
+            value,
+            wait_ms,
+        } => {
+            let (device, Some(field)) = split_target(&target) else {
+                anyhow::bail!("write DEVICE.FIELD, e.g. sim.DO_0");
+            };
+            let info = client.device(device).await?;
+            let current = info
+                .fields
+                .iter()
+                .find(|f| f.field.eq_ignore_ascii_case(field))
+                .ok_or_else(|| anyhow::anyhow!("device {device} has no field `{field}`"))?;
+            let ty = client
+                .profile(&info.profile)
+                .await?
+                .fields
+                .iter()
+                .find(|f| f.name == current.field)
+                .and_then(|f| f.ty)
+                .ok_or_else(|| anyhow::anyhow!("the profile does not give {field}'s type"))?;
+            let value = Value::parse(ty, &value)?;
+            let generation = client.write(device, &current.field, value).await?;
+            let status = if wait_ms > 0 {
+                client
+                    .wait_write(generation, Duration::from_millis(wait_ms))
+                    .await?
+            } else {
+                client.write_status(generation).await?
+            };
+            if cli.json {
+                print_json(&status)?;
+            } else {
+                let outcome = match &status.outcome {
+                    WriteOutcome::Pending => "pending".to_owned(),
+                    WriteOutcome::Written => "written".to_owned(),
+                    WriteOutcome::Superseded => "superseded".to_owned(),
+                    WriteOutcome::Failed(e) => format!("failed: {e}"),
+                };
+                println!("{device}.{} write {generation}: {outcome}", current.field);
+            }
+            if matches!(status.outcome, WriteOutcome::Failed(_)) {
+                return Ok(ExitCode::FAILURE);
+            }
+        }
+        Command::Watch { devices } => {
+            let selection = Selection {
+                devices,
+                fields: Vec::new(),
+            };
+            let mut updates = client.subscribe(&selection, true).await?;
+            let live = std::io::stdout().is_terminal() && !cli.json;
+            let mut table: BTreeMap<(String, String), FieldValue> = BTreeMap::new();
+            let mut diagnostics = BTreeMap::new();
+            let mut drawn = Instant::now() - Duration::from_secs(1);
+            while let Some(update) = updates.next().await {
+                let update = update?;
+                if cli.json {
+                    println!("{}", serde_json::to_string(&update)?);
+                    continue;
+                }
+                if !live {
+                    match &update {
+                        Update::Value(v) => println!(
+                            "{}.{} = {} ({})",
+                            v.device,
+                            v.field,
+                            show(v),
+                            v.quality.name()
+                        ),
+                        Update::Diagnostics(d) => println!(
+                            "{}: connected={} error_code={}",
+                            d.device, d.connected, d.error_code
+                        ),
+                    }
+                    continue;
+                }
+                match update {
+                    Update::Value(v) => {
+                        table.insert((v.device.clone(), v.field.clone()), v);
+                    }
+                    Update::Diagnostics(d) => {
+                        diagnostics.insert(d.device.clone(), d);
+                    }
+                }
+                if drawn.elapsed() >= Duration::from_millis(100) {
+                    drawn = Instant::now();
+                    let values: Vec<FieldValue> = table.values().cloned().collect();
+                    let mut screen = String::from("\x1b[2J\x1b[H");
+                    for d in diagnostics.values() {
+                        screen.push_str(&format!(
+                            "{}: connected={} error_code={} io_cycles={}\n",
+                            d.device, d.connected, d.error_code, d.io_cycles
+                        ));
+                    }
+                    screen.push('\n');
+                    screen.push_str(&field_table(&values));
+                    print!("{screen}");
+                    std::io::stdout().flush()?;
+                }
+            }
+        }
+        Command::Describe { what } => match what {
+            Describe::Device { name } => {
+                let device = client.device(&name).await?;
+                if cli.json {
+                    print_json(&device)?;
+                } else {
+                    println!(
+                        "device {} (profile {}, {})",
+                        device.name, device.profile, device.protocol
+                    );
+                    if let Some(link) = &device.link {
+                        println!("link {link}, slave {}", device.slave_id.unwrap_or(0));
+                    }
+                    println!(
+                        "refresh every {} ms, timeout {} ms",
+                        device.refresh_rate_ms, device.timeout_ms
+                    );
+                    if let Some(d) = &device.diagnostics {
+                        println!(
+                            "connected={} error_code={} io_cycles={} last_response_ms={:.3}",
+                            d.connected, d.error_code, d.io_cycles, d.last_response_ms
+                        );
+                    }
+                    println!();
+                    print!("{}", field_table(&device.fields));
+                }
+            }
+            Describe::Profile { name, st } => {
+                let profile = client.profile(&name).await?;
+                if st {
+                    print!("{}", profile.st_declaration);
+                } else if cli.json {
+                    print_json(&profile)?;
+                } else {
+                    println!(
+                        "profile {} ({}) {}",
+                        profile.name, profile.protocol, profile.description
+                    );
+                    println!("\nfunction block layout:");
+                    for m in &profile.layout {
+                        println!(
+                            "  {:<10} {:<20} : {:<6} ({})",
+                            m.section,
+                            m.name,
+                            m.ty.map_or("", |t| t.name()),
+                            m.role
+                        );
+                    }
+                    println!("\nfields:");
+                    for f in &profile.fields {
+                        println!(
+                            "  {:<24} {:<6} {:<7} {} {}{}",
+                            f.name,
+                            f.ty.map_or("", |t| t.name()),
+                            format!("{:?}", f.direction).to_lowercase(),
+                            f.kind,
+                            f.address,
+                            if f.unit.is_empty() {
+                                String::new()
+                            } else {
+                                format!(" [{}]", f.unit)
+                            }
+                        );
+                    }
+                }
+            }
+        },
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let runtime = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("iogatectl: cannot start: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(cli)) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("iogatectl: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,15 @@
+//! iogate's gRPC API, package `iogate.v1`: messages and tonic client and server stubs.
+#![forbid(unsafe_code)]
+
+/// The generated code of `iogate/v1/gateway.proto`.
+pub mod pb {
+    #![allow(clippy::all, missing_docs)]
+    tonic::include_proto!("iogate.v1");
+}
+
+/// The encoded descriptor set of the API, for gRPC server reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/iogate_descriptor.bin"));
+
+/// The fully qualified name of the service, as health checks and reflection name it.
+pub const SERVICE_NAME: &str = "iogate.v1.Gateway";
