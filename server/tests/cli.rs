@@ -174,3 +174,33 @@ fn plan_prints_transactions_wire_time_and_utilisation() {
         "9600 baud cannot carry these rates: {text}"
     );
 }
+
+#[test]
+fn profile_st_prints_the_function_block() {
+    let out = iogate()
+        .args(["profile", "st", "SimIo", "--config"])
+        .arg(repo().join("examples/demo.yaml"))
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("FUNCTION_BLOCK SimIo\nVAR_INPUT\n    refresh_rate : TIME;"),
+        "{text}"
+    );
+    assert!(
+        text.contains("    DO_0 : BOOL; (* output virtual 1 *)\nEND_VAR\nEND_FUNCTION_BLOCK\n"),
+        "{text}"
+    );
+    let out = iogate()
+        .args(["profile", "st", "Nope"])
+        .current_dir(temp_dir("st"))
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(64));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown profile `Nope`"));
+}
