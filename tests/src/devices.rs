@@ -102,6 +102,27 @@ impl tokio_modbus::server::Service for ModbusDevice {
     }
 }
 
+/// Serves `device` with tokio-modbus's TCP server on a free loopback port.
+pub async fn modbus_tcp_server(device: ModbusDevice) -> (u16, tokio::task::JoinHandle<()>) {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    let task = tokio::spawn(async move {
+        let on_connected = move |stream, addr| {
+            let device = device.clone();
+            async move {
+                tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, move |_| {
+                    Ok(Some(device.clone()))
+                })
+            }
+        };
+        let _ = server.serve(&on_connected, |_| {}).await;
+    });
+    (port, task)
+}
+
 /// A pseudo-terminal pair whose gateway end is reachable at `path` (a symlink), so that a
 /// test can "unplug" it and plug a new one in at the same path, as a USB adapter would.
 /// Returns the device's end and a holder that keeps the gateway's end alive until the

@@ -10,7 +10,7 @@ use iogate_client::{
 use reqwest::Method;
 use tonic::Code;
 
-use iogate_tests::devices::ModbusDevice;
+use iogate_tests::devices::{ModbusDevice, modbus_tcp_server};
 use iogate_tests::{TestGateway, eventually};
 
 async fn demo() -> (TestGateway, Client) {
@@ -385,23 +385,7 @@ async fn declarations_are_idempotent_and_conflicts_are_named() {
 async fn a_runtime_declares_a_tcp_link_and_device_and_reads_it() {
     let device = ModbusDevice::default();
     device.tables.lock().expect("tables").input[0] = 1234;
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let port = listener.local_addr().expect("addr").port();
-    let served = device.clone();
-    let server = tokio::spawn(async move {
-        let server = tokio_modbus::server::tcp::Server::new(listener);
-        let on_connected = move |stream, addr| {
-            let d = served.clone();
-            async move {
-                tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, move |_| {
-                    Ok(Some(d.clone()))
-                })
-            }
-        };
-        let _ = server.serve(&on_connected, |_| {}).await;
-    });
+    let (port, server) = modbus_tcp_server(device.clone()).await;
     let (gw, mut client) = demo().await;
     let request = iogate_client::proto::EnsureLinkRequest {
         name: "plc".into(),

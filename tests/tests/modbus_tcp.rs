@@ -4,27 +4,8 @@
 use reqwest::Method;
 use tokio::net::TcpListener;
 
-use iogate_tests::devices::{ModbusDevice, RtuBus};
+use iogate_tests::devices::{ModbusDevice, RtuBus, modbus_tcp_server};
 use iogate_tests::{TestGateway, eventually};
-
-/// Serves `device` with tokio-modbus's TCP server on a free loopback port.
-async fn modbus_tcp_server(device: ModbusDevice) -> (u16, tokio::task::JoinHandle<()>) {
-    let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
-    let port = listener.local_addr().expect("addr").port();
-    let server = tokio_modbus::server::tcp::Server::new(listener);
-    let task = tokio::spawn(async move {
-        let on_connected = move |stream, addr| {
-            let device = device.clone();
-            async move {
-                tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, move |_| {
-                    Ok(Some(device.clone()))
-                })
-            }
-        };
-        let _ = server.serve(&on_connected, |_| {}).await;
-    });
-    (port, task)
-}
 
 #[tokio::test]
 async fn an_energy_meter_and_a_drive_over_modbus_tcp() {
