@@ -107,6 +107,14 @@ pub struct Tasks {
 }
 
 impl Tasks {
+    pub fn new(tracker: TaskTracker, token: CancellationToken, metrics: Arc<Metrics>) -> Self {
+        Tasks {
+            tracker,
+            token,
+            metrics,
+        }
+    }
+
     pub fn spawn_link(&self, link: Arc<Link>) {
         let task = LinkTask::new(link, self.metrics.clone());
         self.tracker.spawn(task.run(self.token.child_token()));
@@ -129,6 +137,17 @@ pub struct AppState {
 }
 
 impl AppState {
+    /// The state of a gateway whose tasks are started by `tasks`.
+    pub fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
+        AppState {
+            metrics: tasks.metrics.clone(),
+            token: tasks.token.clone(),
+            cache,
+            tasks,
+            ready: AtomicBool::new(false),
+        }
+    }
+
     pub fn is_ready(&self) -> bool {
         self.ready.load(Ordering::Relaxed) && !self.token.is_cancelled()
     }
@@ -174,11 +193,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let tracker = TaskTracker::new();
     let cache = Arc::new(Cache::new(&config, catalog));
 
-    let tasks = Tasks {
-        tracker: tracker.clone(),
-        token: token.clone(),
-        metrics: Arc::new(Metrics::new()),
-    };
+    let tasks = Tasks::new(tracker.clone(), token.clone(), Arc::new(Metrics::new()));
     for device in cache.devices() {
         if device.is_simulated() {
             tasks.spawn_sim(device);
@@ -188,13 +203,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         tasks.spawn_link(link);
     }
 
-    let state = Arc::new(AppState {
-        cache,
-        metrics: tasks.metrics.clone(),
-        tasks,
-        ready: AtomicBool::new(false),
-        token: token.clone(),
-    });
+    let state = Arc::new(AppState::new(cache, tasks));
     let listener = TcpListener::bind(config.http)
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
