@@ -185,7 +185,7 @@ impl LinkTask {
         let mut reopen = REOPEN_MIN;
         let mut lost = false;
         let mut last_error = String::new();
-        loop {
+        'reopen: loop {
             self.sync_members();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
@@ -245,14 +245,24 @@ impl LinkTask {
                                 connected: false,
                                 error_code: LINK_LOST,
                             });
-                            self.all_unreachable(&format!("link lost: {error}"));
+                            last_error = format!("link lost: {error}");
+                            self.all_unreachable(&last_error);
                         }
                     }
                 }
             }
-            tokio::select! {
-                _ = token.cancelled() => break,
-                _ = tokio::time::sleep(reopen) => {}
+            // While the link is down, writes (and devices declared meanwhile) are answered at
+            // once rather than at the next attempt to open it.
+            let retry_at = Instant::now() + reopen;
+            loop {
+                tokio::select! {
+                    _ = token.cancelled() => break 'reopen,
+                    _ = sleep_until(retry_at) => break,
+                    _ = self.link.wake.notified() => {
+                        self.sync_members();
+                        self.all_unreachable(&last_error);
+                    }
+                }
             }
             reopen = (reopen * 2).min(REOPEN_MAX);
         }
@@ -533,10 +543,12 @@ async fn write_bits(
 mod tests {
     use super::*;
     use crate::cache::Cache;
+    use crate::codec::Value;
     use crate::config::{Parity, SerialSettings};
     use crate::link::frame::crc16;
     use crate::link::rtu::RtuTransport;
     use crate::profile::Catalog;
+    use crate::writes::{Lookup, WriteStatus};
     use std::sync::atomic::{AtomicU32, Ordering};
     use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
@@ -555,6 +567,44 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_write_while_the_link_is_down_fails_at_once() {
+        let config = crate::config::parse(
+            "c.yaml",
+            "links:\n  - { name: bus, serial: { port: /nonexistent/ttyIOGATE9, baud: 9600 } }\ndevices:\n  - { name: out, profile: Out, link: bus, slave_id: 1 }\n",
+        )
+        .expect("config");
+        let profile = crate::profile::load_str(
+            "out.yaml",
+            "name: Out\nfields:\n  - { name: Q, type: BOOL, direction: output, register: { address: 0, kind: coil } }\n",
+        )
+        .expect("profile");
+        let cache = Cache::new(&config, Catalog::new([profile]));
+        let task = LinkTask::new(cache.links()[0].clone(), Arc::new(Metrics::new()));
+        let token = CancellationToken::new();
+        let running = tokio::spawn(task.run(token.clone()));
+        // Long enough for the reopen wait to have grown to its 8 s maximum.
+        tokio::time::sleep(Duration::from_secs(30)).await;
+        let device = cache.device("out").expect("device");
+        let generation = device
+            .request_write(0, Value::Bool(true))
+            .expect("accepted");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        let Lookup::Found(record) = cache.writes.get(generation) else {
+            panic!("write not logged")
+        };
+        assert_eq!(record.status, WriteStatus::Failed);
+        assert!(
+            record
+                .error
+                .as_deref()
+                .is_some_and(|e| e.contains("cannot open")),
+            "{record:?}"
+        );
+        token.cancel();
+        running.await.expect("task ends");
     }
 
     #[tokio::test(start_paused = true)]

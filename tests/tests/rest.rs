@@ -509,7 +509,7 @@ async fn links_and_modbus_devices_from_a_config_are_listed() {
         .expect("bind");
     let tcp_port = silent.local_addr().expect("addr").port();
     let gw = TestGateway::start(&format!(
-        "links:\n  - {{ name: rs485, serial: {{ port: /nonexistent/ttyIOGATE, baud: 19200, parity: E }} }}\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {tcp_port} }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: rs485, slave_id: 3, refresh_rate: 1s }}\n  - {{ name: sim, profile: SimIo }}\n",
+        "links:\n  - {{ name: rs485, serial: {{ port: /nonexistent/ttyIOGATE, baud: 19200, parity: E }} }}\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {tcp_port} }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: rs485, slave_id: 3, refresh_rate: 1s }}\n  - {{ name: vfd, profile: GenericVfd, link: rs485, slave_id: 4 }}\n  - {{ name: sim, profile: SimIo }}\n",
     ))
     .await
     .expect("start");
@@ -520,7 +520,7 @@ async fn links_and_modbus_devices_from_a_config_are_listed() {
     assert_eq!(links[0]["kind"], "serial");
     assert_eq!(links[0]["baud"], 19200);
     assert_eq!(links[0]["parity"], "E");
-    assert_eq!(links[0]["devices"], json!(["meter"]));
+    assert_eq!(links[0]["devices"], json!(["meter", "vfd"]));
     assert_eq!(links[1]["kind"], "tcp");
     assert_eq!(links[1]["tcp_port"], tcp_port);
     // The port does not exist: the link reports "open failed", its devices a communication
@@ -549,6 +549,37 @@ async fn links_and_modbus_devices_from_a_config_are_listed() {
             .as_str()
             .is_some_and(|e| e.contains("/nonexistent/ttyIOGATE")),
         "{frequency}"
+    );
+    // A write while the link is down is accepted, then fails at once with the reason.
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/vfd/fields/FrequencySetpoint",
+            "12.5",
+        )
+        .await
+        .expect("put");
+    assert_eq!(status, 202, "{body}");
+    let generation = body["generation"].as_u64().expect("generation");
+    let started = std::time::Instant::now();
+    let write = gw
+        .until(
+            &format!("/api/v1/writes/{generation}"),
+            "write failed",
+            |b| b["status"] == "failed",
+        )
+        .await
+        .expect("failed");
+    assert!(
+        started.elapsed() < std::time::Duration::from_secs(1),
+        "{:?}",
+        started.elapsed()
+    );
+    assert!(
+        write["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("cannot open /nonexistent/ttyIOGATE")),
+        "{write}"
     );
     let (status, body) = gw
         .send(Method::PUT, "/api/v1/devices/meter/fields/Frequency", "50")
