@@ -1,7 +1,8 @@
 //! Link throughput and overhead. Run with `cargo bench -p iogate --bench link`; it prints
 //! figures rather than asserting them.
 //!
-//! 1. Raw RTU transactions per second over a pseudo-terminal pair (no line timing).
+//! 1. Raw RTU transactions per second over a pseudo-terminal pair (no line timing), the
+//!    device answering from its own thread.
 //! 2. The same with 115200-baud line timing (the 1.75 ms inter-frame silence).
 //! 3. The link task's own cost per transaction: the full poll path (scheduling, transaction,
 //!    decoding, publishing to the cache) against bare transactions on the same TCP loopback
@@ -73,11 +74,31 @@ fn line(baud: u32, parity: Parity) -> LineTiming {
     })
 }
 
+/// A device on its own thread (as a real device is elsewhere), answering on a new pty pair;
+/// the gateway end is opened by its path, as a real port is.
+fn pty_device() -> tokio_serial::SerialStream {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("device runtime");
+        runtime.block_on(async move {
+            use tokio_serial::SerialPort;
+            let (device, holder) = tokio_serial::SerialStream::pair().expect("pty pair");
+            tx.send(holder.name().expect("pty name"))
+                .expect("send name");
+            responder(device, Arc::new(AtomicU64::new(0))).await;
+            drop(holder);
+        });
+    });
+    let path = rx.recv().expect("pty name");
+    tokio_serial::SerialStream::open(&tokio_serial::new(path, 115_200)).expect("open pty")
+}
+
 async fn pty_benchmarks() {
     let n = 20_000;
-    let (device, gateway) = tokio_serial::SerialStream::pair().expect("pty pair");
-    tokio::spawn(responder(device, Arc::new(AtomicU64::new(0))));
-    let t = RtuTransport::new(Box::new(gateway), None, Duration::ZERO);
+    let t = RtuTransport::new(Box::new(pty_device()), None, Duration::ZERO);
     let elapsed = raw_transactions(t, n).await;
     report(
         "pty pair, RTU read of 10 registers, no line timing",
@@ -86,13 +107,8 @@ async fn pty_benchmarks() {
     );
 
     let n = 2_000;
-    let (device, gateway) = tokio_serial::SerialStream::pair().expect("pty pair");
-    tokio::spawn(responder(device, Arc::new(AtomicU64::new(0))));
-    let t = RtuTransport::new(
-        Box::new(gateway),
-        Some(line(115_200, Parity::None)),
-        Duration::ZERO,
-    );
+    let timing = Some(line(115_200, Parity::None));
+    let t = RtuTransport::new(Box::new(pty_device()), timing, Duration::ZERO);
     let elapsed = raw_transactions(t, n).await;
     report(
         "pty pair, same read, 115200-baud silences kept",
