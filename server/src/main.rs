@@ -107,6 +107,9 @@ fn main() -> ExitCode {
         print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
         return ExitCode::SUCCESS;
     }
+    for warning in iogate::plan::warnings(&setup.config, &setup.catalog) {
+        eprintln!("warning: {warning}");
+    }
     if let Action::Check = action {
         let what = if setup.demo {
             "built-in demo".to_owned()

@@ -316,6 +316,40 @@ pub fn utilisation<'a>(
         .sum()
 }
 
+/// Links whose devices' refresh rates need more than the line carries, as warnings.
+pub fn warnings(config: &Config, catalog: &Catalog) -> Vec<String> {
+    config
+        .links
+        .iter()
+        .filter_map(|link| {
+            let Transport::Serial(s) = &link.transport else {
+                return None;
+            };
+            let devices: Vec<(&DeviceConfig, Vec<ReadBatch>)> = config
+                .devices
+                .iter()
+                .filter(|d| d.link.as_deref() == Some(link.name.as_str()))
+                .filter_map(|d| {
+                    let p = catalog.get(&d.profile)?;
+                    Some((d, read_batches(p, d.max_batch, d.max_gap)))
+                })
+                .collect();
+            let u = utilisation(
+                devices.iter().map(|(d, b)| (*d, b.as_slice())),
+                &LineTiming::new(s),
+                link.guard_time,
+            );
+            (u > 1.0).then(|| {
+                format!(
+                    "link {}: the refresh rates need {:.0}% of what the line carries; devices will be polled less often than configured (see `iogate plan`)",
+                    link.name,
+                    u * 100.0
+                )
+            })
+        })
+        .collect()
+}
+
 /// The poll plan of every link, as `iogate plan` prints it.
 pub fn render(config: &Config, catalog: &Catalog) -> String {
     let mut out = String::new();
@@ -544,11 +578,18 @@ mod tests {
         let p = profile(
             "  - { name: A, type: INT, direction: input, register: { address: 0, kind: input_register } }\n  - { name: B, type: INT, direction: input, register: { address: 10, kind: input_register } }\n",
         );
-        let text = render(&config, &Catalog::new([p]));
+        let catalog = Catalog::new([p]);
+        let text = render(&config, &catalog);
         assert!(
             text.contains("FC04 slave   1 address     0 count    1"),
             "{text}"
         );
         assert!(text.contains("WARNING"), "{text}");
+        let warnings = warnings(&config, &catalog);
+        assert_eq!(warnings.len(), 1);
+        assert!(
+            warnings[0].starts_with("link slow: the refresh rates need"),
+            "{warnings:?}"
+        );
     }
 }

@@ -173,6 +173,19 @@ fn plan_prints_transactions_wire_time_and_utilisation() {
         text.contains("WARNING"),
         "9600 baud cannot carry these rates: {text}"
     );
+
+    // `check` accepts the config but says so.
+    let out = iogate()
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    assert!(out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("warning: link rs485: the refresh rates need"),
+        "{stderr}"
+    );
 }
 
 #[test]
