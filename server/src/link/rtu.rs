@@ -381,6 +381,82 @@ mod tests {
         ));
     }
 
+    /// Runs one transaction against a device that answers `answer` to whatever it is asked.
+    fn transact_against(request: &Request, answer: Vec<u8>) -> Result<Response, TxError> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+            .expect("runtime");
+        runtime.block_on(async {
+            let (gateway, mut device) = tokio::io::duplex(4096);
+            let mut t = transport(gateway, Duration::ZERO);
+            tokio::spawn(async move {
+                let mut buf = [0u8; 8];
+                if device.read_exact(&mut buf).await.is_ok() {
+                    let _ = device.write_all(&answer).await;
+                }
+                // Stay connected: a closed line is a different error.
+                tokio::time::sleep(Duration::from_secs(60)).await;
+            });
+            t.transact(1, request, TIMEOUT).await
+        })
+    }
+
+    fn requests() -> impl proptest::strategy::Strategy<Value = Request> {
+        use proptest::prelude::*;
+        prop_oneof![
+            (0u16..100, 1u16..126)
+                .prop_map(|(address, count)| Request::ReadHoldingRegisters { address, count }),
+            (0u16..100, 1u16..126)
+                .prop_map(|(address, count)| Request::ReadInputRegisters { address, count }),
+            (0u16..100, 1u16..2001)
+                .prop_map(|(address, count)| Request::ReadCoils { address, count }),
+            (0u16..100, any::<u16>())
+                .prop_map(|(address, value)| Request::WriteSingleRegister { address, value }),
+            (0u16..100, any::<bool>())
+                .prop_map(|(address, value)| Request::WriteSingleCoil { address, value }),
+        ]
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(200))]
+
+        #[test]
+        fn any_answer_is_a_value_or_an_error_never_a_panic(
+            request in requests(),
+            answer in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..300),
+        ) {
+            let _ = transact_against(&request, answer);
+        }
+
+        #[test]
+        fn a_good_answer_with_one_byte_changed_is_never_accepted(
+            request in requests(),
+            at in proptest::prelude::any::<proptest::sample::Index>(),
+            flip in 1u8..=255,
+        ) {
+            // The good answer: registers or bits of zeros, or the write's echo.
+            let mut pdu = Vec::new();
+            request.encode(&mut pdu);
+            let good: Vec<u8> = match &request {
+                r if r.is_read() => {
+                    let n = r.response_len() - 2;
+                    let mut f = vec![1, pdu[0], n as u8];
+                    f.extend(std::iter::repeat_n(0u8, n));
+                    f
+                }
+                _ => [&[1u8][..], &pdu[..5]].concat(),
+            };
+            let framed = frame(&good);
+            proptest::prop_assert!(transact_against(&request, framed.clone()).is_ok());
+            let mut corrupted = framed;
+            let i = at.index(corrupted.len());
+            corrupted[i] ^= flip;
+            proptest::prop_assert!(transact_against(&request, corrupted).is_err());
+        }
+    }
+
     #[tokio::test(start_paused = true)]
     async fn noise_on_the_line_before_a_request_is_discarded() {
         let (gateway, mut device) = tokio::io::duplex(1024);
