@@ -299,6 +299,12 @@ impl Metrics {
                 link: link.config.name.clone(),
             };
             let d = link.diagnostics();
+            // Counters exist at zero from the first scrape, so rates and alerts work at once.
+            self.link_reconnects.get_or_create(&labels);
+            self.link_sent.get_or_create(&labels);
+            self.link_received.get_or_create(&labels);
+            self.link_discarded.get_or_create(&labels);
+            self.link_utilisation.get_or_create(&labels);
             self.link_up
                 .get_or_create(&labels)
                 .set(i64::from(d.connected));
@@ -319,6 +325,16 @@ impl Metrics {
                 .set(i64::from(d.error_code));
             let cycles = self.device_io_cycles.get_or_create(&labels);
             cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
+            if !device.is_simulated() {
+                self.timeouts.get_or_create(&labels);
+                self.crc_errors.get_or_create(&labels);
+            }
+            for outcome in ["written", "superseded", "failed"] {
+                self.writes.get_or_create(&WriteLabels {
+                    device: device.name().to_owned(),
+                    outcome: outcome.to_owned(),
+                });
+            }
         }
         for (device, outcome, n) in cache.writes.outcome_counts() {
             let counter = self.writes.get_or_create(&WriteLabels {
