@@ -300,11 +300,11 @@ impl Metrics {
             };
             let d = link.diagnostics();
             // Counters exist at zero from the first scrape, so rates and alerts work at once.
-            self.link_reconnects.get_or_create(&labels);
-            self.link_sent.get_or_create(&labels);
-            self.link_received.get_or_create(&labels);
-            self.link_discarded.get_or_create(&labels);
-            self.link_utilisation.get_or_create(&labels);
+            let _ = self.link_reconnects.get_or_create(&labels);
+            let _ = self.link_sent.get_or_create(&labels);
+            let _ = self.link_received.get_or_create(&labels);
+            let _ = self.link_discarded.get_or_create(&labels);
+            let _ = self.link_utilisation.get_or_create(&labels);
             self.link_up
                 .get_or_create(&labels)
                 .set(i64::from(d.connected));
@@ -326,11 +326,11 @@ impl Metrics {
             let cycles = self.device_io_cycles.get_or_create(&labels);
             cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
             if !device.is_simulated() {
-                self.timeouts.get_or_create(&labels);
-                self.crc_errors.get_or_create(&labels);
+                let _ = self.timeouts.get_or_create(&labels);
+                let _ = self.crc_errors.get_or_create(&labels);
             }
             for outcome in ["written", "superseded", "failed"] {
-                self.writes.get_or_create(&WriteLabels {
+                let _ = self.writes.get_or_create(&WriteLabels {
                     device: device.name().to_owned(),
                     outcome: outcome.to_owned(),
                 });
