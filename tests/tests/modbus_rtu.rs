@@ -138,6 +138,10 @@ async fn every_type_and_byte_order_reads_as_the_device_holds_it() {
     let mut profile = String::from("name: AllTypes\nfields:\n");
     let mut expected = Vec::new();
     let mut address = 0u16;
+    // Outputs of the same types and orders in holding registers from 100, written later.
+    let mut out_address = 100u16;
+    let mut outputs = serde_json::Map::new();
+    let mut written: Vec<(String, u16, Vec<u16>)> = Vec::new();
     {
         let mut tables = device.tables.lock().expect("tables");
         for (i, (ty, extra, bytes, value)) in cases.iter().enumerate() {
@@ -151,6 +155,13 @@ async fn every_type_and_byte_order_reads_as_the_device_holds_it() {
                 }
                 address += (bytes.len() / 2) as u16;
                 expected.push((name, value.clone()));
+                let out = format!("O{i}_{}", order.replace('-', "_"));
+                profile.push_str(&format!(
+                    "  - {{ name: {out}, type: {ty}, direction: output, register: {{ address: {out_address}, kind: holding_register, byte_order: {order}{extra} }} }}\n"
+                ));
+                outputs.insert(out.clone(), value.clone());
+                written.push((out, out_address, registers(order, bytes)));
+                out_address += (bytes.len() / 2) as u16;
             }
         }
         tables.coils[3] = true;
@@ -206,6 +217,40 @@ async fn every_type_and_byte_order_reads_as_the_device_holds_it() {
     }
     assert_eq!(body["connected"], true);
     assert_eq!(body["error_code"], 0);
+
+    // Every type and order written in one PATCH lands as the same registers.
+    let (status, body) = gw
+        .send(
+            Method::PATCH,
+            "/api/v1/devices/dev/fields",
+            Value::Object(outputs).to_string(),
+        )
+        .await
+        .expect("patch");
+    assert_eq!(status, 202, "{body}");
+    let generations: Vec<u64> = body["writes"]
+        .as_array()
+        .expect("writes")
+        .iter()
+        .filter_map(|w| w["generation"].as_u64())
+        .collect();
+    assert_eq!(generations.len(), written.len());
+    for g in generations {
+        gw.until(&format!("/api/v1/writes/{g}"), "written", |b| {
+            b["status"] == "written"
+        })
+        .await
+        .expect("written");
+    }
+    let tables = device.tables.lock().expect("tables").clone();
+    for (name, address, regs) in &written {
+        let start = usize::from(*address);
+        assert_eq!(
+            &tables.holding[start..start + regs.len()],
+            regs.as_slice(),
+            "{name}"
+        );
+    }
     gw.shutdown().await;
     server.abort();
 }
