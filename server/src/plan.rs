@@ -172,12 +172,42 @@ impl WriteOp {
             WriteOp::Direct { items, .. } | WriteOp::Bits { items, .. } => items,
         }
     }
+
+    /// The op with its item indexes looked up in `map` (for ops planned from a subset).
+    pub fn remap(mut self, map: &[usize]) -> WriteOp {
+        let items = match &mut self {
+            WriteOp::Direct { items, .. } | WriteOp::Bits { items, .. } => items,
+        };
+        for i in items.iter_mut() {
+            *i = map[*i];
+        }
+        self
+    }
+
+    /// Whether the op uses FC15 or FC16.
+    pub fn is_multiple(&self) -> bool {
+        matches!(
+            self,
+            WriteOp::Direct {
+                request: Request::WriteMultipleCoils { .. }
+                    | Request::WriteMultipleRegisters { .. },
+                ..
+            }
+        )
+    }
 }
 
 /// Groups writes into as few transactions as the Modbus functions allow: adjacent coils in
-/// one FC15, adjacent registers in one FC16, a single coil or register with FC05/FC06.
-/// Items that cannot be encoded are returned with the reason.
-pub fn write_ops(profile: &Profile, items: &[WriteItem]) -> (Vec<WriteOp>, Vec<(usize, String)>) {
+/// one FC15, adjacent registers in one FC16, a single coil or register with FC05/FC06. With
+/// `single`, for devices without FC15/FC16, every coil and one-register value goes alone
+/// (values of several registers still need FC16). Items that cannot be encoded are returned
+/// with the reason.
+pub fn write_ops(
+    profile: &Profile,
+    items: &[WriteItem],
+    single: bool,
+) -> (Vec<WriteOp>, Vec<(usize, String)>) {
+    let group_limit = |limit: u16| if single { 1 } else { usize::from(limit) };
     let mut coils: Vec<(u16, bool, usize)> = Vec::new();
     let mut registers: Vec<(u16, Vec<u16>, usize)> = Vec::new();
     // Per register: the bits to set and the items they come from.
@@ -206,7 +236,7 @@ pub fn write_ops(profile: &Profile, items: &[WriteItem]) -> (Vec<WriteOp>, Vec<(
     for group in runs(
         &coils,
         |prev, next| next.0 == prev.0.wrapping_add(1),
-        MAX_WRITE_BITS as usize,
+        group_limit(MAX_WRITE_BITS),
         |_| 1,
     ) {
         let address = group[0].0;
@@ -228,7 +258,7 @@ pub fn write_ops(profile: &Profile, items: &[WriteItem]) -> (Vec<WriteOp>, Vec<(
     for group in runs(
         &registers,
         |prev, next| u32::from(next.0) == u32::from(prev.0) + prev.1.len() as u32,
-        MAX_WRITE_REGISTERS as usize,
+        group_limit(MAX_WRITE_REGISTERS),
         |r| r.1.len(),
     ) {
         let address = group[0].0;
@@ -546,7 +576,7 @@ mod tests {
             item(6, Value::Bool(true)),
             item(7, Value::Bool(true)),
         ];
-        let (ops, refused) = write_ops(&p, &items);
+        let (ops, refused) = write_ops(&p, &items, false);
         assert!(refused.is_empty());
         let functions: Vec<String> = ops
             .iter()
@@ -565,6 +595,21 @@ mod tests {
         assert_eq!(
             functions,
             ["FC15@0x2", "FC05@5x1", "FC16@0x3", "FC06@9x1", "bits@20:2"]
+        );
+        // For a device without FC15/FC16: one item per transaction; a REAL still needs FC16.
+        let (single, _) = write_ops(&p, &items, true);
+        let shapes: Vec<String> = single
+            .iter()
+            .filter_map(|op| match op {
+                WriteOp::Direct { request, .. } => {
+                    Some(format!("{}@{}", request.function(), request.address()))
+                }
+                WriteOp::Bits { .. } => None,
+            })
+            .collect();
+        assert_eq!(
+            shapes,
+            ["FC05@0", "FC05@1", "FC05@5", "FC06@0", "FC16@1", "FC06@9"]
         );
     }
 

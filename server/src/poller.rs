@@ -3,6 +3,7 @@
 //! device that stops answering is backed off: until it answers again it costs the link one
 //! probe transaction (one timeout) per backoff period, and the other devices keep their rates.
 
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -36,6 +37,8 @@ struct Polled {
     backoff: Option<(Instant, Duration)>,
     /// Write the latest requested outputs again (after a reconnect).
     rewrite: bool,
+    /// The device refused FC15/FC16 (exception 01): write items one at a time.
+    single_writes: bool,
 }
 
 impl Polled {
@@ -159,6 +162,7 @@ impl LinkTask {
                 next_due: now,
                 backoff: None,
                 rewrite: true,
+                single_writes: false,
             });
         }
         self.planned = match &self.link.config.transport {
@@ -457,12 +461,12 @@ impl LinkTask {
                 device.finish_write(g, result);
             }
         };
-        let (ops, refused) = plan::write_ops(&device.profile, &items);
+        let (ops, refused) = plan::write_ops(&device.profile, &items, p.single_writes);
         for (n, reason) in refused {
             finish(&items[n], Err(reason));
         }
-        let mut ops = ops.into_iter();
-        while let Some(op) = ops.next() {
+        let mut ops: VecDeque<WriteOp> = ops.into();
+        while let Some(op) = ops.pop_front() {
             let result = match &op {
                 WriteOp::Direct { request, .. } => bus
                     .transact(&device, request, device.config.retries)
@@ -480,6 +484,19 @@ impl LinkTask {
                         device.publish(items[n].field, Ok(items[n].value.clone()));
                     }
                 }
+                Err(TxError::Exception(Exception::ILLEGAL_FUNCTION))
+                    if op.is_multiple() && op.items().len() > 1 =>
+                {
+                    // The device has no FC15/FC16: write these (and later ones) one by one.
+                    tracing::info!(device = %device.name(), slave = p.slave, "device refused FC15/FC16; writing items one at a time");
+                    p.single_writes = true;
+                    let subset = op.items().to_vec();
+                    let sub: Vec<WriteItem> = subset.iter().map(|&n| items[n].clone()).collect();
+                    let (singles, _) = plan::write_ops(&device.profile, &sub, true);
+                    for single in singles.into_iter().rev() {
+                        ops.push_front(single.remap(&subset));
+                    }
+                }
                 Err(e) => {
                     let reason = e.to_string();
                     for &n in op.items() {
@@ -489,7 +506,7 @@ impl LinkTask {
                         continue;
                     }
                     // The device or the link is gone: the rest cannot be written now.
-                    for rest in ops.by_ref() {
+                    for rest in ops.drain(..) {
                         for &n in rest.items() {
                             finish(&items[n], Err(format!("not sent: {reason}")));
                         }

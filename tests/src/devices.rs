@@ -174,6 +174,8 @@ pub struct Slave {
     pub refused: Vec<u16>,
     /// An input register incremented on every read that covers it.
     pub counter: Option<u16>,
+    /// Knows only single writes: FC15 and FC16 get exception 01.
+    pub single_writes_only: bool,
 }
 
 impl Default for Slave {
@@ -183,6 +185,7 @@ impl Default for Slave {
             behaviour: Behaviour::Normal,
             refused: Vec::new(),
             counter: None,
+            single_writes_only: false,
         }
     }
 }
@@ -316,6 +319,9 @@ fn respond(slave: &mut Slave, function: u8, address: u16, count: u16, request: &
     let Some(r) = range(address, count) else {
         return exception(2);
     };
+    if slave.single_writes_only && matches!(function, 15 | 16) {
+        return exception(1);
+    }
     let reads = matches!(function, 1..=4);
     if reads && slave.refused.iter().any(|a| r.contains(&usize::from(*a))) {
         return exception(2);

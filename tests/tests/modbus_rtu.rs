@@ -397,6 +397,67 @@ async fn a_burst_of_writes_becomes_a_few_bus_writes_and_the_last_value_lands() {
 }
 
 #[tokio::test]
+async fn a_device_without_fc15_and_fc16_gets_single_writes() {
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.single_writes_only = true);
+    let (gw, _pty, task, _) = bus_gateway(
+        "single-writes",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms }\n",
+    )
+    .await;
+    gw.until("/api/v1/devices/io", "connected", |b| {
+        b["connected"] == true
+    })
+    .await
+    .expect("connected");
+    let patch = |body: &'static str| {
+        let gw = &gw;
+        async move {
+            let (status, answer) = gw
+                .send(Method::PATCH, "/api/v1/devices/io/fields", body)
+                .await
+                .expect("patch");
+            assert_eq!(status, 202, "{answer}");
+            let last = answer["writes"]
+                .as_array()
+                .and_then(|w| w.iter().filter_map(|x| x["generation"].as_u64()).max())
+                .expect("generations");
+            for w in answer["writes"].as_array().expect("writes") {
+                let g = w["generation"].as_u64().expect("generation");
+                gw.until(&format!("/api/v1/writes/{g}"), "written", |b| {
+                    b["status"] == "written"
+                })
+                .await
+                .expect("every write lands");
+            }
+            last
+        }
+    };
+    patch(r#"{"DO_0": true, "DO_1": true, "DO_2": true, "AO_0": 1.5, "AO_1": 2.5}"#).await;
+    let tables = bus.read_slave(1, |s| s.tables.clone()).expect("slave");
+    assert_eq!(&tables.coils[..3], &[true, true, true]);
+    assert_eq!(&tables.holding[..2], &[1500, 2500]);
+    let seen = bus.seen();
+    let count = |f: u8| seen.iter().filter(|s| s.function == f).count();
+    assert_eq!((count(15), count(16)), (1, 1), "each refused once");
+    assert_eq!((count(5), count(6)), (3, 2), "then written one by one");
+
+    // The device's limits are remembered: no more FC15/FC16.
+    bus.clear_seen();
+    patch(r#"{"DO_3": true, "DO_4": true}"#).await;
+    let seen = bus.seen();
+    assert!(
+        seen.iter().all(|s| s.function != 15 && s.function != 16),
+        "{seen:?}"
+    );
+    assert_eq!(seen.iter().filter(|s| s.function == 5).count(), 2);
+    gw.shutdown().await;
+    task.abort();
+}
+
+#[tokio::test]
 async fn writing_one_bit_keeps_the_other_bits_of_the_register() {
     let bus = RtuBus::default();
     bus.slave(2, |s| s.tables.holding[0] = 0x0080);
