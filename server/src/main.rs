@@ -107,10 +107,11 @@ fn main() -> ExitCode {
         print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
         return ExitCode::SUCCESS;
     }
-    for warning in iogate::plan::warnings(&setup.config, &setup.catalog) {
-        eprintln!("warning: {warning}");
-    }
     if let Action::Check = action {
+        // `serve` says the same in its log, from each link's task.
+        for warning in iogate::plan::warnings(&setup.config, &setup.catalog) {
+            eprintln!("warning: {warning}");
+        }
         let what = if setup.demo {
             "built-in demo".to_owned()
         } else {

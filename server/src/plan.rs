@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use crate::codec::{Raw, Value};
-use crate::config::{Config, DeviceConfig, Transport};
+use crate::config::{Config, DeviceConfig, LinkConfig, Transport};
 use crate::link::frame::{MAX_READ_BITS, MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Request, Response};
 use crate::link::timing::LineTiming;
 use crate::profile::{Catalog, Field, Profile, RegisterKind};
@@ -346,29 +346,40 @@ pub fn utilisation<'a>(
         .sum()
 }
 
+/// A link's devices whose profiles are known, each with its read batches.
+type Planned<'a> = Vec<(&'a DeviceConfig, &'a Profile, Vec<ReadBatch>)>;
+
+fn devices_of<'a>(config: &'a Config, catalog: &'a Catalog, link: &LinkConfig) -> Planned<'a> {
+    config
+        .devices
+        .iter()
+        .filter(|d| d.link.as_deref() == Some(link.name.as_str()))
+        .filter_map(|d| {
+            let p = catalog.get(&d.profile)?;
+            Some((d, p.as_ref(), read_batches(p, d.max_batch, d.max_gap)))
+        })
+        .collect()
+}
+
+/// The share of a serial link's time its devices' refresh rates demand; `None` over TCP.
+fn link_utilisation(link: &LinkConfig, devices: &Planned<'_>) -> Option<f64> {
+    let Transport::Serial(s) = &link.transport else {
+        return None;
+    };
+    Some(utilisation(
+        devices.iter().map(|(d, _, b)| (*d, b.as_slice())),
+        &LineTiming::new(s),
+        link.guard_time,
+    ))
+}
+
 /// Links whose devices' refresh rates need more than the line carries, as warnings.
 pub fn warnings(config: &Config, catalog: &Catalog) -> Vec<String> {
     config
         .links
         .iter()
         .filter_map(|link| {
-            let Transport::Serial(s) = &link.transport else {
-                return None;
-            };
-            let devices: Vec<(&DeviceConfig, Vec<ReadBatch>)> = config
-                .devices
-                .iter()
-                .filter(|d| d.link.as_deref() == Some(link.name.as_str()))
-                .filter_map(|d| {
-                    let p = catalog.get(&d.profile)?;
-                    Some((d, read_batches(p, d.max_batch, d.max_gap)))
-                })
-                .collect();
-            let u = utilisation(
-                devices.iter().map(|(d, b)| (*d, b.as_slice())),
-                &LineTiming::new(s),
-                link.guard_time,
-            );
+            let u = link_utilisation(link, &devices_of(config, catalog, link))?;
             (u > 1.0).then(|| {
                 format!(
                     "link {}: the refresh rates need {:.0}% of what the line carries; devices will be polled less often than configured (see `iogate plan`)",
@@ -387,12 +398,7 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
         out.push_str("No links configured: nothing is polled on a bus.\n");
     }
     for link in &config.links {
-        let devices: Vec<_> = config
-            .devices
-            .iter()
-            .filter(|d| d.link.as_deref() == Some(link.name.as_str()))
-            .filter_map(|d| catalog.get(&d.profile).map(|p| (d, p)))
-            .collect();
+        let devices = devices_of(config, catalog, link);
         let timing = match &link.transport {
             Transport::Serial(s) => {
                 let t = LineTiming::new(s);
@@ -430,9 +436,7 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                 None
             }
         };
-        let mut all: Vec<(&DeviceConfig, Vec<ReadBatch>)> = Vec::new();
-        for (d, profile) in devices {
-            let batches = read_batches(profile, d.max_batch, d.max_gap);
+        for (d, profile, batches) in &devices {
             let _ = writeln!(
                 out,
                 "  device {} (profile {}, slave {}, every {} ms): {} transaction(s) per cycle",
@@ -442,7 +446,7 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                 d.refresh_rate.as_millis(),
                 batches.len()
             );
-            for b in &batches {
+            for b in batches {
                 let request = b.request();
                 let names: Vec<&str> = b
                     .fields
@@ -469,17 +473,11 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
                 let _ = writeln!(
                     out,
                     "    cycle: {:.3} ms of bus time",
-                    ms(cycle_time(&batches, &t, link.guard_time))
+                    ms(cycle_time(batches, &t, link.guard_time))
                 );
             }
-            all.push((d, batches));
         }
-        if let Some(t) = timing {
-            let u = utilisation(
-                all.iter().map(|(d, b)| (*d, b.as_slice())),
-                &t,
-                link.guard_time,
-            );
+        if let Some(u) = link_utilisation(link, &devices) {
             let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
             if u > 1.0 {
                 let _ = writeln!(
