@@ -637,6 +637,8 @@ async fn misbehaving_devices_are_contained_while_another_keeps_updating() {
         "outcome=\"invalid_response\"",
         "iogate_device_exceptions_total{device=\"flaky\",code=\"04\"}",
         "iogate_link_discarded_bytes_total{link=\"bus\"}",
+        "iogate_link_planned_utilisation_ratio{link=\"bus\"}",
+        "iogate_link_utilisation_ratio{link=\"bus\"}",
     ] {
         let line = metrics
             .lines()
