@@ -23,7 +23,7 @@ mod types;
 
 pub use types::{
     DeviceInfo, Diagnostics, Direction, FieldInfo, FieldValue, IecType, LayoutMember, LinkInfo,
-    ProfileInfo, Quality, Update, Value, WriteOutcome, WriteStatus,
+    ProfileInfo, Quality, Update, Value, ValueError, WriteOutcome, WriteStatus,
 };
 
 pub use iogate_proto::pb as proto;
@@ -146,7 +146,7 @@ impl Exchange {
                 .map(|(d, f, v)| pb::FieldWrite {
                     device: (*d).to_owned(),
                     field: (*f).to_owned(),
-                    value: Some(v.to_pb()),
+                    value: Some(v.to_pb(None)),
                 })
                 .collect(),
             devices: devices.iter().map(|d| (*d).to_owned()).collect(),
@@ -285,7 +285,7 @@ impl Client {
                     .map(|(d, f, v)| pb::FieldWrite {
                         device: (*d).to_owned(),
                         field: (*f).to_owned(),
-                        value: Some(v.to_pb()),
+                        value: Some(v.to_pb(None)),
                     })
                     .collect(),
             })

@@ -20,28 +20,7 @@ use crate::writes::{WriteLog, WriteStatus};
 /// The longest string a simulated STRING field holds (the IEC default STRING length).
 pub const SIM_STRING_MAX: usize = 254;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Quality {
-    /// Read on the last poll.
-    Good,
-    /// Not refreshed for longer than the device's stale period.
-    Stale,
-    /// Nothing read yet.
-    NeverRead,
-    /// The device answered, but the value could not be decoded, or the read failed.
-    Bad,
-}
-
-impl Quality {
-    pub fn name(self) -> &'static str {
-        match self {
-            Quality::Good => "good",
-            Quality::Stale => "stale",
-            Quality::NeverRead => "never_read",
-            Quality::Bad => "bad",
-        }
-    }
-}
+pub use iogate_types::Quality;
 
 /// A field's latest value.
 #[derive(Debug, Clone, PartialEq)]

@@ -85,9 +85,11 @@ fn print_json(value: &impl Serialize) -> anyhow::Result<()> {
 }
 
 fn show(v: &FieldValue) -> String {
-    v.value
-        .as_ref()
-        .map_or_else(|| "-".to_owned(), Value::to_string)
+    match &v.value {
+        None => "-".to_owned(),
+        Some(Value::Time(ms)) => format!("{ms} ms"),
+        Some(other) => other.to_string(),
+    }
 }
 
 fn age(v: &FieldValue) -> String {

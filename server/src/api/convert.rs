@@ -41,7 +41,9 @@ pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, String> {
         (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(0) => Ok(Value::Bool(false)),
         (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(1) => Ok(Value::Bool(true)),
         (IecType::String, Json::String(s)) => Ok(Value::String(s.clone())),
-        (IecType::Time, Json::String(s)) => crate::duration::parse_ms(s).map(Value::Time),
+        (IecType::Time, Json::String(s)) => crate::duration::parse_ms(s)
+            .map(Value::Time)
+            .map_err(|e| e.to_string()),
         (t, Json::Number(n)) if t != IecType::Bool && t != IecType::String => {
             if let Some(i) = n.as_i64() {
                 Value::from_int(t, i.into()).map_err(|e| e.to_string())

@@ -15,7 +15,7 @@ use tonic::{Request, Response, Status, Streaming};
 use super::pb as convert;
 use crate::app::AppState;
 use crate::cache::{AccessError, Device};
-use crate::codec::Value;
+use crate::codec::{Value, ValueError};
 use crate::config::{Framing, Transport};
 use crate::declare::{self, DeclareError, DeviceDeclaration, LinkDeclaration};
 use crate::profile::Direction;
@@ -79,13 +79,13 @@ impl GrpcApi {
         let value = w
             .value
             .as_ref()
-            .ok_or_else(|| format!("{} needs a value; none was set", field.ty))
-            .and_then(|v| convert::to_value(field.ty, v))
-            .map_err(|reason| AccessError::InvalidValue {
+            .ok_or(ValueError::Missing { ty: field.ty })
+            .and_then(|v| Value::from_pb_as(field.ty, v))
+            .map_err(|e| AccessError::InvalidValue {
                 device: device.name().to_owned(),
                 field: field.name.clone(),
                 ty: field.ty,
-                reason,
+                reason: e.to_string(),
             })?;
         device.check_write(idx, &value)?;
         Ok((device, idx, value))

@@ -4,116 +4,22 @@ use std::time::SystemTime;
 
 use iogate_proto::pb;
 
-use crate::cache::{Device, Link, Quality, Sample};
+use crate::cache::{Device, Link, Sample};
 use crate::codec::{IecType, Value};
 use crate::config::{Parity, SerialSettings, Transport};
-use crate::profile::{Direction, Profile, fb_layout, st_declaration};
+use crate::profile::{Profile, fb_layout, st_declaration};
 use crate::writes::{WriteRecord, WriteStatus};
 
 pub fn iec_type(ty: IecType) -> pb::IecType {
-    match ty {
-        IecType::Bool => pb::IecType::Bool,
-        IecType::Sint => pb::IecType::Sint,
-        IecType::Int => pb::IecType::Int,
-        IecType::Dint => pb::IecType::Dint,
-        IecType::Lint => pb::IecType::Lint,
-        IecType::Usint => pb::IecType::Usint,
-        IecType::Uint => pb::IecType::Uint,
-        IecType::Udint => pb::IecType::Udint,
-        IecType::Ulint => pb::IecType::Ulint,
-        IecType::Real => pb::IecType::Real,
-        IecType::Lreal => pb::IecType::Lreal,
-        IecType::Byte => pb::IecType::Byte,
-        IecType::Word => pb::IecType::Word,
-        IecType::Dword => pb::IecType::Dword,
-        IecType::Lword => pb::IecType::Lword,
-        IecType::String => pb::IecType::String,
-        IecType::Time => pb::IecType::Time,
-    }
-}
-
-/// The IEC type of a protobuf type, `None` for UNSPECIFIED or an unknown number.
-pub fn from_pb_type(ty: i32) -> Option<IecType> {
-    let ty = pb::IecType::try_from(ty).ok()?;
-    IecType::ALL.into_iter().find(|t| iec_type(*t) == ty)
+    ty.to_pb()
 }
 
 pub fn value(ty: IecType, v: &Value) -> pb::Value {
-    use pb::value::Kind;
-    let kind = match v {
-        Value::Bool(b) => Kind::BoolValue(*b),
-        Value::Int(i) => Kind::IntValue(*i),
-        Value::UInt(u) => Kind::UintValue(*u),
-        Value::Real(r) => Kind::RealValue(*r),
-        Value::LReal(r) => Kind::LrealValue(*r),
-        Value::String(s) => Kind::StringValue(s.clone()),
-        Value::Time(t) => Kind::TimeMs(*t),
-    };
-    pb::Value {
-        r#type: iec_type(ty).into(),
-        kind: Some(kind),
-    }
-}
-
-/// A protobuf value as a value of `ty`. Numbers convert when they fit exactly; a string
-/// is also a TIME literal such as `T#1s500ms`.
-pub fn to_value(ty: IecType, v: &pb::Value) -> Result<Value, String> {
-    use pb::value::Kind;
-    if let Some(declared) = from_pb_type(v.r#type)
-        && declared != ty
-    {
-        return Err(format!("the field is {ty}, the value says {declared}"));
-    }
-    let Some(kind) = &v.kind else {
-        return Err(format!("{ty} needs a value; none was set"));
-    };
-
-    match (ty, kind) {
-        (IecType::Bool, Kind::BoolValue(b)) => Ok(Value::Bool(*b)),
-        (IecType::String, Kind::StringValue(s)) => Ok(Value::String(s.clone())),
-        (IecType::Time, Kind::TimeMs(ms)) => Ok(Value::Time(*ms)),
-        (IecType::Time, Kind::StringValue(s)) => crate::duration::parse_ms(s).map(Value::Time),
-        (IecType::Bool | IecType::String | IecType::Time, _) => {
-            Err(format!("{ty} does not take {}", kind_name(kind)))
-        }
-        (t, Kind::IntValue(i)) => Value::from_int(t, (*i).into()).map_err(|e| e.to_string()),
-        (t, Kind::UintValue(u)) => Value::from_int(t, (*u).into()).map_err(|e| e.to_string()),
-        (t, Kind::RealValue(r)) => Value::from_real(t, f64::from(*r)).map_err(|e| e.to_string()),
-        (t, Kind::LrealValue(r)) => Value::from_real(t, *r).map_err(|e| e.to_string()),
-        (t, other) => Err(format!("{t} does not take {}", kind_name(other))),
-    }
-}
-
-fn kind_name(kind: &pb::value::Kind) -> &'static str {
-    use pb::value::Kind;
-    match kind {
-        Kind::BoolValue(_) => "a boolean",
-        Kind::IntValue(_) | Kind::UintValue(_) => "an integer",
-        Kind::RealValue(_) | Kind::LrealValue(_) => "a real number",
-        Kind::StringValue(_) => "a string",
-        Kind::TimeMs(_) => "a duration",
-    }
+    v.to_pb(Some(ty))
 }
 
 pub fn timestamp(t: SystemTime) -> prost_types::Timestamp {
     prost_types::Timestamp::from(t)
-}
-
-pub fn quality(q: Quality) -> pb::Quality {
-    match q {
-        Quality::Good => pb::Quality::Good,
-        Quality::Stale => pb::Quality::Stale,
-        Quality::NeverRead => pb::Quality::NeverRead,
-        Quality::Bad => pb::Quality::Bad,
-    }
-}
-
-pub fn direction(d: Direction) -> pb::Direction {
-    match d {
-        Direction::Input => pb::Direction::Input,
-        Direction::Output => pb::Direction::Output,
-        Direction::Inout => pb::Direction::Inout,
-    }
 }
 
 pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldValue {
@@ -123,10 +29,10 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldVal
         device: device.name().to_owned(),
         field: field.name.clone(),
         value: sample.value.as_ref().map(|v| value(field.ty, v)),
-        quality: quality(sample.quality_at(now, device.stale_after())).into(),
+        quality: sample.quality_at(now, device.stale_after()).to_pb().into(),
         timestamp: sample.updated.map(|(_, wall)| timestamp(wall)),
         error: sample.error.clone().unwrap_or_default(),
-        direction: direction(field.direction).into(),
+        direction: field.direction.to_pb().into(),
     }
 }
 
@@ -249,7 +155,7 @@ pub fn profile(p: &Profile, full: bool) -> pb::Profile {
             .map(|f| pb::Field {
                 name: f.name.clone(),
                 r#type: iec_type(f.ty).into(),
-                direction: direction(f.direction).into(),
+                direction: f.direction.to_pb().into(),
                 description: f.description.clone().unwrap_or_default(),
                 register: Some(pb::Register {
                     address: f.register.address.into(),
@@ -298,55 +204,5 @@ pub fn write_status(r: &WriteRecord, ty: Option<IecType>) -> pb::WriteStatus {
         error: r.error.clone().unwrap_or_default(),
         requested: Some(timestamp(r.requested)),
         finished: r.finished.map(timestamp),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use pb::value::Kind;
-
-    fn pv(kind: Kind) -> pb::Value {
-        pb::Value {
-            r#type: 0,
-            kind: Some(kind),
-        }
-    }
-
-    #[test]
-    fn every_type_maps_both_ways() {
-        for t in IecType::ALL {
-            assert_eq!(from_pb_type(iec_type(t).into()), Some(t));
-        }
-        assert_eq!(from_pb_type(0), None);
-        assert_eq!(from_pb_type(99), None);
-    }
-
-    #[test]
-    fn numbers_convert_when_they_fit() {
-        assert_eq!(
-            to_value(IecType::Real, &pv(Kind::IntValue(3))),
-            Ok(Value::Real(3.0))
-        );
-        assert_eq!(
-            to_value(IecType::Int, &pv(Kind::LrealValue(3.0))),
-            Ok(Value::Int(3))
-        );
-        assert!(to_value(IecType::Int, &pv(Kind::LrealValue(3.5))).is_err());
-        assert!(to_value(IecType::Usint, &pv(Kind::IntValue(-1))).is_err());
-        assert_eq!(
-            to_value(IecType::Time, &pv(Kind::StringValue("T#2s".into()))),
-            Ok(Value::Time(2000))
-        );
-        assert!(to_value(IecType::Bool, &pv(Kind::IntValue(1))).is_err());
-        let mislabelled = pb::Value {
-            r#type: pb::IecType::Real.into(),
-            kind: Some(Kind::RealValue(1.0)),
-        };
-        assert_eq!(
-            to_value(IecType::Int, &mislabelled),
-            Err("the field is INT, the value says REAL".to_owned())
-        );
-        assert!(to_value(IecType::Int, &pb::Value::default()).is_err());
     }
 }

@@ -92,7 +92,7 @@ impl Encoding {
                 if self.is_scaled() || self.ty.is_real() {
                     self.value_from_f64(raw as f64 * self.scale + self.offset)
                 } else {
-                    Value::from_int(self.ty, raw)
+                    Ok(Value::from_int(self.ty, raw)?)
                 }
             }
             Raw::F32 => {
@@ -200,9 +200,9 @@ impl Encoding {
 
     fn value_from_f64(&self, x: f64) -> Result<Value, CodecError> {
         if self.ty.is_real() {
-            Value::from_real(self.ty, x)
+            Ok(Value::from_real(self.ty, x)?)
         } else if x.is_finite() {
-            Value::from_int(self.ty, x.round() as i128)
+            Ok(Value::from_int(self.ty, x.round() as i128)?)
         } else {
             Err(CodecError::NotFinite { ty: self.ty })
         }
@@ -442,7 +442,7 @@ mod tests {
         let bits = f32::NAN.to_bits();
         assert!(matches!(
             e.decode(&[(bits >> 16) as u16, bits as u16]),
-            Err(CodecError::NotFinite { .. })
+            Err(CodecError::Value(crate::codec::ValueError::NotFinite { .. }))
         ));
     }
 

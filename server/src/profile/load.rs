@@ -387,7 +387,7 @@ fn read_register(
     }
     let raw_words = raw_type
         .filter(|r| ty.is_real() && r.int_bits().is_some() && *r != IecType::Time)
-        .map(IecType::default_words);
+        .map(crate::codec::default_words);
     let word_count = match (word_count, raw_words) {
         (Some(w), Some(r)) if w != r => {
             report.push(
@@ -403,7 +403,7 @@ fn read_register(
         (Some(w), _) => w,
         (None, Some(r)) => r,
         (None, None) if kind.is_bit() => 1,
-        (None, None) => ty.default_words(),
+        (None, None) => crate::codec::default_words(ty),
     };
     if !kind.is_bit() && raw_words.is_none() && !word_count_fits(ty, word_count) {
         report.push(
@@ -448,7 +448,7 @@ fn word_count_fits(ty: IecType, words: u16) -> bool {
         IecType::Real => matches!(words, 1 | 2),
         IecType::Lreal => matches!(words, 1 | 2 | 4),
         IecType::Time => matches!(words, 2 | 4),
-        t => words == t.default_words(),
+        t => words == crate::codec::default_words(t),
     }
 }
 
@@ -460,7 +460,7 @@ fn allowed_word_counts(ty: IecType) -> String {
             "1 = scaled 16-bit integer, 2 = IEEE-754 single, 4 = IEEE-754 double".to_owned()
         }
         IecType::Time => "2 = 32-bit milliseconds, 4 = 64-bit milliseconds".to_owned(),
-        t => t.default_words().to_string(),
+        t => crate::codec::default_words(t).to_string(),
     }
 }
 

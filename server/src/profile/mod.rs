@@ -39,29 +39,7 @@ impl Protocol {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Direction {
-    Input,
-    Output,
-    Inout,
-}
-
-impl Direction {
-    pub const ALL: [Direction; 3] = [Direction::Input, Direction::Output, Direction::Inout];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Direction::Input => "input",
-            Direction::Output => "output",
-            Direction::Inout => "inout",
-        }
-    }
-
-    /// Whether clients may write the field.
-    pub fn is_writable(self) -> bool {
-        self != Direction::Input
-    }
-}
+pub use iogate_types::Direction;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum RegisterKind {
