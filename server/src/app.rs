@@ -1,20 +1,22 @@
-//! Builds the gateway from its configuration, runs it, and shuts it down.
+//! The composition root: builds the gateway from its configuration (cache, tasks, service,
+//! listeners), runs it, and shuts it down.
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use crate::cache::{Cache, Device, Link};
+use crate::api;
+use crate::cache::Cache;
 use crate::config::{self, Config};
 use crate::metrics::Metrics;
-use crate::poller::LinkTask;
 use crate::profile::{self, Catalog};
+use crate::runtime::Tasks;
+use crate::service::Service;
 use crate::yaml::{Problems, Report};
 
 /// The config file looked for in the working directory when none is given.
@@ -97,65 +99,9 @@ impl Setup {
     }
 }
 
-/// Starts the tasks that own links and simulated devices, at start-up and when one is
-/// declared at run time.
-#[derive(Debug)]
-pub struct Tasks {
-    tracker: TaskTracker,
-    token: CancellationToken,
-    metrics: Arc<Metrics>,
-}
-
-impl Tasks {
-    pub fn new(tracker: TaskTracker, token: CancellationToken, metrics: Arc<Metrics>) -> Self {
-        Tasks {
-            tracker,
-            token,
-            metrics,
-        }
-    }
-
-    pub fn spawn_link(&self, link: Arc<Link>) {
-        let task = LinkTask::new(link, self.metrics.clone());
-        self.tracker.spawn(task.run(self.token.child_token()));
-    }
-
-    pub fn spawn_sim(&self, device: Arc<Device>) {
-        self.tracker
-            .spawn(crate::sim::run(device, self.token.child_token()));
-    }
-}
-
-/// Shared state of the running gateway.
-#[derive(Debug)]
-pub struct AppState {
-    pub tasks: Tasks,
-    pub cache: Arc<Cache>,
-    pub metrics: Arc<Metrics>,
-    pub ready: AtomicBool,
-    pub token: CancellationToken,
-}
-
-impl AppState {
-    /// The state of a gateway whose tasks are started by `tasks`.
-    pub fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
-        AppState {
-            metrics: tasks.metrics.clone(),
-            token: tasks.token.clone(),
-            cache,
-            tasks,
-            ready: AtomicBool::new(false),
-        }
-    }
-
-    pub fn is_ready(&self) -> bool {
-        self.ready.load(Ordering::Relaxed) && !self.token.is_cancelled()
-    }
-}
-
 /// A started gateway.
 pub struct Running {
-    pub state: Arc<AppState>,
+    pub service: Arc<Service>,
     pub http_addr: SocketAddr,
     pub grpc_addr: SocketAddr,
     tracker: TaskTracker,
@@ -163,13 +109,13 @@ pub struct Running {
 
 impl Running {
     pub fn token(&self) -> &CancellationToken {
-        &self.state.token
+        self.service.tasks().token()
     }
 
     /// Cancels every task and waits for them, at most [`SHUTDOWN_GRACE`].
     pub async fn shutdown(self) {
-        self.state.ready.store(false, Ordering::Relaxed);
-        self.state.token.cancel();
+        self.service.set_ready(false);
+        self.token().cancel();
         self.tracker.close();
         if tokio::time::timeout(SHUTDOWN_GRACE, self.tracker.wait())
             .await
@@ -203,7 +149,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         tasks.spawn_link(link);
     }
 
-    let state = Arc::new(AppState::new(cache, tasks));
+    let service = Arc::new(Service::new(cache, tasks));
     let listener = TcpListener::bind(config.http)
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
@@ -212,56 +158,27 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc): {e}", config.grpc))?;
     let grpc_addr = grpc_listener.local_addr()?;
-    let grpc = grpc_router(state.clone()).await?;
-    let shutdown = token.clone();
+    let (grpc_service, shutdown) = (service.clone(), token.clone());
     tracker.spawn(async move {
-        let incoming = tokio_stream::wrappers::TcpListenerStream::new(grpc_listener);
-        if let Err(e) = grpc
-            .serve_with_incoming_shutdown(incoming, shutdown.cancelled_owned())
-            .await
-        {
+        let served = api::serve_grpc(grpc_listener, grpc_service, shutdown.cancelled_owned()).await;
+        if let Err(e) = served {
             tracing::error!(error = %e, "gRPC server failed");
         }
     });
-    let router = crate::api::router(state.clone());
-    let shutdown = token.clone();
+    let (http_service, shutdown) = (service.clone(), token.clone());
     tracker.spawn(async move {
-        let served = axum::serve(listener, router)
-            .with_graceful_shutdown(shutdown.cancelled_owned())
-            .await;
+        let served = api::serve_http(listener, http_service, shutdown.cancelled_owned()).await;
         if let Err(e) = served {
             tracing::error!(error = %e, "HTTP server failed");
         }
     });
-    state.ready.store(true, Ordering::Relaxed);
+    service.set_ready(true);
     Ok(Running {
-        state,
+        service,
         http_addr,
         grpc_addr,
         tracker,
     })
-}
-
-/// The gRPC service with health checking and server reflection.
-async fn grpc_router(state: Arc<AppState>) -> anyhow::Result<tonic::transport::server::Router> {
-    use iogate_proto::pb::gateway_server::GatewayServer;
-    let (health, health_service) = tonic_health::server::health_reporter();
-    health
-        .set_serving::<GatewayServer<crate::api::grpc::GrpcApi>>()
-        .await;
-    let reflection_v1 = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-        .build_v1()?;
-    let reflection_v1alpha = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-        .build_v1alpha()?;
-    Ok(tonic::transport::Server::builder()
-        .add_service(health_service)
-        .add_service(reflection_v1)
-        .add_service(reflection_v1alpha)
-        .add_service(GatewayServer::new(crate::api::grpc::GrpcApi::new(state))))
 }
 
 /// Runs the gateway until SIGINT or SIGTERM.

@@ -5,13 +5,13 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::app::Tasks;
 use crate::cache::{Cache, Device, Link, Registry};
 use crate::config::{
     DEFAULT_RETRIES, DEFAULT_TIMEOUT, DeviceConfig, Framing, LinkConfig, MAX_READ_REGISTERS,
     SerialSettings, Transport,
 };
 use crate::profile::Protocol;
+use crate::runtime::Tasks;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinkDeclaration {

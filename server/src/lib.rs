@@ -17,6 +17,8 @@ pub mod metrics;
 pub mod plan;
 pub mod poller;
 pub mod profile;
+pub mod runtime;
+pub mod service;
 pub mod sim;
 pub mod writes;
 pub mod yaml;

@@ -7,6 +7,8 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use crate::cache::AccessError;
+use crate::declare::DeclareError;
+use crate::service::ServiceError;
 
 /// An error answer: `{"error": {"code": "...", "message": "..."}}`.
 #[derive(Debug)]
@@ -47,17 +49,41 @@ impl ApiError {
     }
 }
 
+fn access_status(e: &AccessError) -> (StatusCode, &'static str) {
+    match e {
+        AccessError::UnknownDevice(_) => (StatusCode::NOT_FOUND, "unknown_device"),
+        AccessError::UnknownField { .. } => (StatusCode::NOT_FOUND, "unknown_field"),
+        AccessError::UnknownLink(_) => (StatusCode::NOT_FOUND, "unknown_link"),
+        AccessError::UnknownProfile(_) => (StatusCode::NOT_FOUND, "unknown_profile"),
+        AccessError::NotWritable { .. } => (StatusCode::CONFLICT, "not_writable"),
+        AccessError::NotAnInput { .. } => (StatusCode::CONFLICT, "not_an_input"),
+        AccessError::NotSimulated(_) => (StatusCode::CONFLICT, "not_simulated"),
+        AccessError::InvalidValue { .. } => (StatusCode::BAD_REQUEST, "invalid_value"),
+    }
+}
+
 impl From<AccessError> for ApiError {
     fn from(e: AccessError) -> Self {
+        let (status, code) = access_status(&e);
+        ApiError::new(status, code, e.to_string())
+    }
+}
+
+impl From<ServiceError> for ApiError {
+    fn from(e: ServiceError) -> Self {
         let (status, code) = match &e {
-            AccessError::UnknownDevice(_) => (StatusCode::NOT_FOUND, "unknown_device"),
-            AccessError::UnknownField { .. } => (StatusCode::NOT_FOUND, "unknown_field"),
-            AccessError::UnknownLink(_) => (StatusCode::NOT_FOUND, "unknown_link"),
-            AccessError::UnknownProfile(_) => (StatusCode::NOT_FOUND, "unknown_profile"),
-            AccessError::NotWritable { .. } => (StatusCode::CONFLICT, "not_writable"),
-            AccessError::NotAnInput { .. } => (StatusCode::CONFLICT, "not_an_input"),
-            AccessError::NotSimulated(_) => (StatusCode::CONFLICT, "not_simulated"),
-            AccessError::InvalidValue { .. } => (StatusCode::BAD_REQUEST, "invalid_value"),
+            ServiceError::Access(a) => access_status(a),
+            ServiceError::NothingWritten(all) => all
+                .first()
+                .map_or((StatusCode::BAD_REQUEST, "invalid_value"), access_status),
+            ServiceError::UnknownWrite(_) => (StatusCode::NOT_FOUND, "unknown_write"),
+            ServiceError::WriteExpired { .. } => (StatusCode::GONE, "write_expired"),
+            ServiceError::Declare(d) => match d {
+                DeclareError::Invalid(_) => (StatusCode::BAD_REQUEST, "invalid_declaration"),
+                DeclareError::NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+                DeclareError::Conflict(_) => (StatusCode::CONFLICT, "conflict"),
+            },
+            ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
         };
         ApiError::new(status, code, e.to_string())
     }

@@ -1,128 +1,93 @@
-//! The gRPC service `iogate.v1.Gateway`.
+//! The gRPC service `iogate.v1.Gateway`: each call parses its message, calls the service,
+//! and maps the result (or the error, in [`status`]) to protobuf.
 
-use std::collections::BTreeMap;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
 use futures_util::{Stream, StreamExt};
 use iogate_proto::pb;
-use iogate_proto::pb::gateway_server::Gateway;
-use tokio_stream::StreamMap;
-use tokio_stream::wrappers::{ReceiverStream, WatchStream};
+use iogate_proto::pb::gateway_server::{Gateway, GatewayServer};
+use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::pb as convert;
-use crate::app::AppState;
-use crate::cache::{AccessError, Device};
+use super::pb as to_pb;
+use crate::cache::AccessError;
 use crate::codec::{Value, ValueError};
 use crate::config::{Framing, Transport};
 use crate::declare::{self, DeclareError, DeviceDeclaration, LinkDeclaration};
-use crate::profile::Direction;
-use crate::writes::Lookup;
+use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 
 type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::Update, Status>> + Send>>;
 type ExchangeStream = Pin<Box<dyn Stream<Item = Result<pb::ExchangeResponse, Status>> + Send>>;
 
 pub struct GrpcApi {
-    state: Arc<AppState>,
+    service: Arc<Service>,
+}
+
+/// The gRPC code of a service error: unknown names NOT_FOUND, a rule of the gateway
+/// FAILED_PRECONDITION, a bad value or argument INVALID_ARGUMENT.
+pub fn status(e: ServiceError) -> Status {
+    let message = e.to_string();
+    let access = |a: &AccessError| match a {
+        AccessError::UnknownDevice(_)
+        | AccessError::UnknownField { .. }
+        | AccessError::UnknownLink(_)
+        | AccessError::UnknownProfile(_) => tonic::Code::NotFound,
+        AccessError::NotWritable { .. }
+        | AccessError::NotAnInput { .. }
+        | AccessError::NotSimulated(_) => tonic::Code::FailedPrecondition,
+        AccessError::InvalidValue { .. } => tonic::Code::InvalidArgument,
+    };
+    let code = match &e {
+        ServiceError::Access(_) | ServiceError::NothingWritten(_) => {
+            e.primary().map_or(tonic::Code::InvalidArgument, access)
+        }
+        ServiceError::UnknownWrite(_) | ServiceError::WriteExpired { .. } => tonic::Code::NotFound,
+        ServiceError::Declare(DeclareError::Invalid(_)) => tonic::Code::InvalidArgument,
+        ServiceError::Declare(DeclareError::NotFound(_)) => tonic::Code::NotFound,
+        ServiceError::Declare(DeclareError::Conflict(_)) => tonic::Code::FailedPrecondition,
+        ServiceError::ShuttingDown => tonic::Code::Unavailable,
+    };
+    Status::new(code, message)
+}
+
+fn ack(a: Accepted) -> pb::WriteAck {
+    pb::WriteAck {
+        device: a.device,
+        field: a.field,
+        generation: a.generation,
+    }
 }
 
 impl GrpcApi {
-    pub fn new(state: Arc<AppState>) -> Self {
-        GrpcApi { state }
+    pub fn new(service: Arc<Service>) -> Self {
+        GrpcApi { service }
     }
 
-    /// The chosen fields (all of them when nothing is chosen), each once, in order.
+    /// The server for this service.
+    pub fn server(service: Arc<Service>) -> GatewayServer<GrpcApi> {
+        GatewayServer::new(GrpcApi::new(service))
+    }
+
     fn select(
         &self,
         devices: &[String],
         fields: &[pb::FieldRef],
-    ) -> Result<Vec<(Arc<Device>, usize)>, Status> {
-        let cache = &self.state.cache;
-        let mut chosen: Vec<(Arc<Device>, usize)> = Vec::new();
-        let mut push = |device: &Arc<Device>, idx: usize| {
-            if !chosen
-                .iter()
-                .any(|(d, i)| Arc::ptr_eq(d, device) && *i == idx)
-            {
-                chosen.push((device.clone(), idx));
-            }
-        };
-        let all = devices.is_empty() && fields.is_empty();
-        let named: Vec<Arc<Device>> = if all {
-            cache.devices()
-        } else {
-            devices
-                .iter()
-                .map(|n| cache.device(n))
-                .collect::<Result<_, _>>()?
-        };
-        for device in &named {
-            for idx in 0..device.profile.fields.len() {
-                push(device, idx);
-            }
-        }
-        for f in fields {
-            let device = cache.device(&f.device)?;
-            let idx = device.field_index(&f.field)?;
-            push(&device, idx);
-        }
-        Ok(chosen)
+    ) -> Result<crate::service::Selection, Status> {
+        let pairs: Vec<(&str, &str)> = fields
+            .iter()
+            .map(|f| (f.device.as_str(), f.field.as_str()))
+            .collect();
+        self.service.select(devices, &pairs).map_err(status)
     }
 
     /// Converts and checks one write; nothing is written.
-    fn prepare(&self, w: &pb::FieldWrite) -> Result<(Arc<Device>, usize, Value), Status> {
-        let device = self.state.cache.device(&w.device)?;
-        let idx = device.field_index(&w.field)?;
-        let field = device.field(idx);
-        let value = w
-            .value
-            .as_ref()
-            .ok_or(ValueError::Missing { ty: field.ty })
-            .and_then(|v| Value::from_pb_as(field.ty, v))
-            .map_err(|e| AccessError::InvalidValue {
-                device: device.name().to_owned(),
-                field: field.name.clone(),
-                ty: field.ty,
-                reason: e.to_string(),
-            })?;
-        device.check_write(idx, &value)?;
-        Ok((device, idx, value))
-    }
-
-    fn shutting_down(&self) -> Result<(), Status> {
-        if self.state.token.is_cancelled() {
-            Err(Status::unavailable("the gateway is shutting down"))
-        } else {
-            Ok(())
-        }
-    }
-}
-
-impl From<AccessError> for Status {
-    fn from(e: AccessError) -> Self {
-        let message = e.to_string();
-        match e {
-            AccessError::UnknownDevice(_)
-            | AccessError::UnknownField { .. }
-            | AccessError::UnknownLink(_)
-            | AccessError::UnknownProfile(_) => Status::not_found(message),
-            AccessError::NotWritable { .. }
-            | AccessError::NotAnInput { .. }
-            | AccessError::NotSimulated(_) => Status::failed_precondition(message),
-            AccessError::InvalidValue { .. } => Status::invalid_argument(message),
-        }
-    }
-}
-
-impl From<DeclareError> for Status {
-    fn from(e: DeclareError) -> Self {
-        match e {
-            DeclareError::Invalid(m) => Status::invalid_argument(m),
-            DeclareError::NotFound(m) => Status::not_found(m),
-            DeclareError::Conflict(m) => Status::failed_precondition(m),
-        }
+    fn prepare(service: &Service, w: &pb::FieldWrite) -> Result<Prepared, AccessError> {
+        service.prepare_named(&w.device, &w.field, |ty| match &w.value {
+            Some(v) => Value::from_pb_as(ty, v),
+            None => Err(ValueError::Missing { ty }),
+        })
     }
 }
 
@@ -134,11 +99,9 @@ impl Gateway for GrpcApi {
     ) -> Result<Response<pb::ListProfilesResponse>, Status> {
         Ok(Response::new(pb::ListProfilesResponse {
             profiles: self
-                .state
-                .cache
-                .catalog
-                .iter()
-                .map(|p| convert::profile(p, false))
+                .service
+                .profiles()
+                .map(|p| to_pb::profile(p, false))
                 .collect(),
         }))
     }
@@ -147,8 +110,11 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::DescribeProfileRequest>,
     ) -> Result<Response<pb::Profile>, Status> {
-        let profile = self.state.cache.profile(&request.get_ref().name)?;
-        Ok(Response::new(convert::profile(profile, true)))
+        let profile = self
+            .service
+            .profile(&request.get_ref().name)
+            .map_err(status)?;
+        Ok(Response::new(to_pb::profile(profile, true)))
     }
 
     async fn list_links(
@@ -157,11 +123,10 @@ impl Gateway for GrpcApi {
     ) -> Result<Response<pb::ListLinksResponse>, Status> {
         Ok(Response::new(pb::ListLinksResponse {
             links: self
-                .state
-                .cache
+                .service
                 .links()
                 .iter()
-                .map(|l| convert::link(l))
+                .map(|l| to_pb::link(l))
                 .collect(),
         }))
     }
@@ -170,8 +135,8 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::DescribeLinkRequest>,
     ) -> Result<Response<pb::Link>, Status> {
-        let link = self.state.cache.link(&request.get_ref().name)?;
-        Ok(Response::new(convert::link(&link)))
+        let link = self.service.link(&request.get_ref().name).map_err(status)?;
+        Ok(Response::new(to_pb::link(&link)))
     }
 
     async fn list_devices(
@@ -180,11 +145,10 @@ impl Gateway for GrpcApi {
     ) -> Result<Response<pb::ListDevicesResponse>, Status> {
         Ok(Response::new(pb::ListDevicesResponse {
             devices: self
-                .state
-                .cache
+                .service
                 .devices()
                 .iter()
-                .map(|d| convert::device(d, false))
+                .map(|d| to_pb::device(d, false))
                 .collect(),
         }))
     }
@@ -193,8 +157,11 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::DescribeDeviceRequest>,
     ) -> Result<Response<pb::Device>, Status> {
-        let device = self.state.cache.device(&request.get_ref().name)?;
-        Ok(Response::new(convert::device(&device, true)))
+        let device = self
+            .service
+            .device(&request.get_ref().name)
+            .map_err(status)?;
+        Ok(Response::new(to_pb::device(&device, true)))
     }
 
     async fn read(
@@ -202,19 +169,18 @@ impl Gateway for GrpcApi {
         request: Request<pb::ReadRequest>,
     ) -> Result<Response<pb::ReadResponse>, Status> {
         let r = request.get_ref();
-        let chosen = self.select(&r.devices, &r.fields)?;
-        let mut devices: Vec<&Arc<Device>> = Vec::new();
-        for (d, _) in &chosen {
-            if !devices.iter().any(|x| Arc::ptr_eq(x, d)) {
-                devices.push(d);
-            }
-        }
+        let snapshot = self.service.read(&self.select(&r.devices, &r.fields)?);
         Ok(Response::new(pb::ReadResponse {
-            values: chosen
+            values: snapshot
+                .values
                 .iter()
-                .map(|(d, i)| convert::field_value(d, *i, &d.sample(*i)))
+                .map(|(f, sample)| to_pb::field_value(&f.device, f.idx, sample))
                 .collect(),
-            diagnostics: devices.iter().map(|d| convert::diagnostics(d)).collect(),
+            diagnostics: snapshot
+                .diagnostics
+                .iter()
+                .map(|(d, diag)| to_pb::diagnostics(d, diag))
+                .collect(),
         }))
     }
 
@@ -222,61 +188,31 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::WriteRequest>,
     ) -> Result<Response<pb::WriteResponse>, Status> {
-        self.shutting_down()?;
+        self.service.accepting().map_err(status)?;
         let writes = &request.get_ref().writes;
         if writes.is_empty() {
             return Err(Status::invalid_argument("no writes given"));
         }
-        let mut prepared = Vec::with_capacity(writes.len());
-        let mut refused: Vec<Status> = Vec::new();
-        for w in writes {
-            match self.prepare(w) {
-                Ok(p) => prepared.push(p),
-                Err(e) => refused.push(e),
-            }
-        }
-        if let Some(first) = refused.first() {
-            let all: Vec<&str> = refused.iter().map(Status::message).collect();
-            return Err(Status::new(
-                first.code(),
-                format!("nothing was written: {}", all.join("; ")),
-            ));
-        }
-        let mut acks = Vec::with_capacity(prepared.len());
-        for (device, idx, value) in prepared {
-            let generation = device.request_write(idx, value)?;
-            acks.push(pb::WriteAck {
-                device: device.name().to_owned(),
-                field: device.field(idx).name.clone(),
-                generation,
-            });
-        }
-        Ok(Response::new(pb::WriteResponse { acks }))
+        let prepared = writes
+            .iter()
+            .map(|w| GrpcApi::prepare(&self.service, w))
+            .collect();
+        let acks = self.service.write_all(prepared).map_err(status)?;
+        Ok(Response::new(pb::WriteResponse {
+            acks: acks.into_iter().map(ack).collect(),
+        }))
     }
 
     async fn get_write(
         &self,
         request: Request<pb::GetWriteRequest>,
     ) -> Result<Response<pb::WriteStatus>, Status> {
-        let generation = request.get_ref().generation;
-        match self.state.cache.writes.get(generation) {
-            Lookup::Found(record) => {
-                let ty = self
-                    .state
-                    .cache
-                    .device(&record.device)
-                    .ok()
-                    .and_then(|d| d.profile.field_index(&record.field).map(|i| d.field(i).ty));
-                Ok(Response::new(convert::write_status(&record, ty)))
-            }
-            Lookup::Expired => Err(Status::not_found(format!(
-                "write {generation} is older than the last {} writes kept",
-                crate::writes::WRITE_LOG_CAPACITY
-            ))),
-            Lookup::Unknown => Err(Status::not_found(format!(
-                "no write has generation {generation}"
-            ))),
-        }
+        let record = self
+            .service
+            .write_outcome(request.get_ref().generation)
+            .map_err(status)?;
+        let ty = self.service.written_type(&record);
+        Ok(Response::new(to_pb::write_status(&record, ty)))
     }
 
     type SubscribeStream = UpdateStream;
@@ -285,34 +221,28 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::SubscribeRequest>,
     ) -> Result<Response<Self::SubscribeStream>, Status> {
-        self.shutting_down()?;
+        self.service.accepting().map_err(status)?;
         let r = request.into_inner();
-        let chosen = self.select(&r.devices, &r.fields)?;
-        type Updates = Pin<Box<dyn Stream<Item = pb::Update> + Send>>;
-        let mut streams: StreamMap<(usize, usize), Updates> = StreamMap::new();
-        let mut seen: BTreeMap<String, usize> = BTreeMap::new();
-        for (n, (device, idx)) in chosen.into_iter().enumerate() {
-            if r.diagnostics && !seen.contains_key(device.name()) {
-                seen.insert(device.name().to_owned(), n);
-                let d = device.clone();
-                let diag =
-                    WatchStream::new(device.subscribe_diagnostics()).map(move |_| pb::Update {
-                        kind: Some(pb::update::Kind::Diagnostics(convert::diagnostics(&d))),
-                    });
-                streams.insert((n, usize::MAX), Box::pin(diag));
-            }
-            let d = device.clone();
-            let values = WatchStream::new(device.subscribe(idx)).map(move |sample| pb::Update {
-                kind: Some(pb::update::Kind::Value(convert::field_value(
-                    &d, idx, &sample,
-                ))),
-            });
-            streams.insert((n, idx), Box::pin(values));
-        }
-        let stream = streams
-            .map(|(_, update)| Ok(update))
-            .take_until(self.state.token.clone().cancelled_owned());
-        Ok(Response::new(Box::pin(stream)))
+        let selection = self.select(&r.devices, &r.fields)?;
+        let changes = self
+            .service
+            .subscribe(selection, r.diagnostics)
+            .map_err(status)?;
+        let updates = changes.map(|change| {
+            let kind = match change {
+                Change::Value {
+                    device,
+                    idx,
+                    sample,
+                } => pb::update::Kind::Value(to_pb::field_value(&device, idx, &sample)),
+                Change::Diagnostics {
+                    device,
+                    diagnostics,
+                } => pb::update::Kind::Diagnostics(to_pb::diagnostics(&device, &diagnostics)),
+            };
+            Ok(pb::Update { kind: Some(kind) })
+        });
+        Ok(Response::new(Box::pin(updates)))
     }
 
     type ExchangeStream = ExchangeStream;
@@ -321,17 +251,16 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<Streaming<pb::ExchangeRequest>>,
     ) -> Result<Response<Self::ExchangeStream>, Status> {
-        self.shutting_down()?;
+        self.service.accepting().map_err(status)?;
         let mut inbound = request.into_inner();
-        let state = self.state.clone();
+        let service = self.service.clone();
+        let token = service.tasks().token().clone();
         let (tx, rx) = tokio::sync::mpsc::channel(4);
-        tokio::spawn(async move {
-            let api = GrpcApi::new(state.clone());
-            let mut devices: Vec<Arc<Device>> = Vec::new();
-            let mut cycle = 0u64;
+        self.service.tasks().spawn(async move {
+            let mut cycles = ScanCycle::new(service.clone());
             loop {
                 let message = tokio::select! {
-                    _ = state.token.cancelled() => break,
+                    _ = token.cancelled() => break,
                     m = inbound.message() => m,
                 };
                 let message = match message {
@@ -342,47 +271,25 @@ impl Gateway for GrpcApi {
                         break;
                     }
                 };
-                let mut errors = Vec::new();
-                if !message.devices.is_empty() {
-                    devices.clear();
-                    for name in &message.devices {
-                        match state.cache.device(name) {
-                            Ok(d) => devices.push(d),
-                            Err(e) => errors.push(e.to_string()),
-                        }
-                    }
-                }
-                let mut acks = Vec::new();
-                for out in &message.outputs {
-                    match api.prepare(out) {
-                        // Unchanged outputs are not written again.
-                        Ok((device, idx, value))
-                            if device.latest_value(idx).as_ref() == Some(&value) => {}
-                        Ok((device, idx, value)) => match device.request_write(idx, value) {
-                            Ok(generation) => acks.push(pb::WriteAck {
-                                device: device.name().to_owned(),
-                                field: device.field(idx).name.clone(),
-                                generation,
-                            }),
-                            Err(e) => errors.push(e.to_string()),
-                        },
-                        Err(status) => errors.push(status.message().to_owned()),
-                    }
-                }
-                cycle += 1;
+                let outputs = message
+                    .outputs
+                    .iter()
+                    .map(|w| GrpcApi::prepare(&service, w))
+                    .collect();
+                let outcome = cycles.step(&message.devices, outputs);
                 let response = pb::ExchangeResponse {
-                    cycle,
-                    inputs: devices
-                        .iter()
-                        .flat_map(|d| {
-                            (0..d.profile.fields.len())
-                                .filter(|&i| d.field(i).direction != Direction::Output)
-                                .map(|i| convert::field_value(d, i, &d.sample(i)))
-                        })
+                    cycle: outcome.cycle,
+                    inputs: outcome
+                        .inputs()
+                        .map(|(d, i)| to_pb::field_value(d, i, &d.sample(i)))
                         .collect(),
-                    diagnostics: devices.iter().map(|d| convert::diagnostics(d)).collect(),
-                    acks,
-                    errors,
+                    diagnostics: outcome
+                        .devices
+                        .iter()
+                        .map(|d| to_pb::diagnostics(d, &d.diagnostics()))
+                        .collect(),
+                    acks: outcome.acks.into_iter().map(ack).collect(),
+                    errors: outcome.errors,
                 };
                 if tx.send(Ok(response)).await.is_err() {
                     break;
@@ -396,11 +303,11 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::EnsureLinkRequest>,
     ) -> Result<Response<pb::EnsureLinkResponse>, Status> {
-        self.shutting_down()?;
+        self.service.accepting().map_err(status)?;
         let r = request.into_inner();
         let transport = match r.transport {
             Some(pb::ensure_link_request::Transport::Serial(s)) => {
-                Transport::Serial(convert::serial_settings(&s).map_err(Status::invalid_argument)?)
+                Transport::Serial(to_pb::serial_settings(&s).map_err(Status::invalid_argument)?)
             }
             Some(pb::ensure_link_request::Transport::Tcp(t)) => {
                 let framing: Framing = declare::parse_framing(&t.framing).ok_or_else(|| {
@@ -427,17 +334,16 @@ impl Gateway for GrpcApi {
                 ));
             }
         };
-        let ensured = declare::ensure_link(
-            &self.state.cache,
-            &self.state.tasks,
-            LinkDeclaration {
+        let ensured = self
+            .service
+            .ensure_link(LinkDeclaration {
                 name: (!r.name.is_empty()).then_some(r.name),
                 transport,
                 guard_time: Duration::from_millis(r.guard_time_ms.into()),
-            },
-        )?;
+            })
+            .map_err(status)?;
         Ok(Response::new(pb::EnsureLinkResponse {
-            link: Some(convert::link(&ensured.value)),
+            link: Some(to_pb::link(&ensured.value)),
             created: ensured.created,
         }))
     }
@@ -446,22 +352,21 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::EnsureDeviceRequest>,
     ) -> Result<Response<pb::EnsureDeviceResponse>, Status> {
-        self.shutting_down()?;
+        self.service.accepting().map_err(status)?;
         let r = request.into_inner();
-        let ensured = declare::ensure_device(
-            &self.state.cache,
-            &self.state.tasks,
-            DeviceDeclaration {
+        let ensured = self
+            .service
+            .ensure_device(DeviceDeclaration {
                 name: r.name,
                 profile: r.profile,
                 link: r.link,
                 slave_id: r.slave_id,
                 refresh_rate: Duration::from_millis(r.refresh_rate_ms.into()),
                 timeout: (r.timeout_ms > 0).then(|| Duration::from_millis(r.timeout_ms.into())),
-            },
-        )?;
+            })
+            .map_err(status)?;
         Ok(Response::new(pb::EnsureDeviceResponse {
-            device: Some(convert::device(&ensured.value, false)),
+            device: Some(to_pb::device(&ensured.value, false)),
             created: ensured.created,
         }))
     }
@@ -470,9 +375,10 @@ impl Gateway for GrpcApi {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::app::{Setup, Tasks};
+    use crate::app::Setup;
     use crate::cache::Cache;
     use crate::metrics::Metrics;
+    use crate::runtime::Tasks;
 
     #[tokio::test]
     async fn a_slow_subscriber_gets_the_newest_value_not_a_backlog() {
@@ -484,8 +390,8 @@ mod tests {
             tokio_util::sync::CancellationToken::new(),
             Arc::new(Metrics::new()),
         );
-        let state = Arc::new(AppState::new(cache, tasks));
-        let api = GrpcApi::new(state.clone());
+        let service = Arc::new(Service::new(cache, tasks));
+        let api = GrpcApi::new(service.clone());
         let request = pb::SubscribeRequest {
             devices: Vec::new(),
             fields: vec![pb::FieldRef {
@@ -503,7 +409,7 @@ mod tests {
         assert!(matches!(first.kind, Some(pb::update::Kind::Value(_))));
 
         // 50 changes while the subscriber reads nothing.
-        let plant = state.cache.device("plant").expect("plant");
+        let plant = service.device("plant").expect("plant");
         let recipe = plant.field_index("Recipe").expect("field");
         for n in 1..=50u64 {
             plant.publish(recipe, Ok(Value::UInt(n)));

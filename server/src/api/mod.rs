@@ -1,4 +1,6 @@
-//! The HTTP side: REST under `/api/v1`, Server-Sent Events, health, OpenAPI.
+//! The front-ends over the service layer: REST under `/api/v1`, Server-Sent Events,
+//! health, OpenAPI and metrics on the HTTP listener; the gRPC service (with health and
+//! reflection) on its own. Each handler parses, calls the service, and maps the answer.
 
 pub mod convert;
 pub mod error;
@@ -7,6 +9,7 @@ pub mod grpc;
 pub mod pb;
 pub mod rest;
 
+use std::future::Future;
 use std::sync::Arc;
 
 use axum::Json;
@@ -15,10 +18,11 @@ use axum::extract::State;
 use axum::http::{Uri, header};
 use axum::response::IntoResponse;
 use axum::routing::{get, put};
+use tokio::net::TcpListener;
 use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
 
-use crate::app::AppState;
+use crate::service::Service;
 use error::ApiError;
 
 pub const API_PREFIX: &str = "/api/v1";
@@ -52,10 +56,10 @@ async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
     Json(openapi())
 }
 
-async fn metrics(State(state): State<Arc<AppState>>) -> impl IntoResponse {
+async fn metrics(State(service): State<Arc<Service>>) -> impl IntoResponse {
     (
         [(header::CONTENT_TYPE, crate::metrics::CONTENT_TYPE)],
-        state.metrics.render(&state.cache),
+        service.metrics.render(&service.cache),
     )
 }
 
@@ -69,7 +73,7 @@ async fn not_found(uri: Uri) -> ApiError {
     )
 }
 
-pub fn router(state: Arc<AppState>) -> Router {
+pub fn router(service: Arc<Service>) -> Router {
     let api = Router::new()
         .route("/openapi.json", get(openapi_json))
         .route("/links", get(rest::list_links))
@@ -100,5 +104,46 @@ pub fn router(state: Arc<AppState>) -> Router {
         .nest(API_PREFIX, api)
         .fallback(not_found)
         .layer(TraceLayer::new_for_http())
-        .with_state(state)
+        .with_state(service)
+}
+
+/// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
+/// in flight.
+pub async fn serve_http(
+    listener: TcpListener,
+    service: Arc<Service>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    axum::serve(listener, router(service))
+        .with_graceful_shutdown(shutdown)
+        .await
+}
+
+/// Serves the gRPC API, with `grpc.health.v1` and server reflection, on `listener` until
+/// `shutdown` resolves.
+pub async fn serve_grpc(
+    listener: TcpListener,
+    service: Arc<Service>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
+    use iogate_proto::pb::gateway_server::GatewayServer;
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_serving::<GatewayServer<grpc::GrpcApi>>().await;
+    let reflection_v1 = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+    let reflection_v1alpha = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1alpha()?;
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    tonic::transport::Server::builder()
+        .add_service(health_service)
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
+        .add_service(grpc::GrpcApi::server(service))
+        .serve_with_incoming_shutdown(incoming, shutdown)
+        .await?;
+    Ok(())
 }

@@ -4,7 +4,7 @@ use std::time::SystemTime;
 
 use iogate_proto::pb;
 
-use crate::cache::{Device, Link, Sample};
+use crate::cache::{Device, Diagnostics, Link, Sample};
 use crate::codec::{IecType, Value};
 use crate::config::{Parity, SerialSettings, Transport};
 use crate::profile::{Profile, fb_layout, st_declaration};
@@ -36,8 +36,7 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldVal
     }
 }
 
-pub fn diagnostics(device: &Device) -> pb::Diagnostics {
-    let d = device.diagnostics();
+pub fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
     pb::Diagnostics {
         device: device.name().to_owned(),
         connected: d.connected,
@@ -57,7 +56,7 @@ pub fn device(device: &Device, with_fields: bool) -> pb::Device {
         slave_id: c.slave_id.map_or(0, u32::from),
         refresh_rate_ms: millis(c.refresh_rate),
         timeout_ms: millis(c.timeout),
-        diagnostics: Some(diagnostics(device)),
+        diagnostics: Some(diagnostics(device, &device.diagnostics())),
         fields: if with_fields {
             (0..device.profile.fields.len())
                 .map(|i| field_value(device, i, &device.sample(i)))

@@ -12,12 +12,10 @@ use utoipa::ToSchema;
 
 use super::convert::{self, *};
 use super::error::{ApiError, ErrorBody};
-use crate::app::AppState;
-use crate::cache::{AccessError, Device};
-use crate::codec::Value;
-use crate::writes::Lookup;
+use crate::cache::Device;
+use crate::service::{Accepted, Service};
 
-type AppStateRef = State<Arc<AppState>>;
+type ServiceRef = State<Arc<Service>>;
 
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Health {
@@ -35,8 +33,8 @@ pub async fn livez() -> Json<Health> {
 /// The gateway is serving (not starting and not shutting down).
 #[utoipa::path(get, path = "/readyz", tag = "health",
     responses((status = 200, body = Health), (status = 503, body = Health)))]
-pub async fn readyz(State(state): AppStateRef) -> (StatusCode, Json<Health>) {
-    if state.is_ready() {
+pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
+    if service.is_ready() {
         (
             StatusCode::OK,
             Json(Health {
@@ -55,9 +53,9 @@ pub async fn readyz(State(state): AppStateRef) -> (StatusCode, Json<Health>) {
 
 /// Every link with its settings and diagnostics.
 #[utoipa::path(get, path = "/api/v1/links", tag = "links", responses((status = 200, body = LinkList)))]
-pub async fn list_links(State(state): AppStateRef) -> Json<LinkList> {
+pub async fn list_links(State(service): ServiceRef) -> Json<LinkList> {
     Json(LinkList {
-        links: state.cache.links().iter().map(|l| link_info(l)).collect(),
+        links: service.links().iter().map(|l| link_info(l)).collect(),
     })
 }
 
@@ -66,30 +64,25 @@ pub async fn list_links(State(state): AppStateRef) -> Json<LinkList> {
     params(("link" = String, Path, description = "link name")),
     responses((status = 200, body = LinkInfo), (status = 404, body = ErrorBody)))]
 pub async fn get_link(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Json<LinkInfo>, ApiError> {
-    Ok(Json(link_info(state.cache.link(&name)?.as_ref())))
+    Ok(Json(link_info(service.link(&name)?.as_ref())))
 }
 
 /// Every device with its diagnostics.
 #[utoipa::path(get, path = "/api/v1/devices", tag = "devices", responses((status = 200, body = DeviceList)))]
-pub async fn list_devices(State(state): AppStateRef) -> Json<DeviceList> {
+pub async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {
     Json(DeviceList {
-        devices: state
-            .cache
-            .devices()
-            .iter()
-            .map(|d| device_info(d))
-            .collect(),
+        devices: service.devices().iter().map(|d| device_info(d)).collect(),
     })
 }
 
-fn field_json(device: &Device, idx: usize, state: &AppState) -> FieldValue {
+fn field_json(device: &Device, idx: usize, service: &Service) -> FieldValue {
     let mut value = field_value(device, idx, &device.sample(idx));
-    if let Some(Lookup::Found(record)) = device.last_write(idx).map(|g| state.cache.writes.get(g)) {
-        value.last_write = Some(WriteInfo::from(&record));
-    }
+    value.last_write = service
+        .last_write(device, idx)
+        .map(|record| WriteInfo::from(&record));
     value
 }
 
@@ -98,13 +91,13 @@ fn field_json(device: &Device, idx: usize, state: &AppState) -> FieldValue {
     params(("device" = String, Path, description = "device name")),
     responses((status = 200, body = DeviceDetail), (status = 404, body = ErrorBody)))]
 pub async fn get_device(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Json<DeviceDetail>, ApiError> {
-    let device = state.cache.device(&name)?;
+    let device = service.device(&name)?;
     let fields = (0..device.profile.fields.len())
         .map(|i| {
-            let value = field_json(&device, i, &state);
+            let value = field_json(&device, i, &service);
             let json = serde_json::to_value(&value).unwrap_or(Json_::Null);
             (value.field, json)
         })
@@ -121,12 +114,12 @@ pub async fn get_device(
            ("field" = String, Path, description = "field name (case-insensitive)")),
     responses((status = 200, body = FieldValue), (status = 404, body = ErrorBody)))]
 pub async fn get_field(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
 ) -> Result<Json<FieldValue>, ApiError> {
-    let device = state.cache.device(&name)?;
+    let device = service.device(&name)?;
     let idx = device.field_index(&field)?;
-    Ok(Json(field_json(&device, idx, &state)))
+    Ok(Json(field_json(&device, idx, &service)))
 }
 
 /// The body of a single-field write.
@@ -153,35 +146,13 @@ fn parse_body(body: &Bytes) -> Result<Json_, ApiError> {
     })
 }
 
-/// The JSON as a value of field `idx`'s type.
-fn typed(device: &Device, idx: usize, json: &Json_) -> Result<Value, ApiError> {
-    let f = device.field(idx);
-    convert::json_to_value(f.ty, json).map_err(|reason| {
-        ApiError::from(AccessError::InvalidValue {
-            device: device.name().to_owned(),
-            field: f.name.clone(),
-            ty: f.ty,
-            reason,
-        })
-    })
-}
-
-/// Converts and checks one value for a write; nothing is written.
-fn prepare(device: &Device, field: &str, json: &Json_) -> Result<(usize, Value), ApiError> {
-    let idx = device.field_index(field)?;
-    let value = typed(device, idx, json)?;
-    device.check_write(idx, &value)?;
-    Ok((idx, value))
-}
-
-fn accept(device: &Device, idx: usize, value: Value) -> Result<WriteAccepted, ApiError> {
-    let generation = device.request_write(idx, value)?;
-    Ok(WriteAccepted {
-        device: device.name().to_owned(),
-        field: device.field(idx).name.clone(),
-        generation,
+fn accepted(a: Accepted) -> WriteAccepted {
+    WriteAccepted {
+        device: a.device,
+        field: a.field,
+        generation: a.generation,
         status: "pending".into(),
-    })
+    }
 }
 
 /// The value of a body `{"value": X}`; a bare JSON value is accepted too.
@@ -205,14 +176,14 @@ fn value_of(body: Json_) -> Json_ {
               (status = 404, body = ErrorBody),
               (status = 409, description = "the field is an input", body = ErrorBody)))]
 pub async fn put_field(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
     body: Bytes,
 ) -> Result<(StatusCode, Json<WriteAccepted>), ApiError> {
-    let device = state.cache.device(&name)?;
+    let device = service.device(&name)?;
     let json = value_of(parse_body(&body)?);
-    let (idx, value) = prepare(&device, &field, &json)?;
-    Ok((StatusCode::ACCEPTED, Json(accept(&device, idx, value)?)))
+    let write = service.prepare(&device, &field, |ty| convert::json_to_value(ty, &json))?;
+    Ok((StatusCode::ACCEPTED, Json(accepted(service.write(write)?))))
 }
 
 /// Writes several fields of one device: `{"DO_0": true, "AO_1": 3}`. Every value is checked
@@ -224,11 +195,11 @@ pub async fn put_field(
               (status = 400, body = ErrorBody), (status = 404, body = ErrorBody),
               (status = 409, body = ErrorBody)))]
 pub async fn patch_fields(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path(name): Path<String>,
     body: Bytes,
 ) -> Result<(StatusCode, Json<WritesAccepted>), ApiError> {
-    let device = state.cache.device(&name)?;
+    let device = service.device(&name)?;
     let Json_::Object(map) = parse_body(&body)? else {
         return Err(ApiError::bad_request(
             "invalid_body",
@@ -238,30 +209,15 @@ pub async fn patch_fields(
     if map.is_empty() {
         return Err(ApiError::bad_request("invalid_body", "no fields given"));
     }
-    let mut prepared = Vec::with_capacity(map.len());
-    let mut errors: Vec<ApiError> = Vec::new();
-    for (field, json) in &map {
-        match prepare(&device, field, json) {
-            Ok(p) => prepared.push(p),
-            Err(e) => errors.push(e),
-        }
-    }
-    if let Some(first) = errors.first() {
-        let message = errors
-            .iter()
-            .map(|e| e.message.as_str())
-            .collect::<Vec<_>>()
-            .join("; ");
-        return Err(ApiError::new(
-            first.status,
-            first.code,
-            format!("nothing was written: {message}"),
-        ));
-    }
-    let writes = prepared
+    let writes = map
+        .iter()
+        .map(|(field, json)| service.prepare(&device, field, |ty| convert::json_to_value(ty, json)))
+        .collect();
+    let writes = service
+        .write_all(writes)?
         .into_iter()
-        .map(|(idx, value)| accept(&device, idx, value))
-        .collect::<Result<_, _>>()?;
+        .map(accepted)
+        .collect();
     Ok((StatusCode::ACCEPTED, Json(WritesAccepted { writes })))
 }
 
@@ -284,21 +240,20 @@ pub struct Simulated {
               (status = 404, body = ErrorBody),
               (status = 409, description = "not a simulated device, or an output", body = ErrorBody)))]
 pub async fn simulate_field(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
     body: Bytes,
 ) -> Result<(StatusCode, Json<Simulated>), ApiError> {
-    let device = state.cache.device(&name)?;
-    let idx = device.field_index(&field)?;
-    let value = typed(&device, idx, &value_of(parse_body(&body)?))?;
-    let shown = convert::value_to_json(&value);
-    device.simulate(idx, value)?;
+    let device = service.device(&name)?;
+    device.field_index(&field)?;
+    let json = value_of(parse_body(&body)?);
+    let (idx, value) = service.simulate(&device, &field, |ty| convert::json_to_value(ty, &json))?;
     Ok((
         StatusCode::ACCEPTED,
         Json(Simulated {
             device: device.name().to_owned(),
             field: device.field(idx).name.clone(),
-            value: shown,
+            value: convert::value_to_json(&value),
         }),
     ))
 }
@@ -310,7 +265,7 @@ pub async fn simulate_field(
               (status = 404, body = ErrorBody),
               (status = 410, description = "too old: no longer kept", body = ErrorBody)))]
 pub async fn get_write(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path(generation): Path<String>,
 ) -> Result<Json<WriteInfo>, ApiError> {
     let generation: u64 = generation.parse().map_err(|_| {
@@ -319,33 +274,14 @@ pub async fn get_write(
             format!("`{generation}` is not a write generation (a positive integer)"),
         )
     })?;
-    match state.cache.writes.get(generation) {
-        Lookup::Found(record) => Ok(Json(WriteInfo::from(&record))),
-        Lookup::Expired => Err(ApiError::new(
-            StatusCode::GONE,
-            "write_expired",
-            format!(
-                "write {generation} is older than the last {} writes kept",
-                crate::writes::WRITE_LOG_CAPACITY
-            ),
-        )),
-        Lookup::Unknown => Err(ApiError::not_found(
-            "unknown_write",
-            format!("no write has generation {generation}"),
-        )),
-    }
+    Ok(Json(WriteInfo::from(&service.write_outcome(generation)?)))
 }
 
 /// Every loaded profile.
 #[utoipa::path(get, path = "/api/v1/profiles", tag = "profiles", responses((status = 200, body = ProfileList)))]
-pub async fn list_profiles(State(state): AppStateRef) -> Json<ProfileList> {
+pub async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
     Json(ProfileList {
-        profiles: state
-            .cache
-            .catalog
-            .iter()
-            .map(|p| profile_summary(p))
-            .collect(),
+        profiles: service.profiles().map(|p| profile_summary(p)).collect(),
     })
 }
 
@@ -355,10 +291,10 @@ pub async fn list_profiles(State(state): AppStateRef) -> Json<ProfileList> {
     responses((status = 200, description = "the declaration", content_type = "text/plain"),
               (status = 404, body = ErrorBody)))]
 pub async fn get_profile_st(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<([(axum::http::HeaderName, &'static str); 1], String), ApiError> {
-    let profile = state.cache.profile(&name)?;
+    let profile = service.profile(&name)?;
     Ok((
         [(
             axum::http::header::CONTENT_TYPE,
@@ -373,8 +309,8 @@ pub async fn get_profile_st(
     params(("profile" = String, Path, description = "profile name")),
     responses((status = 200, body = ProfileDetail), (status = 404, body = ErrorBody)))]
 pub async fn get_profile(
-    State(state): AppStateRef,
+    State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Json<ProfileDetail>, ApiError> {
-    Ok(Json(profile_detail(state.cache.profile(&name)?)))
+    Ok(Json(profile_detail(service.profile(&name)?)))
 }

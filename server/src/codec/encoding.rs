@@ -442,7 +442,9 @@ mod tests {
         let bits = f32::NAN.to_bits();
         assert!(matches!(
             e.decode(&[(bits >> 16) as u16, bits as u16]),
-            Err(CodecError::Value(crate::codec::ValueError::NotFinite { .. }))
+            Err(CodecError::Value(
+                crate::codec::ValueError::NotFinite { .. }
+            ))
         ));
     }
 

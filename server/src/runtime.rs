@@ -1,0 +1,59 @@
+//! The tasks of a running gateway: one per link, one per simulated device, and the
+//! long-lived streams of the APIs. All of them hang off one cancellation token and one
+//! tracker, so shutdown cancels them together and waits for each.
+
+use std::future::Future;
+use std::sync::Arc;
+
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+use crate::cache::{Device, Link};
+use crate::metrics::Metrics;
+use crate::poller::LinkTask;
+
+/// Starts the tasks that own links and simulated devices, at start-up and when one is
+/// declared at run time, and any other task that must end with the gateway.
+#[derive(Debug, Clone)]
+pub struct Tasks {
+    tracker: TaskTracker,
+    token: CancellationToken,
+    metrics: Arc<Metrics>,
+}
+
+impl Tasks {
+    pub fn new(tracker: TaskTracker, token: CancellationToken, metrics: Arc<Metrics>) -> Self {
+        Tasks {
+            tracker,
+            token,
+            metrics,
+        }
+    }
+
+    pub fn metrics(&self) -> &Arc<Metrics> {
+        &self.metrics
+    }
+
+    /// The token cancelled at shutdown.
+    pub fn token(&self) -> &CancellationToken {
+        &self.token
+    }
+
+    pub fn spawn_link(&self, link: Arc<Link>) {
+        let task = LinkTask::new(link, self.metrics.clone());
+        self.tracker.spawn(task.run(self.token.child_token()));
+    }
+
+    pub fn spawn_sim(&self, device: Arc<Device>) {
+        self.tracker
+            .spawn(crate::sim::run(device, self.token.child_token()));
+    }
+
+    /// Runs `task` until it ends; shutdown waits for it, so it must watch [`Tasks::token`].
+    pub fn spawn<F>(&self, task: F)
+    where
+        F: Future<Output = ()> + Send + 'static,
+    {
+        self.tracker.spawn(task);
+    }
+}

@@ -1,0 +1,146 @@
+//! Every operation a client can ask of the gateway, once: choose fields, read a snapshot,
+//! write one or many fields (all or nothing), follow a write, subscribe to changes, run a
+//! scan cycle, declare a link or a device. REST, gRPC and any later front-end are adapters
+//! over this layer: they parse their request, call one function here, and map the result
+//! or the [`ServiceError`] to their own wire format. None of them decides a rule.
+
+mod select;
+mod subscribe;
+mod write;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::cache::{AccessError, Cache, Device, Link};
+use crate::declare::{self, DeclareError, DeviceDeclaration, Ensured, LinkDeclaration};
+use crate::metrics::Metrics;
+use crate::profile::Profile;
+use crate::runtime::Tasks;
+
+pub use select::{FieldRef, Selection, Snapshot};
+pub use subscribe::{Change, Changes};
+pub use write::{Accepted, CycleOutcome, Prepared, ScanCycle};
+
+/// Why the service refused a request.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ServiceError {
+    /// A name, a field or a value was refused.
+    #[error(transparent)]
+    Access(#[from] AccessError),
+    /// A write of several fields where some were refused: none was written. Never empty.
+    #[error("nothing was written: {}", join(.0))]
+    NothingWritten(Vec<AccessError>),
+    /// A write generation the log never handed out.
+    #[error("no write has generation {0}")]
+    UnknownWrite(u64),
+    /// A write too old to be kept in the log.
+    #[error("write {generation} is older than the last {kept} writes kept")]
+    WriteExpired { generation: u64, kept: usize },
+    #[error(transparent)]
+    Declare(#[from] DeclareError),
+    #[error("the gateway is shutting down")]
+    ShuttingDown,
+}
+
+fn join(errors: &[AccessError]) -> String {
+    errors
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+impl ServiceError {
+    /// The error that decides how a refusal is classified (the first refused write).
+    pub fn primary(&self) -> Option<&AccessError> {
+        match self {
+            ServiceError::Access(e) => Some(e),
+            ServiceError::NothingWritten(all) => all.first(),
+            _ => None,
+        }
+    }
+}
+
+/// The running gateway as its clients see it.
+#[derive(Debug)]
+pub struct Service {
+    pub cache: Arc<Cache>,
+    pub metrics: Arc<Metrics>,
+    tasks: Tasks,
+    ready: AtomicBool,
+}
+
+impl Service {
+    /// The service of a gateway whose tasks are started by `tasks`; not ready until
+    /// [`Service::set_ready`].
+    pub fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
+        Service {
+            metrics: tasks.metrics().clone(),
+            cache,
+            tasks,
+            ready: AtomicBool::new(false),
+        }
+    }
+
+    pub fn tasks(&self) -> &Tasks {
+        &self.tasks
+    }
+
+    pub fn set_ready(&self, ready: bool) {
+        self.ready.store(ready, Ordering::Relaxed);
+    }
+
+    /// Serving: started and not shutting down.
+    pub fn is_ready(&self) -> bool {
+        self.ready.load(Ordering::Relaxed) && !self.is_shutting_down()
+    }
+
+    pub fn is_shutting_down(&self) -> bool {
+        self.tasks.token().is_cancelled()
+    }
+
+    /// Refuses new work (writes, streams, declarations) once shutdown has begun.
+    pub fn accepting(&self) -> Result<(), ServiceError> {
+        if self.is_shutting_down() {
+            Err(ServiceError::ShuttingDown)
+        } else {
+            Ok(())
+        }
+    }
+
+    pub fn devices(&self) -> Vec<Arc<Device>> {
+        self.cache.devices()
+    }
+
+    pub fn device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
+        Ok(self.cache.device(name)?)
+    }
+
+    pub fn links(&self) -> Vec<Arc<Link>> {
+        self.cache.links()
+    }
+
+    pub fn link(&self, name: &str) -> Result<Arc<Link>, ServiceError> {
+        Ok(self.cache.link(name)?)
+    }
+
+    pub fn profiles(&self) -> impl Iterator<Item = &Arc<Profile>> {
+        self.cache.catalog.iter()
+    }
+
+    pub fn profile(&self, name: &str) -> Result<&Arc<Profile>, ServiceError> {
+        Ok(self.cache.profile(name)?)
+    }
+
+    /// Declares a link (idempotent); a new one starts polling at once.
+    pub fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
+        self.accepting()?;
+        Ok(declare::ensure_link(&self.cache, &self.tasks, decl)?)
+    }
+
+    /// Declares a device (idempotent); a new one is polled by its link at once.
+    pub fn ensure_device(&self, decl: DeviceDeclaration) -> Result<Ensured<Device>, ServiceError> {
+        self.accepting()?;
+        Ok(declare::ensure_device(&self.cache, &self.tasks, decl)?)
+    }
+}

@@ -1,0 +1,95 @@
+//! Choosing fields: by device, by `device.field`, or everything; and reading them.
+
+use std::sync::Arc;
+
+use super::{Service, ServiceError};
+use crate::cache::{Device, Diagnostics, Sample};
+
+/// One field of one device.
+#[derive(Debug, Clone)]
+pub struct FieldRef {
+    pub device: Arc<Device>,
+    pub idx: usize,
+}
+
+/// The chosen fields, each once, in the order asked for; and their devices, each once.
+#[derive(Debug, Clone, Default)]
+pub struct Selection {
+    pub fields: Vec<FieldRef>,
+    pub devices: Vec<Arc<Device>>,
+}
+
+impl Selection {
+    fn push(&mut self, device: &Arc<Device>, idx: usize) {
+        if !self.devices.iter().any(|d| Arc::ptr_eq(d, device)) {
+            self.devices.push(device.clone());
+        }
+        if !self
+            .fields
+            .iter()
+            .any(|f| Arc::ptr_eq(&f.device, device) && f.idx == idx)
+        {
+            self.fields.push(FieldRef {
+                device: device.clone(),
+                idx,
+            });
+        }
+    }
+}
+
+/// The current samples of a selection and the diagnostics of its devices.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    pub values: Vec<(FieldRef, Sample)>,
+    pub diagnostics: Vec<(Arc<Device>, Diagnostics)>,
+}
+
+impl Service {
+    /// Every field of the named devices plus the named `(device, field)` pairs; every field
+    /// of every device when nothing is named. An unknown name refuses the whole selection.
+    pub fn select<D, F>(&self, devices: &[D], fields: &[(F, F)]) -> Result<Selection, ServiceError>
+    where
+        D: AsRef<str>,
+        F: AsRef<str>,
+    {
+        let mut chosen = Selection::default();
+        let named = if devices.is_empty() && fields.is_empty() {
+            self.cache.devices()
+        } else {
+            devices
+                .iter()
+                .map(|n| self.cache.device(n.as_ref()))
+                .collect::<Result<_, _>>()?
+        };
+        for device in &named {
+            for idx in 0..device.profile.fields.len() {
+                chosen.push(device, idx);
+            }
+            if device.profile.fields.is_empty() {
+                chosen.devices.push(device.clone());
+            }
+        }
+        for (device, field) in fields {
+            let device = self.cache.device(device.as_ref())?;
+            let idx = device.field_index(field.as_ref())?;
+            chosen.push(&device, idx);
+        }
+        Ok(chosen)
+    }
+
+    /// The newest samples of `selection`, never waiting for a bus.
+    pub fn read(&self, selection: &Selection) -> Snapshot {
+        Snapshot {
+            values: selection
+                .fields
+                .iter()
+                .map(|f| (f.clone(), f.device.sample(f.idx)))
+                .collect(),
+            diagnostics: selection
+                .devices
+                .iter()
+                .map(|d| (d.clone(), d.diagnostics()))
+                .collect(),
+        }
+    }
+}

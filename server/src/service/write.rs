@@ -1,0 +1,218 @@
+//! Writes: checked first, then requested (last value wins); several at once are all or
+//! nothing; each is followed by its generation; a scan cycle writes only what changed.
+
+use std::sync::Arc;
+
+use super::{Service, ServiceError};
+use crate::cache::{AccessError, Device};
+use crate::codec::{IecType, Value};
+use crate::profile::Direction;
+use crate::writes::{Lookup, WRITE_LOG_CAPACITY, WriteRecord};
+
+/// A write that passed every check and can be requested.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    pub device: Arc<Device>,
+    pub idx: usize,
+    pub value: Value,
+}
+
+/// A requested write: follow it by its generation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Accepted {
+    pub device: String,
+    pub field: String,
+    pub generation: u64,
+}
+
+impl Service {
+    /// Checks a write of field `field` of `device`: the field exists and is writable, and
+    /// the value (converted by the front-end's `convert` for the field's type) fits it.
+    /// Nothing is written.
+    pub fn prepare<E: ToString>(
+        &self,
+        device: &Arc<Device>,
+        field: &str,
+        convert: impl FnOnce(IecType) -> Result<Value, E>,
+    ) -> Result<Prepared, AccessError> {
+        let idx = device.field_index(field)?;
+        let f = device.field(idx);
+        let value = convert(f.ty).map_err(|e| AccessError::InvalidValue {
+            device: device.name().to_owned(),
+            field: f.name.clone(),
+            ty: f.ty,
+            reason: e.to_string(),
+        })?;
+        device.check_write(idx, &value)?;
+        Ok(Prepared {
+            device: device.clone(),
+            idx,
+            value,
+        })
+    }
+
+    /// Like [`Service::prepare`] for a device given by name.
+    pub fn prepare_named<E: ToString>(
+        &self,
+        device: &str,
+        field: &str,
+        convert: impl FnOnce(IecType) -> Result<Value, E>,
+    ) -> Result<Prepared, AccessError> {
+        let device = self.cache.device(device)?;
+        self.prepare(&device, field, convert)
+    }
+
+    /// Requests one checked write.
+    pub fn write(&self, write: Prepared) -> Result<Accepted, ServiceError> {
+        self.accepting()?;
+        let generation = write.device.request_write(write.idx, write.value)?;
+        Ok(Accepted {
+            device: write.device.name().to_owned(),
+            field: write.device.field(write.idx).name.clone(),
+            generation,
+        })
+    }
+
+    /// Requests every write, or none of them if any was refused; then every refusal is
+    /// named.
+    pub fn write_all(
+        &self,
+        writes: Vec<Result<Prepared, AccessError>>,
+    ) -> Result<Vec<Accepted>, ServiceError> {
+        self.accepting()?;
+        let (ok, refused): (Vec<_>, Vec<_>) = writes.into_iter().partition(Result::is_ok);
+        if !refused.is_empty() {
+            return Err(ServiceError::NothingWritten(
+                refused.into_iter().filter_map(Result::err).collect(),
+            ));
+        }
+        ok.into_iter()
+            .filter_map(Result::ok)
+            .map(|w| self.write(w))
+            .collect()
+    }
+
+    /// Where the write with `generation` stands.
+    pub fn write_outcome(&self, generation: u64) -> Result<WriteRecord, ServiceError> {
+        match self.cache.writes.get(generation) {
+            Lookup::Found(record) => Ok(record),
+            Lookup::Expired => Err(ServiceError::WriteExpired {
+                generation,
+                kept: WRITE_LOG_CAPACITY,
+            }),
+            Lookup::Unknown => Err(ServiceError::UnknownWrite(generation)),
+        }
+    }
+
+    /// The type of the field a write record is about, if the field still exists.
+    pub fn written_type(&self, record: &WriteRecord) -> Option<IecType> {
+        let device = self.cache.device(&record.device).ok()?;
+        let idx = device.profile.field_index(&record.field)?;
+        Some(device.field(idx).ty)
+    }
+
+    /// The newest write to a field, if one is still in the log.
+    pub fn last_write(&self, device: &Device, idx: usize) -> Option<WriteRecord> {
+        match self.cache.writes.get(device.last_write(idx)?) {
+            Lookup::Found(record) => Some(record),
+            _ => None,
+        }
+    }
+
+    /// Sets an input of a simulated device, as if the device had read it.
+    pub fn simulate<E: ToString>(
+        &self,
+        device: &Arc<Device>,
+        field: &str,
+        convert: impl FnOnce(IecType) -> Result<Value, E>,
+    ) -> Result<(usize, Value), ServiceError> {
+        let idx = device.field_index(field)?;
+        let f = device.field(idx);
+        let value = convert(f.ty).map_err(|e| AccessError::InvalidValue {
+            device: device.name().to_owned(),
+            field: f.name.clone(),
+            ty: f.ty,
+            reason: e.to_string(),
+        })?;
+        device.simulate(idx, value.clone())?;
+        Ok((idx, value))
+    }
+}
+
+/// A remote runtime's scan cycles on one stream: outputs in, inputs and diagnostics out.
+#[derive(Debug)]
+pub struct ScanCycle {
+    service: Arc<Service>,
+    devices: Vec<Arc<Device>>,
+    cycle: u64,
+}
+
+/// What one cycle did: its number, the devices whose inputs go back, the writes it
+/// requested, and what it refused (as messages for the runtime).
+#[derive(Debug)]
+pub struct CycleOutcome {
+    pub cycle: u64,
+    pub devices: Vec<Arc<Device>>,
+    pub acks: Vec<Accepted>,
+    pub errors: Vec<String>,
+}
+
+impl CycleOutcome {
+    /// The inputs (and inouts) of the cycle's devices.
+    pub fn inputs(&self) -> impl Iterator<Item = (&Arc<Device>, usize)> {
+        self.devices.iter().flat_map(|d| {
+            (0..d.profile.fields.len())
+                .filter(|&i| d.field(i).direction != Direction::Output)
+                .map(move |i| (d, i))
+        })
+    }
+}
+
+impl ScanCycle {
+    pub fn new(service: Arc<Service>) -> Self {
+        ScanCycle {
+            service,
+            devices: Vec::new(),
+            cycle: 0,
+        }
+    }
+
+    /// One cycle. `devices`, when not empty, replaces the devices whose inputs are
+    /// returned. An output equal to the newest value already requested for its field is
+    /// not written again: a runtime sends all its outputs every cycle, and only changes
+    /// become bus writes.
+    pub fn step(
+        &mut self,
+        devices: &[String],
+        outputs: Vec<Result<Prepared, AccessError>>,
+    ) -> CycleOutcome {
+        let mut errors = Vec::new();
+        if !devices.is_empty() {
+            self.devices.clear();
+            for name in devices {
+                match self.service.cache.device(name) {
+                    Ok(d) => self.devices.push(d),
+                    Err(e) => errors.push(e.to_string()),
+                }
+            }
+        }
+        let mut acks = Vec::new();
+        for out in outputs {
+            match out {
+                Ok(w) if w.device.latest_value(w.idx).as_ref() == Some(&w.value) => {}
+                Ok(w) => match self.service.write(w) {
+                    Ok(ack) => acks.push(ack),
+                    Err(e) => errors.push(e.to_string()),
+                },
+                Err(e) => errors.push(e.to_string()),
+            }
+        }
+        self.cycle += 1;
+        CycleOutcome {
+            cycle: self.cycle,
+            devices: self.devices.clone(),
+            acks,
+            errors,
+        }
+    }
+}
