@@ -14,8 +14,7 @@ use tonic::{Request, Response, Status, Streaming};
 use super::pb as to_pb;
 use crate::cache::AccessError;
 use crate::codec::{Value, ValueError};
-use crate::config::{Framing, Transport};
-use crate::declare::{self, DeclareError, DeviceDeclaration, LinkDeclaration};
+use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration, Refusal};
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 
 type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::Update, Status>> + Send>>;
@@ -44,9 +43,11 @@ pub fn status(e: ServiceError) -> Status {
             e.primary().map_or(tonic::Code::InvalidArgument, access)
         }
         ServiceError::UnknownWrite(_) | ServiceError::WriteExpired { .. } => tonic::Code::NotFound,
-        ServiceError::Declare(DeclareError::Invalid(_)) => tonic::Code::InvalidArgument,
-        ServiceError::Declare(DeclareError::NotFound(_)) => tonic::Code::NotFound,
-        ServiceError::Declare(DeclareError::Conflict(_)) => tonic::Code::FailedPrecondition,
+        ServiceError::Declare(d) => match d.refusal() {
+            Refusal::Invalid => tonic::Code::InvalidArgument,
+            Refusal::NotFound => tonic::Code::NotFound,
+            Refusal::Conflict => tonic::Code::FailedPrecondition,
+        },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
     };
     Status::new(code, message)
@@ -305,29 +306,19 @@ impl Gateway for GrpcApi {
     ) -> Result<Response<pb::EnsureLinkResponse>, Status> {
         self.service.accepting().map_err(status)?;
         let r = request.into_inner();
-        let transport = match r.transport {
-            Some(pb::ensure_link_request::Transport::Serial(s)) => {
-                Transport::Serial(to_pb::serial_settings(&s).map_err(Status::invalid_argument)?)
-            }
-            Some(pb::ensure_link_request::Transport::Tcp(t)) => {
-                let framing: Framing = declare::parse_framing(&t.framing).ok_or_else(|| {
-                    Status::invalid_argument(format!(
-                        "unknown framing `{}` (expected mbap or rtu)",
-                        t.framing
-                    ))
-                })?;
-                Transport::Tcp {
-                    host: t.host,
-                    port: if t.port == 0 {
-                        502
-                    } else {
-                        u16::try_from(t.port).map_err(|_| {
-                            Status::invalid_argument(format!("TCP port {} is past 65535", t.port))
-                        })?
-                    },
-                    framing,
-                }
-            }
+        let endpoint = match r.transport {
+            Some(pb::ensure_link_request::Transport::Serial(s)) => Endpoint::Serial {
+                port: s.port,
+                baud: s.baud.into(),
+                parity: s.parity,
+                data_bits: s.data_bits.into(),
+                stop_bits: s.stop_bits.into(),
+            },
+            Some(pb::ensure_link_request::Transport::Tcp(t)) => Endpoint::Tcp {
+                host: t.host,
+                port: t.port.into(),
+                framing: t.framing,
+            },
             None => {
                 return Err(Status::invalid_argument(
                     "a link needs `serial` or `tcp` settings",
@@ -338,7 +329,7 @@ impl Gateway for GrpcApi {
             .service
             .ensure_link(LinkDeclaration {
                 name: (!r.name.is_empty()).then_some(r.name),
-                transport,
+                endpoint,
                 guard_time: Duration::from_millis(r.guard_time_ms.into()),
             })
             .map_err(status)?;

@@ -6,7 +6,7 @@ use iogate_proto::pb;
 
 use crate::cache::{Device, Diagnostics, Link, Sample};
 use crate::codec::{IecType, Value};
-use crate::config::{Parity, SerialSettings, Transport};
+use crate::config::{SerialSettings, Transport};
 use crate::profile::{Profile, fb_layout, st_declaration};
 use crate::writes::{WriteRecord, WriteStatus};
 
@@ -103,36 +103,6 @@ pub fn link(link: &Link) -> pb::Link {
         devices: link.members().iter().map(|d| d.name().to_owned()).collect(),
         guard_time_ms: millis(link.config.guard_time),
     }
-}
-
-/// A serial link's settings from a declaration; `None` names what is wrong.
-pub fn serial_settings(s: &pb::SerialSettings) -> Result<SerialSettings, String> {
-    let parity = match s.parity.to_ascii_uppercase().as_str() {
-        "" | "N" | "NONE" => Parity::None,
-        "E" | "EVEN" => Parity::Even,
-        "O" | "ODD" => Parity::Odd,
-        other => {
-            return Err(format!(
-                "Invalid parity configuration: `{other}` (expected N, E or O)"
-            ));
-        }
-    };
-    let small = |n: u32, default: u8| {
-        if n == 0 {
-            Ok(default)
-        } else {
-            u8::try_from(n).map_err(|_| n.to_string())
-        }
-    };
-    Ok(SerialSettings {
-        port: s.port.clone(),
-        baud: s.baud,
-        parity,
-        data_bits: small(s.data_bits, 8)
-            .map_err(|n| format!("data_bits must be 7 or 8, not {n}"))?,
-        stop_bits: small(s.stop_bits, 1)
-            .map_err(|n| format!("Invalid stop bits configuration: {n} (expected 1 or 2)"))?,
-    })
 }
 
 pub fn profile(p: &Profile, full: bool) -> pb::Profile {

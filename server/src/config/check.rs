@@ -1,0 +1,100 @@
+//! Cross-checks: links against each other (one serial port, one set of settings) and
+//! devices against the loaded profiles and the configured links.
+
+use std::collections::HashMap;
+
+use super::rules;
+use super::{Config, LinkConfig, SerialSettings, Transport};
+use crate::profile::Catalog;
+use crate::yaml::{Problems, Report};
+
+/// One serial port is one link: two links on one port with different settings are the
+/// seed's "configuration mismatch".
+pub(super) fn check_ports(links: &[LinkConfig], report: &mut Report) {
+    let mut by_port: HashMap<&str, (&LinkConfig, &SerialSettings)> = HashMap::new();
+    for link in links {
+        let Transport::Serial(s) = &link.transport else {
+            continue;
+        };
+        let Some((first, fs)) = by_port.get(s.port.as_str()) else {
+            by_port.insert(&s.port, (link, s));
+            continue;
+        };
+        let ctx = format!("link {}", link.name);
+        let mismatches = rules::serial_mismatches(fs, s);
+        for m in &mismatches {
+            report.push(
+                link.line,
+                &ctx,
+                format!(
+                    "{} configuration mismatch on {}: {} here, {} in link {} (line {})",
+                    m.setting, s.port, m.want, m.have, first.name, first.line
+                ),
+            );
+        }
+        if mismatches.is_empty() {
+            report.push(
+                link.line,
+                &ctx,
+                format!(
+                    "port {} is already link {} (line {}); let the devices share that link",
+                    s.port, first.name, first.line
+                ),
+            );
+        }
+    }
+}
+
+/// Checks devices against the profiles and links: profile exists, simulated devices have no
+/// link and slave id, Modbus devices have both.
+pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems> {
+    let mut report = Report::new(&config.source);
+    for d in &config.devices {
+        let ctx = format!("device {}", d.name);
+        let Some(profile) = catalog.get(&d.profile) else {
+            let known: Vec<_> = catalog.iter().map(|p| p.name.as_str()).collect();
+            report.push(
+                d.line,
+                &ctx,
+                format!(
+                    "unknown profile `{}` (known: {})",
+                    d.profile,
+                    if known.is_empty() {
+                        "none".to_owned()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            );
+            continue;
+        };
+        let link = d.link.as_deref();
+        for e in rules::binding(profile, link, d.slave_id.map(u64::from)) {
+            report.push(d.line, &ctx, e.to_string());
+        }
+        if let Some(link) = link
+            && profile.protocol != crate::profile::Protocol::Simulated
+            && !config.links.iter().any(|l| l.name == link)
+        {
+            let known: Vec<_> = config.links.iter().map(|l| l.name.as_str()).collect();
+            report.push(
+                d.line,
+                &ctx,
+                format!(
+                    "unknown link `{link}` (known: {})",
+                    if known.is_empty() {
+                        "none".to_owned()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            );
+        }
+    }
+    let problems = report.into_problems();
+    if problems.is_empty() {
+        Ok(())
+    } else {
+        Err(problems)
+    }
+}

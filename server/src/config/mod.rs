@@ -1,0 +1,281 @@
+//! `iogate.yaml`: listeners, links and devices. The model is here; `read` reads it from
+//! YAML, collecting every problem with file and line; `rules` holds the rules a link or
+//! device obeys (shared with run-time declarations); `check` cross-checks links against each
+//! other and devices against the loaded profiles.
+
+mod check;
+mod read;
+pub mod rules;
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use crate::yaml::{self, Problems, Report};
+
+pub use check::check_devices;
+pub use rules::{DEFAULT_REFRESH, DEFAULT_RETRIES, DEFAULT_TIMEOUT, MAX_READ_REGISTERS};
+
+pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
+pub const DEFAULT_GRPC: &str = "127.0.0.1:50051";
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    pub http: SocketAddr,
+    pub grpc: SocketAddr,
+    /// The `profiles` directory as configured, relative to the config file's directory.
+    pub profiles: Option<PathBuf>,
+    pub links: Vec<LinkConfig>,
+    pub devices: Vec<DeviceConfig>,
+    /// The file the config came from.
+    pub source: String,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkConfig {
+    pub name: String,
+    pub transport: Transport,
+    /// Extra silence kept between frames, on top of the 3.5 characters.
+    pub guard_time: Duration,
+    pub line: u64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Transport {
+    Serial(SerialSettings),
+    Tcp {
+        host: String,
+        port: u16,
+        framing: Framing,
+    },
+}
+
+impl Transport {
+    /// Whether both reach the same port or TCP endpoint (whatever their other settings).
+    pub fn same_endpoint(&self, other: &Transport) -> bool {
+        match (self, other) {
+            (Transport::Serial(a), Transport::Serial(b)) => a.port == b.port,
+            (
+                Transport::Tcp {
+                    host: h1, port: p1, ..
+                },
+                Transport::Tcp {
+                    host: h2, port: p2, ..
+                },
+            ) => h1 == h2 && p1 == p2,
+            _ => false,
+        }
+    }
+}
+
+/// `serial PORT` or `tcp HOST:PORT (framing)`.
+impl std::fmt::Display for Transport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Transport::Serial(s) => write!(f, "serial {}", s.port),
+            Transport::Tcp {
+                host,
+                port,
+                framing,
+            } => write!(f, "tcp {host}:{port} ({})", framing.name()),
+        }
+    }
+}
+
+/// How Modbus frames travel over a TCP link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Framing {
+    /// Modbus TCP (MBAP header).
+    Mbap,
+    /// RTU frames with CRC over a raw socket (serial device servers).
+    Rtu,
+}
+
+impl Framing {
+    pub fn name(self) -> &'static str {
+        match self {
+            Framing::Mbap => "mbap",
+            Framing::Rtu => "rtu",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Parity {
+    None,
+    Even,
+    Odd,
+}
+
+impl Parity {
+    pub fn letter(self) -> char {
+        match self {
+            Parity::None => 'N',
+            Parity::Even => 'E',
+            Parity::Odd => 'O',
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SerialSettings {
+    pub port: String,
+    pub baud: u32,
+    pub parity: Parity,
+    pub data_bits: u8,
+    pub stop_bits: u8,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceConfig {
+    pub name: String,
+    pub profile: String,
+    pub link: Option<String>,
+    pub slave_id: Option<u8>,
+    pub refresh_rate: Duration,
+    pub timeout: Duration,
+    pub retries: u32,
+    pub max_batch: u16,
+    pub max_gap: u16,
+    pub line: u64,
+}
+
+impl Config {
+    /// A config with default listeners and nothing else.
+    pub fn empty(source: &str) -> Self {
+        Config {
+            http: DEFAULT_HTTP
+                .parse()
+                .unwrap_or(SocketAddr::from(([127, 0, 0, 1], 8080))),
+            grpc: DEFAULT_GRPC
+                .parse()
+                .unwrap_or(SocketAddr::from(([127, 0, 0, 1], 50051))),
+            profiles: None,
+            links: Vec::new(),
+            devices: Vec::new(),
+            source: source.to_owned(),
+        }
+    }
+
+    /// Reads and parses a config file.
+    pub fn load(path: &Path) -> Result<Config, Problems> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            let mut report = Report::new(&file);
+            report.push(0, "", format!("cannot read the config file: {e}"));
+            report.into_problems()
+        })?;
+        let mut config = parse(&file, &text)?;
+        if let Some(dir) = &config.profiles
+            && dir.is_relative()
+        {
+            let base = path.parent().unwrap_or(Path::new("."));
+            config.profiles = Some(base.join(dir));
+        }
+        Ok(config)
+    }
+}
+
+/// Parses config text; `file` names it in problems.
+pub fn parse(file: &str, text: &str) -> Result<Config, Problems> {
+    let mut report = Report::new(file);
+    let config =
+        yaml::parse(text, &mut report).and_then(|root| read::read_config(&root, &mut report));
+    match config {
+        Some(c) if !report.has_problems() => Ok(c),
+        _ => Err(report.into_problems()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::profile::Catalog;
+
+    const GOOD: &str = "listen:\n  http: 127.0.0.1:0\nlinks:\n  - name: rs485\n    serial: { port: /dev/ttyUSB0, baud: 9600, parity: N, data_bits: 8, stop_bits: 1 }\n  - name: plant\n    tcp: { host: 192.0.2.10, port: 502 }\ndevices:\n  - { name: io_rack, profile: MyIoModule, link: rs485, slave_id: 1, refresh_rate: 50ms }\n  - { name: pump_vfd, profile: MyVfd, link: rs485, slave_id: 2, refresh_rate: 100ms, timeout: 200ms }\n  - { name: sim, profile: SimIo, refresh_rate: T#100ms }\n";
+
+    #[test]
+    fn the_spec_example_parses() {
+        let c = parse("iogate.yaml", GOOD).expect("parses");
+        assert_eq!(c.http.port(), 0);
+        assert_eq!(c.grpc.to_string(), DEFAULT_GRPC);
+        assert_eq!(c.links.len(), 2);
+        assert_eq!(c.devices[0].refresh_rate, Duration::from_millis(50));
+        assert_eq!(c.devices[1].timeout, Duration::from_millis(200));
+        assert_eq!(c.devices[2].refresh_rate, Duration::from_millis(100));
+        assert_eq!(c.devices[2].link, None);
+        assert_eq!(c.devices[2].line, 11);
+    }
+
+    fn problems(text: &str) -> String {
+        parse("c.yaml", text).expect_err("should fail").to_string()
+    }
+
+    #[test]
+    fn serial_settings_mismatch_on_one_port_is_an_error() {
+        let text = "links:\n  - { name: a, serial: { port: /dev/ttyS0, baud: 9600 } }\n  - { name: b, serial: { port: /dev/ttyS0, baud: 19200, parity: E } }\n";
+        let all = problems(text);
+        assert!(all.contains("c.yaml:3: link b: Baudrate configuration mismatch on /dev/ttyS0: 19200 here, 9600 in link a (line 2)"), "{all}");
+        assert!(all.contains("Parity configuration mismatch"), "{all}");
+    }
+
+    #[test]
+    fn every_config_problem_is_reported() {
+        let text = "listen: { http: localhost }\nlinks:\n  - { name: a, serial: { port: /dev/x, baud: 9600, parity: X, stop_bits: 3 } }\ndevices:\n  - { name: d, profile: P, slave_id: 300, refresh_rate: 50 }\n  - { name: d, profile: P, refresh_rate: soon, colour: red }\n";
+        let all = problems(text);
+        for needle in [
+            "c.yaml:1: listen.http: `localhost` is not an address",
+            "c.yaml:3: link a: serial.parity: Invalid parity configuration: `X`",
+            "c.yaml:3: link a: serial.stop_bits: Invalid stop bits configuration: 3",
+            "c.yaml:5: device d: slave_id: 300 is outside",
+            "c.yaml:5: device d: refresh_rate: `50` has no unit",
+            "c.yaml:6: device d: refresh_rate: `soon` is not a duration",
+            "c.yaml:6: device d: unknown key `colour`",
+            "c.yaml:6: device d: duplicate device name (first defined on line 5)",
+        ] {
+            assert!(all.contains(needle), "missing {needle:?} in\n{all}");
+        }
+    }
+
+    #[test]
+    fn devices_are_checked_against_profiles_and_links() {
+        let config = parse("c.yaml", "links:\n  - { name: bus, tcp: { host: 127.0.0.1 } }\ndevices:\n  - { name: a, profile: Sim, link: bus }\n  - { name: b, profile: Real }\n  - { name: c, profile: Nope }\n  - { name: e, profile: Real, link: other, slave_id: 1 }\n").expect("parses");
+        let sim = crate::profile::load_str("s.yaml", "name: Sim\nprotocol: simulated\nfields:\n  - { name: X, type: BOOL, direction: input, register: { address: 0, kind: virtual } }\n").expect("sim");
+        let real = crate::profile::load_str("r.yaml", "name: Real\nfields:\n  - { name: X, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n").expect("real");
+        let catalog = Catalog::new([sim, real]);
+        let all = check_devices(&config, &catalog)
+            .expect_err("fails")
+            .to_string();
+        for needle in [
+            "c.yaml:4: device a: a simulated device has no link",
+            "c.yaml:5: device b: profile Real is modbus-rtu: the device needs a `link`",
+            "c.yaml:5: device b: no slave configured",
+            "c.yaml:6: device c: unknown profile `Nope` (known: Real, Sim)",
+            "c.yaml:7: device e: unknown link `other` (known: bus)",
+        ] {
+            assert!(all.contains(needle), "missing {needle:?} in\n{all}");
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn arbitrary_text_never_panics(text in "\\PC{0,300}") {
+            let _ = parse("fuzz.yaml", &text);
+        }
+
+        #[test]
+        fn mutated_configs_never_panic(
+            at in proptest::prelude::any::<proptest::sample::Index>(),
+            insert in "[ \\-:{}\\[\\],#'\"a-z0-9\n]{0,4}",
+            cut in 0usize..6,
+        ) {
+            let _ = parse("fuzz.yaml", &crate::yaml::mutate(GOOD, at, &insert, cut));
+        }
+    }
+
+    #[test]
+    fn empty_config_is_valid() {
+        let c = parse("c.yaml", "").expect("empty is fine");
+        assert!(c.devices.is_empty());
+    }
+}

@@ -1,0 +1,331 @@
+//! Reading `iogate.yaml` from its YAML tree: shapes, keys and values, every problem with
+//! its line. The rules a link or device obeys are applied through [`super::rules`].
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use super::rules::{self, RuleError};
+use super::{Config, DeviceConfig, Framing, LinkConfig, Parity, SerialSettings, Transport};
+use crate::duration;
+use crate::yaml::{self, Node, Report};
+
+const TOP_KEYS: &[&str] = &["listen", "profiles", "links", "devices"];
+const LISTEN_KEYS: &[&str] = &["http", "grpc"];
+const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
+const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
+const TCP_KEYS: &[&str] = &["host", "port", "framing"];
+const DEVICE_KEYS: &[&str] = &[
+    "name",
+    "profile",
+    "link",
+    "slave_id",
+    "refresh_rate",
+    "timeout",
+    "retries",
+    "max_batch",
+    "max_gap",
+];
+
+pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
+    let mut config = Config::empty(report.file());
+    if root.kind == yaml::Kind::Null {
+        return Some(config);
+    }
+    let mut map = root.map(report, "config")?;
+    if let Some(listen) = map.get("listen").and_then(|n| n.map(report, "listen")) {
+        let mut listen = listen;
+        for (key, slot) in [("http", &mut config.http), ("grpc", &mut config.grpc)] {
+            if let Some(node) = listen.get(key) {
+                let ctx = format!("listen.{key}");
+                if let Some(text) = node.scalar_text(report, &ctx) {
+                    match text.parse::<SocketAddr>() {
+                        Ok(addr) => *slot = addr,
+                        Err(_) => report.push(
+                            node.line,
+                            &ctx,
+                            format!(
+                                "`{text}` is not an address (write IP:port, e.g. 127.0.0.1:8080)"
+                            ),
+                        ),
+                    }
+                }
+            }
+        }
+        listen.finish(report, "listen", LISTEN_KEYS);
+    }
+    config.profiles = map
+        .get("profiles")
+        .and_then(|n| n.scalar_text(report, "profiles"))
+        .map(PathBuf::from);
+    if let Some(links) = map.get("links").and_then(|n| n.seq(report, "links")) {
+        check_unique(&entry_names(links), "link", report);
+        config.links = links
+            .iter()
+            .enumerate()
+            .filter_map(|(i, n)| read_link(n, i, report))
+            .collect();
+    }
+    if let Some(devices) = map.get("devices").and_then(|n| n.seq(report, "devices")) {
+        check_unique(&entry_names(devices), "device", report);
+        config.devices = devices
+            .iter()
+            .enumerate()
+            .filter_map(|(i, n)| read_device(n, i, report))
+            .collect();
+    }
+    map.finish(report, "config", TOP_KEYS);
+    super::check::check_ports(&config.links, report);
+    Some(config)
+}
+
+fn name_of(
+    map: &mut yaml::MapReader<'_>,
+    report: &mut Report,
+    what: &str,
+    index: usize,
+) -> (Option<String>, String) {
+    let fallback = format!("{what}s[{index}]");
+    let name = map
+        .require("name", report, &fallback)
+        .and_then(|n| n.scalar_text(report, &format!("{fallback}: name")));
+    let ctx = name.as_ref().map_or(fallback, |n| format!("{what} {n}"));
+    (name, ctx)
+}
+
+fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfig> {
+    let mut map = node.map(report, &format!("links[{index}]"))?;
+    let (name, ctx) = name_of(&mut map, report, "link", index);
+    let serial = map.get("serial");
+    let tcp = map.get("tcp");
+    let guard_time = map.get("guard_time").map_or(Some(Duration::ZERO), |n| {
+        let at = format!("{ctx}: guard_time");
+        duration_value(n, report, &at, Duration::ZERO)
+            .and_then(|d| ruled(rules::guard_time(d), n.line, &at, report))
+    });
+    map.finish(report, &ctx, LINK_KEYS);
+    let transport = match (serial, tcp) {
+        (Some(s), None) => read_serial(s, &ctx, report).map(Transport::Serial),
+        (None, Some(t)) => read_tcp(t, &ctx, report),
+        (Some(_), Some(t)) => {
+            report.push(t.line, &ctx, "a link is either `serial` or `tcp`, not both");
+            None
+        }
+        (None, None) => {
+            report.push(node.line, &ctx, "a link needs `serial` or `tcp` settings");
+            None
+        }
+    };
+    Some(LinkConfig {
+        name: name?,
+        transport: transport?,
+        guard_time: guard_time?,
+        line: node.line,
+    })
+}
+
+/// The value of a rule's check, or the broken rule reported at `line`.
+fn ruled<T>(checked: Result<T, RuleError>, line: u64, ctx: &str, report: &mut Report) -> Option<T> {
+    checked
+        .map_err(|e| report.push(line, ctx, e.to_string()))
+        .ok()
+}
+
+fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSettings> {
+    let ctx = format!("{link}: serial");
+    let mut map = node.map(report, &ctx)?;
+    let at = |k: &str| format!("{ctx}.{k}");
+    let port = map
+        .require("port", report, &ctx)
+        .and_then(|n| n.scalar_text(report, &at("port")));
+    let baud = map
+        .require("baud", report, &ctx)
+        .and_then(|n| n.int_in(report, &at("baud"), 0, i128::from(u32::MAX)));
+    let parity = match map.get("parity") {
+        None => Some(Parity::None),
+        Some(n) => n
+            .scalar_text(report, &at("parity"))
+            .and_then(|text| ruled(rules::parse_parity(&text), n.line, &at("parity"), report)),
+    };
+    let mut bits = |key: &str, default: u8| match map.get(key) {
+        None => Some(i128::from(default)),
+        Some(n) => n.int_in(report, &at(key), 0, 255),
+    };
+    let data_bits = bits("data_bits", rules::DEFAULT_DATA_BITS);
+    let stop_bits = bits("stop_bits", rules::DEFAULT_STOP_BITS);
+    map.finish(report, &ctx, SERIAL_KEYS);
+    // Every rule is checked even when a key was missing or unreadable (that is reported
+    // already), so that all problems show at once.
+    let complete = port.is_some() && baud.is_some() && parity.is_some();
+    let checked = rules::serial(
+        port.unwrap_or_else(|| "-".to_owned()),
+        baud.map_or(9600, |b| b as u64),
+        parity.unwrap_or(Parity::None),
+        data_bits.map_or(u64::from(rules::DEFAULT_DATA_BITS), |b| b as u64),
+        stop_bits.map_or(u64::from(rules::DEFAULT_STOP_BITS), |b| b as u64),
+    );
+    let settings = checked
+        .map_err(|errors| {
+            for e in errors {
+                report.push(node.line, at(e.key()), e.to_string());
+            }
+        })
+        .ok()?;
+    complete.then_some(settings)
+}
+
+fn read_tcp(node: &Node, link: &str, report: &mut Report) -> Option<Transport> {
+    let ctx = format!("{link}: tcp");
+    let mut map = node.map(report, &ctx)?;
+    let host = map
+        .require("host", report, &ctx)
+        .and_then(|n| n.scalar_text(report, &format!("{ctx}.host")));
+    let port = match map.get("port") {
+        None => Some((i128::from(rules::DEFAULT_TCP_PORT), node.line)),
+        Some(n) => n
+            .int_in(report, &format!("{ctx}.port"), 0, i128::from(u32::MAX))
+            .map(|p| (p, n.line)),
+    };
+    let framing = match map.get("framing") {
+        None => Some(Framing::Mbap),
+        Some(n) => {
+            let at = format!("{ctx}.framing");
+            n.scalar_text(report, &at)
+                .and_then(|text| ruled(rules::parse_framing(&text), n.line, &at, report))
+        }
+    };
+    map.finish(report, &ctx, TCP_KEYS);
+    let host = host?;
+    let (port, line) = port?;
+    let port = rules::tcp_endpoint(&host, port as u64)
+        .map_err(|errors| {
+            for e in errors {
+                report.push(line, format!("{ctx}.{}", e.key()), e.to_string());
+            }
+        })
+        .ok()?;
+    Some(Transport::Tcp {
+        host,
+        port,
+        framing: framing?,
+    })
+}
+
+/// A duration such as `50ms` or `T#1s`, at least `min`.
+fn duration_value(node: &Node, report: &mut Report, ctx: &str, min: Duration) -> Option<Duration> {
+    let text = match &node.kind {
+        yaml::Kind::Str(s) => s.clone(),
+        yaml::Kind::Int(i) => {
+            report.push(
+                node.line,
+                ctx,
+                format!("`{i}` has no unit (write e.g. `{i}ms`)"),
+            );
+            return None;
+        }
+        _ => {
+            report.push(
+                node.line,
+                ctx,
+                format!("expected a duration, found {}", node.describe()),
+            );
+            return None;
+        }
+    };
+    match duration::parse(&text) {
+        Ok(d) if d >= min => Some(d),
+        Ok(_) => {
+            report.push(
+                node.line,
+                ctx,
+                format!("must be at least {}ms", min.as_millis()),
+            );
+            None
+        }
+        Err(e) => {
+            report.push(node.line, ctx, e);
+            None
+        }
+    }
+}
+
+fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceConfig> {
+    let mut map = node.map(report, &format!("devices[{index}]"))?;
+    let (name, ctx) = name_of(&mut map, report, "device", index);
+    let at = |k: &str| format!("{ctx}: {k}");
+    let profile = map
+        .require("profile", report, &ctx)
+        .and_then(|n| n.scalar_text(report, &at("profile")));
+    let link = map
+        .get("link")
+        .and_then(|n| n.scalar_text(report, &at("link")));
+    let slave_id = map.get("slave_id").and_then(|n| {
+        let id = n.int_in(report, &at("slave_id"), 0, i128::from(u32::MAX))?;
+        ruled(rules::slave_id(id as u64), n.line, &at("slave_id"), report)
+    });
+    let mut duration_of = |key: &str, default: Duration, min: Duration| -> Option<Duration> {
+        map.get(key).map_or(Some(default), |node| {
+            duration_value(node, report, &at(key), min)
+        })
+    };
+    let refresh_rate = duration_of("refresh_rate", rules::DEFAULT_REFRESH, rules::MIN_PERIOD);
+    let timeout = duration_of("timeout", rules::DEFAULT_TIMEOUT, rules::MIN_PERIOD);
+    let retries = match map.get("retries") {
+        None => Some(rules::DEFAULT_RETRIES),
+        Some(n) => n
+            .int_in(report, &at("retries"), 0, i128::from(rules::MAX_RETRIES))
+            .map(|r| r as u32),
+    };
+    let mut registers = |key: &str, min: i128, report: &mut Report| {
+        map.get(key).map(|n| {
+            n.int_in(report, &at(key), min, i128::from(rules::MAX_READ_REGISTERS))
+                .map(|m| m as u16)
+        })
+    };
+    let max_batch = registers("max_batch", 1, report).unwrap_or(Some(rules::MAX_READ_REGISTERS));
+    let max_gap = registers("max_gap", 0, report).unwrap_or(Some(0));
+    map.finish(report, &ctx, DEVICE_KEYS);
+    Some(DeviceConfig {
+        name: name?,
+        profile: profile?,
+        link,
+        slave_id,
+        refresh_rate: refresh_rate?,
+        timeout: timeout?,
+        retries: retries?,
+        max_batch: max_batch?,
+        max_gap: max_gap?,
+        line: node.line,
+    })
+}
+
+/// The `name` of every entry that has one, with its line, whatever else is wrong with it.
+fn entry_names(entries: &[Node]) -> Vec<(String, u64)> {
+    entries
+        .iter()
+        .filter_map(|entry| match &entry.kind {
+            yaml::Kind::Map(keys) => keys.iter().find_map(|(k, v)| match &v.kind {
+                yaml::Kind::Str(name) if k.name == "name" => Some((name.clone(), entry.line)),
+                _ => None,
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+fn check_unique(items: &[(String, u64)], what: &str, report: &mut Report) {
+    let mut seen: HashMap<&str, u64> = HashMap::new();
+    for (name, line) in items {
+        let (name, line) = (name.as_str(), *line);
+        if let Some(first) = seen.get(name) {
+            report.push(
+                line,
+                format!("{what} {name}"),
+                format!("duplicate {what} name (first defined on line {first})"),
+            );
+        } else {
+            seen.insert(name, line);
+        }
+    }
+}

@@ -1,0 +1,309 @@
+//! The rules every link and device obeys, wherever it comes from: `iogate.yaml` (checked by
+//! the config loader, each problem with its line) or a run-time declaration (`EnsureLink`,
+//! `EnsureDevice`). Limits, defaults, the serial settings' "configuration mismatch" checks
+//! of seed 004 (the Modbus read block's RS485 rules) and the link/slave rules of seed 000's
+//! device function blocks live here once.
+
+use std::ops::RangeInclusive;
+use std::time::Duration;
+
+use super::{Framing, Parity, SerialSettings};
+use crate::profile::{Profile, Protocol};
+
+pub const DEFAULT_TCP_PORT: u16 = 502;
+pub const DEFAULT_REFRESH: Duration = Duration::from_millis(100);
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(200);
+pub const DEFAULT_RETRIES: u32 = 1;
+pub const MAX_RETRIES: u32 = 10;
+/// Registers per read transaction (the Modbus limit; coils are limited separately to 2000).
+pub const MAX_READ_REGISTERS: u16 = 125;
+pub const DEFAULT_DATA_BITS: u8 = 8;
+pub const DEFAULT_STOP_BITS: u8 = 1;
+pub const BAUD_RATES: RangeInclusive<u32> = 300..=4_000_000;
+pub const DATA_BITS: [u8; 2] = [7, 8];
+pub const STOP_BITS: [u8; 2] = [1, 2];
+pub const SLAVE_IDS: RangeInclusive<u32> = 1..=247;
+pub const TCP_PORTS: RangeInclusive<u32> = 1..=65535;
+/// The shortest refresh rate and timeout.
+pub const MIN_PERIOD: Duration = Duration::from_millis(1);
+/// The longest extra silence between frames: beyond it a line would do little else.
+pub const MAX_GUARD_TIME: Duration = Duration::from_secs(1);
+
+/// A rule a link or a device breaks. Each names the setting it concerns ([`RuleError::key`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RuleError {
+    #[error("no port configured (SerialLink error 1): the port is empty")]
+    NoPort,
+    #[error("Invalid baudrate configuration: {0} (expected 300-4000000)")]
+    Baud(u64),
+    #[error("Invalid parity configuration: `{0}` (expected N, E or O)")]
+    Parity(String),
+    #[error("{0} is not allowed (expected 7 or 8)")]
+    DataBits(u64),
+    #[error("Invalid stop bits configuration: {0} (expected 1 or 2)")]
+    StopBits(u64),
+    #[error("the TCP host is empty")]
+    NoHost,
+    #[error("{0} is outside the allowed range 1-65535")]
+    TcpPort(u64),
+    #[error("unknown framing `{0}` (expected mbap or rtu)")]
+    Framing(String),
+    #[error("{} ms is longer than the {} ms allowed", .0.as_millis(), MAX_GUARD_TIME.as_millis())]
+    GuardTime(Duration),
+    #[error("must be at least 1ms")]
+    TooShort(&'static str),
+    #[error("a simulated device has no link (remove `link: {0}`)")]
+    SimulatedWithLink(String),
+    #[error("a simulated device has no slave_id")]
+    SimulatedWithSlave,
+    #[error("profile {profile} is {protocol}: the device needs a `link`")]
+    NoLink {
+        profile: String,
+        protocol: &'static str,
+    },
+    #[error("no slave configured: set slave_id (1-247)")]
+    NoSlave,
+    #[error("{0} is outside the allowed range 1-247")]
+    SlaveId(u64),
+}
+
+impl RuleError {
+    /// The setting the rule is about, as the config file spells it.
+    pub fn key(&self) -> &'static str {
+        match self {
+            RuleError::NoPort => "port",
+            RuleError::Baud(_) => "baud",
+            RuleError::Parity(_) => "parity",
+            RuleError::DataBits(_) => "data_bits",
+            RuleError::StopBits(_) => "stop_bits",
+            RuleError::NoHost => "host",
+            RuleError::TcpPort(_) => "port",
+            RuleError::Framing(_) => "framing",
+            RuleError::GuardTime(_) => "guard_time",
+            RuleError::TooShort(key) => key,
+            RuleError::SimulatedWithLink(_) | RuleError::NoLink { .. } => "link",
+            RuleError::SimulatedWithSlave | RuleError::NoSlave | RuleError::SlaveId(_) => {
+                "slave_id"
+            }
+        }
+    }
+}
+
+/// `N`, `E`, `O` (or `none`, `even`, `odd`), in any case.
+pub fn parse_parity(text: &str) -> Result<Parity, RuleError> {
+    match text.to_ascii_uppercase().as_str() {
+        "N" | "NONE" => Ok(Parity::None),
+        "E" | "EVEN" => Ok(Parity::Even),
+        "O" | "ODD" => Ok(Parity::Odd),
+        _ => Err(RuleError::Parity(text.to_owned())),
+    }
+}
+
+/// `mbap` (Modbus TCP) or `rtu` (RTU frames over a raw socket).
+pub fn parse_framing(text: &str) -> Result<Framing, RuleError> {
+    match text {
+        "mbap" => Ok(Framing::Mbap),
+        "rtu" => Ok(Framing::Rtu),
+        other => Err(RuleError::Framing(other.to_owned())),
+    }
+}
+
+/// A serial line's settings as given (unchecked numbers), checked: every broken rule.
+pub fn serial(
+    port: String,
+    baud: u64,
+    parity: Parity,
+    data_bits: u64,
+    stop_bits: u64,
+) -> Result<SerialSettings, Vec<RuleError>> {
+    let mut errors = Vec::new();
+    if port.trim().is_empty() {
+        errors.push(RuleError::NoPort);
+    }
+    let baud = u32::try_from(baud)
+        .ok()
+        .filter(|b| BAUD_RATES.contains(b))
+        .ok_or(RuleError::Baud(baud));
+    let data_bits = u8::try_from(data_bits)
+        .ok()
+        .filter(|b| DATA_BITS.contains(b))
+        .ok_or(RuleError::DataBits(data_bits));
+    let stop_bits = u8::try_from(stop_bits)
+        .ok()
+        .filter(|b| STOP_BITS.contains(b))
+        .ok_or(RuleError::StopBits(stop_bits));
+    match (baud, data_bits, stop_bits) {
+        (Ok(baud), Ok(data_bits), Ok(stop_bits)) if errors.is_empty() => Ok(SerialSettings {
+            port,
+            baud,
+            parity,
+            data_bits,
+            stop_bits,
+        }),
+        (baud, data_bits, stop_bits) => {
+            errors.extend(
+                [baud.err(), data_bits.err(), stop_bits.err()]
+                    .into_iter()
+                    .flatten(),
+            );
+            Err(errors)
+        }
+    }
+}
+
+/// A TCP endpoint's host and port, checked.
+pub fn tcp_endpoint(host: &str, port: u64) -> Result<u16, Vec<RuleError>> {
+    let mut errors = Vec::new();
+    if host.trim().is_empty() {
+        errors.push(RuleError::NoHost);
+    }
+    let port = u16::try_from(port)
+        .ok()
+        .filter(|p| TCP_PORTS.contains(&u32::from(*p)))
+        .ok_or(RuleError::TcpPort(port));
+    match port {
+        Ok(p) if errors.is_empty() => Ok(p),
+        Ok(_) => Err(errors),
+        Err(e) => {
+            errors.push(e);
+            Err(errors)
+        }
+    }
+}
+
+pub fn guard_time(d: Duration) -> Result<Duration, RuleError> {
+    if d > MAX_GUARD_TIME {
+        Err(RuleError::GuardTime(d))
+    } else {
+        Ok(d)
+    }
+}
+
+/// A refresh rate or timeout (`key` names which), at least [`MIN_PERIOD`].
+pub fn period(key: &'static str, d: Duration) -> Result<Duration, RuleError> {
+    if d < MIN_PERIOD {
+        Err(RuleError::TooShort(key))
+    } else {
+        Ok(d)
+    }
+}
+
+/// How a device of `profile` is bound: a simulated device has neither link nor slave id; a
+/// Modbus device needs both, the slave id within 1-247.
+pub fn binding(profile: &Profile, link: Option<&str>, slave_id: Option<u64>) -> Vec<RuleError> {
+    let mut errors = Vec::new();
+    if profile.protocol == Protocol::Simulated {
+        if let Some(link) = link {
+            errors.push(RuleError::SimulatedWithLink(link.to_owned()));
+        }
+        if slave_id.is_some() {
+            errors.push(RuleError::SimulatedWithSlave);
+        }
+        return errors;
+    }
+    if link.is_none() {
+        errors.push(RuleError::NoLink {
+            profile: profile.name.clone(),
+            protocol: profile.protocol.name(),
+        });
+    }
+    match slave_id.map(self::slave_id) {
+        None => errors.push(RuleError::NoSlave),
+        Some(Err(e)) => errors.push(e),
+        Some(Ok(_)) => {}
+    }
+    errors
+}
+
+/// A Modbus slave address: 1-247 (0 is broadcast, 248-255 reserved).
+pub fn slave_id(id: u64) -> Result<u8, RuleError> {
+    u8::try_from(id)
+        .ok()
+        .filter(|i| SLAVE_IDS.contains(&u32::from(*i)))
+        .ok_or(RuleError::SlaveId(id))
+}
+
+/// One setting on which two users of one serial port disagree.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Mismatch {
+    /// `Baudrate`, `Parity`, `Stop bits` or `Data bits`, as seed 004 words it.
+    pub setting: &'static str,
+    /// What the port runs with.
+    pub have: String,
+    /// What the newcomer asks for.
+    pub want: String,
+}
+
+/// Every setting of `want` that differs from `have` on the same port.
+pub fn serial_mismatches(have: &SerialSettings, want: &SerialSettings) -> Vec<Mismatch> {
+    [
+        ("Baudrate", have.baud.to_string(), want.baud.to_string()),
+        (
+            "Parity",
+            have.parity.letter().to_string(),
+            want.parity.letter().to_string(),
+        ),
+        (
+            "Stop bits",
+            have.stop_bits.to_string(),
+            want.stop_bits.to_string(),
+        ),
+        (
+            "Data bits",
+            have.data_bits.to_string(),
+            want.data_bits.to_string(),
+        ),
+    ]
+    .into_iter()
+    .filter(|(_, h, w)| h != w)
+    .map(|(setting, have, want)| Mismatch {
+        setting,
+        have,
+        want,
+    })
+    .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_broken_serial_rule_is_named() {
+        let errors = serial(" ".into(), 50, Parity::None, 9, 3).expect_err("broken");
+        assert_eq!(
+            errors,
+            vec![
+                RuleError::NoPort,
+                RuleError::Baud(50),
+                RuleError::DataBits(9),
+                RuleError::StopBits(3)
+            ]
+        );
+        assert!(serial("/dev/ttyS0".into(), 9600, Parity::Even, 7, 2).is_ok());
+    }
+
+    #[test]
+    fn mismatches_are_listed_in_the_seed_order() {
+        let a = serial("/dev/x".into(), 9600, Parity::None, 8, 1).expect("ok");
+        let b = serial("/dev/x".into(), 19200, Parity::Even, 8, 2).expect("ok");
+        let names: Vec<_> = serial_mismatches(&a, &b)
+            .into_iter()
+            .map(|m| m.setting)
+            .collect();
+        assert_eq!(names, ["Baudrate", "Parity", "Stop bits"]);
+        assert!(serial_mismatches(&a, &a).is_empty());
+    }
+
+    #[test]
+    fn guard_times_and_periods_are_bounded() {
+        assert!(guard_time(Duration::from_millis(1000)).is_ok());
+        assert_eq!(
+            guard_time(Duration::from_millis(1001))
+                .expect_err("too long")
+                .to_string(),
+            "1001 ms is longer than the 1000 ms allowed"
+        );
+        assert!(period("timeout", Duration::ZERO).is_err());
+    }
+}
