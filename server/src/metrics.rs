@@ -310,7 +310,7 @@ impl Metrics {
                 .set(i64::from(d.connected));
             self.link_error_code
                 .get_or_create(&labels)
-                .set(i64::from(d.error_code));
+                .set(i64::from(d.error_code.code()));
         }
         for device in &cache.devices() {
             let labels = DeviceLabels {
@@ -322,7 +322,7 @@ impl Metrics {
                 .set(i64::from(d.connected));
             self.device_error_code
                 .get_or_create(&labels)
-                .set(i64::from(d.error_code));
+                .set(i64::from(d.error_code.code()));
             let cycles = self.device_io_cycles.get_or_create(&labels);
             cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
             if !device.is_simulated() {

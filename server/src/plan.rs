@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
 
+use crate::cache::{FieldError, WriteError};
 use crate::codec::{Raw, Value};
 use crate::config::{Config, DeviceConfig, LinkConfig, Transport};
 use crate::link::frame::{MAX_READ_BITS, MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Request, Response};
@@ -51,7 +52,7 @@ impl ReadBatch {
         &self,
         profile: &Profile,
         response: &Response,
-    ) -> Vec<(usize, Result<Value, String>)> {
+    ) -> Vec<(usize, Result<Value, FieldError>)> {
         self.fields
             .iter()
             .map(|&i| {
@@ -61,12 +62,12 @@ impl ReadBatch {
                     Response::Bits(bits) => bits
                         .get(offset)
                         .map(|&b| field.encoding.decode_bit(b))
-                        .ok_or_else(|| "bit missing from the response".to_owned()),
+                        .ok_or(FieldError::Missing("bit")),
                     Response::Registers(regs) => regs
                         .get(offset..offset + field.encoding.words())
-                        .ok_or_else(|| "registers missing from the response".to_owned())
-                        .and_then(|words| field.encoding.decode(words).map_err(|e| e.to_string())),
-                    Response::Written => Err("not a read response".to_owned()),
+                        .ok_or(FieldError::Missing("registers"))
+                        .and_then(|words| field.encoding.decode(words).map_err(FieldError::Decode)),
+                    Response::Written => Err(FieldError::Missing("value")),
                 };
                 (i, value)
             })
@@ -206,7 +207,7 @@ pub fn write_ops(
     profile: &Profile,
     items: &[WriteItem],
     single: bool,
-) -> (Vec<WriteOp>, Vec<(usize, String)>) {
+) -> (Vec<WriteOp>, Vec<(usize, WriteError)>) {
     let group_limit = |limit: u16| if single { 1 } else { usize::from(limit) };
     let mut coils: Vec<(u16, bool, usize)> = Vec::new();
     let mut registers: Vec<(u16, Vec<u16>, usize)> = Vec::new();
@@ -226,9 +227,9 @@ pub fn write_ops(
             }
             (RegisterKind::HoldingRegister, _, value) => match field.encoding.encode(value) {
                 Ok(words) => registers.push((address, words, n)),
-                Err(e) => refused.push((n, e.to_string())),
+                Err(e) => refused.push((n, WriteError::Encode(e))),
             },
-            (kind, _, _) => refused.push((n, format!("a {} cannot be written", kind.name()))),
+            (kind, _, _) => refused.push((n, WriteError::ReadOnly(kind))),
         }
     }
     let mut ops = Vec::new();

@@ -124,7 +124,7 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
             .to_owned(),
         timestamp: sample.updated.map(|(_, wall)| rfc3339(wall)),
         unit: field.register.unit.clone(),
-        error: sample.error.clone(),
+        error: sample.error.as_ref().map(ToString::to_string),
         last_write: None,
     }
 }
@@ -194,7 +194,7 @@ pub fn device_info(device: &Device) -> DeviceInfo {
         refresh_rate_ms: device.config.refresh_rate.as_millis() as u64,
         timeout_ms: device.config.timeout.as_millis() as u64,
         connected,
-        error_code,
+        error_code: error_code.code(),
         io_cycles,
         last_response_ms,
     }
@@ -267,7 +267,7 @@ pub fn link_info(link: &Link) -> LinkInfo {
         tcp_port: None,
         framing: None,
         connected: diag.connected,
-        error_code: diag.error_code,
+        error_code: diag.error_code.code(),
         devices,
     };
     match &link.config.transport {

@@ -62,7 +62,7 @@ pub async fn events(
                 &DiagnosticsEvent {
                     device: device.name().to_owned(),
                     connected: d.connected,
-                    error_code: d.error_code,
+                    error_code: d.error_code.code(),
                     io_cycles: d.io_cycles,
                     last_response_ms: d.last_response_ms,
                 },

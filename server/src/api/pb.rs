@@ -31,7 +31,11 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldVal
         value: sample.value.as_ref().map(|v| value(field.ty, v)),
         quality: sample.quality_at(now, device.stale_after()).to_pb().into(),
         timestamp: sample.updated.map(|(_, wall)| timestamp(wall)),
-        error: sample.error.clone().unwrap_or_default(),
+        error: sample
+            .error
+            .as_ref()
+            .map(ToString::to_string)
+            .unwrap_or_default(),
         direction: field.direction.to_pb().into(),
     }
 }
@@ -40,7 +44,7 @@ pub fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
     pb::Diagnostics {
         device: device.name().to_owned(),
         connected: d.connected,
-        error_code: d.error_code.into(),
+        error_code: d.error_code.code().into(),
         io_cycles: d.io_cycles,
         last_response_ms: d.last_response_ms,
     }
@@ -99,7 +103,7 @@ pub fn link(link: &Link) -> pb::Link {
         name: link.name().to_owned(),
         transport: Some(transport),
         connected: d.connected,
-        error_code: d.error_code.into(),
+        error_code: d.error_code.code().into(),
         devices: link.members().iter().map(|d| d.name().to_owned()).collect(),
         guard_time_ms: millis(link.config.guard_time),
     }

@@ -7,6 +7,7 @@ pub mod tcp;
 pub mod timing;
 
 use std::io;
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncWrite};
@@ -18,11 +19,50 @@ use rtu::RtuTransport;
 use tcp::MbapTransport;
 use timing::LineTiming;
 
-/// SerialLink error codes (seed 000).
-pub const LINK_OK: i16 = 0;
-pub const LINK_NO_PORT: i16 = 1;
-pub const LINK_OPEN_FAILED: i16 = 2;
-pub const LINK_LOST: i16 = 3;
+/// A link's error code, as seed 000's `SerialLink` reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkCode {
+    Ok = 0,
+    NoPort = 1,
+    OpenFailed = 2,
+    Lost = 3,
+}
+
+impl LinkCode {
+    /// The number the APIs and metrics show.
+    pub fn code(self) -> i16 {
+        self as i16
+    }
+}
+
+/// Why a link is down.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum LinkFault {
+    #[error("no port configured")]
+    NoPort,
+    #[error("cannot open {port}: {reason}")]
+    OpenFailed { port: String, reason: String },
+    #[error("cannot connect to {endpoint}: {reason}")]
+    ConnectFailed {
+        endpoint: String,
+        reason: Arc<io::Error>,
+    },
+    #[error("no connection within {0:?}")]
+    ConnectTimeout(Duration),
+    /// The open port or socket failed.
+    #[error("link lost: {0}")]
+    Lost(Arc<io::Error>),
+}
+
+impl LinkFault {
+    pub fn code(&self) -> LinkCode {
+        match self {
+            LinkFault::NoPort => LinkCode::NoPort,
+            LinkFault::Lost(_) => LinkCode::Lost,
+            _ => LinkCode::OpenFailed,
+        }
+    }
+}
 
 /// Anything a link can carry frames over.
 pub trait ByteStream: AsyncRead + AsyncWrite + Unpin + Send {}
@@ -39,7 +79,7 @@ pub struct Counters {
 
 /// Why a transaction failed. An exception is the device's answer; everything else is a
 /// failure to talk to it.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 pub enum TxError {
     #[error("{0}")]
     Exception(Exception),
@@ -51,7 +91,22 @@ pub enum TxError {
     Invalid(String),
     /// The connection failed: the port or socket must be reopened.
     #[error("I/O error: {0}")]
-    Io(io::Error),
+    Io(Arc<io::Error>),
+}
+
+impl From<io::Error> for TxError {
+    fn from(e: io::Error) -> Self {
+        TxError::Io(Arc::new(e))
+    }
+}
+
+impl From<frame::ResponseError> for TxError {
+    fn from(e: frame::ResponseError) -> Self {
+        match e {
+            frame::ResponseError::Exception(x) => TxError::Exception(x),
+            frame::ResponseError::Invalid(msg) => TxError::Invalid(msg),
+        }
+    }
 }
 
 impl TxError {
@@ -94,23 +149,12 @@ impl Connection {
     }
 }
 
-/// Why a link could not be opened, with the SerialLink error code it maps to.
-#[derive(Debug, thiserror::Error)]
-#[error("{message}")]
-pub struct OpenError {
-    pub code: i16,
-    pub message: String,
-}
-
 /// Opens the link's port or socket.
-pub async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, OpenError> {
+pub async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, LinkFault> {
     match &config.transport {
         Transport::Serial(s) => {
             if s.port.trim().is_empty() {
-                return Err(OpenError {
-                    code: LINK_NO_PORT,
-                    message: "no port configured".into(),
-                });
+                return Err(LinkFault::NoPort);
             }
             let parity = match s.parity {
                 Parity::None => tokio_serial::Parity::None,
@@ -132,10 +176,11 @@ pub async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, Op
                 .data_bits(data_bits)
                 .stop_bits(stop_bits)
                 .flow_control(tokio_serial::FlowControl::None);
-            let stream = tokio_serial::SerialStream::open(&builder).map_err(|e| OpenError {
-                code: LINK_OPEN_FAILED,
-                message: format!("cannot open {}: {e}", s.port),
-            })?;
+            let stream =
+                tokio_serial::SerialStream::open(&builder).map_err(|e| LinkFault::OpenFailed {
+                    port: s.port.clone(),
+                    reason: e.to_string(),
+                })?;
             Ok(Connection::Rtu(RtuTransport::new(
                 Box::new(stream),
                 Some(LineTiming::new(s)),
@@ -149,9 +194,9 @@ pub async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, Op
         } => {
             let stream = TcpStream::connect((host.as_str(), *port))
                 .await
-                .map_err(|e| OpenError {
-                    code: LINK_OPEN_FAILED,
-                    message: format!("cannot connect to {host}:{port}: {e}"),
+                .map_err(|e| LinkFault::ConnectFailed {
+                    endpoint: format!("{host}:{port}"),
+                    reason: Arc::new(e),
                 })?;
             let _ = stream.set_nodelay(true);
             Ok(match framing {

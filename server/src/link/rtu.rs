@@ -21,7 +21,7 @@ use futures_util::FutureExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
-use super::frame::{Request, Response, ResponseError, crc16, rtu_frame};
+use super::frame::{Request, Response, crc16, rtu_frame};
 use super::timing::LineTiming;
 use super::{ByteStream, Counters, TxError};
 
@@ -68,8 +68,8 @@ impl RtuTransport {
     ) -> Result<Response, TxError> {
         self.quiet_line(self.silence()).await?;
         let frame = rtu_frame(slave, request);
-        self.io.write_all(&frame).await.map_err(TxError::Io)?;
-        self.io.flush().await.map_err(TxError::Io)?;
+        self.io.write_all(&frame).await?;
+        self.io.flush().await?;
         self.counters.bytes_sent += frame.len() as u64;
         let sent = Instant::now() + self.frame_time(frame.len());
         self.last_activity = sent;
@@ -131,16 +131,13 @@ impl RtuTransport {
         }
         request
             .parse_response(&frame[1..total - 2])
-            .map_err(|e| match e {
-                ResponseError::Exception(x) => TxError::Exception(x),
-                ResponseError::Invalid(msg) => TxError::Invalid(msg),
-            })
+            .map_err(TxError::from)
     }
 
     async fn read_into(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), TxError> {
         match timeout_at(deadline, self.io.read_exact(buf)).await {
             Err(_) => Err(TxError::Timeout),
-            Ok(Err(e)) => Err(TxError::Io(e)),
+            Ok(Err(e)) => Err(e.into()),
             Ok(Ok(_)) => {
                 self.counters.bytes_received += buf.len() as u64;
                 Ok(())
@@ -156,9 +153,9 @@ impl RtuTransport {
             // milliseconds, which would cost every transaction up to a millisecond.
             while let Some(read) = self.io.read(&mut scratch).now_or_never() {
                 match read {
-                    Ok(0) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                    Ok(0) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
                     Ok(n) => self.discard(n),
-                    Err(e) => return Err(TxError::Io(e)),
+                    Err(e) => return Err(e.into()),
                 }
             }
             let until = self.last_activity + quiet;
@@ -167,9 +164,9 @@ impl RtuTransport {
             }
             match timeout_at(until, self.io.read(&mut scratch)).await {
                 Err(_) => return Ok(()),
-                Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                Ok(Ok(0)) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
                 Ok(Ok(n)) => self.discard(n),
-                Ok(Err(e)) => return Err(TxError::Io(e)),
+                Ok(Err(e)) => return Err(e.into()),
             }
         }
     }

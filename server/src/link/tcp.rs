@@ -8,7 +8,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
-use super::frame::{Request, Response, ResponseError};
+use super::frame::{Request, Response};
 use super::{ByteStream, Counters, TxError};
 
 pub struct MbapTransport {
@@ -42,8 +42,8 @@ impl MbapTransport {
         frame.extend_from_slice(&(pdu.len() as u16 + 1).to_be_bytes());
         frame.push(unit);
         frame.extend_from_slice(&pdu);
-        self.io.write_all(&frame).await.map_err(TxError::Io)?;
-        self.io.flush().await.map_err(TxError::Io)?;
+        self.io.write_all(&frame).await?;
+        self.io.flush().await?;
         self.counters.bytes_sent += frame.len() as u64;
 
         let deadline = Instant::now() + timeout;
@@ -55,10 +55,11 @@ impl MbapTransport {
             let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
             if protocol != 0 || !(2..=254).contains(&len) {
                 // The stream is out of step; only a new connection can recover it.
-                return Err(TxError::Io(io::Error::new(
+                return Err(io::Error::new(
                     io::ErrorKind::InvalidData,
                     format!("MBAP header with protocol {protocol} and length {len}"),
-                )));
+                )
+                .into());
             }
             let mut body = vec![0u8; len - 1];
             self.read_into(&mut body, deadline).await?;
@@ -72,10 +73,7 @@ impl MbapTransport {
                     header[6]
                 )));
             }
-            return request.parse_response(&body).map_err(|e| match e {
-                ResponseError::Exception(x) => TxError::Exception(x),
-                ResponseError::Invalid(msg) => TxError::Invalid(msg),
-            });
+            return request.parse_response(&body).map_err(TxError::from);
         }
     }
 
@@ -87,17 +85,18 @@ impl MbapTransport {
             match timeout_at(deadline, self.io.read(&mut buf[filled..])).await {
                 Err(_) if filled == 0 => return Err(TxError::Timeout),
                 Err(_) => {
-                    return Err(TxError::Io(io::Error::new(
+                    return Err(io::Error::new(
                         io::ErrorKind::TimedOut,
                         "timed out in the middle of a frame",
-                    )));
+                    )
+                    .into());
                 }
-                Ok(Ok(0)) => return Err(TxError::Io(io::ErrorKind::UnexpectedEof.into())),
+                Ok(Ok(0)) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
                 Ok(Ok(n)) => {
                     filled += n;
                     self.counters.bytes_received += n as u64;
                 }
-                Ok(Err(e)) => return Err(TxError::Io(e)),
+                Ok(Err(e)) => return Err(e.into()),
             }
         }
         Ok(())

@@ -1,0 +1,278 @@
+//! One device: its profile, the latest sample of every field, its diagnostics, its
+//! requested outputs and, for a simulated device, the memory that stands for the device.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
+
+use tokio::sync::{Notify, watch};
+use tokio::time::Instant;
+
+use super::outputs::{Outputs, TakenWrite, WriteError};
+use super::sample::{DeviceCode, Diagnostics, FieldError, Quality, Sample};
+use super::{AccessError, lock};
+use crate::codec::{CodecError, Value};
+use crate::config::DeviceConfig;
+use crate::profile::{Direction, Field, Profile, Protocol, RegisterKind};
+use crate::writes::WriteLog;
+
+/// The longest string a simulated STRING field holds (the IEC default STRING length).
+pub const SIM_STRING_MAX: usize = 254;
+
+/// One configured device: its profile, cached samples, diagnostics and requested outputs.
+#[derive(Debug)]
+pub struct Device {
+    pub config: DeviceConfig,
+    pub profile: Arc<Profile>,
+    samples: Vec<watch::Sender<Sample>>,
+    diagnostics: watch::Sender<Diagnostics>,
+    outputs: Outputs,
+    /// Values of a simulated device's fields.
+    sim: Option<Mutex<Vec<Value>>>,
+    /// Wakes the task that owns the device (its link's task, or its simulator).
+    wake: Arc<Notify>,
+}
+
+impl Device {
+    pub fn new(
+        config: DeviceConfig,
+        profile: Arc<Profile>,
+        log: Arc<WriteLog>,
+        wake: Arc<Notify>,
+    ) -> Self {
+        let n = profile.fields.len();
+        let simulated = profile.protocol == Protocol::Simulated;
+        let error_code = match (simulated, &config.link, config.slave_id) {
+            (false, None, _) => DeviceCode::NoLink,
+            (false, _, None) => DeviceCode::NoSlave,
+            _ => DeviceCode::Ok,
+        };
+        Device {
+            samples: (0..n)
+                .map(|_| watch::Sender::new(Sample::never_read()))
+                .collect(),
+            diagnostics: watch::Sender::new(Diagnostics {
+                connected: false,
+                error_code,
+                io_cycles: 0,
+                last_response_ms: 0.0,
+            }),
+            outputs: Outputs::new(n, log),
+            sim: simulated
+                .then(|| Mutex::new(profile.fields.iter().map(|f| Value::zero(f.ty)).collect())),
+            config,
+            profile,
+            wake,
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.config.name
+    }
+
+    pub fn is_simulated(&self) -> bool {
+        self.sim.is_some()
+    }
+
+    /// How long a value stays good without a refresh.
+    pub fn stale_after(&self) -> Duration {
+        (self.config.refresh_rate * 3 + self.config.timeout).max(Duration::from_secs(1))
+    }
+
+    /// A field index by name, ignoring case as IEC identifiers do.
+    pub fn field_index(&self, name: &str) -> Result<usize, AccessError> {
+        self.profile
+            .field_index(name)
+            .ok_or_else(|| AccessError::UnknownField {
+                device: self.name().to_owned(),
+                field: name.to_owned(),
+            })
+    }
+
+    pub fn field(&self, idx: usize) -> &Field {
+        &self.profile.fields[idx]
+    }
+
+    pub fn sample(&self, idx: usize) -> Sample {
+        self.samples[idx].borrow().clone()
+    }
+
+    pub fn subscribe(&self, idx: usize) -> watch::Receiver<Sample> {
+        self.samples[idx].subscribe()
+    }
+
+    pub fn diagnostics(&self) -> Diagnostics {
+        self.diagnostics.borrow().clone()
+    }
+
+    pub fn subscribe_diagnostics(&self) -> watch::Receiver<Diagnostics> {
+        self.diagnostics.subscribe()
+    }
+
+    /// Stores a freshly read value (or why it could not be read). Subscribers are woken only
+    /// when the value or its quality changes.
+    pub fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
+        let now = (Instant::now(), SystemTime::now());
+        self.samples[idx].send_if_modified(|s| {
+            let before = (s.value.clone(), s.quality);
+            match read {
+                Ok(v) => {
+                    s.value = Some(v);
+                    s.quality = Quality::Good;
+                    s.error = None;
+                }
+                Err(e) => {
+                    s.quality = Quality::Bad;
+                    s.error = Some(e);
+                }
+            }
+            s.updated = Some(now);
+            before != (s.value.clone(), s.quality)
+        });
+    }
+
+    /// Records the end of an I/O cycle. Subscribers are woken when `connected` or
+    /// `error_code` change, not on every cycle.
+    pub fn record_cycle(&self, ok: bool, response: Duration) {
+        self.diagnostics.send_if_modified(|d| {
+            let before = (d.connected, d.error_code);
+            d.connected = ok;
+            d.error_code = if ok {
+                DeviceCode::Ok
+            } else {
+                DeviceCode::CommError
+            };
+            if ok {
+                d.io_cycles += 1;
+            }
+            d.last_response_ms = (response.as_secs_f64() * 1e6).round() / 1000.0;
+            before != (d.connected, d.error_code)
+        });
+    }
+
+    /// Checks that `value` can be written to field `idx`: the field is writable and the value
+    /// fits the field's type and raw register after scaling.
+    pub fn check_write(&self, idx: usize, value: &Value) -> Result<(), AccessError> {
+        let field = self.field(idx);
+        if !field.direction.is_writable() {
+            return Err(AccessError::NotWritable {
+                device: self.name().to_owned(),
+                field: field.name.clone(),
+            });
+        }
+        self.check_value(idx, value)
+    }
+
+    fn check_value(&self, idx: usize, value: &Value) -> Result<(), AccessError> {
+        let field = self.field(idx);
+        let invalid = |reason: String| AccessError::InvalidValue {
+            device: self.name().to_owned(),
+            field: field.name.clone(),
+            ty: field.ty,
+            reason,
+        };
+        if !value.is_of(field.ty) {
+            return Err(invalid(format!("a {} value is needed", field.ty)));
+        }
+        if self.is_simulated() || field.register.kind == RegisterKind::Virtual {
+            if let Value::String(s) = value
+                && s.len() > SIM_STRING_MAX
+            {
+                return Err(invalid(
+                    CodecError::TooLong {
+                        len: s.len(),
+                        max: SIM_STRING_MAX,
+                    }
+                    .to_string(),
+                ));
+            }
+            return Ok(());
+        }
+        field
+            .encoding
+            .encode(value)
+            .map(drop)
+            .map_err(|e| invalid(e.to_string()))
+    }
+
+    /// Requests a write: the newest value replaces any pending one (which is then
+    /// superseded). Returns the write's generation.
+    pub fn request_write(&self, idx: usize, value: Value) -> Result<u64, AccessError> {
+        self.check_write(idx, &value)?;
+        let generation = self
+            .outputs
+            .request(self.name(), &self.field(idx).name, idx, value);
+        self.wake.notify_one();
+        Ok(generation)
+    }
+
+    /// The device's requested outputs: pending writes, newest values, generations.
+    pub fn outputs(&self) -> &Outputs {
+        &self.outputs
+    }
+
+    /// Takes every pending write, for the device's task to put on the bus.
+    pub fn take_writes(&self) -> Vec<TakenWrite> {
+        self.outputs.take()
+    }
+
+    /// The newest value requested for field `idx`.
+    pub fn latest_value(&self, idx: usize) -> Option<Value> {
+        self.outputs.latest(idx)
+    }
+
+    /// The generation of the newest write to field `idx`.
+    pub fn last_write(&self, idx: usize) -> Option<u64> {
+        self.outputs.last_generation(idx)
+    }
+
+    /// Reports the outcome of a taken write.
+    pub fn finish_write(&self, generation: u64, result: Result<(), WriteError>) {
+        self.outputs.finish(generation, result);
+    }
+
+    /// Marks every field read from the bus as bad, keeping the last good values.
+    pub fn fail_reads(&self, reason: &FieldError) {
+        for (idx, field) in self.profile.fields.iter().enumerate() {
+            if field.register.kind != RegisterKind::Virtual {
+                self.publish(idx, Err(reason.clone()));
+            }
+        }
+    }
+
+    /// Records that the device could not be reached at all (its link is down).
+    pub fn set_unreachable(&self) {
+        self.diagnostics.send_if_modified(|d| {
+            let changed = d.connected || d.error_code != DeviceCode::CommError;
+            d.connected = false;
+            d.error_code = DeviceCode::CommError;
+            changed
+        });
+    }
+
+    /// Sets an input (or inout) of a simulated device; it shows on the next cycle.
+    pub fn simulate(&self, idx: usize, value: Value) -> Result<(), AccessError> {
+        let Some(memory) = &self.sim else {
+            return Err(AccessError::NotSimulated(self.name().to_owned()));
+        };
+        let field = self.field(idx);
+        if field.direction == Direction::Output {
+            return Err(AccessError::NotAnInput {
+                device: self.name().to_owned(),
+                field: field.name.clone(),
+            });
+        }
+        self.check_value(idx, &value)?;
+        lock(memory)[idx] = value;
+        Ok(())
+    }
+
+    /// The values a simulated device holds now (applying `writes` first).
+    pub(crate) fn sim_cycle(&self, writes: &[TakenWrite]) -> Option<Vec<Value>> {
+        let memory = self.sim.as_ref()?;
+        let mut memory = lock(memory);
+        for w in writes {
+            memory[w.field] = w.value.clone();
+        }
+        Some(memory.clone())
+    }
+}

@@ -1,0 +1,288 @@
+//! The latest value of every field, the diagnostics of every device and link, and the
+//! pending writes. Reads from every API are served from here, never from the bus.
+//!
+//! Each field has a `watch` channel: readers take the newest sample without locking the
+//! writer out, and subscribers are woken only when the value or its quality changes, so a
+//! slow subscriber sees the newest value rather than a backlog.
+
+mod device;
+mod link;
+mod outputs;
+mod sample;
+
+use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
+
+use tokio::sync::Notify;
+
+use crate::codec::IecType;
+use crate::config::{Config, DeviceConfig, LinkConfig};
+use crate::profile::{Catalog, Profile};
+use crate::writes::WriteLog;
+
+pub use device::{Device, SIM_STRING_MAX};
+pub use link::Link;
+pub use outputs::{Outputs, TakenWrite, WriteError};
+pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // Sections under these locks are single assignments; a poisoned lock holds whole values.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Why an API request on the cache cannot be served.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AccessError {
+    #[error("unknown device `{0}`")]
+    UnknownDevice(String),
+    #[error("device {device} has no field `{field}`")]
+    UnknownField { device: String, field: String },
+    #[error("unknown link `{0}`")]
+    UnknownLink(String),
+    #[error("unknown profile `{0}`")]
+    UnknownProfile(String),
+    #[error("field {device}.{field} is an input: it cannot be written")]
+    NotWritable { device: String, field: String },
+    #[error("field {device}.{field} is an output: its value is what clients write")]
+    NotAnInput { device: String, field: String },
+    #[error("device {0} is not simulated")]
+    NotSimulated(String),
+    #[error("field {device}.{field} ({ty}): {reason}")]
+    InvalidValue {
+        device: String,
+        field: String,
+        ty: IecType,
+        reason: String,
+    },
+}
+
+fn read<T>(l: &RwLock<T>) -> RwLockReadGuard<'_, T> {
+    l.read().unwrap_or_else(|e| e.into_inner())
+}
+
+fn write<T>(l: &RwLock<T>) -> RwLockWriteGuard<'_, T> {
+    l.write().unwrap_or_else(|e| e.into_inner())
+}
+
+#[derive(Debug, Default)]
+pub(crate) struct Registry {
+    pub(crate) links: Vec<Arc<Link>>,
+    pub(crate) devices: Vec<Arc<Device>>,
+}
+
+impl Registry {
+    pub(crate) fn device(&self, name: &str) -> Option<&Arc<Device>> {
+        self.devices.iter().find(|d| d.name() == name)
+    }
+
+    pub(crate) fn link(&self, name: &str) -> Option<&Arc<Link>> {
+        self.links.iter().find(|l| l.name() == name)
+    }
+}
+
+/// Everything the APIs read: profiles, links, devices, write outcomes. Links and devices
+/// come from the config and can be added at run time (`EnsureLink`, `EnsureDevice`).
+#[derive(Debug)]
+pub struct Cache {
+    pub catalog: Catalog,
+    pub writes: Arc<WriteLog>,
+    registry: RwLock<Registry>,
+}
+
+impl Cache {
+    /// Builds the cache for a config whose devices were checked against `catalog`.
+    pub fn new(config: &Config, catalog: Catalog) -> Self {
+        let cache = Cache {
+            catalog,
+            writes: Arc::new(WriteLog::default()),
+            registry: RwLock::new(Registry::default()),
+        };
+        {
+            let mut registry = write(&cache.registry);
+            for l in &config.links {
+                cache.insert_link(&mut registry, l.clone());
+            }
+            for d in &config.devices {
+                if let Some(profile) = cache.catalog.get(&d.profile).cloned() {
+                    cache.insert_device(&mut registry, d.clone(), profile);
+                }
+            }
+        }
+        cache
+    }
+
+    pub(crate) fn insert_link(&self, registry: &mut Registry, config: LinkConfig) -> Arc<Link> {
+        let link = Arc::new(Link::new(config));
+        registry.links.push(link.clone());
+        link
+    }
+
+    pub(crate) fn insert_device(
+        &self,
+        registry: &mut Registry,
+        config: DeviceConfig,
+        profile: Arc<Profile>,
+    ) -> Arc<Device> {
+        let link = config
+            .link
+            .as_ref()
+            .and_then(|name| registry.link(name))
+            .cloned();
+        let wake = link
+            .as_ref()
+            .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let device = Arc::new(Device::new(config, profile, self.writes.clone(), wake));
+        registry.devices.push(device.clone());
+        if let Some(link) = link {
+            link.add_member(device.clone());
+        }
+        device
+    }
+
+    /// Runs `f` with the registry locked for changes: checks and inserts happen at once.
+    pub(crate) fn change<T>(&self, f: impl FnOnce(&mut Registry) -> T) -> T {
+        f(&mut write(&self.registry))
+    }
+
+    /// Every device, in the order they were added.
+    pub fn devices(&self) -> Vec<Arc<Device>> {
+        read(&self.registry).devices.clone()
+    }
+
+    /// Every link, in the order they were added.
+    pub fn links(&self) -> Vec<Arc<Link>> {
+        read(&self.registry).links.clone()
+    }
+
+    pub fn device(&self, name: &str) -> Result<Arc<Device>, AccessError> {
+        read(&self.registry)
+            .device(name)
+            .cloned()
+            .ok_or_else(|| AccessError::UnknownDevice(name.to_owned()))
+    }
+
+    pub fn link(&self, name: &str) -> Result<Arc<Link>, AccessError> {
+        read(&self.registry)
+            .link(name)
+            .cloned()
+            .ok_or_else(|| AccessError::UnknownLink(name.to_owned()))
+    }
+
+    pub fn profile(&self, name: &str) -> Result<&Arc<Profile>, AccessError> {
+        self.catalog
+            .get(name)
+            .ok_or_else(|| AccessError::UnknownProfile(name.to_owned()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::Value;
+    use crate::writes::{Lookup, WriteStatus};
+    use std::time::Duration;
+    use tokio::time::Instant;
+
+    fn cache() -> Cache {
+        let config = crate::config::parse(
+            "c.yaml",
+            "links:\n  - { name: bus, tcp: { host: 127.0.0.1 } }\ndevices:\n  - { name: io, profile: Io, link: bus, slave_id: 1 }\n",
+        )
+        .expect("config");
+        let profile = crate::profile::load_str(
+            "io.yaml",
+            "name: Io\nfields:\n  - { name: DI, type: BOOL, direction: input, register: { address: 0, kind: discrete_input } }\n  - { name: SP, type: REAL, direction: output, register: { address: 0, kind: holding_register, scale: 0.1, raw_type: UINT } }\n",
+        )
+        .expect("profile");
+        Cache::new(&config, Catalog::new([profile]))
+    }
+
+    #[test]
+    fn a_burst_of_writes_leaves_one_pending_and_supersedes_the_rest() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        let sp = io.field_index("sp").expect("field ignoring case");
+        let gens: Vec<u64> = (0..5)
+            .map(|i| io.request_write(sp, Value::Real(i as f32)).expect("write"))
+            .collect();
+        let taken = io.take_writes();
+        assert_eq!(taken.len(), 1);
+        assert_eq!(taken[0].value, Value::Real(4.0));
+        assert_eq!(taken[0].generation, gens[4]);
+        for g in &gens[..4] {
+            let Lookup::Found(r) = cache.writes.get(*g) else {
+                panic!("missing")
+            };
+            assert_eq!(r.status, WriteStatus::Superseded);
+        }
+        io.finish_write(taken[0].generation, Ok(()));
+        let Lookup::Found(r) = cache.writes.get(gens[4]) else {
+            panic!("missing")
+        };
+        assert_eq!(r.status, WriteStatus::Written);
+        assert_eq!(
+            io.outputs().latest_requested(),
+            vec![(sp, Value::Real(4.0))]
+        );
+    }
+
+    #[test]
+    fn writing_an_input_or_out_of_raw_range_is_refused() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        assert!(matches!(
+            io.request_write(0, Value::Bool(true)),
+            Err(AccessError::NotWritable { .. })
+        ));
+        // 0.1 * 65535 is the largest value a UINT register holds.
+        assert!(io.request_write(1, Value::Real(6553.5)).is_ok());
+        assert!(matches!(
+            io.request_write(1, Value::Real(6553.6)),
+            Err(AccessError::InvalidValue { .. })
+        ));
+        assert!(matches!(
+            io.request_write(1, Value::Bool(true)),
+            Err(AccessError::InvalidValue { .. })
+        ));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn good_values_go_stale_without_refresh() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        assert_eq!(io.sample(0).quality, Quality::NeverRead);
+        io.publish(0, Ok(Value::Bool(true)));
+        let stale_after = io.stale_after();
+        assert_eq!(
+            io.sample(0).quality_at(Instant::now(), stale_after),
+            Quality::Good
+        );
+        tokio::time::advance(stale_after + Duration::from_millis(1)).await;
+        assert_eq!(
+            io.sample(0).quality_at(Instant::now(), stale_after),
+            Quality::Stale
+        );
+        io.publish(
+            0,
+            Err(FieldError::Exception(
+                crate::link::frame::Exception::ILLEGAL_DATA_ADDRESS,
+            )),
+        );
+        let s = io.sample(0);
+        assert_eq!(s.quality, Quality::Bad);
+        assert_eq!(s.value, Some(Value::Bool(true)), "last good value is kept");
+    }
+
+    #[tokio::test]
+    async fn subscribers_wake_only_on_change() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        let mut rx = io.subscribe(0);
+        rx.mark_unchanged();
+        io.publish(0, Ok(Value::Bool(true)));
+        assert!(rx.has_changed().expect("open"));
+        rx.mark_unchanged();
+        io.publish(0, Ok(Value::Bool(true)));
+        assert!(!rx.has_changed().expect("open"), "same value, no wake-up");
+        assert!(io.sample(0).updated.is_some());
+    }
+}

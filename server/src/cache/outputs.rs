@@ -1,0 +1,144 @@
+//! A device's outputs as clients asked for them: per field the pending write (last value
+//! wins), the newest value ever requested (written again after a reconnect) and the newest
+//! write's generation; and why a write failed.
+
+use std::sync::{Arc, Mutex};
+
+use super::lock;
+use crate::codec::{CodecError, Value};
+use crate::link::frame::Exception;
+use crate::link::{LinkFault, TxError};
+use crate::profile::RegisterKind;
+use crate::writes::{WriteLog, WriteStatus};
+
+/// Why a write did not reach the device.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum WriteError {
+    /// The device answered with an exception.
+    #[error("{0}")]
+    Exception(Exception),
+    /// The device did not answer properly, after the retries.
+    #[error("{0}")]
+    NoResponse(TxError),
+    /// An earlier write of the same turn failed this way, so this one was not sent.
+    #[error("not sent: {0}")]
+    NotSent(Box<WriteError>),
+    /// The value does not encode into the field's registers.
+    #[error("{0}")]
+    Encode(CodecError),
+    #[error("a {} cannot be written", .0.name())]
+    ReadOnly(RegisterKind),
+    #[error("{0}; the latest value is written when the link is back")]
+    LinkDown(LinkFault),
+    #[error("the device does not answer; the latest value is written when it answers again")]
+    DeviceDown,
+}
+
+impl From<TxError> for WriteError {
+    fn from(e: TxError) -> Self {
+        match e {
+            TxError::Exception(x) => WriteError::Exception(x),
+            other => WriteError::NoResponse(other),
+        }
+    }
+}
+
+/// A write taken by the device's task to put on the bus.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TakenWrite {
+    pub field: usize,
+    pub generation: u64,
+    pub value: Value,
+}
+
+#[derive(Debug, Default)]
+struct WriteSlot {
+    /// The newest requested value not yet taken by the link.
+    pending: Option<(u64, Value)>,
+    /// The newest value ever requested, written again after a reconnect.
+    latest: Option<Value>,
+    /// The generation of the newest write.
+    last_generation: Option<u64>,
+}
+
+/// The write slots of one device's fields, and the gateway's write log they report to.
+#[derive(Debug)]
+pub struct Outputs {
+    slots: Mutex<Vec<WriteSlot>>,
+    log: Arc<WriteLog>,
+}
+
+impl Outputs {
+    pub fn new(fields: usize, log: Arc<WriteLog>) -> Self {
+        Outputs {
+            slots: Mutex::new((0..fields).map(|_| WriteSlot::default()).collect()),
+            log,
+        }
+    }
+
+    /// Stores `value` as field `idx`'s pending write; a write already pending is
+    /// superseded. Returns the new write's generation.
+    pub fn request(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
+        let mut slots = lock(&self.slots);
+        let slot = &mut slots[idx];
+        let generation = self.log.begin(device, field, value.clone());
+        if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
+            self.log.finish(old, WriteStatus::Superseded, None);
+        }
+        slot.latest = Some(value);
+        slot.last_generation = Some(generation);
+        generation
+    }
+
+    /// Takes every pending write.
+    pub fn take(&self) -> Vec<TakenWrite> {
+        lock(&self.slots)
+            .iter_mut()
+            .enumerate()
+            .filter_map(|(field, slot)| {
+                slot.pending.take().map(|(generation, value)| TakenWrite {
+                    field,
+                    generation,
+                    value,
+                })
+            })
+            .collect()
+    }
+
+    /// The newest value requested for field `idx`.
+    pub fn latest(&self, idx: usize) -> Option<Value> {
+        lock(&self.slots)[idx].latest.clone()
+    }
+
+    /// The generation of the newest write to field `idx`.
+    pub fn last_generation(&self, idx: usize) -> Option<u64> {
+        lock(&self.slots)[idx].last_generation
+    }
+
+    pub fn has_pending(&self) -> bool {
+        lock(&self.slots).iter().any(|s| s.pending.is_some())
+    }
+
+    /// The newest value requested for each output that has one.
+    pub fn latest_requested(&self) -> Vec<(usize, Value)> {
+        lock(&self.slots)
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| s.latest.clone().map(|v| (i, v)))
+            .collect()
+    }
+
+    pub fn has_requested(&self) -> bool {
+        lock(&self.slots).iter().any(|s| s.latest.is_some())
+    }
+
+    /// Records the outcome of a taken write.
+    pub fn finish(&self, generation: u64, result: Result<(), WriteError>) {
+        match result {
+            Ok(()) => self.log.finish(generation, WriteStatus::Written, None),
+            Err(e) => self
+                .log
+                .finish(generation, WriteStatus::Failed, Some(e.to_string())),
+        }
+    }
+}

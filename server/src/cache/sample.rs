@@ -1,0 +1,98 @@
+//! What the cache holds per field and per device: the latest sample with its quality, the
+//! reason a read failed, and the diagnostics of seed 000's device function blocks and
+//! `SerialLink`.
+
+use std::time::{Duration, SystemTime};
+
+use tokio::time::Instant;
+
+use crate::codec::{CodecError, Value};
+use crate::link::frame::Exception;
+use crate::link::{LinkCode, LinkFault, TxError};
+
+pub use iogate_types::Quality;
+
+/// Why a field could not be read.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum FieldError {
+    /// The device answered the read with an exception.
+    #[error("{0}")]
+    Exception(Exception),
+    /// The device did not answer properly (timeout, CRC, wrong frame), after the retries.
+    #[error("no response: {0}")]
+    NoResponse(TxError),
+    /// The answer held a value that does not decode as the field's type.
+    #[error("{0}")]
+    Decode(CodecError),
+    /// The answer was shorter than the batch it answers.
+    #[error("{0} missing from the response")]
+    Missing(&'static str),
+    /// The link is down.
+    #[error("{0}")]
+    Unreachable(LinkFault),
+}
+
+/// A field's latest value.
+#[derive(Debug, Clone)]
+pub struct Sample {
+    /// The last good value; kept (and marked) when later reads fail.
+    pub value: Option<Value>,
+    pub quality: Quality,
+    /// Why the quality is bad.
+    pub error: Option<FieldError>,
+    /// When the value was last refreshed.
+    pub updated: Option<(Instant, SystemTime)>,
+}
+
+impl Sample {
+    pub(super) fn never_read() -> Self {
+        Sample {
+            value: None,
+            quality: Quality::NeverRead,
+            error: None,
+            updated: None,
+        }
+    }
+
+    /// The quality as of `now`: a good value not refreshed within `stale_after` is stale.
+    pub fn quality_at(&self, now: Instant, stale_after: Duration) -> Quality {
+        match (self.quality, self.updated) {
+            (Quality::Good, Some((at, _))) if now.saturating_duration_since(at) > stale_after => {
+                Quality::Stale
+            }
+            (q, _) => q,
+        }
+    }
+}
+
+/// A device's error code, as seed 000's device function blocks report it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceCode {
+    Ok = 0,
+    NoLink = 1,
+    NoSlave = 2,
+    CommError = 10,
+}
+
+impl DeviceCode {
+    /// The number the APIs and metrics show.
+    pub fn code(self) -> i16 {
+        self as i16
+    }
+}
+
+/// Device diagnostics, as seed 000's device function blocks report them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnostics {
+    pub connected: bool,
+    pub error_code: DeviceCode,
+    pub io_cycles: u64,
+    pub last_response_ms: f64,
+}
+
+/// Link diagnostics, as seed 000's `SerialLink` reports them.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LinkDiagnostics {
+    pub connected: bool,
+    pub error_code: LinkCode,
+}

@@ -1,0 +1,120 @@
+//! The open connection of a link's task and what is measured on it: each transaction with
+//! its retries, byte counts, and the bus time used against the time planned.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use crate::cache::Device;
+use crate::link::frame::{Request, Response};
+use crate::link::{Connection, Counters, TxError};
+use crate::metrics::Metrics;
+
+const UTILISATION_WINDOW: Duration = Duration::from_secs(1);
+
+/// The connection and what is measured on it.
+pub(super) struct Bus {
+    conn: Connection,
+    metrics: Arc<Metrics>,
+    link: String,
+    busy: Duration,
+    window_start: Instant,
+    counted: Counters,
+    /// The bus utilisation the refresh rates demand (serial links).
+    pub(super) planned: Option<f64>,
+}
+
+impl Bus {
+    pub(super) fn new(conn: Connection, metrics: Arc<Metrics>, link: String) -> Self {
+        Bus {
+            counted: conn.counters(),
+            conn,
+            metrics,
+            link,
+            busy: Duration::ZERO,
+            window_start: Instant::now(),
+            planned: None,
+        }
+    }
+
+    /// One transaction, tried `1 + retries` times when the device does not answer properly.
+    pub(super) async fn transact(
+        &mut self,
+        device: &Device,
+        request: &Request,
+        retries: u32,
+    ) -> (Result<Response, TxError>, Duration) {
+        let slave = device.config.slave_id.unwrap_or(0);
+        let mut attempt = 0;
+        loop {
+            let started = Instant::now();
+            let result = self
+                .conn
+                .transact(slave, request, device.config.timeout)
+                .await;
+            let elapsed = started.elapsed();
+            self.busy += elapsed;
+            self.metrics
+                .transaction(device.name(), request.function(), &result, elapsed);
+            self.account();
+            match &result {
+                Err(e @ (TxError::Timeout | TxError::Crc | TxError::Invalid(_)))
+                    if attempt < retries =>
+                {
+                    tracing::debug!(device = %device.name(), function = %request.function(), attempt, error = %e, "retrying");
+                    attempt += 1;
+                }
+                _ => return (result, elapsed),
+            }
+        }
+    }
+
+    /// Sets bits of a holding register, keeping the others: FC03 read, then FC06 write.
+    pub(super) async fn write_bits(
+        &mut self,
+        device: &Device,
+        address: u16,
+        bits: &[(u8, bool)],
+    ) -> Result<(), TxError> {
+        let retries = device.config.retries;
+        let read = Request::ReadHoldingRegisters { address, count: 1 };
+        let current = match self.transact(device, &read, retries).await.0? {
+            Response::Registers(regs) if regs.len() == 1 => regs[0],
+            other => {
+                return Err(TxError::Invalid(format!(
+                    "unexpected answer to a register read: {other:?}"
+                )));
+            }
+        };
+        let value = bits.iter().fold(current, |acc, &(bit, on)| {
+            if on {
+                acc | 1 << bit
+            } else {
+                acc & !(1 << bit)
+            }
+        });
+        let write = Request::WriteSingleRegister { address, value };
+        self.transact(device, &write, retries).await.0.map(drop)
+    }
+
+    /// Moves byte counts and the measured utilisation into the metrics.
+    fn account(&mut self) {
+        let now = self.conn.counters();
+        self.metrics.link_bytes(
+            &self.link,
+            now.bytes_sent - self.counted.bytes_sent,
+            now.bytes_received - self.counted.bytes_received,
+            now.bytes_discarded - self.counted.bytes_discarded,
+        );
+        self.counted = now;
+        let window = self.window_start.elapsed();
+        if window >= UTILISATION_WINDOW {
+            let measured = self.busy.as_secs_f64() / window.as_secs_f64();
+            self.metrics
+                .link_utilisation(&self.link, self.planned, measured.min(1.0));
+            self.busy = Duration::ZERO;
+            self.window_start = Instant::now();
+        }
+    }
+}

@@ -1,0 +1,90 @@
+//! A device's poll cycle: each read batch with its retries, decoded and published; a probe
+//! while the device is backed off; a batch the device refuses is split.
+
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use super::bus::Bus;
+use super::{LinkTask, Step, connection_fault};
+use crate::cache::FieldError;
+use crate::link::TxError;
+use crate::link::frame::Exception;
+
+impl LinkTask {
+    pub(super) async fn poll_device(&mut self, i: usize, bus: &mut Bus) -> Step {
+        let p = &mut self.devices[i];
+        let device = p.device.clone();
+        let started = Instant::now();
+        if p.backoff.is_some() {
+            // A probe: one transaction, no retries.
+            let Some(first) = p.reads.first() else {
+                p.backoff = None;
+                return Ok(());
+            };
+            let (result, _) = bus.transact(&device, &first.request(), 0).await;
+            match result {
+                Ok(_) | Err(TxError::Exception(_)) => {
+                    tracing::info!(device = %device.name(), slave = p.slave, "device answers again");
+                    p.backoff = None;
+                    p.rewrite = true;
+                }
+                Err(e) => {
+                    if let Some(fault) = connection_fault(&e) {
+                        return Err(fault);
+                    }
+                    p.back_off();
+                    device.fail_reads(&FieldError::NoResponse(e));
+                    return Ok(());
+                }
+            }
+        }
+        let mut k = 0;
+        let mut last_response = Duration::ZERO;
+        while k < p.reads.len() {
+            let batch = p.reads[k].clone();
+            let (result, elapsed) = bus
+                .transact(&device, &batch.request(), device.config.retries)
+                .await;
+            match result {
+                Ok(response) => {
+                    last_response = elapsed;
+                    for (field, value) in batch.decode(&device.profile, &response) {
+                        device.publish(field, value);
+                    }
+                    k += 1;
+                }
+                Err(TxError::Exception(x))
+                    if (x == Exception::ILLEGAL_DATA_ADDRESS
+                        || x == Exception::ILLEGAL_DATA_VALUE)
+                        && batch.fields.len() > 1 =>
+                {
+                    if let Some((a, b)) = batch.split(&device.profile) {
+                        tracing::info!(device = %device.name(), address = batch.address, count = batch.count, exception = %x, "device refused a batch; splitting it");
+                        p.reads.splice(k..=k, [a, b]);
+                    }
+                }
+                Err(TxError::Exception(x)) => {
+                    last_response = elapsed;
+                    for &field in &batch.fields {
+                        device.publish(field, Err(FieldError::Exception(x)));
+                    }
+                    k += 1;
+                }
+                Err(e) => {
+                    if let Some(fault) = connection_fault(&e) {
+                        return Err(fault);
+                    }
+                    if device.diagnostics().connected || p.backoff.is_none() {
+                        tracing::warn!(device = %device.name(), slave = p.slave, error = %e, backoff = ?super::BACKOFF_MIN, "device does not answer");
+                    }
+                    p.lost(e, started.elapsed());
+                    return Ok(());
+                }
+            }
+        }
+        device.record_cycle(true, last_response);
+        p.next_due = (started + device.config.refresh_rate).max(Instant::now());
+        Ok(())
+    }
+}
