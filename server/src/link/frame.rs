@@ -111,13 +111,47 @@ impl fmt::Display for Exception {
     }
 }
 
+/// What is wrong with a response that is not the answer its request calls for.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Malformed {
+    #[error("empty PDU")]
+    EmptyPdu,
+    #[error("exception response of {0} bytes")]
+    ExceptionLength(usize),
+    #[error("function {found:#04x} in the answer to {asked}")]
+    Function { found: u8, asked: Function },
+    #[error("{function} answer of {len} bytes, expected {expected}")]
+    Length {
+        function: Function,
+        len: usize,
+        expected: usize,
+    },
+    #[error("byte count {found}, expected {expected}")]
+    ByteCount { found: usize, expected: usize },
+    #[error("{function} echo {echo:02x?} does not match the request {request:02x?}")]
+    Echo {
+        function: Function,
+        echo: Vec<u8>,
+        request: Vec<u8>,
+    },
+    #[error("answer from slave {found}, expected {expected}")]
+    Slave { found: u8, expected: u8 },
+    #[error("answer from unit {found}, expected {expected}")]
+    Unit { found: u8, expected: u8 },
+    #[error("{function} answered with {response:?}")]
+    Unexpected {
+        function: Function,
+        response: Response,
+    },
+}
+
 /// Why a response was not accepted.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ResponseError {
     #[error("the device answered with {0}")]
     Exception(Exception),
     #[error("invalid response: {0}")]
-    Invalid(String),
+    Invalid(Malformed),
 }
 
 impl Request {
@@ -217,43 +251,48 @@ impl Request {
 
     /// Parses a response PDU to this request.
     pub fn parse_response(&self, pdu: &[u8]) -> Result<Response, ResponseError> {
-        let invalid = |msg: String| Err(ResponseError::Invalid(msg));
+        let invalid = |m: Malformed| Err(ResponseError::Invalid(m));
         let Some(&code) = pdu.first() else {
-            return invalid("empty PDU".into());
+            return invalid(Malformed::EmptyPdu);
         };
         let fc = self.function().code();
         if code == fc | 0x80 {
             return match pdu {
                 [_, exception] => Err(ResponseError::Exception(Exception(*exception))),
-                _ => invalid(format!("exception response of {} bytes", pdu.len())),
+                _ => invalid(Malformed::ExceptionLength(pdu.len())),
             };
         }
         if code != fc {
-            return invalid(format!(
-                "function {code:#04x} in the answer to {}",
-                self.function()
-            ));
+            return invalid(Malformed::Function {
+                found: code,
+                asked: self.function(),
+            });
         }
         if pdu.len() != self.response_len() {
-            return invalid(format!(
-                "{} answer of {} bytes, expected {}",
-                self.function(),
-                pdu.len(),
-                self.response_len()
-            ));
+            return invalid(Malformed::Length {
+                function: self.function(),
+                len: pdu.len(),
+                expected: self.response_len(),
+            });
         }
         match self {
             Request::ReadCoils { count, .. } | Request::ReadDiscreteInputs { count, .. } => {
                 let bytes = usize::from(pdu[1]);
                 if bytes != pdu.len() - 2 {
-                    return invalid(format!("byte count {bytes}, expected {}", pdu.len() - 2));
+                    return invalid(Malformed::ByteCount {
+                        found: bytes,
+                        expected: pdu.len() - 2,
+                    });
                 }
                 Ok(Response::Bits(unpack_bits(&pdu[2..], usize::from(*count))))
             }
             Request::ReadHoldingRegisters { .. } | Request::ReadInputRegisters { .. } => {
                 let bytes = usize::from(pdu[1]);
                 if bytes != pdu.len() - 2 {
-                    return invalid(format!("byte count {bytes}, expected {}", pdu.len() - 2));
+                    return invalid(Malformed::ByteCount {
+                        found: bytes,
+                        expected: pdu.len() - 2,
+                    });
                 }
                 Ok(Response::Registers(
                     pdu[2..]
@@ -268,12 +307,11 @@ impl Request {
                 self.encode(&mut expected);
                 expected.truncate(5);
                 if pdu != expected.as_slice() {
-                    return invalid(format!(
-                        "{} echo {:02x?} does not match the request {:02x?}",
-                        self.function(),
-                        pdu,
-                        expected
-                    ));
+                    return invalid(Malformed::Echo {
+                        function: self.function(),
+                        echo: pdu.to_vec(),
+                        request: expected,
+                    });
                 }
                 Ok(Response::Written)
             }

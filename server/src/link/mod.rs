@@ -88,7 +88,7 @@ pub enum TxError {
     #[error("CRC mismatch")]
     Crc,
     #[error("invalid response: {0}")]
-    Invalid(String),
+    Invalid(frame::Malformed),
     /// The connection failed: the port or socket must be reopened.
     #[error("I/O error: {0}")]
     Io(Arc<io::Error>),

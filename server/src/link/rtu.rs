@@ -21,7 +21,7 @@ use futures_util::FutureExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
-use super::frame::{Request, Response, crc16, rtu_frame};
+use super::frame::{Malformed, Request, Response, crc16, rtu_frame};
 use super::timing::LineTiming;
 use super::{ByteStream, Counters, TxError};
 
@@ -98,18 +98,17 @@ impl RtuTransport {
         let total = if buf[1] == fc | 0x80 {
             5
         } else if buf[1] != fc {
-            return Err(TxError::Invalid(format!(
-                "function {:#04x} in the answer to {}",
-                buf[1],
-                request.function()
-            )));
+            return Err(TxError::Invalid(Malformed::Function {
+                found: buf[1],
+                asked: request.function(),
+            }));
         } else if request.is_read() {
             let expected = request.response_len() - 2;
             if usize::from(buf[2]) != expected {
-                return Err(TxError::Invalid(format!(
-                    "byte count {}, expected {expected}",
-                    buf[2]
-                )));
+                return Err(TxError::Invalid(Malformed::ByteCount {
+                    found: usize::from(buf[2]),
+                    expected,
+                }));
             }
             // slave, function, byte count, data, CRC
             5 + expected
@@ -124,10 +123,10 @@ impl RtuTransport {
             return Err(TxError::Crc);
         }
         if frame[0] != slave {
-            return Err(TxError::Invalid(format!(
-                "answer from slave {}, expected {slave}",
-                frame[0]
-            )));
+            return Err(TxError::Invalid(Malformed::Slave {
+                found: frame[0],
+                expected: slave,
+            }));
         }
         request
             .parse_response(&frame[1..total - 2])
@@ -348,14 +347,14 @@ mod tests {
             device.write_all(&registers(1, 5, 6)).await.expect("write");
         });
         assert!(
-            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.contains("byte count 2"))
+            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.to_string().contains("byte count 2"))
         );
         assert!(matches!(
             t.transact(1, &read2(), TIMEOUT).await,
             Err(TxError::Crc)
         ));
         assert!(
-            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.contains("slave 9"))
+            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.to_string().contains("slave 9"))
         );
         assert!(matches!(
             t.transact(1, &read2(), TIMEOUT).await,

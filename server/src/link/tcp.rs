@@ -8,7 +8,7 @@ use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
-use super::frame::{Request, Response};
+use super::frame::{Malformed, Request, Response};
 use super::{ByteStream, Counters, TxError};
 
 pub struct MbapTransport {
@@ -68,10 +68,10 @@ impl MbapTransport {
                 continue;
             }
             if header[6] != unit {
-                return Err(TxError::Invalid(format!(
-                    "answer from unit {}, expected {unit}",
-                    header[6]
-                )));
+                return Err(TxError::Invalid(Malformed::Unit {
+                    found: header[6],
+                    expected: unit,
+                }));
             }
             return request.parse_response(&body).map_err(TxError::from);
         }
@@ -173,7 +173,7 @@ mod tests {
             device.write_all(&bad).await.expect("write");
         });
         assert!(
-            matches!(t.transact(7, &read1(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.contains("unit 9"))
+            matches!(t.transact(7, &read1(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.to_string().contains("unit 9"))
         );
         assert!(matches!(
             t.transact(7, &read1(), TIMEOUT).await,

@@ -7,7 +7,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use crate::cache::Device;
-use crate::link::frame::{Request, Response};
+use crate::link::frame::{Malformed, Request, Response};
 use crate::link::{Connection, Counters, TxError};
 use crate::metrics::Metrics;
 
@@ -82,9 +82,10 @@ impl Bus {
         let current = match self.transact(device, &read, retries).await.0? {
             Response::Registers(regs) if regs.len() == 1 => regs[0],
             other => {
-                return Err(TxError::Invalid(format!(
-                    "unexpected answer to a register read: {other:?}"
-                )));
+                return Err(TxError::Invalid(Malformed::Unexpected {
+                    function: read.function(),
+                    response: other,
+                }));
             }
         };
         let value = bits.iter().fold(current, |acc, &(bit, on)| {
