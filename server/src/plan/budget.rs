@@ -1,0 +1,44 @@
+//! The bus time a link's transactions take at its line settings, and the share of the line
+//! its devices' refresh rates demand.
+
+use std::time::Duration;
+
+use super::ReadBatch;
+use crate::config::DeviceConfig;
+use crate::link::frame::Request;
+use crate::link::timing::LineTiming;
+
+pub fn rtu_sizes(request: &Request) -> (usize, usize) {
+    let mut pdu = Vec::new();
+    request.encode(&mut pdu);
+    (pdu.len() + 3, request.response_len() + 3)
+}
+
+/// The bus time of one transaction: both frames, each after the silence and guard time.
+pub fn transaction_time(request: &Request, timing: &LineTiming, guard: Duration) -> Duration {
+    let (req, resp) = rtu_sizes(request);
+    timing.transaction_time(req, resp) + guard * 2
+}
+
+/// The bus time one poll cycle of a device needs at `timing`.
+pub fn cycle_time(batches: &[ReadBatch], timing: &LineTiming, guard: Duration) -> Duration {
+    batches
+        .iter()
+        .map(|b| transaction_time(&b.request(), timing, guard))
+        .sum()
+}
+
+/// The share of a line's time the devices' refresh rates demand (1.0 = all of it).
+pub fn utilisation<'a>(
+    devices: impl IntoIterator<Item = (&'a DeviceConfig, &'a [ReadBatch])>,
+    timing: &LineTiming,
+    guard: Duration,
+) -> f64 {
+    devices
+        .into_iter()
+        .map(|(d, batches)| {
+            cycle_time(batches, timing, guard).as_secs_f64()
+                / d.refresh_rate.as_secs_f64().max(1e-6)
+        })
+        .sum()
+}

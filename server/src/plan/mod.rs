@@ -1,0 +1,18 @@
+//! Fields to Modbus transactions: read batches per device (`read`), write groups (`write`),
+//! the bus-time budget of a link (`budget`), and the `iogate plan` report (`report`).
+
+mod budget;
+mod read;
+mod report;
+mod write;
+
+pub use budget::{cycle_time, rtu_sizes, transaction_time, utilisation};
+pub use read::{ReadBatch, read_batches};
+pub use report::{render, warnings};
+pub use write::{WriteItem, WriteOp, write_ops};
+
+/// A profile from field lines, for the tests of this module.
+#[cfg(test)]
+pub(crate) fn test_profile(fields: &str) -> crate::profile::Profile {
+    crate::profile::load_str("p.yaml", &format!("name: P\nfields:\n{fields}")).expect("profile")
+}

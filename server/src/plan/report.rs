@@ -1,0 +1,190 @@
+//! `iogate plan`: the poll plan of every link as text, and the warnings `check` and `serve`
+//! print when refresh rates need more than a line carries.
+
+use std::fmt::Write as _;
+use std::time::Duration;
+
+use super::{ReadBatch, cycle_time, read_batches, transaction_time, utilisation};
+use crate::config::{Config, DeviceConfig, LinkConfig, Transport};
+use crate::link::timing::LineTiming;
+use crate::profile::{Catalog, Profile};
+
+/// A link's devices whose profiles are known, each with its read batches.
+type Planned<'a> = Vec<(&'a DeviceConfig, &'a Profile, Vec<ReadBatch>)>;
+
+fn devices_of<'a>(config: &'a Config, catalog: &'a Catalog, link: &LinkConfig) -> Planned<'a> {
+    config
+        .devices
+        .iter()
+        .filter(|d| d.link.as_deref() == Some(link.name.as_str()))
+        .filter_map(|d| {
+            let p = catalog.get(&d.profile)?;
+            Some((d, p.as_ref(), read_batches(p, d.max_batch, d.max_gap)))
+        })
+        .collect()
+}
+
+/// The share of a serial link's time its devices' refresh rates demand; `None` over TCP.
+fn link_utilisation(link: &LinkConfig, devices: &Planned<'_>) -> Option<f64> {
+    let Transport::Serial(s) = &link.transport else {
+        return None;
+    };
+    Some(utilisation(
+        devices.iter().map(|(d, _, b)| (*d, b.as_slice())),
+        &LineTiming::new(s),
+        link.guard_time,
+    ))
+}
+
+/// Links whose devices' refresh rates need more than the line carries, as warnings.
+pub fn warnings(config: &Config, catalog: &Catalog) -> Vec<String> {
+    config
+        .links
+        .iter()
+        .filter_map(|link| {
+            let u = link_utilisation(link, &devices_of(config, catalog, link))?;
+            (u > 1.0).then(|| {
+                format!(
+                    "link {}: the refresh rates need {:.0}% of what the line carries; devices will be polled less often than configured (see `iogate plan`)",
+                    link.name,
+                    u * 100.0
+                )
+            })
+        })
+        .collect()
+}
+
+/// The poll plan of every link, as `iogate plan` prints it.
+pub fn render(config: &Config, catalog: &Catalog) -> String {
+    let mut out = String::new();
+    if config.links.is_empty() {
+        out.push_str("No links configured: nothing is polled on a bus.\n");
+    }
+    for link in &config.links {
+        let devices = devices_of(config, catalog, link);
+        let timing = match &link.transport {
+            Transport::Serial(s) => {
+                let t = LineTiming::new(s);
+                let _ = writeln!(
+                    out,
+                    "link {}: serial {} {} {}{}{} ({} bits per character, {:.3} ms per character, {:.3} ms inter-frame silence{})",
+                    link.name,
+                    s.port,
+                    s.baud,
+                    s.data_bits,
+                    s.parity.letter(),
+                    s.stop_bits,
+                    t.bits_per_char,
+                    ms(t.char_time()),
+                    ms(t.silence()),
+                    if link.guard_time.is_zero() {
+                        String::new()
+                    } else {
+                        format!(" + {:.3} ms guard time", ms(link.guard_time))
+                    }
+                );
+                Some(t)
+            }
+            Transport::Tcp {
+                host,
+                port,
+                framing,
+            } => {
+                let _ = writeln!(
+                    out,
+                    "link {}: tcp {host}:{port} ({}); no wire-time budget",
+                    link.name,
+                    framing.name()
+                );
+                None
+            }
+        };
+        for (d, profile, batches) in &devices {
+            let _ = writeln!(
+                out,
+                "  device {} (profile {}, slave {}, every {} ms): {} transaction(s) per cycle",
+                d.name,
+                profile.name,
+                d.slave_id.unwrap_or(0),
+                d.refresh_rate.as_millis(),
+                batches.len()
+            );
+            for b in batches {
+                let request = b.request();
+                let names: Vec<&str> = b
+                    .fields
+                    .iter()
+                    .map(|&i| profile.fields[i].name.as_str())
+                    .collect();
+                let wire = timing
+                    .map(|t| {
+                        let time = transaction_time(&request, &t, link.guard_time);
+                        format!(" {:>8.3} ms", ms(time))
+                    })
+                    .unwrap_or_default();
+                let _ = writeln!(
+                    out,
+                    "    {} slave {:>3} address {:>5} count {:>4}{wire}  {}",
+                    request.function(),
+                    d.slave_id.unwrap_or(0),
+                    b.address,
+                    b.count,
+                    names.join(", ")
+                );
+            }
+            if let Some(t) = timing {
+                let _ = writeln!(
+                    out,
+                    "    cycle: {:.3} ms of bus time",
+                    ms(cycle_time(batches, &t, link.guard_time))
+                );
+            }
+        }
+        if let Some(u) = link_utilisation(link, &devices) {
+            let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
+            if u > 1.0 {
+                let _ = writeln!(
+                    out,
+                    "  WARNING: the refresh rates need {:.0}% of what the line can carry; devices will be polled less often than configured",
+                    u * 100.0
+                );
+            }
+        }
+    }
+    out
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::test_profile as profile;
+
+    #[test]
+    fn plan_warns_when_the_line_cannot_carry_the_rates() {
+        let config = crate::config::parse(
+            "c.yaml",
+            "links:\n  - { name: slow, serial: { port: /dev/ttyS0, baud: 9600 } }\ndevices:\n  - { name: m, profile: P, link: slow, slave_id: 1, refresh_rate: 20ms }\n",
+        )
+        .expect("config");
+        let p = profile(
+            "  - { name: A, type: INT, direction: input, register: { address: 0, kind: input_register } }\n  - { name: B, type: INT, direction: input, register: { address: 10, kind: input_register } }\n",
+        );
+        let catalog = Catalog::new([p]);
+        let text = render(&config, &catalog);
+        assert!(
+            text.contains("FC04 slave   1 address     0 count    1"),
+            "{text}"
+        );
+        assert!(text.contains("WARNING"), "{text}");
+        let warnings = warnings(&config, &catalog);
+        assert_eq!(warnings.len(), 1);
+        assert!(
+            warnings[0].starts_with("link slow: the refresh rates need"),
+            "{warnings:?}"
+        );
+    }
+}
