@@ -1,0 +1,58 @@
+//! One entry of a profile's `fields`: name, type, direction, description and register,
+//! with the encoding that follows from them.
+
+use super::register::read_register;
+use super::{FIELD_KEYS, identifier, iec_type, one_of};
+use crate::codec::Encoding;
+use crate::profile::{Direction, Field, Protocol, raw_of};
+use crate::yaml::{Node, Report};
+
+pub(super) fn read_field(
+    node: &Node,
+    index: usize,
+    protocol: Option<Protocol>,
+    report: &mut Report,
+) -> Option<Field> {
+    let fallback = format!("fields[{index}]");
+    let mut map = node.map(report, &fallback)?;
+    let name = map
+        .require("name", report, &fallback)
+        .and_then(|n| identifier(n, report, &format!("{fallback}: name")));
+    let ctx = name.as_ref().map_or(fallback, |n| format!("field {n}"));
+    let ty = map
+        .require("type", report, &ctx)
+        .and_then(|n| iec_type(n, report, &format!("{ctx}: type")));
+    let direction = map.require("direction", report, &ctx).and_then(|n| {
+        one_of(
+            n,
+            report,
+            &format!("{ctx}: direction"),
+            &Direction::ALL,
+            |d| d.name(),
+        )
+    });
+    let description = map
+        .get("description")
+        .and_then(|n| n.scalar_text(report, &format!("{ctx}: description")));
+    let register = map
+        .require("register", report, &ctx)
+        .and_then(|n| read_register(n, &ctx, ty, direction, protocol, report));
+    map.finish(report, &ctx, FIELD_KEYS);
+    let (name, ty, direction, register) = (name?, ty?, direction?, register?);
+    let encoding = Encoding {
+        ty,
+        raw: raw_of(ty, &register),
+        order: register.byte_order,
+        scale: register.scale,
+        offset: register.offset,
+    };
+    Some(Field {
+        name,
+        ty,
+        direction,
+        register,
+        description,
+        encoding,
+        line: node.line,
+    })
+}

@@ -1,0 +1,319 @@
+//! A field's `register` block: its keys read, then checked against the register kind, the
+//! field's type and direction and the profile's protocol; `word_count` resolved.
+
+use super::{MAX_STRING_WORDS, REGISTER_KEYS, iec_type, one_of};
+use crate::codec::{ByteOrder, IecType, default_words};
+use crate::profile::{Direction, Protocol, Register, RegisterKind};
+use crate::yaml::{MapReader, Node, Report};
+
+/// The keys of a register block as written, each with its node (for the line of a problem).
+struct Keys<'a> {
+    line: u64,
+    ctx: String,
+    address: Option<u16>,
+    kind: Option<RegisterKind>,
+    kind_node: Option<&'a Node>,
+    bit: Option<u8>,
+    bit_node: Option<&'a Node>,
+    scale: Option<f64>,
+    scale_node: Option<&'a Node>,
+    offset: Option<f64>,
+    offset_node: Option<&'a Node>,
+    unit: Option<String>,
+    byte_order: Option<ByteOrder>,
+    order_node: Option<&'a Node>,
+    word_count: Option<u16>,
+    words_node: Option<&'a Node>,
+    raw_type: Option<IecType>,
+    raw_node: Option<&'a Node>,
+}
+
+impl Keys<'_> {
+    fn at(&self, key: &str) -> String {
+        format!("{}.{key}", self.ctx)
+    }
+
+    fn line_of(&self, node: Option<&Node>) -> u64 {
+        node.map_or(self.line, |n| n.line)
+    }
+
+    /// Reports each of the keys that shape a register's value, where they do not apply.
+    fn inapplicable(&self, why: &str, report: &mut Report) {
+        for (key, n) in [
+            ("bit", self.bit_node),
+            ("scale", self.scale_node),
+            ("offset", self.offset_node),
+            ("byte_order", self.order_node),
+            ("raw_type", self.raw_node),
+        ] {
+            if let Some(n) = n {
+                report.push(n.line, self.at(key), why);
+            }
+        }
+    }
+}
+
+fn read_keys<'a>(node: &'a Node, ctx: String, report: &mut Report) -> Option<Keys<'a>> {
+    let mut map: MapReader<'_> = node.map(report, &ctx)?;
+    let at = |key: &str| format!("{ctx}.{key}");
+    let address = map
+        .require("address", report, &ctx)
+        .and_then(|n| n.int_in(report, &at("address"), 0, 65535))
+        .map(|a| a as u16);
+    let kind_node = map.require("kind", report, &ctx);
+    let kind =
+        kind_node.and_then(|n| one_of(n, report, &at("kind"), &RegisterKind::ALL, |k| k.name()));
+    let bit_node = map.get("bit");
+    let bit = bit_node
+        .and_then(|n| n.int_in(report, &at("bit"), 0, 15))
+        .map(|b| b as u8);
+    let scale_node = map.get("scale");
+    let scale = scale_node.and_then(|n| n.number(report, &at("scale")));
+    let offset_node = map.get("offset");
+    let offset = offset_node.and_then(|n| n.number(report, &at("offset")));
+    let unit = map
+        .get("unit")
+        .and_then(|n| n.scalar_text(report, &at("unit")));
+    let order_node = map.get("byte_order");
+    let byte_order = match order_node {
+        None => Some(ByteOrder::BigEndian),
+        Some(n) => one_of(n, report, &at("byte_order"), &ByteOrder::ALL, |o| o.name()),
+    };
+    let words_node = map.get("word_count");
+    let word_count = words_node
+        .and_then(|n| n.int_in(report, &at("word_count"), 1, i128::from(MAX_STRING_WORDS)))
+        .map(|w| w as u16);
+    let raw_node = map.get("raw_type");
+    let raw_type = raw_node.and_then(|n| iec_type(n, report, &at("raw_type")));
+    map.finish(report, &ctx, REGISTER_KEYS);
+    Some(Keys {
+        line: node.line,
+        ctx,
+        address,
+        kind,
+        kind_node,
+        bit,
+        bit_node,
+        scale,
+        scale_node,
+        offset,
+        offset_node,
+        unit,
+        byte_order,
+        order_node,
+        word_count,
+        words_node,
+        raw_type,
+        raw_node,
+    })
+}
+
+/// Reads a field's `register` block and checks it against the field's type and direction.
+pub(super) fn read_register(
+    node: &Node,
+    field: &str,
+    ty: Option<IecType>,
+    direction: Option<Direction>,
+    protocol: Option<Protocol>,
+    report: &mut Report,
+) -> Option<Register> {
+    let keys = read_keys(node, format!("{field}: register"), report)?;
+    // Everything below needs the kind; problems of the type alone were reported already.
+    let kind = keys.kind?;
+    check_kind(&keys, kind, ty, direction, protocol, report);
+    let ty = ty?;
+    check_type(&keys, ty, report);
+    let word_count = word_count(&keys, kind, ty, report);
+    let address = keys.address?;
+    let span = if kind.is_bit() {
+        1
+    } else {
+        u32::from(word_count)
+    };
+    if u32::from(address) + span - 1 > 65535 {
+        report.push(
+            keys.line_of(keys.words_node).max(keys.line),
+            &keys.ctx,
+            format!("address {address} + {span} registers runs past 65535"),
+        );
+    }
+    Some(Register {
+        address,
+        kind,
+        bit: keys.bit,
+        scale: keys.scale.unwrap_or(1.0),
+        offset: keys.offset.unwrap_or(0.0),
+        unit: keys.unit,
+        byte_order: keys.byte_order?,
+        word_count,
+        raw_type: keys.raw_type,
+    })
+}
+
+/// What the register kind allows: virtual registers only in simulated profiles, outputs
+/// only on writable kinds, bit kinds only for BOOL with no value shaping.
+fn check_kind(
+    keys: &Keys<'_>,
+    kind: RegisterKind,
+    ty: Option<IecType>,
+    direction: Option<Direction>,
+    protocol: Option<Protocol>,
+    report: &mut Report,
+) {
+    let kind_line = keys.line_of(keys.kind_node);
+    if kind == RegisterKind::Virtual && protocol.is_some_and(|p| p != Protocol::Simulated) {
+        report.push(
+            kind_line,
+            keys.at("kind"),
+            "`virtual` registers exist only in simulated profiles (protocol: simulated)",
+        );
+    }
+    if let Some(d) = direction
+        && d.is_writable()
+        && kind.is_read_only()
+    {
+        report.push(
+            kind_line,
+            &keys.ctx,
+            format!(
+                "direction `{}` on a read-only {} (only coils and holding registers can be written)",
+                d.name(),
+                kind.name()
+            ),
+        );
+    }
+    if kind == RegisterKind::Virtual {
+        keys.inapplicable(
+            "has no effect on a virtual register (simulated fields hold typed values)",
+            report,
+        );
+    }
+    if kind.is_bit() {
+        if ty.is_some_and(|t| t != IecType::Bool) {
+            report.push(
+                kind_line,
+                &keys.ctx,
+                format!(
+                    "a {} holds one bit: the type must be BOOL, not {}",
+                    kind.name(),
+                    ty.map_or("?", IecType::name)
+                ),
+            );
+        }
+        keys.inapplicable(&format!("does not apply to a {}", kind.name()), report);
+        if keys.word_count.is_some_and(|w| w != 1) {
+            report.push(
+                keys.line_of(keys.words_node),
+                keys.at("word_count"),
+                format!("a {} is one bit: word_count must be 1", kind.name()),
+            );
+        }
+    }
+}
+
+/// What the field's type allows: `bit` only for BOOL, scaling only for numbers, a non-zero
+/// scale, `raw_type` only as the integer behind a REAL/LREAL.
+fn check_type(keys: &Keys<'_>, ty: IecType, report: &mut Report) {
+    if keys.bit.is_some() && ty != IecType::Bool {
+        report.push(
+            keys.line_of(keys.bit_node),
+            keys.at("bit"),
+            format!("`bit` is for BOOL fields packed into a register, not {ty}"),
+        );
+    }
+    if !ty.is_numeric() {
+        for (key, n) in [("scale", keys.scale_node), ("offset", keys.offset_node)] {
+            if let Some(n) = n {
+                report.push(
+                    n.line,
+                    keys.at(key),
+                    format!("{ty} values cannot be scaled"),
+                );
+            }
+        }
+    }
+    if keys.scale == Some(0.0) {
+        report.push(
+            keys.line_of(keys.scale_node),
+            keys.at("scale"),
+            "scale must not be zero (writes divide by it)",
+        );
+    }
+    if let Some(raw) = keys.raw_type {
+        let line = keys.line_of(keys.raw_node);
+        if !ty.is_real() {
+            report.push(
+                line,
+                keys.at("raw_type"),
+                format!("raw_type is for REAL/LREAL fields stored as integers, not {ty}"),
+            );
+        } else if raw.int_bits().is_none() || raw == IecType::Time {
+            report.push(
+                line,
+                keys.at("raw_type"),
+                format!("raw_type must be an integer type, not {raw}"),
+            );
+        }
+    }
+}
+
+/// The registers the field takes: `word_count` as given, else the raw type's size, else
+/// the type's default; checked against what the type allows.
+fn word_count(keys: &Keys<'_>, kind: RegisterKind, ty: IecType, report: &mut Report) -> u16 {
+    let raw_words = keys
+        .raw_type
+        .filter(|r| ty.is_real() && r.int_bits().is_some() && *r != IecType::Time)
+        .map(default_words);
+    let words_line = keys.line_of(keys.words_node);
+    let word_count = match (keys.word_count, raw_words) {
+        (Some(w), Some(r)) if w != r => {
+            report.push(
+                words_line,
+                keys.at("word_count"),
+                format!(
+                    "word_count {w} does not fit raw_type {} ({r} registers)",
+                    keys.raw_type.map_or("?", IecType::name)
+                ),
+            );
+            w
+        }
+        (Some(w), _) => w,
+        (None, Some(r)) => r,
+        (None, None) if kind.is_bit() => 1,
+        (None, None) => default_words(ty),
+    };
+    if !kind.is_bit() && raw_words.is_none() && !word_count_fits(ty, word_count) {
+        report.push(
+            words_line,
+            keys.at("word_count"),
+            format!(
+                "{ty} does not fit in {word_count} register(s) (allowed: {})",
+                allowed_word_counts(ty)
+            ),
+        );
+    }
+    word_count
+}
+
+fn word_count_fits(ty: IecType, words: u16) -> bool {
+    match ty {
+        IecType::Bool => words == 1,
+        IecType::String => (1..=MAX_STRING_WORDS).contains(&words),
+        IecType::Real => matches!(words, 1 | 2),
+        IecType::Lreal => matches!(words, 1 | 2 | 4),
+        IecType::Time => matches!(words, 2 | 4),
+        t => words == default_words(t),
+    }
+}
+
+fn allowed_word_counts(ty: IecType) -> String {
+    match ty {
+        IecType::String => format!("1 to {MAX_STRING_WORDS}, two characters each"),
+        IecType::Real => "1 = scaled 16-bit integer, 2 = IEEE-754 single".to_owned(),
+        IecType::Lreal => {
+            "1 = scaled 16-bit integer, 2 = IEEE-754 single, 4 = IEEE-754 double".to_owned()
+        }
+        IecType::Time => "2 = 32-bit milliseconds, 4 = 64-bit milliseconds".to_owned(),
+        t => default_words(t).to_string(),
+    }
+}
