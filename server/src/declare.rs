@@ -107,7 +107,8 @@ pub struct DeviceDeclaration {
 /// Where a declaration contradicts what exists.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Conflict {
-    /// The serial port runs with other settings (seed 004's "configuration mismatch").
+    /// The serial port runs with other settings (the "configuration mismatch" of source
+    /// document 004).
     Serial {
         port: String,
         mismatch: Mismatch,

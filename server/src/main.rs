@@ -60,13 +60,30 @@ enum Action {
     St(String),
 }
 
+/// The log filter from `RUST_LOG` (`info` when unset). A filter that does not parse is a
+/// configuration error, not a silent fallback.
+fn log_filter() -> Result<tracing_subscriber::EnvFilter, String> {
+    use tracing_subscriber::EnvFilter;
+    match std::env::var("RUST_LOG") {
+        Ok(text) if !text.trim().is_empty() => EnvFilter::builder()
+            .parse(&text)
+            .map_err(|e| format!("RUST_LOG `{text}` is not a log filter: {e}")),
+        Ok(_) | Err(std::env::VarError::NotPresent) => Ok(EnvFilter::new("info")),
+        Err(std::env::VarError::NotUnicode(_)) => Err("RUST_LOG is not valid UTF-8".to_owned()),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let filter = match log_filter() {
+        Ok(filter) => filter,
+        Err(message) => {
+            eprintln!("iogate: {message}");
+            return ExitCode::from(iogate::EXIT_CONFIG as u8);
+        }
+    };
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
+        .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .init();
     let (config, action) = match cli.command {

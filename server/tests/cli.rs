@@ -41,6 +41,27 @@ fn check_lists_every_problem_and_exits_64() {
 }
 
 #[test]
+fn an_invalid_log_filter_is_a_configuration_error_naming_it() {
+    let out = iogate()
+        .arg("check")
+        .env("RUST_LOG", "iogate=loud")
+        .output()
+        .expect("runs");
+    assert_eq!(out.status.code(), Some(64));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("RUST_LOG `iogate=loud` is not a log filter"),
+        "{stderr}"
+    );
+    let fine = iogate()
+        .arg("check")
+        .env("RUST_LOG", "iogate=debug,warn")
+        .output()
+        .expect("runs");
+    assert_eq!(fine.status.code(), Some(0), "{fine:?}");
+}
+
+#[test]
 fn check_accepts_the_example_and_the_demo() {
     let out = iogate()
         .args(["check", "--config"])

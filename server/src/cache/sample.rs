@@ -1,6 +1,6 @@
 //! What the cache holds per field and per device: the latest sample with its quality, the
-//! reason a read failed, and the diagnostics of seed 000's device function blocks and
-//! `SerialLink`.
+//! reason a read failed, and the diagnostics that the device function blocks and the
+//! `SerialLink` of source document 000 report.
 
 use std::time::{Duration, SystemTime};
 
@@ -65,7 +65,7 @@ impl Sample {
     }
 }
 
-/// A device's error code, as seed 000's device function blocks report it.
+/// A device's error code, as source document 000's device function blocks report it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DeviceCode {
     Ok = 0,
@@ -81,7 +81,7 @@ impl DeviceCode {
     }
 }
 
-/// Device diagnostics, as seed 000's device function blocks report them.
+/// Device diagnostics, as source document 000's device function blocks report them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Diagnostics {
     pub connected: bool,
@@ -90,7 +90,7 @@ pub struct Diagnostics {
     pub last_response_ms: f64,
 }
 
-/// Link diagnostics, as seed 000's `SerialLink` reports them.
+/// Link diagnostics, as source document 000's `SerialLink` reports them.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LinkDiagnostics {
     pub connected: bool,

@@ -316,8 +316,8 @@ mod tests {
     }
 
     #[test]
-    fn seed_uint8_write_frame_value() {
-        // Seed 002: uint8 value 3, big-endian, written with FC06 as 0x0003.
+    fn write_block_uint8_example_value() {
+        // Source document 002: uint8 value 3, big-endian, written with FC06 as 0x0003.
         let e = enc(
             IecType::Usint,
             Raw::Int {
@@ -340,8 +340,8 @@ mod tests {
     }
 
     #[test]
-    fn seed_temperature_scaling() {
-        // Seed 000: raw 450 * 0.1 + (-40) = 5.0 degrees.
+    fn profile_temperature_example_scaling() {
+        // Source document 000: raw 450 * 0.1 + (-40) = 5.0 degrees.
         let e = Encoding {
             scale: 0.1,
             offset: -40.0,
@@ -478,11 +478,11 @@ mod tests {
 
     proptest! {
         #[test]
-        fn integers_round_trip(ty in int_type(), order in order(), seed in any::<u64>()) {
+        fn integers_round_trip(ty in int_type(), order in order(), pick in any::<u64>()) {
             let (bits, signed) = ty.int_bits().expect("int");
             let (min, max) = int_range(bits, signed);
             let span = (max - min) as u128 + 1;
-            let n = min + (u128::from(seed) % span) as i128;
+            let n = min + (u128::from(pick) % span) as i128;
             let value = Value::from_int(ty, n).expect("in range");
             let e = enc(ty, Raw::Int { bits, signed }, order);
             let regs = e.encode(&value).expect("encode");

@@ -13,8 +13,8 @@ pub use encoding::{Encoding, Raw};
 pub use iogate_types::{IecType, Value, ValueError, int_range};
 
 /// Registers a type takes when `word_count` is not given: the size of integer types; one for
-/// BOOL and STRING; one for REAL and LREAL, which then hold a scaled 16-bit integer (seed
-/// 000's TEMPERATURE example; IEEE-754 values say `word_count: 2` or `4`).
+/// BOOL and STRING; one for REAL and LREAL, which then hold a scaled 16-bit integer (the
+/// TEMPERATURE example of source document 000; IEEE-754 values say `word_count: 2` or `4`).
 pub fn default_words(ty: IecType) -> u16 {
     match ty {
         IecType::Bool | IecType::String | IecType::Real | IecType::Lreal => 1,

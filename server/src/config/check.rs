@@ -9,7 +9,7 @@ use crate::profile::Catalog;
 use crate::yaml::{Problems, Report};
 
 /// One serial port is one link: two links on one port with different settings are the
-/// seed's "configuration mismatch".
+/// "configuration mismatch" of source document 004.
 pub(super) fn check_ports(links: &[LinkConfig], report: &mut Report) {
     let mut by_port: HashMap<&str, (&LinkConfig, &SerialSettings)> = HashMap::new();
     for link in links {

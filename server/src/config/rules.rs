@@ -1,8 +1,8 @@
 //! The rules every link and device obeys, wherever it comes from: `iogate.yaml` (checked by
 //! the config loader, each problem with its line) or a run-time declaration (`EnsureLink`,
-//! `EnsureDevice`). Limits, defaults, the serial settings' "configuration mismatch" checks
-//! of seed 004 (the Modbus read block's RS485 rules) and the link/slave rules of seed 000's
-//! device function blocks live here once.
+//! `EnsureDevice`). Limits, defaults, the RS485 "configuration mismatch" checks of source
+//! document 004 (the Modbus read block) and the link/slave rules of the device function
+//! blocks of source document 000 live here once (ARCHITECTURE.md lists the documents).
 
 use std::ops::RangeInclusive;
 use std::time::Duration;
@@ -226,7 +226,7 @@ pub fn slave_id(id: u64) -> Result<u8, RuleError> {
 /// One setting on which two users of one serial port disagree.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Mismatch {
-    /// `Baudrate`, `Parity`, `Stop bits` or `Data bits`, as seed 004 words it.
+    /// `Baudrate`, `Parity`, `Stop bits` or `Data bits`, as source document 004 words it.
     pub setting: &'static str,
     /// What the port runs with.
     pub have: String,
@@ -284,7 +284,7 @@ mod tests {
     }
 
     #[test]
-    fn mismatches_are_listed_in_the_seed_order() {
+    fn mismatches_are_listed_in_the_documented_order() {
         let a = serial("/dev/x".into(), 9600, Parity::None, 8, 1).expect("ok");
         let b = serial("/dev/x".into(), 19200, Parity::Even, 8, 2).expect("ok");
         let names: Vec<_> = serial_mismatches(&a, &b)

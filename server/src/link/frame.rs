@@ -366,8 +366,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn seed_write_frame_has_the_seed_crc() {
-        // Seed 002: slave 17, FC06, register 1, value 3 -> 11 06 00 01 00 03 9A 9B.
+    fn write_block_example_frame_has_its_crc() {
+        // Source document 002: slave 17, FC06, register 1, value 3 -> 11 06 00 01 00 03 9A 9B.
         let frame = rtu_frame(
             17,
             &Request::WriteSingleRegister {

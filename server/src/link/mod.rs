@@ -19,7 +19,7 @@ use rtu::RtuTransport;
 use tcp::MbapTransport;
 use timing::LineTiming;
 
-/// A link's error code, as seed 000's `SerialLink` reports it.
+/// A link's error code, as source document 000's `SerialLink` reports it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LinkCode {
     Ok = 0,

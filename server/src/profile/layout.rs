@@ -1,5 +1,5 @@
-//! The function-block layout a runtime generates for a profile (seed 000, "Generated FB
-//! layout"): link binding, Modbus parameters, diagnostics, then the profile's fields.
+//! The function-block layout a runtime generates for a profile (source document 000,
+//! "Generated FB layout"): link binding, Modbus parameters, diagnostics, then the fields.
 
 use super::{Profile, Protocol};
 use crate::codec::IecType;
@@ -160,7 +160,7 @@ mod tests {
     use crate::profile::load_str;
 
     #[test]
-    fn modbus_layout_follows_the_seed_order() {
+    fn modbus_layout_follows_the_documented_order() {
         let p = load_str(
             "w.yaml",
             "name: W\nfields:\n  - { name: AI1, type: INT, direction: input, register: { address: 0, kind: input_register } }\n",

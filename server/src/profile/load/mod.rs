@@ -324,7 +324,7 @@ mod tests {
     }
 
     #[test]
-    fn seed_waveshare_profile_loads() {
+    fn waveshare_example_profile_loads() {
         let text = "name: WaveshareAnalogInput\nvendor: Waveshare\nprotocol: modbus-rtu\nfields:\n  - { name: AI1, type: INT, direction: input, register: { address: 0, kind: input_register } }\n  - { name: AI2, type: INT, direction: input, register: { address: 1, kind: input_register } }\n";
         let p = load_str("w.yaml", text).expect("loads");
         assert_eq!(p.name, "WaveshareAnalogInput");
