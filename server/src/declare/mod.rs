@@ -3,86 +3,20 @@
 //! declaration that contradicts what exists is refused and the contradiction named. The
 //! rules a link or device obeys are the config file's ([`crate::config::rules`]).
 
-use std::fmt;
+mod endpoint;
+mod error;
+
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::cache::{AccessError, Cache, Device, Link, Registry};
-use crate::config::rules::{self, Mismatch, RuleError};
-use crate::config::{DeviceConfig, Framing, LinkConfig, Parity, Transport};
+use crate::cache::{Cache, Device, Link, Registry};
+use crate::config::rules;
+use crate::config::{DeviceConfig, LinkConfig, Transport};
 use crate::profile::Protocol;
 use crate::runtime::Tasks;
 
-/// A link's endpoint as a declaration gives it: numbers unchecked, zero or empty for "the
-/// default" (8 data bits, 1 stop bit, no parity, port 502, MBAP framing).
-#[derive(Debug, Clone, PartialEq)]
-pub enum Endpoint {
-    Serial {
-        port: String,
-        baud: u64,
-        parity: String,
-        data_bits: u64,
-        stop_bits: u64,
-    },
-    Tcp {
-        host: String,
-        port: u64,
-        framing: String,
-    },
-}
-
-impl Endpoint {
-    /// The transport, checked by the same rules as the config file's.
-    pub fn transport(&self) -> Result<Transport, DeclareError> {
-        let or = |n: u64, default: u8| if n == 0 { u64::from(default) } else { n };
-        match self {
-            Endpoint::Serial {
-                port,
-                baud,
-                parity,
-                data_bits,
-                stop_bits,
-            } => {
-                let parity = match parity.as_str() {
-                    "" => Ok(Parity::None),
-                    text => rules::parse_parity(text),
-                };
-                let parity = parity.map_err(|e| DeclareError::Rules(vec![e]))?;
-                rules::serial(
-                    port.clone(),
-                    *baud,
-                    parity,
-                    or(*data_bits, rules::DEFAULT_DATA_BITS),
-                    or(*stop_bits, rules::DEFAULT_STOP_BITS),
-                )
-                .map(Transport::Serial)
-                .map_err(DeclareError::Rules)
-            }
-            Endpoint::Tcp {
-                host,
-                port,
-                framing,
-            } => {
-                let framing = match framing.as_str() {
-                    "" => Ok(Framing::Mbap),
-                    text => rules::parse_framing(text),
-                }
-                .map_err(|e| DeclareError::Rules(vec![e]))?;
-                let port = if *port == 0 {
-                    u64::from(rules::DEFAULT_TCP_PORT)
-                } else {
-                    *port
-                };
-                let port = rules::tcp_endpoint(host, port).map_err(DeclareError::Rules)?;
-                Ok(Transport::Tcp {
-                    host: host.clone(),
-                    port,
-                    framing,
-                })
-            }
-        }
-    }
-}
+pub use endpoint::Endpoint;
+pub use error::{Conflict, DeclareError, Refusal};
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinkDeclaration {
@@ -102,148 +36,6 @@ pub struct DeviceDeclaration {
     pub slave_id: u32,
     pub refresh_rate: Duration,
     pub timeout: Option<Duration>,
-}
-
-/// Where a declaration contradicts what exists.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Conflict {
-    /// The serial port runs with other settings (the "configuration mismatch" of source
-    /// document 004).
-    Serial {
-        port: String,
-        mismatch: Mismatch,
-    },
-    Framing {
-        have: Framing,
-        want: Framing,
-    },
-    /// The endpoint is another link's.
-    LinkName {
-        is: String,
-        declared: String,
-    },
-    Profile {
-        have: String,
-        want: String,
-    },
-    Link {
-        have: Option<String>,
-        want: Option<String>,
-    },
-    SlaveId {
-        have: u8,
-        want: u8,
-    },
-    RefreshRate {
-        have: Duration,
-        want: Duration,
-    },
-    Timeout {
-        have: Duration,
-        want: Duration,
-    },
-}
-
-impl fmt::Display for Conflict {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let none = |n: &Option<String>| n.clone().unwrap_or_else(|| "none".to_owned());
-        match self {
-            Conflict::Serial { port, mismatch: m } => write!(
-                f,
-                "{} configuration mismatch on {port}: {} declared, {} in use",
-                m.setting, m.want, m.have
-            ),
-            Conflict::Framing { have, want } => write!(
-                f,
-                "framing {} declared, {} in use",
-                want.name(),
-                have.name()
-            ),
-            Conflict::LinkName { is, declared } => {
-                write!(f, "it is link `{is}`, not `{declared}`")
-            }
-            Conflict::Profile { have, want } => write!(f, "profile {have} (declared {want})"),
-            Conflict::Link { have, want } => {
-                write!(f, "link {} (declared {})", none(have), none(want))
-            }
-            Conflict::SlaveId { have, want } => write!(f, "slave_id {have} (declared {want})"),
-            Conflict::RefreshRate { have, want } => write!(
-                f,
-                "refresh_rate {} ms (declared {} ms)",
-                have.as_millis(),
-                want.as_millis()
-            ),
-            Conflict::Timeout { have, want } => write!(
-                f,
-                "timeout {} ms (declared {} ms)",
-                have.as_millis(),
-                want.as_millis()
-            ),
-        }
-    }
-}
-
-/// How a declaration was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refusal {
-    /// The declaration itself is wrong.
-    Invalid,
-    /// It names a profile or link that does not exist.
-    NotFound,
-    /// It contradicts what exists.
-    Conflict,
-}
-
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DeclareError {
-    #[error("{}", rule_list(.0))]
-    Rules(Vec<RuleError>),
-    #[error("`{name}` cannot name a {what} (empty, or has a '/')")]
-    BadName { what: &'static str, name: String },
-    #[error(transparent)]
-    UnknownProfile(AccessError),
-    #[error("no link `{0}`; declare it with EnsureLink first")]
-    UnknownLink(String),
-    #[error("link {link} conflicts with its declaration: {}", join(.conflicts, "; "))]
-    LinkConflict {
-        link: String,
-        conflicts: Vec<Conflict>,
-    },
-    #[error("link name `{name}` is already used by another endpoint ({endpoint})")]
-    NameTaken { name: String, endpoint: String },
-    #[error("device {device} exists with {}", join(.conflicts, ", "))]
-    DeviceConflict {
-        device: String,
-        conflicts: Vec<Conflict>,
-    },
-}
-
-impl DeclareError {
-    pub fn refusal(&self) -> Refusal {
-        match self {
-            DeclareError::Rules(_) | DeclareError::BadName { .. } => Refusal::Invalid,
-            DeclareError::UnknownProfile(_) | DeclareError::UnknownLink(_) => Refusal::NotFound,
-            DeclareError::LinkConflict { .. }
-            | DeclareError::NameTaken { .. }
-            | DeclareError::DeviceConflict { .. } => Refusal::Conflict,
-        }
-    }
-}
-
-fn rule_list(errors: &[RuleError]) -> String {
-    errors
-        .iter()
-        .map(|e| format!("{}: {e}", e.key()))
-        .collect::<Vec<_>>()
-        .join("; ")
-}
-
-fn join(conflicts: &[Conflict], separator: &str) -> String {
-    conflicts
-        .iter()
-        .map(ToString::to_string)
-        .collect::<Vec<_>>()
-        .join(separator)
 }
 
 /// What a declaration resolved to, and whether it was created by it.
@@ -491,6 +283,7 @@ pub fn ensure_device(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::{Framing, Parity};
     use crate::metrics::Metrics;
     use tokio_util::sync::CancellationToken;
     use tokio_util::task::TaskTracker;

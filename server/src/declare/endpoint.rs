@@ -1,0 +1,77 @@
+//! A link's endpoint as a declaration gives it, turned into a transport by the config's
+//! rules and defaults.
+
+use super::DeclareError;
+use crate::config::rules;
+use crate::config::{Framing, Parity, Transport};
+
+/// A link's endpoint as a declaration gives it: numbers unchecked, zero or empty for "the
+/// default" (8 data bits, 1 stop bit, no parity, port 502, MBAP framing).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Endpoint {
+    Serial {
+        port: String,
+        baud: u64,
+        parity: String,
+        data_bits: u64,
+        stop_bits: u64,
+    },
+    Tcp {
+        host: String,
+        port: u64,
+        framing: String,
+    },
+}
+
+impl Endpoint {
+    /// The transport, checked by the same rules as the config file's.
+    pub fn transport(&self) -> Result<Transport, DeclareError> {
+        let or = |n: u64, default: u8| if n == 0 { u64::from(default) } else { n };
+        match self {
+            Endpoint::Serial {
+                port,
+                baud,
+                parity,
+                data_bits,
+                stop_bits,
+            } => {
+                let parity = match parity.as_str() {
+                    "" => Ok(Parity::None),
+                    text => rules::parse_parity(text),
+                };
+                let parity = parity.map_err(|e| DeclareError::Rules(vec![e]))?;
+                rules::serial(
+                    port.clone(),
+                    *baud,
+                    parity,
+                    or(*data_bits, rules::DEFAULT_DATA_BITS),
+                    or(*stop_bits, rules::DEFAULT_STOP_BITS),
+                )
+                .map(Transport::Serial)
+                .map_err(DeclareError::Rules)
+            }
+            Endpoint::Tcp {
+                host,
+                port,
+                framing,
+            } => {
+                let framing = match framing.as_str() {
+                    "" => Ok(Framing::Mbap),
+                    text => rules::parse_framing(text),
+                }
+                .map_err(|e| DeclareError::Rules(vec![e]))?;
+                let port = if *port == 0 {
+                    u64::from(rules::DEFAULT_TCP_PORT)
+                } else {
+                    *port
+                };
+                let port = rules::tcp_endpoint(host, port).map_err(DeclareError::Rules)?;
+                Ok(Transport::Tcp {
+                    host: host.clone(),
+                    port,
+                    framing,
+                })
+            }
+        }
+    }
+}
