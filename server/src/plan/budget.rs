@@ -8,6 +8,7 @@ use crate::config::DeviceConfig;
 use crate::link::frame::Request;
 use crate::link::timing::LineTiming;
 
+/// Bytes of an RTU request and its good response.
 pub fn rtu_sizes(request: &Request) -> (usize, usize) {
     let mut pdu = Vec::new();
     request.encode(&mut pdu);

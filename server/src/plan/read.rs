@@ -140,9 +140,6 @@ pub fn read_batches(profile: &Profile, max_batch: u16, max_gap: u16) -> Vec<Read
     batches
 }
 
-/// A value to put on the bus: a client's write (with its generation) or the latest value
-/// written again after a reconnect (without).
-
 #[cfg(test)]
 mod tests {
     use super::*;

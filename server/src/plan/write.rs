@@ -8,6 +8,8 @@ use crate::codec::{Raw, Value};
 use crate::link::frame::{MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Request};
 use crate::profile::{Profile, RegisterKind};
 
+/// A value to put on the bus: a client's write (with its generation) or the latest value
+/// written again after a reconnect (without).
 #[derive(Debug, Clone, PartialEq)]
 pub struct WriteItem {
     pub field: usize,
@@ -173,8 +175,6 @@ fn runs<T>(
     }
     out
 }
-
-/// Bytes of an RTU request and its good response.
 
 #[cfg(test)]
 mod tests {
