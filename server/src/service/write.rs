@@ -25,6 +25,23 @@ pub struct Accepted {
     pub generation: u64,
 }
 
+/// Field `field` of `device` and the value `convert` makes for its type.
+fn typed<E: ToString>(
+    device: &Device,
+    field: &str,
+    convert: impl FnOnce(IecType) -> Result<Value, E>,
+) -> Result<(usize, Value), AccessError> {
+    let idx = device.field_index(field)?;
+    let f = device.field(idx);
+    let value = convert(f.ty).map_err(|e| AccessError::InvalidValue {
+        device: device.name().to_owned(),
+        field: f.name.clone(),
+        ty: f.ty,
+        reason: e.to_string(),
+    })?;
+    Ok((idx, value))
+}
+
 impl Service {
     /// Checks a write of field `field` of `device`: the field exists and is writable, and
     /// the value (converted by the front-end's `convert` for the field's type) fits it.
@@ -35,14 +52,7 @@ impl Service {
         field: &str,
         convert: impl FnOnce(IecType) -> Result<Value, E>,
     ) -> Result<Prepared, AccessError> {
-        let idx = device.field_index(field)?;
-        let f = device.field(idx);
-        let value = convert(f.ty).map_err(|e| AccessError::InvalidValue {
-            device: device.name().to_owned(),
-            field: f.name.clone(),
-            ty: f.ty,
-            reason: e.to_string(),
-        })?;
+        let (idx, value) = typed(device, field, convert)?;
         device.check_write(idx, &value)?;
         Ok(Prepared {
             device: device.clone(),
@@ -126,14 +136,7 @@ impl Service {
         field: &str,
         convert: impl FnOnce(IecType) -> Result<Value, E>,
     ) -> Result<(usize, Value), ServiceError> {
-        let idx = device.field_index(field)?;
-        let f = device.field(idx);
-        let value = convert(f.ty).map_err(|e| AccessError::InvalidValue {
-            device: device.name().to_owned(),
-            field: f.name.clone(),
-            ty: f.ty,
-            reason: e.to_string(),
-        })?;
+        let (idx, value) = typed(device, field, convert)?;
         device.simulate(idx, value.clone())?;
         Ok((idx, value))
     }
