@@ -86,6 +86,70 @@ fn check_accepts_the_example_and_the_demo() {
     assert!(String::from_utf8_lossy(&out.stdout).starts_with("built-in demo: ok"));
 }
 
+/// A workspace: `ws/profiles/` shared by `ws/proj/iogate.yaml` and `ws/proj/sub/iogate.yaml`.
+fn workspace(name: &str) -> PathBuf {
+    let ws = temp_dir(name);
+    let proj = ws.join("proj");
+    std::fs::create_dir_all(proj.join("sub")).expect("mkdir");
+    std::fs::create_dir_all(ws.join("profiles")).expect("mkdir");
+    std::fs::copy(
+        repo().join("profiles/sim_io.yaml"),
+        ws.join("profiles/sim_io.yaml"),
+    )
+    .expect("copy profile");
+    let config = "devices:\n  - { name: sim, profile: SimIo, refresh_rate: 100ms }\n";
+    std::fs::write(proj.join("iogate.yaml"), config).expect("write");
+    std::fs::write(proj.join("sub/iogate.yaml"), config).expect("write");
+    ws
+}
+
+#[test]
+fn profiles_are_found_in_a_parent_from_relative_and_absolute_config_paths() {
+    let ws = workspace("parents");
+    let proj = ws.join("proj");
+    let ok = |out: std::process::Output| {
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        );
+        assert!(out.status.success(), "{stdout}{stderr}");
+        assert!(
+            stdout.contains("ok (1 profiles, 0 links, 1 devices)"),
+            "{stdout}"
+        );
+    };
+    // The default ./iogate.yaml, from the project folder.
+    ok(iogate()
+        .arg("check")
+        .current_dir(&proj)
+        .output()
+        .expect("runs"));
+    // A relative --config, from the project folder and from a subdirectory.
+    ok(iogate()
+        .args(["check", "--config", "sub/iogate.yaml"])
+        .current_dir(&proj)
+        .output()
+        .expect("runs"));
+    ok(iogate()
+        .args(["check", "--config", "../iogate.yaml"])
+        .current_dir(proj.join("sub"))
+        .output()
+        .expect("runs"));
+    ok(iogate()
+        .args(["check", "--config", "iogate.yaml"])
+        .current_dir(proj.join("sub"))
+        .output()
+        .expect("runs"));
+    // An absolute one, from anywhere.
+    ok(iogate()
+        .args(["check", "--config"])
+        .arg(proj.join("sub/iogate.yaml"))
+        .current_dir(std::env::temp_dir())
+        .output()
+        .expect("runs"));
+    let _ = std::fs::remove_dir_all(&ws);
+}
+
 #[test]
 fn serve_refuses_a_broken_config() {
     let out = iogate()

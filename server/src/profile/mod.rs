@@ -219,6 +219,12 @@ pub fn find_dir(configured: Option<&Path>, start: &Path) -> Option<PathBuf> {
     if let Some(dir) = configured {
         return Some(dir.to_path_buf());
     }
+    // A relative start (`.` for `./iogate.yaml`, `sub` for `sub/iogate.yaml`) has no parents
+    // of its own: resolve it first, following links, so that `..` means the real parent.
+    let start = start
+        .canonicalize()
+        .or_else(|_| std::path::absolute(start))
+        .unwrap_or_else(|_| start.to_path_buf());
     start
         .ancestors()
         .take(PARENT_SEARCH_DEPTH + 1)
