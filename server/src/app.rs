@@ -68,6 +68,15 @@ impl Setup {
         Setup::from_config(config, base)
     }
 
+    /// Every profile field that relies on the default `word_count` of 1 although its type is
+    /// wider: `check` and `serve` print these, they do not stop anything.
+    pub fn profile_warnings(&self) -> Vec<crate::yaml::Problem> {
+        self.catalog
+            .iter()
+            .flat_map(|p| p.width_warnings())
+            .collect()
+    }
+
     /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in
     /// `base` or up to six parents) and checks its devices.
     pub fn from_config(config: Config, base: &Path) -> Result<Setup, Problems> {

@@ -107,6 +107,11 @@ fn main() -> ExitCode {
             return ExitCode::from(iogate::EXIT_CONFIG as u8);
         }
     };
+    if matches!(action, Action::Check | Action::Serve) {
+        for warning in setup.profile_warnings() {
+            eprintln!("warning: {warning}");
+        }
+    }
     if let Action::St(name) = &action {
         return match setup.catalog.get(name) {
             Some(profile) => {

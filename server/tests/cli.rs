@@ -151,6 +151,33 @@ fn profiles_are_found_in_a_parent_from_relative_and_absolute_config_paths() {
 }
 
 #[test]
+fn check_warns_about_wide_fields_that_rely_on_the_default_word_count() {
+    let ws = workspace("widths");
+    std::fs::write(
+        ws.join("profiles/meter.yaml"),
+        "name: Meter\nfields:\n  - { name: Energy, type: UDINT, direction: input, register: { address: 0, kind: input_register } }\n  - { name: Power, type: REAL, direction: input, register: { address: 2, kind: input_register, word_count: 2 } }\n",
+    )
+    .expect("write");
+    let out = iogate()
+        .arg("check")
+        .current_dir(ws.join("proj"))
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "a warning, not an error: {stderr}"
+    );
+    assert!(
+        stderr.contains("meter.yaml:3: field Energy: UDINT with no `word_count` reads one register as a 16-bit value (the default is 1); to read the full 32-bit value, add `word_count: 2` to its register"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("field Power"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&ws);
+}
+
+#[test]
 fn serve_refuses_a_broken_config() {
     let out = iogate()
         .args(["serve", "--config"])

@@ -12,12 +12,14 @@ pub use encoding::{Encoding, Raw};
 
 pub use iogate_types::{IecType, Value, ValueError, int_range};
 
-/// Registers a type takes when `word_count` is not given: the size of integer types; one for
-/// BOOL and STRING; one for REAL and LREAL, which then hold a scaled 16-bit integer (the
-/// TEMPERATURE example of source document 000; IEEE-754 values say `word_count: 2` or `4`).
-pub fn default_words(ty: IecType) -> u16 {
+/// Registers a type's full width takes: 32-bit types two, 64-bit types four, everything
+/// else one. Without `word_count` every field takes one register (source document 000:
+/// "default 1 ... use 2 for 32-bit DINT/REAL values"); this is the count to add for the
+/// full width, and the size of a `raw_type`.
+pub fn full_words(ty: IecType) -> u16 {
     match ty {
-        IecType::Bool | IecType::String | IecType::Real | IecType::Lreal => 1,
+        IecType::Real => 2,
+        IecType::Lreal => 4,
         t => t
             .int_bits()
             .map_or(1, |(bits, _)| u16::from(bits).div_ceil(16)),

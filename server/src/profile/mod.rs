@@ -93,6 +93,8 @@ pub struct Register {
     pub unit: Option<String>,
     pub byte_order: ByteOrder,
     pub word_count: u16,
+    /// Whether `word_count` was written in the profile (else it is the default, 1).
+    pub word_count_set: bool,
     /// For REAL/LREAL fields stored as integers: the integer type of the register value.
     pub raw_type: Option<IecType>,
 }
@@ -133,6 +135,48 @@ pub struct Profile {
 }
 
 impl Profile {
+    /// A warning for every field wider than 16 bits that relies on the default `word_count`
+    /// of 1 and so reads one register (where a friendlier default would have read the full
+    /// width): 32/64-bit integers and TIME, and REAL/LREAL that are neither scaled nor given
+    /// a `raw_type` (a scaled REAL on one register is the documented 16-bit idiom).
+    pub fn width_warnings(&self) -> Vec<crate::yaml::Problem> {
+        self.fields
+            .iter()
+            .filter(|f| {
+                let r = &f.register;
+                let wide = crate::codec::full_words(f.ty) > 1;
+                let idiom = f.ty.is_real() && (r.scale != 1.0 || r.offset != 0.0);
+                let stored = r.kind != RegisterKind::Virtual;
+                stored && wide && !r.word_count_set && r.raw_type.is_none() && !idiom
+            })
+            .map(|f| {
+                let full = crate::codec::full_words(f.ty);
+                let add = if f.ty == IecType::Time {
+                    "to read 32- or 64-bit milliseconds, add `word_count: 2` or `4`".to_owned()
+                } else {
+                    format!("to read the full {}-bit value, add `word_count: {full}`", 16 * full)
+                };
+                let read = match f.ty {
+                    t if t.is_real() => "as a 16-bit integer",
+                    IecType::Time => "as 16-bit milliseconds",
+                    t if t.int_bits().is_some_and(|(_, signed)| signed) => {
+                        "as a 16-bit value, sign-extended"
+                    }
+                    _ => "as a 16-bit value",
+                };
+                crate::yaml::Problem {
+                    file: self.source.clone(),
+                    line: f.line,
+                    context: format!("field {}", f.name),
+                    message: format!(
+                        "{} with no `word_count` reads one register {read} (the default is 1); {add} to its register",
+                        f.ty
+                    ),
+                }
+            })
+            .collect()
+    }
+
     /// A field by name; IEC identifiers ignore case.
     pub fn field_index(&self, name: &str) -> Option<usize> {
         self.fields
@@ -169,13 +213,14 @@ pub(crate) fn raw_of(ty: IecType, register: &Register) -> Raw {
         },
         (IecType::Real | IecType::Lreal, 2) => Raw::F32,
         (IecType::Real | IecType::Lreal, _) => Raw::F64,
-        (IecType::Time, 2) => Raw::Int {
-            bits: 32,
-            signed: true,
-        },
-        (t, _) => {
+        (t, words) => {
+            // One register holds at most 16 bits: a wider type on fewer registers reads
+            // them widened (sign-extended when signed) and writes only what fits.
             let (bits, signed) = t.int_bits().unwrap_or((16, false));
-            Raw::Int { bits, signed }
+            Raw::Int {
+                bits: bits.min(16 * words.min(4) as u8),
+                signed,
+            }
         }
     }
 }

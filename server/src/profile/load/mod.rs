@@ -370,10 +370,49 @@ mod tests {
 
     #[test]
     fn type_must_fit_kind_and_word_count() {
-        let text = "name: X\nfields:\n  - { name: A, type: INT, direction: input, register: { address: 0, kind: coil } }\n  - { name: B, type: DINT, direction: input, register: { address: 0, kind: input_register, word_count: 1 } }\n  - { name: S, type: STRING, direction: input, register: { address: 5, kind: input_register, word_count: 8 } }\n";
+        let text = "name: X\nfields:\n  - { name: A, type: INT, direction: input, register: { address: 0, kind: coil } }\n  - { name: B, type: DINT, direction: input, register: { address: 0, kind: input_register, word_count: 3 } }\n  - { name: S, type: STRING, direction: input, register: { address: 5, kind: input_register, word_count: 8 } }\n  - { name: W, type: DINT, direction: input, register: { address: 20, kind: input_register, word_count: 1 } }\n";
         assert_problem(text, 3, "type must be BOOL, not INT");
-        assert_problem(text, 4, "DINT does not fit in 1 register");
-        assert_eq!(problems(text).len(), 2);
+        assert_problem(
+            text,
+            4,
+            "DINT does not fit in 3 register(s) (allowed: 1 = a 16-bit register widened, 2 = the full 32-bit value)",
+        );
+        assert_eq!(problems(text).len(), 2, "word_count 1 on a DINT is allowed");
+    }
+
+    #[test]
+    fn without_word_count_every_type_takes_one_register_and_says_so() {
+        let text = "name: X\nfields:\n  - { name: Count, type: DINT, direction: output, register: { address: 0, kind: holding_register } }\n  - { name: Total, type: UDINT, direction: input, register: { address: 1, kind: input_register, word_count: 2 } }\n  - { name: Temp, type: REAL, direction: input, register: { address: 3, kind: input_register, scale: 0.1 } }\n  - { name: Ramp, type: TIME, direction: input, register: { address: 4, kind: input_register } }\n";
+        let p = load_str("w.yaml", text).expect("loads");
+        let count = &p.fields[0];
+        assert_eq!(count.register.word_count, 1);
+        assert_eq!(count.encoding.words(), 1);
+        assert_eq!(
+            count.encoding.decode(&[0xFB2E]),
+            Ok(crate::codec::Value::Int(-1234)),
+            "sign-extended"
+        );
+        assert_eq!(
+            count.encoding.encode(&crate::codec::Value::Int(-1234)),
+            Ok(vec![0xFB2E])
+        );
+        assert!(
+            count
+                .encoding
+                .encode(&crate::codec::Value::Int(40_000))
+                .is_err(),
+            "a value past 16 bits is refused, never wrapped"
+        );
+        assert_eq!(p.fields[1].encoding.words(), 2);
+        let warnings: Vec<String> = p.width_warnings().iter().map(ToString::to_string).collect();
+        assert_eq!(
+            warnings,
+            [
+                "w.yaml:3: field Count: DINT with no `word_count` reads one register as a 16-bit value, sign-extended (the default is 1); to read the full 32-bit value, add `word_count: 2` to its register",
+                "w.yaml:6: field Ramp: TIME with no `word_count` reads one register as 16-bit milliseconds (the default is 1); to read 32- or 64-bit milliseconds, add `word_count: 2` or `4` to its register",
+            ],
+            "the scaled REAL and the explicit UDINT are fine"
+        );
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! field's type and direction and the profile's protocol; `word_count` resolved.
 
 use super::{MAX_STRING_WORDS, REGISTER_KEYS, iec_type, one_of};
-use crate::codec::{ByteOrder, IecType, default_words};
+use crate::codec::{ByteOrder, IecType, full_words};
 use crate::profile::{Direction, Protocol, Register, RegisterKind};
 use crate::yaml::{MapReader, Node, Report};
 
@@ -146,6 +146,7 @@ pub(super) fn read_register(
         unit: keys.unit,
         byte_order: keys.byte_order?,
         word_count,
+        word_count_set: keys.word_count.is_some(),
         raw_type: keys.raw_type,
     })
 }
@@ -263,7 +264,7 @@ fn word_count(keys: &Keys<'_>, kind: RegisterKind, ty: IecType, report: &mut Rep
     let raw_words = keys
         .raw_type
         .filter(|r| ty.is_real() && r.int_bits().is_some() && *r != IecType::Time)
-        .map(default_words);
+        .map(full_words);
     let words_line = keys.line_of(keys.words_node);
     let word_count = match (keys.word_count, raw_words) {
         (Some(w), Some(r)) if w != r => {
@@ -280,7 +281,7 @@ fn word_count(keys: &Keys<'_>, kind: RegisterKind, ty: IecType, report: &mut Rep
         (Some(w), _) => w,
         (None, Some(r)) => r,
         (None, None) if kind.is_bit() => 1,
-        (None, None) => default_words(ty),
+        (None, None) => 1,
     };
     if !kind.is_bit() && raw_words.is_none() && !word_count_fits(ty, word_count) {
         report.push(
@@ -301,8 +302,8 @@ fn word_count_fits(ty: IecType, words: u16) -> bool {
         IecType::String => (1..=MAX_STRING_WORDS).contains(&words),
         IecType::Real => matches!(words, 1 | 2),
         IecType::Lreal => matches!(words, 1 | 2 | 4),
-        IecType::Time => matches!(words, 2 | 4),
-        t => words == default_words(t),
+        IecType::Time => matches!(words, 1 | 2 | 4),
+        t => words == 1 || words == full_words(t),
     }
 }
 
@@ -313,7 +314,14 @@ fn allowed_word_counts(ty: IecType) -> String {
         IecType::Lreal => {
             "1 = scaled 16-bit integer, 2 = IEEE-754 single, 4 = IEEE-754 double".to_owned()
         }
-        IecType::Time => "2 = 32-bit milliseconds, 4 = 64-bit milliseconds".to_owned(),
-        t => default_words(t).to_string(),
+        IecType::Time => {
+            "1 = 16-bit milliseconds, 2 = 32-bit milliseconds, 4 = 64-bit milliseconds".to_owned()
+        }
+        t if full_words(t) > 1 => format!(
+            "1 = a 16-bit register widened, {} = the full {}-bit value",
+            full_words(t),
+            16 * full_words(t)
+        ),
+        _ => "1".to_owned(),
     }
 }
