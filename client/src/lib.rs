@@ -369,10 +369,21 @@ impl Client {
         &mut self,
         link: &SerialLink,
     ) -> Result<(LinkInfo, bool), Error> {
+        self.ensure_named_serial_link("", link).await
+    }
+
+    /// Declares a serial link by name, as a named `SerialLink` instance does: its port may
+    /// be empty (the link then reports error 1, no port configured) and given later by
+    /// declaring it again.
+    pub async fn ensure_named_serial_link(
+        &mut self,
+        name: &str,
+        link: &SerialLink,
+    ) -> Result<(LinkInfo, bool), Error> {
         let r = self
             .inner
             .ensure_link(pb::EnsureLinkRequest {
-                name: String::new(),
+                name: name.to_owned(),
                 transport: Some(pb::ensure_link_request::Transport::Serial(
                     pb::SerialSettings {
                         port: link.port.clone(),

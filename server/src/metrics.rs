@@ -296,7 +296,7 @@ impl Metrics {
     pub fn render(&self, cache: &Cache) -> String {
         for link in &cache.links() {
             let labels = LinkLabels {
-                link: link.config.name.clone(),
+                link: link.name().to_owned(),
             };
             let d = link.diagnostics();
             // Counters exist at zero from the first scrape, so rates and alerts work at once.

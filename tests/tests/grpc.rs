@@ -344,16 +344,18 @@ async fn declarations_are_idempotent_and_conflicts_are_named() {
     );
     assert_eq!(c, Code::FailedPrecondition);
     assert!(message.contains("slave_id 4 (declared 5)"), "{message}");
-    let (c, _) = code(
-        client
-            .ensure_device(&DeviceDeclaration {
-                name: "m2".into(),
-                slave_id: 0,
-                ..meter.clone()
-            })
-            .await,
-    );
-    assert_eq!(c, Code::InvalidArgument);
+    // Slave 0 is a state, not a refusal: the device reports error 2 (no slave configured).
+    let (m2, created) = client
+        .ensure_device(&DeviceDeclaration {
+            name: "m2".into(),
+            slave_id: 0,
+            ..meter.clone()
+        })
+        .await
+        .expect("accepted");
+    assert!(created);
+    let diagnostics = m2.diagnostics.expect("diagnostics");
+    assert_eq!((diagnostics.connected, diagnostics.error_code), (false, 2));
     let (c, message) = code(
         client
             .ensure_device(&DeviceDeclaration {

@@ -179,6 +179,7 @@ pub struct DeviceInfo {
 }
 
 pub fn device_info(device: &Device) -> DeviceInfo {
+    let binding = device.binding();
     let Diagnostics {
         connected,
         error_code,
@@ -189,8 +190,8 @@ pub fn device_info(device: &Device) -> DeviceInfo {
         name: device.name().to_owned(),
         profile: device.profile.name.clone(),
         protocol: device.profile.protocol.name().to_owned(),
-        link: device.config.link.clone(),
-        slave_id: device.config.slave_id,
+        link: binding.link,
+        slave_id: binding.slave_id,
         refresh_rate_ms: device.config.refresh_rate.as_millis() as u64,
         timeout_ms: device.config.timeout.as_millis() as u64,
         connected,
@@ -256,7 +257,7 @@ pub fn link_info(link: &Link) -> LinkInfo {
     let diag = link.diagnostics();
     let devices = link.members().iter().map(|d| d.name().to_owned()).collect();
     let mut info = LinkInfo {
-        name: link.config.name.clone(),
+        name: link.name().to_owned(),
         kind: String::new(),
         port: None,
         baud: None,
@@ -270,10 +271,10 @@ pub fn link_info(link: &Link) -> LinkInfo {
         error_code: diag.error_code.code(),
         devices,
     };
-    match &link.config.transport {
+    match link.config().transport {
         Transport::Serial(s) => {
             info.kind = "serial".into();
-            info.port = Some(s.port.clone());
+            info.port = Some(s.port);
             info.baud = Some(s.baud);
             info.parity = Some(s.parity.letter().to_string());
             info.data_bits = Some(s.data_bits);
@@ -285,8 +286,8 @@ pub fn link_info(link: &Link) -> LinkInfo {
             framing,
         } => {
             info.kind = "tcp".into();
-            info.host = Some(host.clone());
-            info.tcp_port = Some(*port);
+            info.host = Some(host);
+            info.tcp_port = Some(port);
             info.framing = Some(framing.name().into());
         }
     }

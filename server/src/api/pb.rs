@@ -52,12 +52,13 @@ pub fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
 
 pub fn device(device: &Device, with_fields: bool) -> pb::Device {
     let c = &device.config;
+    let binding = device.binding();
     pb::Device {
         name: device.name().to_owned(),
         profile: device.profile.name.clone(),
         protocol: device.profile.protocol.name().to_owned(),
-        link: c.link.clone().unwrap_or_default(),
-        slave_id: c.slave_id.map_or(0, u32::from),
+        link: binding.link.unwrap_or_default(),
+        slave_id: binding.slave_id.map_or(0, u32::from),
         refresh_rate_ms: millis(c.refresh_rate),
         timeout_ms: millis(c.timeout),
         diagnostics: Some(diagnostics(device, &device.diagnostics())),
@@ -87,15 +88,16 @@ pub fn serial(s: &SerialSettings) -> pb::SerialSettings {
 
 pub fn link(link: &Link) -> pb::Link {
     let d = link.diagnostics();
-    let transport = match &link.config.transport {
-        Transport::Serial(s) => pb::link::Transport::Serial(serial(s)),
+    let config = link.config();
+    let transport = match config.transport {
+        Transport::Serial(s) => pb::link::Transport::Serial(serial(&s)),
         Transport::Tcp {
             host,
             port,
             framing,
         } => pb::link::Transport::Tcp(pb::TcpSettings {
-            host: host.clone(),
-            port: (*port).into(),
+            host,
+            port: port.into(),
             framing: framing.name().to_owned(),
         }),
     };
@@ -105,7 +107,7 @@ pub fn link(link: &Link) -> pb::Link {
         connected: d.connected,
         error_code: d.error_code.code().into(),
         devices: link.members().iter().map(|d| d.name().to_owned()).collect(),
-        guard_time_ms: millis(link.config.guard_time),
+        guard_time_ms: millis(config.guard_time),
     }
 }
 

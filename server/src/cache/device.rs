@@ -1,7 +1,7 @@
 //! One device: its profile, the latest sample of every field, its diagnostics, its
 //! requested outputs and, for a simulated device, the memory that stands for the device.
 
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, SystemTime};
 
 use tokio::sync::{Notify, watch};
@@ -28,8 +28,29 @@ pub struct Device {
     outputs: Outputs,
     /// Values of a simulated device's fields.
     sim: Option<Mutex<Vec<Value>>>,
+    /// The link and slave id the device is polled with; a device declared at run time
+    /// without them reports error 1 or 2 until it is declared again with them.
+    binding: RwLock<Binding>,
     /// Wakes the task that owns the device (its link's task, or its simulator).
-    wake: Arc<Notify>,
+    wake: Mutex<Arc<Notify>>,
+}
+
+/// Where a device is reached.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Binding {
+    pub link: Option<String>,
+    pub slave_id: Option<u8>,
+}
+
+impl Binding {
+    /// The device's error code for this binding (a simulated device needs none).
+    fn code(&self, simulated: bool) -> DeviceCode {
+        match (simulated, &self.link, self.slave_id) {
+            (false, None, _) => DeviceCode::NoLink,
+            (false, _, None) => DeviceCode::NoSlave,
+            _ => DeviceCode::Ok,
+        }
+    }
 }
 
 impl Device {
@@ -41,11 +62,11 @@ impl Device {
     ) -> Self {
         let n = profile.fields.len();
         let simulated = profile.protocol == Protocol::Simulated;
-        let error_code = match (simulated, &config.link, config.slave_id) {
-            (false, None, _) => DeviceCode::NoLink,
-            (false, _, None) => DeviceCode::NoSlave,
-            _ => DeviceCode::Ok,
+        let binding = Binding {
+            link: config.link.clone(),
+            slave_id: config.slave_id,
         };
+        let error_code = binding.code(simulated);
         Device {
             samples: (0..n)
                 .map(|_| watch::Sender::new(Sample::never_read()))
@@ -61,8 +82,36 @@ impl Device {
                 .then(|| Mutex::new(profile.fields.iter().map(|f| Value::zero(f.ty)).collect())),
             config,
             profile,
-            wake,
+            binding: RwLock::new(binding),
+            wake: Mutex::new(wake),
         }
+    }
+
+    /// The link and slave id the device is polled with now.
+    pub fn binding(&self) -> Binding {
+        self.binding
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    pub fn slave_id(&self) -> Option<u8> {
+        self.binding
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .slave_id
+    }
+
+    /// Binds a device declared without a link or slave id; `wake` is its link's.
+    pub(crate) fn bind(&self, binding: Binding, wake: Arc<Notify>) {
+        let code = binding.code(self.is_simulated());
+        *self.binding.write().unwrap_or_else(|e| e.into_inner()) = binding;
+        *lock(&self.wake) = wake;
+        self.diagnostics.send_if_modified(|d| {
+            let changed = d.error_code != code;
+            d.error_code = code;
+            changed
+        });
     }
 
     pub fn name(&self) -> &str {
@@ -201,7 +250,7 @@ impl Device {
         let generation = self
             .outputs
             .request(self.name(), &self.field(idx).name, idx, value);
-        self.wake.notify_one();
+        lock(&self.wake).notify_one();
         Ok(generation)
     }
 

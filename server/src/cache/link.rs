@@ -1,5 +1,6 @@
-//! One link as the cache sees it: its configuration, its diagnostics and the devices on it
-//! (which can grow at run time; the link's task notices by the version counter).
+//! One link as the cache sees it: its configuration, its diagnostics and the devices on it.
+//! Devices can be added at run time, and a link declared without a port can be given one;
+//! the link's task notices either by the version counter.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, RwLock};
@@ -8,19 +9,22 @@ use tokio::sync::{Notify, watch};
 
 use super::Device;
 use super::sample::LinkDiagnostics;
-use crate::config::LinkConfig;
+use std::time::Duration;
+
+use crate::config::{LinkConfig, Transport};
 use crate::link::LinkCode;
 
 /// A link, its diagnostics and the devices on it.
 #[derive(Debug)]
 pub struct Link {
-    pub config: LinkConfig,
+    name: String,
+    config: RwLock<LinkConfig>,
     diagnostics: watch::Sender<LinkDiagnostics>,
     /// Wakes the link's task when a write to one of its devices is requested, or a device
     /// is added.
     pub wake: Arc<Notify>,
     members: RwLock<Vec<Arc<Device>>>,
-    /// Counts changes of `members`, so the link's task notices new devices.
+    /// Counts changes of `members` and of the configuration, so the link's task notices.
     version: AtomicU64,
 }
 
@@ -28,7 +32,8 @@ impl Link {
     pub fn new(config: LinkConfig) -> Self {
         Link {
             wake: Arc::new(Notify::new()),
-            config,
+            name: config.name.clone(),
+            config: RwLock::new(config),
             diagnostics: watch::Sender::new(LinkDiagnostics {
                 connected: false,
                 error_code: LinkCode::Ok,
@@ -39,7 +44,29 @@ impl Link {
     }
 
     pub fn name(&self) -> &str {
-        &self.config.name
+        &self.name
+    }
+
+    /// The link's settings as they are now.
+    pub fn config(&self) -> LinkConfig {
+        super::read(&self.config).clone()
+    }
+
+    /// Whether the link has a transport to open: a serial link declared with an empty port
+    /// has none until it is declared again with one (`SerialLink` error 1 meanwhile).
+    pub fn is_configured(&self) -> bool {
+        super::read(&self.config).transport.is_configured()
+    }
+
+    /// Gives an unconfigured link its transport; its task opens it at once.
+    pub(crate) fn configure(&self, transport: Transport, guard_time: Duration) {
+        {
+            let mut config = super::write(&self.config);
+            config.transport = transport;
+            config.guard_time = guard_time;
+        }
+        self.version.fetch_add(1, Ordering::AcqRel);
+        self.wake.notify_one();
     }
 
     pub fn diagnostics(&self) -> LinkDiagnostics {

@@ -19,7 +19,7 @@ use crate::config::{Config, DeviceConfig, LinkConfig};
 use crate::profile::{Catalog, Profile};
 use crate::writes::WriteLog;
 
-pub use device::{Device, SIM_STRING_MAX};
+pub use device::{Binding, Device, SIM_STRING_MAX};
 pub use link::Link;
 pub use outputs::{Outputs, TakenWrite, WriteError};
 pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
@@ -130,12 +130,27 @@ impl Cache {
         let wake = link
             .as_ref()
             .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let bound = config.slave_id.is_some();
         let device = Arc::new(Device::new(config, profile, self.writes.clone(), wake));
         registry.devices.push(device.clone());
-        if let Some(link) = link {
+        if let Some(link) = link.filter(|_| bound) {
             link.add_member(device.clone());
         }
         device
+    }
+
+    /// Binds a device that was declared without its link or slave id; once it has both, its
+    /// link's task polls it.
+    pub(crate) fn bind_device(&self, registry: &Registry, device: &Arc<Device>, binding: Binding) {
+        let link = binding.link.as_ref().and_then(|name| registry.link(name));
+        let wake = link.map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let member = link.filter(|_| binding.slave_id.is_some()).cloned();
+        device.bind(binding, wake);
+        if let Some(link) = member
+            && !link.members().iter().any(|m| Arc::ptr_eq(m, device))
+        {
+            link.add_member(device.clone());
+        }
     }
 
     /// Runs `f` with the registry locked for changes: checks and inserts happen at once.

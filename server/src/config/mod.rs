@@ -51,10 +51,22 @@ pub enum Transport {
 }
 
 impl Transport {
-    /// Whether both reach the same port or TCP endpoint (whatever their other settings).
+    /// Whether there is something to open: a serial port can be declared empty at run time
+    /// (`SerialLink` error 1 of source document 000, "no port configured") and given later.
+    pub fn is_configured(&self) -> bool {
+        match self {
+            Transport::Serial(s) => !s.port.trim().is_empty(),
+            Transport::Tcp { .. } => true,
+        }
+    }
+
+    /// Whether both reach the same port or TCP endpoint (whatever their other settings);
+    /// unconfigured serial links are each their own.
     pub fn same_endpoint(&self, other: &Transport) -> bool {
         match (self, other) {
-            (Transport::Serial(a), Transport::Serial(b)) => a.port == b.port,
+            (Transport::Serial(a), Transport::Serial(b)) => {
+                a.port == b.port && self.is_configured()
+            }
             (
                 Transport::Tcp {
                     host: h1, port: p1, ..

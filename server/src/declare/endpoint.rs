@@ -40,15 +40,21 @@ impl Endpoint {
                     text => rules::parse_parity(text),
                 };
                 let parity = parity.map_err(|e| DeclareError::Rules(vec![e]))?;
-                rules::serial(
-                    port.clone(),
+                // An empty port is a state, not a mistake, at run time: the link reports
+                // `SerialLink` error 1 until it is declared again with one.
+                let unset = port.trim().is_empty();
+                let checked = rules::serial(
+                    if unset { "-".to_owned() } else { port.clone() },
                     *baud,
                     parity,
                     or(*data_bits, rules::DEFAULT_DATA_BITS),
                     or(*stop_bits, rules::DEFAULT_STOP_BITS),
-                )
-                .map(Transport::Serial)
-                .map_err(DeclareError::Rules)
+                );
+                let mut settings = checked.map_err(DeclareError::Rules)?;
+                if unset {
+                    settings.port = String::new();
+                }
+                Ok(Transport::Serial(settings))
             }
             Endpoint::Tcp {
                 host,

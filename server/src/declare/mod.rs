@@ -9,8 +9,8 @@ mod error;
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::cache::{Cache, Device, Link, Registry};
-use crate::config::rules;
+use crate::cache::{Binding, Cache, Device, Link, Registry};
+use crate::config::rules::{self, RuleError};
 use crate::config::{DeviceConfig, LinkConfig, Transport};
 use crate::profile::Protocol;
 use crate::runtime::Tasks;
@@ -73,7 +73,7 @@ fn valid_name(what: &'static str, name: &str) -> Result<(), DeclareError> {
 
 /// Where `declared` differs from the link `existing` on the same endpoint.
 fn link_conflicts(existing: &Link, declared: &Transport, name: Option<&String>) -> Vec<Conflict> {
-    let mut conflicts = match (&existing.config.transport, declared) {
+    let mut conflicts = match (&existing.config().transport, declared) {
         (Transport::Serial(have), Transport::Serial(want)) => rules::serial_mismatches(have, want)
             .into_iter()
             .map(|mismatch| Conflict::Serial {
@@ -114,7 +114,7 @@ pub fn ensure_link(
         if let Some(existing) = registry
             .links
             .iter()
-            .find(|l| l.config.transport.same_endpoint(&transport))
+            .find(|l| l.config().transport.same_endpoint(&transport))
         {
             let conflicts = link_conflicts(existing, &transport, decl.name.as_ref());
             if !conflicts.is_empty() {
@@ -128,15 +128,31 @@ pub fn ensure_link(
                 created: false,
             });
         }
+        if decl.name.is_none() && !transport.is_configured() {
+            // Nothing to name it by: without a name a port is required.
+            return Err(DeclareError::Rules(vec![RuleError::NoPort]));
+        }
         let name = decl
             .name
             .clone()
             .unwrap_or_else(|| default_name(&transport));
         valid_name("link", &name)?;
         if let Some(other) = registry.link(&name) {
+            // A link declared without a port gets one when it is declared again with it,
+            // the way a `SerialLink` instance whose port was empty is called again.
+            if !other.is_configured() {
+                if transport.is_configured() {
+                    other.configure(transport.clone(), guard_time);
+                    tracing::info!(link = %name, "link given its port");
+                }
+                return Ok(Ensured {
+                    value: other.clone(),
+                    created: false,
+                });
+            }
             return Err(DeclareError::NameTaken {
                 name,
-                endpoint: other.config.transport.to_string(),
+                endpoint: other.config().transport.to_string(),
             });
         }
         let link = cache.insert_link(
@@ -160,42 +176,44 @@ pub fn ensure_link(
     Ok(ensured)
 }
 
-/// Where `decl` differs from the device `existing` of the same name.
+/// Where `decl` differs from the device `existing` of the same name. A link or slave id the
+/// device does not have yet is no conflict: declaring it binds the device.
 fn device_conflicts(
-    existing: &DeviceConfig,
+    existing: &Device,
     decl: &DeviceDeclaration,
     profile: &str,
-    link: &Option<String>,
-    slave_id: Option<u8>,
+    want: &Binding,
 ) -> Vec<Conflict> {
     let mut conflicts = Vec::new();
-    if existing.profile != profile {
+    let (config, have) = (&existing.config, existing.binding());
+    if config.profile != profile {
         conflicts.push(Conflict::Profile {
-            have: existing.profile.clone(),
+            have: config.profile.clone(),
             want: profile.to_owned(),
         });
     }
-    if existing.link != *link {
+    if have.link.is_some() && have.link != want.link {
         conflicts.push(Conflict::Link {
-            have: existing.link.clone(),
-            want: link.clone(),
+            have: have.link.clone(),
+            want: want.link.clone(),
         });
     }
-    if existing.slave_id != slave_id {
+    if have.slave_id.is_some() && have.slave_id != want.slave_id {
         conflicts.push(Conflict::SlaveId {
-            have: existing.slave_id.unwrap_or(0),
-            want: slave_id.unwrap_or(0),
+            have: have.slave_id.unwrap_or(0),
+            want: want.slave_id.unwrap_or(0),
         });
     }
-    if existing.refresh_rate != decl.refresh_rate {
+    let config = &existing.config;
+    if config.refresh_rate != decl.refresh_rate {
         conflicts.push(Conflict::RefreshRate {
-            have: existing.refresh_rate,
+            have: config.refresh_rate,
             want: decl.refresh_rate,
         });
     }
-    if let Some(want) = decl.timeout.filter(|t| *t != existing.timeout) {
+    if let Some(want) = decl.timeout.filter(|t| *t != config.timeout) {
         conflicts.push(Conflict::Timeout {
-            have: existing.timeout,
+            have: config.timeout,
             want,
         });
     }
@@ -204,6 +222,11 @@ fn device_conflicts(
 
 /// Declares a device: returns the device of that name if its settings agree, creates it
 /// otherwise. Its link's task starts polling it at once; a simulated device gets its task.
+///
+/// A Modbus device declared with no link, or with slave id 0, is accepted and reports
+/// error 1 (no link) or 2 (no slave) until it is declared again with them, as the device
+/// function blocks of source document 000 do when called before their link is set. (A
+/// config file refuses such devices: a file has no "later".)
 pub fn ensure_device(
     cache: &Cache,
     tasks: &Tasks,
@@ -217,7 +240,10 @@ pub fn ensure_device(
     let simulated = profile.protocol == Protocol::Simulated;
     let link = (!decl.link.trim().is_empty()).then_some(decl.link.as_str());
     let slave = (decl.slave_id != 0).then_some(u64::from(decl.slave_id));
-    let mut broken = rules::binding(&profile, link, slave);
+    let mut broken: Vec<RuleError> = rules::binding(&profile, link, slave)
+        .into_iter()
+        .filter(|e| !matches!(e, RuleError::NoLink { .. } | RuleError::NoSlave))
+        .collect();
     broken.extend(rules::period("refresh_rate", decl.refresh_rate).err());
     if let Some(t) = decl.timeout {
         broken.extend(rules::period("timeout", t).err());
@@ -231,7 +257,7 @@ pub fn ensure_device(
             Some(link) => {
                 let found = registry.link(link).or_else(|| {
                     registry.links.iter().find(
-                        |l| matches!(&l.config.transport, Transport::Serial(s) if s.port == link),
+                        |l| matches!(&l.config().transport, Transport::Serial(s) if s.port == link),
                     )
                 });
                 let found = found.ok_or_else(|| DeclareError::UnknownLink(link.to_owned()))?;
@@ -239,14 +265,26 @@ pub fn ensure_device(
             }
         };
         let slave_id = slave.and_then(|id| rules::slave_id(id).ok());
+        let want = Binding {
+            link: link.clone(),
+            slave_id,
+        };
         if let Some(existing) = registry.device(&decl.name) {
-            let conflicts =
-                device_conflicts(&existing.config, &decl, &profile.name, &link, slave_id);
+            let conflicts = device_conflicts(existing, &decl, &profile.name, &want);
             if !conflicts.is_empty() {
                 return Err(DeclareError::DeviceConflict {
                     device: decl.name.clone(),
                     conflicts,
                 });
+            }
+            let have = existing.binding();
+            if !simulated && have != want && (have.link.is_none() || have.slave_id.is_none()) {
+                let bound = Binding {
+                    link: have.link.or(want.link),
+                    slave_id: have.slave_id.or(want.slave_id),
+                };
+                tracing::info!(device = %decl.name, link = ?bound.link, slave = ?bound.slave_id, "device bound");
+                cache.bind_device(registry, existing, bound);
             }
             return Ok(Ensured {
                 value: existing.clone(),

@@ -45,7 +45,7 @@ impl Bus {
         request: &Request,
         retries: u32,
     ) -> (Result<Response, TxError>, Duration) {
-        let slave = device.config.slave_id.unwrap_or(0);
+        let slave = device.slave_id().unwrap_or(0);
         let mut attempt = 0;
         loop {
             let started = Instant::now();

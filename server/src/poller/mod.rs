@@ -123,7 +123,7 @@ impl LinkTask {
         for device in self.link.members().into_iter().skip(self.devices.len()) {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
             self.devices.push(Polled {
-                slave: device.config.slave_id.unwrap_or(0),
+                slave: device.slave_id().unwrap_or(0),
                 reads: plan::read_batches(
                     &device.profile,
                     device.config.max_batch,
@@ -136,13 +136,14 @@ impl LinkTask {
                 single_writes: false,
             });
         }
-        self.planned = match &self.link.config.transport {
+        let config = self.link.config();
+        self.planned = match &config.transport {
             Transport::Serial(s) => Some(plan::utilisation(
                 self.devices
                     .iter()
                     .map(|p| (&p.device.config, p.reads.as_slice())),
                 &LineTiming::new(s),
-                self.link.config.guard_time,
+                config.guard_time,
             )),
             Transport::Tcp { .. } => None,
         };
@@ -163,16 +164,17 @@ impl LinkTask {
     }
 
     pub async fn run(mut self, token: CancellationToken) {
-        let name = self.link.config.name.clone();
+        let name = self.link.name().to_owned();
         let mut reopen = REOPEN_MIN;
         let mut lost = false;
         // Why the link is down, logged once per distinct reason.
         let mut down: Option<LinkFault> = None;
         'reopen: loop {
             self.sync_members();
+            let tried = self.link.config();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
-                r = tokio::time::timeout(CONNECT_TIMEOUT, link::open(&self.link.config, self.link.config.guard_time)) => r,
+                r = tokio::time::timeout(CONNECT_TIMEOUT, link::open(&tried, tried.guard_time)) => r,
             };
             match opened.unwrap_or(Err(LinkFault::ConnectTimeout(CONNECT_TIMEOUT))) {
                 Err(fault) => {
@@ -218,6 +220,11 @@ impl LinkTask {
                     _ = sleep_until(retry_at) => break,
                     _ = self.link.wake.notified() => {
                         self.sync_members();
+                        if self.link.config() != tried {
+                            // Declared again with a port: open it now.
+                            reopen = REOPEN_MIN;
+                            continue 'reopen;
+                        }
                         if let Some(fault) = &down {
                             self.all_unreachable(fault);
                         }
