@@ -7,7 +7,7 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use crate::cache::AccessError;
-use crate::declare::Refusal;
+use crate::declare::{DeclareError, Refusal};
 use crate::service::ServiceError;
 
 /// An error answer: `{"error": {"code": "...", "message": "..."}}`.
@@ -78,10 +78,16 @@ impl From<ServiceError> for ApiError {
                 .map_or((StatusCode::BAD_REQUEST, "invalid_value"), access_status),
             ServiceError::UnknownWrite(_) => (StatusCode::NOT_FOUND, "unknown_write"),
             ServiceError::WriteExpired { .. } => (StatusCode::GONE, "write_expired"),
+            ServiceError::Declare(DeclareError::UnknownProfile(_)) => {
+                (StatusCode::NOT_FOUND, "unknown_profile")
+            }
+            ServiceError::Declare(DeclareError::UnknownLink(_)) => {
+                (StatusCode::NOT_FOUND, "unknown_link")
+            }
             ServiceError::Declare(d) => match d.refusal() {
                 Refusal::Invalid => (StatusCode::BAD_REQUEST, "invalid_declaration"),
                 Refusal::NotFound => (StatusCode::NOT_FOUND, "not_found"),
-                Refusal::Conflict => (StatusCode::CONFLICT, "conflict"),
+                Refusal::Conflict => (StatusCode::CONFLICT, "declaration_conflict"),
             },
             ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
         };

@@ -3,6 +3,7 @@
 //! reflection) on its own. Each handler parses, calls the service, and maps the answer.
 
 pub mod convert;
+pub mod declare;
 pub mod error;
 pub mod events;
 pub mod grpc;
@@ -36,7 +37,7 @@ pub const API_PREFIX: &str = "/api/v1";
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
-        events::events,
+        events::events, declare::put_link, declare::put_device,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
@@ -77,9 +78,12 @@ pub fn router(service: Arc<Service>) -> Router {
     let api = Router::new()
         .route("/openapi.json", get(openapi_json))
         .route("/links", get(rest::list_links))
-        .route("/links/{link}", get(rest::get_link))
+        .route("/links/{link}", get(rest::get_link).put(declare::put_link))
         .route("/devices", get(rest::list_devices))
-        .route("/devices/{device}", get(rest::get_device))
+        .route(
+            "/devices/{device}",
+            get(rest::get_device).put(declare::put_device),
+        )
         .route(
             "/devices/{device}/fields",
             axum::routing::patch(rest::patch_fields),

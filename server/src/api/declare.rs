@@ -1,0 +1,193 @@
+//! `PUT /api/v1/links/{link}` and `PUT /api/v1/devices/{device}`: the REST form of the
+//! run-time declarations (gRPC `EnsureLink` / `EnsureDevice`). Idempotent: declaring what
+//! exists answers 200, creating answers 201; a contradiction is 409 naming it.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use super::convert::{DeviceInfo, LinkInfo, device_info, link_info};
+use super::error::{ApiError, ErrorBody};
+use crate::config::rules;
+use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration};
+use crate::service::Service;
+
+/// A serial line as a `SerialLink` instance declares it. An empty or missing `port` is
+/// accepted: the link reports error 1 (no port configured) until it is declared again with
+/// one.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SerialDeclaration {
+    #[serde(default)]
+    pub port: String,
+    pub baud: u64,
+    /// `N` (default), `E` or `O`.
+    #[serde(default)]
+    pub parity: String,
+    /// 7 or 8 (default).
+    #[serde(default)]
+    pub data_bits: u64,
+    /// 1 (default) or 2.
+    #[serde(default)]
+    pub stop_bits: u64,
+}
+
+/// A Modbus TCP endpoint (or RTU frames over TCP).
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TcpDeclaration {
+    pub host: String,
+    /// Default 502.
+    #[serde(default)]
+    pub port: u64,
+    /// `mbap` (default) or `rtu`.
+    #[serde(default)]
+    pub framing: String,
+}
+
+/// The body of `PUT /api/v1/links/{link}`: `serial` or `tcp`.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct LinkDeclarationBody {
+    pub serial: Option<SerialDeclaration>,
+    pub tcp: Option<TcpDeclaration>,
+    /// Extra silence between frames, 0-1000 ms.
+    #[serde(default)]
+    pub guard_time_ms: u64,
+}
+
+/// The body of `PUT /api/v1/devices/{device}`. A Modbus device declared without `link` (or
+/// with `slave_id` 0) is accepted and reports error 1 (or 2) until declared again with it.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct DeviceDeclarationBody {
+    pub profile: String,
+    /// A link name, or a serial port path as a `SerialLink`'s `port`; none for simulated
+    /// devices.
+    #[serde(default)]
+    pub link: String,
+    #[serde(default)]
+    pub slave_id: u32,
+    /// Default 100.
+    pub refresh_rate_ms: Option<u64>,
+    /// Default 200.
+    pub timeout_ms: Option<u64>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct LinkDeclared {
+    pub link: LinkInfo,
+    /// Whether the declaration created the link (else it existed, or was given its port).
+    pub created: bool,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DeviceDeclared {
+    pub device: DeviceInfo,
+    /// Whether the declaration created the device (else it existed, or was bound).
+    pub created: bool,
+}
+
+fn body_of<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> {
+    serde_json::from_slice(body).map_err(|e| {
+        ApiError::bad_request("invalid_body", format!("the declaration is not valid: {e}"))
+    })
+}
+
+fn status(created: bool) -> StatusCode {
+    if created {
+        StatusCode::CREATED
+    } else {
+        StatusCode::OK
+    }
+}
+
+/// Declares a link (idempotent): an existing link with the same endpoint and settings is
+/// answered as it is; different settings on its port are refused, naming each mismatch.
+#[utoipa::path(put, path = "/api/v1/links/{link}", tag = "links",
+    params(("link" = String, Path, description = "link name")),
+    request_body = LinkDeclarationBody,
+    responses((status = 200, description = "the link existed with these settings", body = LinkDeclared),
+              (status = 201, description = "the link was created and is being opened", body = LinkDeclared),
+              (status = 400, description = "a setting breaks a rule", body = ErrorBody),
+              (status = 409, description = "the port or name is in use with other settings", body = ErrorBody)))]
+pub async fn put_link(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<(StatusCode, Json<LinkDeclared>), ApiError> {
+    let body: LinkDeclarationBody = body_of(&body)?;
+    let endpoint = match (body.serial, body.tcp) {
+        (Some(s), None) => Endpoint::Serial {
+            port: s.port,
+            baud: s.baud,
+            parity: s.parity,
+            data_bits: s.data_bits,
+            stop_bits: s.stop_bits,
+        },
+        (None, Some(t)) => Endpoint::Tcp {
+            host: t.host,
+            port: t.port,
+            framing: t.framing,
+        },
+        _ => {
+            return Err(ApiError::bad_request(
+                "invalid_body",
+                "a link needs `serial` or `tcp` settings (one of them)",
+            ));
+        }
+    };
+    let ensured = service.ensure_link(LinkDeclaration {
+        name: Some(name),
+        endpoint,
+        guard_time: Duration::from_millis(body.guard_time_ms),
+    })?;
+    Ok((
+        status(ensured.created),
+        Json(LinkDeclared {
+            link: link_info(&ensured.value),
+            created: ensured.created,
+        }),
+    ))
+}
+
+/// Declares a device (idempotent): a device of that name with the same settings is answered
+/// as it is; a new one is polled at once by its link.
+#[utoipa::path(put, path = "/api/v1/devices/{device}", tag = "devices",
+    params(("device" = String, Path, description = "device name")),
+    request_body = DeviceDeclarationBody,
+    responses((status = 200, description = "the device existed with these settings (or was bound)", body = DeviceDeclared),
+              (status = 201, description = "the device was created", body = DeviceDeclared),
+              (status = 400, description = "a setting breaks a rule", body = ErrorBody),
+              (status = 404, description = "unknown profile or link", body = ErrorBody),
+              (status = 409, description = "the device exists with other settings", body = ErrorBody)))]
+pub async fn put_device(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Result<(StatusCode, Json<DeviceDeclared>), ApiError> {
+    let body: DeviceDeclarationBody = body_of(&body)?;
+    let ensured = service.ensure_device(DeviceDeclaration {
+        name,
+        profile: body.profile,
+        link: body.link,
+        slave_id: body.slave_id,
+        refresh_rate: body
+            .refresh_rate_ms
+            .map_or(rules::DEFAULT_REFRESH, Duration::from_millis),
+        timeout: body.timeout_ms.map(Duration::from_millis),
+    })?;
+    Ok((
+        status(ensured.created),
+        Json(DeviceDeclared {
+            device: device_info(&ensured.value),
+            created: ensured.created,
+        }),
+    ))
+}
