@@ -32,8 +32,8 @@ fn event(name: &str, data: &impl Serialize) -> Event {
 /// the JSON of `GET .../fields/{field}` and of a device's diagnostics.
 #[utoipa::path(get, path = "/api/v1/events", tag = "devices",
     params(("device" = Option<String>, Query, description = "only this device")),
-    responses((status = 200, description = "text/event-stream", content_type = "text/event-stream"),
-              (status = 400, body = ErrorBody), (status = 404, body = ErrorBody)))]
+    responses((status = 200, description = "a stream of `value` and `diagnostics` events: current values first, then each change", content_type = "text/event-stream"),
+              (status = 400, description = "an unknown query parameter", body = ErrorBody), (status = 404, description = "unknown device", body = ErrorBody)))]
 pub async fn events(
     State(service): State<Arc<Service>>,
     query: Result<Query<HashMap<String, String>>, QueryRejection>,

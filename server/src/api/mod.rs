@@ -37,7 +37,7 @@ pub const API_PREFIX: &str = "/api/v1";
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
-        events::events, declare::put_link, declare::put_device,
+        events::events, declare::put_link, declare::put_device, openapi_json, metrics,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
@@ -53,10 +53,17 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
     ApiDoc::openapi()
 }
 
+/// This document: the REST API in OpenAPI 3.1.
+#[utoipa::path(get, path = "/api/v1/openapi.json", tag = "health",
+    responses((status = 200, description = "the OpenAPI document", content_type = "application/json")))]
 async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
     Json(openapi())
 }
 
+/// Prometheus metrics in the OpenMetrics text format.
+#[utoipa::path(get, path = "/metrics", tag = "health",
+    responses((status = 200, description = "every metric family, with states copied from the cache at the scrape",
+               content_type = "application/openmetrics-text")))]
 async fn metrics(State(service): State<Arc<Service>>) -> impl IntoResponse {
     (
         [(header::CONTENT_TYPE, crate::metrics::CONTENT_TYPE)],

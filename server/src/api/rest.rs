@@ -23,7 +23,7 @@ pub struct Health {
 }
 
 /// The process is alive.
-#[utoipa::path(get, path = "/livez", tag = "health", responses((status = 200, body = Health)))]
+#[utoipa::path(get, path = "/livez", tag = "health", responses((status = 200, description = "the process is alive", body = Health)))]
 pub async fn livez() -> Json<Health> {
     Json(Health {
         status: "ok".into(),
@@ -32,7 +32,7 @@ pub async fn livez() -> Json<Health> {
 
 /// The gateway is serving (not starting and not shutting down).
 #[utoipa::path(get, path = "/readyz", tag = "health",
-    responses((status = 200, body = Health), (status = 503, body = Health)))]
+    responses((status = 200, description = "serving", body = Health), (status = 503, description = "starting or shutting down", body = Health)))]
 pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
     if service.is_ready() {
         (
@@ -52,7 +52,7 @@ pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
 }
 
 /// Every link with its settings and diagnostics.
-#[utoipa::path(get, path = "/api/v1/links", tag = "links", responses((status = 200, body = LinkList)))]
+#[utoipa::path(get, path = "/api/v1/links", tag = "links", responses((status = 200, description = "every link", body = LinkList)))]
 pub async fn list_links(State(service): ServiceRef) -> Json<LinkList> {
     Json(LinkList {
         links: service.links().iter().map(|l| link_info(l)).collect(),
@@ -62,7 +62,7 @@ pub async fn list_links(State(service): ServiceRef) -> Json<LinkList> {
 /// One link.
 #[utoipa::path(get, path = "/api/v1/links/{link}", tag = "links",
     params(("link" = String, Path, description = "link name")),
-    responses((status = 200, body = LinkInfo), (status = 404, body = ErrorBody)))]
+    responses((status = 200, description = "the link", body = LinkInfo), (status = 404, description = "an unknown name", body = ErrorBody)))]
 pub async fn get_link(
     State(service): ServiceRef,
     Path(name): Path<String>,
@@ -71,7 +71,7 @@ pub async fn get_link(
 }
 
 /// Every device with its diagnostics.
-#[utoipa::path(get, path = "/api/v1/devices", tag = "devices", responses((status = 200, body = DeviceList)))]
+#[utoipa::path(get, path = "/api/v1/devices", tag = "devices", responses((status = 200, description = "every device", body = DeviceList)))]
 pub async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {
     Json(DeviceList {
         devices: service.devices().iter().map(|d| device_info(d)).collect(),
@@ -89,7 +89,7 @@ fn field_json(device: &Device, idx: usize, service: &Service) -> FieldValue {
 /// One device: diagnostics and every field's value.
 #[utoipa::path(get, path = "/api/v1/devices/{device}", tag = "devices",
     params(("device" = String, Path, description = "device name")),
-    responses((status = 200, body = DeviceDetail), (status = 404, body = ErrorBody)))]
+    responses((status = 200, description = "the device with every field", body = DeviceDetail), (status = 404, description = "an unknown name", body = ErrorBody)))]
 pub async fn get_device(
     State(service): ServiceRef,
     Path(name): Path<String>,
@@ -112,7 +112,7 @@ pub async fn get_device(
 #[utoipa::path(get, path = "/api/v1/devices/{device}/fields/{field}", tag = "devices",
     params(("device" = String, Path, description = "device name"),
            ("field" = String, Path, description = "field name (case-insensitive)")),
-    responses((status = 200, body = FieldValue), (status = 404, body = ErrorBody)))]
+    responses((status = 200, description = "the field's value, type, quality and timestamp", body = FieldValue), (status = 404, description = "an unknown name", body = ErrorBody)))]
 pub async fn get_field(
     State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
@@ -171,9 +171,9 @@ fn value_of(body: Json_) -> Json_ {
     params(("device" = String, Path, description = "device name"),
            ("field" = String, Path, description = "field name (case-insensitive)")),
     request_body = WriteRequest,
-    responses((status = 202, body = WriteAccepted),
+    responses((status = 202, description = "accepted: pending, follow it by its generation", body = WriteAccepted),
               (status = 400, description = "wrong type or out of range", body = ErrorBody),
-              (status = 404, body = ErrorBody),
+              (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 409, description = "the field is an input", body = ErrorBody)))]
 pub async fn put_field(
     State(service): ServiceRef,
@@ -191,9 +191,9 @@ pub async fn put_field(
 #[utoipa::path(patch, path = "/api/v1/devices/{device}/fields", tag = "devices",
     params(("device" = String, Path, description = "device name")),
     request_body(content = Object, description = "field name to value"),
-    responses((status = 202, body = WritesAccepted),
-              (status = 400, body = ErrorBody), (status = 404, body = ErrorBody),
-              (status = 409, body = ErrorBody)))]
+    responses((status = 202, description = "every write accepted: pending", body = WritesAccepted),
+              (status = 400, description = "a malformed request or a value the field does not take", body = ErrorBody), (status = 404, description = "an unknown name", body = ErrorBody),
+              (status = 409, description = "the field is an input (or the device not simulated)", body = ErrorBody)))]
 pub async fn patch_fields(
     State(service): ServiceRef,
     Path(name): Path<String>,
@@ -236,8 +236,8 @@ pub struct Simulated {
     params(("device" = String, Path, description = "simulated device name"),
            ("field" = String, Path, description = "an input or inout field")),
     request_body = WriteRequest,
-    responses((status = 202, body = Simulated), (status = 400, body = ErrorBody),
-              (status = 404, body = ErrorBody),
+    responses((status = 202, description = "the input is set; it shows on the next cycle", body = Simulated), (status = 400, description = "a malformed request or a value the field does not take", body = ErrorBody),
+              (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 409, description = "not a simulated device, or an output", body = ErrorBody)))]
 pub async fn simulate_field(
     State(service): ServiceRef,
@@ -261,8 +261,8 @@ pub async fn simulate_field(
 /// The outcome of a write: `pending`, `written`, `superseded` or `failed`.
 #[utoipa::path(get, path = "/api/v1/writes/{generation}", tag = "devices",
     params(("generation" = u64, Path, description = "the generation a write returned")),
-    responses((status = 200, body = WriteInfo), (status = 400, body = ErrorBody),
-              (status = 404, body = ErrorBody),
+    responses((status = 200, description = "where the write stands", body = WriteInfo), (status = 400, description = "a malformed request or a value the field does not take", body = ErrorBody),
+              (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 410, description = "too old: no longer kept", body = ErrorBody)))]
 pub async fn get_write(
     State(service): ServiceRef,
@@ -278,7 +278,7 @@ pub async fn get_write(
 }
 
 /// Every loaded profile.
-#[utoipa::path(get, path = "/api/v1/profiles", tag = "profiles", responses((status = 200, body = ProfileList)))]
+#[utoipa::path(get, path = "/api/v1/profiles", tag = "profiles", responses((status = 200, description = "every loaded profile", body = ProfileList)))]
 pub async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
     Json(ProfileList {
         profiles: service.profiles().map(|p| profile_summary(p)).collect(),
@@ -289,7 +289,7 @@ pub async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
 #[utoipa::path(get, path = "/api/v1/profiles/{profile}/st", tag = "profiles",
     params(("profile" = String, Path, description = "profile name")),
     responses((status = 200, description = "the declaration", content_type = "text/plain"),
-              (status = 404, body = ErrorBody)))]
+              (status = 404, description = "an unknown name", body = ErrorBody)))]
 pub async fn get_profile_st(
     State(service): ServiceRef,
     Path(name): Path<String>,
@@ -307,7 +307,7 @@ pub async fn get_profile_st(
 /// One profile: its fields and its generated function-block layout.
 #[utoipa::path(get, path = "/api/v1/profiles/{profile}", tag = "profiles",
     params(("profile" = String, Path, description = "profile name")),
-    responses((status = 200, body = ProfileDetail), (status = 404, body = ErrorBody)))]
+    responses((status = 200, description = "the profile, its fields and FB layout", body = ProfileDetail), (status = 404, description = "an unknown name", body = ErrorBody)))]
 pub async fn get_profile(
     State(service): ServiceRef,
     Path(name): Path<String>,

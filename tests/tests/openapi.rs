@@ -1,0 +1,127 @@
+//! `/api/v1/openapi.json` is a valid OpenAPI 3.1 document describing every route, so that
+//! client generators and Swagger tools accept it.
+
+use serde_json::Value;
+
+use iogate_tests::{TestGateway, fixtures_dir};
+
+fn oas_schema() -> jsonschema::Validator {
+    let text = std::fs::read_to_string(fixtures_dir().join("openapi/oas-3.1-schema.json"))
+        .expect("the vendored OpenAPI 3.1 schema");
+    let schema: Value = serde_json::from_str(&text).expect("schema JSON");
+    jsonschema::draft202012::new(&schema).expect("a valid JSON Schema")
+}
+
+fn problems(validator: &jsonschema::Validator, doc: &Value) -> Vec<String> {
+    validator
+        .iter_errors(doc)
+        .map(|e| format!("{} at {}", e, e.instance_path()))
+        .collect()
+}
+
+/// Every `$ref` in `value`, as `#/components/...` paths.
+fn refs<'a>(value: &'a Value, out: &mut Vec<&'a str>) {
+    match value {
+        Value::Object(map) => {
+            for (k, v) in map {
+                match (k.as_str(), v) {
+                    ("$ref", Value::String(r)) => out.push(r),
+                    _ => refs(v, out),
+                }
+            }
+        }
+        Value::Array(items) => items.iter().for_each(|v| refs(v, out)),
+        _ => {}
+    }
+}
+
+#[tokio::test]
+async fn the_document_is_valid_openapi_3_1_and_describes_every_route() {
+    let gw = TestGateway::demo().await.expect("demo");
+    let (status, doc) = gw.get("/api/v1/openapi.json").await.expect("openapi");
+    assert_eq!(status, 200);
+    assert!(
+        doc["openapi"]
+            .as_str()
+            .is_some_and(|v| v.starts_with("3.1.")),
+        "{}",
+        doc["openapi"]
+    );
+
+    let validator = oas_schema();
+    let found = problems(&validator, &doc);
+    assert!(
+        found.is_empty(),
+        "{} problems:\n{}",
+        found.len(),
+        found.join("\n")
+    );
+
+    // The check can fail: a response without its required description is caught.
+    let mut broken = doc.clone();
+    if let Some(ok) = broken["paths"]["/livez"]["get"]["responses"]["200"].as_object_mut() {
+        ok.remove("description");
+    }
+    assert!(!problems(&validator, &broken).is_empty());
+
+    // Every reference resolves.
+    let mut all = Vec::new();
+    refs(&doc, &mut all);
+    assert!(!all.is_empty());
+    for r in all {
+        let pointer = r.strip_prefix('#').expect("local reference");
+        assert!(doc.pointer(pointer).is_some(), "{r} does not resolve");
+    }
+
+    // Every route the gateway serves, with its methods.
+    let routes: &[(&str, &[&str])] = &[
+        ("/livez", &["get"]),
+        ("/readyz", &["get"]),
+        ("/metrics", &["get"]),
+        ("/api/v1/openapi.json", &["get"]),
+        ("/api/v1/links", &["get"]),
+        ("/api/v1/links/{link}", &["get", "put"]),
+        ("/api/v1/devices", &["get"]),
+        ("/api/v1/devices/{device}", &["get", "put"]),
+        ("/api/v1/devices/{device}/fields", &["patch"]),
+        ("/api/v1/devices/{device}/fields/{field}", &["get", "put"]),
+        ("/api/v1/devices/{device}/fields/{field}/simulate", &["put"]),
+        ("/api/v1/writes/{generation}", &["get"]),
+        ("/api/v1/profiles", &["get"]),
+        ("/api/v1/profiles/{profile}", &["get"]),
+        ("/api/v1/profiles/{profile}/st", &["get"]),
+        ("/api/v1/events", &["get"]),
+    ];
+    let paths = doc["paths"].as_object().expect("paths");
+    assert_eq!(paths.len(), routes.len(), "{:?}", paths.keys());
+    for (path, methods) in routes {
+        for method in *methods {
+            let operation = &paths[*path][*method];
+            assert!(operation.is_object(), "{method} {path} is not described");
+            let responses = operation["responses"].as_object().expect("responses");
+            assert!(!responses.is_empty(), "{method} {path} has no responses");
+            // Every templated parameter is declared as a path parameter.
+            for name in path.split('{').skip(1).filter_map(|p| p.split('}').next()) {
+                let declared = operation["parameters"]
+                    .as_array()
+                    .is_some_and(|ps| ps.iter().any(|p| p["name"] == name && p["in"] == "path"));
+                assert!(declared, "{method} {path}: parameter {name} not declared");
+            }
+        }
+        // Writes and declarations describe their bodies and their refusals.
+        for method in ["put", "patch"] {
+            let operation = &paths[*path][method];
+            if operation.is_object() {
+                assert!(
+                    operation["requestBody"].is_object(),
+                    "{method} {path} has no request body"
+                );
+                assert!(
+                    operation["responses"]["400"].is_object(),
+                    "{method} {path} does not describe 400"
+                );
+            }
+        }
+    }
+    gw.shutdown().await;
+}
