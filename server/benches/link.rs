@@ -165,6 +165,7 @@ async fn link_task_overhead() {
         catalog,
         profiles_dir: None,
         demo: false,
+        map: None,
     };
     let running = iogate::app::start(setup).await.expect("gateway");
     tokio::time::sleep(Duration::from_millis(300)).await;

@@ -33,6 +33,8 @@ pub struct Setup {
     pub profiles_dir: Option<PathBuf>,
     /// Whether this is the built-in demo.
     pub demo: bool,
+    /// The Modbus TCP server's bindings, when it is configured.
+    pub map: Option<crate::map::Plan>,
 }
 
 impl Setup {
@@ -49,11 +51,13 @@ impl Setup {
 
     pub fn demo() -> Result<Setup, Problems> {
         let (config, catalog) = crate::demo::load()?;
+        let map = crate::map::plan(&config, &catalog)?;
         Ok(Setup {
             config,
             catalog,
             profiles_dir: None,
             demo: true,
+            map,
         })
     }
 
@@ -99,11 +103,13 @@ impl Setup {
             }
         };
         config::check_devices(&config, &catalog)?;
+        let map = crate::map::plan(&config, &catalog)?;
         Ok(Setup {
             config,
             catalog,
             profiles_dir: dir,
             demo: false,
+            map,
         })
     }
 }
@@ -113,6 +119,8 @@ pub struct Running {
     pub service: Arc<Service>,
     pub http_addr: SocketAddr,
     pub grpc_addr: SocketAddr,
+    /// The Modbus TCP server's address, when one is configured.
+    pub modbus_addr: Option<SocketAddr>,
     tracker: TaskTracker,
 }
 
@@ -142,7 +150,10 @@ impl Running {
 /// free port) is in the result.
 pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let Setup {
-        config, catalog, ..
+        config,
+        catalog,
+        map,
+        ..
     } = setup;
     let token = CancellationToken::new();
     let tracker = TaskTracker::new();
@@ -158,7 +169,34 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         tasks.spawn_link(link);
     }
 
-    let service = Arc::new(Service::new(cache, tasks));
+    let mut service = Service::new(cache.clone(), tasks);
+    let mut modbus_listener = None;
+    if let (Some(server), Some(plan)) = (&config.modbus_server, &map) {
+        let image = crate::service::ModbusImage::new(server, plan, &cache)
+            .map_err(|e| anyhow::anyhow!("{e} (modbus_server.memory_file)"))?;
+        service = service.with_modbus(image);
+        let listener = TcpListener::bind(server.listen).await.map_err(|e| {
+            anyhow::anyhow!(
+                "cannot listen on {} (modbus_server.listen): {e}",
+                server.listen
+            )
+        })?;
+        modbus_listener = Some(listener);
+    }
+    let service = Arc::new(service);
+    let modbus_addr = match modbus_listener {
+        Some(listener) => {
+            let addr = listener.local_addr()?;
+            let (modbus_service, shutdown) = (service.clone(), token.clone());
+            tracker.spawn(api::modbus::serve_modbus(
+                listener,
+                modbus_service,
+                shutdown,
+            ));
+            Some(addr)
+        }
+        None => None,
+    };
     let listener = TcpListener::bind(config.http)
         .await
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
@@ -186,6 +224,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         service,
         http_addr,
         grpc_addr,
+        modbus_addr,
         tracker,
     })
 }
@@ -204,6 +243,9 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
         "gRPC:      {} (iogate.v1.Gateway, reflection, health)",
         running.grpc_addr
     );
+    if let Some(addr) = running.modbus_addr {
+        println!("Modbus TCP: {addr} (iogate map prints the located addresses)");
+    }
     println!("Events:    {base}/api/v1/events");
     println!("OpenAPI:   {base}/api/v1/openapi.json");
     println!("Metrics:   {base}/metrics");

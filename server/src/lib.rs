@@ -13,6 +13,7 @@ pub mod declare;
 pub mod demo;
 pub mod duration;
 pub mod link;
+pub mod map;
 pub mod metrics;
 pub mod plan;
 pub mod poller;

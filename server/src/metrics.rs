@@ -39,6 +39,10 @@ pub const DEVICE_TIMEOUTS: &str = "iogate_device_timeouts";
 pub const DEVICE_CRC_ERRORS: &str = "iogate_device_crc_errors";
 pub const DEVICE_EXCEPTIONS: &str = "iogate_device_exceptions";
 pub const DEVICE_WRITES: &str = "iogate_device_writes";
+pub const MODBUS_SERVER_CONNECTIONS: &str = "iogate_modbus_server_connections";
+pub const MODBUS_SERVER_REFUSED: &str = "iogate_modbus_server_refused_connections";
+pub const MODBUS_SERVER_REQUESTS: &str = "iogate_modbus_server_requests";
+pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct LinkLabels {
@@ -60,6 +64,17 @@ pub struct RequestLabels {
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct ExceptionLabels {
     pub device: String,
+    pub code: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ServerRequestLabels {
+    pub function: String,
+    pub outcome: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct CodeLabels {
     pub code: String,
 }
 
@@ -95,6 +110,10 @@ pub struct Metrics {
     crc_errors: Family<DeviceLabels, Counter>,
     exceptions: Family<ExceptionLabels, Counter>,
     writes: Family<WriteLabels, Counter>,
+    server_connections: Gauge,
+    server_refused: Counter,
+    server_requests: Family<ServerRequestLabels, Counter>,
+    server_exceptions: Family<CodeLabels, Counter>,
 }
 
 impl std::fmt::Debug for Metrics {
@@ -130,6 +149,10 @@ impl Metrics {
             crc_errors: Family::default(),
             exceptions: Family::default(),
             writes: Family::default(),
+            server_connections: Gauge::default(),
+            server_refused: Counter::default(),
+            server_requests: Family::default(),
+            server_exceptions: Family::default(),
             registry: Registry::default(),
         };
         registry.register(
@@ -217,7 +240,58 @@ impl Metrics {
             "Writes by final outcome: written, superseded, failed",
             m.writes.clone(),
         );
+        registry.register(
+            MODBUS_SERVER_CONNECTIONS,
+            "Open connections of Modbus TCP masters",
+            m.server_connections.clone(),
+        );
+        registry.register(
+            MODBUS_SERVER_REFUSED,
+            "Modbus TCP connections refused (max_connections reached)",
+            m.server_refused.clone(),
+        );
+        registry.register(
+            MODBUS_SERVER_REQUESTS,
+            "Requests the Modbus TCP server answered, by function and outcome (ok, exception, forwarded)",
+            m.server_requests.clone(),
+        );
+        registry.register(
+            MODBUS_SERVER_EXCEPTIONS,
+            "Exception responses of the Modbus TCP server, by code",
+            m.server_exceptions.clone(),
+        );
         Metrics { registry, ..m }
+    }
+
+    /// A master connected (`true`) or went away.
+    pub fn server_connection(&self, open: bool) {
+        if open {
+            self.server_connections.inc();
+        } else {
+            self.server_connections.dec();
+        }
+    }
+
+    pub fn server_refused(&self) {
+        self.server_refused.inc();
+    }
+
+    /// One request the Modbus TCP server answered: `function` as `fc03`, and the exception
+    /// it answered with, if any.
+    pub fn server_request(&self, function: &str, outcome: &str, exception: Option<u8>) {
+        self.server_requests
+            .get_or_create(&ServerRequestLabels {
+                function: function.to_owned(),
+                outcome: outcome.to_owned(),
+            })
+            .inc();
+        if let Some(code) = exception {
+            self.server_exceptions
+                .get_or_create(&CodeLabels {
+                    code: format!("{code:02}"),
+                })
+                .inc();
+        }
     }
 
     /// Records one transaction's outcome.

@@ -155,6 +155,9 @@ fn main() -> anyhow::Result<()> {
         let mut setup = iogate::app::Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
+        if let Some(server) = setup.config.modbus_server.as_mut() {
+            server.listen = "127.0.0.1:0".parse()?;
+        }
         let running = iogate::app::start(setup).await?;
         let url = format!("http://{}", running.grpc_addr);
         println!("gateway and clients share one process and 2 cores");

@@ -27,6 +27,8 @@ pub struct TestGateway {
     /// The gRPC endpoint, e.g. `http://127.0.0.1:40123`.
     pub grpc: String,
     pub client: reqwest::Client,
+    /// The Modbus TCP server's address, when the config has one.
+    pub modbus: Option<std::net::SocketAddr>,
     running: Option<Running>,
 }
 
@@ -37,6 +39,9 @@ impl TestGateway {
             iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
         config.http = "127.0.0.1:0".parse()?;
         config.grpc = "127.0.0.1:0".parse()?;
+        if let Some(server) = config.modbus_server.as_mut() {
+            server.listen = "127.0.0.1:0".parse()?;
+        }
         if config.profiles.is_none() {
             config.profiles = Some(profiles_dir());
         }
@@ -50,6 +55,9 @@ impl TestGateway {
         let mut setup = Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
+        if let Some(server) = setup.config.modbus_server.as_mut() {
+            server.listen = "127.0.0.1:0".parse()?;
+        }
         TestGateway::start_setup(setup).await
     }
 
@@ -64,6 +72,7 @@ impl TestGateway {
             base: format!("http://{}", running.http_addr),
             grpc: format!("http://{}", running.grpc_addr),
             client: reqwest::Client::new(),
+            modbus: running.modbus_addr,
             running: Some(running),
         };
         let ready = gateway.url("/readyz");

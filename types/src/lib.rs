@@ -5,11 +5,13 @@
 #![forbid(unsafe_code)]
 
 mod iec;
+pub mod located;
 pub mod pb;
 mod state;
 pub mod time;
 mod value;
 
 pub use iec::{IecType, int_range};
+pub use located::{Area, Location, LocationError, Size};
 pub use state::{Direction, Quality};
 pub use value::{Value, ValueError};

@@ -7,6 +7,7 @@ pub mod declare;
 pub mod error;
 pub mod events;
 pub mod grpc;
+pub mod modbus;
 pub mod pb;
 pub mod rest;
 

@@ -2,17 +2,39 @@
 //! Devices can be added at run time, and a link declared without a port can be given one;
 //! the link's task notices either by the version counter.
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
-use tokio::sync::{Notify, watch};
+use tokio::sync::{Notify, oneshot, watch};
 
 use super::Device;
 use super::sample::LinkDiagnostics;
 use std::time::Duration;
 
 use crate::config::{LinkConfig, Transport};
-use crate::link::LinkCode;
+use crate::link::frame::{Request, Response};
+use crate::link::{LinkCode, LinkFault, TxError};
+
+/// A request put on the link as it is, for another master (a Modbus TCP client forwarding
+/// to a slave, a raw transaction): queued, and sent by the link's task between polls so
+/// it never collides with them on a half-duplex line.
+#[derive(Debug)]
+pub struct Passthrough {
+    pub slave: u8,
+    pub request: Request,
+    pub timeout: Duration,
+    pub reply: oneshot::Sender<Result<Response, PassthroughError>>,
+}
+
+/// Why a queued request got no answer.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum PassthroughError {
+    #[error(transparent)]
+    Tx(#[from] TxError),
+    #[error("the link is down: {0}")]
+    LinkDown(LinkFault),
+}
 
 /// A link, its diagnostics and the devices on it.
 #[derive(Debug)]
@@ -26,6 +48,7 @@ pub struct Link {
     members: RwLock<Vec<Arc<Device>>>,
     /// Counts changes of `members` and of the configuration, so the link's task notices.
     version: AtomicU64,
+    queue: Mutex<VecDeque<Passthrough>>,
 }
 
 impl Link {
@@ -40,6 +63,7 @@ impl Link {
             }),
             members: RwLock::new(Vec::new()),
             version: AtomicU64::new(0),
+            queue: Mutex::new(VecDeque::new()),
         }
     }
 
@@ -88,6 +112,17 @@ impl Link {
 
     pub fn version(&self) -> u64 {
         self.version.load(Ordering::Acquire)
+    }
+
+    /// Queues a request for the link's task; the answer comes on its `reply`.
+    pub fn submit(&self, request: Passthrough) {
+        super::lock(&self.queue).push_back(request);
+        self.wake.notify_one();
+    }
+
+    /// The oldest queued request, for the link's task.
+    pub fn take_queued(&self) -> Option<Passthrough> {
+        super::lock(&self.queue).pop_front()
     }
 
     pub(super) fn add_member(&self, device: Arc<Device>) {

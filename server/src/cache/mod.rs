@@ -20,7 +20,7 @@ use crate::profile::{Catalog, Profile};
 use crate::writes::WriteLog;
 
 pub use device::{Binding, Device, SIM_STRING_MAX};
-pub use link::Link;
+pub use link::{Link, Passthrough, PassthroughError};
 pub use outputs::{Outputs, TakenWrite, WriteError};
 pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
 

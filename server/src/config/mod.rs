@@ -4,6 +4,7 @@
 //! other and devices against the loaded profiles.
 
 mod check;
+pub mod modbus;
 mod read;
 pub mod rules;
 
@@ -27,6 +28,8 @@ pub struct Config {
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
     pub devices: Vec<DeviceConfig>,
+    /// The Modbus TCP server, when configured.
+    pub modbus_server: Option<modbus::ModbusServerConfig>,
     /// The file the config came from.
     pub source: String,
 }
@@ -165,6 +168,7 @@ impl Config {
             profiles: None,
             links: Vec::new(),
             devices: Vec::new(),
+            modbus_server: None,
             source: source.to_owned(),
         }
     }
@@ -183,6 +187,14 @@ impl Config {
         {
             let base = path.parent().unwrap_or(Path::new("."));
             config.profiles = Some(base.join(dir));
+        }
+        if let Some(file) = config
+            .modbus_server
+            .as_mut()
+            .and_then(|m| m.memory_file.as_mut())
+            .filter(|f| f.is_relative())
+        {
+            *file = path.parent().unwrap_or(Path::new(".")).join(&*file);
         }
         Ok(config)
     }

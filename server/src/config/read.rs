@@ -11,7 +11,7 @@ use super::{Config, DeviceConfig, Framing, LinkConfig, Parity, SerialSettings, T
 use crate::duration;
 use crate::yaml::{self, Node, Report};
 
-const TOP_KEYS: &[&str] = &["listen", "profiles", "links", "devices"];
+const TOP_KEYS: &[&str] = &["listen", "profiles", "links", "devices", "modbus_server"];
 const LISTEN_KEYS: &[&str] = &["http", "grpc"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
@@ -75,6 +75,9 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
             .filter_map(|(i, n)| read_device(n, i, report))
             .collect();
     }
+    config.modbus_server = map
+        .get("modbus_server")
+        .and_then(|n| super::modbus::read(n, report));
     map.finish(report, "config", TOP_KEYS);
     super::check::check_ports(&config.links, report);
     Some(config)

@@ -46,23 +46,34 @@ impl Bus {
         retries: u32,
     ) -> (Result<Response, TxError>, Duration) {
         let slave = device.slave_id().unwrap_or(0);
+        let timeout = device.config.timeout;
+        self.transact_as(device.name(), slave, timeout, request, retries)
+            .await
+    }
+
+    /// One transaction to `slave`, counted in the metrics under `label` (a device name).
+    pub(super) async fn transact_as(
+        &mut self,
+        label: &str,
+        slave: u8,
+        timeout: Duration,
+        request: &Request,
+        retries: u32,
+    ) -> (Result<Response, TxError>, Duration) {
         let mut attempt = 0;
         loop {
             let started = Instant::now();
-            let result = self
-                .conn
-                .transact(slave, request, device.config.timeout)
-                .await;
+            let result = self.conn.transact(slave, request, timeout).await;
             let elapsed = started.elapsed();
             self.busy += elapsed;
             self.metrics
-                .transaction(device.name(), request.function(), &result, elapsed);
+                .transaction(label, request.function(), &result, elapsed);
             self.account();
             match &result {
                 Err(e @ (TxError::Timeout | TxError::Crc | TxError::Invalid(_)))
                     if attempt < retries =>
                 {
-                    tracing::debug!(device = %device.name(), function = %request.function(), attempt, error = %e, "retrying");
+                    tracing::debug!(device = %label, function = %request.function(), attempt, error = %e, "retrying");
                     attempt += 1;
                 }
                 _ => return (result, elapsed),

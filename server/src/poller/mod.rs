@@ -16,7 +16,9 @@ use std::time::Duration;
 use tokio::time::{Instant, sleep_until};
 use tokio_util::sync::CancellationToken;
 
-use crate::cache::{Device, FieldError, Link, LinkDiagnostics, WriteError};
+use crate::cache::{
+    Device, FieldError, Link, LinkDiagnostics, Passthrough, PassthroughError, WriteError,
+};
 use crate::config::Transport;
 use crate::link::timing::LineTiming;
 use crate::link::{self, LinkCode, LinkFault, TxError};
@@ -237,7 +239,30 @@ impl LinkTask {
         tracing::debug!(link = %name, "link task stopped");
     }
 
+    /// Sends a queued request as it is, and answers it.
+    async fn pass_through(&mut self, queued: Passthrough, bus: &mut Bus) -> Step {
+        let label = self
+            .devices
+            .iter()
+            .find(|p| p.slave == queued.slave)
+            .map_or_else(
+                || format!("unit{}", queued.slave),
+                |p| p.device.name().to_owned(),
+            );
+        let (result, _) = bus
+            .transact_as(&label, queued.slave, queued.timeout, &queued.request, 0)
+            .await;
+        let fault = result.as_ref().err().and_then(connection_fault);
+        let _ = queued.reply.send(result.map_err(PassthroughError::from));
+        fault.map_or(Ok(()), Err)
+    }
+
     fn all_unreachable(&self, fault: &LinkFault) {
+        while let Some(queued) = self.link.take_queued() {
+            let _ = queued
+                .reply
+                .send(Err(PassthroughError::LinkDown(fault.clone())));
+        }
         for p in &self.devices {
             p.device.set_unreachable();
             p.device.fail_reads(&FieldError::Unreachable(fault.clone()));
@@ -255,7 +280,9 @@ impl LinkTask {
             }
             self.sync_members();
             bus.planned = self.planned;
-            let step = if let Some(i) = self.next_writer() {
+            let step = if let Some(queued) = self.link.take_queued() {
+                self.pass_through(queued, &mut bus).await
+            } else if let Some(i) = self.next_writer() {
                 self.write_device(i, &mut bus).await
             } else if let Some(i) = self.next_due(Instant::now()) {
                 self.poll_device(i, &mut bus).await

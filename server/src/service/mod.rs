@@ -4,6 +4,7 @@
 //! over this layer: they parse their request, call one function here, and map the result
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
+mod modbus;
 mod select;
 mod subscribe;
 mod write;
@@ -17,6 +18,7 @@ use crate::metrics::Metrics;
 use crate::profile::Profile;
 use crate::runtime::Tasks;
 
+pub use modbus::{Bound, ModbusImage, Route};
 pub use select::{FieldRef, Selection, Snapshot};
 pub use subscribe::{Change, Changes};
 pub use write::{Accepted, CycleOutcome, Prepared, ScanCycle};
@@ -68,6 +70,8 @@ pub struct Service {
     pub metrics: Arc<Metrics>,
     tasks: Tasks,
     ready: AtomicBool,
+    /// The Modbus TCP server's map and memory, when one is configured.
+    modbus: Option<ModbusImage>,
 }
 
 impl Service {
@@ -79,7 +83,14 @@ impl Service {
             cache,
             tasks,
             ready: AtomicBool::new(false),
+            modbus: None,
         }
+    }
+
+    /// The service with a Modbus TCP server's image.
+    pub fn with_modbus(mut self, image: ModbusImage) -> Self {
+        self.modbus = Some(image);
+        self
     }
 
     pub fn tasks(&self) -> &Tasks {

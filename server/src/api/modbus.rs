@@ -1,0 +1,134 @@
+//! The Modbus TCP server front-end: MBAP framing on TCP connections from masters (SCADA,
+//! HMIs, PLCs), each request answered by the service. Requests on one connection are
+//! answered in order (pipelined requests too); a malformed MBAP header (protocol id not 0,
+//! length out of bounds) closes that connection and nothing else; extra connections beyond
+//! `max_connections` are closed at once; an idle connection is closed after `idle_timeout`.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::Semaphore;
+use tokio_util::sync::CancellationToken;
+
+use crate::link::frame::{Exception, Request};
+use crate::service::Service;
+
+/// The longest MBAP length field: unit id plus a 253-byte PDU.
+const MAX_MBAP_LENGTH: usize = 254;
+
+/// Accepts masters until `shutdown`; each connection runs as a task of the gateway.
+pub async fn serve_modbus(
+    listener: TcpListener,
+    service: Arc<Service>,
+    shutdown: CancellationToken,
+) {
+    let Some(image) = service.modbus() else {
+        return;
+    };
+    let slots = Arc::new(Semaphore::new(image.config.max_connections));
+    let idle = image.config.idle_timeout;
+    loop {
+        let accepted = tokio::select! {
+            _ = shutdown.cancelled() => break,
+            a = listener.accept() => a,
+        };
+        let (stream, peer) = match accepted {
+            Ok(a) => a,
+            Err(e) => {
+                // Out of file descriptors and the like: wait a little, keep serving.
+                tracing::warn!(error = %e, "cannot accept a Modbus connection");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let Ok(permit) = slots.clone().try_acquire_owned() else {
+            tracing::debug!(%peer, "Modbus connection refused: max_connections reached");
+            service.metrics.server_refused();
+            drop(stream);
+            continue;
+        };
+        let _ = stream.set_nodelay(true);
+        let (service, token) = (service.clone(), shutdown.clone());
+        service.clone().tasks().spawn(async move {
+            service.metrics.server_connection(true);
+            if let Err(reason) = connection(stream, &service, idle, &token).await {
+                tracing::debug!(%peer, %reason, "Modbus connection closed");
+            }
+            service.metrics.server_connection(false);
+            drop(permit);
+        });
+    }
+}
+
+/// Serves one master until it leaves, stays idle too long, sends a malformed header, or the
+/// gateway shuts down.
+async fn connection(
+    mut stream: TcpStream,
+    service: &Service,
+    idle: Duration,
+    token: &CancellationToken,
+) -> Result<(), String> {
+    let mut header = [0u8; 7];
+    loop {
+        let read = tokio::select! {
+            _ = token.cancelled() => return Ok(()),
+            r = tokio::time::timeout(idle, stream.read_exact(&mut header)) => r,
+        };
+        match read {
+            Err(_) => return Err("idle timeout".into()),
+            Ok(Err(e)) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
+            Ok(Err(e)) => return Err(e.to_string()),
+            Ok(Ok(_)) => {}
+        }
+        let transaction = [header[0], header[1]];
+        let protocol = u16::from_be_bytes([header[2], header[3]]);
+        let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
+        let unit = header[6];
+        if protocol != 0 || !(2..=MAX_MBAP_LENGTH).contains(&length) {
+            return Err(format!(
+                "malformed MBAP header: protocol {protocol}, length {length}"
+            ));
+        }
+        let mut pdu = vec![0u8; length - 1];
+        match tokio::time::timeout(idle, stream.read_exact(&mut pdu)).await {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => return Err(e.to_string()),
+            Err(_) => return Err("idle timeout in the middle of a frame".into()),
+        }
+        let answer = answer(service, unit, &pdu).await;
+        let mut frame = Vec::with_capacity(7 + answer.len());
+        frame.extend_from_slice(&transaction);
+        frame.extend_from_slice(&[0, 0]);
+        frame.extend_from_slice(&((answer.len() + 1) as u16).to_be_bytes());
+        frame.push(unit);
+        frame.extend_from_slice(&answer);
+        stream.write_all(&frame).await.map_err(|e| e.to_string())?;
+    }
+}
+
+/// The response PDU to a request PDU for `unit`.
+async fn answer(service: &Service, unit: u8, pdu: &[u8]) -> Vec<u8> {
+    let code = pdu.first().copied().unwrap_or(0);
+    let label = format!("fc{code:02}");
+    let result = match Request::parse(pdu) {
+        Ok(request) => service
+            .modbus_request(unit, &request)
+            .await
+            .map(|r| r.to_pdu(&request)),
+        Err(x) => Err(x),
+    };
+    match result {
+        Ok(response) => {
+            service.metrics.server_request(&label, "ok", None);
+            response
+        }
+        Err(x @ Exception(code_x)) => {
+            service
+                .metrics
+                .server_request(&label, "exception", Some(code_x));
+            x.to_pdu(code)
+        }
+    }
+}

@@ -1,0 +1,307 @@
+//! The `modbus_server:` section of `iogate.yaml`: the Modbus TCP server that serves cached
+//! fields at IEC located addresses (source documents 001 and 003). Read here as written;
+//! the bindings are resolved against the devices and profiles in `crate::map`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use iogate_types::Location;
+
+use crate::duration;
+use crate::yaml::{Kind, Node, Report};
+
+const KEYS: &[&str] = &[
+    "listen",
+    "address_space",
+    "unit_id",
+    "map",
+    "auto",
+    "forward",
+    "read_only",
+    "max_connections",
+    "idle_timeout",
+    "memory_file",
+    "on_bad_quality",
+];
+const MAP_KEYS: &[&str] = &["at", "field"];
+const FORWARD_KEYS: &[&str] = &["unit_ids", "link"];
+
+pub const DEFAULT_MAX_CONNECTIONS: usize = 16;
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// The three address maps of source document 001.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AddressSpace {
+    /// The OpenPLC runtime for Linux and Windows.
+    #[default]
+    Linux,
+    /// ESP32, STM32, RP2040 and similar.
+    Esp32,
+    /// ATmega 328P and similar.
+    Atmega,
+}
+
+impl AddressSpace {
+    pub fn name(self) -> &'static str {
+        match self {
+            AddressSpace::Linux => "linux",
+            AddressSpace::Esp32 => "esp32",
+            AddressSpace::Atmega => "atmega",
+        }
+    }
+}
+
+/// What a master reads from a bound field whose value is not good.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OnBadQuality {
+    /// The last good value (0 before the first), as if nothing were wrong: bind the
+    /// device's `connected` or `error_code` to see it.
+    #[default]
+    LastValue,
+    /// Exception 0x0B (gateway target device failed to respond).
+    Exception,
+}
+
+/// One `map` entry as written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapEntry {
+    pub at: Location,
+    /// `device.field` (a field, or a diagnostic such as `connected`).
+    pub device: String,
+    pub field: String,
+    pub line: u64,
+}
+
+/// Unit ids forwarded as they are to the slaves on a link.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Forward {
+    pub first: u8,
+    pub last: u8,
+    pub link: String,
+    pub line: u64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModbusServerConfig {
+    pub listen: SocketAddr,
+    pub address_space: AddressSpace,
+    pub unit_id: u8,
+    pub map: Vec<MapEntry>,
+    pub auto: bool,
+    pub forward: Vec<Forward>,
+    pub read_only: bool,
+    pub max_connections: usize,
+    pub idle_timeout: Duration,
+    pub memory_file: Option<PathBuf>,
+    pub on_bad_quality: OnBadQuality,
+    pub line: u64,
+}
+
+fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
+    match node.kind {
+        Kind::Bool(b) => Some(b),
+        _ => {
+            report.push(
+                node.line,
+                ctx,
+                format!("expected true or false, found {}", node.describe()),
+            );
+            None
+        }
+    }
+}
+
+/// Reads the section; `None` after reporting its problems.
+pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfig> {
+    let ctx = "modbus_server";
+    let mut map = node.map(report, ctx)?;
+    let at = |k: &str| format!("{ctx}.{k}");
+    let listen = map.require("listen", report, ctx).and_then(|n| {
+        let text = n.scalar_text(report, &at("listen"))?;
+        text.parse::<SocketAddr>()
+            .map_err(|_| {
+                report.push(
+                    n.line,
+                    at("listen"),
+                    format!("`{text}` is not an address (write IP:port, e.g. 127.0.0.1:5020)"),
+                )
+            })
+            .ok()
+    });
+    let address_space = match map.get("address_space") {
+        None => Some(AddressSpace::Linux),
+        Some(n) => n
+            .scalar_text(report, &at("address_space"))
+            .and_then(|t| match t.as_str() {
+                "linux" => Some(AddressSpace::Linux),
+                "esp32" => Some(AddressSpace::Esp32),
+                "atmega" => Some(AddressSpace::Atmega),
+                other => {
+                    report.push(
+                        n.line,
+                        at("address_space"),
+                        format!(
+                            "unknown address space `{other}` (expected linux, esp32 or atmega)"
+                        ),
+                    );
+                    None
+                }
+            }),
+    };
+    let unit_id = match map.get("unit_id") {
+        None => Some(1),
+        Some(n) => n.int_in(report, &at("unit_id"), 1, 247).map(|u| u as u8),
+    };
+    let mut flag = |key: &str, report: &mut Report| match map.get(key) {
+        None => Some(false),
+        Some(n) => boolean(n, report, &at(key)),
+    };
+    let auto = flag("auto", report);
+    let read_only = flag("read_only", report);
+    let max_connections = match map.get("max_connections") {
+        None => Some(DEFAULT_MAX_CONNECTIONS),
+        Some(n) => n
+            .int_in(report, &at("max_connections"), 1, 10_000)
+            .map(|m| m as usize),
+    };
+    let idle_timeout = match map.get("idle_timeout") {
+        None => Some(DEFAULT_IDLE_TIMEOUT),
+        Some(n) => n.scalar_text(report, &at("idle_timeout")).and_then(|t| {
+            duration::parse(&t)
+                .map_err(|e| report.push(n.line, at("idle_timeout"), e))
+                .ok()
+        }),
+    };
+    let memory_file = map
+        .get("memory_file")
+        .and_then(|n| n.scalar_text(report, &at("memory_file")))
+        .map(PathBuf::from);
+    let on_bad_quality = match map.get("on_bad_quality") {
+        None => Some(OnBadQuality::LastValue),
+        Some(n) => n
+            .scalar_text(report, &at("on_bad_quality"))
+            .and_then(|t| match t.as_str() {
+                "last_value" => Some(OnBadQuality::LastValue),
+                "exception" => Some(OnBadQuality::Exception),
+                other => {
+                    report.push(
+                        n.line,
+                        at("on_bad_quality"),
+                        format!("unknown choice `{other}` (expected last_value or exception)"),
+                    );
+                    None
+                }
+            }),
+    };
+    let entries = map
+        .get("map")
+        .and_then(|n| n.seq(report, &at("map")))
+        .map(|items| {
+            items
+                .iter()
+                .enumerate()
+                .filter_map(|(i, n)| read_entry(n, i, report))
+                .collect()
+        })
+        .unwrap_or_default();
+    let forward = map
+        .get("forward")
+        .and_then(|n| n.seq(report, &at("forward")))
+        .map(|items| {
+            items
+                .iter()
+                .enumerate()
+                .filter_map(|(i, n)| read_forward(n, i, report))
+                .collect()
+        })
+        .unwrap_or_default();
+    map.finish(report, ctx, KEYS);
+    Some(ModbusServerConfig {
+        listen: listen?,
+        address_space: address_space?,
+        unit_id: unit_id?,
+        map: entries,
+        auto: auto?,
+        forward,
+        read_only: read_only?,
+        max_connections: max_connections?,
+        idle_timeout: idle_timeout?,
+        memory_file,
+        on_bad_quality: on_bad_quality?,
+        line: node.line,
+    })
+}
+
+fn read_entry(node: &Node, index: usize, report: &mut Report) -> Option<MapEntry> {
+    let ctx = format!("modbus_server.map[{index}]");
+    let mut map = node.map(report, &ctx)?;
+    let at = map.require("at", report, &ctx).and_then(|n| {
+        let text = n.scalar_text(report, &format!("{ctx}.at"))?;
+        Location::parse(&text)
+            .map_err(|e| report.push(n.line, format!("{ctx}.at"), e.to_string()))
+            .ok()
+    });
+    let field = map.require("field", report, &ctx).and_then(|n| {
+        let text = n.scalar_text(report, &format!("{ctx}.field"))?;
+        match text.split_once('.') {
+            Some((d, f)) if !d.is_empty() && !f.is_empty() => Some((d.to_owned(), f.to_owned())),
+            _ => {
+                report.push(
+                    n.line,
+                    format!("{ctx}.field"),
+                    format!("`{text}` is not `device.field`"),
+                );
+                None
+            }
+        }
+    });
+    map.finish(report, &ctx, MAP_KEYS);
+    let (device, field) = field?;
+    Some(MapEntry {
+        at: at?,
+        device,
+        field,
+        line: node.line,
+    })
+}
+
+fn read_forward(node: &Node, index: usize, report: &mut Report) -> Option<Forward> {
+    let ctx = format!("modbus_server.forward[{index}]");
+    let mut map = node.map(report, &ctx)?;
+    let ids = map.require("unit_ids", report, &ctx).and_then(|n| {
+        let text = match &n.kind {
+            Kind::Int(i) => i.to_string(),
+            _ => n.scalar_text(report, &format!("{ctx}.unit_ids"))?,
+        };
+        let parse = |t: &str| {
+            t.trim()
+                .parse::<u8>()
+                .ok()
+                .filter(|u| (1..=247).contains(u))
+        };
+        let range = match text.split_once('-') {
+            Some((a, b)) => parse(a).zip(parse(b)).filter(|(a, b)| a <= b),
+            None => parse(&text).map(|u| (u, u)),
+        };
+        if range.is_none() {
+            report.push(
+                n.line,
+                format!("{ctx}.unit_ids"),
+                format!("`{text}` is not a unit id or a range such as 2-247 (ids 1-247)"),
+            );
+        }
+        range
+    });
+    let link = map
+        .require("link", report, &ctx)
+        .and_then(|n| n.scalar_text(report, &format!("{ctx}.link")));
+    map.finish(report, &ctx, FORWARD_KEYS);
+    let (first, last) = ids?;
+    Some(Forward {
+        first,
+        last,
+        link: link?,
+        line: node.line,
+    })
+}

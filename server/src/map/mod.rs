@@ -1,0 +1,13 @@
+//! The Modbus TCP server's map: IEC located addresses (source document 003) in the address
+//! spaces of source document 001 (`space`), fields and diagnostics bound to them (`bind`),
+//! how a value shows in a location's registers (`value`), and the gateway memory behind
+//! the unbound output and memory locations (`memory`).
+
+pub mod bind;
+pub mod memory;
+pub mod space;
+pub mod value;
+
+pub use bind::{Binding, Diag, Plan, Target, plan};
+pub use space::{Slot, Space, Table};
+pub use value::Repr;
