@@ -1,5 +1,5 @@
 //! The `iogate` command: `serve` runs the gateway, `check` validates its configuration,
-//! `plan` prints the poll plan of its links.
+//! `plan` prints the poll plan of its links, `map` the Modbus TCP server's map.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -34,6 +34,15 @@ enum Command {
         #[arg(long, short)]
         config: Option<PathBuf>,
     },
+    /// Print the Modbus TCP server's map: located address, table and address, field, type.
+    Map {
+        /// The config file; default: ./iogate.yaml, else the built-in demo.
+        #[arg(long, short)]
+        config: Option<PathBuf>,
+        /// Print a VAR_GLOBAL block of AT declarations for a remote runtime instead.
+        #[arg(long)]
+        st: bool,
+    },
     /// Profiles: `iogate profile st NAME` prints a profile's ST function-block declaration.
     Profile {
         #[command(subcommand)]
@@ -57,6 +66,7 @@ enum Action {
     Serve,
     Check,
     Plan,
+    Map { st: bool },
     St(String),
 }
 
@@ -91,6 +101,7 @@ fn main() -> ExitCode {
         Some(Command::Serve { config }) => (config, Action::Serve),
         Some(Command::Check { config }) => (config, Action::Check),
         Some(Command::Plan { config }) => (config, Action::Plan),
+        Some(Command::Map { config, st }) => (config, Action::Map { st }),
         Some(Command::Profile {
             command: ProfileCommand::St { name, config },
         }) => (config, Action::St(name)),
@@ -121,6 +132,24 @@ fn main() -> ExitCode {
             None => {
                 let known: Vec<_> = setup.catalog.iter().map(|p| p.name.as_str()).collect();
                 eprintln!("unknown profile `{name}` (known: {})", known.join(", "));
+                ExitCode::from(iogate::EXIT_CONFIG as u8)
+            }
+        };
+    }
+    if let Action::Map { st } = action {
+        return match &setup.map {
+            Some(plan) if st => {
+                print!("{}", iogate::map::report::st(plan));
+                ExitCode::SUCCESS
+            }
+            Some(plan) => {
+                print!("{}", iogate::map::report::render(plan));
+                ExitCode::SUCCESS
+            }
+            None => {
+                eprintln!(
+                    "no Modbus TCP server is configured (add `modbus_server:` to the config)"
+                );
                 ExitCode::from(iogate::EXIT_CONFIG as u8)
             }
         };

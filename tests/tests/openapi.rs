@@ -91,6 +91,9 @@ async fn the_document_is_valid_openapi_3_1_and_describes_every_route() {
         ("/api/v1/profiles/{profile}", &["get"]),
         ("/api/v1/profiles/{profile}/st", &["get"]),
         ("/api/v1/events", &["get"]),
+        ("/api/v1/map", &["get"]),
+        ("/api/v1/map/{at}", &["get", "put"]),
+        ("/api/v1/memory", &["get"]),
     ];
     let paths = doc["paths"].as_object().expect("paths");
     assert_eq!(paths.len(), routes.len(), "{:?}", paths.keys());

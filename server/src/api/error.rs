@@ -90,6 +90,8 @@ impl From<ServiceError> for ApiError {
                 Refusal::Conflict => (StatusCode::CONFLICT, "declaration_conflict"),
             },
             ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
+            ServiceError::Location(_) => (StatusCode::BAD_REQUEST, "invalid_location"),
+            ServiceError::Unbound(_) => (StatusCode::NOT_FOUND, "unbound_location"),
         };
         ApiError::new(status, code, e.to_string())
     }

@@ -49,6 +49,8 @@ pub fn status(e: ServiceError) -> Status {
             Refusal::Conflict => tonic::Code::FailedPrecondition,
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
+        ServiceError::Location(_) => tonic::Code::InvalidArgument,
+        ServiceError::Unbound(_) => tonic::Code::NotFound,
     };
     Status::new(code, message)
 }
@@ -84,7 +86,7 @@ impl GrpcApi {
     }
 
     /// Converts and checks one write; nothing is written.
-    fn prepare(service: &Service, w: &pb::FieldWrite) -> Result<Prepared, AccessError> {
+    fn prepare(service: &Service, w: &pb::FieldWrite) -> Result<Prepared, ServiceError> {
         service.prepare_named(&w.device, &w.field, |ty| match &w.value {
             Some(v) => Value::from_pb_as(ty, v),
             None => Err(ValueError::Missing { ty }),

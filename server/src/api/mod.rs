@@ -7,6 +7,7 @@ pub mod declare;
 pub mod error;
 pub mod events;
 pub mod grpc;
+pub mod map;
 pub mod modbus;
 pub mod pb;
 pub mod rest;
@@ -39,12 +40,14 @@ pub const API_PREFIX: &str = "/api/v1";
         rest::patch_fields, rest::simulate_field, rest::get_write,
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
         events::events, declare::put_link, declare::put_device, openapi_json, metrics,
+        map::get_map, map::get_located, map::put_located, map::get_memory,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
         (name = "links", description = "serial and TCP links"),
         (name = "profiles", description = "device profiles and their function-block layout"),
         (name = "health", description = "liveness and readiness"),
+        (name = "modbus", description = "the Modbus TCP server's map of IEC located addresses, and its memory"),
     )
 )]
 pub struct ApiDoc;
@@ -108,7 +111,10 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/profiles", get(rest::list_profiles))
         .route("/profiles/{profile}", get(rest::get_profile))
         .route("/profiles/{profile}/st", get(rest::get_profile_st))
-        .route("/events", get(events::events));
+        .route("/events", get(events::events))
+        .route("/map", get(map::get_map))
+        .route("/map/{at}", get(map::get_located).put(map::put_located))
+        .route("/memory", get(map::get_memory));
     Router::new()
         .route("/livez", get(rest::livez))
         .route("/readyz", get(rest::readyz))

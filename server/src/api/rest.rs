@@ -134,7 +134,7 @@ pub struct WriteRequest {
     value: Json_,
 }
 
-fn parse_body(body: &Bytes) -> Result<Json_, ApiError> {
+pub(super) fn parse_body(body: &Bytes) -> Result<Json_, ApiError> {
     if body.iter().all(u8::is_ascii_whitespace) {
         return Err(ApiError::bad_request(
             "missing_body",
@@ -156,7 +156,7 @@ fn accepted(a: Accepted) -> WriteAccepted {
 }
 
 /// The value of a body `{"value": X}`; a bare JSON value is accepted too.
-fn value_of(body: Json_) -> Json_ {
+pub(super) fn value_of(body: Json_) -> Json_ {
     match body {
         Json_::Object(mut map) if map.len() == 1 && map.contains_key("value") => {
             map.remove("value").unwrap_or(Json_::Null)

@@ -5,6 +5,7 @@
 
 pub mod bind;
 pub mod memory;
+pub mod report;
 pub mod space;
 pub mod value;
 

@@ -42,6 +42,11 @@ pub enum ServiceError {
     Declare(#[from] DeclareError),
     #[error("the gateway is shutting down")]
     ShuttingDown,
+    #[error("{0}")]
+    Location(#[from] iogate_types::LocationError),
+    /// A located address no field is bound to.
+    #[error("no field is bound to {0}")]
+    Unbound(String),
 }
 
 fn join(errors: &[AccessError]) -> String {
@@ -125,6 +130,39 @@ impl Service {
 
     pub fn device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
         Ok(self.cache.device(name)?)
+    }
+
+    /// A field named either `device` + `field`, or by a located address (`%QX2.6`) in
+    /// `field` (with `device` empty) or in `device`, as the Modbus server's map binds it.
+    pub fn field(&self, device: &str, field: &str) -> Result<(Arc<Device>, usize), ServiceError> {
+        let located = [field, device]
+            .into_iter()
+            .find(|t| t.trim_start().starts_with('%'));
+        match located {
+            Some(at) if device.is_empty() || field.is_empty() || device.starts_with('%') => {
+                self.located(at)
+            }
+            _ => {
+                let d = self.cache.device(device)?;
+                let idx = d.field_index(field)?;
+                Ok((d, idx))
+            }
+        }
+    }
+
+    /// The field bound to a located address.
+    pub fn located(&self, at: &str) -> Result<(Arc<Device>, usize), ServiceError> {
+        let location = iogate_types::Location::parse(at)?;
+        self.modbus()
+            .and_then(|m| {
+                m.bound.iter().find_map(|b| match b.binding.target {
+                    crate::map::Target::Field(idx) if b.binding.at == location => {
+                        Some((b.device.clone(), idx))
+                    }
+                    _ => None,
+                })
+            })
+            .ok_or_else(|| ServiceError::Unbound(location.to_string()))
     }
 
     pub fn links(&self) -> Vec<Arc<Link>> {

@@ -395,7 +395,7 @@ impl Service {
         registers: &[(u16, u16)],
     ) -> Result<Response, Exception> {
         if !writes.is_empty() {
-            self.write_all(writes.into_iter().map(Ok).collect())
+            self.write_all(writes.into_iter().map(Ok::<_, AccessError>).collect())
                 .map_err(|e| match e {
                     ServiceError::ShuttingDown => Exception::SERVER_DEVICE_FAILURE,
                     other => other

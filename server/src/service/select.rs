@@ -70,8 +70,7 @@ impl Service {
             }
         }
         for (device, field) in fields {
-            let device = self.cache.device(device.as_ref())?;
-            let idx = device.field_index(field.as_ref())?;
+            let (device, idx) = self.field(device.as_ref(), field.as_ref())?;
             chosen.push(&device, idx);
         }
         Ok(chosen)

@@ -61,15 +61,17 @@ impl Service {
         })
     }
 
-    /// Like [`Service::prepare`] for a device given by name.
+    /// Like [`Service::prepare`] for a device given by name, or a field given by its
+    /// located address.
     pub fn prepare_named<E: ToString>(
         &self,
         device: &str,
         field: &str,
         convert: impl FnOnce(IecType) -> Result<Value, E>,
-    ) -> Result<Prepared, AccessError> {
-        let device = self.cache.device(device)?;
-        self.prepare(&device, field, convert)
+    ) -> Result<Prepared, ServiceError> {
+        let (device, idx) = self.field(device, field)?;
+        let name = device.field(idx).name.clone();
+        Ok(self.prepare(&device, &name, convert)?)
     }
 
     /// Requests one checked write.
@@ -85,16 +87,28 @@ impl Service {
 
     /// Requests every write, or none of them if any was refused; then every refusal is
     /// named.
-    pub fn write_all(
+    pub fn write_all<E: Into<ServiceError>>(
         &self,
-        writes: Vec<Result<Prepared, AccessError>>,
+        writes: Vec<Result<Prepared, E>>,
     ) -> Result<Vec<Accepted>, ServiceError> {
         self.accepting()?;
         let (ok, refused): (Vec<_>, Vec<_>) = writes.into_iter().partition(Result::is_ok);
         if !refused.is_empty() {
-            return Err(ServiceError::NothingWritten(
-                refused.into_iter().filter_map(Result::err).collect(),
-            ));
+            let refused: Vec<ServiceError> = refused
+                .into_iter()
+                .filter_map(Result::err)
+                .map(Into::into)
+                .collect();
+            // Refusals that are not about a name or a value (a located address that is
+            // bound to nothing, say) stand alone.
+            let mut access = Vec::new();
+            for e in refused {
+                match e {
+                    ServiceError::Access(a) => access.push(a),
+                    other => return Err(other),
+                }
+            }
+            return Err(ServiceError::NothingWritten(access));
         }
         ok.into_iter()
             .filter_map(Result::ok)
@@ -187,7 +201,7 @@ impl ScanCycle {
     pub fn step(
         &mut self,
         devices: &[String],
-        outputs: Vec<Result<Prepared, AccessError>>,
+        outputs: Vec<Result<Prepared, ServiceError>>,
     ) -> CycleOutcome {
         let mut errors = Vec::new();
         if !devices.is_empty() {

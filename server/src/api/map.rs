@@ -1,0 +1,176 @@
+//! The Modbus server's map over REST: `GET /api/v1/map` (every binding), a field by its
+//! located address (`GET`/`PUT /api/v1/map/{at}`), and the gateway memory
+//! (`GET /api/v1/memory`).
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use super::convert::{self, FieldValue, WriteAccepted};
+use super::error::{ApiError, ErrorBody};
+use crate::map::{Binding, Table};
+use crate::service::Service;
+
+/// One binding: a located address, its Modbus table and address, and what it shows.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BindingInfo {
+    /// The IEC located address, e.g. `%QX2.6`.
+    pub at: String,
+    /// `coil`, `discrete input`, `input register` or `holding register`.
+    pub table: String,
+    /// The first Modbus data address (0-based).
+    pub address: u16,
+    pub device: String,
+    /// The field, or the diagnostic (`connected`, `error_code`, ...).
+    pub field: String,
+    #[serde(rename = "type")]
+    pub ty: String,
+    /// `rw` or `r`.
+    pub access: String,
+    /// Bound by `auto: true`.
+    pub auto: bool,
+}
+
+impl From<&Binding> for BindingInfo {
+    fn from(b: &Binding) -> Self {
+        BindingInfo {
+            at: b.at.to_string(),
+            table: b.slot.table.name().to_owned(),
+            address: b.slot.address,
+            device: b.device.clone(),
+            field: b.name.clone(),
+            ty: b.ty.name().to_owned(),
+            access: if b.writable { "rw" } else { "r" }.to_owned(),
+            auto: b.auto,
+        }
+    }
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct MapInfo {
+    /// `linux`, `esp32` or `atmega`.
+    pub address_space: String,
+    pub unit_id: u8,
+    pub read_only: bool,
+    pub bindings: Vec<BindingInfo>,
+}
+
+/// The gateway memory: set coils and non-zero registers by located address.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct MemoryInfo {
+    pub coils: BTreeMap<String, bool>,
+    /// `%QW`/`%MW` as 16-bit, `%MD` as 32-bit and `%ML` as 64-bit unsigned numbers.
+    pub registers: BTreeMap<String, u64>,
+}
+
+fn no_server() -> ApiError {
+    ApiError::not_found(
+        "no_modbus_server",
+        "no Modbus TCP server is configured (add `modbus_server:` to the config)",
+    )
+}
+
+/// Every binding of the Modbus TCP server, in table and address order.
+#[utoipa::path(get, path = "/api/v1/map", tag = "modbus",
+    responses((status = 200, description = "the bindings", body = MapInfo),
+              (status = 404, description = "no Modbus server is configured", body = ErrorBody)))]
+pub async fn get_map(State(service): State<Arc<Service>>) -> Result<Json<MapInfo>, ApiError> {
+    let image = service.modbus().ok_or_else(no_server)?;
+    Ok(Json(MapInfo {
+        address_space: image.space.kind.name().to_owned(),
+        unit_id: image.config.unit_id,
+        read_only: image.config.read_only,
+        bindings: image
+            .bound
+            .iter()
+            .map(|b| BindingInfo::from(&b.binding))
+            .collect(),
+    }))
+}
+
+/// The field bound to a located address, as `GET .../fields/{field}` answers it.
+#[utoipa::path(get, path = "/api/v1/map/{at}", tag = "modbus",
+    params(("at" = String, Path, description = "a located address, e.g. %QX2.6 (URL-encoded: %25QX2.6)")),
+    responses((status = 200, description = "the field's value", body = FieldValue),
+              (status = 400, description = "not a located address", body = ErrorBody),
+              (status = 404, description = "no field is bound there", body = ErrorBody)))]
+pub async fn get_located(
+    State(service): State<Arc<Service>>,
+    Path(at): Path<String>,
+) -> Result<Json<FieldValue>, ApiError> {
+    let (device, idx) = service.located(&at)?;
+    Ok(Json(convert::field_value(
+        &device,
+        idx,
+        &device.sample(idx),
+    )))
+}
+
+/// Writes the field bound to a located address (last value wins), as `PUT .../fields/{f}`.
+#[utoipa::path(put, path = "/api/v1/map/{at}", tag = "modbus",
+    params(("at" = String, Path, description = "a located address, e.g. %QW2")),
+    request_body(content = Object, description = "{\"value\": X}"),
+    responses((status = 202, description = "accepted: pending", body = WriteAccepted),
+              (status = 400, description = "not a located address, or a value the field does not take", body = ErrorBody),
+              (status = 404, description = "no field is bound there", body = ErrorBody),
+              (status = 409, description = "the field is an input", body = ErrorBody)))]
+pub async fn put_located(
+    State(service): State<Arc<Service>>,
+    Path(at): Path<String>,
+    body: Bytes,
+) -> Result<(StatusCode, Json<WriteAccepted>), ApiError> {
+    let (device, idx) = service.located(&at)?;
+    let json = super::rest::value_of(super::rest::parse_body(&body)?);
+    let name = device.field(idx).name.clone();
+    let write = service.prepare(&device, &name, |ty| convert::json_to_value(ty, &json))?;
+    let a = service.write(write)?;
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(WriteAccepted {
+            device: a.device,
+            field: a.field,
+            generation: a.generation,
+            status: "pending".into(),
+        }),
+    ))
+}
+
+/// The gateway memory behind the unbound `%QX`, `%QW`, `%MW`, `%MD` and `%ML` locations.
+#[utoipa::path(get, path = "/api/v1/memory", tag = "modbus",
+    responses((status = 200, description = "set coils and non-zero registers", body = MemoryInfo),
+              (status = 404, description = "no Modbus server is configured", body = ErrorBody)))]
+pub async fn get_memory(State(service): State<Arc<Service>>) -> Result<Json<MemoryInfo>, ApiError> {
+    let image = service.modbus().ok_or_else(no_server)?;
+    let (coils, registers) = image.memory.contents();
+    let coils = coils
+        .into_iter()
+        .filter_map(|a| image.space.location_at(Table::Coils, a))
+        .map(|l| (l.to_string(), true))
+        .collect();
+    let mut out = BTreeMap::new();
+    for (address, _) in &registers {
+        // Each location once, at its first register, with all its registers.
+        let start = (0..4u16).find_map(|back| {
+            let a = address.checked_sub(back)?;
+            let l = image.space.location_at(Table::HoldingRegisters, a)?;
+            let width = image.space.slot(&l).ok()?.width;
+            (back < width).then_some((l, a, width))
+        });
+        if let Some((location, a, width)) = start {
+            let value = (0..width).fold(0u64, |acc, k| {
+                (acc << 16) | u64::from(image.memory.register(a + k))
+            });
+            out.insert(location.to_string(), value);
+        }
+    }
+    Ok(Json(MemoryInfo {
+        coils,
+        registers: out,
+    }))
+}
