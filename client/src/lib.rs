@@ -21,6 +21,8 @@ use tonic::transport::Channel;
 
 mod types;
 
+/// IEC 61131-3 located addresses (`%IX0.0`, `%QW2`), for binding `AT` variables.
+pub use iogate_types::located::{Area, Location, LocationError, Size};
 pub use types::{
     DeviceInfo, Diagnostics, Direction, FieldInfo, FieldValue, IecType, LayoutMember, LinkInfo,
     ProfileInfo, Quality, Update, Value, ValueError, WriteOutcome, WriteStatus,

@@ -550,3 +550,37 @@ modbus_server:
         );
     }
 }
+
+#[tokio::test]
+async fn grpc_and_the_client_accept_located_addresses() {
+    let gw = TestGateway::start(SIM_MAP).await.expect("gateway");
+    let mut client = gw.client().await.expect("client");
+    let generation = client
+        .write("", "%QW2", iogate_client::Value::UInt(9))
+        .await
+        .expect("write by location");
+    let status = client
+        .wait_write(generation, Duration::from_secs(5))
+        .await
+        .expect("outcome");
+    assert_eq!(status.field, "Recipe");
+    assert_eq!(status.outcome, iogate_client::WriteOutcome::Written);
+    let value = client.get("", "%QW2").await.expect("read by location");
+    assert_eq!(
+        (value.device.as_str(), value.field.as_str()),
+        ("plant", "Recipe")
+    );
+    let unbound = client.get("", "%QW900").await;
+    assert!(
+        matches!(&unbound, Err(iogate_client::Error::Status { code, message }) if *code == tonic::Code::NotFound && message.contains("no field is bound to %QW900")),
+        "{unbound:?}"
+    );
+    let invalid = client.get("", "%QX0.8").await;
+    assert!(
+        matches!(&invalid, Err(iogate_client::Error::Status { code, message }) if *code == tonic::Code::InvalidArgument && message.contains("the least significant index is greater than 7")),
+        "{invalid:?}"
+    );
+    let at: iogate_client::Location = "%QX2.6".parse().expect("the client parses locations");
+    assert_eq!(at.bit_number(), Some(22));
+    gw.shutdown().await;
+}

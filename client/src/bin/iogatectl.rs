@@ -40,9 +40,9 @@ enum Command {
     Links,
     /// Loaded profiles.
     Profiles,
-    /// A device's fields (`get DEVICE`) or one field (`get DEVICE.FIELD`).
+    /// A device's fields (`get DEVICE`) or one field (`get DEVICE.FIELD` or `get %QX0.0`).
     Get { target: String },
-    /// Writes a field: `set DEVICE.FIELD VALUE`; waits for the outcome.
+    /// Writes a field: `set DEVICE.FIELD VALUE` (or `set %QW2 VALUE`); waits for the outcome.
     Set {
         target: String,
         value: String,
@@ -72,7 +72,12 @@ enum Describe {
     },
 }
 
+/// `DEVICE`, `DEVICE.FIELD`, or a located address such as `%QX2.6` (a field the Modbus
+/// server's map binds there).
 fn split_target(target: &str) -> (&str, Option<&str>) {
+    if target.starts_with('%') {
+        return ("", Some(target));
+    }
     match target.split_once('.') {
         Some((d, f)) => (d, Some(f)),
         None => (target, None),
@@ -221,9 +226,17 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             value,
             wait_ms,
         } => {
-            let (device, Some(field)) = split_target(&target) else {
-                anyhow::bail!("write DEVICE.FIELD, e.g. sim.DO_0");
+            let (device, field) = match split_target(&target) {
+                ("", Some(at)) => {
+                    let bound = client.get("", at).await?;
+                    (bound.device, bound.field)
+                }
+                (device, Some(field)) => (device.to_owned(), field.to_owned()),
+                _ => anyhow::bail!(
+                    "write DEVICE.FIELD or a located address, e.g. sim.DO_0 or %QX0.0"
+                ),
             };
+            let (device, field) = (device.as_str(), field.as_str());
             let info = client.device(device).await?;
             let current = info
                 .fields
