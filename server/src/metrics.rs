@@ -276,22 +276,24 @@ impl Metrics {
         self.server_refused.inc();
     }
 
-    /// One request the Modbus TCP server answered: `function` as `fc03`, and the exception
-    /// it answered with, if any.
-    pub fn server_request(&self, function: &str, outcome: &str, exception: Option<u8>) {
+    /// The counter of requests the Modbus TCP server answered with `function` (as `fc03`)
+    /// and `outcome` (`ok` or `exception`); a handle to keep, so counting costs no lookup.
+    pub fn server_requests(&self, function: &str, outcome: &str) -> Counter {
         self.server_requests
             .get_or_create(&ServerRequestLabels {
                 function: function.to_owned(),
                 outcome: outcome.to_owned(),
             })
-            .inc();
-        if let Some(code) = exception {
-            self.server_exceptions
-                .get_or_create(&CodeLabels {
-                    code: format!("{code:02}"),
-                })
-                .inc();
-        }
+            .clone()
+    }
+
+    /// The counter of the Modbus TCP server's exception responses with `code`.
+    pub fn server_exceptions(&self, code: u8) -> Counter {
+        self.server_exceptions
+            .get_or_create(&CodeLabels {
+                code: format!("{code:02}"),
+            })
+            .clone()
     }
 
     /// Records one transaction's outcome.

@@ -7,7 +7,10 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use std::collections::HashMap;
+
+use prometheus_client::metrics::counter::Counter;
+use tokio::io::{AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
@@ -65,11 +68,14 @@ pub async fn serve_modbus(
 /// Serves one master until it leaves, stays idle too long, sends a malformed header, or the
 /// gateway shuts down.
 async fn connection(
-    mut stream: TcpStream,
+    stream: TcpStream,
     service: &Service,
     idle: Duration,
     token: &CancellationToken,
 ) -> Result<(), String> {
+    // Buffered: one read usually brings a whole request (or several pipelined ones).
+    let mut stream = BufReader::new(stream);
+    let mut counters = Counters::default();
     let mut header = [0u8; 7];
     loop {
         let read = tokio::select! {
@@ -97,7 +103,7 @@ async fn connection(
             Ok(Err(e)) => return Err(e.to_string()),
             Err(_) => return Err("idle timeout in the middle of a frame".into()),
         }
-        let answer = answer(service, unit, &pdu).await;
+        let answer = answer(service, unit, &pdu, &mut counters).await;
         let mut frame = Vec::with_capacity(7 + answer.len());
         frame.extend_from_slice(&transaction);
         frame.extend_from_slice(&[0, 0]);
@@ -108,10 +114,36 @@ async fn connection(
     }
 }
 
+/// A connection's handles on the request counters, so that counting a request costs no
+/// label lookup.
+#[derive(Default)]
+struct Counters(HashMap<(u8, Option<u8>), (Counter, Option<Counter>)>);
+
+impl Counters {
+    fn count(&mut self, service: &Service, code: u8, exception: Option<u8>) {
+        let (requests, exceptions) = self.0.entry((code, exception)).or_insert_with(|| {
+            let outcome = if exception.is_some() {
+                "exception"
+            } else {
+                "ok"
+            };
+            (
+                service
+                    .metrics
+                    .server_requests(&format!("fc{code:02}"), outcome),
+                exception.map(|x| service.metrics.server_exceptions(x)),
+            )
+        });
+        requests.inc();
+        if let Some(e) = exceptions {
+            e.inc();
+        }
+    }
+}
+
 /// The response PDU to a request PDU for `unit`.
-async fn answer(service: &Service, unit: u8, pdu: &[u8]) -> Vec<u8> {
+async fn answer(service: &Service, unit: u8, pdu: &[u8], counters: &mut Counters) -> Vec<u8> {
     let code = pdu.first().copied().unwrap_or(0);
-    let label = format!("fc{code:02}");
     let result = match Request::parse(pdu) {
         Ok(request) => service
             .modbus_request(unit, &request)
@@ -121,13 +153,11 @@ async fn answer(service: &Service, unit: u8, pdu: &[u8]) -> Vec<u8> {
     };
     match result {
         Ok(response) => {
-            service.metrics.server_request(&label, "ok", None);
+            counters.count(service, code, None);
             response
         }
         Err(x @ Exception(code_x)) => {
-            service
-                .metrics
-                .server_request(&label, "exception", Some(code_x));
+            counters.count(service, code, Some(code_x));
             x.to_pdu(code)
         }
     }
