@@ -584,3 +584,21 @@ async fn grpc_and_the_client_accept_located_addresses() {
     assert_eq!(at.bit_number(), Some(22));
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn an_idle_master_is_closed_after_idle_timeout() {
+    let gw = TestGateway::start("modbus_server:\n  listen: 127.0.0.1:0\n  idle_timeout: 200ms\n")
+        .await
+        .expect("gateway");
+    let mut idle = TcpStream::connect(gw.modbus.expect("server"))
+        .await
+        .expect("connect");
+    let started = std::time::Instant::now();
+    let mut buf = [0u8; 8];
+    let read = tokio::time::timeout(Duration::from_secs(5), idle.read(&mut buf))
+        .await
+        .expect("closed by the server, not by this test's patience");
+    assert!(matches!(read, Ok(0)), "{read:?}");
+    assert!(started.elapsed() >= Duration::from_millis(150));
+    gw.shutdown().await;
+}
