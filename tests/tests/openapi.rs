@@ -81,6 +81,7 @@ async fn the_document_is_valid_openapi_3_1_and_describes_every_route() {
         ("/api/v1/openapi.json", &["get"]),
         ("/api/v1/links", &["get"]),
         ("/api/v1/links/{link}", &["get", "put"]),
+        ("/api/v1/links/{link}/transactions", &["post"]),
         ("/api/v1/devices", &["get"]),
         ("/api/v1/devices/{device}", &["get", "put"]),
         ("/api/v1/devices/{device}/fields", &["patch"]),
@@ -112,7 +113,7 @@ async fn the_document_is_valid_openapi_3_1_and_describes_every_route() {
             }
         }
         // Writes and declarations describe their bodies and their refusals.
-        for method in ["put", "patch"] {
+        for method in ["put", "patch", "post"] {
             let operation = &paths[*path][method];
             if operation.is_object() {
                 assert!(

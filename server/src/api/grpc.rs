@@ -49,7 +49,7 @@ pub fn status(e: ServiceError) -> Status {
             Refusal::Conflict => tonic::Code::FailedPrecondition,
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
-        ServiceError::Location(_) => tonic::Code::InvalidArgument,
+        ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,
         ServiceError::Unbound(_) => tonic::Code::NotFound,
     };
     Status::new(code, message)

@@ -11,6 +11,7 @@ pub mod map;
 pub mod modbus;
 pub mod pb;
 pub mod rest;
+pub mod transactions;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -41,6 +42,7 @@ pub const API_PREFIX: &str = "/api/v1";
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
         events::events, declare::put_link, declare::put_device, openapi_json, metrics,
         map::get_map, map::get_located, map::put_located, map::get_memory,
+        transactions::post_transaction,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
@@ -90,6 +92,10 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/openapi.json", get(openapi_json))
         .route("/links", get(rest::list_links))
         .route("/links/{link}", get(rest::get_link).put(declare::put_link))
+        .route(
+            "/links/{link}/transactions",
+            axum::routing::post(transactions::post_transaction),
+        )
         .route("/devices", get(rest::list_devices))
         .route(
             "/devices/{device}",

@@ -7,6 +7,7 @@
 mod modbus;
 mod select;
 mod subscribe;
+mod transact;
 mod write;
 
 use std::sync::Arc;
@@ -44,6 +45,9 @@ pub enum ServiceError {
     ShuttingDown,
     #[error("{0}")]
     Location(#[from] iogate_types::LocationError),
+    /// A raw transaction's parameters, with every message of the read block that applies.
+    #[error("{}", .0.join(" "))]
+    Transaction(Vec<String>),
     /// A located address no field is bound to.
     #[error("no field is bound to {0}")]
     Unbound(String),

@@ -1,0 +1,144 @@
+//! One raw transaction on a link, queued in its task between polls (the same queue the
+//! Modbus server's pass-through uses), answered as the function blocks report it.
+
+use std::time::Duration;
+
+use tokio::sync::oneshot;
+use tokio::time::Instant;
+
+use super::{Service, ServiceError};
+use crate::cache::{Passthrough, PassthroughError};
+use crate::config::{Framing, Transport};
+use crate::link::frame::{Request, crc16};
+use crate::transaction::params::MISSING_RS485;
+use crate::transaction::{Outcome, Plan, TransactionSpec, codec, failure, hex, state};
+
+/// The frame as it goes on the line: RTU (slave, PDU, CRC) on serial links and RTU over
+/// TCP; unit id and PDU on Modbus TCP links.
+fn frame(rtu: bool, slave: u8, pdu: &[u8]) -> String {
+    if rtu {
+        let mut bytes = vec![slave];
+        bytes.extend_from_slice(pdu);
+        bytes.extend_from_slice(&crc16(&bytes).to_le_bytes());
+        hex(&bytes)
+    } else {
+        let mut bytes = vec![slave];
+        bytes.extend_from_slice(pdu);
+        hex(&bytes)
+    }
+}
+
+fn request_pdu(request: &Request) -> Vec<u8> {
+    let mut pdu = Vec::new();
+    request.encode(&mut pdu);
+    pdu
+}
+
+impl Service {
+    /// Runs one transaction on `link`: every parameter problem at once (with the read
+    /// block's messages), else the outcome (a transaction that ran and failed is an
+    /// outcome, not an error).
+    pub async fn transact(
+        &self,
+        link: &str,
+        spec: &TransactionSpec,
+    ) -> Result<Outcome, ServiceError> {
+        self.accepting()?;
+        let link = self.cache.link(link).ok();
+        let checked = spec.check();
+        let checked = match (checked, &link) {
+            (Ok(c), Some(_)) => c,
+            (result, _) => {
+                let mut errors = result.err().unwrap_or_default();
+                if link.is_none() {
+                    errors.push(MISSING_RS485.to_owned());
+                }
+                return Err(ServiceError::Transaction(errors));
+            }
+        };
+        let Some(link) = link else {
+            return Err(ServiceError::Transaction(vec![MISSING_RS485.to_owned()]));
+        };
+        let config = link.config();
+        let rtu = !matches!(
+            config.transport,
+            Transport::Tcp {
+                framing: Framing::Mbap,
+                ..
+            }
+        );
+        let request = checked.request();
+        let slave = checked.slave();
+        let request_frame = frame(rtu, slave, &request_pdu(&request));
+        let started = Instant::now();
+        let outcome = |actual, state, value, error, response| Outcome {
+            actual,
+            state,
+            value,
+            error,
+            request: request_frame.clone(),
+            response,
+            elapsed_ms: (started.elapsed().as_secs_f64() * 1e6).round() / 1e3,
+        };
+        if !link.is_configured() {
+            return Ok(outcome(
+                false,
+                state::INTERFACE_UNAVAILABLE,
+                None,
+                Some("RS485 setup incomplete"),
+                None,
+            ));
+        }
+        let (reply, answer) = oneshot::channel();
+        link.submit(Passthrough {
+            slave,
+            request: request.clone(),
+            timeout: checked.timeout,
+            reply,
+        });
+        let patience = checked.timeout * 2 + Duration::from_secs(2);
+        let answered = tokio::time::timeout(patience, answer).await;
+        Ok(match answered {
+            Ok(Ok(Ok(response))) => {
+                let response_frame = Some(frame(rtu, slave, &response.to_pdu(&request)));
+                match &checked.plan {
+                    Plan::Read(read) => match codec::read_value(read, &response) {
+                        Ok(v) => outcome(true, state::DONE, Some(v), None, response_frame),
+                        Err(_) => outcome(
+                            false,
+                            state::UNKNOWN_ERROR,
+                            None,
+                            Some("Value parse failed"),
+                            response_frame,
+                        ),
+                    },
+                    Plan::Write(_) => outcome(true, state::DONE, None, None, response_frame),
+                }
+            }
+            Ok(Ok(Err(PassthroughError::Tx(e)))) => {
+                let (code, message) = failure(&e);
+                let response_frame = match &e {
+                    crate::link::TxError::Exception(x) => {
+                        Some(frame(rtu, slave, &x.to_pdu(request.function().code())))
+                    }
+                    _ => None,
+                };
+                outcome(false, code, None, Some(message), response_frame)
+            }
+            Ok(Ok(Err(PassthroughError::LinkDown(_)))) => outcome(
+                false,
+                state::INTERFACE_UNAVAILABLE,
+                None,
+                Some("RS485 port missing"),
+                None,
+            ),
+            _ => outcome(
+                false,
+                state::TIMEOUT,
+                None,
+                Some("Master/RS485 timeout"),
+                None,
+            ),
+        })
+    }
+}

@@ -1,0 +1,68 @@
+//! Raw Modbus transactions through the gateway, the two function blocks of source documents
+//! 002 (a Modbus RTU write) and 004 (modbus-read): parameters checked with their messages
+//! (`params`), values packed and read (`codec`), and the outcome as the blocks report it:
+//! `actual`, `state`, the value, the error in the read block's words, the frames.
+
+pub mod codec;
+pub mod params;
+
+use crate::link::TxError;
+use crate::link::frame::Exception;
+
+pub use params::{Checked, Plan, TransactionSpec};
+
+/// The write block's state codes.
+pub mod state {
+    pub const NOT_ACTIVE: i32 = 0;
+    pub const WAITING: i32 = 1;
+    pub const ACCESS: i32 = 2;
+    pub const IN_PROGRESS: i32 = 3;
+    pub const DONE: i32 = 4;
+    pub const INTERFACE_UNAVAILABLE: i32 = -1;
+    pub const TIMEOUT: i32 = -2;
+    pub const UNKNOWN_ERROR: i32 = -3;
+}
+
+/// How a transaction ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    /// The last command got a correct response.
+    pub actual: bool,
+    pub state: i32,
+    /// A read's value.
+    pub value: Option<f64>,
+    /// The read block's message for what went wrong.
+    pub error: Option<&'static str>,
+    /// The frames in hex, as they go on an RTU line (`11 06 00 01 00 03 9A 9B`).
+    pub request: String,
+    pub response: Option<String>,
+    pub elapsed_ms: f64,
+}
+
+/// The read block's message and the write block's state for a failed transaction.
+pub fn failure(e: &TxError) -> (i32, &'static str) {
+    match e {
+        TxError::Timeout => (state::TIMEOUT, "Slave timeout"),
+        TxError::Exception(x) => (state::UNKNOWN_ERROR, exception_message(*x)),
+        TxError::Crc | TxError::Invalid(_) => (state::UNKNOWN_ERROR, "RS485 frame error"),
+        TxError::Io(_) => (state::UNKNOWN_ERROR, "IO error"),
+    }
+}
+
+pub fn exception_message(x: Exception) -> &'static str {
+    match x.0 {
+        1 => "Function code not supported",
+        2 => "Invalid address",
+        3 => "Invalid quantity",
+        _ => "Unknown modbus exception code",
+    }
+}
+
+/// Bytes in hex, space-separated, upper case.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes
+        .iter()
+        .map(|b| format!("{b:02X}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
