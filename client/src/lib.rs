@@ -21,6 +21,20 @@ use tonic::transport::Channel;
 
 mod types;
 
+/// How a raw transaction ended, as the read and write function blocks report it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct TransactOutcome {
+    pub actual: bool,
+    /// 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
+    pub state: i32,
+    pub value: Option<f64>,
+    pub error: Option<String>,
+    /// The frames in hex.
+    pub request: String,
+    pub response: Option<String>,
+    pub elapsed_ms: f64,
+}
+
 /// IEC 61131-3 located addresses (`%IX0.0`, `%QW2`), for binding `AT` variables.
 pub use iogate_types::located::{Area, Location, LocationError, Size};
 pub use types::{
@@ -372,6 +386,24 @@ impl Client {
         link: &SerialLink,
     ) -> Result<(LinkInfo, bool), Error> {
         self.ensure_named_serial_link("", link).await
+    }
+
+    /// One raw Modbus transaction on a link (`iogatectl tx`): a read FC01-04 or a write
+    /// FC05/06/15/16, queued between the gateway's polls.
+    pub async fn transact(
+        &mut self,
+        request: pb::TransactRequest,
+    ) -> Result<TransactOutcome, Error> {
+        let r = self.inner.transact(request).await?.into_inner();
+        Ok(TransactOutcome {
+            actual: r.actual,
+            state: r.state,
+            value: r.value,
+            error: (!r.error.is_empty()).then_some(r.error),
+            request: r.request,
+            response: (!r.response.is_empty()).then_some(r.response),
+            elapsed_ms: r.elapsed_ms,
+        })
     }
 
     /// Declares a serial link by name, as a named `SerialLink` instance does: its port may

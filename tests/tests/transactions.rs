@@ -296,3 +296,56 @@ async fn a_transaction_queued_while_the_line_is_polled_never_collides() {
     on.gw.shutdown().await;
     on.task.abort();
 }
+
+#[tokio::test]
+async fn grpc_transact_answers_the_same_way() {
+    let bus = RtuBus::default();
+    bus.slave(17, |s| s.tables.holding[0] = 215);
+    let on = on_bus("tx-grpc", &bus, "").await;
+    let mut client = on.gw.client().await.expect("client");
+    let base = iogate_client::proto::TransactRequest {
+        link: "rs485".into(),
+        slave: 17,
+        timeout_ms: 100,
+        ..Default::default()
+    };
+    let write = client
+        .transact(iogate_client::proto::TransactRequest {
+            function: 6,
+            address: 1,
+            r#type: "uint8".into(),
+            byte_order: "Big-endian".into(),
+            values: vec![3.0],
+            ..base.clone()
+        })
+        .await
+        .expect("write");
+    assert_eq!(write.request, "11 06 00 01 00 03 9A 9B");
+    assert_eq!(write.response.as_deref(), Some("11 06 00 01 00 03 9A 9B"));
+    assert!(write.actual);
+    let read = client
+        .transact(iogate_client::proto::TransactRequest {
+            function: 3,
+            value_type: "SIGNED_NUMBER16".into(),
+            divisor: 10,
+            precision: Some(1),
+            byte_order: "BigEndian".into(),
+            ..base.clone()
+        })
+        .await
+        .expect("read");
+    assert_eq!((read.value, read.state), (Some(21.5), 4));
+    let refused = client
+        .transact(iogate_client::proto::TransactRequest {
+            function: 3,
+            link: "nope".into(),
+            ..base
+        })
+        .await;
+    assert!(
+        matches!(&refused, Err(iogate_client::Error::Status { code, message }) if *code == tonic::Code::InvalidArgument && message.contains("Invalid value type configuration.") && message.contains("Missing RS485 configuration.")),
+        "{refused:?}"
+    );
+    on.gw.shutdown().await;
+    on.task.abort();
+}

@@ -52,6 +52,46 @@ enum Command {
     },
     /// A live table of values; `watch DEVICE...` for some devices only.
     Watch { devices: Vec<String> },
+    /// One raw Modbus transaction through the gateway, queued between its polls: mbpoll
+    /// through the gateway. `tx rs485 -f 3 -s 1 -a 0 --value-type FLOAT --byte-order
+    /// BigEndian`, `tx rs485 -f 6 -s 17 -a 1 --type uint8 3`.
+    Tx {
+        /// The link.
+        link: String,
+        /// Function code: 1-4 read, 5, 6, 15, 16 write.
+        #[arg(short, long)]
+        function: u32,
+        /// Slave (device address, network number), 1-255.
+        #[arg(short, long)]
+        slave: u32,
+        /// First coil or register, 0-65535.
+        #[arg(short, long, default_value_t = 0)]
+        address: u32,
+        /// FC01/02: bits to read, 1-32.
+        #[arg(long, default_value_t = 0)]
+        bit_count: u32,
+        /// FC03/04: SIGNED_NUMBER16, SIGNED_NUMBER32, UNSIGNED_NUMBER16, UNSIGNED_NUMBER32, FLOAT.
+        #[arg(long, default_value = "")]
+        value_type: String,
+        /// Reads: the value is divided by this.
+        #[arg(long, default_value_t = 0)]
+        divisor: u64,
+        /// Reads: digits kept after the point (truncated), 0-3.
+        #[arg(long)]
+        precision: Option<u32>,
+        /// LittleEndian, BigEndian, SwapBytes, SwapWords (or Little-endian, Big-endian, Big-endian (2 bytes)).
+        #[arg(long, default_value = "")]
+        byte_order: String,
+        /// Response timeout in ms, 10-60000 (default 1000).
+        #[arg(long, default_value_t = 0)]
+        timeout_ms: u32,
+        /// Writes: uint8, int8, uint16, int16, int32, float.
+        #[arg(long = "type", default_value = "")]
+        write_type: String,
+        /// Writes: the values.
+        #[arg(allow_negative_numbers = true)]
+        values: Vec<f64>,
+    },
     /// A device (`describe device NAME`) or a profile (`describe profile NAME`).
     Describe {
         #[command(subcommand)]
@@ -330,6 +370,65 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     print!("{screen}");
                     std::io::stdout().flush()?;
                 }
+            }
+        }
+        Command::Tx {
+            link,
+            function,
+            slave,
+            address,
+            bit_count,
+            value_type,
+            divisor,
+            precision,
+            byte_order,
+            timeout_ms,
+            write_type,
+            values,
+        } => {
+            let outcome = client
+                .transact(iogate_client::proto::TransactRequest {
+                    link,
+                    function,
+                    slave,
+                    address,
+                    bit_count,
+                    value_type,
+                    divisor,
+                    precision,
+                    byte_order,
+                    timeout_ms,
+                    r#type: write_type,
+                    values,
+                })
+                .await?;
+            if cli.json {
+                print_json(&outcome)?;
+            } else {
+                let state = match outcome.state {
+                    4 => "done",
+                    -1 => "interface unavailable",
+                    -2 => "response timeout",
+                    -3 => "error",
+                    _ => "?",
+                };
+                match (outcome.value, &outcome.error) {
+                    (Some(v), _) => println!("value {v}"),
+                    (None, Some(e)) => println!("error {e}"),
+                    (None, None) => println!("written"),
+                }
+                println!(
+                    "actual {}  state {} ({state})  {:.1} ms",
+                    outcome.actual, outcome.state, outcome.elapsed_ms
+                );
+                println!("> {}", outcome.request);
+                println!(
+                    "< {}",
+                    outcome.response.as_deref().unwrap_or("(no response)")
+                );
+            }
+            if !outcome.actual {
+                return Ok(ExitCode::FAILURE);
             }
         }
         Command::Describe { what } => match what {

@@ -16,6 +16,7 @@ use crate::cache::AccessError;
 use crate::codec::{Value, ValueError};
 use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration, Refusal};
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
+use crate::transaction::TransactionSpec;
 
 type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::Update, Status>> + Send>>;
 type ExchangeStream = Pin<Box<dyn Stream<Item = Result<pb::ExchangeResponse, Status>> + Send>>;
@@ -338,6 +339,48 @@ impl Gateway for GrpcApi {
         Ok(Response::new(pb::EnsureLinkResponse {
             link: Some(to_pb::link(&ensured.value)),
             created: ensured.created,
+        }))
+    }
+
+    async fn transact(
+        &self,
+        request: Request<pb::TransactRequest>,
+    ) -> Result<Response<pb::TransactResponse>, Status> {
+        let r = request.into_inner();
+        let number = |n: f64| {
+            if n.fract() == 0.0 && n.abs() < 9e15 {
+                serde_json::Value::from(n as i64)
+            } else {
+                serde_json::Number::from_f64(n).map_or(serde_json::Value::Null, Into::into)
+            }
+        };
+        let text = |s: String| (!s.is_empty()).then_some(s);
+        let spec = TransactionSpec {
+            function: Some(r.function.into()),
+            slave: Some(r.slave.into()),
+            address: Some(r.address.into()),
+            bit_count: (r.bit_count > 0).then_some(r.bit_count.into()),
+            value_type: text(r.value_type),
+            divisor: (r.divisor > 0).then(|| i64::try_from(r.divisor).unwrap_or(i64::MAX)),
+            precision: r.precision.map(i64::from),
+            byte_order: text(r.byte_order),
+            timeout_ms: (r.timeout_ms > 0).then_some(r.timeout_ms.into()),
+            write_type: text(r.r#type),
+            values: (!r.values.is_empty()).then(|| r.values.into_iter().map(number).collect()),
+        };
+        let o = self
+            .service
+            .transact(&r.link, &spec)
+            .await
+            .map_err(status)?;
+        Ok(Response::new(pb::TransactResponse {
+            actual: o.actual,
+            state: o.state,
+            value: o.value,
+            error: o.error.unwrap_or_default().to_owned(),
+            request: o.request,
+            response: o.response.unwrap_or_default(),
+            elapsed_ms: o.elapsed_ms,
         }))
     }
 
