@@ -184,6 +184,11 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         modbus_listener = Some(listener);
     }
     let service = Arc::new(service);
+    for standing in &config.transactions {
+        service
+            .ensure_transaction(standing.clone())
+            .map_err(|e| anyhow::anyhow!("transaction {}: {e}", standing.name))?;
+    }
     let modbus_addr = match modbus_listener {
         Some(listener) => {
             let addr = listener.local_addr()?;

@@ -39,6 +39,7 @@ pub const DEVICE_TIMEOUTS: &str = "iogate_device_timeouts";
 pub const DEVICE_CRC_ERRORS: &str = "iogate_device_crc_errors";
 pub const DEVICE_EXCEPTIONS: &str = "iogate_device_exceptions";
 pub const DEVICE_WRITES: &str = "iogate_device_writes";
+pub const TRANSACTION_RUNS: &str = "iogate_transaction_runs";
 pub const MODBUS_SERVER_CONNECTIONS: &str = "iogate_modbus_server_connections";
 pub const MODBUS_SERVER_REFUSED: &str = "iogate_modbus_server_refused_connections";
 pub const MODBUS_SERVER_REQUESTS: &str = "iogate_modbus_server_requests";
@@ -70,6 +71,12 @@ pub struct ExceptionLabels {
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct ServerRequestLabels {
     pub function: String,
+    pub outcome: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct TransactionLabels {
+    pub transaction: String,
     pub outcome: String,
 }
 
@@ -110,6 +117,7 @@ pub struct Metrics {
     crc_errors: Family<DeviceLabels, Counter>,
     exceptions: Family<ExceptionLabels, Counter>,
     writes: Family<WriteLabels, Counter>,
+    transaction_runs: Family<TransactionLabels, Counter>,
     server_connections: Gauge,
     server_refused: Counter,
     server_requests: Family<ServerRequestLabels, Counter>,
@@ -149,6 +157,7 @@ impl Metrics {
             crc_errors: Family::default(),
             exceptions: Family::default(),
             writes: Family::default(),
+            transaction_runs: Family::default(),
             server_connections: Gauge::default(),
             server_refused: Counter::default(),
             server_requests: Family::default(),
@@ -241,6 +250,11 @@ impl Metrics {
             m.writes.clone(),
         );
         registry.register(
+            TRANSACTION_RUNS,
+            "Runs of standing transactions, by name and outcome (ok: a correct response)",
+            m.transaction_runs.clone(),
+        );
+        registry.register(
             MODBUS_SERVER_CONNECTIONS,
             "Open connections of Modbus TCP masters",
             m.server_connections.clone(),
@@ -261,6 +275,16 @@ impl Metrics {
             m.server_exceptions.clone(),
         );
         Metrics { registry, ..m }
+    }
+
+    /// One run of a standing transaction.
+    pub fn transaction_run(&self, name: &str, ok: bool) {
+        self.transaction_runs
+            .get_or_create(&TransactionLabels {
+                transaction: name.to_owned(),
+                outcome: if ok { "ok" } else { "failed" }.to_owned(),
+            })
+            .inc();
     }
 
     /// A master connected (`true`) or went away.

@@ -349,3 +349,130 @@ async fn grpc_transact_answers_the_same_way() {
     on.gw.shutdown().await;
     on.task.abort();
 }
+
+#[tokio::test]
+async fn standing_reads_and_writes_repeat_and_can_be_switched_and_triggered() {
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.tables.holding[0] = 215);
+    bus.slave(17, |_| {});
+    let on = on_bus(
+        "tx-standing",
+        &bus,
+        "transactions:\n  - { name: temp, link: rs485, function: 3, slave: 1, address: 0, value_type: SIGNED_NUMBER16, divisor: 10, precision: 1, byte_order: BigEndian, timeout_ms: 100, refresh_interval: 50ms }\n  - { name: setpoint, link: rs485, function: 6, slave: 17, address: 1, type: uint16, byte_order: Big-endian, values: [7], timeout_ms: 100, polling_period: 50ms, enabled: false }\n",
+    )
+    .await;
+    let gw = &on.gw;
+    let temp = gw
+        .until("/api/v1/transactions/temp", "temp read", |b| {
+            b["value"] == 21.5 && b["runs"].as_u64().is_some_and(|r| r >= 3)
+        })
+        .await
+        .expect("standing read");
+    assert_eq!((&temp["actual"], &temp["state"]), (&json!(true), &json!(4)));
+    assert_eq!(temp["kind"], "read");
+    assert!(temp["timestamp"].is_string());
+    // Streamed with the other changes.
+    let mut events = iogate_tests::SseReader::open(gw, "/api/v1/events")
+        .await
+        .expect("events");
+    let streamed = events
+        .until(|name, data| name == "transaction" && data["name"] == "temp")
+        .await
+        .expect("a transaction event");
+    assert_eq!(streamed["value"], 21.5);
+
+    // A disabled write sends nothing until enabled, then its current values.
+    let (_, setpoint) = gw.get("/api/v1/transactions/setpoint").await.expect("get");
+    assert_eq!(
+        (&setpoint["enabled"], &setpoint["runs"], &setpoint["state"]),
+        (&json!(false), &json!(0), &json!(0))
+    );
+    let (status, _) = gw
+        .send(Method::POST, "/api/v1/transactions/setpoint/enable", "")
+        .await
+        .expect("enable");
+    assert_eq!(status, 200);
+    gw.until("/api/v1/transactions/setpoint", "written", |b| {
+        b["state"] == 4
+    })
+    .await
+    .expect("written");
+    assert_eq!(bus.read_slave(17, |s| s.tables.holding[1]), Some(7));
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/transactions/setpoint/values",
+            json!({"values": [9]}).to_string(),
+        )
+        .await
+        .expect("values");
+    assert_eq!(status, 200);
+    iogate_tests::eventually("new value re-sent", || async {
+        bus.read_slave(17, |s| s.tables.holding[1]) == Some(9)
+    })
+    .await
+    .expect("re-sent");
+    let (status, refused) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/transactions/setpoint/values",
+            json!({"values": [70000]}).to_string(),
+        )
+        .await
+        .expect("values");
+    assert_eq!(status, 400, "{refused}");
+
+    // Disabled: the runs stop.
+    gw.send(Method::POST, "/api/v1/transactions/temp/disable", "")
+        .await
+        .expect("disable");
+    let (_, before) = gw.get("/api/v1/transactions/temp").await.expect("get");
+    tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    let (_, after) = gw.get("/api/v1/transactions/temp").await.expect("get");
+    assert!(
+        after["runs"].as_u64() <= before["runs"].as_u64().map(|r| r + 1),
+        "{before} {after}"
+    );
+
+    // Declared at run time with no period: runs only when triggered.
+    let (status, declared) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/transactions/once",
+            json!({"link": "rs485", "function": 3, "slave": 1, "address": 0, "value_type": "UNSIGNED_NUMBER16",
+                   "byte_order": "BigEndian", "timeout_ms": 100}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 200, "{declared}");
+    let (_, again) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/transactions/once",
+            json!({"link": "rs485", "function": 3, "slave": 1, "address": 0, "value_type": "UNSIGNED_NUMBER16",
+                   "byte_order": "BigEndian", "timeout_ms": 100}).to_string(),
+        )
+        .await
+        .expect("again");
+    assert_eq!(again["name"], "once", "idempotent");
+    gw.until("/api/v1/transactions/once", "first run", |b| b["runs"] == 1)
+        .await
+        .expect("one run at start");
+    gw.send(Method::POST, "/api/v1/transactions/once/trigger", "")
+        .await
+        .expect("trigger");
+    gw.until("/api/v1/transactions/once", "triggered", |b| b["runs"] == 2)
+        .await
+        .expect("triggered");
+    let (_, list) = gw.get("/api/v1/transactions").await.expect("list");
+    assert_eq!(list["transactions"].as_array().map(Vec::len), Some(3));
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains("iogate_transaction_runs_total{transaction=\"temp\",outcome=\"ok\"}"),
+        "{metrics}"
+    );
+    let (status, _) = gw.get("/api/v1/transactions/nope").await.expect("get");
+    assert_eq!(status, 404);
+    on.gw.shutdown().await;
+    on.task.abort();
+}

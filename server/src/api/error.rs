@@ -92,6 +92,8 @@ impl From<ServiceError> for ApiError {
             ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
             ServiceError::Location(_) => (StatusCode::BAD_REQUEST, "invalid_location"),
             ServiceError::Transaction(_) => (StatusCode::BAD_REQUEST, "invalid_transaction"),
+            ServiceError::UnknownTransaction(_) => (StatusCode::NOT_FOUND, "unknown_transaction"),
+            ServiceError::TransactionConflict(_) => (StatusCode::CONFLICT, "declaration_conflict"),
             ServiceError::Unbound(_) => (StatusCode::NOT_FOUND, "unbound_location"),
         };
         ApiError::new(status, code, e.to_string())

@@ -19,6 +19,7 @@ use crate::service::{Change, Service};
 
 pub const EVENT_VALUE: &str = "value";
 pub const EVENT_DIAGNOSTICS: &str = "diagnostics";
+pub const EVENT_TRANSACTION: &str = "transaction";
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
 fn event(name: &str, data: &impl Serialize) -> Event {
@@ -29,7 +30,8 @@ fn event(name: &str, data: &impl Serialize) -> Event {
 }
 
 /// Changes of values and diagnostics, as `value` and `diagnostics` events whose data is
-/// the JSON of `GET .../fields/{field}` and of a device's diagnostics.
+/// the JSON of `GET .../fields/{field}` and of a device's diagnostics; without `device`,
+/// also `transaction` events (the JSON of `GET /api/v1/transactions/{name}`).
 #[utoipa::path(get, path = "/api/v1/events", tag = "devices",
     params(("device" = Option<String>, Query, description = "only this device")),
     responses((status = 200, description = "a stream of `value` and `diagnostics` events: current values first, then each change", content_type = "text/event-stream"),
@@ -47,6 +49,18 @@ pub async fn events(
     }
     let devices: Vec<&String> = query.get("device").into_iter().collect();
     let selection = service.select::<_, &str>(&devices, &[])?;
+    // Standing transactions with everything, not with one device.
+    let transactions = if devices.is_empty() {
+        service.transaction_changes()
+    } else {
+        Box::pin(futures_util::stream::empty())
+    };
+    let transactions = transactions.map(|(standing, status)| {
+        Ok(event(
+            EVENT_TRANSACTION,
+            &super::transactions::standing_info(&standing, &status),
+        ))
+    });
     let stream = service.subscribe(selection, true)?.map(|change| {
         Ok(match change {
             Change::Value {
@@ -69,5 +83,6 @@ pub async fn events(
             ),
         })
     });
+    let stream = futures_util::stream::select(stream, transactions);
     Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(KEEP_ALIVE)))
 }

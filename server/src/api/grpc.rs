@@ -51,7 +51,8 @@ pub fn status(e: ServiceError) -> Status {
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
         ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,
-        ServiceError::Unbound(_) => tonic::Code::NotFound,
+        ServiceError::Unbound(_) | ServiceError::UnknownTransaction(_) => tonic::Code::NotFound,
+        ServiceError::TransactionConflict(_) => tonic::Code::FailedPrecondition,
     };
     Status::new(code, message)
 }

@@ -42,13 +42,17 @@ pub const API_PREFIX: &str = "/api/v1";
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
         events::events, declare::put_link, declare::put_device, openapi_json, metrics,
         map::get_map, map::get_located, map::put_located, map::get_memory,
-        transactions::post_transaction,
+        transactions::post_transaction, transactions::list_standing,
+        transactions::get_standing, transactions::put_standing, transactions::enable_standing,
+        transactions::disable_standing, transactions::trigger_standing,
+        transactions::put_standing_values,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
         (name = "links", description = "serial and TCP links"),
         (name = "profiles", description = "device profiles and their function-block layout"),
         (name = "health", description = "liveness and readiness"),
+        (name = "transactions", description = "raw Modbus transactions: one-shot and standing"),
         (name = "modbus", description = "the Modbus TCP server's map of IEC located addresses, and its memory"),
     )
 )]
@@ -120,7 +124,28 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/events", get(events::events))
         .route("/map", get(map::get_map))
         .route("/map/{at}", get(map::get_located).put(map::put_located))
-        .route("/memory", get(map::get_memory));
+        .route("/memory", get(map::get_memory))
+        .route("/transactions", get(transactions::list_standing))
+        .route(
+            "/transactions/{name}",
+            get(transactions::get_standing).put(transactions::put_standing),
+        )
+        .route(
+            "/transactions/{name}/enable",
+            axum::routing::post(transactions::enable_standing),
+        )
+        .route(
+            "/transactions/{name}/disable",
+            axum::routing::post(transactions::disable_standing),
+        )
+        .route(
+            "/transactions/{name}/trigger",
+            axum::routing::post(transactions::trigger_standing),
+        )
+        .route(
+            "/transactions/{name}/values",
+            put(transactions::put_standing_values),
+        );
     Router::new()
         .route("/livez", get(rest::livez))
         .route("/readyz", get(rest::readyz))

@@ -2,6 +2,7 @@
 //! between polls, answered as the write and read function blocks report it.
 
 use std::sync::Arc;
+use std::time::Duration;
 
 use axum::Json;
 use axum::body::Bytes;
@@ -10,7 +11,8 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use super::error::{ApiError, ErrorBody};
-use crate::service::Service;
+use crate::config::transactions::StandingConfig;
+use crate::service::{Service, Standing, StandingStatus};
 use crate::transaction::{Outcome, TransactionSpec};
 
 /// How a transaction ended.
@@ -62,4 +64,203 @@ pub async fn post_transaction(
         ApiError::bad_request("invalid_body", format!("the transaction is not valid: {e}"))
     })?;
     Ok(Json(service.transact(&link, &spec).await?.into()))
+}
+
+/// A standing transaction: its settings and its latest outcome (the fields of a one-shot's
+/// answer) with `name`, `enabled` and a timestamp.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StandingInfo {
+    pub name: String,
+    pub link: String,
+    /// `read` or `write`.
+    pub kind: String,
+    pub enabled: bool,
+    /// `refresh_interval` of a read (after the previous finished) or `polling_period` of a
+    /// write (from the start of the previous); 0: only when triggered.
+    pub period_ms: u64,
+    pub actual: bool,
+    /// 0 not run yet; 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
+    pub state: i32,
+    pub value: Option<f64>,
+    pub error: Option<String>,
+    pub request: Option<String>,
+    pub response: Option<String>,
+    pub elapsed_ms: Option<f64>,
+    pub runs: u64,
+    pub failures: u64,
+    /// When the last run ended (RFC 3339).
+    pub timestamp: Option<String>,
+    pub parameters: TransactionSpec,
+}
+
+pub fn standing_info(s: &Standing, status: &StandingStatus) -> StandingInfo {
+    let last = status.last.as_ref();
+    StandingInfo {
+        name: s.name.clone(),
+        link: s.link.clone(),
+        kind: if s.is_write { "write" } else { "read" }.to_owned(),
+        enabled: status.enabled,
+        period_ms: s.period.as_millis() as u64,
+        actual: last.is_some_and(|o| o.actual),
+        state: last.map_or(crate::transaction::state::NOT_ACTIVE, |o| o.state),
+        value: last.and_then(|o| o.value),
+        error: last.and_then(|o| o.error).map(str::to_owned),
+        request: last.map(|o| o.request.clone()),
+        response: last.and_then(|o| o.response.clone()),
+        elapsed_ms: last.map(|o| o.elapsed_ms),
+        runs: status.runs,
+        failures: status.failures,
+        timestamp: status.updated.map(super::convert::rfc3339),
+        parameters: s.spec(),
+    }
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StandingList {
+    pub transactions: Vec<StandingInfo>,
+}
+
+/// The body of `PUT /api/v1/transactions/{name}`: the one-shot's keys plus `link` and a
+/// period.
+#[derive(Debug, serde::Deserialize, ToSchema)]
+pub struct StandingDeclaration {
+    pub link: String,
+    /// Reads: milliseconds between the end of one run and the next (0: only triggered).
+    #[serde(default)]
+    pub refresh_interval_ms: u64,
+    /// Writes: milliseconds between the starts of runs (0: only triggered).
+    #[serde(default)]
+    pub polling_period_ms: u64,
+    #[serde(default = "enabled_by_default")]
+    pub enabled: bool,
+    #[serde(flatten)]
+    pub parameters: TransactionSpec,
+}
+
+fn enabled_by_default() -> bool {
+    true
+}
+
+/// The values a standing write sends.
+#[derive(Debug, serde::Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StandingValues {
+    #[schema(value_type = Vec<Object>)]
+    pub values: Vec<serde_json::Value>,
+}
+
+type Answer = Result<Json<StandingInfo>, ApiError>;
+
+fn answer(s: &Standing) -> Answer {
+    Ok(Json(standing_info(s, &s.status())))
+}
+
+/// Every standing transaction.
+#[utoipa::path(get, path = "/api/v1/transactions", tag = "transactions",
+    responses((status = 200, description = "every standing transaction", body = StandingList)))]
+pub async fn list_standing(State(service): State<Arc<Service>>) -> Json<StandingList> {
+    Json(StandingList {
+        transactions: service
+            .standing()
+            .all()
+            .iter()
+            .map(|s| standing_info(s, &s.status()))
+            .collect(),
+    })
+}
+
+/// One standing transaction with its latest outcome.
+#[utoipa::path(get, path = "/api/v1/transactions/{name}", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    responses((status = 200, description = "the transaction", body = StandingInfo),
+              (status = 404, description = "no such transaction", body = ErrorBody)))]
+pub async fn get_standing(State(service): State<Arc<Service>>, Path(name): Path<String>) -> Answer {
+    answer(service.transaction(&name)?.as_ref())
+}
+
+/// Declares a standing transaction (idempotent); it starts at once when enabled.
+#[utoipa::path(put, path = "/api/v1/transactions/{name}", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    request_body = StandingDeclaration,
+    responses((status = 200, description = "declared (or existed with these settings)", body = StandingInfo),
+              (status = 400, description = "every parameter problem", body = ErrorBody),
+              (status = 409, description = "exists with other settings", body = ErrorBody)))]
+pub async fn put_standing(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Answer {
+    let d: StandingDeclaration = serde_json::from_slice(&body).map_err(|e| {
+        ApiError::bad_request("invalid_body", format!("the transaction is not valid: {e}"))
+    })?;
+    let period = Duration::from_millis(d.refresh_interval_ms.max(d.polling_period_ms));
+    if period > Duration::from_secs(3600) {
+        return Err(ApiError::bad_request(
+            "invalid_transaction",
+            crate::transaction::params::INVALID_REFRESH,
+        ));
+    }
+    let (s, _) = service.ensure_transaction(StandingConfig {
+        name,
+        link: d.link,
+        spec: d.parameters,
+        period,
+        enabled: d.enabled,
+        line: 0,
+    })?;
+    answer(&s)
+}
+
+/// Enables a standing transaction.
+#[utoipa::path(post, path = "/api/v1/transactions/{name}/enable", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    responses((status = 200, description = "enabled", body = StandingInfo),
+              (status = 404, description = "no such transaction", body = ErrorBody)))]
+pub async fn enable_standing(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Answer {
+    answer(service.enable_transaction(&name, true)?.as_ref())
+}
+
+/// Disables a standing transaction.
+#[utoipa::path(post, path = "/api/v1/transactions/{name}/disable", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    responses((status = 200, description = "disabled", body = StandingInfo),
+              (status = 404, description = "no such transaction", body = ErrorBody)))]
+pub async fn disable_standing(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Answer {
+    answer(service.enable_transaction(&name, false)?.as_ref())
+}
+
+/// Runs a standing transaction now (ignored while one of its runs is in flight).
+#[utoipa::path(post, path = "/api/v1/transactions/{name}/trigger", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    responses((status = 200, description = "triggered", body = StandingInfo),
+              (status = 404, description = "no such transaction", body = ErrorBody)))]
+pub async fn trigger_standing(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Answer {
+    answer(service.trigger_transaction(&name)?.as_ref())
+}
+
+/// Sets the values a standing write sends from its next run.
+#[utoipa::path(put, path = "/api/v1/transactions/{name}/values", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    request_body = StandingValues,
+    responses((status = 200, description = "set", body = StandingInfo),
+              (status = 400, description = "values the write does not take", body = ErrorBody),
+              (status = 404, description = "no such transaction", body = ErrorBody)))]
+pub async fn put_standing_values(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> Answer {
+    let v: StandingValues = serde_json::from_slice(&body).map_err(|e| {
+        ApiError::bad_request("invalid_body", format!("send {{\"values\": [...]}}: {e}"))
+    })?;
+    answer(service.set_transaction_values(&name, v.values)?.as_ref())
 }

@@ -7,6 +7,7 @@ mod check;
 pub mod modbus;
 mod read;
 pub mod rules;
+pub mod transactions;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -30,6 +31,8 @@ pub struct Config {
     pub devices: Vec<DeviceConfig>,
     /// The Modbus TCP server, when configured.
     pub modbus_server: Option<modbus::ModbusServerConfig>,
+    /// Standing raw transactions.
+    pub transactions: Vec<transactions::StandingConfig>,
     /// The file the config came from.
     pub source: String,
 }
@@ -169,6 +172,7 @@ impl Config {
             links: Vec::new(),
             devices: Vec::new(),
             modbus_server: None,
+            transactions: Vec::new(),
             source: source.to_owned(),
         }
     }

@@ -11,7 +11,14 @@ use super::{Config, DeviceConfig, Framing, LinkConfig, Parity, SerialSettings, T
 use crate::duration;
 use crate::yaml::{self, Node, Report};
 
-const TOP_KEYS: &[&str] = &["listen", "profiles", "links", "devices", "modbus_server"];
+const TOP_KEYS: &[&str] = &[
+    "listen",
+    "profiles",
+    "links",
+    "devices",
+    "modbus_server",
+    "transactions",
+];
 const LISTEN_KEYS: &[&str] = &["http", "grpc"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
@@ -78,6 +85,19 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     config.modbus_server = map
         .get("modbus_server")
         .and_then(|n| super::modbus::read(n, report));
+    config.transactions = map
+        .get("transactions")
+        .map(|n| super::transactions::read(n, report))
+        .unwrap_or_default();
+    for t in &config.transactions {
+        if !config.links.iter().any(|l| l.name == t.link) {
+            report.push(
+                t.line,
+                format!("transaction {}", t.name),
+                crate::transaction::params::MISSING_RS485,
+            );
+        }
+    }
     map.finish(report, "config", TOP_KEYS);
     super::check::check_ports(&config.links, report);
     Some(config)

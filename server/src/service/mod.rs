@@ -6,6 +6,7 @@
 
 mod modbus;
 mod select;
+mod standing;
 mod subscribe;
 mod transact;
 mod write;
@@ -21,6 +22,7 @@ use crate::runtime::Tasks;
 
 pub use modbus::{Bound, ModbusImage, Route};
 pub use select::{FieldRef, Selection, Snapshot};
+pub use standing::{Standing, StandingSet, StandingStatus};
 pub use subscribe::{Change, Changes};
 pub use write::{Accepted, CycleOutcome, Prepared, ScanCycle};
 
@@ -48,6 +50,10 @@ pub enum ServiceError {
     /// A raw transaction's parameters, with every message of the read block that applies.
     #[error("{}", .0.join(" "))]
     Transaction(Vec<String>),
+    #[error("no transaction `{0}`")]
+    UnknownTransaction(String),
+    #[error("transaction `{0}` exists with other settings")]
+    TransactionConflict(String),
     /// A located address no field is bound to.
     #[error("no field is bound to {0}")]
     Unbound(String),
@@ -81,6 +87,7 @@ pub struct Service {
     ready: AtomicBool,
     /// The Modbus TCP server's map and memory, when one is configured.
     modbus: Option<ModbusImage>,
+    standing: StandingSet,
 }
 
 impl Service {
@@ -93,6 +100,7 @@ impl Service {
             tasks,
             ready: AtomicBool::new(false),
             modbus: None,
+            standing: StandingSet::default(),
         }
     }
 

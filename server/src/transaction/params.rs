@@ -86,7 +86,7 @@ pub fn parse_byte_order(name: &str) -> Option<ByteOrder> {
 }
 
 /// A transaction as JSON (and gRPC) give it: the keys of the interface.
-#[derive(Debug, Clone, Default, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TransactionSpec {
     /// 1-4 read, 5, 6, 15, 16 write.

@@ -1,0 +1,118 @@
+//! The `transactions:` section of `iogate.yaml`: standing raw transactions, each a read
+//! repeated every `refresh_interval` (after the previous one finished) or a write re-sent
+//! every `polling_period` (from the start of the previous one) while enabled.
+
+use std::time::Duration;
+
+use crate::duration;
+use crate::transaction::TransactionSpec;
+use crate::yaml::{Kind, Node, Report};
+
+/// One standing transaction as configured (or declared at run time).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StandingConfig {
+    pub name: String,
+    pub link: String,
+    pub spec: TransactionSpec,
+    /// Reads: `refresh_interval`; writes: `polling_period`. Zero: only when triggered.
+    pub period: Duration,
+    pub enabled: bool,
+    pub line: u64,
+}
+
+/// The YAML value as JSON, for the keys a transaction shares with the REST interface.
+fn json(node: &Node) -> serde_json::Value {
+    match &node.kind {
+        Kind::Null => serde_json::Value::Null,
+        Kind::Bool(b) => (*b).into(),
+        Kind::Int(i) => i64::try_from(*i).map_or(serde_json::Value::Null, Into::into),
+        Kind::Float(f) => {
+            serde_json::Number::from_f64(*f).map_or(serde_json::Value::Null, Into::into)
+        }
+        Kind::Str(s) => s.clone().into(),
+        Kind::Seq(items) => items.iter().map(json).collect(),
+        Kind::Map(entries) => entries
+            .iter()
+            .map(|(k, v)| (k.name.clone(), json(v)))
+            .collect::<serde_json::Map<_, _>>()
+            .into(),
+    }
+}
+
+pub(super) fn read(node: &Node, report: &mut Report) -> Vec<StandingConfig> {
+    let Some(items) = node.seq(report, "transactions") else {
+        return Vec::new();
+    };
+    let mut out: Vec<StandingConfig> = Vec::new();
+    for (index, item) in items.iter().enumerate() {
+        let ctx = format!("transactions[{index}]");
+        let Kind::Map(entries) = &item.kind else {
+            report.push(item.line, &ctx, "expected a mapping");
+            continue;
+        };
+        let mut name = None;
+        let mut link = None;
+        let mut period = None;
+        let mut enabled = true;
+        let mut spec = serde_json::Map::new();
+        for (key, value) in entries {
+            let text = || match &value.kind {
+                Kind::Str(s) => Some(s.clone()),
+                _ => None,
+            };
+            match key.name.as_str() {
+                "name" => name = text(),
+                "link" => link = text(),
+                "refresh_interval" | "polling_period" => {
+                    let parsed = text().map(|t| duration::parse(&t));
+                    match parsed {
+                        Some(Ok(d)) if d <= Duration::from_secs(3600) => period = Some(d),
+                        _ => report.push(
+                            value.line,
+                            format!("{ctx}: {}", key.name),
+                            "Invalid refresh interval configuration. (a duration of 0-3600s, e.g. 1s)",
+                        ),
+                    }
+                }
+                "enabled" => match value.kind {
+                    Kind::Bool(b) => enabled = b,
+                    _ => report.push(
+                        value.line,
+                        format!("{ctx}: enabled"),
+                        "expected true or false",
+                    ),
+                },
+                other => {
+                    spec.insert(other.to_owned(), json(value));
+                }
+            }
+        }
+        let (Some(name), Some(link)) = (name, link) else {
+            report.push(item.line, &ctx, "a transaction needs a `name` and a `link`");
+            continue;
+        };
+        let ctx = format!("transaction {name}");
+        if out.iter().any(|t| t.name == name) {
+            report.push(item.line, &ctx, "duplicate transaction name");
+        }
+        let spec: TransactionSpec = match serde_json::from_value(spec.into()) {
+            Ok(s) => s,
+            Err(e) => {
+                report.push(item.line, &ctx, e.to_string());
+                continue;
+            }
+        };
+        if let Err(errors) = spec.check() {
+            report.push(item.line, &ctx, errors.join(" "));
+        }
+        out.push(StandingConfig {
+            name,
+            link,
+            spec,
+            period: period.unwrap_or(Duration::ZERO),
+            enabled,
+            line: item.line,
+        });
+    }
+    out
+}

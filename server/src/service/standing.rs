@@ -1,0 +1,242 @@
+//! Standing transactions: a read repeated every `refresh_interval` after the previous one
+//! finished, or a write re-sent every `polling_period` from the start of the previous one,
+//! while enabled; or run when triggered. Each has a task of the gateway, and its latest
+//! outcome in a `watch` channel, so it is read and streamed like a field.
+
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, SystemTime};
+
+use tokio::sync::{Notify, watch};
+use tokio::time::{Instant, sleep_until};
+
+use super::{Service, ServiceError};
+use crate::config::transactions::StandingConfig;
+use crate::transaction::{Outcome, Plan, TransactionSpec};
+
+/// The latest state of a standing transaction.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StandingStatus {
+    pub enabled: bool,
+    pub last: Option<Outcome>,
+    pub runs: u64,
+    pub failures: u64,
+    pub updated: Option<SystemTime>,
+}
+
+/// A standing transaction.
+#[derive(Debug)]
+pub struct Standing {
+    pub name: String,
+    pub link: String,
+    pub period: Duration,
+    pub is_write: bool,
+    spec: Mutex<TransactionSpec>,
+    status: watch::Sender<StandingStatus>,
+    /// Wakes the task: enabled, values changed, or a trigger.
+    wake: Notify,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Standing {
+    pub fn spec(&self) -> TransactionSpec {
+        lock(&self.spec).clone()
+    }
+
+    pub fn status(&self) -> StandingStatus {
+        self.status.borrow().clone()
+    }
+
+    pub fn subscribe(&self) -> watch::Receiver<StandingStatus> {
+        self.status.subscribe()
+    }
+
+    fn config(&self) -> StandingConfig {
+        StandingConfig {
+            name: self.name.clone(),
+            link: self.link.clone(),
+            spec: self.spec(),
+            period: self.period,
+            enabled: self.status().enabled,
+            line: 0,
+        }
+    }
+}
+
+/// The standing transactions of a gateway.
+#[derive(Debug, Default)]
+pub struct StandingSet(RwLock<Vec<Arc<Standing>>>);
+
+impl StandingSet {
+    pub fn all(&self) -> Vec<Arc<Standing>> {
+        self.0.read().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    pub fn get(&self, name: &str) -> Option<Arc<Standing>> {
+        self.all().into_iter().find(|s| s.name == name)
+    }
+}
+
+/// Changes of standing transactions' states.
+pub type StandingChanges =
+    std::pin::Pin<Box<dyn futures_util::Stream<Item = (Arc<Standing>, StandingStatus)> + Send>>;
+
+impl Service {
+    /// Every standing transaction's current state, then each change, until shutdown.
+    pub fn transaction_changes(&self) -> StandingChanges {
+        use futures_util::StreamExt;
+        let mut streams = tokio_stream::StreamMap::new();
+        for (n, s) in self.standing.all().into_iter().enumerate() {
+            let updates = tokio_stream::wrappers::WatchStream::new(s.subscribe())
+                .map(move |status| (s.clone(), status));
+            streams.insert(n, Box::pin(updates) as StandingChanges);
+        }
+        let shutdown = self.tasks().token().clone().cancelled_owned();
+        Box::pin(streams.map(|(_, change)| change).take_until(shutdown))
+    }
+
+    pub fn standing(&self) -> &StandingSet {
+        &self.standing
+    }
+
+    pub fn transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
+        self.standing
+            .get(name)
+            .ok_or_else(|| ServiceError::UnknownTransaction(name.to_owned()))
+    }
+
+    /// Declares a standing transaction (idempotent): the same declaration answers the
+    /// existing one; another one under the same name is refused. Its task starts at once.
+    pub fn ensure_transaction(
+        self: &Arc<Self>,
+        config: StandingConfig,
+    ) -> Result<(Arc<Standing>, bool), ServiceError> {
+        self.accepting()?;
+        let checked = config.spec.check();
+        if self.cache.link(&config.link).is_err() || checked.is_err() {
+            let mut errors = checked.err().unwrap_or_default();
+            if self.cache.link(&config.link).is_err() {
+                errors.push(crate::transaction::params::MISSING_RS485.to_owned());
+            }
+            return Err(ServiceError::Transaction(errors));
+        }
+        let is_write = matches!(checked.map(|c| c.plan), Ok(Plan::Write(_)));
+        let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
+        if let Some(existing) = set.iter().find(|s| s.name == config.name) {
+            let have = existing.config();
+            return if (&have.link, &have.spec, have.period)
+                == (&config.link, &config.spec, config.period)
+            {
+                Ok((existing.clone(), false))
+            } else {
+                Err(ServiceError::TransactionConflict(config.name))
+            };
+        }
+        let standing = Arc::new(Standing {
+            name: config.name,
+            link: config.link,
+            period: config.period,
+            is_write,
+            spec: Mutex::new(config.spec),
+            status: watch::Sender::new(StandingStatus {
+                enabled: config.enabled,
+                last: None,
+                runs: 0,
+                failures: 0,
+                updated: None,
+            }),
+            wake: Notify::new(),
+        });
+        set.push(standing.clone());
+        drop(set);
+        let (service, task) = (self.clone(), standing.clone());
+        self.tasks()
+            .spawn(async move { service.run_standing(task).await });
+        Ok((standing, true))
+    }
+
+    /// Enables or disables a standing transaction.
+    pub fn enable_transaction(
+        &self,
+        name: &str,
+        enabled: bool,
+    ) -> Result<Arc<Standing>, ServiceError> {
+        let s = self.transaction(name)?;
+        s.status.send_if_modified(|st| {
+            let changed = st.enabled != enabled;
+            st.enabled = enabled;
+            changed
+        });
+        s.wake.notify_one();
+        Ok(s)
+    }
+
+    /// Sets the values a standing write sends (checked as a one-shot would be).
+    pub fn set_transaction_values(
+        &self,
+        name: &str,
+        values: Vec<serde_json::Value>,
+    ) -> Result<Arc<Standing>, ServiceError> {
+        let s = self.transaction(name)?;
+        let mut spec = s.spec();
+        spec.values = Some(values);
+        spec.check().map_err(ServiceError::Transaction)?;
+        *lock(&s.spec) = spec;
+        s.wake.notify_one();
+        Ok(s)
+    }
+
+    /// Runs a standing transaction now; ignored while one of its runs is in flight.
+    pub fn trigger_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
+        let s = self.transaction(name)?;
+        s.wake.notify_waiters();
+        Ok(s)
+    }
+
+    async fn run_standing(self: Arc<Self>, s: Arc<Standing>) {
+        let token = self.tasks().token().clone();
+        loop {
+            if !s.status().enabled {
+                tokio::select! {
+                    _ = token.cancelled() => return,
+                    _ = s.wake.notified() => continue,
+                }
+            }
+            let started = Instant::now();
+            let outcome = self.transact(&s.link, &s.spec()).await;
+            let ok = matches!(&outcome, Ok(o) if o.actual);
+            s.status.send_modify(|st| {
+                st.runs += 1;
+                if !ok {
+                    st.failures += 1;
+                }
+                st.last = outcome.as_ref().ok().cloned();
+                st.updated = Some(SystemTime::now());
+            });
+            self.metrics.transaction_run(&s.name, ok);
+            if matches!(outcome, Err(ServiceError::ShuttingDown)) {
+                return;
+            }
+            // Writes repeat from the start of the previous one, reads after it finished.
+            let next = if s.is_write {
+                started + s.period
+            } else {
+                Instant::now() + s.period
+            };
+            let wait = async {
+                if s.period.is_zero() {
+                    std::future::pending::<()>().await;
+                } else {
+                    sleep_until(next).await;
+                }
+            };
+            tokio::select! {
+                _ = token.cancelled() => return,
+                _ = wait => {}
+                _ = s.wake.notified() => {}
+            }
+        }
+    }
+}
