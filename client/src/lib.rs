@@ -19,6 +19,7 @@ use iogate_proto::pb::gateway_client::GatewayClient;
 use serde::Serialize;
 use tonic::transport::Channel;
 
+pub mod fb;
 mod types;
 
 /// How a raw transaction ended, as the read and write function blocks report it.

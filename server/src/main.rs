@@ -43,11 +43,23 @@ enum Command {
         #[arg(long)]
         st: bool,
     },
+    /// Function blocks: `iogate fb st` prints the ST declarations of ModbusRead and
+    /// ModbusWrite, the raw-transaction blocks of the client crate.
+    Fb {
+        #[command(subcommand)]
+        command: FbCommand,
+    },
     /// Profiles: `iogate profile st NAME` prints a profile's ST function-block declaration.
     Profile {
         #[command(subcommand)]
         command: ProfileCommand,
     },
+}
+
+#[derive(Subcommand)]
+enum FbCommand {
+    /// Print the ST declarations of the ModbusRead and ModbusWrite blocks.
+    St,
 }
 
 #[derive(Subcommand)]
@@ -96,6 +108,13 @@ fn main() -> ExitCode {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .init();
+    if let Some(Command::Fb {
+        command: FbCommand::St,
+    }) = cli.command
+    {
+        print!("{}", iogate::transaction::st::declarations());
+        return ExitCode::SUCCESS;
+    }
     let (config, action) = match cli.command {
         None => (None, Action::Serve),
         Some(Command::Serve { config }) => (config, Action::Serve),
@@ -105,6 +124,7 @@ fn main() -> ExitCode {
         Some(Command::Profile {
             command: ProfileCommand::St { name, config },
         }) => (config, Action::St(name)),
+        Some(Command::Fb { .. }) => return ExitCode::SUCCESS,
     };
     let setup = match Setup::load(config.as_deref()) {
         Ok(setup) => setup,

@@ -476,3 +476,168 @@ async fn standing_reads_and_writes_repeat_and_can_be_switched_and_triggered() {
     on.gw.shutdown().await;
     on.task.abort();
 }
+
+fn read_request() -> iogate_client::proto::TransactRequest {
+    iogate_client::proto::TransactRequest {
+        link: "rs485".into(),
+        function: 3,
+        slave: 1,
+        address: 0,
+        value_type: "SIGNED_NUMBER16".into(),
+        divisor: 10,
+        precision: Some(1),
+        byte_order: "BigEndian".into(),
+        timeout_ms: 50,
+        ..Default::default()
+    }
+}
+
+/// Calls `step` every 10 ms (a scan cycle) until it says done, at most 5 s.
+async fn cycles(mut step: impl FnMut() -> bool) {
+    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(5);
+    while !step() {
+        assert!(tokio::time::Instant::now() < deadline, "timed out");
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+}
+
+#[tokio::test]
+async fn the_read_block_reads_on_its_edge_keeps_its_value_on_error_and_ignores_triggers_in_flight()
+{
+    use iogate_client::fb::ModbusRead;
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.tables.holding[0] = 215);
+    let on = on_bus("fb-read", &bus, "").await;
+    let client = on.gw.client().await.expect("client");
+    assert_eq!(
+        ModbusRead::new(
+            client.clone(),
+            read_request(),
+            "sideways",
+            std::time::Duration::ZERO
+        )
+        .err(),
+        Some(vec!["Invalid input edge configuration."])
+    );
+    let mut block = ModbusRead::new(
+        client.clone(),
+        read_request(),
+        "rising",
+        std::time::Duration::ZERO,
+    )
+    .expect("block");
+    // No edge, no read.
+    for _ in 0..5 {
+        assert_eq!(block.call(Some(false)), (None, false));
+    }
+    assert!(!block.busy());
+    block.call(Some(true));
+    assert!(block.busy(), "a rising edge starts a read");
+    cycles(|| block.call(Some(true)) == (Some(21.5), true)).await;
+    assert_eq!(block.status(), "21.5");
+    let reads = bus.seen().iter().filter(|s| s.slave == 1).count();
+    assert_eq!(reads, 1, "held TRUE is no new edge");
+
+    // An error keeps the last good value.
+    bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    block.call(Some(false));
+    block.call(Some(true));
+    cycles(|| {
+        let (_, ok) = block.call(Some(true));
+        !block.busy() && !ok
+    })
+    .await;
+    assert_eq!(block.value(), Some(21.5));
+    assert!(!block.ok());
+    assert_eq!(block.status(), "Slave timeout");
+
+    // `true` fires on every true input, but not while a read is in flight.
+    bus.slave(1, |s| s.behaviour = Behaviour::Normal);
+    bus.clear_seen();
+    let mut every =
+        ModbusRead::new(client, read_request(), "true", std::time::Duration::ZERO).expect("block");
+    for _ in 0..20 {
+        every.call(Some(true));
+    }
+    // Calls with a null input collect the outcome without firing again.
+    cycles(|| {
+        every.call(None);
+        !every.busy()
+    })
+    .await;
+    let sent = bus.seen().len();
+    assert!(sent <= 2, "{sent} reads for 20 calls without waiting");
+    on.gw.shutdown().await;
+    on.task.abort();
+}
+
+#[tokio::test]
+async fn the_read_blocks_first_cyclic_read_comes_about_two_seconds_after_start() {
+    use iogate_client::fb::ModbusRead;
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.tables.holding[0] = 42);
+    let on = on_bus("fb-cyclic", &bus, "").await;
+    let client = on.gw.client().await.expect("client");
+    let started = std::time::Instant::now();
+    let mut block = ModbusRead::new(
+        client,
+        read_request(),
+        "none",
+        std::time::Duration::from_millis(100),
+    )
+    .expect("block");
+    cycles(|| block.call(None).1).await;
+    assert!(
+        started.elapsed() >= std::time::Duration::from_millis(1900),
+        "{:?}",
+        started.elapsed()
+    );
+    assert_eq!(block.value(), Some(4.2));
+    on.gw.shutdown().await;
+    on.task.abort();
+}
+
+#[tokio::test]
+async fn the_write_block_walks_its_states_and_resends_while_enabled() {
+    use iogate_client::fb::ModbusWrite;
+    let bus = RtuBus::default();
+    bus.slave(17, |_| {});
+    let on = on_bus("fb-write", &bus, "").await;
+    let client = on.gw.client().await.expect("client");
+    let request = iogate_client::proto::TransactRequest {
+        link: "rs485".into(),
+        function: 6,
+        slave: 17,
+        address: 1,
+        r#type: "uint16".into(),
+        byte_order: "Big-endian".into(),
+        timeout_ms: 100,
+        ..Default::default()
+    };
+    let mut block = ModbusWrite::new(client, request, std::time::Duration::from_millis(100));
+    assert_eq!(block.call(false, &[3.0]), (false, 0), "not active");
+    let (_, first) = block.call(true, &[3.0]);
+    assert_eq!(first, 1, "waiting for access to the interface");
+    let mut states = vec![first];
+    cycles(|| {
+        let (_, s) = block.call(true, &[3.0]);
+        if states.last() != Some(&s) {
+            states.push(s);
+        }
+        s == 4
+    })
+    .await;
+    assert!(block.actual());
+    assert_eq!(states.first(), Some(&1));
+    assert_eq!(states.last(), Some(&4));
+    assert_eq!(bus.read_slave(17, |s| s.tables.holding[1]), Some(3));
+    // Held TRUE: sent again after the polling period, with the current values.
+    cycles(|| {
+        block.call(true, &[5.0]);
+        bus.read_slave(17, |s| s.tables.holding[1]) == Some(5)
+    })
+    .await;
+    assert_eq!(block.call(false, &[5.0]).1, 0);
+    on.gw.shutdown().await;
+    on.task.abort();
+}

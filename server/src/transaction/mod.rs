@@ -5,6 +5,7 @@
 
 pub mod codec;
 pub mod params;
+pub mod st;
 
 use crate::link::TxError;
 use crate::link::frame::Exception;
