@@ -355,6 +355,7 @@ impl Client {
                 devices: selection.devices.clone(),
                 fields: selection.refs(),
                 diagnostics,
+                transactions: false,
             })
             .await?
             .into_inner();
@@ -365,7 +366,9 @@ impl Client {
                 Some(pb::update::Kind::Diagnostics(d)) => {
                     Ok(Update::Diagnostics(Diagnostics::from_pb(d)))
                 }
-                None => Err(Error::Protocol("an empty update".into())),
+                Some(pb::update::Kind::Transaction(_)) | None => Err(Error::Protocol(
+                    "an update this client did not ask for".into(),
+                )),
             }
         }))
     }

@@ -641,3 +641,78 @@ async fn the_write_block_walks_its_states_and_resends_while_enabled() {
     on.gw.shutdown().await;
     on.task.abort();
 }
+
+#[tokio::test]
+async fn standing_transactions_over_grpc_are_declared_switched_and_streamed() {
+    use futures_util::StreamExt;
+    use iogate_client::proto;
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.tables.holding[0] = 215);
+    let on = on_bus("tx-grpc-standing", &bus, "").await;
+    let mut client = on.gw.client().await.expect("client");
+    let status = client
+        .raw()
+        .ensure_transaction(proto::EnsureTransactionRequest {
+            name: "temp".into(),
+            parameters: Some(read_request()),
+            period_ms: 50,
+            enabled: true,
+        })
+        .await
+        .expect("declared")
+        .into_inner();
+    assert_eq!((status.kind.as_str(), status.enabled), ("read", true));
+    let mut updates = client
+        .raw()
+        .subscribe(proto::SubscribeRequest {
+            devices: vec![],
+            fields: vec![],
+            diagnostics: false,
+            transactions: true,
+        })
+        .await
+        .expect("subscribe")
+        .into_inner();
+    let mut streamed = None;
+    while let Some(update) = updates.next().await {
+        if let Some(proto::update::Kind::Transaction(t)) = update.expect("update").kind
+            && t.last.as_ref().is_some_and(|l| l.value == Some(21.5))
+        {
+            streamed = Some(t);
+            break;
+        }
+    }
+    assert_eq!(streamed.map(|t| t.name), Some("temp".to_owned()));
+    let disabled = client
+        .raw()
+        .set_transaction(proto::SetTransactionRequest {
+            name: "temp".into(),
+            enabled: Some(false),
+            ..Default::default()
+        })
+        .await
+        .expect("disable")
+        .into_inner();
+    assert!(!disabled.enabled);
+    let listed = client
+        .raw()
+        .list_transactions(proto::ListTransactionsRequest {})
+        .await
+        .expect("list")
+        .into_inner();
+    assert_eq!(listed.transactions.len(), 1);
+    let missing = client
+        .raw()
+        .set_transaction(proto::SetTransactionRequest {
+            name: "nope".into(),
+            trigger: true,
+            ..Default::default()
+        })
+        .await;
+    assert_eq!(
+        missing.map(|_| ()).map_err(|s| s.code()),
+        Err(tonic::Code::NotFound)
+    );
+    on.gw.shutdown().await;
+    on.task.abort();
+}

@@ -57,6 +57,63 @@ pub fn status(e: ServiceError) -> Status {
     Status::new(code, message)
 }
 
+/// A number as the JSON a transaction's values are: whole numbers as integers.
+fn json_number(n: f64) -> serde_json::Value {
+    if n.fract() == 0.0 && n.abs() < 9e15 {
+        serde_json::Value::from(n as i64)
+    } else {
+        serde_json::Number::from_f64(n).map_or(serde_json::Value::Null, Into::into)
+    }
+}
+
+/// The link and parameters of a transaction request.
+fn transaction_spec(r: pb::TransactRequest) -> (String, TransactionSpec) {
+    let text = |s: String| (!s.is_empty()).then_some(s);
+    let spec = TransactionSpec {
+        function: Some(r.function.into()),
+        slave: Some(r.slave.into()),
+        address: Some(r.address.into()),
+        bit_count: (r.bit_count > 0).then_some(r.bit_count.into()),
+        value_type: text(r.value_type),
+        divisor: (r.divisor > 0).then(|| i64::try_from(r.divisor).unwrap_or(i64::MAX)),
+        precision: r.precision.map(i64::from),
+        byte_order: text(r.byte_order),
+        timeout_ms: (r.timeout_ms > 0).then_some(r.timeout_ms.into()),
+        write_type: text(r.r#type),
+        values: (!r.values.is_empty()).then(|| r.values.into_iter().map(json_number).collect()),
+    };
+    (r.link, spec)
+}
+
+fn transact_response(o: &crate::transaction::Outcome) -> pb::TransactResponse {
+    pb::TransactResponse {
+        actual: o.actual,
+        state: o.state,
+        value: o.value,
+        error: o.error.unwrap_or_default().to_owned(),
+        request: o.request.clone(),
+        response: o.response.clone().unwrap_or_default(),
+        elapsed_ms: o.elapsed_ms,
+    }
+}
+
+fn transaction_status(
+    s: &crate::service::Standing,
+    st: &crate::service::StandingStatus,
+) -> pb::TransactionStatus {
+    pb::TransactionStatus {
+        name: s.name.clone(),
+        link: s.link.clone(),
+        kind: if s.is_write { "write" } else { "read" }.to_owned(),
+        enabled: st.enabled,
+        period_ms: u32::try_from(s.period.as_millis()).unwrap_or(u32::MAX),
+        last: st.last.as_ref().map(transact_response),
+        runs: st.runs,
+        failures: st.failures,
+        updated: st.updated.map(prost_types::Timestamp::from),
+    }
+}
+
 fn ack(a: Accepted) -> pb::WriteAck {
     pb::WriteAck {
         device: a.device,
@@ -247,7 +304,18 @@ impl Gateway for GrpcApi {
             };
             Ok(pb::Update { kind: Some(kind) })
         });
-        Ok(Response::new(Box::pin(updates)))
+        if !r.transactions {
+            return Ok(Response::new(Box::pin(updates)));
+        }
+        let transactions = self.service.transaction_changes().map(|(s, st)| {
+            Ok(pb::Update {
+                kind: Some(pb::update::Kind::Transaction(transaction_status(&s, &st))),
+            })
+        });
+        Ok(Response::new(Box::pin(futures_util::stream::select(
+            updates,
+            transactions,
+        ))))
     }
 
     type ExchangeStream = ExchangeStream;
@@ -347,41 +415,68 @@ impl Gateway for GrpcApi {
         &self,
         request: Request<pb::TransactRequest>,
     ) -> Result<Response<pb::TransactResponse>, Status> {
+        let (link, spec) = transaction_spec(request.into_inner());
+        let o = self.service.transact(&link, &spec).await.map_err(status)?;
+        Ok(Response::new(transact_response(&o)))
+    }
+
+    async fn ensure_transaction(
+        &self,
+        request: Request<pb::EnsureTransactionRequest>,
+    ) -> Result<Response<pb::TransactionStatus>, Status> {
         let r = request.into_inner();
-        let number = |n: f64| {
-            if n.fract() == 0.0 && n.abs() < 9e15 {
-                serde_json::Value::from(n as i64)
-            } else {
-                serde_json::Number::from_f64(n).map_or(serde_json::Value::Null, Into::into)
-            }
-        };
-        let text = |s: String| (!s.is_empty()).then_some(s);
-        let spec = TransactionSpec {
-            function: Some(r.function.into()),
-            slave: Some(r.slave.into()),
-            address: Some(r.address.into()),
-            bit_count: (r.bit_count > 0).then_some(r.bit_count.into()),
-            value_type: text(r.value_type),
-            divisor: (r.divisor > 0).then(|| i64::try_from(r.divisor).unwrap_or(i64::MAX)),
-            precision: r.precision.map(i64::from),
-            byte_order: text(r.byte_order),
-            timeout_ms: (r.timeout_ms > 0).then_some(r.timeout_ms.into()),
-            write_type: text(r.r#type),
-            values: (!r.values.is_empty()).then(|| r.values.into_iter().map(number).collect()),
-        };
-        let o = self
+        let (link, spec) = transaction_spec(r.parameters.unwrap_or_default());
+        let (s, _) = self
             .service
-            .transact(&r.link, &spec)
-            .await
+            .ensure_transaction(crate::config::transactions::StandingConfig {
+                name: r.name,
+                link,
+                spec,
+                period: Duration::from_millis(r.period_ms.into()),
+                enabled: r.enabled,
+                line: 0,
+            })
             .map_err(status)?;
-        Ok(Response::new(pb::TransactResponse {
-            actual: o.actual,
-            state: o.state,
-            value: o.value,
-            error: o.error.unwrap_or_default().to_owned(),
-            request: o.request,
-            response: o.response.unwrap_or_default(),
-            elapsed_ms: o.elapsed_ms,
+        Ok(Response::new(transaction_status(&s, &s.status())))
+    }
+
+    async fn set_transaction(
+        &self,
+        request: Request<pb::SetTransactionRequest>,
+    ) -> Result<Response<pb::TransactionStatus>, Status> {
+        let r = request.into_inner();
+        let mut s = self.service.transaction(&r.name).map_err(status)?;
+        if r.set_values {
+            let values = r.values.into_iter().map(json_number).collect();
+            s = self
+                .service
+                .set_transaction_values(&r.name, values)
+                .map_err(status)?;
+        }
+        if let Some(enabled) = r.enabled {
+            s = self
+                .service
+                .enable_transaction(&r.name, enabled)
+                .map_err(status)?;
+        }
+        if r.trigger {
+            s = self.service.trigger_transaction(&r.name).map_err(status)?;
+        }
+        Ok(Response::new(transaction_status(&s, &s.status())))
+    }
+
+    async fn list_transactions(
+        &self,
+        _: Request<pb::ListTransactionsRequest>,
+    ) -> Result<Response<pb::ListTransactionsResponse>, Status> {
+        Ok(Response::new(pb::ListTransactionsResponse {
+            transactions: self
+                .service
+                .standing()
+                .all()
+                .iter()
+                .map(|s| transaction_status(s, &s.status()))
+                .collect(),
         }))
     }
 
@@ -436,6 +531,7 @@ mod tests {
                 field: "Recipe".into(),
             }],
             diagnostics: false,
+            transactions: false,
         };
         let mut stream = api
             .subscribe(Request::new(request))
