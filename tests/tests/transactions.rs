@@ -716,3 +716,80 @@ async fn standing_transactions_over_grpc_are_declared_switched_and_streamed() {
     on.gw.shutdown().await;
     on.task.abort();
 }
+
+#[tokio::test]
+async fn every_function_type_and_order_over_a_modbus_tcp_link() {
+    use iogate_tests::devices::{ModbusDevice, modbus_tcp_server};
+    let device = ModbusDevice::default();
+    {
+        let mut t = device.tables.lock().expect("tables");
+        t.discrete[3] = true;
+        t.discrete[12] = true;
+        // -100000 as SIGNED_NUMBER32 in SwapWords (CDAB) order.
+        let v = (-100_000i32) as u32;
+        t.input[0] = v as u16;
+        t.input[1] = (v >> 16) as u16;
+        // 0x01020304 as UNSIGNED_NUMBER32 in LittleEndian (DCBA) order.
+        t.holding[20] = 0x0403;
+        t.holding[21] = 0x0201;
+    }
+    let (port, server) = modbus_tcp_server(device.clone()).await;
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: plc, tcp: {{ host: 127.0.0.1, port: {port} }} }}\n"
+    ))
+    .await
+    .expect("gateway");
+    let post = |body: Value| {
+        let gw = &gw;
+        async move {
+            let (status, answer) = gw
+                .send(
+                    Method::POST,
+                    "/api/v1/links/plc/transactions",
+                    body.to_string(),
+                )
+                .await
+                .expect("post");
+            assert_eq!(status, 200, "{answer}");
+            answer
+        }
+    };
+    // FC02, 13 bits from 0 with LittleEndian: bits 3 and 12 set.
+    let a = post(json!({"function": 2, "slave": 1, "address": 0, "bit_count": 13, "byte_order": "LittleEndian", "timeout_ms": 500})).await;
+    assert_eq!(a["value"], json!(f64::from((1u32 << 3) | (1 << 12))), "{a}");
+    assert_eq!(
+        a["request"], "01 02 00 00 00 0D",
+        "unit id and PDU on a Modbus TCP link"
+    );
+    let a = post(json!({"function": 4, "slave": 1, "address": 0, "value_type": "SIGNED_NUMBER32", "byte_order": "SwapWords", "divisor": 1000, "precision": 2, "timeout_ms": 500})).await;
+    assert_eq!(a["value"], json!(-100.0), "{a}");
+    let a = post(json!({"function": 3, "slave": 1, "address": 20, "value_type": "UNSIGNED_NUMBER32", "byte_order": "LittleEndian", "timeout_ms": 500})).await;
+    assert_eq!(a["value"], json!(f64::from(0x0102_0304u32)), "{a}");
+    // FC05, and int8/int16 with FC16.
+    let a =
+        post(json!({"function": 5, "slave": 1, "address": 7, "values": [true], "timeout_ms": 500}))
+            .await;
+    assert_eq!(a["state"], 4, "{a}");
+    let a = post(json!({"function": 16, "slave": 1, "address": 30, "type": "int8", "values": [-2, 5], "timeout_ms": 500})).await;
+    assert_eq!(a["state"], 4, "{a}");
+    let a = post(json!({"function": 16, "slave": 1, "address": 32, "type": "int16", "byte_order": "Little-endian", "values": [-2], "timeout_ms": 500})).await;
+    assert_eq!(a["state"], 4, "{a}");
+    {
+        let t = device.tables.lock().expect("tables");
+        assert!(t.coils[7]);
+        assert_eq!(&t.holding[30..33], &[0xFFFE, 5, 0xFEFF]);
+    }
+    // A value out of its type is refused before sending.
+    let (status, answer) = gw
+        .send(
+            Method::POST,
+            "/api/v1/links/plc/transactions",
+            json!({"function": 6, "slave": 1, "address": 1, "type": "uint8", "values": [256]})
+                .to_string(),
+        )
+        .await
+        .expect("post");
+    assert_eq!(status, 400, "{answer}");
+    gw.shutdown().await;
+    server.abort();
+}

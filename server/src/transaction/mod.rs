@@ -67,3 +67,30 @@ pub fn hex(bytes: &[u8]) -> String {
         .collect::<Vec<_>>()
         .join(" ")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failures_get_the_read_blocks_messages_and_the_write_blocks_states() {
+        assert_eq!(
+            failure(&TxError::Timeout),
+            (state::TIMEOUT, "Slave timeout")
+        );
+        for (code, message) in [
+            (1, "Function code not supported"),
+            (2, "Invalid address"),
+            (3, "Invalid quantity"),
+            (4, "Unknown modbus exception code"),
+            (11, "Unknown modbus exception code"),
+        ] {
+            assert_eq!(
+                failure(&TxError::Exception(Exception(code))),
+                (state::UNKNOWN_ERROR, message)
+            );
+        }
+        assert_eq!(failure(&TxError::Crc).1, "RS485 frame error");
+        assert_eq!(hex(&[0x11, 0x06, 0x9A]), "11 06 9A");
+    }
+}
