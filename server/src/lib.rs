@@ -21,6 +21,7 @@ pub mod profile;
 pub mod runtime;
 pub mod service;
 pub mod sim;
+pub mod text;
 pub mod transaction;
 pub mod writes;
 pub mod yaml;

@@ -687,3 +687,75 @@ async fn malformed_requests_never_cause_a_server_error() {
     assert_eq!(gw.get("/livez").await.expect("still alive").0, 200);
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn every_error_is_the_apis_json_and_echoes_little_of_its_input() {
+    let gw = demo().await;
+    for (method, path, status, code) in [
+        (
+            Method::DELETE,
+            "/api/v1/devices".to_owned(),
+            405,
+            "method_not_allowed",
+        ),
+        (
+            Method::GET,
+            "/api/v1/devices/%ff".to_owned(),
+            400,
+            "bad_request",
+        ),
+        (Method::GET, "/nope".to_owned(), 404, "no_route"),
+        (
+            Method::GET,
+            format!("/api/v1/devices/{}", "x".repeat(5000)),
+            404,
+            "unknown_device",
+        ),
+    ] {
+        let response = gw
+            .client
+            .request(method.clone(), gw.url(&path))
+            .send()
+            .await
+            .expect("request");
+        assert_eq!(
+            response.status().as_u16(),
+            status,
+            "{method} {}",
+            &path[..path.len().min(40)]
+        );
+        assert!(
+            response
+                .headers()
+                .get("content-type")
+                .is_some_and(|v| v.to_str().is_ok_and(|t| t.starts_with("application/json"))),
+            "{method} {path}"
+        );
+        let body: serde_json::Value = response.json().await.expect("JSON");
+        assert_eq!(body["error"]["code"], code, "{body}");
+        assert!(body.to_string().len() < 400, "a short answer: {body}");
+    }
+    let keys: serde_json::Map<String, serde_json::Value> = (0..10_000)
+        .map(|i| (format!("nope{i}"), serde_json::Value::from(1)))
+        .collect();
+    let (status, body) = gw
+        .send(
+            Method::PATCH,
+            "/api/v1/devices/plant/fields",
+            serde_json::Value::Object(keys).to_string(),
+        )
+        .await
+        .expect("patch");
+    assert_eq!(status, 404);
+    assert!(
+        body.to_string().len() < 2000,
+        "{} bytes",
+        body.to_string().len()
+    );
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.ends_with("and 9990 more"))
+    );
+    gw.shutdown().await;
+}

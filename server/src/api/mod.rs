@@ -86,7 +86,7 @@ async fn not_found(uri: Uri) -> ApiError {
         "no_route",
         format!(
             "no such endpoint: {} (see {API_PREFIX}/openapi.json)",
-            uri.path()
+            error::quote(uri.path())
         ),
     )
 }
@@ -152,6 +152,7 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/metrics", get(metrics))
         .nest(API_PREFIX, api)
         .fallback(not_found)
+        .layer(axum::middleware::map_response(error::json_errors))
         .layer(TraceLayer::new_for_http())
         .with_state(service)
 }

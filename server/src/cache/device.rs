@@ -133,7 +133,7 @@ impl Device {
             .field_index(name)
             .ok_or_else(|| AccessError::UnknownField {
                 device: self.name().to_owned(),
-                field: name.to_owned(),
+                field: crate::text::quote(name),
             })
     }
 

@@ -17,6 +17,7 @@ use tokio::sync::Notify;
 use crate::codec::IecType;
 use crate::config::{Config, DeviceConfig, LinkConfig};
 use crate::profile::{Catalog, Profile};
+use crate::text::quote;
 use crate::writes::WriteLog;
 
 pub use device::{Binding, Device, SIM_STRING_MAX};
@@ -172,20 +173,20 @@ impl Cache {
         read(&self.registry)
             .device(name)
             .cloned()
-            .ok_or_else(|| AccessError::UnknownDevice(name.to_owned()))
+            .ok_or_else(|| AccessError::UnknownDevice(quote(name)))
     }
 
     pub fn link(&self, name: &str) -> Result<Arc<Link>, AccessError> {
         read(&self.registry)
             .link(name)
             .cloned()
-            .ok_or_else(|| AccessError::UnknownLink(name.to_owned()))
+            .ok_or_else(|| AccessError::UnknownLink(quote(name)))
     }
 
     pub fn profile(&self, name: &str) -> Result<&Arc<Profile>, AccessError> {
         self.catalog
             .get(name)
-            .ok_or_else(|| AccessError::UnknownProfile(name.to_owned()))
+            .ok_or_else(|| AccessError::UnknownProfile(quote(name)))
     }
 }
 

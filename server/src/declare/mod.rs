@@ -260,7 +260,7 @@ pub fn ensure_device(
                         |l| matches!(&l.config().transport, Transport::Serial(s) if s.port == link),
                     )
                 });
-                let found = found.ok_or_else(|| DeclareError::UnknownLink(link.to_owned()))?;
+                let found = found.ok_or_else(|| DeclareError::UnknownLink(crate::text::quote(link)))?;
                 Some(found.name().to_owned())
             }
         };

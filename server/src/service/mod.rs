@@ -59,12 +59,20 @@ pub enum ServiceError {
     Unbound(String),
 }
 
+/// The refusals, the first ten of them named (a request with thousands of bad keys gets a
+/// short answer).
 fn join(errors: &[AccessError]) -> String {
-    errors
+    const NAMED: usize = 10;
+    let mut text = errors
         .iter()
+        .take(NAMED)
         .map(ToString::to_string)
         .collect::<Vec<_>>()
-        .join("; ")
+        .join("; ");
+    if errors.len() > NAMED {
+        text.push_str(&format!("; and {} more", errors.len() - NAMED));
+    }
+    text
 }
 
 impl ServiceError {

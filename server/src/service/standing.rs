@@ -104,7 +104,7 @@ impl Service {
     pub fn transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         self.standing
             .get(name)
-            .ok_or_else(|| ServiceError::UnknownTransaction(name.to_owned()))
+            .ok_or_else(|| ServiceError::UnknownTransaction(crate::text::quote(name)))
     }
 
     /// Declares a standing transaction (idempotent): the same declaration answers the
