@@ -302,6 +302,25 @@ mod tests {
     }
 
     #[test]
+    fn names_are_bounded_identifiers_unique_ignoring_case() {
+        let long = "x".repeat(65);
+        let text = format!(
+            "devices:\n  - {{ name: '', profile: P }}\n  - {{ name: a/b, profile: P }}\n  - {{ name: '..', profile: P }}\n  - {{ name: Sim, profile: P }}\n  - {{ name: sim, profile: P }}\n  - {{ name: {long}, profile: P }}\n  - {{ name: io_rack-2.b, profile: P }}\n"
+        );
+        let all = problems(&text);
+        for needle in [
+            "c.yaml:2: devices[0]: name: `` is not a name",
+            "c.yaml:3: devices[1]: name: `a/b` is not a name",
+            "c.yaml:4: devices[2]: name: `..` is not a name",
+            "c.yaml:6: device sim: duplicate device name (first defined on line 5)",
+            "c.yaml:7: devices[5]: name: `xxxxxxxx",
+        ] {
+            assert!(all.contains(needle), "missing {needle:?} in\n{all}");
+        }
+        assert!(!all.contains("io_rack-2.b"), "{all}");
+    }
+
+    #[test]
     fn empty_config_is_valid() {
         let c = parse("c.yaml", "").expect("empty is fine");
         assert!(c.devices.is_empty());

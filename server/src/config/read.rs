@@ -110,9 +110,13 @@ fn name_of(
     index: usize,
 ) -> (Option<String>, String) {
     let fallback = format!("{what}s[{index}]");
-    let name = map
-        .require("name", report, &fallback)
-        .and_then(|n| n.scalar_text(report, &format!("{fallback}: name")));
+    let name = map.require("name", report, &fallback).and_then(|n| {
+        let text = n.scalar_text(report, &format!("{fallback}: name"))?;
+        rules::name(&text)
+            .map_err(|e| report.push(n.line, format!("{fallback}: name"), e.to_string()))
+            .ok()
+            .map(|()| text)
+    });
     let ctx = name.as_ref().map_or(fallback, |n| format!("{what} {n}"));
     (name, ctx)
 }
@@ -337,18 +341,19 @@ fn entry_names(entries: &[Node]) -> Vec<(String, u64)> {
         .collect()
 }
 
+/// Names are unique ignoring case (`Sim` and `sim` are one name, as IEC identifiers).
 fn check_unique(items: &[(String, u64)], what: &str, report: &mut Report) {
-    let mut seen: HashMap<&str, u64> = HashMap::new();
+    let mut seen: HashMap<String, u64> = HashMap::new();
     for (name, line) in items {
         let (name, line) = (name.as_str(), *line);
-        if let Some(first) = seen.get(name) {
+        if let Some(first) = seen.get(&name.to_ascii_lowercase()) {
             report.push(
                 line,
                 format!("{what} {name}"),
                 format!("duplicate {what} name (first defined on line {first})"),
             );
         } else {
-            seen.insert(name, line);
+            seen.insert(name.to_ascii_lowercase(), line);
         }
     }
 }

@@ -65,6 +65,10 @@ pub enum RuleError {
     NoSlave,
     #[error("{0} is outside the allowed range 1-247")]
     SlaveId(u64),
+    #[error(
+        "`{0}` is not a name: 1-64 letters, digits, `_`, `-` or `.`, starting with a letter, digit or `_`"
+    )]
+    Name(String),
 }
 
 impl RuleError {
@@ -85,7 +89,27 @@ impl RuleError {
             RuleError::SimulatedWithSlave | RuleError::NoSlave | RuleError::SlaveId(_) => {
                 "slave_id"
             }
+            RuleError::Name(_) => "name",
         }
+    }
+}
+
+/// The longest name of a link, device or transaction.
+pub const MAX_NAME: usize = 64;
+
+/// A link, device or transaction name: 1-64 of `A-Z a-z 0-9 _ - .`, not starting with `-` or
+/// `.` (so no `..`, no `/`, nothing a path or a log line could misread).
+pub fn name(text: &str) -> Result<(), RuleError> {
+    let ok = !text.is_empty()
+        && text.len() <= MAX_NAME
+        && text
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+        && !text.starts_with(['-', '.']);
+    if ok {
+        Ok(())
+    } else {
+        Err(RuleError::Name(crate::text::quote(text)))
     }
 }
 

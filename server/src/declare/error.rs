@@ -102,7 +102,9 @@ pub enum Refusal {
 pub enum DeclareError {
     #[error("{}", rule_list(.0))]
     Rules(Vec<RuleError>),
-    #[error("`{name}` cannot name a {what} (empty, or has a '/')")]
+    #[error(
+        "`{name}` cannot name a {what}: 1-64 letters, digits, `_`, `-` or `.`, starting with a letter, digit or `_`"
+    )]
     BadName { what: &'static str, name: String },
     #[error(transparent)]
     UnknownProfile(AccessError),
@@ -115,6 +117,12 @@ pub enum DeclareError {
     },
     #[error("link name `{name}` is already used by another endpoint ({endpoint})")]
     NameTaken { name: String, endpoint: String },
+    #[error("`{name}` clashes with {what} `{other}` (names ignore case)")]
+    NameClash {
+        what: &'static str,
+        name: String,
+        other: String,
+    },
     #[error("device {device} exists with {}", join(.conflicts, ", "))]
     DeviceConflict {
         device: String,
@@ -129,6 +137,7 @@ impl DeclareError {
             DeclareError::UnknownProfile(_) | DeclareError::UnknownLink(_) => Refusal::NotFound,
             DeclareError::LinkConflict { .. }
             | DeclareError::NameTaken { .. }
+            | DeclareError::NameClash { .. }
             | DeclareError::DeviceConflict { .. } => Refusal::Conflict,
         }
     }

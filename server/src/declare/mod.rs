@@ -62,13 +62,10 @@ fn default_name(transport: &Transport) -> String {
 }
 
 fn valid_name(what: &'static str, name: &str) -> Result<(), DeclareError> {
-    if name.trim().is_empty() || name.contains('/') {
-        return Err(DeclareError::BadName {
-            what,
-            name: name.to_owned(),
-        });
-    }
-    Ok(())
+    rules::name(name).map_err(|_| DeclareError::BadName {
+        what,
+        name: crate::text::quote(name),
+    })
 }
 
 /// Where `declared` differs from the link `existing` on the same endpoint.
@@ -269,6 +266,17 @@ pub fn ensure_device(
             link: link.clone(),
             slave_id,
         };
+        if let Some(other) = registry
+            .devices
+            .iter()
+            .find(|d| d.name() != decl.name && d.name().eq_ignore_ascii_case(&decl.name))
+        {
+            return Err(DeclareError::NameClash {
+                what: "device",
+                name: decl.name.clone(),
+                other: other.name().to_owned(),
+            });
+        }
         if let Some(existing) = registry.device(&decl.name) {
             let conflicts = device_conflicts(existing, &decl, &profile.name, &want);
             if !conflicts.is_empty() {
