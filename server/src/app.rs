@@ -169,7 +169,8 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         tasks.spawn_link(link);
     }
 
-    let mut service = Service::new(cache.clone(), tasks);
+    let mut service =
+        Service::new(cache.clone(), tasks).with_policy(config.security.declare.clone());
     let mut modbus_listener = None;
     if let (Some(server), Some(plan)) = (&config.modbus_server, &map) {
         let image = crate::service::ModbusImage::new(server, plan, &cache)

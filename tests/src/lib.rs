@@ -22,6 +22,20 @@ pub fn fixtures_dir() -> PathBuf {
 }
 
 /// A gateway running in this process, serving HTTP on a free loopback port.
+/// What tests may declare at run time: the usual serial ports, the tests' pseudo-terminals
+/// (under the temporary directory) and missing paths, and loopback TCP.
+pub fn test_policy() -> iogate::config::security::DeclarePolicy {
+    let mut policy = iogate::config::security::DeclarePolicy::default();
+    policy
+        .serial_ports
+        .push(format!("{}/*", std::env::temp_dir().display()));
+    policy.serial_ports.push("/nonexistent/*".into());
+    policy.tcp_hosts = iogate::config::security::HostRule::parse("127.0.0.0/8")
+        .into_iter()
+        .collect();
+    policy
+}
+
 pub struct TestGateway {
     pub base: String,
     /// The gRPC endpoint, e.g. `http://127.0.0.1:40123`.
@@ -42,6 +56,9 @@ impl TestGateway {
         if let Some(server) = config.modbus_server.as_mut() {
             server.listen = "127.0.0.1:0".parse()?;
         }
+        if config.security == iogate::config::security::SecurityConfig::default() {
+            config.security.declare = test_policy();
+        }
         if config.profiles.is_none() {
             config.profiles = Some(profiles_dir());
         }
@@ -58,6 +75,7 @@ impl TestGateway {
         if let Some(server) = setup.config.modbus_server.as_mut() {
             server.listen = "127.0.0.1:0".parse()?;
         }
+        setup.config.security.declare = test_policy();
         TestGateway::start_setup(setup).await
     }
 

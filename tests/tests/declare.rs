@@ -292,3 +292,90 @@ async fn rest_declarations_report_the_same_states_and_recover() {
     gw.shutdown().await;
     server.abort();
 }
+
+#[tokio::test]
+async fn declarations_reach_only_what_the_security_policy_allows() {
+    let gw = TestGateway::start(
+        "security:\n  declare:\n    serial_ports: [\"/etc/*\", \"/proc/*\"]\n    tcp_hosts: [\"192.0.2.0/24\"]\n",
+    )
+    .await
+    .expect("gateway");
+    let mut client = gw.client().await.expect("client");
+    let serial = |port: &str| SerialLink {
+        port: port.into(),
+        baud: 9600,
+        parity: 'N',
+        data_bits: 8,
+        stop_bits: 1,
+    };
+    let denied =
+        |r: Result<(iogate_client::LinkInfo, bool), iogate_client::Error>, what: &str| match r {
+            Err(iogate_client::Error::Status { code, message }) => {
+                assert_eq!(code, tonic::Code::PermissionDenied, "{message}");
+                assert!(message.contains(what), "{message}");
+            }
+            other => panic!("expected a refusal, got {other:?}"),
+        };
+    denied(
+        client.ensure_serial_link(&serial("/etc/passwd")).await,
+        "is not a character device",
+    );
+    denied(
+        client.ensure_serial_link(&serial("/proc/self/mem")).await,
+        "is not a character device",
+    );
+    let (_other_end, pty) = tokio_serial::SerialStream::pair().expect("pty");
+    let pty_path = tokio_serial::SerialPort::name(&pty).expect("pty name");
+    denied(
+        client.ensure_serial_link(&serial(&pty_path)).await,
+        "does not match security.declare.serial_ports",
+    );
+    let tcp = |host: &str| iogate_client::proto::EnsureLinkRequest {
+        name: String::new(),
+        transport: Some(iogate_client::proto::ensure_link_request::Transport::Tcp(
+            iogate_client::proto::TcpSettings {
+                host: host.into(),
+                port: 502,
+                framing: String::new(),
+            },
+        )),
+        guard_time_ms: 0,
+    };
+    let refused = client.raw().ensure_link(tcp("127.0.0.1")).await;
+    assert_eq!(
+        refused.map(|_| ()).map_err(|s| s.code()),
+        Err(tonic::Code::PermissionDenied),
+        "the gateway's own ports are not a target"
+    );
+    assert!(client.raw().ensure_link(tcp("192.0.2.7")).await.is_ok());
+    // A device may not hold its link for longer than 10 s.
+    let (_, answer) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/slow",
+            json!({"profile": "WaveshareAnalogInput", "link": "192.0.2.7_502", "slave_id": 1, "timeout_ms": 4_294_967_295u64}).to_string(),
+        )
+        .await
+        .expect("put");
+    assert_eq!(answer["error"]["code"], "invalid_declaration", "{answer}");
+    assert!(
+        answer["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("10 ms - 10 s"))
+    );
+    // Over REST, a refusal is 403 in the API's JSON.
+    let (status, answer) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/links/bad",
+            json!({"tcp": {"host": "10.1.2.3"}}).to_string(),
+        )
+        .await
+        .expect("put");
+    assert_eq!(
+        (status, &answer["error"]["code"]),
+        (403, &json!("not_allowed")),
+        "{answer}"
+    );
+    gw.shutdown().await;
+}

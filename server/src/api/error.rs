@@ -88,6 +88,7 @@ impl From<ServiceError> for ApiError {
                 Refusal::Invalid => (StatusCode::BAD_REQUEST, "invalid_declaration"),
                 Refusal::NotFound => (StatusCode::NOT_FOUND, "not_found"),
                 Refusal::Conflict => (StatusCode::CONFLICT, "declaration_conflict"),
+                Refusal::Forbidden => (StatusCode::FORBIDDEN, "not_allowed"),
             },
             ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
             ServiceError::Location(_) => (StatusCode::BAD_REQUEST, "invalid_location"),

@@ -48,6 +48,7 @@ pub fn status(e: ServiceError) -> Status {
             Refusal::Invalid => tonic::Code::InvalidArgument,
             Refusal::NotFound => tonic::Code::NotFound,
             Refusal::Conflict => tonic::Code::FailedPrecondition,
+            Refusal::Forbidden => tonic::Code::PermissionDenied,
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
         ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,

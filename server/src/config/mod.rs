@@ -7,6 +7,7 @@ mod check;
 pub mod modbus;
 mod read;
 pub mod rules;
+pub mod security;
 pub mod transactions;
 
 use std::net::SocketAddr;
@@ -33,6 +34,7 @@ pub struct Config {
     pub modbus_server: Option<modbus::ModbusServerConfig>,
     /// Standing raw transactions.
     pub transactions: Vec<transactions::StandingConfig>,
+    pub security: security::SecurityConfig,
     /// The file the config came from.
     pub source: String,
 }
@@ -54,6 +56,13 @@ pub enum Transport {
         port: u16,
         framing: Framing,
     },
+}
+
+impl SerialSettings {
+    /// Whether a port is given (a declaration may leave it empty, for now).
+    pub fn is_configured_port(&self) -> bool {
+        !self.port.trim().is_empty()
+    }
 }
 
 impl Transport {
@@ -173,6 +182,7 @@ impl Config {
             devices: Vec::new(),
             modbus_server: None,
             transactions: Vec::new(),
+            security: security::SecurityConfig::default(),
             source: source.to_owned(),
         }
     }

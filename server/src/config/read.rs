@@ -18,6 +18,7 @@ const TOP_KEYS: &[&str] = &[
     "devices",
     "modbus_server",
     "transactions",
+    "security",
 ];
 const LISTEN_KEYS: &[&str] = &["http", "grpc"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
@@ -85,6 +86,9 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     config.modbus_server = map
         .get("modbus_server")
         .and_then(|n| super::modbus::read(n, report));
+    if let Some(n) = map.get("security") {
+        config.security = super::security::read(n, report);
+    }
     config.transactions = map
         .get("transactions")
         .map(|n| super::transactions::read(n, report))

@@ -96,6 +96,8 @@ pub enum Refusal {
     NotFound,
     /// It contradicts what exists.
     Conflict,
+    /// The security policy does not allow it.
+    Forbidden,
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -117,6 +119,13 @@ pub enum DeclareError {
     },
     #[error("link name `{name}` is already used by another endpoint ({endpoint})")]
     NameTaken { name: String, endpoint: String },
+    /// The security policy does not allow the endpoint.
+    #[error("{0}")]
+    NotAllowed(String),
+    #[error("{0}")]
+    OutOfBounds(String),
+    #[error("no more {0} can be declared (at most {1})")]
+    TooMany(&'static str, usize),
     #[error("`{name}` clashes with {what} `{other}` (names ignore case)")]
     NameClash {
         what: &'static str,
@@ -133,7 +142,10 @@ pub enum DeclareError {
 impl DeclareError {
     pub fn refusal(&self) -> Refusal {
         match self {
-            DeclareError::Rules(_) | DeclareError::BadName { .. } => Refusal::Invalid,
+            DeclareError::Rules(_)
+            | DeclareError::BadName { .. }
+            | DeclareError::OutOfBounds(_) => Refusal::Invalid,
+            DeclareError::NotAllowed(_) | DeclareError::TooMany(..) => Refusal::Forbidden,
             DeclareError::UnknownProfile(_) | DeclareError::UnknownLink(_) => Refusal::NotFound,
             DeclareError::LinkConflict { .. }
             | DeclareError::NameTaken { .. }

@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use crate::cache::{Binding, Cache, Device, Link, Registry};
 use crate::config::rules::{self, RuleError};
+use crate::config::security::DeclarePolicy;
 use crate::config::{DeviceConfig, LinkConfig, Transport};
 use crate::profile::Protocol;
 use crate::runtime::Tasks;
@@ -68,6 +69,55 @@ fn valid_name(what: &'static str, name: &str) -> Result<(), DeclareError> {
     })
 }
 
+/// The most links and devices declarations may add to a gateway.
+pub const MAX_DECLARED_LINKS: usize = 64;
+pub const MAX_DECLARED_DEVICES: usize = 1024;
+/// The timeouts a declared device may have.
+pub const TIMEOUTS: std::ops::RangeInclusive<Duration> =
+    Duration::from_millis(10)..=Duration::from_secs(10);
+/// The refresh rates a declared device may have.
+pub const REFRESH_RATES: std::ops::RangeInclusive<Duration> =
+    Duration::from_millis(1)..=Duration::from_secs(3600);
+
+/// Whether a declaration may reach `transport`: a serial port matching the allowed patterns
+/// that, if it exists, is a character device; a TCP endpoint in the allowed list.
+fn allowed(policy: &DeclarePolicy, transport: &Transport) -> Result<(), DeclareError> {
+    match transport {
+        Transport::Serial(s) if !s.is_configured_port() => Ok(()),
+        Transport::Serial(s) => {
+            if !policy.allows_serial(&s.port) {
+                return Err(DeclareError::NotAllowed(format!(
+                    "serial port `{}` does not match security.declare.serial_ports",
+                    crate::text::quote(&s.port)
+                )));
+            }
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::FileTypeExt;
+                if let Ok(meta) = std::fs::metadata(&s.port)
+                    && !meta.file_type().is_char_device()
+                {
+                    return Err(DeclareError::NotAllowed(format!(
+                        "`{}` is not a character device",
+                        crate::text::quote(&s.port)
+                    )));
+                }
+            }
+            Ok(())
+        }
+        Transport::Tcp { host, port, .. } => {
+            if policy.allows_tcp(host, *port) {
+                Ok(())
+            } else {
+                Err(DeclareError::NotAllowed(format!(
+                    "TCP endpoint {}:{port} is not in security.declare.tcp_hosts",
+                    crate::text::quote(host)
+                )))
+            }
+        }
+    }
+}
+
 /// Where `declared` differs from the link `existing` on the same endpoint.
 fn link_conflicts(existing: &Link, declared: &Transport, name: Option<&String>) -> Vec<Conflict> {
     let mut conflicts = match (&existing.config().transport, declared) {
@@ -102,9 +152,11 @@ fn link_conflicts(existing: &Link, declared: &Transport, name: Option<&String>) 
 pub fn ensure_link(
     cache: &Cache,
     tasks: &Tasks,
+    policy: &DeclarePolicy,
     decl: LinkDeclaration,
 ) -> Result<Ensured<Link>, DeclareError> {
     let transport = decl.endpoint.transport()?;
+    allowed(policy, &transport)?;
     let guard_time =
         rules::guard_time(decl.guard_time).map_err(|e| DeclareError::Rules(vec![e]))?;
     let ensured = cache.change(|registry: &mut Registry| {
@@ -151,6 +203,15 @@ pub fn ensure_link(
                 name,
                 endpoint: other.config().transport.to_string(),
             });
+        }
+        if registry
+            .links
+            .iter()
+            .filter(|l| l.config().line == 0)
+            .count()
+            >= MAX_DECLARED_LINKS
+        {
+            return Err(DeclareError::TooMany("links", MAX_DECLARED_LINKS));
         }
         let link = cache.insert_link(
             registry,
@@ -245,6 +306,18 @@ pub fn ensure_device(
     if let Some(t) = decl.timeout {
         broken.extend(rules::period("timeout", t).err());
     }
+    if !REFRESH_RATES.contains(&decl.refresh_rate) {
+        return Err(DeclareError::OutOfBounds(format!(
+            "refresh_rate {} ms is outside 1 ms - 1 h",
+            decl.refresh_rate.as_millis()
+        )));
+    }
+    if let Some(t) = decl.timeout.filter(|t| !TIMEOUTS.contains(t)) {
+        return Err(DeclareError::OutOfBounds(format!(
+            "timeout {} ms is outside 10 ms - 10 s (no device may hold its link longer)",
+            t.as_millis()
+        )));
+    }
     if !broken.is_empty() {
         return Err(DeclareError::Rules(broken));
     }
@@ -298,6 +371,10 @@ pub fn ensure_device(
                 value: existing.clone(),
                 created: false,
             });
+        }
+        if registry.devices.iter().filter(|d| d.config.line == 0).count() >= MAX_DECLARED_DEVICES
+        {
+            return Err(DeclareError::TooMany("devices", MAX_DECLARED_DEVICES));
         }
         let config = DeviceConfig {
             name: decl.name.clone(),
@@ -385,9 +462,14 @@ mod tests {
             CancellationToken::new(),
             Arc::new(Metrics::new()),
         );
+        let everything = DeclarePolicy {
+            serial_ports: vec!["*".into()],
+            ..DeclarePolicy::default()
+        };
         let err = ensure_link(
             &cache,
             &tasks,
+            &everything,
             LinkDeclaration {
                 name: None,
                 endpoint: serial(9600, "N"),

@@ -96,6 +96,8 @@ pub struct Service {
     /// The Modbus TCP server's map and memory, when one is configured.
     modbus: Option<ModbusImage>,
     standing: StandingSet,
+    /// What run-time declarations may reach.
+    policy: crate::config::security::DeclarePolicy,
 }
 
 impl Service {
@@ -109,7 +111,14 @@ impl Service {
             ready: AtomicBool::new(false),
             modbus: None,
             standing: StandingSet::default(),
+            policy: crate::config::security::DeclarePolicy::default(),
         }
+    }
+
+    /// The service with a declaration policy other than the default.
+    pub fn with_policy(mut self, policy: crate::config::security::DeclarePolicy) -> Self {
+        self.policy = policy;
+        self
     }
 
     /// The service with a Modbus TCP server's image.
@@ -204,7 +213,12 @@ impl Service {
     /// Declares a link (idempotent); a new one starts polling at once.
     pub fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
         self.accepting()?;
-        Ok(declare::ensure_link(&self.cache, &self.tasks, decl)?)
+        Ok(declare::ensure_link(
+            &self.cache,
+            &self.tasks,
+            &self.policy,
+            decl,
+        )?)
     }
 
     /// Declares a device (idempotent); a new one is polled by its link at once.
