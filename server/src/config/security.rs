@@ -168,8 +168,10 @@ pub(super) fn read(node: &Node, report: &mut Report) -> SecurityConfig {
     if let Some(n) = map.get("insecure") {
         out.insecure = flag(n, report, "security.insecure");
     }
-    if let Some(declare) = map.get("declare") {
-        if let Some(mut d) = declare.map(report, "security.declare") {
+    if let Some(declare) = map.get("declare")
+        && let Some(mut d) = declare.map(report, "security.declare")
+    {
+        {
             if let Some(n) = d.get("serial_ports") {
                 out.declare.serial_ports = strings(n, report, "security.declare.serial_ports")
                     .into_iter()
