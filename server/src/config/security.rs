@@ -171,31 +171,31 @@ pub(super) fn read(node: &Node, report: &mut Report) -> SecurityConfig {
     if let Some(declare) = map.get("declare")
         && let Some(mut d) = declare.map(report, "security.declare")
     {
-        {
-            if let Some(n) = d.get("serial_ports") {
-                out.declare.serial_ports = strings(n, report, "security.declare.serial_ports")
-                    .into_iter()
-                    .map(|(s, _)| s)
-                    .collect();
-            }
-            if let Some(n) = d.get("tcp_hosts") {
-                out.declare.tcp_hosts = strings(n, report, "security.declare.tcp_hosts")
-                    .into_iter()
-                    .filter_map(|(text, line)| {
-                        let rule = HostRule::parse(&text);
-                        if rule.is_none() {
-                            report.push(
-                                line,
-                                "security.declare.tcp_hosts",
-                                format!("`{text}` is not a network (192.0.2.0/24), an address, or host[:port]"),
-                            );
-                        }
-                        rule
-                    })
-                    .collect();
-            }
-            d.finish(report, "security.declare", DECLARE_KEYS);
+        if let Some(n) = d.get("serial_ports") {
+            out.declare.serial_ports = strings(n, report, "security.declare.serial_ports")
+                .into_iter()
+                .map(|(s, _)| s)
+                .collect();
         }
+        if let Some(n) = d.get("tcp_hosts") {
+            out.declare.tcp_hosts = strings(n, report, "security.declare.tcp_hosts")
+                .into_iter()
+                .filter_map(|(text, line)| {
+                    let rule = HostRule::parse(&text);
+                    if rule.is_none() {
+                        report.push(
+                            line,
+                            "security.declare.tcp_hosts",
+                            format!(
+                                "`{text}` is not a network (192.0.2.0/24), an address, or host[:port]"
+                            ),
+                        );
+                    }
+                    rule
+                })
+                .collect();
+        }
+        d.finish(report, "security.declare", DECLARE_KEYS);
     }
     map.finish(report, "security", KEYS);
     out
