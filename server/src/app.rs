@@ -103,6 +103,7 @@ impl Setup {
             }
         };
         config::check_devices(&config, &catalog)?;
+        config::check_security(&config)?;
         let map = crate::map::plan(&config, &catalog)?;
         Ok(Setup {
             config,
@@ -169,8 +170,15 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         tasks.spawn_link(link);
     }
 
-    let mut service =
-        Service::new(cache.clone(), tasks).with_policy(config.security.declare.clone());
+    let tokens = config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
+    if tokens.is_empty() {
+        tracing::info!(
+            "no tokens configured: every client may read and write (listeners on loopback)"
+        );
+    }
+    let mut service = Service::new(cache.clone(), tasks)
+        .with_policy(config.security.declare.clone())
+        .with_access(tokens, config.security.read_only);
     let mut modbus_listener = None;
     if let (Some(server), Some(plan)) = (&config.modbus_server, &map) {
         let image = crate::service::ModbusImage::new(server, plan, &cache)

@@ -91,6 +91,7 @@ impl From<ServiceError> for ApiError {
                 Refusal::Forbidden => (StatusCode::FORBIDDEN, "not_allowed"),
             },
             ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
+            ServiceError::ReadOnly => (StatusCode::FORBIDDEN, "read_only"),
             ServiceError::Location(_) => (StatusCode::BAD_REQUEST, "invalid_location"),
             ServiceError::Transaction(_) => (StatusCode::BAD_REQUEST, "invalid_transaction"),
             ServiceError::UnknownTransaction(_) => (StatusCode::NOT_FOUND, "unknown_transaction"),

@@ -51,6 +51,7 @@ pub fn status(e: ServiceError) -> Status {
             Refusal::Forbidden => tonic::Code::PermissionDenied,
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
+        ServiceError::ReadOnly => tonic::Code::PermissionDenied,
         ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,
         ServiceError::Unbound(_) | ServiceError::UnknownTransaction(_) => tonic::Code::NotFound,
         ServiceError::TransactionConflict(_) => tonic::Code::FailedPrecondition,

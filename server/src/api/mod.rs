@@ -91,6 +91,45 @@ async fn not_found(uri: Uri) -> ApiError {
     )
 }
 
+/// Refuses a request without the role its route needs: 401 without a known token, 403
+/// with one whose role is too low, both as the API's JSON.
+async fn authorize(
+    State(service): State<Arc<Service>>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    let Some(needed) = crate::auth::rest_role(request.method().as_str(), request.uri().path())
+    else {
+        return next.run(request).await;
+    };
+    let header = request
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok());
+    match service.tokens.check(header, needed) {
+        Ok(()) => next.run(request).await,
+        Err(crate::auth::Denied::Unauthenticated) => {
+            let mut response = ApiError::new(
+                axum::http::StatusCode::UNAUTHORIZED,
+                "unauthenticated",
+                "send a known token: Authorization: Bearer TOKEN",
+            )
+            .into_response();
+            response.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                axum::http::HeaderValue::from_static("Bearer"),
+            );
+            response
+        }
+        Err(crate::auth::Denied::Forbidden { needed }) => ApiError::new(
+            axum::http::StatusCode::FORBIDDEN,
+            "forbidden",
+            format!("this needs a token with the {} role", needed.name()),
+        )
+        .into_response(),
+    }
+}
+
 pub fn router(service: Arc<Service>) -> Router {
     let api = Router::new()
         .route("/openapi.json", get(openapi_json))
@@ -152,6 +191,10 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/metrics", get(metrics))
         .nest(API_PREFIX, api)
         .fallback(not_found)
+        .layer(axum::middleware::from_fn_with_state(
+            service.clone(),
+            authorize,
+        ))
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(TraceLayer::new_for_http())
         .with_state(service)
@@ -188,7 +231,12 @@ pub async fn serve_grpc(
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let tokens = service.tokens.clone();
     tonic::transport::Server::builder()
+        .layer(tower::layer::layer_fn(move |inner| GrpcAuth {
+            inner,
+            tokens: tokens.clone(),
+        }))
         .add_service(health_service)
         .add_service(reflection_v1)
         .add_service(reflection_v1alpha)
@@ -196,4 +244,59 @@ pub async fn serve_grpc(
         .serve_with_incoming_shutdown(incoming, shutdown)
         .await?;
     Ok(())
+}
+
+/// Refuses a gRPC call without the role its method needs (UNAUTHENTICATED /
+/// PERMISSION_DENIED), reading the `authorization` metadata.
+#[derive(Clone)]
+struct GrpcAuth<S> {
+    inner: S,
+    tokens: crate::auth::Tokens,
+}
+
+impl<S, B> tower::Service<axum::http::Request<B>> for GrpcAuth<S>
+where
+    S: tower::Service<axum::http::Request<B>, Response = axum::http::Response<tonic::body::Body>>
+        + Clone
+        + Send
+        + 'static,
+    S::Future: Send + 'static,
+    B: Send + 'static,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = std::pin::Pin<
+        Box<dyn Future<Output = Result<Self::Response, Self::Error>> + Send + 'static>,
+    >;
+
+    fn poll_ready(
+        &mut self,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, request: axum::http::Request<B>) -> Self::Future {
+        let denied = crate::auth::grpc_role(request.uri().path()).and_then(|needed| {
+            let header = request
+                .headers()
+                .get("authorization")
+                .and_then(|v| v.to_str().ok());
+            self.tokens.check(header, needed).err()
+        });
+        match denied {
+            None => Box::pin(self.inner.call(request)),
+            Some(denied) => {
+                let status = match denied {
+                    crate::auth::Denied::Unauthenticated => tonic::Status::unauthenticated(
+                        "send a known token: authorization: Bearer TOKEN",
+                    ),
+                    crate::auth::Denied::Forbidden { needed } => tonic::Status::permission_denied(
+                        format!("this needs a token with the {} role", needed.name()),
+                    ),
+                };
+                Box::pin(async move { Ok(status.into_http()) })
+            }
+        }
+    }
 }

@@ -98,3 +98,31 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
         Err(problems)
     }
 }
+
+/// The security rules of a config: its tokens load, and without tokens the HTTP and gRPC
+/// listeners stay on loopback unless `security.insecure: true` says otherwise.
+pub fn check_security(config: &Config) -> Result<crate::auth::Tokens, Problems> {
+    let mut report = Report::new(&config.source);
+    let tokens = crate::auth::Tokens::load(config.security.tokens_file.as_deref())
+        .map_err(|e| report.push(0, "security.tokens_file", e))
+        .unwrap_or_default();
+    if tokens.is_empty() && !config.security.insecure {
+        for (key, addr) in [("listen.http", config.http), ("listen.grpc", config.grpc)] {
+            if !addr.ip().is_loopback() {
+                report.push(
+                    0,
+                    key,
+                    format!(
+                        "{addr} is not a loopback address and no tokens are configured: set security.tokens_file (or IOGATE_TOKENS), or security.insecure: true to serve it unauthenticated"
+                    ),
+                );
+            }
+        }
+    }
+    let problems = report.into_problems();
+    if problems.is_empty() {
+        Ok(tokens)
+    } else {
+        Err(problems)
+    }
+}

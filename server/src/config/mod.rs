@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use crate::yaml::{self, Problems, Report};
 
-pub use check::check_devices;
+pub use check::{check_devices, check_security};
 pub use rules::{DEFAULT_REFRESH, DEFAULT_RETRIES, DEFAULT_TIMEOUT, MAX_READ_REGISTERS};
 
 pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";

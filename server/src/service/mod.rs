@@ -45,6 +45,8 @@ pub enum ServiceError {
     Declare(#[from] DeclareError),
     #[error("the gateway is shutting down")]
     ShuttingDown,
+    #[error("the gateway is read-only (security.read_only): nothing is written")]
+    ReadOnly,
     #[error("{0}")]
     Location(#[from] iogate_types::LocationError),
     /// A raw transaction's parameters, with every message of the read block that applies.
@@ -98,6 +100,10 @@ pub struct Service {
     standing: StandingSet,
     /// What run-time declarations may reach.
     policy: crate::config::security::DeclarePolicy,
+    /// Who may do what.
+    pub tokens: crate::auth::Tokens,
+    /// `security.read_only`: every write is refused.
+    read_only: bool,
 }
 
 impl Service {
@@ -112,6 +118,25 @@ impl Service {
             modbus: None,
             standing: StandingSet::default(),
             policy: crate::config::security::DeclarePolicy::default(),
+            tokens: crate::auth::Tokens::default(),
+            read_only: false,
+        }
+    }
+
+    /// The service with the tokens and the read-only switch of `security:`.
+    pub fn with_access(mut self, tokens: crate::auth::Tokens, read_only: bool) -> Self {
+        self.tokens = tokens;
+        self.read_only = read_only;
+        self
+    }
+
+    /// Refuses writes when the gateway is read-only (or shutting down).
+    pub fn accepting_writes(&self) -> Result<(), ServiceError> {
+        self.accepting()?;
+        if self.read_only {
+            Err(ServiceError::ReadOnly)
+        } else {
+            Ok(())
         }
     }
 

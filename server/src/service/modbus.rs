@@ -317,7 +317,7 @@ impl Service {
         address: u16,
         values: &[bool],
     ) -> Result<Response, Exception> {
-        if image.config.read_only {
+        if image.config.read_only || self.read_only {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
         image.check_range(Table::Coils, address, values.len() as u16)?;
@@ -338,7 +338,7 @@ impl Service {
         address: u16,
         values: &[u16],
     ) -> Result<Response, Exception> {
-        if image.config.read_only {
+        if image.config.read_only || self.read_only {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
         let end = address as usize + values.len();

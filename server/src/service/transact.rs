@@ -59,6 +59,9 @@ impl Service {
         let Some(link) = link else {
             return Err(ServiceError::Transaction(vec![MISSING_RS485.to_owned()]));
         };
+        if matches!(checked.plan, Plan::Write(_)) {
+            self.accepting_writes()?;
+        }
         let config = link.config();
         let rtu = !matches!(
             config.transport,

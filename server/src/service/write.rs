@@ -76,7 +76,7 @@ impl Service {
 
     /// Requests one checked write.
     pub fn write(&self, write: Prepared) -> Result<Accepted, ServiceError> {
-        self.accepting()?;
+        self.accepting_writes()?;
         let generation = write.device.request_write(write.idx, write.value)?;
         Ok(Accepted {
             device: write.device.name().to_owned(),
@@ -91,7 +91,7 @@ impl Service {
         &self,
         writes: Vec<Result<Prepared, E>>,
     ) -> Result<Vec<Accepted>, ServiceError> {
-        self.accepting()?;
+        self.accepting_writes()?;
         let (ok, refused): (Vec<_>, Vec<_>) = writes.into_iter().partition(Result::is_ok);
         if !refused.is_empty() {
             let refused: Vec<ServiceError> = refused
@@ -150,6 +150,7 @@ impl Service {
         field: &str,
         convert: impl FnOnce(IecType) -> Result<Value, E>,
     ) -> Result<(usize, Value), ServiceError> {
+        self.accepting_writes()?;
         let (idx, value) = typed(device, field, convert)?;
         device.simulate(idx, value.clone())?;
         Ok((idx, value))

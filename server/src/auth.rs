@@ -1,0 +1,264 @@
+//! Who may do what: bearer tokens with roles `read` < `write` < `admin`, loaded from
+//! `security.tokens_file` (and the `IOGATE_TOKENS` environment variable), one `ROLE TOKEN`
+//! per line. Tokens never appear in logs or messages. Without tokens every request is
+//! allowed, and the listeners must be on loopback (or `security.insecure: true`).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+/// What a token allows; each role includes the ones before it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Role {
+    /// Read values, diagnostics, events, profiles, the map.
+    Read,
+    /// Also write outputs, set simulated inputs, run transactions.
+    Write,
+    /// Also declare (and remove) links, devices and transactions.
+    Admin,
+}
+
+impl Role {
+    pub fn parse(text: &str) -> Option<Role> {
+        match text {
+            "read" => Some(Role::Read),
+            "write" => Some(Role::Write),
+            "admin" => Some(Role::Admin),
+            _ => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Read => "read",
+            Role::Write => "write",
+            Role::Admin => "admin",
+        }
+    }
+}
+
+/// Why a request is refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Denied {
+    /// No token, or one that is not known (401 / UNAUTHENTICATED).
+    Unauthenticated,
+    /// A known token whose role is too low (403 / PERMISSION_DENIED).
+    Forbidden { needed: Role },
+}
+
+/// The known tokens.
+#[derive(Clone, Default)]
+pub struct Tokens(HashMap<String, Role>);
+
+impl std::fmt::Debug for Tokens {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Never the tokens themselves.
+        write!(f, "Tokens({} configured)", self.0.len())
+    }
+}
+
+impl Tokens {
+    /// Parses `ROLE TOKEN` lines (blank lines and `#` comments skipped); `source` names the
+    /// text in problems, which give the line but never the token.
+    pub fn parse(source: &str, text: &str) -> Result<Tokens, String> {
+        let mut tokens = HashMap::new();
+        for (n, line) in text.lines().enumerate() {
+            let line = line.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let mut parts = line.split_whitespace();
+            let (Some(role), Some(token), None) = (parts.next(), parts.next(), parts.next()) else {
+                return Err(format!(
+                    "{source}:{}: expected `ROLE TOKEN` (ROLE is read, write or admin)",
+                    n + 1
+                ));
+            };
+            let Some(role) = Role::parse(role) else {
+                return Err(format!(
+                    "{source}:{}: unknown role `{}` (expected read, write or admin)",
+                    n + 1,
+                    crate::text::quote(role)
+                ));
+            };
+            if token.len() < 16 {
+                return Err(format!(
+                    "{source}:{}: the token is too short (at least 16 characters)",
+                    n + 1
+                ));
+            }
+            tokens.insert(token.to_owned(), role);
+        }
+        Ok(Tokens(tokens))
+    }
+
+    /// The tokens of `file` and of the `IOGATE_TOKENS` environment variable (lines, or
+    /// entries separated by `;`).
+    pub fn load(file: Option<&Path>) -> Result<Tokens, String> {
+        let mut all = Tokens::default();
+        if let Some(path) = file {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("cannot read the tokens file {}: {e}", path.display()))?;
+            all.0
+                .extend(Tokens::parse(&path.display().to_string(), &text)?.0);
+        }
+        if let Ok(env) = std::env::var("IOGATE_TOKENS") {
+            all.0
+                .extend(Tokens::parse("IOGATE_TOKENS", &env.replace(';', "\n"))?.0);
+        }
+        Ok(all)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Whether a request with `authorization` (the header's value) may do what `needed`
+    /// allows. Without tokens configured everything is allowed.
+    pub fn check(&self, authorization: Option<&str>, needed: Role) -> Result<(), Denied> {
+        if self.0.is_empty() {
+            return Ok(());
+        }
+        let token = authorization
+            .and_then(|v| {
+                v.strip_prefix("Bearer ")
+                    .or_else(|| v.strip_prefix("bearer "))
+            })
+            .map(str::trim)
+            .ok_or(Denied::Unauthenticated)?;
+        // Compare every known token in full (no early exit on the first byte).
+        let role = self
+            .0
+            .iter()
+            .filter(|(t, _)| constant_eq(t.as_bytes(), token.as_bytes()))
+            .map(|(_, r)| *r)
+            .max()
+            .ok_or(Denied::Unauthenticated)?;
+        if role >= needed {
+            Ok(())
+        } else {
+            Err(Denied::Forbidden { needed })
+        }
+    }
+}
+
+fn constant_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// The role a REST request needs: `None` for the open endpoints (health, metrics).
+pub fn rest_role(method: &str, path: &str) -> Option<Role> {
+    if matches!(path, "/livez" | "/readyz" | "/metrics") {
+        return None;
+    }
+    let api = path.strip_prefix("/api/v1").unwrap_or(path);
+    let declaration = (method == "PUT"
+        && (api.starts_with("/links/") && !api.ends_with("/transactions")
+            || (api.starts_with("/devices/") && api.matches('/').count() == 2)
+            || (api.starts_with("/transactions/") && api.matches('/').count() == 2)))
+        || method == "DELETE";
+    Some(if declaration {
+        Role::Admin
+    } else if matches!(method, "GET" | "HEAD" | "OPTIONS") {
+        Role::Read
+    } else {
+        Role::Write
+    })
+}
+
+/// The role a gRPC method needs: `None` for health checks.
+pub fn grpc_role(path: &str) -> Option<Role> {
+    if path.starts_with("/grpc.health.") {
+        return None;
+    }
+    let method = path.rsplit('/').next().unwrap_or("");
+    Some(match method {
+        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" => Role::Admin,
+        "Write" | "Exchange" | "Transact" | "SetTransaction" => Role::Write,
+        _ => Role::Read,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const READ: &str = "reader-0123456789abcdef";
+    const WRITE: &str = "writer-0123456789abcdef";
+    const ADMIN: &str = "admin-0123456789abcdefg";
+
+    fn tokens() -> Tokens {
+        Tokens::parse(
+            "tokens",
+            &format!("# roles\nread {READ}\n\nwrite {WRITE}\nadmin {ADMIN}\n"),
+        )
+        .expect("tokens")
+    }
+
+    #[test]
+    fn roles_include_the_ones_below() {
+        let t = tokens();
+        let bearer = |tok: &str| format!("Bearer {tok}");
+        assert_eq!(t.check(None, Role::Read), Err(Denied::Unauthenticated));
+        assert_eq!(
+            t.check(Some("Bearer nope-nope-nope-nope"), Role::Read),
+            Err(Denied::Unauthenticated)
+        );
+        assert_eq!(t.check(Some(&bearer(READ)), Role::Read), Ok(()));
+        assert_eq!(
+            t.check(Some(&bearer(READ)), Role::Write),
+            Err(Denied::Forbidden {
+                needed: Role::Write
+            })
+        );
+        assert_eq!(t.check(Some(&bearer(WRITE)), Role::Write), Ok(()));
+        assert_eq!(t.check(Some(&bearer(ADMIN)), Role::Admin), Ok(()));
+        assert_eq!(Tokens::default().check(None, Role::Admin), Ok(()));
+    }
+
+    #[test]
+    fn bad_token_files_name_the_line_never_the_token() {
+        let e = Tokens::parse("t", "root s3cret-s3cret-s3cret\n").expect_err("role");
+        assert!(e.contains("t:1: unknown role `root`"), "{e}");
+        assert!(!e.contains("s3cret"), "{e}");
+        let e = Tokens::parse("t", "read short\n").expect_err("short");
+        assert!(e.contains("too short") && !e.contains("short\n"), "{e}");
+        assert!(format!("{:?}", tokens()).contains("3 configured"));
+    }
+
+    #[test]
+    fn every_route_needs_its_role() {
+        assert_eq!(rest_role("GET", "/livez"), None);
+        assert_eq!(rest_role("GET", "/metrics"), None);
+        assert_eq!(rest_role("GET", "/api/v1/devices"), Some(Role::Read));
+        assert_eq!(rest_role("GET", "/api/v1/events"), Some(Role::Read));
+        assert_eq!(
+            rest_role("PUT", "/api/v1/devices/sim/fields/DO_0"),
+            Some(Role::Write)
+        );
+        assert_eq!(
+            rest_role("PATCH", "/api/v1/devices/sim/fields"),
+            Some(Role::Write)
+        );
+        assert_eq!(
+            rest_role("POST", "/api/v1/links/rs485/transactions"),
+            Some(Role::Write)
+        );
+        assert_eq!(rest_role("PUT", "/api/v1/devices/adc"), Some(Role::Admin));
+        assert_eq!(rest_role("PUT", "/api/v1/links/plc"), Some(Role::Admin));
+        assert_eq!(
+            rest_role("PUT", "/api/v1/transactions/t"),
+            Some(Role::Admin)
+        );
+        assert_eq!(
+            rest_role("PUT", "/api/v1/transactions/t/values"),
+            Some(Role::Write)
+        );
+        assert_eq!(grpc_role("/grpc.health.v1.Health/Check"), None);
+        assert_eq!(grpc_role("/iogate.v1.Gateway/Read"), Some(Role::Read));
+        assert_eq!(grpc_role("/iogate.v1.Gateway/Write"), Some(Role::Write));
+        assert_eq!(
+            grpc_role("/iogate.v1.Gateway/EnsureDevice"),
+            Some(Role::Admin)
+        );
+    }
+}

@@ -1,0 +1,257 @@
+//! Access control: bearer tokens with roles on REST, SSE and gRPC; read-only; the loopback
+//! rule without tokens.
+
+use reqwest::Method;
+use serde_json::json;
+
+use iogate_tests::TestGateway;
+use iogate_tests::devices::temp_dir;
+
+const READ: &str = "read-token-0123456789";
+const WRITE: &str = "write-token-0123456789";
+const ADMIN: &str = "admin-token-0123456789";
+
+async fn gateway(extra: &str) -> TestGateway {
+    let dir = temp_dir("security");
+    let tokens = dir.join("tokens");
+    std::fs::write(
+        &tokens,
+        format!("# who may do what\nread {READ}\nwrite {WRITE}\nadmin {ADMIN}\n"),
+    )
+    .expect("tokens");
+    TestGateway::start(&format!(
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 20ms }}\nsecurity:\n  tokens_file: {}\n{extra}",
+        tokens.display()
+    ))
+    .await
+    .expect("gateway")
+}
+
+async fn call(
+    gw: &TestGateway,
+    method: Method,
+    path: &str,
+    token: Option<&str>,
+    body: &str,
+) -> (u16, serde_json::Value) {
+    let mut request = gw
+        .client
+        .request(method, gw.url(path))
+        .header("content-type", "application/json")
+        .body(body.to_owned());
+    if let Some(t) = token {
+        request = request.bearer_auth(t);
+    }
+    let response = request.send().await.expect("request");
+    let status = response.status().as_u16();
+    (
+        status,
+        response.json().await.unwrap_or(serde_json::Value::Null),
+    )
+}
+
+#[tokio::test]
+async fn every_route_needs_its_role_over_rest() {
+    let gw = gateway("").await;
+    let write = json!({"value": true}).to_string();
+    let declare = json!({"profile": "SimIo"}).to_string();
+    let cases: [(Method, &str, &str, [u16; 4]); 6] = [
+        // no token, read, write, admin
+        (Method::GET, "/api/v1/devices", "", [401, 200, 200, 200]),
+        (
+            Method::GET,
+            "/api/v1/events?bogus=1",
+            "",
+            [401, 400, 400, 400],
+        ),
+        (
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DO_0",
+            &write,
+            [401, 403, 202, 202],
+        ),
+        (
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DI_0/simulate",
+            &write,
+            [401, 403, 202, 202],
+        ),
+        (
+            Method::PUT,
+            "/api/v1/devices/sim2",
+            &declare,
+            [401, 403, 403, 201],
+        ),
+        (Method::GET, "/livez", "", [200, 200, 200, 200]),
+    ];
+    for (method, path, body, expected) in cases {
+        for (token, want) in [None, Some(READ), Some(WRITE), Some(ADMIN)]
+            .into_iter()
+            .zip(expected)
+        {
+            let (status, answer) = call(&gw, method.clone(), path, token, body).await;
+            assert_eq!(status, want, "{method} {path} with {token:?}: {answer}");
+            if status == 401 {
+                assert_eq!(answer["error"]["code"], "unauthenticated");
+            }
+            if status == 403 {
+                assert_eq!(answer["error"]["code"], "forbidden");
+                assert!(!answer.to_string().contains(READ) && !answer.to_string().contains(WRITE));
+            }
+        }
+    }
+    assert_eq!(
+        call(&gw, Method::GET, "/metrics", None, "").await.0,
+        200,
+        "metrics stay open"
+    );
+    assert_eq!(
+        call(
+            &gw,
+            Method::GET,
+            "/api/v1/devices",
+            Some("Bearer-less-guess-0123456789"),
+            ""
+        )
+        .await
+        .0,
+        401
+    );
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn every_rpc_needs_its_role_over_grpc() {
+    let gw = gateway("").await;
+    let channel = tonic::transport::Endpoint::from_shared(gw.grpc.clone())
+        .expect("endpoint")
+        .connect()
+        .await
+        .expect("channel");
+    let with = |token: Option<&'static str>| {
+        iogate_client::proto::gateway_client::GatewayClient::with_interceptor(
+            channel.clone(),
+            move |mut r: tonic::Request<()>| {
+                if let Some(t) = token {
+                    r.metadata_mut().insert(
+                        "authorization",
+                        format!("Bearer {t}").parse().expect("ascii"),
+                    );
+                }
+                Ok(r)
+            },
+        )
+    };
+    let list = iogate_client::proto::ListDevicesRequest {};
+    assert_eq!(
+        with(None)
+            .list_devices(list)
+            .await
+            .map(|_| ())
+            .map_err(|s| s.code()),
+        Err(tonic::Code::Unauthenticated)
+    );
+    assert!(with(Some(READ)).list_devices(list).await.is_ok());
+    let write = || iogate_client::proto::WriteRequest {
+        writes: vec![iogate_client::proto::FieldWrite {
+            device: "sim".into(),
+            field: "DO_0".into(),
+            value: Some(iogate_client::proto::Value {
+                r#type: 0,
+                kind: Some(iogate_client::proto::value::Kind::BoolValue(true)),
+            }),
+        }],
+    };
+    assert_eq!(
+        with(Some(READ))
+            .write(write())
+            .await
+            .map(|_| ())
+            .map_err(|s| s.code()),
+        Err(tonic::Code::PermissionDenied)
+    );
+    assert!(with(Some(WRITE)).write(write()).await.is_ok());
+    let declare = || iogate_client::proto::EnsureDeviceRequest {
+        name: "sim3".into(),
+        profile: "SimIo".into(),
+        refresh_rate_ms: 100,
+        ..Default::default()
+    };
+    assert_eq!(
+        with(Some(WRITE))
+            .ensure_device(declare())
+            .await
+            .map(|_| ())
+            .map_err(|s| s.code()),
+        Err(tonic::Code::PermissionDenied)
+    );
+    assert!(with(Some(ADMIN)).ensure_device(declare()).await.is_ok());
+    let mut health = tonic_health::pb::health_client::HealthClient::new(channel.clone());
+    assert!(
+        health
+            .check(tonic_health::pb::HealthCheckRequest {
+                service: String::new()
+            })
+            .await
+            .is_ok(),
+        "health checks stay open"
+    );
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn read_only_refuses_every_write_everywhere() {
+    let gw = gateway("  read_only: true\n").await;
+    let (status, answer) = call(
+        &gw,
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DO_0",
+        Some(ADMIN),
+        &json!({"value": true}).to_string(),
+    )
+    .await;
+    assert_eq!(
+        (status, &answer["error"]["code"]),
+        (403, &json!("read_only")),
+        "{answer}"
+    );
+    let (status, _) = call(
+        &gw,
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DI_0/simulate",
+        Some(ADMIN),
+        &json!({"value": true}).to_string(),
+    )
+    .await;
+    assert_eq!(status, 403);
+    assert_eq!(
+        call(&gw, Method::GET, "/api/v1/devices/sim", Some(READ), "")
+            .await
+            .0,
+        200
+    );
+    gw.shutdown().await;
+}
+
+#[test]
+fn without_tokens_the_listeners_stay_on_loopback_unless_insecure() {
+    let check = |text: &str| {
+        let mut c = iogate::config::parse("c.yaml", text).expect("parses");
+        c.profiles = Some(iogate_tests::profiles_dir());
+        iogate::app::Setup::from_config(c, std::path::Path::new("."))
+            .err()
+            .map(|p| p.to_string())
+    };
+    let problems = check("listen: { http: 0.0.0.0:8080 }\n").expect("refused");
+    assert!(
+        problems.contains(
+            "listen.http: 0.0.0.0:8080 is not a loopback address and no tokens are configured"
+        ),
+        "{problems}"
+    );
+    assert_eq!(
+        check("listen: { http: 0.0.0.0:8080 }\nsecurity: { insecure: true }\n"),
+        None
+    );
+    assert_eq!(check("listen: { http: 127.0.0.1:8080 }\n"), None);
+}
