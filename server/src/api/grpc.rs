@@ -21,6 +21,9 @@ use crate::transaction::TransactionSpec;
 type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::Update, Status>> + Send>>;
 type ExchangeStream = Pin<Box<dyn Stream<Item = Result<pb::ExchangeResponse, Status>> + Send>>;
 
+/// The largest gRPC message either way (a snapshot of thousands of fields fits).
+pub const MAX_MESSAGE: usize = 16 * 1024 * 1024;
+
 pub struct GrpcApi {
     service: Arc<Service>,
 }
@@ -52,6 +55,7 @@ pub fn status(e: ServiceError) -> Status {
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
         ServiceError::ReadOnly => tonic::Code::PermissionDenied,
+        ServiceError::TooManyStreams(_) => tonic::Code::ResourceExhausted,
         ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,
         ServiceError::Unbound(_) | ServiceError::UnknownTransaction(_) => tonic::Code::NotFound,
         ServiceError::TransactionConflict(_) => tonic::Code::FailedPrecondition,
@@ -132,6 +136,8 @@ impl GrpcApi {
     /// The server for this service.
     pub fn server(service: Arc<Service>) -> GatewayServer<GrpcApi> {
         GatewayServer::new(GrpcApi::new(service))
+            .max_decoding_message_size(MAX_MESSAGE)
+            .max_encoding_message_size(MAX_MESSAGE)
     }
 
     fn select(
@@ -327,11 +333,13 @@ impl Gateway for GrpcApi {
         request: Request<Streaming<pb::ExchangeRequest>>,
     ) -> Result<Response<Self::ExchangeStream>, Status> {
         self.service.accepting().map_err(status)?;
+        let slot = self.service.stream_slot().map_err(status)?;
         let mut inbound = request.into_inner();
         let service = self.service.clone();
         let token = service.tasks().token().clone();
         let (tx, rx) = tokio::sync::mpsc::channel(4);
         self.service.tasks().spawn(async move {
+            let _slot = slot;
             let mut cycles = ScanCycle::new(service.clone());
             loop {
                 let message = tokio::select! {

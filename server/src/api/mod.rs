@@ -30,6 +30,8 @@ use crate::service::Service;
 use error::ApiError;
 
 pub const API_PREFIX: &str = "/api/v1";
+/// The largest request body (a PATCH of every field of a big device fits).
+pub const MAX_BODY: usize = 1024 * 1024;
 
 #[derive(OpenApi)]
 #[openapi(
@@ -195,6 +197,7 @@ pub fn router(service: Arc<Service>) -> Router {
             service.clone(),
             authorize,
         ))
+        .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(TraceLayer::new_for_http())
         .with_state(service)

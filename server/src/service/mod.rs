@@ -47,6 +47,8 @@ pub enum ServiceError {
     ShuttingDown,
     #[error("the gateway is read-only (security.read_only): nothing is written")]
     ReadOnly,
+    #[error("too many open change streams (at most {0}); try again later")]
+    TooManyStreams(usize),
     #[error("{0}")]
     Location(#[from] iogate_types::LocationError),
     /// A raw transaction's parameters, with every message of the read block that applies.
@@ -104,6 +106,21 @@ pub struct Service {
     pub tokens: crate::auth::Tokens,
     /// `security.read_only`: every write is refused.
     read_only: bool,
+    /// Open change streams (SSE, Subscribe, Exchange), bounded by [`MAX_STREAMS`].
+    streams: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+/// The most change streams (SSE, gRPC Subscribe and Exchange) open at once.
+pub const MAX_STREAMS: usize = 2048;
+
+/// A place among the open change streams; dropping it frees the place.
+#[derive(Debug)]
+pub struct StreamSlot(Arc<std::sync::atomic::AtomicUsize>);
+
+impl Drop for StreamSlot {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 impl Service {
@@ -120,7 +137,18 @@ impl Service {
             policy: crate::config::security::DeclarePolicy::default(),
             tokens: crate::auth::Tokens::default(),
             read_only: false,
+            streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
         }
+    }
+
+    /// A place for one more change stream, or `TooManyStreams`.
+    pub fn stream_slot(&self) -> Result<StreamSlot, ServiceError> {
+        let before = self.streams.fetch_add(1, Ordering::AcqRel);
+        let slot = StreamSlot(self.streams.clone());
+        if before >= MAX_STREAMS {
+            return Err(ServiceError::TooManyStreams(MAX_STREAMS));
+        }
+        Ok(slot)
     }
 
     /// The service with the tokens and the read-only switch of `security:`.
@@ -250,5 +278,34 @@ impl Service {
     pub fn ensure_device(&self, decl: DeviceDeclaration) -> Result<Ensured<Device>, ServiceError> {
         self.accepting()?;
         Ok(declare::ensure_device(&self.cache, &self.tasks, decl)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn change_streams_are_bounded_and_their_places_come_back() {
+        let setup = crate::app::Setup::demo().expect("demo");
+        let cache = Arc::new(Cache::new(&setup.config, setup.catalog));
+        let tasks = Tasks::new(
+            tokio_util::task::TaskTracker::new(),
+            tokio_util::sync::CancellationToken::new(),
+            Arc::new(Metrics::new()),
+        );
+        let service = Service::new(cache, tasks);
+        let held: Vec<StreamSlot> = (0..MAX_STREAMS)
+            .map(|_| service.stream_slot().expect("a place"))
+            .collect();
+        assert!(matches!(
+            service.stream_slot(),
+            Err(ServiceError::TooManyStreams(MAX_STREAMS))
+        ));
+        drop(held);
+        assert!(
+            service.stream_slot().is_ok(),
+            "places come back when streams end"
+        );
     }
 }

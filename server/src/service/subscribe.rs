@@ -43,6 +43,7 @@ impl Service {
         diagnostics: bool,
     ) -> Result<Changes, ServiceError> {
         self.accepting()?;
+        let slot = self.stream_slot()?;
         let mut streams: StreamMap<Key, Changes> = StreamMap::new();
         let position = |device: &Arc<Device>| {
             selection
@@ -73,8 +74,14 @@ impl Service {
             streams.insert((position(&f.device), f.idx), Box::pin(values));
         }
         let shutdown = self.tasks().token().clone().cancelled_owned();
+        // The slot goes with the stream: freed when the client goes away.
         Ok(Box::pin(
-            streams.map(|(_, change)| change).take_until(shutdown),
+            streams
+                .map(move |(_, change)| {
+                    let _held = &slot;
+                    change
+                })
+                .take_until(shutdown),
         ))
     }
 }
