@@ -73,10 +73,12 @@ impl Value {
     /// is also a TIME literal such as `T#1s500ms`.
     pub fn from_pb_as(ty: IecType, v: &pb::Value) -> Result<Value, ValueError> {
         use pb::value::Kind;
-        if let Some(declared) = IecType::from_pb(v.r#type)
-            && declared != ty
-        {
-            return Err(ValueError::Mislabelled { ty, declared });
+        match IecType::from_pb(v.r#type) {
+            Some(declared) if declared != ty => {
+                return Err(ValueError::Mislabelled { ty, declared });
+            }
+            None if v.r#type != 0 => return Err(ValueError::UnknownType(v.r#type)),
+            _ => {}
         }
         let Some(kind) = &v.kind else {
             return Err(ValueError::Missing { ty });
@@ -211,6 +213,14 @@ mod tests {
             "the field is INT, the value says REAL"
         );
         assert!(Value::from_pb_as(IecType::Int, &pb::Value::default()).is_err());
+        let unknown = pb::Value {
+            r#type: 999,
+            kind: Some(Kind::IntValue(1)),
+        };
+        assert_eq!(
+            Value::from_pb_as(IecType::Int, &unknown),
+            Err(ValueError::UnknownType(999))
+        );
     }
 
     #[test]

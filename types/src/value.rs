@@ -43,6 +43,8 @@ pub enum ValueError {
     Mislabelled { ty: IecType, declared: IecType },
     #[error("{ty} needs a value; none was set")]
     Missing { ty: IecType },
+    #[error("{0} is not an IEC type number of iogate.v1.IecType")]
+    UnknownType(i32),
     #[error("`{text}` is not a {ty} value")]
     NotAValue { text: String, ty: IecType },
     #[error(transparent)]
