@@ -227,8 +227,15 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         }
     });
     let (http_service, shutdown) = (service.clone(), token.clone());
+    let header_timeout = config.header_timeout;
     tracker.spawn(async move {
-        let served = api::serve_http(listener, http_service, shutdown.cancelled_owned()).await;
+        let served = api::serve_http(
+            listener,
+            http_service,
+            header_timeout,
+            shutdown.cancelled_owned(),
+        )
+        .await;
         if let Err(e) = served {
             tracing::error!(error = %e, "HTTP server failed");
         }

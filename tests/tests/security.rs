@@ -255,3 +255,33 @@ fn without_tokens_the_listeners_stay_on_loopback_unless_insecure() {
     );
     assert_eq!(check("listen: { http: 127.0.0.1:8080 }\n"), None);
 }
+
+#[tokio::test]
+async fn a_client_that_sends_its_headers_too_slowly_is_dropped() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let gw = TestGateway::start("listen: { header_timeout: 300ms }\n")
+        .await
+        .expect("gateway");
+    let addr = gw.base.trim_start_matches("http://").to_owned();
+    let mut slow = tokio::net::TcpStream::connect(&addr)
+        .await
+        .expect("connect");
+    slow.write_all(b"GET /livez HTTP/1.1\r\nHost: x\r\n")
+        .await
+        .expect("partial");
+    let started = std::time::Instant::now();
+    let mut buf = [0u8; 256];
+    let read = tokio::time::timeout(std::time::Duration::from_secs(5), slow.read(&mut buf))
+        .await
+        .expect("the server closes it, not this test's patience");
+    // Closed (nothing more, or a reset), not answered, well before the test's patience.
+    match read {
+        Ok(0) | Err(_) => {}
+        Ok(n) => panic!("answered: {:?}", String::from_utf8_lossy(&buf[..n])),
+    }
+    assert!(started.elapsed() >= std::time::Duration::from_millis(250));
+    assert!(started.elapsed() < std::time::Duration::from_secs(4));
+    // Others are served meanwhile.
+    assert_eq!(gw.get("/livez").await.expect("livez").0, 200);
+    gw.shutdown().await;
+}

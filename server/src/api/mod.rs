@@ -7,6 +7,7 @@ pub mod declare;
 pub mod error;
 pub mod events;
 pub mod grpc;
+pub mod http;
 pub mod map;
 pub mod modbus;
 pub mod pb;
@@ -203,16 +204,15 @@ pub fn router(service: Arc<Service>) -> Router {
         .with_state(service)
 }
 
-/// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
-/// in flight.
+/// Serves the HTTP API on `listener` until `shutdown` resolves, within the limits of
+/// [`http`].
 pub async fn serve_http(
     listener: TcpListener,
     service: Arc<Service>,
+    header_timeout: std::time::Duration,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    axum::serve(listener, router(service))
-        .with_graceful_shutdown(shutdown)
-        .await
+    http::serve(listener, service, header_timeout, shutdown).await
 }
 
 /// Serves the gRPC API, with `grpc.health.v1` and server reflection, on `listener` until

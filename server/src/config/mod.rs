@@ -21,11 +21,15 @@ pub use rules::{DEFAULT_REFRESH, DEFAULT_RETRIES, DEFAULT_TIMEOUT, MAX_READ_REGI
 
 pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
 pub const DEFAULT_GRPC: &str = "127.0.0.1:50051";
+/// How long an HTTP client may take to send a request's headers, by default.
+pub const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
     pub http: SocketAddr,
     pub grpc: SocketAddr,
+    /// How long an HTTP client may take to send a request's headers (`listen.header_timeout`).
+    pub header_timeout: Duration,
     /// The `profiles` directory as configured, relative to the config file's directory.
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
@@ -177,6 +181,7 @@ impl Config {
             grpc: DEFAULT_GRPC
                 .parse()
                 .unwrap_or(SocketAddr::from(([127, 0, 0, 1], 50051))),
+            header_timeout: DEFAULT_HEADER_TIMEOUT,
             profiles: None,
             links: Vec::new(),
             devices: Vec::new(),

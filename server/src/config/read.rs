@@ -20,7 +20,7 @@ const TOP_KEYS: &[&str] = &[
     "transactions",
     "security",
 ];
-const LISTEN_KEYS: &[&str] = &["http", "grpc"];
+const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
@@ -60,6 +60,16 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
                     }
                 }
             }
+        }
+        if let Some(node) = listen.get("header_timeout")
+            && let Some(d) = duration_value(
+                node,
+                report,
+                "listen.header_timeout",
+                Duration::from_millis(10),
+            )
+        {
+            config.header_timeout = d;
         }
         listen.finish(report, "listen", LISTEN_KEYS);
     }
