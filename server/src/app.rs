@@ -104,6 +104,7 @@ impl Setup {
         };
         config::check_devices(&config, &catalog)?;
         config::check_security(&config)?;
+        crate::transaction::check_standing(&config)?;
         let map = crate::map::plan(&config, &catalog)?;
         Ok(Setup {
             config,

@@ -103,15 +103,6 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         .get("transactions")
         .map(|n| super::transactions::read(n, report))
         .unwrap_or_default();
-    for t in &config.transactions {
-        if !config.links.iter().any(|l| l.name == t.link) {
-            report.push(
-                t.line,
-                format!("transaction {}", t.name),
-                crate::transaction::params::MISSING_RS485,
-            );
-        }
-    }
     map.finish(report, "config", TOP_KEYS);
     super::check::check_ports(&config.links, report);
     Some(config)

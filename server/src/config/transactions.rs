@@ -5,8 +5,37 @@
 use std::time::Duration;
 
 use crate::duration;
-use crate::transaction::TransactionSpec;
 use crate::yaml::{Kind, Node, Report};
+use serde::Deserialize;
+
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TransactionSpec {
+    /// 1-4 read, 5, 6, 15, 16 write.
+    pub function: Option<i64>,
+    /// deviceAddress / network number, 1-255.
+    pub slave: Option<i64>,
+    /// registerAddress / data address, 0-65535.
+    pub address: Option<i64>,
+    /// FC01/02: bits to read, 1-32.
+    pub bit_count: Option<i64>,
+    /// FC03/04: SIGNED_NUMBER16, SIGNED_NUMBER32, UNSIGNED_NUMBER16, UNSIGNED_NUMBER32, FLOAT.
+    pub value_type: Option<String>,
+    /// Reads: 1-4294967295 (default 1); the value is divided by it, not rounded.
+    pub divisor: Option<i64>,
+    /// Reads: 0-3 digits kept after the point, truncating (default 3).
+    pub precision: Option<i64>,
+    /// LittleEndian, BigEndian, SwapBytes, SwapWords, Little-endian, Big-endian, Big-endian (2 bytes).
+    pub byte_order: Option<String>,
+    /// responseTimeout, 10-60000 ms (default 1000).
+    pub timeout_ms: Option<i64>,
+    /// Writes: uint8, int8, uint16, int16, int32, float.
+    #[serde(rename = "type")]
+    pub write_type: Option<String>,
+    /// Writes: the values (numbers; for coils, numbers or booleans).
+    #[schema(value_type = Vec<Object>)]
+    pub values: Option<Vec<serde_json::Value>>,
+}
 
 /// One standing transaction as configured (or declared at run time).
 #[derive(Debug, Clone, PartialEq)]
@@ -102,9 +131,6 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Vec<StandingConfig> {
                 continue;
             }
         };
-        if let Err(errors) = spec.check() {
-            report.push(item.line, &ctx, errors.join(" "));
-        }
         out.push(StandingConfig {
             name,
             link,

@@ -10,116 +10,11 @@
 //!   they reorder register bytes (BigEndian: first byte most significant; SwapBytes: the
 //!   bytes of each pair swapped; SwapWords: the pairs swapped), then keep `bitCount` bits.
 
-use crate::codec::ByteOrder;
-use crate::link::frame::{Function, Request, Response, pack_bits};
-
-use super::params::{
-    INVALID_ENDIANESS, INVALID_VALUES, INVALID_WRITE_TYPE, TransactionSpec, WriteType,
-};
-use super::params::{ReadPlan, ValueType};
-
-/// The write request of `spec` for function `f`, or its configuration messages.
-pub(super) fn write_request(
-    spec: &TransactionSpec,
-    f: Function,
-    address: Option<u16>,
-    order: Option<Option<ByteOrder>>,
-    errors: &mut Vec<String>,
-) -> Option<Request> {
-    let values = match &spec.values {
-        Some(v) if !v.is_empty() => Some(v.as_slice()),
-        _ => {
-            errors.push(INVALID_VALUES.to_owned());
-            None
-        }
-    };
-    if matches!(f, Function::WriteSingleCoil | Function::WriteMultipleCoils) {
-        let bits: Option<Vec<bool>> = values.map(|vs| {
-            vs.iter()
-                .map(|v| match v {
-                    serde_json::Value::Bool(b) => Some(*b),
-                    serde_json::Value::Number(n) => n.as_f64().map(|x| x != 0.0),
-                    _ => None,
-                })
-                .collect::<Option<Vec<bool>>>()
-        })?;
-        let Some(bits) = bits.filter(|b| f == Function::WriteMultipleCoils || b.len() == 1) else {
-            errors.push(INVALID_VALUES.to_owned());
-            return None;
-        };
-        if bits.len() > 1968 {
-            errors.push(INVALID_VALUES.to_owned());
-            return None;
-        }
-        let address = address?;
-        return Some(if f == Function::WriteSingleCoil {
-            Request::WriteSingleCoil {
-                address,
-                value: bits[0],
-            }
-        } else {
-            Request::WriteMultipleCoils {
-                address,
-                values: bits,
-            }
-        });
-    }
-    let ty = match spec.write_type.as_deref().map(WriteType::parse) {
-        Some(Some(t)) => Some(t),
-        _ => {
-            errors.push(INVALID_WRITE_TYPE.to_owned());
-            None
-        }
-    };
-    let order = match order {
-        Some(Some(o)) => Some(o),
-        // One byte needs no order; anything else does.
-        None if ty.is_some_and(|t| matches!(t, WriteType::Uint8 | WriteType::Int8)) => {
-            Some(ByteOrder::BigEndian)
-        }
-        _ => {
-            errors.push(INVALID_ENDIANESS.to_owned());
-            None
-        }
-    };
-    let (ty, order, values) = (ty?, order?, values?);
-    let mut bytes = Vec::with_capacity(values.len() * ty.bytes());
-    for v in values {
-        let Some(b) = value_bytes(ty, v) else {
-            errors.push(format!("{INVALID_VALUES} `{v}` does not fit {ty:?}"));
-            return None;
-        };
-        let mut b = b;
-        order.reorder(&mut b);
-        bytes.extend_from_slice(&b);
-    }
-    let registers: Vec<u16> = bytes
-        .chunks_exact(2)
-        .map(|p| u16::from_be_bytes([p[0], p[1]]))
-        .collect();
-    let address = address?;
-    match f {
-        Function::WriteSingleRegister if registers.len() == 1 => {
-            Some(Request::WriteSingleRegister {
-                address,
-                value: registers[0],
-            })
-        }
-        Function::WriteMultipleRegisters if (1..=123).contains(&registers.len()) => {
-            Some(Request::WriteMultipleRegisters {
-                address,
-                values: registers,
-            })
-        }
-        _ => {
-            errors.push(super::params::INVALID_FUNCTION.to_owned());
-            None
-        }
-    }
-}
+use super::spec::{ReadPlan, ValueType, WriteType};
+use crate::link::frame::{Response, pack_bits};
 
 /// One value's bytes, most significant first, before the byte order.
-fn value_bytes(ty: WriteType, v: &serde_json::Value) -> Option<Vec<u8>> {
+pub(super) fn value_bytes(ty: WriteType, v: &serde_json::Value) -> Option<Vec<u8>> {
     let n = v.as_number()?;
     let int = || -> Option<i64> {
         n.as_i64()
@@ -216,6 +111,8 @@ pub fn truncate(x: f64, digits: u8) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::codec::ByteOrder;
+    use crate::link::frame::Function;
 
     fn read(bits: Option<u8>, ty: Option<ValueType>, divisor: u32, precision: u8) -> ReadPlan {
         ReadPlan {
@@ -273,7 +170,7 @@ mod tests {
             b
         };
         fn parse(o: &str) -> ByteOrder {
-            super::super::params::parse_byte_order(o).expect(o)
+            super::super::spec::parse_byte_order(o).expect(o)
         }
         assert_eq!(lay("Little-endian"), [4, 3, 2, 1]);
         assert_eq!(lay("Big-endian"), [1, 2, 3, 4]);

@@ -5,6 +5,7 @@
 
 pub mod codec;
 pub mod params;
+pub mod spec;
 pub mod st;
 
 use crate::link::TxError;
@@ -66,6 +67,27 @@ pub fn hex(bytes: &[u8]) -> String {
         .map(|b| format!("{b:02X}"))
         .collect::<Vec<_>>()
         .join(" ")
+}
+
+/// Checks the config's standing transactions: their parameters, and that their links exist.
+pub fn check_standing(config: &crate::config::Config) -> Result<(), crate::yaml::Problems> {
+    let mut report = crate::yaml::Report::new(&config.source);
+    for t in &config.transactions {
+        let ctx = format!("transaction {}", t.name);
+        let mut errors = t.spec.check().err().unwrap_or_default();
+        if !config.links.iter().any(|l| l.name == t.link) {
+            errors.push(params::MISSING_RS485.to_owned());
+        }
+        if !errors.is_empty() {
+            report.push(t.line, &ctx, errors.join(" "));
+        }
+    }
+    let problems = report.into_problems();
+    if problems.is_empty() {
+        Ok(())
+    } else {
+        Err(problems)
+    }
 }
 
 #[cfg(test)]

@@ -1,200 +1,14 @@
 //! A raw transaction's parameters as a client gives them, checked with the configuration
 //! messages of the Modbus read block (source document 004), word for word, every one that
-//! applies at once; and the write block's (source document 002) types and byte orders.
+//! applies at once; write values packed per the write block (source document 002).
 
 use std::time::Duration;
 
-use serde::Deserialize;
-
+use super::codec::value_bytes;
+pub use super::spec::*;
 use crate::codec::ByteOrder;
+pub use crate::config::transactions::TransactionSpec;
 use crate::link::frame::{Function, Request};
-
-/// The value types of the read block.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ValueType {
-    Signed16,
-    Signed32,
-    Unsigned16,
-    Unsigned32,
-    Float,
-}
-
-impl ValueType {
-    pub fn parse(name: &str) -> Option<ValueType> {
-        Some(match name {
-            "SIGNED_NUMBER16" => ValueType::Signed16,
-            "SIGNED_NUMBER32" => ValueType::Signed32,
-            "UNSIGNED_NUMBER16" => ValueType::Unsigned16,
-            "UNSIGNED_NUMBER32" => ValueType::Unsigned32,
-            "FLOAT" => ValueType::Float,
-            _ => return None,
-        })
-    }
-
-    pub fn registers(self) -> u16 {
-        match self {
-            ValueType::Signed16 | ValueType::Unsigned16 => 1,
-            _ => 2,
-        }
-    }
-}
-
-/// The write block's types.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WriteType {
-    Uint8,
-    Int8,
-    Uint16,
-    Int16,
-    Int32,
-    Float,
-}
-
-impl WriteType {
-    pub fn parse(name: &str) -> Option<WriteType> {
-        Some(match name {
-            "uint8" => WriteType::Uint8,
-            "int8" => WriteType::Int8,
-            "uint16" => WriteType::Uint16,
-            "int16" => WriteType::Int16,
-            "int32" => WriteType::Int32,
-            "float" | "int32/float" => WriteType::Float,
-            _ => return None,
-        })
-    }
-
-    /// Bytes of one value; uint8 and int8 still take a register each (documented).
-    pub fn bytes(self) -> usize {
-        match self {
-            WriteType::Uint8 | WriteType::Int8 | WriteType::Uint16 | WriteType::Int16 => 2,
-            WriteType::Int32 | WriteType::Float => 4,
-        }
-    }
-}
-
-/// Byte orders by the names of both blocks: `LittleEndian`, `BigEndian`, `SwapBytes`,
-/// `SwapWords` (read block) and `Little-endian`, `Big-endian`, `Big-endian (2 bytes)`
-/// (write block: the last swaps the bytes of each register).
-pub fn parse_byte_order(name: &str) -> Option<ByteOrder> {
-    Some(match name {
-        "BigEndian" | "Big-endian" => ByteOrder::BigEndian,
-        "LittleEndian" | "Little-endian" => ByteOrder::LittleEndian,
-        "SwapBytes" | "Big-endian (2 bytes)" => ByteOrder::SwapBytes,
-        "SwapWords" => ByteOrder::SwapWords,
-        _ => return None,
-    })
-}
-
-/// A transaction as JSON (and gRPC) give it: the keys of the interface.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct TransactionSpec {
-    /// 1-4 read, 5, 6, 15, 16 write.
-    pub function: Option<i64>,
-    /// deviceAddress / network number, 1-255.
-    pub slave: Option<i64>,
-    /// registerAddress / data address, 0-65535.
-    pub address: Option<i64>,
-    /// FC01/02: bits to read, 1-32.
-    pub bit_count: Option<i64>,
-    /// FC03/04: SIGNED_NUMBER16, SIGNED_NUMBER32, UNSIGNED_NUMBER16, UNSIGNED_NUMBER32, FLOAT.
-    pub value_type: Option<String>,
-    /// Reads: 1-4294967295 (default 1); the value is divided by it, not rounded.
-    pub divisor: Option<i64>,
-    /// Reads: 0-3 digits kept after the point, truncating (default 3).
-    pub precision: Option<i64>,
-    /// LittleEndian, BigEndian, SwapBytes, SwapWords, Little-endian, Big-endian, Big-endian (2 bytes).
-    pub byte_order: Option<String>,
-    /// responseTimeout, 10-60000 ms (default 1000).
-    pub timeout_ms: Option<i64>,
-    /// Writes: uint8, int8, uint16, int16, int32, float.
-    #[serde(rename = "type")]
-    pub write_type: Option<String>,
-    /// Writes: the values (numbers; for coils, numbers or booleans).
-    #[schema(value_type = Vec<Object>)]
-    pub values: Option<Vec<serde_json::Value>>,
-}
-
-/// A checked read.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ReadPlan {
-    pub function: Function,
-    pub slave: u8,
-    pub address: u16,
-    /// FC01/02.
-    pub bits: Option<u8>,
-    /// FC03/04.
-    pub value_type: Option<ValueType>,
-    pub divisor: u32,
-    pub precision: u8,
-    pub order: ByteOrder,
-}
-
-/// A checked write: the request as it goes on the wire.
-#[derive(Debug, Clone, PartialEq)]
-pub struct WritePlan {
-    pub slave: u8,
-    pub request: Request,
-}
-
-#[derive(Debug, Clone, PartialEq)]
-pub enum Plan {
-    Read(ReadPlan),
-    Write(WritePlan),
-}
-
-/// A checked transaction.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Checked {
-    pub plan: Plan,
-    pub timeout: Duration,
-}
-
-impl Checked {
-    pub fn slave(&self) -> u8 {
-        match &self.plan {
-            Plan::Read(r) => r.slave,
-            Plan::Write(w) => w.slave,
-        }
-    }
-
-    pub fn request(&self) -> Request {
-        match &self.plan {
-            Plan::Read(r) => {
-                let count = r
-                    .bits
-                    .map(u16::from)
-                    .or(r.value_type.map(ValueType::registers))
-                    .unwrap_or(1);
-                let address = r.address;
-                match r.function {
-                    Function::ReadCoils => Request::ReadCoils { address, count },
-                    Function::ReadDiscreteInputs => Request::ReadDiscreteInputs { address, count },
-                    Function::ReadHoldingRegisters => {
-                        Request::ReadHoldingRegisters { address, count }
-                    }
-                    _ => Request::ReadInputRegisters { address, count },
-                }
-            }
-            Plan::Write(w) => w.request.clone(),
-        }
-    }
-}
-
-pub const INVALID_FUNCTION: &str = "Invalid function code configuration.";
-pub const INVALID_DEVICE: &str = "Invalid device address configuration.";
-pub const INVALID_REGISTER: &str = "Invalid register address configuration.";
-pub const INVALID_BIT_COUNT: &str = "Invalid bit count configuration.";
-pub const INVALID_VALUE_TYPE: &str = "Invalid value type configuration.";
-pub const INVALID_DIVISOR: &str = "Invalid divisor configuration.";
-pub const INVALID_PRECISION: &str = "Invalid precision configuration.";
-pub const INVALID_ENDIANESS: &str = "Invalid endianess configuration.";
-pub const INVALID_REFRESH: &str = "Invalid refresh interval configuration.";
-pub const INVALID_TIMEOUT: &str = "Invalid response timeout configuration.";
-pub const MISSING_RS485: &str = "Missing RS485 configuration.";
-pub const INVALID_INPUT_EDGE: &str = "Invalid input edge configuration.";
-pub const INVALID_WRITE_TYPE: &str = "Invalid type configuration.";
-pub const INVALID_VALUES: &str = "Invalid values configuration.";
 
 const DEFAULT_TIMEOUT_MS: i64 = 1000;
 
@@ -302,14 +116,12 @@ impl TransactionSpec {
                         }))
                     })
             }
-            Some(f) => super::codec::write_request(self, f, address, order, &mut errors).and_then(
-                |request| {
-                    Some(Plan::Write(WritePlan {
-                        slave: slave?,
-                        request,
-                    }))
-                },
-            ),
+            Some(f) => write_request(self, f, address, order, &mut errors).and_then(|request| {
+                Some(Plan::Write(WritePlan {
+                    slave: slave?,
+                    request,
+                }))
+            }),
             None => None,
         };
         match (plan, timeout) {
@@ -335,5 +147,105 @@ impl TransactionSpec {
             }
         };
         Some((divisor?, precision?))
+    }
+}
+
+/// The write request of `spec` for function `f`, or its configuration messages.
+fn write_request(
+    spec: &TransactionSpec,
+    f: Function,
+    address: Option<u16>,
+    order: Option<Option<ByteOrder>>,
+    errors: &mut Vec<String>,
+) -> Option<Request> {
+    let values = match &spec.values {
+        Some(v) if !v.is_empty() => Some(v.as_slice()),
+        _ => {
+            errors.push(INVALID_VALUES.to_owned());
+            None
+        }
+    };
+    if matches!(f, Function::WriteSingleCoil | Function::WriteMultipleCoils) {
+        let bits: Option<Vec<bool>> = values.map(|vs| {
+            vs.iter()
+                .map(|v| match v {
+                    serde_json::Value::Bool(b) => Some(*b),
+                    serde_json::Value::Number(n) => n.as_f64().map(|x| x != 0.0),
+                    _ => None,
+                })
+                .collect::<Option<Vec<bool>>>()
+        })?;
+        let Some(bits) = bits.filter(|b| f == Function::WriteMultipleCoils || b.len() == 1) else {
+            errors.push(INVALID_VALUES.to_owned());
+            return None;
+        };
+        if bits.len() > 1968 {
+            errors.push(INVALID_VALUES.to_owned());
+            return None;
+        }
+        let address = address?;
+        return Some(if f == Function::WriteSingleCoil {
+            Request::WriteSingleCoil {
+                address,
+                value: bits[0],
+            }
+        } else {
+            Request::WriteMultipleCoils {
+                address,
+                values: bits,
+            }
+        });
+    }
+    let ty = match spec.write_type.as_deref().map(WriteType::parse) {
+        Some(Some(t)) => Some(t),
+        _ => {
+            errors.push(INVALID_WRITE_TYPE.to_owned());
+            None
+        }
+    };
+    let order = match order {
+        Some(Some(o)) => Some(o),
+        // One byte needs no order; anything else does.
+        None if ty.is_some_and(|t| matches!(t, WriteType::Uint8 | WriteType::Int8)) => {
+            Some(ByteOrder::BigEndian)
+        }
+        _ => {
+            errors.push(INVALID_ENDIANESS.to_owned());
+            None
+        }
+    };
+    let (ty, order, values) = (ty?, order?, values?);
+    let mut bytes = Vec::with_capacity(values.len() * ty.bytes());
+    for v in values {
+        let Some(b) = value_bytes(ty, v) else {
+            errors.push(format!("{INVALID_VALUES} `{v}` does not fit {ty:?}"));
+            return None;
+        };
+        let mut b = b;
+        order.reorder(&mut b);
+        bytes.extend_from_slice(&b);
+    }
+    let registers: Vec<u16> = bytes
+        .chunks_exact(2)
+        .map(|p| u16::from_be_bytes([p[0], p[1]]))
+        .collect();
+    let address = address?;
+    match f {
+        Function::WriteSingleRegister if registers.len() == 1 => {
+            Some(Request::WriteSingleRegister {
+                address,
+                value: registers[0],
+            })
+        }
+        Function::WriteMultipleRegisters if (1..=123).contains(&registers.len()) => {
+            Some(Request::WriteMultipleRegisters {
+                address,
+                values: registers,
+            })
+        }
+        _ => {
+            errors.push(INVALID_FUNCTION.to_owned());
+            None
+        }
     }
 }

@@ -1,0 +1,164 @@
+//! The shapes of a checked raw transaction (the read plan, the write request), the value
+//! types and byte orders of the read and write blocks, and the read block's configuration
+//! messages (source documents 004 and 002).
+
+use std::time::Duration;
+
+use crate::codec::ByteOrder;
+use crate::link::frame::{Function, Request};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ValueType {
+    Signed16,
+    Signed32,
+    Unsigned16,
+    Unsigned32,
+    Float,
+}
+
+impl ValueType {
+    pub fn parse(name: &str) -> Option<ValueType> {
+        Some(match name {
+            "SIGNED_NUMBER16" => ValueType::Signed16,
+            "SIGNED_NUMBER32" => ValueType::Signed32,
+            "UNSIGNED_NUMBER16" => ValueType::Unsigned16,
+            "UNSIGNED_NUMBER32" => ValueType::Unsigned32,
+            "FLOAT" => ValueType::Float,
+            _ => return None,
+        })
+    }
+
+    pub fn registers(self) -> u16 {
+        match self {
+            ValueType::Signed16 | ValueType::Unsigned16 => 1,
+            _ => 2,
+        }
+    }
+}
+
+/// The write block's types.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WriteType {
+    Uint8,
+    Int8,
+    Uint16,
+    Int16,
+    Int32,
+    Float,
+}
+
+impl WriteType {
+    pub fn parse(name: &str) -> Option<WriteType> {
+        Some(match name {
+            "uint8" => WriteType::Uint8,
+            "int8" => WriteType::Int8,
+            "uint16" => WriteType::Uint16,
+            "int16" => WriteType::Int16,
+            "int32" => WriteType::Int32,
+            "float" | "int32/float" => WriteType::Float,
+            _ => return None,
+        })
+    }
+
+    /// Bytes of one value; uint8 and int8 still take a register each (documented).
+    pub fn bytes(self) -> usize {
+        match self {
+            WriteType::Uint8 | WriteType::Int8 | WriteType::Uint16 | WriteType::Int16 => 2,
+            WriteType::Int32 | WriteType::Float => 4,
+        }
+    }
+}
+
+/// Byte orders by the names of both blocks: `LittleEndian`, `BigEndian`, `SwapBytes`,
+/// `SwapWords` (read block) and `Little-endian`, `Big-endian`, `Big-endian (2 bytes)`
+/// (write block: the last swaps the bytes of each register).
+pub fn parse_byte_order(name: &str) -> Option<ByteOrder> {
+    Some(match name {
+        "BigEndian" | "Big-endian" => ByteOrder::BigEndian,
+        "LittleEndian" | "Little-endian" => ByteOrder::LittleEndian,
+        "SwapBytes" | "Big-endian (2 bytes)" => ByteOrder::SwapBytes,
+        "SwapWords" => ByteOrder::SwapWords,
+        _ => return None,
+    })
+}
+
+/// A transaction as JSON (and gRPC) give it: the keys of the interface.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadPlan {
+    pub function: Function,
+    pub slave: u8,
+    pub address: u16,
+    /// FC01/02.
+    pub bits: Option<u8>,
+    /// FC03/04.
+    pub value_type: Option<ValueType>,
+    pub divisor: u32,
+    pub precision: u8,
+    pub order: ByteOrder,
+}
+
+/// A checked write: the request as it goes on the wire.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WritePlan {
+    pub slave: u8,
+    pub request: Request,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Plan {
+    Read(ReadPlan),
+    Write(WritePlan),
+}
+
+/// A checked transaction.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checked {
+    pub plan: Plan,
+    pub timeout: Duration,
+}
+
+impl Checked {
+    pub fn slave(&self) -> u8 {
+        match &self.plan {
+            Plan::Read(r) => r.slave,
+            Plan::Write(w) => w.slave,
+        }
+    }
+
+    pub fn request(&self) -> Request {
+        match &self.plan {
+            Plan::Read(r) => {
+                let count = r
+                    .bits
+                    .map(u16::from)
+                    .or(r.value_type.map(ValueType::registers))
+                    .unwrap_or(1);
+                let address = r.address;
+                match r.function {
+                    Function::ReadCoils => Request::ReadCoils { address, count },
+                    Function::ReadDiscreteInputs => Request::ReadDiscreteInputs { address, count },
+                    Function::ReadHoldingRegisters => {
+                        Request::ReadHoldingRegisters { address, count }
+                    }
+                    _ => Request::ReadInputRegisters { address, count },
+                }
+            }
+            Plan::Write(w) => w.request.clone(),
+        }
+    }
+}
+
+pub const INVALID_FUNCTION: &str = "Invalid function code configuration.";
+pub const INVALID_DEVICE: &str = "Invalid device address configuration.";
+pub const INVALID_REGISTER: &str = "Invalid register address configuration.";
+pub const INVALID_BIT_COUNT: &str = "Invalid bit count configuration.";
+pub const INVALID_VALUE_TYPE: &str = "Invalid value type configuration.";
+pub const INVALID_DIVISOR: &str = "Invalid divisor configuration.";
+pub const INVALID_PRECISION: &str = "Invalid precision configuration.";
+pub const INVALID_ENDIANESS: &str = "Invalid endianess configuration.";
+pub const INVALID_REFRESH: &str = "Invalid refresh interval configuration.";
+pub const INVALID_TIMEOUT: &str = "Invalid response timeout configuration.";
+pub const MISSING_RS485: &str = "Missing RS485 configuration.";
+pub const INVALID_INPUT_EDGE: &str = "Invalid input edge configuration.";
+pub const INVALID_WRITE_TYPE: &str = "Invalid type configuration.";
+pub const INVALID_VALUES: &str = "Invalid values configuration.";
