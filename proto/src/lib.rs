@@ -1,6 +1,8 @@
 //! iogate's gRPC API, package `iogate.v1`: messages and tonic client and server stubs.
 #![forbid(unsafe_code)]
 
+pub mod codec;
+
 /// The generated code of `iogate/v1/gateway.proto`.
 pub mod pb {
     #![allow(clippy::all, missing_docs)]

@@ -516,3 +516,95 @@ async fn profiles_describe_their_layout_and_st_declaration() {
     );
     gw.shutdown().await;
 }
+
+/// Sends bytes as they are and answers the bytes received: a client that is not well behaved.
+#[derive(Clone, Copy, Default)]
+struct RawCodec;
+
+impl tonic::codec::Codec for RawCodec {
+    type Encode = Vec<u8>;
+    type Decode = Vec<u8>;
+    type Encoder = RawCodec;
+    type Decoder = RawCodec;
+
+    fn encoder(&mut self) -> RawCodec {
+        RawCodec
+    }
+
+    fn decoder(&mut self) -> RawCodec {
+        RawCodec
+    }
+}
+
+impl tonic::codec::Encoder for RawCodec {
+    type Item = Vec<u8>;
+    type Error = tonic::Status;
+
+    fn encode(
+        &mut self,
+        item: Vec<u8>,
+        dst: &mut tonic::codec::EncodeBuf<'_>,
+    ) -> Result<(), tonic::Status> {
+        bytes::BufMut::put_slice(dst, &item);
+        Ok(())
+    }
+}
+
+impl tonic::codec::Decoder for RawCodec {
+    type Item = Vec<u8>;
+    type Error = tonic::Status;
+
+    fn decode(
+        &mut self,
+        src: &mut tonic::codec::DecodeBuf<'_>,
+    ) -> Result<Option<Vec<u8>>, tonic::Status> {
+        let mut bytes = vec![0; bytes::Buf::remaining(src)];
+        bytes::Buf::copy_to_slice(src, &mut bytes);
+        Ok(Some(bytes))
+    }
+}
+
+#[tokio::test]
+async fn malformed_messages_are_invalid_arguments() {
+    let (gw, _client) = demo().await;
+    let channel = tonic::transport::Channel::from_shared(gw.grpc.clone())
+        .expect("uri")
+        .connect()
+        .await
+        .expect("connect");
+    let mut grpc = tonic::client::Grpc::new(channel);
+    // GetWriteRequest.generation is a varint: a string in its place, a truncated varint, a
+    // length running past the end.
+    for garbage in [
+        vec![0x0A, 0x03, b'a', b'b', b'c'],
+        vec![0x08, 0xFF, 0xFF],
+        vec![0x12, 0x7F, 0x00],
+    ] {
+        grpc.ready().await.expect("ready");
+        let path =
+            tonic::codegen::http::uri::PathAndQuery::from_static("/iogate.v1.Gateway/GetWrite");
+        let status = grpc
+            .unary(tonic::Request::new(garbage.clone()), path, RawCodec)
+            .await
+            .expect_err("garbage refused");
+        assert_eq!(
+            status.code(),
+            Code::InvalidArgument,
+            "{garbage:02X?}: {status:?}"
+        );
+        assert!(status.message().contains("malformed"), "{status:?}");
+    }
+    // A well-formed message still gets its answer: generation 999999 is unknown.
+    grpc.ready().await.expect("ready");
+    let path = tonic::codegen::http::uri::PathAndQuery::from_static("/iogate.v1.Gateway/GetWrite");
+    let status = grpc
+        .unary(
+            tonic::Request::new(vec![0x08, 0xBF, 0x84, 0x3D]),
+            path,
+            RawCodec,
+        )
+        .await
+        .expect_err("unknown generation");
+    assert_eq!(status.code(), Code::NotFound, "{status:?}");
+    gw.shutdown().await;
+}
