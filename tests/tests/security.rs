@@ -20,7 +20,7 @@ async fn gateway(extra: &str) -> TestGateway {
     )
     .expect("tokens");
     TestGateway::start(&format!(
-        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 20ms }}\nsecurity:\n  tokens_file: {}\n{extra}",
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 20ms }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  map:\n    - {{ at: \"%QX0.0\", field: sim.DO_0 }}\nsecurity:\n  tokens_file: {}\n{extra}",
         tokens.display()
     ))
     .await
@@ -230,6 +230,28 @@ async fn read_only_refuses_every_write_everywhere() {
             .0,
         200
     );
+    // The Modbus server: writes to the map (coil 0) and to the memory (coil 800) are
+    // exception 01; reads still answer.
+    use tokio_modbus::prelude::*;
+    let mut master =
+        tokio_modbus::client::tcp::connect_slave(gw.modbus.expect("modbus server"), Slave(1))
+            .await
+            .expect("connect");
+    for coil in [0, 800] {
+        assert_eq!(
+            master.write_single_coil(coil, true).await.expect("answer"),
+            Err(tokio_modbus::ExceptionCode::IllegalFunction),
+            "coil {coil}"
+        );
+    }
+    assert_eq!(
+        master
+            .write_multiple_registers(0, &[1, 2])
+            .await
+            .expect("answer"),
+        Err(tokio_modbus::ExceptionCode::IllegalFunction)
+    );
+    assert!(master.read_coils(0, 1).await.expect("answer").is_ok());
     gw.shutdown().await;
 }
 

@@ -72,6 +72,19 @@ pub enum Request {
     WriteMultipleRegisters { address: u16, values: Vec<u16> },
 }
 
+impl Request {
+    /// Whether the request changes the device (functions 05, 06, 15, 16).
+    pub fn is_write(&self) -> bool {
+        matches!(
+            self,
+            Request::WriteSingleCoil { .. }
+                | Request::WriteSingleRegister { .. }
+                | Request::WriteMultipleCoils { .. }
+                | Request::WriteMultipleRegisters { .. }
+        )
+    }
+}
+
 /// The data of a good response.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Response {

@@ -243,8 +243,12 @@ impl Service {
         Route::Forward(link, timeout)
     }
 
-    /// Answers one request for `unit`.
+    /// Answers one request for `unit`. A read-only gateway answers every write function with exception 01, whether it would
+    /// land in the map, the memory or a forwarded device.
     pub async fn modbus_request(&self, unit: u8, request: &Request) -> Result<Response, Exception> {
+        if request.is_write() && self.read_only {
+            return Err(Exception::ILLEGAL_FUNCTION);
+        }
         match self.modbus_route(unit) {
             Route::Local => self.modbus_local(request),
             Route::Unknown => Err(Exception::GATEWAY_PATH_UNAVAILABLE),
