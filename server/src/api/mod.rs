@@ -236,6 +236,11 @@ pub async fn serve_grpc(
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let tokens = service.tokens.clone();
     tonic::transport::Server::builder()
+        // A peer that stops answering HTTP/2 pings is dropped; one connection cannot open
+        // more than 256 calls at once.
+        .http2_keepalive_interval(Some(std::time::Duration::from_secs(30)))
+        .http2_keepalive_timeout(Some(std::time::Duration::from_secs(10)))
+        .max_concurrent_streams(Some(256))
         .layer(tower::layer::layer_fn(move |inner| GrpcAuth {
             inner,
             tokens: tokens.clone(),
