@@ -8,6 +8,7 @@ pub mod error;
 pub mod events;
 pub mod grpc;
 pub mod http;
+pub mod limit;
 pub mod map;
 pub mod modbus;
 pub mod pb;
@@ -233,7 +234,7 @@ pub async fn serve_grpc(
         .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let incoming = limit::incoming(listener, http::MAX_CONNECTIONS);
     let tokens = service.tokens.clone();
     tonic::transport::Server::builder()
         // A peer that stops answering HTTP/2 pings is dropped; one connection cannot open

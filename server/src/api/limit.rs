@@ -1,0 +1,127 @@
+//! The gRPC listener's connections, within the same limit as the HTTP listener's: at most
+//! [`MAX_CONNECTIONS`](super::http::MAX_CONNECTIONS) at once (more are closed as soon as
+//! they are accepted), TCP_NODELAY set, accept errors (out of file descriptors) waited out.
+
+use std::io;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use futures_util::Stream;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tonic::transport::server::{Connected, TcpConnectInfo};
+
+/// An accepted connection holding one of the listener's slots until it closes.
+pub struct Limited {
+    stream: TcpStream,
+    _slot: OwnedSemaphorePermit,
+}
+
+/// The connections accepted on `listener`, at most `max` open at once.
+pub fn incoming(
+    listener: TcpListener,
+    max: usize,
+) -> impl Stream<Item = io::Result<Limited>> + Send + 'static {
+    let slots = Arc::new(Semaphore::new(max));
+    futures_util::stream::unfold((listener, slots), |(listener, slots)| async move {
+        loop {
+            let (stream, peer) = match listener.accept().await {
+                Ok(a) => a,
+                Err(e) => {
+                    tracing::warn!(error = %e, "cannot accept a gRPC connection");
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    continue;
+                }
+            };
+            let Ok(slot) = slots.clone().try_acquire_owned() else {
+                tracing::debug!(%peer, "gRPC connection refused: too many connections");
+                continue;
+            };
+            let _ = stream.set_nodelay(true);
+            let limited = Limited {
+                stream,
+                _slot: slot,
+            };
+            return Some((Ok(limited), (listener, slots)));
+        }
+    })
+}
+
+impl Connected for Limited {
+    type ConnectInfo = TcpConnectInfo;
+
+    fn connect_info(&self) -> TcpConnectInfo {
+        self.stream.connect_info()
+    }
+}
+
+impl AsyncRead for Limited {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_read(cx, buf)
+    }
+}
+
+impl AsyncWrite for Limited {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write(cx, buf)
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use futures_util::StreamExt;
+    use tokio::io::AsyncReadExt;
+
+    use super::*;
+
+    #[tokio::test]
+    async fn connections_beyond_the_limit_are_closed_until_a_slot_frees() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let mut accepted = Box::pin(incoming(listener, 2));
+        let _a = TcpStream::connect(addr).await.expect("a");
+        let _b = TcpStream::connect(addr).await.expect("b");
+        let first = accepted.next().await.expect("first").expect("ok");
+        let _second = accepted.next().await.expect("second").expect("ok");
+        // Both slots held: the third is accepted and closed while the stream waits on.
+        let mut c = TcpStream::connect(addr).await.expect("c");
+        let next = tokio::spawn(async move { accepted.next().await.is_some_and(|r| r.is_ok()) });
+        let mut byte = [0u8; 1];
+        assert_eq!(c.read(&mut byte).await.expect("closed, not reset"), 0);
+        // A slot freed: the next connection is served.
+        drop(first);
+        let _d = TcpStream::connect(addr).await.expect("d");
+        assert!(next.await.expect("task"), "d accepted");
+    }
+}
