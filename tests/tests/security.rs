@@ -279,7 +279,7 @@ fn without_tokens_the_listeners_stay_on_loopback_unless_insecure() {
 }
 
 #[tokio::test]
-async fn a_client_that_sends_its_headers_too_slowly_is_dropped() {
+async fn a_client_slow_with_its_headers_or_idle_between_requests_is_dropped() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let gw = TestGateway::start("listen: { header_timeout: 300ms }\n")
         .await
@@ -305,5 +305,33 @@ async fn a_client_that_sends_its_headers_too_slowly_is_dropped() {
     assert!(started.elapsed() < std::time::Duration::from_secs(4));
     // Others are served meanwhile.
     assert_eq!(gw.get("/livez").await.expect("livez").0, 200);
+
+    // A kept-alive connection that sends nothing after its answer is closed the same way.
+    let mut idle = tokio::net::TcpStream::connect(&addr)
+        .await
+        .expect("connect");
+    idle.write_all(b"GET /livez HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .expect("request");
+    let mut answer = Vec::new();
+    while !answer.ends_with(b"ok") && !answer.windows(4).any(|w| w == b"\r\n\r\n") {
+        let n = idle.read(&mut buf).await.expect("answer");
+        assert!(n > 0, "closed before answering");
+        answer.extend_from_slice(&buf[..n]);
+    }
+    assert!(answer.starts_with(b"HTTP/1.1 200"), "{answer:?}");
+    let started = std::time::Instant::now();
+    let mut rest = Vec::new();
+    let closed = tokio::time::timeout(std::time::Duration::from_secs(5), async {
+        loop {
+            match idle.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => rest.extend_from_slice(&buf[..n]),
+            }
+        }
+    })
+    .await;
+    assert!(closed.is_ok(), "an idle connection is closed by the server");
+    assert!(started.elapsed() >= std::time::Duration::from_millis(250));
     gw.shutdown().await;
 }
