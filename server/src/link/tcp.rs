@@ -180,4 +180,54 @@ mod tests {
             Err(TxError::Io(_))
         ));
     }
+
+    /// Sends `read1` and lets the device answer `answer` (its transaction id patched in when
+    /// `keep_id` and the answer is long enough).
+    fn transact_against(answer: Vec<u8>, keep_id: bool) -> Result<Response, TxError> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+            .expect("runtime");
+        runtime.block_on(async {
+            let (gateway, mut device) = tokio::io::duplex(4096);
+            let mut t = MbapTransport::new(Box::new(gateway));
+            tokio::spawn(async move {
+                let mut buf = [0u8; 12];
+                if device.read_exact(&mut buf).await.is_ok() {
+                    let mut answer = answer;
+                    if keep_id && answer.len() >= 2 {
+                        answer[..2].copy_from_slice(&buf[..2]);
+                    }
+                    let _ = device.write_all(&answer).await;
+                }
+                tokio::time::sleep(Duration::from_secs(60)).await;
+            });
+            t.transact(7, &read1(), TIMEOUT).await
+        })
+    }
+
+    proptest::proptest! {
+        // A long run: `PROPTEST_CASES=1000000 cargo test --release -p iogate --lib mbap`.
+        #[test]
+        fn any_mbap_answer_is_a_value_or_an_error_never_a_panic(
+            answer in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..300),
+            keep_id in proptest::prelude::any::<bool>(),
+        ) {
+            let _ = transact_against(answer, keep_id);
+        }
+
+        #[test]
+        fn a_good_mbap_answer_with_a_header_byte_changed_is_never_accepted(
+            // Protocol id, length, unit, function, byte count (MBAP has no checksum: the
+            // data bytes themselves cannot be checked).
+            at in 2usize..9,
+            flip in 1u8..=255,
+        ) {
+            let mut bad = answer(0, 7, 42);
+            bad[at] ^= flip;
+            let answer = transact_against(bad, true);
+            proptest::prop_assert!(answer.is_err(), "byte {}: {:?}", at, answer);
+        }
+    }
 }
