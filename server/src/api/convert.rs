@@ -470,4 +470,34 @@ mod tests {
         assert_eq!(err, "REAL needs a number, got a string");
         assert!(json_to_value(IecType::String, &json!(null)).is_err());
     }
+
+    fn any_json() -> impl proptest::strategy::Strategy<Value = Json> {
+        use proptest::prelude::*;
+        prop_oneof![
+            any::<bool>().prop_map(Json::Bool),
+            any::<i64>().prop_map(|i| json!(i)),
+            any::<u64>().prop_map(|u| json!(u)),
+            any::<f64>().prop_map(|f| json!(f)),
+            (-1000i64..1000).prop_map(|i| json!(i as f64 / 8.0)),
+            "\\PC{0,40}".prop_map(Json::String),
+            "T#[0-9]{1,6}(ms|s|m|h)".prop_map(Json::String),
+            Just(Json::Null),
+            proptest::collection::vec(any::<i32>(), 0..3).prop_map(|v| json!(v)),
+        ]
+    }
+
+    proptest::proptest! {
+        // A long run: `PROPTEST_CASES=1000000 cargo test --release -p iogate --lib json_`.
+        #[test]
+        fn json_values_convert_or_are_refused_and_round_trip(
+            which in 0..IecType::ALL.len(),
+            json in any_json(),
+        ) {
+            let ty = IecType::ALL[which];
+            if let Ok(value) = json_to_value(ty, &json) {
+                let back = value_to_json(&value);
+                proptest::prop_assert_eq!(json_to_value(ty, &back), Ok(value));
+            }
+        }
+    }
 }

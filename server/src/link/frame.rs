@@ -613,5 +613,21 @@ mod tests {
             };
             let _ = request.parse_response(&bytes);
         }
+
+        // The Modbus server's request parser. A long run:
+        // `PROPTEST_CASES=1000000 cargo test --release -p iogate --lib request_pdus`.
+        #[test]
+        fn request_pdus_parse_or_are_refused_and_round_trip(
+            code in proptest::sample::select(vec![1u8, 2, 3, 4, 5, 6, 15, 16, 0, 7, 0x2B, 0x80, 0xFF]),
+            body in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..260),
+        ) {
+            let mut pdu = vec![code];
+            pdu.extend_from_slice(&body);
+            if let Ok(request) = Request::parse(&pdu) {
+                let mut again = Vec::new();
+                request.encode(&mut again);
+                proptest::prop_assert_eq!(Request::parse(&again), Ok(request));
+            }
+        }
     }
 }

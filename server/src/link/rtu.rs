@@ -416,8 +416,6 @@ mod tests {
     }
 
     proptest::proptest! {
-        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(200))]
-
         #[test]
         fn any_answer_is_a_value_or_an_error_never_a_panic(
             request in requests(),
