@@ -12,7 +12,7 @@ use hyper_util::server::conn::auto::Builder;
 use hyper_util::server::graceful::GracefulShutdown;
 use hyper_util::service::TowerToHyperService;
 use tokio::net::TcpListener;
-use tokio::sync::Semaphore;
+use tokio_stream::StreamExt;
 
 use crate::service::Service;
 
@@ -28,7 +28,8 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     let router = super::router(service);
-    let slots = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    let incoming = super::limit::incoming(listener, MAX_CONNECTIONS);
+    tokio::pin!(incoming);
     let graceful = GracefulShutdown::new();
     let mut builder = Builder::new(TokioExecutor::new());
     builder
@@ -37,34 +38,23 @@ pub async fn serve(
         .header_read_timeout(header_timeout);
     tokio::pin!(shutdown);
     loop {
-        let (stream, peer) = tokio::select! {
+        let connection = tokio::select! {
             _ = &mut shutdown => break,
-            accepted = listener.accept() => match accepted {
-                Ok(a) => a,
-                Err(e) => {
-                    // Out of file descriptors and the like: wait a little, keep serving.
-                    tracing::warn!(error = %e, "cannot accept an HTTP connection");
-                    tokio::time::sleep(Duration::from_millis(50)).await;
-                    continue;
-                }
+            next = incoming.next() => match next {
+                Some(Ok(connection)) => connection,
+                _ => break,
             },
         };
-        let Ok(permit) = slots.clone().try_acquire_owned() else {
-            tracing::debug!(%peer, "HTTP connection refused: too many connections");
-            drop(stream);
-            continue;
-        };
-        let _ = stream.set_nodelay(true);
+        let peer = connection.peer();
         let service = TowerToHyperService::new(router.clone());
         let connection = builder
-            .serve_connection_with_upgrades(TokioIo::new(stream), service)
+            .serve_connection_with_upgrades(TokioIo::new(connection), service)
             .into_owned();
         let connection = graceful.watch(connection);
         tokio::spawn(async move {
             if let Err(e) = connection.await {
-                tracing::trace!(%peer, error = %e, "HTTP connection ended");
+                tracing::trace!(?peer, error = %e, "HTTP connection ended");
             }
-            drop(permit);
         });
     }
     graceful.shutdown().await;

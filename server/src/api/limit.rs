@@ -1,6 +1,6 @@
-//! The gRPC listener's connections, within the same limit as the HTTP listener's: at most
-//! [`MAX_CONNECTIONS`](super::http::MAX_CONNECTIONS) at once (more are closed as soon as
-//! they are accepted), TCP_NODELAY set, accept errors (out of file descriptors) waited out.
+//! A listener's connections within a limit, for the HTTP and gRPC listeners: at most `max`
+//! at once (more are closed as soon as they are accepted), TCP_NODELAY set, accept errors
+//! (out of file descriptors) waited out.
 
 use std::io;
 use std::pin::Pin;
@@ -48,6 +48,13 @@ pub fn incoming(
             return Some((Ok(limited), (listener, slots)));
         }
     })
+}
+
+impl Limited {
+    /// The peer's address, when the socket still knows it.
+    pub fn peer(&self) -> Option<std::net::SocketAddr> {
+        self.stream.peer_addr().ok()
+    }
 }
 
 impl Connected for Limited {
