@@ -30,27 +30,18 @@ impl TransactionSpec {
                 None
             }
         };
-        let slave = match self.slave {
-            Some(s @ 1..=255) => Some(s as u8),
-            _ => {
-                errors.push(INVALID_DEVICE.to_owned());
-                None
-            }
-        };
-        let address = match self.address {
-            Some(a @ 0..=65535) => Some(a as u16),
-            _ => {
-                errors.push(INVALID_REGISTER.to_owned());
-                None
-            }
-        };
-        let timeout = match self.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS) {
-            t @ 10..=60_000 => Some(Duration::from_millis(t as u64)),
-            _ => {
-                errors.push(INVALID_TIMEOUT.to_owned());
-                None
-            }
-        };
+        let slave = self
+            .slave
+            .and_then(|s| u8::try_from(s).ok())
+            .filter(|&s| s >= 1);
+        let slave = reported(slave, &mut errors, INVALID_DEVICE);
+        let address = self.address.and_then(|a| u16::try_from(a).ok());
+        let address = reported(address, &mut errors, INVALID_REGISTER);
+        let timeout = Some(self.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS))
+            .filter(|t| (10..=60_000).contains(t))
+            .and_then(|t| u64::try_from(t).ok())
+            .map(Duration::from_millis);
+        let timeout = reported(timeout, &mut errors, INVALID_TIMEOUT);
         let order = self.byte_order.as_deref().map(parse_byte_order);
         let plan = match function {
             Some(f @ (Function::ReadCoils | Function::ReadDiscreteInputs)) => {
@@ -88,20 +79,9 @@ impl TransactionSpec {
                     })
             }
             Some(f @ (Function::ReadHoldingRegisters | Function::ReadInputRegisters)) => {
-                let value_type = match self.value_type.as_deref().map(ValueType::parse) {
-                    Some(Some(v)) => Some(v),
-                    _ => {
-                        errors.push(INVALID_VALUE_TYPE.to_owned());
-                        None
-                    }
-                };
-                let order = match order {
-                    Some(Some(o)) => Some(o),
-                    _ => {
-                        errors.push(INVALID_ENDIANESS.to_owned());
-                        None
-                    }
-                };
+                let value_type = self.value_type.as_deref().and_then(ValueType::parse);
+                let value_type = reported(value_type, &mut errors, INVALID_VALUE_TYPE);
+                let order = reported(order.flatten(), &mut errors, INVALID_ENDIANESS);
                 self.read_rest(&mut errors)
                     .and_then(|(divisor, precision)| {
                         Some(Plan::Read(ReadPlan {
@@ -196,13 +176,8 @@ fn write_request(
             }
         });
     }
-    let ty = match spec.write_type.as_deref().map(WriteType::parse) {
-        Some(Some(t)) => Some(t),
-        _ => {
-            errors.push(INVALID_WRITE_TYPE.to_owned());
-            None
-        }
-    };
+    let ty = spec.write_type.as_deref().and_then(WriteType::parse);
+    let ty = reported(ty, errors, INVALID_WRITE_TYPE);
     let order = match order {
         Some(Some(o)) => Some(o),
         // One byte needs no order; anything else does.
@@ -248,4 +223,11 @@ fn write_request(
             None
         }
     }
+}
+/// `found`, or `message` added to the errors when there is nothing.
+fn reported<T>(found: Option<T>, errors: &mut Vec<String>, message: &str) -> Option<T> {
+    if found.is_none() {
+        errors.push(message.to_owned());
+    }
+    found
 }
