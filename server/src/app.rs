@@ -171,7 +171,16 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         tasks.spawn_link(link);
     }
 
-    let tokens = config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
+    let config::Access { tokens, tls } =
+        config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
+    let tls = tls.map(Arc::new);
+    if let Some(tls) = &tls {
+        tracker.spawn(tls.clone().watch(token.clone()));
+        tracing::info!(
+            client_certificates = tls.requires_client_certificates(),
+            "HTTP and gRPC served over TLS"
+        );
+    }
     if tokens.is_empty() {
         tracing::info!(
             "no tokens configured: every client may read and write (listeners on loopback)"
@@ -221,19 +230,28 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc): {e}", config.grpc))?;
     let grpc_addr = grpc_listener.local_addr()?;
     let (grpc_service, shutdown) = (service.clone(), token.clone());
+    let header_timeout = config.header_timeout;
+    let grpc_tls = tls.clone();
     tracker.spawn(async move {
-        let served = api::serve_grpc(grpc_listener, grpc_service, shutdown.cancelled_owned()).await;
+        let served = api::serve_grpc(
+            grpc_listener,
+            grpc_service,
+            header_timeout,
+            grpc_tls,
+            shutdown.cancelled_owned(),
+        )
+        .await;
         if let Err(e) = served {
             tracing::error!(error = %e, "gRPC server failed");
         }
     });
     let (http_service, shutdown) = (service.clone(), token.clone());
-    let header_timeout = config.header_timeout;
     tracker.spawn(async move {
         let served = api::serve_http(
             listener,
             http_service,
             header_timeout,
+            tls,
             shutdown.cancelled_owned(),
         )
         .await;

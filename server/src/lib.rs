@@ -23,6 +23,7 @@ pub mod runtime;
 pub mod service;
 pub mod sim;
 pub mod text;
+pub mod tls;
 pub mod transaction;
 pub mod writes;
 pub mod yaml;

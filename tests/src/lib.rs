@@ -7,6 +7,7 @@ use std::time::Duration;
 use iogate::app::{self, Running, Setup};
 
 pub mod devices;
+pub mod pki;
 
 /// How long `eventually` waits for a condition.
 pub const PATIENCE: Duration = Duration::from_secs(10);

@@ -333,5 +333,23 @@ async fn a_client_slow_with_its_headers_or_idle_between_requests_is_dropped() {
     .await;
     assert!(closed.is_ok(), "an idle connection is closed by the server");
     assert!(started.elapsed() >= std::time::Duration::from_millis(250));
+
+    // A socket on the gRPC listener that never sends its preface is closed the same way.
+    let grpc_addr = gw.grpc.trim_start_matches("http://").to_owned();
+    let mut silent = tokio::net::TcpStream::connect(&grpc_addr)
+        .await
+        .expect("connect");
+    let started = std::time::Instant::now();
+    let read = tokio::time::timeout(std::time::Duration::from_secs(5), silent.read(&mut buf))
+        .await
+        .expect("the gRPC listener closes a silent socket");
+    assert!(matches!(read, Ok(0) | Err(_)), "{read:?}");
+    assert!(started.elapsed() >= std::time::Duration::from_millis(250));
+    gw.client()
+        .await
+        .expect("gRPC still serves")
+        .devices()
+        .await
+        .expect("ListDevices");
     gw.shutdown().await;
 }

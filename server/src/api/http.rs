@@ -1,6 +1,7 @@
 //! The HTTP listener: each accepted connection served by hyper with the router, within
-//! limits: at most [`MAX_CONNECTIONS`] at once (more are closed at once), request headers
-//! read within `listen.header_timeout` (a client sending one byte a second is dropped),
+//! limits: at most [`MAX_CONNECTIONS`] at once (more are closed at once), TLS handshake or
+//! first byte and then request headers read within `listen.header_timeout` (a client
+//! sending one byte a second is dropped), request bodies read within [`BODY_TIMEOUT`],
 //! TCP_NODELAY set; at shutdown the server stops accepting and finishes its requests.
 
 use std::future::Future;
@@ -18,6 +19,8 @@ use crate::service::Service;
 
 /// Connections served at once; more are closed as soon as they are accepted.
 pub const MAX_CONNECTIONS: usize = 4096;
+/// A request body (at most [`super::MAX_BODY`]) must arrive within this time.
+pub const BODY_TIMEOUT: Duration = Duration::from_secs(30);
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
 /// in flight (at most the gateway's shutdown grace).
@@ -25,10 +28,11 @@ pub async fn serve(
     listener: TcpListener,
     service: Arc<Service>,
     header_timeout: Duration,
+    tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     let router = super::router(service);
-    let incoming = super::limit::incoming(listener, MAX_CONNECTIONS);
+    let incoming = super::accept::ready(listener, MAX_CONNECTIONS, tls, header_timeout);
     tokio::pin!(incoming);
     let graceful = GracefulShutdown::new();
     let mut builder = Builder::new(TokioExecutor::new());

@@ -31,13 +31,13 @@ pub fn incoming(
             let (stream, peer) = match listener.accept().await {
                 Ok(a) => a,
                 Err(e) => {
-                    tracing::warn!(error = %e, "cannot accept a gRPC connection");
+                    tracing::warn!(error = %e, "cannot accept a connection");
                     tokio::time::sleep(Duration::from_millis(50)).await;
                     continue;
                 }
             };
             let Ok(slot) = slots.clone().try_acquire_owned() else {
-                tracing::debug!(%peer, "gRPC connection refused: too many connections");
+                tracing::debug!(%peer, "connection refused: too many connections");
                 continue;
             };
             let _ = stream.set_nodelay(true);
@@ -54,6 +54,11 @@ impl Limited {
     /// The peer's address, when the socket still knows it.
     pub fn peer(&self) -> Option<std::net::SocketAddr> {
         self.stream.peer_addr().ok()
+    }
+
+    /// Waits until the peer has sent its first byte (which stays to be read) or closed.
+    pub async fn first_byte(&self) -> io::Result<()> {
+        self.stream.peek(&mut [0u8; 1]).await.map(|_| ())
     }
 }
 

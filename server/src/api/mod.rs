@@ -2,6 +2,7 @@
 //! health, OpenAPI and metrics on the HTTP listener; the gRPC service (with health and
 //! reflection) on its own. Each handler parses, calls the service, and maps the answer.
 
+pub mod accept;
 pub mod convert;
 pub mod declare;
 pub mod error;
@@ -200,6 +201,9 @@ pub fn router(service: Arc<Service>) -> Router {
             authorize,
         ))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
+        .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
+            http::BODY_TIMEOUT,
+        ))
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(TraceLayer::new_for_http())
         .with_state(service)
@@ -211,16 +215,19 @@ pub async fn serve_http(
     listener: TcpListener,
     service: Arc<Service>,
     header_timeout: std::time::Duration,
+    tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    http::serve(listener, service, header_timeout, shutdown).await
+    http::serve(listener, service, header_timeout, tls, shutdown).await
 }
 
 /// Serves the gRPC API, with `grpc.health.v1` and server reflection, on `listener` until
-/// `shutdown` resolves.
+/// `shutdown` resolves; connections as the HTTP listener's ([`accept`]).
 pub async fn serve_grpc(
     listener: TcpListener,
     service: Arc<Service>,
+    header_timeout: std::time::Duration,
+    tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     use iogate_proto::pb::gateway_server::GatewayServer;
@@ -234,7 +241,7 @@ pub async fn serve_grpc(
         .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
-    let incoming = limit::incoming(listener, http::MAX_CONNECTIONS);
+    let incoming = accept::ready(listener, http::MAX_CONNECTIONS, tls, header_timeout);
     let tokens = service.tokens.clone();
     tonic::transport::Server::builder()
         // A peer that stops answering HTTP/2 pings is dropped; one connection cannot open

@@ -99,13 +99,25 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
     }
 }
 
-/// The security rules of a config: its tokens load, and without tokens the HTTP and gRPC
-/// listeners stay on loopback unless `security.insecure: true` says otherwise.
-pub fn check_security(config: &Config) -> Result<crate::auth::Tokens, Problems> {
+/// What the security section gives the listeners.
+#[derive(Debug, Default)]
+pub struct Access {
+    pub tokens: crate::auth::Tokens,
+    pub tls: Option<crate::tls::Tls>,
+}
+
+/// The security rules of a config: its tokens and TLS files load, and without tokens the
+/// HTTP and gRPC listeners stay on loopback unless `security.insecure: true` says otherwise.
+pub fn check_security(config: &Config) -> Result<Access, Problems> {
     let mut report = Report::new(&config.source);
     let tokens = crate::auth::Tokens::load(config.security.tokens_file.as_deref())
         .map_err(|e| report.push(0, "security.tokens_file", e))
         .unwrap_or_default();
+    let tls = config.security.tls.clone().and_then(|files| {
+        crate::tls::Tls::load(files)
+            .map_err(|e| report.push(0, "security.tls", e.to_string()))
+            .ok()
+    });
     if tokens.is_empty() && !config.security.insecure {
         for (key, addr) in [("listen.http", config.http), ("listen.grpc", config.grpc)] {
             if !addr.ip().is_loopback() {
@@ -121,7 +133,7 @@ pub fn check_security(config: &Config) -> Result<crate::auth::Tokens, Problems> 
     }
     let problems = report.into_problems();
     if problems.is_empty() {
-        Ok(tokens)
+        Ok(Access { tokens, tls })
     } else {
         Err(problems)
     }

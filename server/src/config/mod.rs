@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use crate::yaml::{self, Problems, Report};
 
-pub use check::{check_devices, check_security};
+pub use check::{Access, check_devices, check_security};
 pub use rules::{DEFAULT_REFRESH, DEFAULT_RETRIES, DEFAULT_TIMEOUT, MAX_READ_REGISTERS};
 
 pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
@@ -207,6 +207,9 @@ impl Config {
             let base = path.parent().unwrap_or(Path::new("."));
             config.profiles = Some(base.join(dir));
         }
+        config
+            .security
+            .resolve(path.parent().unwrap_or(Path::new(".")));
         if let Some(file) = config
             .modbus_server
             .as_mut()

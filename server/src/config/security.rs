@@ -1,12 +1,14 @@
-//! The `security:` section: who may do what (`tokens_file`, `read_only`, `insecure`) and
-//! what run-time declarations may reach (`declare.serial_ports`, `declare.tcp_hosts`).
+//! The `security:` section: who may do what (`tokens_file`, `read_only`, `insecure`), TLS
+//! for the listeners (`tls: {cert, key, client_ca}`) and what run-time declarations may
+//! reach (`declare.serial_ports`, `declare.tcp_hosts`).
 
 use std::net::IpAddr;
 use std::path::PathBuf;
 
 use crate::yaml::{Kind, Node, Report};
 
-const KEYS: &[&str] = &["tokens_file", "read_only", "insecure", "declare"];
+const KEYS: &[&str] = &["tokens_file", "read_only", "insecure", "tls", "declare"];
+const TLS_KEYS: &[&str] = &["cert", "key", "client_ca"];
 const DECLARE_KEYS: &[&str] = &["serial_ports", "tcp_hosts"];
 
 /// Serial ports a run-time declaration may open when none are configured.
@@ -129,7 +131,52 @@ pub struct SecurityConfig {
     pub tokens_file: Option<PathBuf>,
     pub read_only: bool,
     pub insecure: bool,
+    pub tls: Option<crate::tls::TlsFiles>,
     pub declare: DeclarePolicy,
+}
+
+impl SecurityConfig {
+    /// Makes the relative paths relative to `base`, the config file's directory.
+    pub fn resolve(&mut self, base: &std::path::Path) {
+        let paths = [self.tokens_file.as_mut()].into_iter().chain(
+            self.tls
+                .iter_mut()
+                .flat_map(|t| [Some(&mut t.cert), Some(&mut t.key), t.client_ca.as_mut()]),
+        );
+        for path in paths.flatten() {
+            if path.is_relative() {
+                *path = base.join(&*path);
+            }
+        }
+    }
+}
+
+fn read_tls(node: &Node, report: &mut Report) -> Option<crate::tls::TlsFiles> {
+    let mut map = node.map(report, "security.tls")?;
+    let mut path = |key: &str, report: &mut Report| {
+        map.get(key)
+            .and_then(|n| n.scalar_text(report, &format!("security.tls.{key}")))
+            .map(PathBuf::from)
+    };
+    let cert = path("cert", report);
+    let key = path("key", report);
+    let client_ca = path("client_ca", report);
+    map.finish(report, "security.tls", TLS_KEYS);
+    match (cert, key) {
+        (Some(cert), Some(key)) => Some(crate::tls::TlsFiles {
+            cert,
+            key,
+            client_ca,
+        }),
+        _ => {
+            report.push(
+                node.line,
+                "security.tls",
+                "needs both `cert` (PEM certificate chain) and `key` (PEM private key)",
+            );
+            None
+        }
+    }
 }
 
 fn strings(node: &Node, report: &mut Report, ctx: &str) -> Vec<(String, u64)> {
@@ -167,6 +214,9 @@ pub(super) fn read(node: &Node, report: &mut Report) -> SecurityConfig {
     }
     if let Some(n) = map.get("insecure") {
         out.insecure = flag(n, report, "security.insecure");
+    }
+    if let Some(n) = map.get("tls") {
+        out.tls = read_tls(n, report);
     }
     if let Some(declare) = map.get("declare")
         && let Some(mut d) = declare.map(report, "security.declare")
