@@ -163,10 +163,10 @@ fn hangup() -> Hangup {
 
 async fn next_hangup(hangup: &mut Hangup) {
     #[cfg(unix)]
-    if let Some(signal) = hangup {
-        if signal.recv().await.is_some() {
-            return;
-        }
+    if let Some(signal) = hangup
+        && signal.recv().await.is_some()
+    {
+        return;
     }
     let _ = hangup;
     std::future::pending::<()>().await;
