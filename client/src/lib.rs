@@ -463,4 +463,24 @@ impl Client {
             .ok_or_else(|| Error::Protocol("no device in the answer".into()))?;
         Ok((DeviceInfo::from_pb(info), r.created))
     }
+
+    /// Removes a device declared at run time.
+    pub async fn remove_device(&mut self, name: &str) -> Result<(), Error> {
+        self.inner
+            .remove_device(pb::RemoveDeviceRequest {
+                name: name.to_owned(),
+            })
+            .await?;
+        Ok(())
+    }
+
+    /// Removes a link declared at run time (its devices first).
+    pub async fn remove_link(&mut self, name: &str) -> Result<(), Error> {
+        self.inner
+            .remove_link(pb::RemoveLinkRequest {
+                name: name.to_owned(),
+            })
+            .await?;
+        Ok(())
+    }
 }

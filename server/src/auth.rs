@@ -172,7 +172,9 @@ pub fn grpc_role(path: &str) -> Option<Role> {
     }
     let method = path.rsplit('/').next().unwrap_or("");
     Some(match method {
-        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" => Role::Admin,
+        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" | "RemoveDevice" | "RemoveLink" => {
+            Role::Admin
+        }
         "Write" | "Exchange" | "Transact" | "SetTransaction" => Role::Write,
         _ => Role::Read,
     })
@@ -258,6 +260,19 @@ mod tests {
         assert_eq!(grpc_role("/iogate.v1.Gateway/Write"), Some(Role::Write));
         assert_eq!(
             grpc_role("/iogate.v1.Gateway/EnsureDevice"),
+            Some(Role::Admin)
+        );
+        assert_eq!(
+            rest_role("DELETE", "/api/v1/devices/adc"),
+            Some(Role::Admin)
+        );
+        assert_eq!(rest_role("DELETE", "/api/v1/links/plc"), Some(Role::Admin));
+        assert_eq!(
+            grpc_role("/iogate.v1.Gateway/RemoveDevice"),
+            Some(Role::Admin)
+        );
+        assert_eq!(
+            grpc_role("/iogate.v1.Gateway/RemoveLink"),
             Some(Role::Admin)
         );
     }

@@ -39,14 +39,19 @@ impl Tasks {
         &self.token
     }
 
+    /// Starts a link's task; it ends at shutdown or when the link is removed.
     pub fn spawn_link(&self, link: Arc<Link>) {
+        let token = self.token.child_token();
+        link.attach_task(token.clone());
         let task = LinkTask::new(link, self.metrics.clone());
-        self.tracker.spawn(task.run(self.token.child_token()));
+        self.tracker.spawn(task.run(token));
     }
 
+    /// Starts a simulated device's task; it ends at shutdown or when the device is removed.
     pub fn spawn_sim(&self, device: Arc<Device>) {
-        self.tracker
-            .spawn(crate::sim::run(device, self.token.child_token()));
+        let token = self.token.child_token();
+        device.attach_task(token.clone());
+        self.tracker.spawn(crate::sim::run(device, token));
     }
 
     /// Runs `task` until it ends; shutdown waits for it, so it must watch [`Tasks::token`].

@@ -1,6 +1,7 @@
 //! `PUT /api/v1/links/{link}` and `PUT /api/v1/devices/{device}`: the REST form of the
 //! run-time declarations (gRPC `EnsureLink` / `EnsureDevice`). Idempotent: declaring what
-//! exists answers 200, creating answers 201; a contradiction is 409 naming it.
+//! exists answers 200, creating answers 201; a contradiction is 409 naming it. `DELETE` on
+//! the same paths removes what was declared (gRPC `RemoveLink` / `RemoveDevice`).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -190,4 +191,35 @@ pub async fn put_device(
             created: ensured.created,
         }),
     ))
+}
+
+/// Removes a link declared at run time: its task stops and its port or socket is closed.
+/// Devices and standing transactions on it must be removed first; a link from the config
+/// file stays.
+#[utoipa::path(delete, path = "/api/v1/links/{link}", tag = "links",
+    params(("link" = String, Path, description = "link name")),
+    responses((status = 204, description = "the link was removed"),
+              (status = 404, description = "unknown link", body = ErrorBody),
+              (status = 409, description = "the link comes from the config file, or devices or transactions still use it", body = ErrorBody)))]
+pub async fn delete_link(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    service.remove_link(&name)?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Removes a device declared at run time: it is no longer polled and writes still waiting
+/// for it fail; a device from the config file stays.
+#[utoipa::path(delete, path = "/api/v1/devices/{device}", tag = "devices",
+    params(("device" = String, Path, description = "device name")),
+    responses((status = 204, description = "the device was removed"),
+              (status = 404, description = "unknown device", body = ErrorBody),
+              (status = 409, description = "the device comes from the config file", body = ErrorBody)))]
+pub async fn delete_device(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    service.remove_device(&name)?;
+    Ok(StatusCode::NO_CONTENT)
 }

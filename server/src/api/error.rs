@@ -84,6 +84,7 @@ impl From<ServiceError> for ApiError {
             ServiceError::Declare(DeclareError::UnknownLink(_)) => {
                 (StatusCode::NOT_FOUND, "unknown_link")
             }
+            ServiceError::Declare(DeclareError::NotFound(a)) => access_status(a),
             ServiceError::Declare(d) => match d.refusal() {
                 Refusal::Invalid => (StatusCode::BAD_REQUEST, "invalid_declaration"),
                 Refusal::NotFound => (StatusCode::NOT_FOUND, "not_found"),

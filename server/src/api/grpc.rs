@@ -512,6 +512,26 @@ impl Gateway for GrpcApi {
             created: ensured.created,
         }))
     }
+
+    async fn remove_device(
+        &self,
+        request: Request<pb::RemoveDeviceRequest>,
+    ) -> Result<Response<pb::RemoveDeviceResponse>, Status> {
+        self.service
+            .remove_device(&request.into_inner().name)
+            .map_err(status)?;
+        Ok(Response::new(pb::RemoveDeviceResponse {}))
+    }
+
+    async fn remove_link(
+        &self,
+        request: Request<pb::RemoveLinkRequest>,
+    ) -> Result<Response<pb::RemoveLinkResponse>, Status> {
+        self.service
+            .remove_link(&request.into_inner().name)
+            .map_err(status)?;
+        Ok(Response::new(pb::RemoveLinkResponse {}))
+    }
 }
 
 #[cfg(test)]

@@ -45,7 +45,7 @@ pub const MAX_BODY: usize = 1024 * 1024;
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
-        events::events, declare::put_link, declare::put_device, openapi_json, metrics,
+        events::events, declare::put_link, declare::put_device, declare::delete_link, declare::delete_device, openapi_json, metrics,
         map::get_map, map::get_located, map::put_located, map::get_memory,
         transactions::post_transaction, transactions::list_standing,
         transactions::get_standing, transactions::put_standing, transactions::enable_standing,
@@ -139,7 +139,12 @@ pub fn router(service: Arc<Service>) -> Router {
     let api = Router::new()
         .route("/openapi.json", get(openapi_json))
         .route("/links", get(rest::list_links))
-        .route("/links/{link}", get(rest::get_link).put(declare::put_link))
+        .route(
+            "/links/{link}",
+            get(rest::get_link)
+                .put(declare::put_link)
+                .delete(declare::delete_link),
+        )
         .route(
             "/links/{link}/transactions",
             axum::routing::post(transactions::post_transaction),
@@ -147,7 +152,9 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/devices", get(rest::list_devices))
         .route(
             "/devices/{device}",
-            get(rest::get_device).put(declare::put_device),
+            get(rest::get_device)
+                .put(declare::put_device)
+                .delete(declare::delete_device),
         )
         .route(
             "/devices/{device}/fields",

@@ -33,6 +33,8 @@ pub struct Device {
     binding: RwLock<Binding>,
     /// Wakes the task that owns the device (its link's task, or its simulator).
     wake: Mutex<Arc<Notify>>,
+    /// Stops a simulated device's task when the device is removed.
+    task: Mutex<Option<tokio_util::sync::CancellationToken>>,
 }
 
 /// Where a device is reached.
@@ -84,7 +86,24 @@ impl Device {
             profile,
             binding: RwLock::new(binding),
             wake: Mutex::new(wake),
+            task: Mutex::new(None),
         }
+    }
+
+    /// Remembers the token that stops the device's own task (a simulated device's).
+    pub fn attach_task(&self, token: tokio_util::sync::CancellationToken) {
+        *self.task.lock().unwrap_or_else(|e| e.into_inner()) = Some(token);
+    }
+
+    /// The device was removed: its own task stops, and the writes still waiting fail.
+    pub(crate) fn retire(&self) {
+        if let Some(token) = self.task.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            token.cancel();
+        }
+        for w in self.take_writes() {
+            self.finish_write(w.generation, Err(WriteError::Removed));
+        }
+        self.set_unreachable();
     }
 
     /// The link and slave id the device is polled with now.

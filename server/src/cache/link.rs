@@ -49,6 +49,8 @@ pub struct Link {
     /// Counts changes of `members` and of the configuration, so the link's task notices.
     version: AtomicU64,
     queue: Mutex<VecDeque<Passthrough>>,
+    /// Stops the link's task when the link is removed.
+    task: Mutex<Option<tokio_util::sync::CancellationToken>>,
 }
 
 impl Link {
@@ -64,6 +66,19 @@ impl Link {
             members: RwLock::new(Vec::new()),
             version: AtomicU64::new(0),
             queue: Mutex::new(VecDeque::new()),
+            task: Mutex::new(None),
+        }
+    }
+
+    /// Remembers the token that stops the link's task.
+    pub fn attach_task(&self, token: tokio_util::sync::CancellationToken) {
+        *super::lock(&self.task) = Some(token);
+    }
+
+    /// Stops the link's task (the link was removed); it closes its port or socket.
+    pub(crate) fn stop(&self) {
+        if let Some(token) = super::lock(&self.task).take() {
+            token.cancel();
         }
     }
 
@@ -123,6 +138,13 @@ impl Link {
     /// The oldest queued request, for the link's task.
     pub fn take_queued(&self) -> Option<Passthrough> {
         super::lock(&self.queue).pop_front()
+    }
+
+    /// Takes a removed device off the link; its task stops polling it.
+    pub(super) fn remove_member(&self, device: &Arc<Device>) {
+        super::write(&self.members).retain(|m| !Arc::ptr_eq(m, device));
+        self.version.fetch_add(1, Ordering::AcqRel);
+        self.wake.notify_one();
     }
 
     pub(super) fn add_member(&self, device: Arc<Device>) {

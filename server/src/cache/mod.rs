@@ -154,6 +154,25 @@ impl Cache {
         }
     }
 
+    /// Takes a device out: off its link, its task stopped, its waiting writes failed.
+    pub(crate) fn remove_device(&self, registry: &mut Registry, device: &Arc<Device>) {
+        registry.devices.retain(|d| !Arc::ptr_eq(d, device));
+        if let Some(link) = device
+            .binding()
+            .link
+            .and_then(|l| registry.link(&l).cloned())
+        {
+            link.remove_member(device);
+        }
+        device.retire();
+    }
+
+    /// Takes a link out and stops its task (which closes its port or socket).
+    pub(crate) fn remove_link(&self, registry: &mut Registry, link: &Arc<Link>) {
+        registry.links.retain(|l| !Arc::ptr_eq(l, link));
+        link.stop();
+    }
+
     /// Runs `f` with the registry locked for changes: checks and inserts happen at once.
     pub(crate) fn change<T>(&self, f: impl FnOnce(&mut Registry) -> T) -> T {
         f(&mut write(&self.registry))

@@ -32,6 +32,8 @@ pub enum WriteError {
     LinkDown(LinkFault),
     #[error("the device does not answer; the latest value is written when it answers again")]
     DeviceDown,
+    #[error("the device was removed before the value was written")]
+    Removed,
 }
 
 impl From<TxError> for WriteError {

@@ -137,6 +137,13 @@ pub enum DeclareError {
         device: String,
         conflicts: Vec<Conflict>,
     },
+    #[error(transparent)]
+    NotFound(AccessError),
+    /// Only what was declared at run time can be removed at run time.
+    #[error("{what} {name} comes from the config file; remove it there")]
+    FromConfig { what: &'static str, name: String },
+    #[error("link {link} is still used by {}; remove {} first", .by.join(", "), if .by.len() == 1 { "it" } else { "them" })]
+    InUse { link: String, by: Vec<String> },
 }
 
 impl DeclareError {
@@ -146,11 +153,15 @@ impl DeclareError {
             | DeclareError::BadName { .. }
             | DeclareError::OutOfBounds(_) => Refusal::Invalid,
             DeclareError::NotAllowed(_) | DeclareError::TooMany(..) => Refusal::Forbidden,
-            DeclareError::UnknownProfile(_) | DeclareError::UnknownLink(_) => Refusal::NotFound,
+            DeclareError::UnknownProfile(_)
+            | DeclareError::UnknownLink(_)
+            | DeclareError::NotFound(_) => Refusal::NotFound,
             DeclareError::LinkConflict { .. }
             | DeclareError::NameTaken { .. }
             | DeclareError::NameClash { .. }
-            | DeclareError::DeviceConflict { .. } => Refusal::Conflict,
+            | DeclareError::DeviceConflict { .. }
+            | DeclareError::FromConfig { .. }
+            | DeclareError::InUse { .. } => Refusal::Conflict,
         }
     }
 }

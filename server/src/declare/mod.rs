@@ -9,12 +9,13 @@ mod error;
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::cache::{Binding, Cache, Device, Link, Registry};
+use crate::cache::{AccessError, Binding, Cache, Device, Link, Registry};
 use crate::config::rules::{self, RuleError};
 use crate::config::security::DeclarePolicy;
 use crate::config::{DeviceConfig, LinkConfig, Transport};
 use crate::profile::Protocol;
 use crate::runtime::Tasks;
+use crate::text::quote;
 
 pub use endpoint::Endpoint;
 pub use error::{Conflict, DeclareError, Refusal};
@@ -232,6 +233,65 @@ pub fn ensure_link(
         tasks.spawn_link(ensured.value.clone());
     }
     Ok(ensured)
+}
+
+/// Removes a device declared at run time: it is no longer polled, its simulator stops, and
+/// writes still waiting for it fail. A device from the config file stays.
+pub fn remove_device(cache: &Cache, name: &str) -> Result<Arc<Device>, DeclareError> {
+    let device = cache.change(|registry: &mut Registry| {
+        let device = registry
+            .device(name)
+            .cloned()
+            .ok_or_else(|| DeclareError::NotFound(AccessError::UnknownDevice(quote(name))))?;
+        if device.config.line != 0 {
+            return Err(DeclareError::FromConfig {
+                what: "device",
+                name: device.name().to_owned(),
+            });
+        }
+        cache.remove_device(registry, &device);
+        Ok(device)
+    })?;
+    tracing::info!(device = %device.name(), "device removed");
+    Ok(device)
+}
+
+/// Removes a link declared at run time once no device (and nothing in `users`, the standing
+/// transactions on it) uses it; its task stops and closes the port or socket.
+pub fn remove_link(
+    cache: &Cache,
+    name: &str,
+    users: Vec<String>,
+) -> Result<Arc<Link>, DeclareError> {
+    let link = cache.change(|registry: &mut Registry| {
+        let link = registry
+            .link(name)
+            .cloned()
+            .ok_or_else(|| DeclareError::NotFound(AccessError::UnknownLink(quote(name))))?;
+        if link.config().line != 0 {
+            return Err(DeclareError::FromConfig {
+                what: "link",
+                name: link.name().to_owned(),
+            });
+        }
+        let mut by: Vec<String> = registry
+            .devices
+            .iter()
+            .filter(|d| d.binding().link.as_deref() == Some(link.name()))
+            .map(|d| format!("device {}", d.name()))
+            .collect();
+        by.extend(users.into_iter().map(|t| format!("transaction {t}")));
+        if !by.is_empty() {
+            return Err(DeclareError::InUse {
+                link: link.name().to_owned(),
+                by,
+            });
+        }
+        cache.remove_link(registry, &link);
+        Ok(link)
+    })?;
+    tracing::info!(link = %link.name(), "link removed");
+    Ok(link)
 }
 
 /// Where `decl` differs from the device `existing` of the same name. A link or slave id the

@@ -114,7 +114,7 @@ impl LinkTask {
         task
     }
 
-    /// Takes in devices added to the link since the last look.
+    /// Takes in devices added to the link since the last look, and lets removed ones go.
     fn sync_members(&mut self) {
         let version = self.link.version();
         if version == self.version {
@@ -122,7 +122,15 @@ impl LinkTask {
         }
         self.version = version;
         let now = Instant::now();
-        for device in self.link.members().into_iter().skip(self.devices.len()) {
+        let members = self.link.members();
+        self.devices
+            .retain(|p| members.iter().any(|m| Arc::ptr_eq(m, &p.device)));
+        self.cursor = 0;
+        let new: Vec<_> = members
+            .into_iter()
+            .filter(|m| !self.devices.iter().any(|p| Arc::ptr_eq(m, &p.device)))
+            .collect();
+        for device in new {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
             self.devices.push(Polled {
                 slave: device.slave_id().unwrap_or(0),

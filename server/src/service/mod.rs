@@ -279,6 +279,25 @@ impl Service {
         self.accepting()?;
         Ok(declare::ensure_device(&self.cache, &self.tasks, decl)?)
     }
+
+    /// Removes a device declared at run time.
+    pub fn remove_device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
+        self.accepting()?;
+        Ok(declare::remove_device(&self.cache, name)?)
+    }
+
+    /// Removes a link declared at run time that no device or standing transaction uses.
+    pub fn remove_link(&self, name: &str) -> Result<Arc<Link>, ServiceError> {
+        self.accepting()?;
+        let users = self
+            .standing()
+            .all()
+            .iter()
+            .filter(|s| s.link == name)
+            .map(|s| s.name.clone())
+            .collect();
+        Ok(declare::remove_link(&self.cache, name, users)?)
+    }
 }
 
 #[cfg(test)]
