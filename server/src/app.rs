@@ -170,6 +170,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     for link in cache.links() {
         tasks.spawn_link(link);
     }
+    tasks.spawn(crate::poller::watchdog::run(cache.clone(), token.clone()));
 
     let config::Access { tokens, tls } =
         config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;

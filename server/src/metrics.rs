@@ -24,6 +24,7 @@ pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; cha
 // Counter names get `_total` appended by the encoder.
 pub const LINK_UP: &str = "iogate_link_up";
 pub const LINK_ERROR_CODE: &str = "iogate_link_error_code";
+pub const LINK_STALLED: &str = "iogate_link_stalled";
 pub const LINK_RECONNECTS: &str = "iogate_link_reconnects";
 pub const LINK_SENT_BYTES: &str = "iogate_link_sent_bytes";
 pub const LINK_RECEIVED_BYTES: &str = "iogate_link_received_bytes";
@@ -102,6 +103,7 @@ pub struct Metrics {
     registry: Registry,
     link_up: Family<LinkLabels, Gauge>,
     link_error_code: Family<LinkLabels, Gauge>,
+    link_stalled: Family<LinkLabels, Gauge>,
     link_reconnects: Family<LinkLabels, Counter>,
     link_sent: Family<LinkLabels, Counter>,
     link_received: Family<LinkLabels, Counter>,
@@ -142,6 +144,7 @@ impl Metrics {
         let m = Metrics {
             link_up: Family::default(),
             link_error_code: Family::default(),
+            link_stalled: Family::default(),
             link_reconnects: Family::default(),
             link_sent: Family::default(),
             link_received: Family::default(),
@@ -173,6 +176,11 @@ impl Metrics {
             LINK_ERROR_CODE,
             "SerialLink error code: 0 OK, 1 no port configured, 2 open failed, 3 port lost",
             m.link_error_code.clone(),
+        );
+        registry.register(
+            LINK_STALLED,
+            "1 while the link's task is stuck in a transaction past its bound (timeout, wire time and 5 s)",
+            m.link_stalled.clone(),
         );
         registry.register(
             LINK_RECONNECTS,
@@ -394,6 +402,12 @@ impl Metrics {
 
     /// The registry in OpenMetrics text, with states copied from the cache first.
     pub fn render(&self, cache: &Cache) -> String {
+        // State gauges are copied afresh, so removed links and devices leave no series.
+        self.link_up.clear();
+        self.link_error_code.clear();
+        self.link_stalled.clear();
+        self.device_connected.clear();
+        self.device_error_code.clear();
         for link in &cache.links() {
             let labels = LinkLabels {
                 link: link.name().to_owned(),
@@ -411,6 +425,9 @@ impl Metrics {
             self.link_error_code
                 .get_or_create(&labels)
                 .set(i64::from(d.error_code.code()));
+            self.link_stalled
+                .get_or_create(&labels)
+                .set(i64::from(link.stalled().is_some()));
         }
         for device in &cache.devices() {
             let labels = DeviceLabels {

@@ -176,6 +176,11 @@ impl TestGateway {
             .await?)
     }
 
+    /// The running gateway's service layer, for tests that reach inside.
+    pub fn service(&self) -> Option<&std::sync::Arc<iogate::service::Service>> {
+        self.running.as_ref().map(|r| &r.service)
+    }
+
     pub fn token(&self) -> Option<&tokio_util::sync::CancellationToken> {
         self.running.as_ref().map(Running::token)
     }

@@ -353,3 +353,58 @@ async fn a_client_slow_with_its_headers_or_idle_between_requests_is_dropped() {
         .expect("ListDevices");
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_link_stuck_past_its_bound_is_reported_not_connected() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: line, tcp: {{ host: 127.0.0.1, port: {port} }} }}\n"
+    ))
+    .await
+    .expect("gateway");
+    let _accepted = tokio::time::timeout(iogate_tests::PATIENCE, listener.accept())
+        .await
+        .expect("the link connects");
+    gw.until("/api/v1/links/line", "link open", |b| {
+        b["connected"] == true
+    })
+    .await
+    .expect("open");
+    let link = gw.service().expect("running").link("line").expect("link");
+    // The task reports a transaction whose bound passed long ago, and never ends it.
+    let long_ago = tokio::time::Instant::now()
+        .checked_sub(std::time::Duration::from_secs(60))
+        .expect("an instant a minute ago");
+    link.progress.started(long_ago);
+    gw.until("/api/v1/links/line", "link reported stalled", |b| {
+        b["connected"] == false && b["error_code"] == 3
+    })
+    .await
+    .expect("stalled");
+    let response = gw
+        .client
+        .get(gw.url("/readyz"))
+        .send()
+        .await
+        .expect("readyz");
+    assert_eq!(response.status().as_u16(), 503);
+    let body: serde_json::Value = response.json().await.expect("json");
+    assert_eq!(body["stalled_links"], json!(["line"]), "{body}");
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains("iogate_link_stalled{link=\"line\"} 1"),
+        "{metrics}"
+    );
+
+    link.progress.ended();
+    gw.until("/api/v1/links/line", "link connected again", |b| {
+        b["connected"] == true && b["error_code"] == 0
+    })
+    .await
+    .expect("moves on");
+    assert_eq!(gw.get("/readyz").await.expect("readyz").0, 200);
+    gw.shutdown().await;
+}

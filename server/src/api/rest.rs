@@ -20,6 +20,9 @@ type ServiceRef = State<Arc<Service>>;
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Health {
     pub status: String,
+    /// Links whose task is stuck in a transaction past its bound (then 503).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub stalled_links: Vec<String>,
 }
 
 /// The process is alive.
@@ -27,18 +30,26 @@ pub struct Health {
 pub async fn livez() -> Json<Health> {
     Json(Health {
         status: "ok".into(),
+        stalled_links: Vec::new(),
     })
 }
 
-/// The gateway is serving (not starting and not shutting down).
+/// The gateway is serving (not starting, not shutting down, and no link's task stuck).
 #[utoipa::path(get, path = "/readyz", tag = "health",
-    responses((status = 200, description = "serving", body = Health), (status = 503, description = "starting or shutting down", body = Health)))]
+    responses((status = 200, description = "serving", body = Health), (status = 503, description = "starting, shutting down, or a link stalled (named)", body = Health)))]
 pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
-    if service.is_ready() {
+    let stalled_links: Vec<String> = service
+        .links()
+        .iter()
+        .filter(|l| l.stalled().is_some())
+        .map(|l| l.name().to_owned())
+        .collect();
+    if service.is_ready() && stalled_links.is_empty() {
         (
             StatusCode::OK,
             Json(Health {
                 status: "ready".into(),
+                stalled_links,
             }),
         )
     } else {
@@ -46,6 +57,7 @@ pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
             StatusCode::SERVICE_UNAVAILABLE,
             Json(Health {
                 status: "not ready".into(),
+                stalled_links,
             }),
         )
     }

@@ -36,6 +36,35 @@ pub enum PassthroughError {
     LinkDown(LinkFault),
 }
 
+/// Where the link's task is: in a transaction that must end by a deadline, or not. A task
+/// past its deadline by more than [`Progress::GRACE`] makes no progress: the link is stalled.
+#[derive(Debug, Default)]
+pub struct Progress {
+    deadline: Mutex<Option<tokio::time::Instant>>,
+}
+
+impl Progress {
+    /// Beyond a transaction's own bound (its timeout and wire time) before the link counts
+    /// as stalled.
+    pub const GRACE: Duration = Duration::from_secs(5);
+
+    /// A transaction began that must end by `deadline`.
+    pub fn started(&self, deadline: tokio::time::Instant) {
+        *super::lock(&self.deadline) = Some(deadline);
+    }
+
+    /// The transaction ended.
+    pub fn ended(&self) {
+        *super::lock(&self.deadline) = None;
+    }
+
+    /// How long the task is past its transaction's deadline and grace, if it is.
+    pub fn stalled_for(&self, now: tokio::time::Instant) -> Option<Duration> {
+        let deadline = (*super::lock(&self.deadline))?;
+        now.checked_duration_since(deadline + Self::GRACE)
+    }
+}
+
 /// A link, its diagnostics and the devices on it.
 #[derive(Debug)]
 pub struct Link {
@@ -51,6 +80,8 @@ pub struct Link {
     queue: Mutex<VecDeque<Passthrough>>,
     /// Stops the link's task when the link is removed.
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
+    /// Whether the link's task keeps within its transactions' bounds.
+    pub progress: Arc<Progress>,
 }
 
 impl Link {
@@ -67,7 +98,13 @@ impl Link {
             version: AtomicU64::new(0),
             queue: Mutex::new(VecDeque::new()),
             task: Mutex::new(None),
+            progress: Arc::new(Progress::default()),
         }
+    }
+
+    /// Whether the link's task is stuck in a transaction past its bound (and since when).
+    pub fn stalled(&self) -> Option<Duration> {
+        self.progress.stalled_for(tokio::time::Instant::now())
     }
 
     /// Remembers the token that stops the link's task.

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use crate::cache::Device;
+use crate::cache::{Device, Progress};
 use crate::link::frame::{Malformed, Request, Response};
 use crate::link::{Connection, Counters, TxError};
 use crate::metrics::Metrics;
@@ -23,11 +23,23 @@ pub(super) struct Bus {
     counted: Counters,
     /// The bus utilisation the refresh rates demand (serial links).
     pub(super) planned: Option<f64>,
+    /// Each transaction's deadline, for the watchdog.
+    progress: Arc<Progress>,
 }
 
+/// A transaction's bound beyond its timeout: the request's and the answer's time on the
+/// slowest line (256 bytes at 1200 baud), and the silences around them.
+const WIRE_BOUND: Duration = Duration::from_secs(5);
+
 impl Bus {
-    pub(super) fn new(conn: Connection, metrics: Arc<Metrics>, link: String) -> Self {
+    pub(super) fn new(
+        conn: Connection,
+        metrics: Arc<Metrics>,
+        link: String,
+        progress: Arc<Progress>,
+    ) -> Self {
         Bus {
+            progress,
             counted: conn.counters(),
             conn,
             metrics,
@@ -63,7 +75,9 @@ impl Bus {
         let mut attempt = 0;
         loop {
             let started = Instant::now();
+            self.progress.started(started + timeout + WIRE_BOUND);
             let result = self.conn.transact(slave, request, timeout).await;
+            self.progress.ended();
             let elapsed = started.elapsed();
             self.busy += elapsed;
             self.metrics

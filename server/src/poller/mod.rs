@@ -8,6 +8,7 @@
 
 mod bus;
 mod read;
+pub mod watchdog;
 mod write;
 
 use std::sync::Arc;
@@ -208,7 +209,12 @@ impl LinkTask {
                         p.next_due = now;
                         p.backoff = None;
                     }
-                    let bus = Bus::new(conn, self.metrics.clone(), name.clone());
+                    let bus = Bus::new(
+                        conn,
+                        self.metrics.clone(),
+                        name.clone(),
+                        self.link.progress.clone(),
+                    );
                     match self.serve(bus, &token).await {
                         Ended::Shutdown => break,
                         Ended::Lost(fault) => {
@@ -438,7 +444,7 @@ mod tests {
             Some(timing),
             Duration::ZERO,
         ));
-        let bus = Bus::new(conn, metrics, "bus".into());
+        let bus = Bus::new(conn, metrics, "bus".into(), Default::default());
         let token = CancellationToken::new();
         let stop = token.clone();
         let serving = tokio::spawn(async move { task.serve(bus, &stop).await });
