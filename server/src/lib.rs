@@ -14,6 +14,7 @@ pub mod declare;
 pub mod demo;
 pub mod duration;
 pub mod link;
+pub mod logging;
 pub mod map;
 pub mod metrics;
 pub mod plan;

@@ -10,6 +10,15 @@ use iogate::app::{self, Setup};
 #[derive(Parser)]
 #[command(name = "iogate", version, about = "I/O gateway for industrial devices")]
 struct Cli {
+    /// Log lines as text (control characters escaped) or as JSON objects for log collectors.
+    #[arg(
+        long,
+        global = true,
+        env = "IOGATE_LOG_FORMAT",
+        value_enum,
+        default_value_t
+    )]
+    log_format: iogate::logging::LogFormat,
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -104,10 +113,7 @@ fn main() -> ExitCode {
             return ExitCode::from(iogate::EXIT_CONFIG as u8);
         }
     };
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .init();
+    iogate::logging::init(cli.log_format, filter);
     if let Some(Command::Fb {
         command: FbCommand::St,
     }) = cli.command
