@@ -2,7 +2,9 @@
 //! listener's connection limit ([`super::limit`]), each connection must complete its TLS
 //! handshake (with `security.tls`) or send its first byte (without) within the header
 //! timeout, or it is closed. Connections are prepared side by side: a slow one holds no
-//! other.
+//! other. At most [`MAX_PREPARING`] wait to be ready; a new one then closes the oldest
+//! waiting, so a flood of idle sockets cannot fill the listener: a client that speaks at
+//! once is still served.
 
 use std::io;
 use std::pin::Pin;
@@ -18,6 +20,9 @@ use tonic::transport::server::{Connected, TcpConnectInfo};
 
 use super::limit::{self, Limited};
 use crate::tls::Tls;
+
+/// Connections waiting for their first byte or TLS handshake at once, per listener.
+pub const MAX_PREPARING: usize = 1024;
 
 /// A connection ready for HTTP: plain, or TLS after its handshake.
 pub enum Conn {
@@ -47,6 +52,7 @@ pub fn ready(
     tokio::spawn(async move {
         let incoming = limit::incoming(listener, max);
         tokio::pin!(incoming);
+        let mut preparing = std::collections::VecDeque::<tokio::task::AbortHandle>::new();
         loop {
             // The server dropping the stream (at shutdown) ends the accepting too.
             let connection = tokio::select! {
@@ -57,8 +63,19 @@ pub fn ready(
                     None => return,
                 },
             };
+            if preparing.len() >= MAX_PREPARING {
+                preparing.retain(|h| !h.is_finished());
+                if preparing.len() >= MAX_PREPARING
+                    && let Some(oldest) = preparing.pop_front()
+                {
+                    tracing::debug!(
+                        "connection closed: the oldest of too many waiting to be ready"
+                    );
+                    oldest.abort();
+                }
+            }
             let (tx, tls) = (tx.clone(), tls.clone());
-            tokio::spawn(async move {
+            let task = tokio::spawn(async move {
                 let peer = connection.peer();
                 match tokio::time::timeout(ready_within, prepare(connection, tls)).await {
                     Ok(Ok(conn)) => {
@@ -73,6 +90,7 @@ pub fn ready(
                     ),
                 }
             });
+            preparing.push_back(task.abort_handle());
         }
     });
     tokio_stream::wrappers::ReceiverStream::new(rx).map(Ok)
@@ -186,6 +204,41 @@ mod tests {
         let read = tokio::time::timeout(Duration::from_secs(5), silent.read(&mut byte))
             .await
             .expect("closed in time");
+        assert!(matches!(read, Ok(0) | Err(_)), "closed: {read:?}");
+    }
+
+    #[tokio::test]
+    async fn a_flood_of_idle_sockets_closes_the_oldest_and_a_speaking_client_gets_in() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        // A slot limit above the waiting limit, and a long header timeout: only eviction
+        // can make room.
+        let mut ready = Box::pin(ready(
+            listener,
+            MAX_PREPARING + 16,
+            None,
+            Duration::from_secs(600),
+        ));
+        let mut idle = Vec::new();
+        for _ in 0..MAX_PREPARING + 8 {
+            idle.push(TcpStream::connect(addr).await.expect("idle"));
+        }
+        let mut talking = TcpStream::connect(addr).await.expect("talking");
+        talking.write_all(b"G").await.expect("write");
+        let first = tokio::time::timeout(Duration::from_secs(10), ready.next())
+            .await
+            .expect("the speaking client is served")
+            .expect("one")
+            .expect("ok");
+        assert_eq!(
+            first.peer().map(|p| p.port()),
+            talking.local_addr().ok().map(|a| a.port())
+        );
+        // The oldest idle socket was closed to make room.
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(Duration::from_secs(5), idle[0].read(&mut byte))
+            .await
+            .expect("the oldest is closed");
         assert!(matches!(read, Ok(0) | Err(_)), "closed: {read:?}");
     }
 }
