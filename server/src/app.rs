@@ -247,11 +247,15 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         }
     });
     let (http_service, shutdown) = (service.clone(), token.clone());
+    let limits = api::http::Limits {
+        header_timeout,
+        body_timeout: config.body_timeout,
+    };
     tracker.spawn(async move {
         let served = api::serve_http(
             listener,
             http_service,
-            header_timeout,
+            limits,
             tls,
             shutdown.cancelled_owned(),
         )

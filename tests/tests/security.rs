@@ -408,3 +408,42 @@ async fn a_link_stuck_past_its_bound_is_reported_not_connected() {
     assert_eq!(gw.get("/readyz").await.expect("readyz").0, 200);
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_request_body_that_does_not_arrive_in_time_is_answered_and_dropped() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let gw = TestGateway::start(
+        "listen: { body_timeout: 300ms }\ndevices:\n  - { name: sim, profile: SimIo, refresh_rate: 20ms }\n",
+    )
+    .await
+    .expect("gateway");
+    let addr = gw.base.trim_start_matches("http://").to_owned();
+    let mut slow = tokio::net::TcpStream::connect(&addr)
+        .await
+        .expect("connect");
+    slow.write_all(
+        b"PUT /api/v1/devices/sim/fields/DO_0 HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 15\r\n\r\n{\"val",
+    )
+    .await
+    .expect("partial body");
+    let started = std::time::Instant::now();
+    let mut answer = Vec::new();
+    let read = tokio::time::timeout(
+        std::time::Duration::from_secs(5),
+        slow.read_to_end(&mut answer),
+    )
+    .await
+    .expect("answered and closed by the server, not this test's patience");
+    assert!(read.is_ok(), "{read:?}");
+    assert!(started.elapsed() >= std::time::Duration::from_millis(250));
+    let text = String::from_utf8_lossy(&answer);
+    assert!(text.starts_with("HTTP/1.1 408"), "{text}");
+    assert!(text.contains("\"request_timeout\""), "{text}");
+    // Nothing was written.
+    let (_, field) = gw
+        .get("/api/v1/devices/sim/fields/DO_0")
+        .await
+        .expect("field");
+    assert!(field["last_write"].is_null(), "{field}");
+    gw.shutdown().await;
+}

@@ -153,6 +153,21 @@ pub async fn json_errors(response: Response) -> Response {
         .await
         .map(|b| String::from_utf8_lossy(&b).into_owned())
         .unwrap_or_default();
+    // A body that did not arrive within `listen.body_timeout` fails the extractor that
+    // buffers it; that is the client's lateness, not a malformed request.
+    if status == StatusCode::BAD_REQUEST && text.contains("was not received within") {
+        let mut out = ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "request_timeout",
+            "the request body did not arrive within listen.body_timeout",
+        )
+        .into_response();
+        out.headers_mut().insert(
+            axum::http::header::CONNECTION,
+            axum::http::HeaderValue::from_static("close"),
+        );
+        return out;
+    }
     let message = if text.trim().is_empty() {
         status.canonical_reason().unwrap_or("error").to_owned()
     } else {

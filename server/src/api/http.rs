@@ -1,7 +1,7 @@
 //! The HTTP listener: each accepted connection served by hyper with the router, within
 //! limits: at most [`MAX_CONNECTIONS`] at once (more are closed at once), TLS handshake or
 //! first byte and then request headers read within `listen.header_timeout` (a client
-//! sending one byte a second is dropped), request bodies read within [`BODY_TIMEOUT`],
+//! sending one byte a second is dropped), request bodies read within `listen.body_timeout`,
 //! TCP_NODELAY set; at shutdown the server stops accepting and finishes its requests.
 
 use std::future::Future;
@@ -19,27 +19,35 @@ use crate::service::Service;
 
 /// Connections served at once; more are closed as soon as they are accepted.
 pub const MAX_CONNECTIONS: usize = 4096;
-/// A request body (at most [`super::MAX_BODY`]) must arrive within this time.
-pub const BODY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// The HTTP listener's timeouts (`listen.header_timeout`, `listen.body_timeout`).
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    /// For the TLS handshake or first byte, then for each request's headers (and the wait
+    /// for the next request on a kept-alive connection).
+    pub header_timeout: Duration,
+    /// For a request's body (at most [`super::MAX_BODY`]).
+    pub body_timeout: Duration,
+}
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
 /// in flight (at most the gateway's shutdown grace).
 pub async fn serve(
     listener: TcpListener,
     service: Arc<Service>,
-    header_timeout: Duration,
+    limits: Limits,
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    let router = super::router(service);
-    let incoming = super::accept::ready(listener, MAX_CONNECTIONS, tls, header_timeout);
+    let router = super::router(service, limits.body_timeout);
+    let incoming = super::accept::ready(listener, MAX_CONNECTIONS, tls, limits.header_timeout);
     tokio::pin!(incoming);
     let graceful = GracefulShutdown::new();
     let mut builder = Builder::new(TokioExecutor::new());
     builder
         .http1()
         .timer(TokioTimer::new())
-        .header_read_timeout(header_timeout);
+        .header_read_timeout(limits.header_timeout);
     tokio::pin!(shutdown);
     loop {
         let connection = tokio::select! {

@@ -135,7 +135,8 @@ async fn authorize(
     }
 }
 
-pub fn router(service: Arc<Service>) -> Router {
+/// The HTTP routes, each request body to arrive within `body_timeout`.
+pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Router {
     let api = Router::new()
         .route("/openapi.json", get(openapi_json))
         .route("/links", get(rest::list_links))
@@ -209,7 +210,7 @@ pub fn router(service: Arc<Service>) -> Router {
         ))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
         .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
-            http::BODY_TIMEOUT,
+            body_timeout,
         ))
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(TraceLayer::new_for_http())
@@ -221,11 +222,11 @@ pub fn router(service: Arc<Service>) -> Router {
 pub async fn serve_http(
     listener: TcpListener,
     service: Arc<Service>,
-    header_timeout: std::time::Duration,
+    limits: http::Limits,
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    http::serve(listener, service, header_timeout, tls, shutdown).await
+    http::serve(listener, service, limits, tls, shutdown).await
 }
 
 /// Serves the gRPC API, with `grpc.health.v1` and server reflection, on `listener` until

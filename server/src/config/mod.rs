@@ -23,6 +23,8 @@ pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
 pub const DEFAULT_GRPC: &str = "127.0.0.1:50051";
 /// How long an HTTP client may take to send a request's headers, by default.
 pub const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a request body (at most 1 MiB) may take to arrive, by default.
+pub const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -30,6 +32,8 @@ pub struct Config {
     pub grpc: SocketAddr,
     /// How long an HTTP client may take to send a request's headers (`listen.header_timeout`).
     pub header_timeout: Duration,
+    /// How long a request body may take to arrive (`listen.body_timeout`).
+    pub body_timeout: Duration,
     /// The `profiles` directory as configured, relative to the config file's directory.
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
@@ -182,6 +186,7 @@ impl Config {
                 .parse()
                 .unwrap_or(SocketAddr::from(([127, 0, 0, 1], 50051))),
             header_timeout: DEFAULT_HEADER_TIMEOUT,
+            body_timeout: DEFAULT_BODY_TIMEOUT,
             profiles: None,
             links: Vec::new(),
             devices: Vec::new(),

@@ -20,7 +20,7 @@ const TOP_KEYS: &[&str] = &[
     "transactions",
     "security",
 ];
-const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout"];
+const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout", "body_timeout"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
@@ -70,6 +70,16 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
             )
         {
             config.header_timeout = d;
+        }
+        if let Some(node) = listen.get("body_timeout")
+            && let Some(d) = duration_value(
+                node,
+                report,
+                "listen.body_timeout",
+                Duration::from_millis(10),
+            )
+        {
+            config.body_timeout = d;
         }
         listen.finish(report, "listen", LISTEN_KEYS);
     }
