@@ -34,6 +34,7 @@ pub const LINK_UTILISATION: &str = "iogate_link_utilisation_ratio";
 pub const DEVICE_CONNECTED: &str = "iogate_device_connected";
 pub const DEVICE_ERROR_CODE: &str = "iogate_device_error_code";
 pub const DEVICE_IO_CYCLES: &str = "iogate_device_io_cycles";
+pub const DEVICE_MISMATCHED_OUTPUTS: &str = "iogate_device_mismatched_outputs";
 pub const DEVICE_RESPONSE_TIME: &str = "iogate_device_response_time_seconds";
 pub const DEVICE_REQUESTS: &str = "iogate_device_requests";
 pub const DEVICE_TIMEOUTS: &str = "iogate_device_timeouts";
@@ -113,6 +114,7 @@ pub struct Metrics {
     device_connected: Family<DeviceLabels, Gauge>,
     device_error_code: Family<DeviceLabels, Gauge>,
     device_io_cycles: Family<DeviceLabels, Counter>,
+    device_mismatched: Family<DeviceLabels, Gauge>,
     response_time: Family<DeviceLabels, Histogram, fn() -> Histogram>,
     requests: Family<RequestLabels, Counter>,
     timeouts: Family<DeviceLabels, Counter>,
@@ -154,6 +156,7 @@ impl Metrics {
             device_connected: Family::default(),
             device_error_code: Family::default(),
             device_io_cycles: Family::default(),
+            device_mismatched: Family::default(),
             response_time: Family::new_with_constructor(response_histogram),
             requests: Family::default(),
             timeouts: Family::default(),
@@ -181,6 +184,11 @@ impl Metrics {
             LINK_STALLED,
             "1 while the link's task is stuck in a transaction past its bound (timeout, wire time and 5 s)",
             m.link_stalled.clone(),
+        );
+        registry.register(
+            DEVICE_MISMATCHED_OUTPUTS,
+            "Outputs the device was read holding another value in than the newest requested, with no write of it waiting",
+            m.device_mismatched.clone(),
         );
         registry.register(
             LINK_RECONNECTS,
@@ -408,6 +416,7 @@ impl Metrics {
         self.link_stalled.clear();
         self.device_connected.clear();
         self.device_error_code.clear();
+        self.device_mismatched.clear();
         for link in &cache.links() {
             let labels = LinkLabels {
                 link: link.name().to_owned(),
@@ -440,6 +449,12 @@ impl Metrics {
             self.device_error_code
                 .get_or_create(&labels)
                 .set(i64::from(d.error_code.code()));
+            let mismatched = (0..device.profile.fields.len())
+                .filter(|&idx| device.mismatch(idx).is_some())
+                .count();
+            self.device_mismatched
+                .get_or_create(&labels)
+                .set(i64::try_from(mismatched).unwrap_or(i64::MAX));
             let cycles = self.device_io_cycles.get_or_create(&labels);
             cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
             if !device.is_simulated() {

@@ -1,15 +1,20 @@
-//! The outcome of every accepted write, by generation.
+//! The outcome of every write, by generation: a client's, and the gateway's own (a replay of
+//! the requested value after a reconnect, a reconcile of a device that holds another value,
+//! a safe value after a client was lost), each with its origin.
 //!
-//! Generations are handed out in increasing order across the whole gateway. The log keeps the
-//! most recent [`WRITE_LOG_CAPACITY`] writes; an older generation is reported as expired.
+//! Generations are handed out in increasing order across the whole gateway. Each field keeps
+//! its newest [`FIELD_HISTORY`] writes, so a burst on other fields (or from one `Write` call
+//! with thousands of items) cannot erase a write someone is waiting on; a generation older
+//! than its field's history is reported as expired.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::Mutex;
 use std::time::SystemTime;
 
 use crate::codec::Value;
 
-pub const WRITE_LOG_CAPACITY: usize = 4096;
+/// Writes kept per field.
+pub const FIELD_HISTORY: usize = 128;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WriteStatus {
@@ -34,6 +39,32 @@ impl WriteStatus {
     }
 }
 
+/// Who asked for a write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Origin {
+    /// A client: REST, gRPC, a scan cycle, a Modbus master.
+    Client,
+    /// The gateway wrote the requested value again after the link or device came back.
+    Replay,
+    /// The gateway wrote the requested value again because the device held another
+    /// (`write_mode: reconcile`).
+    Reconcile,
+    /// The gateway wrote a field's safe value after the client that wrote it was lost
+    /// (`on_client_loss`).
+    Safety,
+}
+
+impl Origin {
+    pub fn name(self) -> &'static str {
+        match self {
+            Origin::Client => "client",
+            Origin::Replay => "replay",
+            Origin::Reconcile => "reconcile",
+            Origin::Safety => "safety",
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct WriteRecord {
     pub generation: u64,
@@ -41,6 +72,9 @@ pub struct WriteRecord {
     pub field: String,
     pub value: Value,
     pub status: WriteStatus,
+    pub origin: Origin,
+    /// Transactions sent for it (retries included); 0 until it reached the bus.
+    pub attempts: u32,
     pub error: Option<String>,
     pub requested: SystemTime,
     pub finished: Option<SystemTime>,
@@ -54,7 +88,10 @@ pub struct WriteLog {
 #[derive(Debug)]
 struct Inner {
     next: u64,
-    records: VecDeque<WriteRecord>,
+    /// Per device and field, its newest writes in generation order.
+    fields: HashMap<(String, String), VecDeque<WriteRecord>>,
+    /// Where each kept generation is.
+    index: BTreeMap<u64, (String, String)>,
     /// Final outcomes per device and status, for metrics.
     outcomes: BTreeMap<(String, &'static str), u64>,
 }
@@ -63,7 +100,7 @@ struct Inner {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Lookup {
     Found(WriteRecord),
-    /// Older than what the log keeps.
+    /// Older than what its field's history keeps.
     Expired,
     /// Not handed out yet.
     Unknown,
@@ -74,10 +111,22 @@ impl Default for WriteLog {
         WriteLog {
             inner: Mutex::new(Inner {
                 next: 1,
-                records: VecDeque::with_capacity(WRITE_LOG_CAPACITY),
+                fields: HashMap::new(),
+                index: BTreeMap::new(),
                 outcomes: BTreeMap::new(),
             }),
         }
+    }
+}
+
+impl Inner {
+    fn record(&mut self, generation: u64) -> Option<&mut WriteRecord> {
+        let key = self.index.get(&generation)?;
+        let history = self.fields.get_mut(key)?;
+        let idx = history
+            .binary_search_by_key(&generation, |r| r.generation)
+            .ok()?;
+        history.get_mut(idx)
     }
 }
 
@@ -88,38 +137,65 @@ impl WriteLog {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Records a new pending write and returns its generation.
+    /// Records a new pending write from a client and returns its generation.
     pub fn begin(&self, device: &str, field: &str, value: Value) -> u64 {
+        self.begin_from(device, field, value, Origin::Client)
+    }
+
+    /// Records a new pending write from `origin` and returns its generation.
+    pub fn begin_from(&self, device: &str, field: &str, value: Value, origin: Origin) -> u64 {
         let mut inner = self.lock();
         let generation = inner.next;
         inner.next += 1;
-        if inner.records.len() == WRITE_LOG_CAPACITY {
-            inner.records.pop_front();
-        }
-        inner.records.push_back(WriteRecord {
+        let key = (device.to_owned(), field.to_owned());
+        let history = inner.fields.entry(key.clone()).or_default();
+        let dropped = if history.len() >= FIELD_HISTORY {
+            history.pop_front().map(|r| r.generation)
+        } else {
+            None
+        };
+        history.push_back(WriteRecord {
             generation,
-            device: device.to_owned(),
-            field: field.to_owned(),
+            device: key.0.clone(),
+            field: key.1.clone(),
             value,
             status: WriteStatus::Pending,
+            origin,
+            attempts: 0,
             error: None,
             requested: SystemTime::now(),
             finished: None,
         });
+        if let Some(old) = dropped {
+            inner.index.remove(&old);
+        }
+        inner.index.insert(generation, key);
         generation
     }
 
     /// Sets the final status of a generation.
     pub fn finish(&self, generation: u64, status: WriteStatus, error: Option<String>) {
+        self.finish_after(generation, status, error, 0);
+    }
+
+    /// Sets the final status of a generation that took `attempts` transactions.
+    pub fn finish_after(
+        &self,
+        generation: u64,
+        status: WriteStatus,
+        error: Option<String>,
+        attempts: u32,
+    ) {
         let mut inner = self.lock();
-        if let Some(idx) = position(&inner.records, generation) {
-            let record = &mut inner.records[idx];
-            record.status = status;
-            record.error = error;
-            record.finished = Some(SystemTime::now());
-            let key = (record.device.clone(), status.name());
-            *inner.outcomes.entry(key).or_default() += 1;
-        }
+        let Some(record) = inner.record(generation) else {
+            return;
+        };
+        record.status = status;
+        record.error = error;
+        record.attempts = attempts;
+        record.finished = Some(SystemTime::now());
+        let key = (record.device.clone(), status.name());
+        *inner.outcomes.entry(key).or_default() += 1;
     }
 
     /// How many writes ended with each status, per device.
@@ -132,22 +208,24 @@ impl WriteLog {
     }
 
     pub fn get(&self, generation: u64) -> Lookup {
-        let inner = self.lock();
+        let mut inner = self.lock();
         if generation == 0 || generation >= inner.next {
             return Lookup::Unknown;
         }
-        match position(&inner.records, generation) {
-            Some(idx) => Lookup::Found(inner.records[idx].clone()),
+        match inner.record(generation) {
+            Some(record) => Lookup::Found(record.clone()),
             None => Lookup::Expired,
         }
     }
-}
 
-/// Generations are pushed in increasing order, so the log is sorted.
-fn position(records: &VecDeque<WriteRecord>, generation: u64) -> Option<usize> {
-    records
-        .binary_search_by_key(&generation, |r| r.generation)
-        .ok()
+    /// The writes kept for one field, oldest first.
+    pub fn history(&self, device: &str, field: &str) -> Vec<WriteRecord> {
+        self.lock()
+            .fields
+            .get(&(device.to_owned(), field.to_owned()))
+            .map(|h| h.iter().cloned().collect())
+            .unwrap_or_default()
+    }
 }
 
 #[cfg(test)]
@@ -175,13 +253,31 @@ mod tests {
     }
 
     #[test]
-    fn old_generations_expire() {
+    fn old_generations_of_a_field_expire_and_a_burst_elsewhere_erases_none() {
         let log = WriteLog::default();
         let first = log.begin("d", "f", Value::Int(0));
-        for i in 0..WRITE_LOG_CAPACITY {
+        let waiting = log.begin("d", "g", Value::Int(7));
+        for i in 0..FIELD_HISTORY {
             log.begin("d", "f", Value::Int(i as i64));
         }
         assert_eq!(log.get(first), Lookup::Expired);
-        assert!(matches!(log.get(first + 1), Lookup::Found(_)));
+        assert!(matches!(log.get(first + 2), Lookup::Found(_)));
+        // Ten thousand writes to other fields leave field g's write in place.
+        for i in 0..10_000 {
+            log.begin("other", &format!("f{}", i % 500), Value::Int(i));
+        }
+        assert!(matches!(log.get(waiting), Lookup::Found(r) if r.value == Value::Int(7)));
+        assert_eq!(log.history("d", "f").len(), FIELD_HISTORY);
+    }
+
+    #[test]
+    fn the_gateways_own_writes_say_where_they_came_from() {
+        let log = WriteLog::default();
+        let g = log.begin_from("d", "f", Value::Bool(true), Origin::Replay);
+        log.finish_after(g, WriteStatus::Written, None, 3);
+        let Lookup::Found(r) = log.get(g) else {
+            panic!("not found")
+        };
+        assert_eq!((r.origin, r.attempts), (Origin::Replay, 3));
     }
 }

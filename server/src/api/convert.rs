@@ -107,6 +107,14 @@ pub struct FieldValue {
     /// The latest write to this field, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_write: Option<WriteInfo>,
+    /// True when the device holds another value than the newest one requested (`desired`),
+    /// with no write of it waiting: a failed write, a device that changed its own output, a
+    /// power-cycled device.
+    pub mismatch: bool,
+    /// The newest value requested for this output, when the device holds another.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub desired: Option<Json>,
 }
 
 pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
@@ -126,6 +134,17 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
         unit: field.register.unit.clone(),
         error: sample.error.as_ref().map(ToString::to_string),
         last_write: None,
+        mismatch: false,
+        desired: None,
+    }
+    .with_desired(device.mismatch(idx))
+}
+
+impl FieldValue {
+    fn with_desired(mut self, desired: Option<crate::codec::Value>) -> Self {
+        self.mismatch = desired.is_some();
+        self.desired = desired.as_ref().map(value_to_json);
+        self
     }
 }
 
@@ -144,6 +163,11 @@ pub struct WriteInfo {
     pub requested: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub finished: Option<String>,
+    /// `client`, or the gateway's own: `replay` (after a reconnect), `reconcile` (the device
+    /// held another value), `safety` (the writing client was lost).
+    pub origin: String,
+    /// Transactions sent for it, retries included (0 until it reached the bus).
+    pub attempts: u32,
 }
 
 impl From<&WriteRecord> for WriteInfo {
@@ -157,6 +181,8 @@ impl From<&WriteRecord> for WriteInfo {
             error: r.error.clone(),
             requested: rfc3339(r.requested),
             finished: r.finished.map(rfc3339),
+            origin: r.origin.name().to_owned(),
+            attempts: r.attempts,
         }
     }
 }

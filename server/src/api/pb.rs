@@ -25,6 +25,7 @@ pub fn timestamp(t: SystemTime) -> prost_types::Timestamp {
 pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldValue {
     let field = device.field(idx);
     let now = tokio::time::Instant::now();
+    let desired = device.mismatch(idx);
     pb::FieldValue {
         device: device.name().to_owned(),
         field: field.name.clone(),
@@ -37,6 +38,8 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldVal
             .map(ToString::to_string)
             .unwrap_or_default(),
         direction: field.direction.to_pb().into(),
+        mismatch: desired.is_some(),
+        desired: desired.as_ref().map(|v| value(field.ty, v)),
     }
 }
 
@@ -179,5 +182,7 @@ pub fn write_status(r: &WriteRecord, ty: Option<IecType>) -> pb::WriteStatus {
         error: r.error.clone().unwrap_or_default(),
         requested: Some(timestamp(r.requested)),
         finished: r.finished.map(timestamp),
+        origin: r.origin.name().to_owned(),
+        attempts: r.attempts,
     }
 }

@@ -295,7 +295,47 @@ impl Device {
 
     /// Reports the outcome of a taken write.
     pub fn finish_write(&self, generation: u64, result: Result<(), WriteError>) {
-        self.outputs.finish(generation, result);
+        self.finish_write_after(generation, result, 0);
+    }
+
+    /// Reports the outcome of a taken write that took `attempts` transactions. A failed
+    /// one wakes the field's subscribers: what the device holds now differs from what was
+    /// asked ([`Device::mismatch`]).
+    pub fn finish_write_after(
+        &self,
+        generation: u64,
+        result: Result<(), WriteError>,
+        attempts: u32,
+    ) {
+        let failed = result.is_err();
+        let field = self.outputs.finish(generation, result, attempts);
+        if let (true, Some(idx)) = (failed, field) {
+            self.samples[idx].send_modify(|_| {});
+        }
+    }
+
+    /// The desired value of output `idx` (the newest requested) when the device holds
+    /// another: read back good, with no write of it waiting or on the bus. `None` when they
+    /// agree, or nothing was requested, or the value is not known now.
+    pub fn mismatch(&self, idx: usize) -> Option<Value> {
+        let desired = self.outputs.latest(idx)?;
+        if self.outputs.is_due(idx) {
+            return None;
+        }
+        let sample = self.sample(idx);
+        if sample.quality_at(tokio::time::Instant::now(), self.stale_after()) != Quality::Good {
+            return None;
+        }
+        let actual = sample.value?;
+        let field = self.field(idx);
+        let agree = match (
+            field.encoding.encode(&desired),
+            field.encoding.encode(&actual),
+        ) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => desired == actual,
+        };
+        (!agree).then_some(desired)
     }
 
     /// Marks every field read from the bus as bad, keeping the last good values.

@@ -9,7 +9,7 @@ use crate::codec::{CodecError, Value};
 use crate::link::frame::Exception;
 use crate::link::{LinkFault, TxError};
 use crate::profile::RegisterKind;
-use crate::writes::{WriteLog, WriteStatus};
+use crate::writes::{Origin, WriteLog, WriteStatus};
 
 /// Why a write did not reach the device.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -61,6 +61,8 @@ struct WriteSlot {
     latest: Option<Value>,
     /// The generation of the newest write.
     last_generation: Option<u64>,
+    /// The write the device's task took and has not finished.
+    in_flight: Option<u64>,
 }
 
 /// The write slots of one device's fields, and the gateway's write log they report to.
@@ -81,9 +83,21 @@ impl Outputs {
     /// Stores `value` as field `idx`'s pending write; a write already pending is
     /// superseded. Returns the new write's generation.
     pub fn request(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
+        self.request_from(device, field, idx, value, Origin::Client)
+    }
+
+    /// As [`Outputs::request`], for a write the gateway asks for itself.
+    pub fn request_from(
+        &self,
+        device: &str,
+        field: &str,
+        idx: usize,
+        value: Value,
+        origin: Origin,
+    ) -> u64 {
         let mut slots = lock(&self.slots);
         let slot = &mut slots[idx];
-        let generation = self.log.begin(device, field, value.clone());
+        let generation = self.log.begin_from(device, field, value.clone(), origin);
         if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
             self.log.finish(old, WriteStatus::Superseded, None);
         }
@@ -92,13 +106,31 @@ impl Outputs {
         generation
     }
 
+    /// Records a write of field `idx`'s requested value that the device's task sends now
+    /// on its own (after a reconnect); it becomes the field's newest write.
+    pub fn replay(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
+        let mut slots = lock(&self.slots);
+        let generation = self.log.begin_from(device, field, value, Origin::Replay);
+        slots[idx].last_generation = Some(generation);
+        slots[idx].in_flight = Some(generation);
+        generation
+    }
+
+    /// Whether a write of field `idx` is waiting or on the bus.
+    pub fn is_due(&self, idx: usize) -> bool {
+        let slots = lock(&self.slots);
+        slots[idx].pending.is_some() || slots[idx].in_flight.is_some()
+    }
+
     /// Takes every pending write.
     pub fn take(&self) -> Vec<TakenWrite> {
         lock(&self.slots)
             .iter_mut()
             .enumerate()
             .filter_map(|(field, slot)| {
-                slot.pending.take().map(|(generation, value)| TakenWrite {
+                let (generation, value) = slot.pending.take()?;
+                slot.in_flight = Some(generation);
+                Some(TakenWrite {
                     field,
                     generation,
                     value,
@@ -134,13 +166,33 @@ impl Outputs {
         lock(&self.slots).iter().any(|s| s.latest.is_some())
     }
 
-    /// Records the outcome of a taken write.
-    pub fn finish(&self, generation: u64, result: Result<(), WriteError>) {
+    /// Records the outcome of a taken write that took `attempts` transactions; answers the
+    /// field it was for, when it was the field's write on the bus.
+    pub fn finish(
+        &self,
+        generation: u64,
+        result: Result<(), WriteError>,
+        attempts: u32,
+    ) -> Option<usize> {
+        let field = {
+            let mut slots = lock(&self.slots);
+            let idx = slots.iter().position(|s| s.in_flight == Some(generation));
+            if let Some(i) = idx {
+                slots[i].in_flight = None;
+            }
+            idx
+        };
         match result {
-            Ok(()) => self.log.finish(generation, WriteStatus::Written, None),
-            Err(e) => self
+            Ok(()) => self
                 .log
-                .finish(generation, WriteStatus::Failed, Some(e.to_string())),
+                .finish_after(generation, WriteStatus::Written, None, attempts),
+            Err(e) => self.log.finish_after(
+                generation,
+                WriteStatus::Failed,
+                Some(e.to_string()),
+                attempts,
+            ),
         }
+        field
     }
 }

@@ -172,7 +172,33 @@ pub struct DeviceConfig {
     pub retries: u32,
     pub max_batch: u16,
     pub max_gap: u16,
+    /// When outputs are written: on a new request, or also whenever the device holds another
+    /// value than the one requested.
+    pub write_mode: WriteMode,
     pub line: u64,
+}
+
+/// `devices[].write_mode`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WriteMode {
+    /// Write when a client requests a value (default); a device that holds another value
+    /// is shown as a mismatch.
+    #[default]
+    OnChange,
+    /// Also write the requested value again whenever the device is read holding another
+    /// (at most once per refresh period and 100 ms per field), as a PLC's cyclic output
+    /// write does.
+    Reconcile,
+}
+
+impl WriteMode {
+    pub fn parse(text: &str) -> Option<WriteMode> {
+        match text {
+            "on_change" => Some(WriteMode::OnChange),
+            "reconcile" => Some(WriteMode::Reconcile),
+            _ => None,
+        }
+    }
 }
 
 impl Config {

@@ -34,6 +34,7 @@ const DEVICE_KEYS: &[&str] = &[
     "retries",
     "max_batch",
     "max_gap",
+    "write_mode",
 ];
 
 pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
@@ -327,6 +328,23 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
     };
     let max_batch = registers("max_batch", 1, report).unwrap_or(Some(rules::MAX_READ_REGISTERS));
     let max_gap = registers("max_gap", 0, report).unwrap_or(Some(0));
+    let write_mode = match map.get("write_mode") {
+        None => Some(super::WriteMode::default()),
+        Some(n) => n.scalar_text(report, &at("write_mode")).and_then(|t| {
+            let mode = super::WriteMode::parse(&t);
+            if mode.is_none() {
+                report.push(
+                    n.line,
+                    &at("write_mode"),
+                    format!(
+                        "`{}` is not a write mode (on_change or reconcile)",
+                        crate::text::quote(&t)
+                    ),
+                );
+            }
+            mode
+        }),
+    };
     map.finish(report, &ctx, DEVICE_KEYS);
     Some(DeviceConfig {
         name: name?,
@@ -338,6 +356,7 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
         retries: retries?,
         max_batch: max_batch?,
         max_gap: max_gap?,
+        write_mode: write_mode?,
         line: node.line,
     })
 }

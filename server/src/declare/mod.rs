@@ -446,6 +446,7 @@ pub fn ensure_device(
             retries: rules::DEFAULT_RETRIES,
             max_batch: rules::MAX_READ_REGISTERS,
             max_gap: 0,
+            write_mode: crate::config::WriteMode::default(),
             line: 0,
         };
         let device = cache.insert_device(registry, config, profile.clone());

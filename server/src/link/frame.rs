@@ -101,6 +101,8 @@ impl Exception {
     pub const ILLEGAL_FUNCTION: Exception = Exception(1);
     pub const ILLEGAL_DATA_ADDRESS: Exception = Exception(2);
     pub const ILLEGAL_DATA_VALUE: Exception = Exception(3);
+    pub const ACKNOWLEDGE: Exception = Exception(5);
+    pub const SERVER_DEVICE_BUSY: Exception = Exception(6);
 
     pub fn describe(self) -> &'static str {
         match self.0 {

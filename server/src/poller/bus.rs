@@ -25,6 +25,8 @@ pub(super) struct Bus {
     pub(super) planned: Option<f64>,
     /// Each transaction's deadline, for the watchdog.
     progress: Arc<Progress>,
+    /// Transactions sent since the caller last took the count.
+    sent: u32,
 }
 
 /// A transaction's bound beyond its timeout: the request's and the answer's time on the
@@ -40,6 +42,7 @@ impl Bus {
     ) -> Self {
         Bus {
             progress,
+            sent: 0,
             counted: conn.counters(),
             conn,
             metrics,
@@ -76,6 +79,7 @@ impl Bus {
         loop {
             let started = Instant::now();
             self.progress.started(started + timeout + WIRE_BOUND);
+            self.sent = self.sent.saturating_add(1);
             let result = self.conn.transact(slave, request, timeout).await;
             self.progress.ended();
             let elapsed = started.elapsed();
@@ -93,6 +97,11 @@ impl Bus {
                 _ => return (result, elapsed),
             }
         }
+    }
+
+    /// Transactions sent since the last call (retries included).
+    pub(super) fn take_sent(&mut self) -> u32 {
+        std::mem::take(&mut self.sent)
     }
 
     /// Sets bits of a holding register, keeping the others: FC03 read, then FC06 write.

@@ -50,6 +50,8 @@ struct Polled {
     rewrite: bool,
     /// The device refused FC15/FC16 (exception 01): write items one at a time.
     single_writes: bool,
+    /// When each output was last written again by `write_mode: reconcile`.
+    reconciled: std::collections::HashMap<usize, Instant>,
 }
 
 impl Polled {
@@ -145,6 +147,7 @@ impl LinkTask {
                 backoff: None,
                 rewrite: true,
                 single_writes: false,
+                reconciled: std::collections::HashMap::new(),
             });
         }
         let config = self.link.config();

@@ -8,6 +8,7 @@ use tokio::time::Instant;
 use super::bus::Bus;
 use super::{LinkTask, Step, connection_fault};
 use crate::cache::FieldError;
+use crate::config::WriteMode;
 use crate::link::TxError;
 use crate::link::frame::Exception;
 
@@ -85,6 +86,43 @@ impl LinkTask {
         }
         device.record_cycle(true, last_response);
         p.next_due = (started + device.config.refresh_rate).max(Instant::now());
+        if device.config.write_mode == WriteMode::Reconcile {
+            p.reconcile();
+        }
         Ok(())
+    }
+}
+
+/// The least time between two reconciling writes of one output.
+pub const RECONCILE_MIN: Duration = Duration::from_millis(100);
+
+impl super::Polled {
+    /// Requests the desired value of every output the device was just read holding another
+    /// value in (origin `reconcile`), each at most once per refresh period and 100 ms.
+    fn reconcile(&mut self) {
+        let now = Instant::now();
+        let every = self.device.config.refresh_rate.max(RECONCILE_MIN);
+        for idx in 0..self.device.profile.fields.len() {
+            let Some(desired) = self.device.mismatch(idx) else {
+                continue;
+            };
+            if self
+                .reconciled
+                .get(&idx)
+                .is_some_and(|at| now.duration_since(*at) < every)
+            {
+                continue;
+            }
+            self.reconciled.insert(idx, now);
+            let field = &self.device.field(idx).name;
+            tracing::info!(device = %self.device.name(), field = %field, "device holds another value than requested; writing it again");
+            self.device.outputs().request_from(
+                self.device.name(),
+                field,
+                idx,
+                desired,
+                crate::writes::Origin::Reconcile,
+            );
+        }
     }
 }

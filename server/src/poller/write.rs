@@ -12,6 +12,48 @@ use crate::link::TxError;
 use crate::link::frame::Exception;
 use crate::plan::{self, WriteItem, WriteOp};
 
+/// The first wait before a write answered "busy" (06) or "acknowledge" (05) is sent again;
+/// it doubles with each try, up to [`BUSY_BACKOFF_MAX`].
+pub const BUSY_BACKOFF: Duration = Duration::from_millis(20);
+pub const BUSY_BACKOFF_MAX: Duration = Duration::from_millis(320);
+
+/// Whether an exception says "later", not "no".
+fn transient(e: &TxError) -> bool {
+    matches!(e, TxError::Exception(x) if *x == Exception::ACKNOWLEDGE || *x == Exception::SERVER_DEVICE_BUSY)
+}
+
+/// Sends one write operation; a device that answers busy or acknowledge gets it again after
+/// a short backoff, within the device's `retries` (timeouts are retried by the bus). Answers
+/// the result and how many transactions it took.
+async fn send(
+    bus: &mut Bus,
+    device: &crate::cache::Device,
+    op: &WriteOp,
+) -> (Result<(), TxError>, u32) {
+    let mut again = 0;
+    let mut backoff = BUSY_BACKOFF;
+    let _ = bus.take_sent();
+    loop {
+        let result = match op {
+            WriteOp::Direct { request, .. } => bus
+                .transact(device, request, device.config.retries)
+                .await
+                .0
+                .map(drop),
+            WriteOp::Bits { address, bits, .. } => bus.write_bits(device, *address, bits).await,
+        };
+        match result {
+            Err(e) if transient(&e) && again < device.config.retries => {
+                tracing::debug!(device = %device.name(), error = %e, retry_in = ?backoff, "write refused for now; sending it again");
+                again += 1;
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(BUSY_BACKOFF_MAX);
+            }
+            result => return (result, bus.take_sent()),
+        }
+    }
+}
+
 impl LinkTask {
     pub(super) async fn write_device(&mut self, i: usize, bus: &mut Bus) -> Step {
         let p = &mut self.devices[i];
@@ -32,43 +74,43 @@ impl LinkTask {
             })
             .collect();
         if p.rewrite {
+            // The requested values again, after a reconnect or the device's return: each a
+            // write of its own in the log (origin `replay`), never an unrecorded one.
             for (field, value) in device.outputs().latest_requested() {
                 if !items.iter().any(|it| it.field == field) {
+                    let name = &device.field(field).name;
+                    let generation =
+                        device
+                            .outputs()
+                            .replay(device.name(), name, field, value.clone());
                     items.push(WriteItem {
                         field,
                         value,
-                        generation: None,
+                        generation: Some(generation),
                     });
                 }
             }
             p.rewrite = false;
         }
-        let finish = |item: &WriteItem, result: Result<(), WriteError>| {
+        let finish = |item: &WriteItem, result: Result<(), WriteError>, attempts: u32| {
             if let Some(g) = item.generation {
-                device.finish_write(g, result);
+                device.finish_write_after(g, result, attempts);
             }
         };
         let (ops, refused) = plan::write_ops(&device.profile, &items, p.single_writes);
         for (n, reason) in refused {
-            finish(&items[n], Err(reason));
+            finish(&items[n], Err(reason), 0);
         }
         let mut ops: VecDeque<WriteOp> = ops.into();
         while let Some(op) = ops.pop_front() {
-            let result = match &op {
-                WriteOp::Direct { request, .. } => bus
-                    .transact(&device, request, device.config.retries)
-                    .await
-                    .0
-                    .map(drop),
-                WriteOp::Bits { address, bits, .. } => {
-                    bus.write_bits(&device, *address, bits).await
-                }
-            };
+            let (result, attempts) = send(bus, &device, &op).await;
             match result {
                 Ok(()) => {
                     for &n in op.items() {
-                        finish(&items[n], Ok(()));
+                        // The value first, then the outcome: never a moment that shows the
+                        // write done and the old value.
                         device.publish(items[n].field, Ok(items[n].value.clone()));
+                        finish(&items[n], Ok(()), attempts);
                     }
                 }
                 Err(TxError::Exception(Exception::ILLEGAL_FUNCTION))
@@ -87,7 +129,7 @@ impl LinkTask {
                 Err(e) => {
                     let failed = WriteError::from(e.clone());
                     for &n in op.items() {
-                        finish(&items[n], Err(failed.clone()));
+                        finish(&items[n], Err(failed.clone()), attempts);
                     }
                     if matches!(e, TxError::Exception(_)) {
                         continue;
@@ -98,6 +140,7 @@ impl LinkTask {
                             finish(
                                 &items[n],
                                 Err(WriteError::NotSent(Box::new(failed.clone()))),
+                                0,
                             );
                         }
                     }

@@ -39,7 +39,9 @@ pub enum ServiceError {
     #[error("no write has generation {0}")]
     UnknownWrite(u64),
     /// A write too old to be kept in the log.
-    #[error("write {generation} is older than the last {kept} writes kept")]
+    #[error(
+        "write {generation} aged out: each field keeps its last {kept} writes, and newer ones replaced it"
+    )]
     WriteExpired { generation: u64, kept: usize },
     #[error(transparent)]
     Declare(#[from] DeclareError),

@@ -7,7 +7,7 @@ use super::{Service, ServiceError};
 use crate::cache::{AccessError, Device};
 use crate::codec::{IecType, Value};
 use crate::profile::Direction;
-use crate::writes::{Lookup, WRITE_LOG_CAPACITY, WriteRecord};
+use crate::writes::{FIELD_HISTORY, Lookup, WriteRecord};
 
 /// A write that passed every check and can be requested.
 #[derive(Debug, Clone)]
@@ -122,7 +122,7 @@ impl Service {
             Lookup::Found(record) => Ok(record),
             Lookup::Expired => Err(ServiceError::WriteExpired {
                 generation,
-                kept: WRITE_LOG_CAPACITY,
+                kept: FIELD_HISTORY,
             }),
             Lookup::Unknown => Err(ServiceError::UnknownWrite(generation)),
         }
@@ -198,7 +198,9 @@ impl ScanCycle {
     /// One cycle. `devices`, when not empty, replaces the devices whose inputs are
     /// returned. An output equal to the newest value already requested for its field is
     /// not written again: a runtime sends all its outputs every cycle, and only changes
-    /// become bus writes.
+    /// become bus writes. Such an output the device holds another value in is named in the
+    /// cycle's errors (a failed write, a device that changed it), and is written again by
+    /// the device's `write_mode: reconcile`.
     pub fn step(
         &mut self,
         devices: &[String],
@@ -217,7 +219,22 @@ impl ScanCycle {
         let mut acks = Vec::new();
         for out in outputs {
             match out {
-                Ok(w) if w.device.latest_value(w.idx).as_ref() == Some(&w.value) => {}
+                Ok(w) if w.device.latest_value(w.idx).as_ref() == Some(&w.value) => {
+                    if w.device.mismatch(w.idx).is_some() {
+                        let actual = w.device.sample(w.idx).value;
+                        errors.push(format!(
+                            "{}.{}: the device holds {}, not the requested {}{}",
+                            w.device.name(),
+                            w.device.field(w.idx).name,
+                            actual.map_or_else(|| "nothing".to_owned(), |v| v.to_string()),
+                            w.value,
+                            self.service
+                                .last_write(&w.device, w.idx)
+                                .and_then(|r| r.error.map(|e| format!(" (last write: {e})")))
+                                .unwrap_or_default()
+                        ));
+                    }
+                }
                 Ok(w) => match self.service.write(w) {
                     Ok(ack) => acks.push(ack),
                     Err(e) => errors.push(e.to_string()),
