@@ -335,7 +335,7 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
             if mode.is_none() {
                 report.push(
                     n.line,
-                    &at("write_mode"),
+                    at("write_mode"),
                     format!(
                         "`{}` is not a write mode (on_change or reconcile)",
                         crate::text::quote(&t)
