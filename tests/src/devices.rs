@@ -176,6 +176,8 @@ pub struct Slave {
     pub counter: Option<u16>,
     /// Knows only single writes: FC15 and FC16 get exception 01.
     pub single_writes_only: bool,
+    /// The next this many write requests get exception 06 (server device busy).
+    pub busy_writes: u32,
 }
 
 impl Default for Slave {
@@ -186,6 +188,7 @@ impl Default for Slave {
             refused: Vec::new(),
             counter: None,
             single_writes_only: false,
+            busy_writes: 0,
         }
     }
 }
@@ -282,8 +285,14 @@ impl RtuBus {
             count,
         });
         let slave = state.slaves.get_mut(&slave_id)?;
+        let write = matches!(function, 5 | 6 | 15 | 16);
+        let busy = write && slave.busy_writes > 0;
+        if busy {
+            slave.busy_writes -= 1;
+        }
         let mut pdu = match &slave.behaviour {
             Behaviour::Silent => return None,
+            _ if busy => vec![function | 0x80, 6],
             Behaviour::Exception(code) => vec![function | 0x80, *code],
             _ => respond(slave, function, address, count, &frame[..frame.len() - 2]),
         };

@@ -290,3 +290,52 @@ impl SseReader {
         }
     }
 }
+
+/// A serial link `bus` on `port` at 115200 baud, as config text.
+pub fn link_yaml(port: &Path) -> String {
+    format!(
+        "links:\n  - {{ name: bus, serial: {{ port: {}, baud: 115200 }} }}\n",
+        port.display()
+    )
+}
+
+/// A gateway on a bus served on a pseudo-terminal, the pty's other end held, the bus task,
+/// and the pty's path.
+pub type OnBus = (
+    TestGateway,
+    tokio_serial::SerialStream,
+    tokio::task::JoinHandle<()>,
+    PathBuf,
+);
+
+/// Starts a gateway whose link `bus` opens a pty that `bus` answers on, with the
+/// repository's profiles and `profiles` (file name, text) beside them, and `devices` (YAML
+/// list items).
+pub async fn bus_gateway(
+    name: &str,
+    bus: &devices::RtuBus,
+    profiles: &[(&str, &str)],
+    devices: &str,
+) -> OnBus {
+    let dir = devices::temp_dir(name);
+    let profile_dir = dir.join("profiles");
+    std::fs::create_dir_all(&profile_dir).expect("dir");
+    for entry in std::fs::read_dir(profiles_dir()).expect("profiles") {
+        let path = entry.expect("entry").path();
+        std::fs::copy(&path, profile_dir.join(path.file_name().expect("name"))).expect("copy");
+    }
+    for (file, text) in profiles {
+        std::fs::write(profile_dir.join(file), text).expect("profile");
+    }
+    let port = dir.join("ttyBUS");
+    let (device_end, holder) = devices::pty_at(&port).expect("pty");
+    let task = bus.serve(device_end);
+    let gw = TestGateway::start(&format!(
+        "profiles: {}\n{}devices:\n{devices}",
+        profile_dir.display(),
+        link_yaml(&port)
+    ))
+    .await
+    .expect("gateway");
+    (gw, holder, task, port)
+}

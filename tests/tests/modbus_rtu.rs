@@ -1,22 +1,13 @@
 //! The Modbus engine over real pseudo-terminals: the gateway opens the pty by path, as it
 //! would open /dev/ttyUSB0, and devices answer on the other end.
 
-use std::path::Path;
 use std::time::Duration;
 
 use reqwest::Method;
 use serde_json::{Value, json};
 
 use iogate_tests::devices::{Behaviour, ModbusDevice, RtuBus, pty_at, temp_dir};
-use iogate_tests::{TestGateway, eventually};
-use tokio_serial::SerialStream;
-
-fn link_yaml(port: &Path) -> String {
-    format!(
-        "links:\n  - {{ name: bus, serial: {{ port: {}, baud: 115200 }} }}\n",
-        port.display()
-    )
-}
+use iogate_tests::{TestGateway, bus_gateway, eventually, link_yaml};
 
 /// The documented byte orders, letter by letter (A = most significant byte).
 fn order_letters(order: &str, len: usize) -> &'static str {
@@ -280,37 +271,6 @@ const COUNTER_PROFILE: &str = "name: Counter\nfields:\n  - { name: Count, type: 
 /// A gateway on a fresh bus; `devices` is the YAML list of devices.
 /// What `bus_gateway` starts: the gateway, the holder of the pty's gateway end, the bus task
 /// and the port path.
-type OnBus = (
-    TestGateway,
-    SerialStream,
-    tokio::task::JoinHandle<()>,
-    std::path::PathBuf,
-);
-
-async fn bus_gateway(name: &str, bus: &RtuBus, profiles: &[(&str, &str)], devices: &str) -> OnBus {
-    let dir = temp_dir(name);
-    let profile_dir = dir.join("profiles");
-    std::fs::create_dir_all(&profile_dir).expect("dir");
-    for entry in std::fs::read_dir(iogate_tests::profiles_dir()).expect("profiles") {
-        let path = entry.expect("entry").path();
-        std::fs::copy(&path, profile_dir.join(path.file_name().expect("name"))).expect("copy");
-    }
-    for (file, text) in profiles {
-        std::fs::write(profile_dir.join(file), text).expect("profile");
-    }
-    let port = dir.join("ttyBUS");
-    let (device_end, holder) = pty_at(&port).expect("pty");
-    let task = bus.serve(device_end);
-    let gw = TestGateway::start(&format!(
-        "profiles: {}\n{}devices:\n{devices}",
-        profile_dir.display(),
-        link_yaml(&port)
-    ))
-    .await
-    .expect("gateway");
-    (gw, holder, task, port)
-}
-
 #[tokio::test]
 async fn a_cycle_is_the_minimal_number_of_batched_transactions() {
     let bus = RtuBus::default();
