@@ -35,6 +35,7 @@ pub const DEVICE_CONNECTED: &str = "iogate_device_connected";
 pub const DEVICE_ERROR_CODE: &str = "iogate_device_error_code";
 pub const DEVICE_IO_CYCLES: &str = "iogate_device_io_cycles";
 pub const DEVICE_MISMATCHED_OUTPUTS: &str = "iogate_device_mismatched_outputs";
+pub const DEVICE_SAFE_WRITES: &str = "iogate_device_safe_value_writes";
 pub const DEVICE_RESPONSE_TIME: &str = "iogate_device_response_time_seconds";
 pub const DEVICE_REQUESTS: &str = "iogate_device_requests";
 pub const DEVICE_TIMEOUTS: &str = "iogate_device_timeouts";
@@ -115,6 +116,7 @@ pub struct Metrics {
     device_error_code: Family<DeviceLabels, Gauge>,
     device_io_cycles: Family<DeviceLabels, Counter>,
     device_mismatched: Family<DeviceLabels, Gauge>,
+    safe_writes: Family<DeviceLabels, Counter>,
     response_time: Family<DeviceLabels, Histogram, fn() -> Histogram>,
     requests: Family<RequestLabels, Counter>,
     timeouts: Family<DeviceLabels, Counter>,
@@ -157,6 +159,7 @@ impl Metrics {
             device_error_code: Family::default(),
             device_io_cycles: Family::default(),
             device_mismatched: Family::default(),
+            safe_writes: Family::default(),
             response_time: Family::new_with_constructor(response_histogram),
             requests: Family::default(),
             timeouts: Family::default(),
@@ -189,6 +192,11 @@ impl Metrics {
             DEVICE_MISMATCHED_OUTPUTS,
             "Outputs the device was read holding another value in than the newest requested, with no write of it waiting",
             m.device_mismatched.clone(),
+        );
+        registry.register(
+            DEVICE_SAFE_WRITES,
+            "Safe values written because the scan-cycle client that wrote the output was lost (on_client_loss)",
+            m.safe_writes.clone(),
         );
         registry.register(
             LINK_RECONNECTS,
@@ -406,6 +414,15 @@ impl Metrics {
             self.link_planned.get_or_create(&labels).set(p);
         }
         self.link_utilisation.get_or_create(&labels).set(measured);
+    }
+
+    /// A safe value was written for `device` after its client was lost.
+    pub fn safe_value_written(&self, device: &str) {
+        self.safe_writes
+            .get_or_create(&DeviceLabels {
+                device: device.to_owned(),
+            })
+            .inc();
     }
 
     /// The registry in OpenMetrics text, with states copied from the cache first.

@@ -310,3 +310,92 @@ async fn a_burst_of_ten_thousand_writes_erases_no_other_writers_outcome() {
     assert!(refused.to_string().contains("aged out"), "{refused}");
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_lost_scan_cycle_client_gets_its_outputs_safe_after_the_lease_and_not_before() {
+    let bus = RtuBus::default();
+    bus.slave(1, |_| {});
+    let (gw, _pty, task, _) = bus_gateway(
+        "client-loss",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, on_client_loss: { after: 400ms, safe: { DO_0: false, DO_1: false } } }\n",
+    )
+    .await;
+    gw.until("/api/v1/devices/io", "connected", |b| {
+        b["connected"] == true
+    })
+    .await
+    .expect("connected");
+    let mut client = gw.client().await.expect("client");
+    let mut exchange = client.exchange().await.expect("exchange");
+    let on = iogate_client::Value::Bool(true);
+    let reply = exchange
+        .cycle(&[("io", "DO_0", on.clone()), ("io", "DO_1", on)], &["io"])
+        .await
+        .expect("cycle");
+    assert_eq!(reply.written.len(), 2);
+    iogate_tests::eventually("both coils on", || async {
+        bus.read_slave(1, |s| s.tables.coils[0] && s.tables.coils[1])
+            .unwrap_or(false)
+    })
+    .await
+    .expect("on");
+    // Another client takes DO_1 over: its value stands when the runtime is lost.
+    put(&gw, "/api/v1/devices/io/fields/DO_1", json!(true)).await;
+
+    drop(exchange);
+    let gone = std::time::Instant::now();
+    iogate_tests::eventually("DO_0 safe", || async {
+        bus.read_slave(1, |s| !s.tables.coils[0]).unwrap_or(false)
+    })
+    .await
+    .expect("safe value written");
+    let after = gone.elapsed();
+    assert!(
+        after >= std::time::Duration::from_millis(400),
+        "the safe value came {after:?} after the client left, before its lease"
+    );
+    let (_, field) = gw
+        .get("/api/v1/devices/io/fields/DO_0")
+        .await
+        .expect("field");
+    assert_eq!(field["last_write"]["origin"], "safety", "{field}");
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains("iogate_device_safe_value_writes_total{device=\"io\"} 1"),
+        "{metrics}"
+    );
+    assert_eq!(bus.read_slave(1, |s| s.tables.coils[1]), Some(true));
+    let (_, other) = gw
+        .get("/api/v1/devices/io/fields/DO_1")
+        .await
+        .expect("field");
+    assert_eq!(other["last_write"]["origin"], "client", "{other}");
+    gw.shutdown().await;
+    task.abort();
+}
+
+#[test]
+fn safe_values_are_checked_against_the_profile() {
+    let problems = |safe: &str| {
+        let yaml = format!(
+            "links:\n  - {{ name: bus, serial: {{ port: /dev/ttyUSB0, baud: 9600 }} }}\ndevices:\n  - {{ name: io, profile: MyIoModule, link: bus, slave_id: 1, on_client_loss: {safe} }}\n"
+        );
+        let mut config = iogate::config::parse("t.yaml", &yaml).map_err(|p| p.to_string())?;
+        config.profiles = Some(iogate_tests::profiles_dir());
+        iogate::app::Setup::from_config(config, std::path::Path::new("."))
+            .map(drop)
+            .map_err(|p| p.to_string())
+    };
+    assert!(problems("hold").is_ok());
+    assert!(problems("{ after: 2s, safe: { DO_0: false, AO_0: 0 } }").is_ok());
+    let e = problems("{ after: 2s, safe: { DI_0: false } }").expect_err("input");
+    assert!(e.contains("DI_0 is an input"), "{e}");
+    let e = problems("{ after: 2s, safe: { DO_0: maybe } }").expect_err("value");
+    assert!(e.contains("not a BOOL value"), "{e}");
+    let e = problems("{ after: 2s, safe: { NOPE: 1 } }").expect_err("field");
+    assert!(e.contains("no field `NOPE`"), "{e}");
+    let e = problems("drop").expect_err("policy");
+    assert!(e.contains("not a client-loss policy"), "{e}");
+}

@@ -273,6 +273,31 @@ impl Device {
         Ok(generation)
     }
 
+    /// As [`Device::request_write`], by the scan-cycle stream `writer` (whose loss may
+    /// write the field's safe value).
+    pub fn request_write_by(
+        &self,
+        idx: usize,
+        value: Value,
+        writer: u64,
+    ) -> Result<u64, AccessError> {
+        self.check_write(idx, &value)?;
+        let generation =
+            self.outputs
+                .request_by(self.name(), &self.field(idx).name, idx, value, writer);
+        lock(&self.wake).notify_one();
+        Ok(generation)
+    }
+
+    /// Requests a write the gateway asks for itself (`origin`).
+    pub fn request_own(&self, idx: usize, value: Value, origin: crate::writes::Origin) -> u64 {
+        let generation =
+            self.outputs
+                .request_from(self.name(), &self.field(idx).name, idx, value, origin);
+        lock(&self.wake).notify_one();
+        generation
+    }
+
     /// The device's requested outputs: pending writes, newest values, generations.
     pub fn outputs(&self) -> &Outputs {
         &self.outputs

@@ -63,6 +63,8 @@ struct WriteSlot {
     last_generation: Option<u64>,
     /// The write the device's task took and has not finished.
     in_flight: Option<u64>,
+    /// The scan-cycle stream that requested the newest value, if one did.
+    writer: Option<u64>,
 }
 
 /// The write slots of one device's fields, and the gateway's write log they report to.
@@ -86,6 +88,25 @@ impl Outputs {
         self.request_from(device, field, idx, value, Origin::Client)
     }
 
+    /// As [`Outputs::request`], by the scan-cycle stream `writer`.
+    pub fn request_by(
+        &self,
+        device: &str,
+        field: &str,
+        idx: usize,
+        value: Value,
+        writer: u64,
+    ) -> u64 {
+        let generation = self.request_from(device, field, idx, value, Origin::Client);
+        lock(&self.slots)[idx].writer = Some(writer);
+        generation
+    }
+
+    /// The scan-cycle stream that requested field `idx`'s newest value, if one did.
+    pub fn writer(&self, idx: usize) -> Option<u64> {
+        lock(&self.slots)[idx].writer
+    }
+
     /// As [`Outputs::request`], for a write the gateway asks for itself.
     pub fn request_from(
         &self,
@@ -103,6 +124,7 @@ impl Outputs {
         }
         slot.latest = Some(value);
         slot.last_generation = Some(generation);
+        slot.writer = None;
         generation
     }
 

@@ -90,6 +90,11 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
                 ),
             );
         }
+        for (field, text) in d.on_client_loss.iter().flat_map(|l| &l.safe) {
+            if let Err(why) = safe_value(profile, field, text) {
+                report.push(d.line, &format!("{ctx}: on_client_loss.safe.{field}"), why);
+            }
+        }
     }
     let problems = report.into_problems();
     if problems.is_empty() {
@@ -97,6 +102,33 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
     } else {
         Err(problems)
     }
+}
+
+/// The field index and value of one `on_client_loss.safe` entry: an output (or inout) of
+/// the profile, and a value of its type.
+pub fn safe_value(
+    profile: &crate::profile::Profile,
+    field: &str,
+    text: &str,
+) -> Result<(usize, crate::codec::Value), String> {
+    let idx = profile
+        .field_index(field)
+        .ok_or_else(|| format!("profile {} has no field `{field}`", profile.name))?;
+    let f = &profile.fields[idx];
+    if f.direction == crate::profile::Direction::Input {
+        return Err(format!(
+            "{field} is an input: only outputs have safe values"
+        ));
+    }
+    crate::codec::Value::parse(f.ty, text)
+        .map(|v| (idx, v))
+        .map_err(|e| {
+            format!(
+                "`{}` is not a {} value: {e}",
+                crate::text::quote(text),
+                f.ty
+            )
+        })
 }
 
 /// What the security section gives the listeners.

@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use crate::yaml::{self, Problems, Report};
 
-pub use check::{Access, check_devices, check_security};
+pub use check::{Access, check_devices, check_security, safe_value};
 pub use rules::{DEFAULT_REFRESH, DEFAULT_RETRIES, DEFAULT_TIMEOUT, MAX_READ_REGISTERS};
 
 pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
@@ -175,7 +175,19 @@ pub struct DeviceConfig {
     /// When outputs are written: on a new request, or also whenever the device holds another
     /// value than the one requested.
     pub write_mode: WriteMode,
+    /// What happens to outputs a scan-cycle client wrote when it is gone: `None` holds them.
+    pub on_client_loss: Option<ClientLoss>,
     pub line: u64,
+}
+
+/// `devices[].on_client_loss: { after, safe: { FIELD: value } }`: once the `Exchange` stream
+/// that last wrote one of these outputs has been gone for `after` (and nobody wrote it
+/// since), its safe value is written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClientLoss {
+    pub after: Duration,
+    /// Field name and value text, checked against the profile.
+    pub safe: Vec<(String, String)>,
 }
 
 /// `devices[].write_mode`.

@@ -35,7 +35,71 @@ const DEVICE_KEYS: &[&str] = &[
     "max_batch",
     "max_gap",
     "write_mode",
+    "on_client_loss",
 ];
+const CLIENT_LOSS_KEYS: &[&str] = &["after", "safe"];
+
+/// `on_client_loss`: `hold`, or `{ after: DURATION, safe: { FIELD: VALUE, ... } }`.
+fn read_client_loss(
+    node: &Node,
+    report: &mut Report,
+    ctx: &str,
+) -> Option<Option<super::ClientLoss>> {
+    if let yaml::Kind::Str(text) = &node.kind {
+        if text == "hold" {
+            return Some(None);
+        }
+        report.push(
+            node.line,
+            ctx,
+            format!(
+                "`{}` is not a client-loss policy: `hold`, or `{{ after: 2s, safe: {{ FIELD: value }} }}`",
+                crate::text::quote(text)
+            ),
+        );
+        return None;
+    }
+    let mut map = node.map(report, ctx)?;
+    let after = match map.require("after", report, ctx) {
+        Some(n) => duration_value(
+            n,
+            report,
+            &format!("{ctx}.after"),
+            Duration::from_millis(10),
+        ),
+        None => None,
+    };
+    let safe_ctx = format!("{ctx}.safe");
+    let safe = map
+        .require("safe", report, ctx)
+        .and_then(|n| match &n.kind {
+            yaml::Kind::Map(entries) if !entries.is_empty() => Some(
+                entries
+                    .iter()
+                    .filter_map(|(key, value)| {
+                        let text = match &value.kind {
+                            yaml::Kind::Bool(b) => Some(b.to_string()),
+                            _ => value.scalar_text(report, &format!("{safe_ctx}.{}", key.name)),
+                        };
+                        text.map(|v| (key.name.clone(), v))
+                    })
+                    .collect::<Vec<_>>(),
+            ),
+            _ => {
+                report.push(
+                    n.line,
+                    &safe_ctx,
+                    "expected a mapping of output fields to their safe values",
+                );
+                None
+            }
+        });
+    map.finish(report, ctx, CLIENT_LOSS_KEYS);
+    Some(Some(super::ClientLoss {
+        after: after?,
+        safe: safe?,
+    }))
+}
 
 pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     let mut config = Config::empty(report.file());
@@ -345,6 +409,10 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
             mode
         }),
     };
+    let on_client_loss = match map.get("on_client_loss") {
+        None => Some(None),
+        Some(n) => read_client_loss(n, report, &at("on_client_loss")),
+    };
     map.finish(report, &ctx, DEVICE_KEYS);
     Some(DeviceConfig {
         name: name?,
@@ -357,6 +425,7 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
         max_batch: max_batch?,
         max_gap: max_gap?,
         write_mode: write_mode?,
+        on_client_loss: on_client_loss?,
         line: node.line,
     })
 }

@@ -447,6 +447,7 @@ pub fn ensure_device(
             max_batch: rules::MAX_READ_REGISTERS,
             max_gap: 0,
             write_mode: crate::config::WriteMode::default(),
+            on_client_loss: None,
             line: 0,
         };
         let device = cache.insert_device(registry, config, profile.clone());

@@ -76,8 +76,16 @@ impl Service {
 
     /// Requests one checked write.
     pub fn write(&self, write: Prepared) -> Result<Accepted, ServiceError> {
+        self.write_as(write, None)
+    }
+
+    /// As [`Service::write`], by the scan-cycle stream `writer` when one asks.
+    pub fn write_as(&self, write: Prepared, writer: Option<u64>) -> Result<Accepted, ServiceError> {
         self.accepting_writes()?;
-        let generation = write.device.request_write(write.idx, write.value)?;
+        let generation = match writer {
+            Some(id) => write.device.request_write_by(write.idx, write.value, id)?,
+            None => write.device.request_write(write.idx, write.value)?,
+        };
         Ok(Accepted {
             device: write.device.name().to_owned(),
             field: write.device.field(write.idx).name.clone(),
@@ -135,6 +143,46 @@ impl Service {
         Some(device.field(idx).ty)
     }
 
+    /// A scan-cycle stream ended: for every device with `on_client_loss`, the safe value of
+    /// each such output the stream wrote last is written once `after` has passed, unless
+    /// somebody wrote the output meanwhile.
+    pub fn client_lost(&self, stream: u64) {
+        for device in self.cache.devices() {
+            let Some(loss) = device.config.on_client_loss.clone() else {
+                continue;
+            };
+            let safe: Vec<(usize, crate::codec::Value)> = loss
+                .safe
+                .iter()
+                .filter_map(|(field, text)| {
+                    crate::config::safe_value(&device.profile, field, text).ok()
+                })
+                .filter(|(idx, _)| device.outputs().writer(*idx) == Some(stream))
+                .collect();
+            if safe.is_empty() {
+                continue;
+            }
+            tracing::info!(device = %device.name(), after = ?loss.after, "scan-cycle client gone; its outputs get their safe values unless it returns");
+            let token = self.tasks.token().clone();
+            let metrics = self.tasks.metrics().clone();
+            self.tasks.spawn(async move {
+                tokio::select! {
+                    _ = token.cancelled() => return,
+                    _ = tokio::time::sleep(loss.after) => {}
+                }
+                for (idx, value) in safe {
+                    if device.outputs().writer(idx) != Some(stream) {
+                        continue; // written since: that writer's value stands
+                    }
+                    let field = device.field(idx).name.clone();
+                    tracing::warn!(device = %device.name(), field = %field, value = %value, "client lost: writing the safe value");
+                    device.request_own(idx, value, crate::writes::Origin::Safety);
+                    metrics.safe_value_written(device.name());
+                }
+            });
+        }
+    }
+
     /// The newest write to a field, if one is still in the log.
     pub fn last_write(&self, device: &Device, idx: usize) -> Option<WriteRecord> {
         match self.cache.writes.get(device.last_write(idx)?) {
@@ -163,6 +211,19 @@ pub struct ScanCycle {
     service: Arc<Service>,
     devices: Vec<Arc<Device>>,
     cycle: u64,
+    /// This stream, as the writer of the outputs it requests.
+    id: u64,
+}
+
+/// Numbers scan-cycle streams.
+static NEXT_STREAM: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+impl Drop for ScanCycle {
+    /// The stream is gone: outputs with an `on_client_loss` safe value that it wrote last
+    /// get their safe value once the device's `after` has passed.
+    fn drop(&mut self) {
+        self.service.client_lost(self.id);
+    }
 }
 
 /// What one cycle did: its number, the devices whose inputs go back, the writes it
@@ -192,6 +253,7 @@ impl ScanCycle {
             service,
             devices: Vec::new(),
             cycle: 0,
+            id: NEXT_STREAM.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         }
     }
 
@@ -235,7 +297,7 @@ impl ScanCycle {
                         ));
                     }
                 }
-                Ok(w) => match self.service.write(w) {
+                Ok(w) => match self.service.write_as(w, Some(self.id)) {
                     Ok(ack) => acks.push(ack),
                     Err(e) => errors.push(e.to_string()),
                 },
