@@ -92,7 +92,7 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
         }
         for (field, text) in d.on_client_loss.iter().flat_map(|l| &l.safe) {
             if let Err(why) = safe_value(profile, field, text) {
-                report.push(d.line, &format!("{ctx}: on_client_loss.safe.{field}"), why);
+                report.push(d.line, format!("{ctx}: on_client_loss.safe.{field}"), why);
             }
         }
     }
