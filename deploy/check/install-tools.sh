@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Installs what the deployment checks use, when it is missing: promtool and prometheus
+# (Debian's prometheus package) and kubernetes-validate (PyPI, ships the Kubernetes
+# schemas). Idempotent; safe to run from several test processes at once.
+set -euo pipefail
+lock="${TMPDIR:-/tmp}/iogate-install-tools.lock"
+exec 9>"$lock"
+flock 9
+
+if ! command -v promtool >/dev/null 2>&1 || ! command -v prometheus >/dev/null 2>&1; then
+  sudo=""
+  if [ "$(id -u)" -ne 0 ]; then sudo="sudo -n"; fi
+  export DEBIAN_FRONTEND=noninteractive
+  $sudo apt-get update -qq
+  $sudo apt-get install -y -qq --no-install-recommends prometheus >/dev/null
+fi
+
+if ! python3 -c "import kubernetes_validate" >/dev/null 2>&1; then
+  python3 -m pip install --quiet --disable-pip-version-check kubernetes-validate
+fi

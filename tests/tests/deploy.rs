@@ -1,0 +1,466 @@
+//! The files under `deploy/`, each checked by the tool of its ecosystem (promtool, a real
+//! Prometheus, kubernetes-validate, systemd-analyze), and against a running gateway: every
+//! metric the dashboard and the alert rules use is one `/metrics` exports.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use iogate_tests::devices::RtuBus;
+use iogate_tests::{TestGateway, bus_gateway, eventually};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .expect("repository")
+}
+
+fn deploy(path: &str) -> PathBuf {
+    repo().join("deploy").join(path)
+}
+
+/// Installs the tools once (the project's own script; idempotent).
+fn tools() {
+    static DONE: OnceLock<()> = OnceLock::new();
+    DONE.get_or_init(|| {
+        let status = Command::new("bash")
+            .arg(deploy("check/install-tools.sh"))
+            .status()
+            .expect("run install-tools.sh");
+        assert!(status.success(), "deploy/check/install-tools.sh failed");
+    });
+}
+
+fn run(program: &str, args: &[&str]) -> String {
+    let out = Command::new(program)
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .unwrap_or_else(|e| panic!("{program}: {e}"));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "{program} {args:?}:\n{text}");
+    text
+}
+
+#[test]
+fn alert_rules_and_the_compose_prometheus_config_pass_promtool() {
+    tools();
+    let rules = run(
+        "promtool",
+        &["check", "rules", "deploy/prometheus/alerts.yml"],
+    );
+    assert!(rules.contains("SUCCESS: 9 rules found"), "{rules}");
+    run(
+        "promtool",
+        &["check", "config", "deploy/compose/prometheus.yml"],
+    );
+}
+
+#[test]
+fn kubernetes_manifests_validate_against_the_kubernetes_schemas() {
+    tools();
+    run(
+        "python3",
+        &[
+            "-m",
+            "kubernetes_validate",
+            "--strict",
+            "--quiet",
+            "deploy/kubernetes/configmap.yaml",
+            "deploy/kubernetes/deployment.yaml",
+            "deploy/kubernetes/service.yaml",
+        ],
+    );
+    let kustomization =
+        std::fs::read_to_string(deploy("kubernetes/kustomization.yaml")).expect("kustomization");
+    for file in ["configmap.yaml", "deployment.yaml", "service.yaml"] {
+        assert!(kustomization.contains(file), "{file} not in kustomization");
+    }
+    let deployment =
+        std::fs::read_to_string(deploy("kubernetes/deployment.yaml")).expect("deployment");
+    for needed in [
+        "replicas: 1",
+        "type: Recreate",
+        "/livez",
+        "/readyz",
+        "runAsNonRoot: true",
+    ] {
+        assert!(deployment.contains(needed), "deployment lacks {needed}");
+    }
+}
+
+#[test]
+fn the_systemd_unit_verifies_where_systemd_analyze_exists() {
+    let Ok(probe) = Command::new("systemd-analyze").arg("--version").output() else {
+        eprintln!("systemd-analyze is not installed here; unit not verified");
+        return;
+    };
+    assert!(probe.status.success());
+    let unit = std::fs::read_to_string(deploy("systemd/iogate.service")).expect("unit");
+    for needed in [
+        "ExecStartPre=/usr/local/bin/iogate check",
+        "Restart=on-failure",
+        "NoNewPrivileges=yes",
+        "ProtectSystem=strict",
+        "PrivateTmp=yes",
+        "SupplementaryGroups=dialout",
+        "DeviceAllow=char-ttyUSB rw",
+    ] {
+        assert!(unit.contains(needed), "unit lacks {needed}");
+    }
+    // Verified with the binary this build made standing in for /usr/local/bin/iogate.
+    let binary = repo().join("target/debug/iogate");
+    let binary = if binary.exists() {
+        binary
+    } else {
+        PathBuf::from("/bin/true")
+    };
+    let dir = iogate_tests::devices::temp_dir("systemd");
+    let path = dir.join("iogate.service");
+    std::fs::write(
+        &path,
+        unit.replace("/usr/local/bin/iogate", &binary.display().to_string()),
+    )
+    .expect("write");
+    let out = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&path)
+        .output()
+        .expect("systemd-analyze");
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    // Lines about this unit only; the host's own units may have their own complaints.
+    let ours: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("iogate.service"))
+        .collect();
+    assert!(ours.is_empty(), "{text}");
+}
+
+#[test]
+fn compose_parses_and_every_file_it_mounts_exists() {
+    let compose_dir = deploy("compose");
+    let text = std::fs::read_to_string(compose_dir.join("docker-compose.yml")).expect("compose");
+    let doc: serde_json::Value = serde_saphyr::from_str(&text).expect("compose parses");
+    let services = doc["services"].as_object().expect("services");
+    for name in ["iogate", "prometheus", "grafana"] {
+        assert!(services.contains_key(name), "no service {name}");
+    }
+    let mut mounts = 0;
+    for (name, service) in services {
+        for volume in service["volumes"].as_array().into_iter().flatten() {
+            let source = volume
+                .as_str()
+                .and_then(|v| v.split(':').next())
+                .expect("short volume syntax");
+            let path = compose_dir.join(source);
+            assert!(
+                path.exists(),
+                "{name} mounts {source}, which does not exist"
+            );
+            mounts += 1;
+        }
+    }
+    assert!(mounts >= 5);
+    let build = &services["iogate"]["build"];
+    let dockerfile = compose_dir
+        .join(build["context"].as_str().expect("context"))
+        .join(build["dockerfile"].as_str().expect("dockerfile"));
+    assert!(dockerfile.exists());
+    // The Dockerfile's promises.
+    let docker = std::fs::read_to_string(dockerfile).expect("Dockerfile");
+    for needed in [
+        "cargo build --release --locked",
+        "USER iogate",
+        "--gid dialout",
+        "HEALTHCHECK",
+        "/readyz",
+        "EXPOSE 8080 50051 5020",
+        "ENTRYPOINT",
+    ] {
+        assert!(docker.contains(needed), "Dockerfile lacks {needed}");
+    }
+    for line in docker
+        .lines()
+        .filter(|l| l.starts_with("COPY ") && !l.contains("--from"))
+    {
+        let source = line.split_whitespace().nth(1).expect("source");
+        if source != "." {
+            assert!(repo().join(source).exists(), "COPY {source}: missing");
+        }
+    }
+}
+
+#[test]
+fn the_shipped_configs_pass_the_gateways_own_check() {
+    let check = |yaml: &str| {
+        let yaml = yaml.replace("profiles: /etc/iogate/profiles", "");
+        let mut config = iogate::config::parse("deploy.yaml", &yaml).map_err(|p| p.to_string())?;
+        config.profiles = Some(iogate_tests::profiles_dir());
+        iogate::app::Setup::from_config(config, Path::new("."))
+            .map(drop)
+            .map_err(|p| p.to_string())
+    };
+    let compose = std::fs::read_to_string(deploy("compose/iogate.yaml")).expect("compose config");
+    check(&compose).expect("the compose config");
+    // The image's default listens beyond loopback: without tokens it refuses to start, and
+    // for that reason only.
+    let image = std::fs::read_to_string(deploy("docker/iogate.yaml")).expect("image config");
+    let refused = check(&image).expect_err("no tokens");
+    assert!(refused.contains("no tokens are configured"), "{refused}");
+    assert_eq!(
+        refused
+            .lines()
+            .filter(|l| l.contains("deploy.yaml"))
+            .count(),
+        2,
+        "{refused}"
+    );
+    let with_tokens = format!("{image}security:\n  insecure: true\n");
+    check(&with_tokens).expect("otherwise valid");
+    // The Kubernetes config, with the profile the ConfigMap carries.
+    let configmap =
+        std::fs::read_to_string(deploy("kubernetes/configmap.yaml")).expect("configmap");
+    let doc: serde_json::Value = serde_saphyr::from_str(&configmap).expect("yaml");
+    let config = doc["data"]["iogate.yaml"].as_str().expect("config");
+    let profile = doc["data"]["my_io_module.yaml"].as_str().expect("profile");
+    let dir = iogate_tests::devices::temp_dir("k8s-config");
+    std::fs::write(dir.join("my_io_module.yaml"), profile).expect("profile");
+    std::fs::write(dir.join("tokens"), "admin k8s-admin-token-0123456789\n").expect("tokens");
+    let config = config
+        .replace("/etc/iogate/profiles", &dir.display().to_string())
+        .replace(
+            "/etc/iogate/tokens/tokens",
+            &dir.join("tokens").display().to_string(),
+        );
+    let parsed = iogate::config::parse("configmap", &config).expect("parses");
+    iogate::app::Setup::from_config(parsed, Path::new(".")).expect("the ConfigMap's config");
+}
+
+/// Metric names a running gateway exports (samples, with their `_total`, `_bucket`, ...).
+async fn exported(gw: &TestGateway) -> BTreeSet<String> {
+    let text = gw.metrics().await.expect("metrics");
+    text.lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+        .filter_map(|l| l.split(['{', ' ']).next())
+        .map(str::to_owned)
+        .collect()
+}
+
+fn used_names(text: &str) -> BTreeSet<String> {
+    let mut names = BTreeSet::new();
+    let mut rest = text;
+    while let Some(at) = rest.find("iogate_") {
+        let tail = &rest[at..];
+        let end = tail
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(tail.len());
+        names.insert(tail[..end].to_owned());
+        rest = &tail[end..];
+    }
+    names
+}
+
+async fn busy_gateway() -> iogate_tests::OnBus {
+    let bus = RtuBus::default();
+    // One address refused, so exceptions are counted too.
+    bus.slave(1, |s| s.refused = vec![3]);
+    let on_bus = bus_gateway(
+        "deploy-metrics",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 20ms }\n",
+    )
+    .await;
+    let gw = &on_bus.0;
+    eventually("every kind of series", || async {
+        let names = exported(gw).await;
+        [
+            "iogate_device_exceptions_total",
+            "iogate_device_requests_total",
+            "iogate_device_response_time_seconds_bucket",
+        ]
+        .iter()
+        .all(|n| names.contains(*n))
+    })
+    .await
+    .expect("series");
+    let (status, _) = gw
+        .send(
+            reqwest::Method::PUT,
+            "/api/v1/devices/io/fields/DO_0",
+            "true".to_owned(),
+        )
+        .await
+        .expect("write");
+    assert_eq!(status, 202);
+    on_bus
+}
+
+#[tokio::test]
+async fn every_metric_of_the_dashboard_and_the_alerts_is_exported() {
+    let dashboard = std::fs::read_to_string(deploy("grafana/iogate.json")).expect("dashboard");
+    let doc: serde_json::Value = serde_json::from_str(&dashboard).expect("valid JSON");
+    let panels = doc["panels"].as_array().expect("panels");
+    let ids: Vec<u64> = panels.iter().filter_map(|p| p["id"].as_u64()).collect();
+    let unique: BTreeSet<u64> = ids.iter().copied().collect();
+    assert_eq!(ids.len(), panels.len(), "every panel has an id");
+    assert_eq!(unique.len(), ids.len(), "panel ids are unique: {ids:?}");
+    let variables: Vec<&str> = doc["templating"]["list"]
+        .as_array()
+        .expect("variables")
+        .iter()
+        .filter_map(|v| v["name"].as_str())
+        .collect();
+    assert!(variables.contains(&"link") && variables.contains(&"device"));
+
+    let (gw, _pty, task, _) = busy_gateway().await;
+    let names = exported(&gw).await;
+    let alerts = std::fs::read_to_string(deploy("prometheus/alerts.yml")).expect("alerts");
+    let rules: serde_json::Value = serde_saphyr::from_str(&alerts).expect("rules yaml");
+    let expressions: String = rules["groups"][0]["rules"]
+        .as_array()
+        .expect("rules")
+        .iter()
+        .filter_map(|r| r["expr"].as_str())
+        .collect::<Vec<_>>()
+        .join("\n");
+    let expressions_in_panels: String = panels
+        .iter()
+        .flat_map(|p| p["targets"].as_array().into_iter().flatten())
+        .filter_map(|t| t["expr"].as_str())
+        .collect::<Vec<_>>()
+        .join("\n");
+    for (what, text) in [
+        (
+            "dashboard",
+            format!("{expressions_in_panels}\n{}", doc["templating"]),
+        ),
+        ("alert rules", expressions),
+    ] {
+        let used = used_names(&text);
+        assert!(used.len() >= 8, "{what}: {used:?}");
+        let missing: Vec<_> = used.difference(&names).collect();
+        assert!(
+            missing.is_empty(),
+            "{what} uses metrics /metrics does not export: {missing:?}\nexported: {names:?}"
+        );
+    }
+    gw.shutdown().await;
+    task.abort();
+}
+
+#[tokio::test]
+async fn a_real_prometheus_scrapes_the_gateway_and_evaluates_every_alert_rule() {
+    tools();
+    let (gw, _pty, task, _) = busy_gateway().await;
+    let dir = iogate_tests::devices::temp_dir("prometheus");
+    let target = gw.base.trim_start_matches("http://").to_owned();
+    let config = dir.join("prometheus.yml");
+    std::fs::write(
+        &config,
+        format!(
+            "global:\n  scrape_interval: 1s\n  evaluation_interval: 1s\nrule_files:\n  - {}\nscrape_configs:\n  - job_name: iogate\n    static_configs:\n      - targets: [\"{target}\"]\n",
+            deploy("prometheus/alerts.yml").display()
+        ),
+    )
+    .expect("config");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("free port")
+        .port();
+    struct Kill(std::process::Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let prometheus = Command::new("prometheus")
+        .arg(format!("--config.file={}", config.display()))
+        .arg(format!(
+            "--storage.tsdb.path={}",
+            dir.join("data").display()
+        ))
+        .arg(format!("--web.listen-address=127.0.0.1:{port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start prometheus");
+    let guard = Kill(prometheus);
+    let api = format!("http://127.0.0.1:{port}/api/v1");
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(5))
+        .build()
+        .expect("client");
+    let get = |path: String| {
+        let client = client.clone();
+        async move {
+            let response = client.get(path).send().await.ok()?;
+            response.json::<serde_json::Value>().await.ok()
+        }
+    };
+    // The target is scraped, healthy.
+    let patience = Duration::from_secs(60);
+    let deadline = tokio::time::Instant::now() + patience;
+    loop {
+        let targets = get(format!("{api}/targets")).await;
+        let up = targets.as_ref().is_some_and(|t| {
+            t["data"]["activeTargets"]
+                .as_array()
+                .is_some_and(|a| a.iter().any(|t| t["health"] == "up"))
+        });
+        if up {
+            break;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "Prometheus never scraped the gateway: {targets:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    // Every rule evaluated, none with an error.
+    loop {
+        let rules = get(format!("{api}/rules")).await;
+        let all: Vec<serde_json::Value> = rules
+            .as_ref()
+            .and_then(|r| r["data"]["groups"].as_array())
+            .into_iter()
+            .flatten()
+            .flat_map(|g| g["rules"].as_array().cloned().unwrap_or_default())
+            .collect();
+        let evaluated = all.len() == 9
+            && all.iter().all(|r| {
+                r["lastEvaluation"]
+                    .as_str()
+                    .is_some_and(|t| !t.starts_with("0001"))
+            });
+        if evaluated {
+            for rule in &all {
+                assert_eq!(rule["health"], "ok", "{rule}");
+            }
+            break;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "rules not evaluated: {rules:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    // The series the rules read are there.
+    let up = get(format!("{api}/query?query=iogate_link_up")).await;
+    let result = up
+        .as_ref()
+        .and_then(|u| u["data"]["result"].as_array().cloned())
+        .unwrap_or_default();
+    assert_eq!(result.len(), 1, "{up:?}");
+    drop(guard);
+    gw.shutdown().await;
+    task.abort();
+}
