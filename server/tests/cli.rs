@@ -329,3 +329,61 @@ fn profile_st_prints_the_function_block() {
     assert_eq!(out.status.code(), Some(64));
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown profile `Nope`"));
 }
+
+#[test]
+fn version_and_json_logs_for_log_collectors() {
+    let out = iogate().arg("--version").output().expect("run");
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.starts_with("iogate "), "{text}");
+
+    // A gateway whose HTTP port is taken logs "no tokens configured" and then fails to
+    // start: the log line is one JSON object.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let port = taken.local_addr().expect("addr").port();
+    let dir = temp_dir("json-logs");
+    let config = dir.join("iogate.yaml");
+    std::fs::write(
+        &config,
+        format!(
+            "listen: {{ http: 127.0.0.1:{port}, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo }}\n",
+            repo().join("profiles").display()
+        ),
+    )
+    .expect("config");
+    for json in [true, false] {
+        let mut command = iogate();
+        if json {
+            command.args(["--log-format", "json"]);
+        } else {
+            command.env("IOGATE_LOG_FORMAT", "text");
+        }
+        let out = command
+            .args(["serve", "--config"])
+            .arg(&config)
+            .output()
+            .expect("run");
+        assert!(!out.status.success(), "the port is taken");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let line = stderr
+            .lines()
+            .find(|l| l.contains("no tokens configured"))
+            .unwrap_or_else(|| panic!("no log line: {stderr}"));
+        let parsed = serde_json::from_str::<serde_json::Value>(line);
+        if json {
+            let object = parsed.unwrap_or_else(|e| panic!("{e}: {line}"));
+            assert_eq!(object["level"], "INFO", "{object}");
+            assert!(object["timestamp"].is_string(), "{object}");
+        } else {
+            assert!(parsed.is_err(), "text, not JSON: {line}");
+            assert!(line.contains("INFO"), "{line}");
+        }
+    }
+    drop(taken);
+    let refused = iogate()
+        .args(["--log-format", "yaml", "check"])
+        .output()
+        .expect("run");
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("possible values: text, json"));
+}
