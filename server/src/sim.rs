@@ -11,7 +11,8 @@ use crate::cache::Device;
 /// Runs one simulated device until `token` is cancelled.
 pub async fn run(device: Arc<Device>, token: CancellationToken) {
     let mut tick = tokio::time::interval(device.config.refresh_rate);
-    tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    // On the grid of its refresh rate: a late cycle does not shift the next ones.
+    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     loop {
         tokio::select! {
             _ = token.cancelled() => break,

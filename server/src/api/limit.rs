@@ -118,6 +118,19 @@ mod tests {
     use super::*;
 
     #[tokio::test]
+    async fn accepted_sockets_have_tcp_nodelay() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let mut accepted = Box::pin(incoming(listener, 2));
+        let _client = TcpStream::connect(addr).await.expect("connect");
+        let connection = accepted.next().await.expect("one").expect("ok");
+        assert!(
+            connection.stream.nodelay().expect("nodelay"),
+            "Nagle is off"
+        );
+    }
+
+    #[tokio::test]
     async fn connections_beyond_the_limit_are_closed_until_a_slot_frees() {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("addr");

@@ -21,6 +21,8 @@ use futures_util::FutureExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
+use super::precise;
+
 use super::frame::{Malformed, Request, Response, crc16, rtu_frame};
 use super::timing::LineTiming;
 use super::{ByteStream, Counters, TxError};
@@ -161,11 +163,24 @@ impl RtuTransport {
             if Instant::now() >= until {
                 return Ok(());
             }
-            match timeout_at(until, self.io.read(&mut scratch)).await {
-                Err(_) => return Ok(()),
-                Ok(Ok(0)) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
-                Ok(Ok(n)) => self.discard(n),
-                Ok(Err(e)) => return Err(e.into()),
+            // The runtime's timer until just before the silence ends, then the precise clock
+            // (`precise`): the silence ends within a tenth of a millisecond, not at the
+            // timer's next tick. A byte arriving meanwhile starts the silence again.
+            let read = match precise::coarse(until) {
+                Some(early) => match timeout_at(early, self.io.read(&mut scratch)).await {
+                    Err(_) => continue,
+                    Ok(read) => read,
+                },
+                None => tokio::select! {
+                    biased;
+                    read = self.io.read(&mut scratch) => read,
+                    _ = precise::finish(until) => return Ok(()),
+                },
+            };
+            match read {
+                Ok(0) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
+                Ok(n) => self.discard(n),
+                Err(e) => return Err(e.into()),
             }
         }
     }

@@ -85,12 +85,22 @@ impl LinkTask {
             }
         }
         device.record_cycle(true, last_response);
-        p.next_due = (started + device.config.refresh_rate).max(Instant::now());
+        p.next_due = next_on_grid(p.next_due, device.config.refresh_rate, started);
         if device.config.write_mode == WriteMode::Reconcile {
             p.reconcile();
         }
         Ok(())
     }
+}
+
+/// A device's next poll: the first point of its grid (`due + n * period`) after the poll
+/// that was due at `due` started. Late starts never shift the grid, so a 10 ms device is
+/// polled 100 times a second when the line allows; a poll more than a period late skips the
+/// points it missed (one poll, never a burst to catch up).
+pub fn next_on_grid(due: Instant, period: Duration, started: Instant) -> Instant {
+    let late = started.saturating_duration_since(due);
+    let periods = late.as_nanos() / period.as_nanos().max(1) + 1;
+    due + period * u32::try_from(periods).unwrap_or(u32::MAX)
 }
 
 /// The least time between two reconciling writes of one output.
@@ -124,5 +134,35 @@ impl super::Polled {
                 crate::writes::Origin::Reconcile,
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn polls_stay_on_their_grid_over_a_thousand_periods_however_late_they_start() {
+        let period = Duration::from_millis(10);
+        let start = Instant::now();
+        let mut due = start;
+        for n in 1..=1000u32 {
+            // Started up to 9.9 ms late (the line busy with others, the timer's rounding).
+            let late = Duration::from_micros(u64::from(n * 7919 % 9900));
+            due = next_on_grid(due, period, due + late);
+            assert_eq!(due, start + period * n, "poll {n}");
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_line_that_cannot_keep_up_skips_missed_polls_and_never_bursts() {
+        let period = Duration::from_millis(10);
+        let start = Instant::now();
+        // Started 55 ms late: the points at 10..50 ms are skipped, the next is at 60 ms.
+        let next = next_on_grid(start, period, start + Duration::from_millis(55));
+        assert_eq!(next, start + Duration::from_millis(60));
+        // A poll that starts exactly on a later point is due one period on.
+        let next = next_on_grid(start, period, start + Duration::from_millis(30));
+        assert_eq!(next, start + Duration::from_millis(40));
     }
 }
