@@ -90,13 +90,13 @@ pub struct FieldValue {
     pub field: String,
     /// IEC 61131-3 type, e.g. `REAL`.
     #[serde(rename = "type")]
-    pub ty: String,
-    pub direction: String,
+    pub ty: &'static str,
+    pub direction: &'static str,
     /// The value as the JSON of its type; null until first read.
     #[schema(value_type = Object)]
     pub value: Json,
     /// `good`, `stale`, `never_read` or `bad`.
-    pub quality: String,
+    pub quality: &'static str,
     /// When the value was last refreshed (RFC 3339).
     pub timestamp: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -123,13 +123,10 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
     FieldValue {
         device: device.name().to_owned(),
         field: field.name.clone(),
-        ty: field.ty.name().to_owned(),
-        direction: field.direction.name().to_owned(),
+        ty: field.ty.name(),
+        direction: field.direction.name(),
         value: sample.value.as_ref().map_or(Json::Null, value_to_json),
-        quality: sample
-            .quality_at(now, device.stale_after())
-            .name()
-            .to_owned(),
+        quality: sample.quality_at(now, device.stale_after()).name(),
         timestamp: sample.updated.map(|(_, wall)| rfc3339(wall)),
         unit: field.register.unit.clone(),
         error: sample.error.as_ref().map(ToString::to_string),
@@ -239,7 +236,23 @@ pub struct DeviceDetail {
     pub device: DeviceInfo,
     /// Field name to value object.
     #[schema(value_type = Object)]
-    pub fields: serde_json::Map<String, Json>,
+    pub fields: FieldMap,
+}
+
+/// Field values serialised as an object keyed by field name, in profile order, straight
+/// from the values (no intermediate JSON tree).
+#[derive(Debug)]
+pub struct FieldMap(pub Vec<FieldValue>);
+
+impl Serialize for FieldMap {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for value in &self.0 {
+            map.serialize_entry(&value.field, value)?;
+        }
+        map.end()
+    }
 }
 
 /// A device's diagnostics, as sent on the event stream.

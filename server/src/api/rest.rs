@@ -108,15 +108,11 @@ pub async fn get_device(
 ) -> Result<Json<DeviceDetail>, ApiError> {
     let device = service.device(&name)?;
     let fields = (0..device.profile.fields.len())
-        .map(|i| {
-            let value = field_json(&device, i, &service);
-            let json = serde_json::to_value(&value).unwrap_or(Json_::Null);
-            (value.field, json)
-        })
+        .map(|i| field_json(&device, i, &service))
         .collect();
     Ok(Json(DeviceDetail {
         device: device_info(&device),
-        fields,
+        fields: FieldMap(fields),
     }))
 }
 
