@@ -230,13 +230,36 @@ pub struct DeviceList {
 }
 
 /// A device with its diagnostics and every field's value, in profile order.
-#[derive(Debug, Serialize, ToSchema)]
+#[derive(Debug, ToSchema)]
 pub struct DeviceDetail {
     #[serde(flatten)]
     pub device: DeviceInfo,
     /// Field name to value object.
     #[schema(value_type = Object)]
     pub fields: FieldMap,
+}
+
+impl Serialize for DeviceDetail {
+    /// The device's own keys, then `fields`: what `#[serde(flatten)]` would give, without
+    /// its buffering.
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let d = &self.device;
+        let mut map = serializer.serialize_map(Some(12))?;
+        map.serialize_entry("name", &d.name)?;
+        map.serialize_entry("profile", &d.profile)?;
+        map.serialize_entry("protocol", &d.protocol)?;
+        map.serialize_entry("link", &d.link)?;
+        map.serialize_entry("slave_id", &d.slave_id)?;
+        map.serialize_entry("refresh_rate_ms", &d.refresh_rate_ms)?;
+        map.serialize_entry("timeout_ms", &d.timeout_ms)?;
+        map.serialize_entry("connected", &d.connected)?;
+        map.serialize_entry("error_code", &d.error_code)?;
+        map.serialize_entry("io_cycles", &d.io_cycles)?;
+        map.serialize_entry("last_response_ms", &d.last_response_ms)?;
+        map.serialize_entry("fields", &self.fields)?;
+        map.end()
+    }
 }
 
 /// Field values serialised as an object keyed by field name, in profile order, straight
