@@ -12,8 +12,6 @@
 //! `IOGATE_LOAD_SKIP_FLOOD=1` runs the second part only.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
@@ -23,61 +21,18 @@ const IDLE_PER_LISTENER: usize = 9_000;
 const SLOW: usize = 200;
 const SSE_CLIENTS: usize = 5_000;
 
-struct Gateway {
-    child: Child,
-    http: SocketAddr,
-    grpc: SocketAddr,
-}
-
-impl Drop for Gateway {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
+mod common;
+use common::Gateway;
 
 fn start() -> anyhow::Result<Gateway> {
-    let dir = std::env::temp_dir().join(format!("iogate-load-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
-    let profiles = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../profiles");
-    let config = dir.join("iogate.yaml");
-    std::fs::write(
-        &config,
-        format!(
+    let dir = common::temp_dir("load")?;
+    common::start(
+        &dir,
+        &format!(
             "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 20ms }}\n",
-            profiles.display()
+            common::profiles().display()
         ),
-    )?;
-    let mut child = Command::new(env!("CARGO_BIN_EXE_iogate"))
-        .args(["serve", "--config"])
-        .arg(&config)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()?;
-    let stdout = child
-        .stdout
-        .take()
-        .ok_or_else(|| anyhow::anyhow!("no stdout"))?;
-    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(stdout));
-    let (mut http, mut grpc) = (None, None);
-    while http.is_none() || grpc.is_none() {
-        let line = lines
-            .next()
-            .ok_or_else(|| anyhow::anyhow!("the gateway ended"))??;
-        if let Some(rest) = line.strip_prefix("REST API:") {
-            let addr = rest.trim().trim_start_matches("http://");
-            http = addr.split('/').next().and_then(|a| a.parse().ok());
-        } else if let Some(rest) = line.strip_prefix("gRPC:") {
-            grpc = rest.split_whitespace().next().and_then(|a| a.parse().ok());
-        }
-    }
-    std::thread::spawn(move || for _ in lines {});
-    Ok(Gateway {
-        child,
-        http: http.ok_or_else(|| anyhow::anyhow!("no HTTP address"))?,
-        grpc: grpc.ok_or_else(|| anyhow::anyhow!("no gRPC address"))?,
-    })
+    )
 }
 
 fn open_fds(pid: u32) -> usize {

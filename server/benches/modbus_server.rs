@@ -13,6 +13,8 @@ use std::time::{Duration, Instant};
 
 use tokio_modbus::prelude::*;
 
+mod common;
+
 const RUN: Duration = Duration::from_secs(3);
 
 struct Figures {
@@ -90,32 +92,17 @@ fn free_port() -> anyhow::Result<u16> {
 }
 
 /// `iogate serve` on the demo's simulated devices, every field bound (`auto: true`).
-fn iogate_server() -> anyhow::Result<(Child, SocketAddr)> {
+fn iogate_server() -> anyhow::Result<(common::Gateway, SocketAddr)> {
     let port = free_port()?;
-    let dir = std::env::temp_dir().join(format!("iogate-bench-mbs-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
-    let profiles = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../profiles");
-    let config = dir.join("iogate.yaml");
-    std::fs::write(
-        &config,
-        format!(
+    let dir = common::temp_dir("mbs")?;
+    let gateway = common::start(
+        &dir,
+        &format!(
             "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\n  - {{ name: plant, profile: SimPlant, refresh_rate: 250ms }}\nmodbus_server:\n  listen: 127.0.0.1:{port}\n  auto: true\n  max_connections: 64\n",
-            profiles.display()
+            common::profiles().display()
         ),
     )?;
-    let child = Command::new(env!("CARGO_BIN_EXE_iogate"))
-        .args(["serve", "--config"])
-        .arg(&config)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .spawn()?;
-    let addr = SocketAddr::from(([127, 0, 0, 1], port));
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while std::net::TcpStream::connect(addr).is_err() {
-        anyhow::ensure!(Instant::now() < deadline, "iogate did not start");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    Ok((child, addr))
+    Ok((gateway, SocketAddr::from(([127, 0, 0, 1], port))))
 }
 
 fn row(name: &str, masters: usize, f: &Figures) {
@@ -132,7 +119,7 @@ fn main() -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(async {
-        let (mut gateway, iogate) = iogate_server()?;
+        let (gateway, iogate) = iogate_server()?;
         println!(
             "FC03 x 10 registers for {RUN:?} per row; each server in its own process, the masters in this one, 2 cores"
         );
@@ -157,7 +144,7 @@ fn main() -> anyhow::Result<()> {
         if let Some((mut child, _)) = peer {
             let _ = child.kill();
         }
-        let _ = gateway.kill();
+        drop(gateway);
         anyhow::Ok(())
     })
 }

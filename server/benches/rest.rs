@@ -6,8 +6,6 @@
 //! `cargo bench -p iogate --bench rest`
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -16,21 +14,14 @@ use tokio::net::TcpStream;
 const CONNECTIONS: usize = 64;
 const RUN: Duration = Duration::from_secs(3);
 
-struct Gateway(Child, SocketAddr);
-
-impl Drop for Gateway {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
+mod common;
+use common::Gateway;
 
 fn start() -> anyhow::Result<Gateway> {
-    let dir = std::env::temp_dir().join(format!("iogate-rest-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
+    let dir = common::temp_dir("rest")?;
     let profiles = dir.join("profiles");
     std::fs::create_dir_all(&profiles)?;
-    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../profiles");
+    let repo = common::profiles();
     std::fs::copy(repo.join("sim_plant.yaml"), profiles.join("sim_plant.yaml"))?;
     // Ten fields: four REAL, three INT, two BOOL, one STRING; inputs and outputs.
     let mut ten = String::from("name: Ten\nprotocol: simulated\nfields:\n");
@@ -54,41 +45,13 @@ fn start() -> anyhow::Result<Gateway> {
         ));
     }
     std::fs::write(profiles.join("ten.yaml"), ten)?;
-    let config = dir.join("iogate.yaml");
-    std::fs::write(
-        &config,
-        format!(
+    common::start(
+        &dir,
+        &format!(
             "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n  - {{ name: ten, profile: Ten, refresh_rate: 100ms }}\n",
             profiles.display()
         ),
-    )?;
-    let mut child = Command::new(env!("CARGO_BIN_EXE_iogate"))
-        .args(["serve", "--config"])
-        .arg(&config)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()?;
-    let stdout = child
-        .stdout
-        .take()
-        .ok_or_else(|| anyhow::anyhow!("no stdout"))?;
-    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(stdout));
-    loop {
-        let line = lines
-            .next()
-            .ok_or_else(|| anyhow::anyhow!("the gateway ended"))??;
-        if let Some(rest) = line.strip_prefix("REST API:") {
-            let addr = rest.trim().trim_start_matches("http://");
-            let addr = addr
-                .split('/')
-                .next()
-                .and_then(|a| a.parse().ok())
-                .ok_or_else(|| anyhow::anyhow!("no address in {line}"))?;
-            std::thread::spawn(move || for _ in lines {});
-            return Ok(Gateway(child, addr));
-        }
-    }
+    )
 }
 
 /// Requests `path` over one kept-alive connection until `until`; answers the count.
@@ -144,7 +107,7 @@ fn main() -> anyhow::Result<()> {
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async {
         let gw = start()?;
-        let addr = gw.1;
+        let addr = gw.http;
         // Ready, and the device read at least once.
         tokio::time::sleep(Duration::from_millis(500)).await;
         let livez = rate(addr, "/livez").await?;

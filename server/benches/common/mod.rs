@@ -1,0 +1,72 @@
+//! `iogate serve` in its own process for the benchmarks: a config written to a temporary
+//! directory, the listeners' addresses read from what the gateway prints, the process
+//! killed when the handle is dropped.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+/// A running gateway and where it listens (not every bench uses every listener).
+#[allow(dead_code)]
+pub struct Gateway {
+    pub child: Child,
+    pub http: SocketAddr,
+    pub grpc: SocketAddr,
+}
+
+impl Drop for Gateway {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The repository's `profiles/`.
+#[allow(dead_code)]
+pub fn profiles() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../profiles")
+}
+
+/// A fresh temporary directory for bench `name`.
+pub fn temp_dir(name: &str) -> anyhow::Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("iogate-bench-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
+/// Starts `iogate serve` on `config` (written to `dir`); its HTTP and gRPC listeners should
+/// be on port 0, and are found in its output.
+pub fn start(dir: &Path, config: &str) -> anyhow::Result<Gateway> {
+    let path = dir.join("iogate.yaml");
+    std::fs::write(&path, config)?;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_iogate"))
+        .args(["serve", "--config"])
+        .arg(&path)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()?;
+    let stdout = child
+        .stdout
+        .take()
+        .ok_or_else(|| anyhow::anyhow!("no stdout"))?;
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(stdout));
+    let (mut http, mut grpc) = (None, None);
+    while http.is_none() || grpc.is_none() {
+        let line = lines
+            .next()
+            .ok_or_else(|| anyhow::anyhow!("the gateway ended"))??;
+        if let Some(rest) = line.strip_prefix("REST API:") {
+            let addr = rest.trim().trim_start_matches("http://");
+            http = addr.split('/').next().and_then(|a| a.parse().ok());
+        } else if let Some(rest) = line.strip_prefix("gRPC:") {
+            grpc = rest.split_whitespace().next().and_then(|a| a.parse().ok());
+        }
+    }
+    std::thread::spawn(move || for _ in lines {});
+    Ok(Gateway {
+        http: http.ok_or_else(|| anyhow::anyhow!("no HTTP address"))?,
+        grpc: grpc.ok_or_else(|| anyhow::anyhow!("no gRPC address"))?,
+        child,
+    })
+}
