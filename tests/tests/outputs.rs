@@ -399,3 +399,40 @@ fn safe_values_are_checked_against_the_profile() {
     let e = problems("drop").expect_err("policy");
     assert!(e.contains("not a client-loss policy"), "{e}");
 }
+
+#[tokio::test]
+async fn a_failed_write_shows_as_a_mismatch_on_the_event_stream_at_once() {
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.busy_writes = u32::MAX);
+    let (gw, _pty, task, _) = bus_gateway(
+        "mismatch-sse",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, retries: 0 }\n",
+    )
+    .await;
+    gw.until("/api/v1/devices/io", "connected", |b| {
+        b["connected"] == true
+    })
+    .await
+    .expect("connected");
+    let mut events = iogate_tests::SseReader::open(&gw, "/api/v1/events?device=io")
+        .await
+        .expect("events");
+    let g = put(&gw, "/api/v1/devices/io/fields/DO_2", json!(true)).await;
+    let event = tokio::time::timeout(
+        iogate_tests::PATIENCE,
+        events.until(|name, data| {
+            name == "value" && data["field"] == "DO_2" && data["mismatch"] == true
+        }),
+    )
+    .await
+    .expect("in time")
+    .expect("a value event with the mismatch");
+    assert_eq!(event["desired"], true, "{event}");
+    assert_eq!(event["value"], false, "{event}");
+    let done = outcome(&gw, g).await;
+    assert_eq!(done["status"], "failed", "{done}");
+    gw.shutdown().await;
+    task.abort();
+}
