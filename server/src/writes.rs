@@ -219,6 +219,7 @@ impl WriteLog {
     }
 
     /// The writes kept for one field, oldest first.
+    #[cfg(test)]
     pub fn history(&self, device: &str, field: &str) -> Vec<WriteRecord> {
         self.lock()
             .fields

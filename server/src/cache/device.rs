@@ -13,7 +13,7 @@ use super::{AccessError, lock};
 use crate::codec::{CodecError, Value};
 use crate::config::DeviceConfig;
 use crate::profile::{Direction, Field, Profile, Protocol, RegisterKind};
-use crate::writes::WriteLog;
+use crate::writes::{Origin, WriteLog};
 
 /// The longest string a simulated STRING field holds (the IEC default STRING length).
 pub const SIM_STRING_MAX: usize = 254;
@@ -266,11 +266,7 @@ impl Device {
     /// superseded). Returns the write's generation.
     pub fn request_write(&self, idx: usize, value: Value) -> Result<u64, AccessError> {
         self.check_write(idx, &value)?;
-        let generation = self
-            .outputs
-            .request(self.name(), &self.field(idx).name, idx, value);
-        lock(&self.wake).notify_one();
-        Ok(generation)
+        Ok(self.request(idx, value, Origin::Client, None))
     }
 
     /// As [`Device::request_write`], by the scan-cycle stream `writer` (whose loss may
@@ -282,18 +278,23 @@ impl Device {
         writer: u64,
     ) -> Result<u64, AccessError> {
         self.check_write(idx, &value)?;
-        let generation =
-            self.outputs
-                .request_by(self.name(), &self.field(idx).name, idx, value, writer);
-        lock(&self.wake).notify_one();
-        Ok(generation)
+        Ok(self.request(idx, value, Origin::Client, Some(writer)))
     }
 
     /// Requests a write the gateway asks for itself (`origin`).
-    pub fn request_own(&self, idx: usize, value: Value, origin: crate::writes::Origin) -> u64 {
-        let generation =
-            self.outputs
-                .request_from(self.name(), &self.field(idx).name, idx, value, origin);
+    pub fn request_own(&self, idx: usize, value: Value, origin: Origin) -> u64 {
+        self.request(idx, value, origin, None)
+    }
+
+    fn request(&self, idx: usize, value: Value, origin: Origin, writer: Option<u64>) -> u64 {
+        let generation = self.outputs.request_from(
+            self.name(),
+            &self.field(idx).name,
+            idx,
+            value,
+            origin,
+            writer,
+        );
         lock(&self.wake).notify_one();
         generation
     }

@@ -85,21 +85,7 @@ impl Outputs {
     /// Stores `value` as field `idx`'s pending write; a write already pending is
     /// superseded. Returns the new write's generation.
     pub fn request(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
-        self.request_from(device, field, idx, value, Origin::Client)
-    }
-
-    /// As [`Outputs::request`], by the scan-cycle stream `writer`.
-    pub fn request_by(
-        &self,
-        device: &str,
-        field: &str,
-        idx: usize,
-        value: Value,
-        writer: u64,
-    ) -> u64 {
-        let generation = self.request_from(device, field, idx, value, Origin::Client);
-        lock(&self.slots)[idx].writer = Some(writer);
-        generation
+        self.request_from(device, field, idx, value, Origin::Client, None)
     }
 
     /// The scan-cycle stream that requested field `idx`'s newest value, if one did.
@@ -107,7 +93,8 @@ impl Outputs {
         lock(&self.slots)[idx].writer
     }
 
-    /// As [`Outputs::request`], for a write the gateway asks for itself.
+    /// As [`Outputs::request`], from `origin`, by the scan-cycle stream `writer` if one
+    /// asks (remembered with the value, under the same lock).
     pub fn request_from(
         &self,
         device: &str,
@@ -115,6 +102,7 @@ impl Outputs {
         idx: usize,
         value: Value,
         origin: Origin,
+        writer: Option<u64>,
     ) -> u64 {
         let mut slots = lock(&self.slots);
         let slot = &mut slots[idx];
@@ -124,7 +112,7 @@ impl Outputs {
         }
         slot.latest = Some(value);
         slot.last_generation = Some(generation);
-        slot.writer = None;
+        slot.writer = writer;
         generation
     }
 

@@ -3,7 +3,8 @@
 //! tick (and the poller's timeout rounds again), which costs up to 2 ms per silence: on a
 //! 115200-baud line, where the silence is 0.33 ms and a 10-register read 3 ms, that is a
 //! third of the line. So: sleep on the runtime's timer until [`COARSE_MARGIN`] before the
-//! deadline, then finish on the precise clock, yielding to other tasks between looks. A
+//! deadline ([`coarse`]), then finish on the precise clock ([`finish`]), yielding to other
+//! tasks between looks. A
 //! core is busy only for that last margin of each wait, never while the line is idle.
 //!
 //! Under tokio's paused clock (tests) the finish is the timer's own.
@@ -14,18 +15,6 @@ use tokio::time::Instant;
 
 /// How long before a deadline the runtime's timer hands over to the precise clock.
 pub const COARSE_MARGIN: Duration = Duration::from_micros(1500);
-
-/// Waits until `deadline`, ending within about 0.1 ms after it.
-pub async fn sleep_until(deadline: Instant) {
-    let now = Instant::now();
-    if deadline <= now {
-        return;
-    }
-    if deadline - now > COARSE_MARGIN {
-        tokio::time::sleep_until(deadline - COARSE_MARGIN).await;
-    }
-    finish(deadline).await;
-}
 
 /// The last stretch to `deadline` (at most about [`COARSE_MARGIN`]) on the precise clock.
 pub async fn finish(deadline: Instant) {
@@ -69,6 +58,14 @@ pub fn coarse(deadline: Instant) -> Option<Instant> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The whole wait as its users make it: the coarse timer, then [`finish`].
+    async fn sleep_until(deadline: Instant) {
+        if let Some(early) = coarse(deadline) {
+            tokio::time::sleep_until(early).await;
+        }
+        finish(deadline).await;
+    }
 
     #[tokio::test(start_paused = true)]
     async fn under_a_paused_clock_waits_end_exactly_at_their_deadline() {

@@ -126,13 +126,8 @@ impl super::Polled {
             self.reconciled.insert(idx, now);
             let field = &self.device.field(idx).name;
             tracing::info!(device = %self.device.name(), field = %field, "device holds another value than requested; writing it again");
-            self.device.outputs().request_from(
-                self.device.name(),
-                field,
-                idx,
-                desired,
-                crate::writes::Origin::Reconcile,
-            );
+            self.device
+                .request_own(idx, desired, crate::writes::Origin::Reconcile);
         }
     }
 }
