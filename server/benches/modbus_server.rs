@@ -7,7 +7,6 @@
 //! `cargo bench -p iogate --bench modbus_server`
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -54,27 +53,9 @@ async fn load(addr: SocketAddr, masters: usize, address: u16) -> anyhow::Result<
 
 /// Builds and starts the libmodbus server, if the compiler and library are there.
 fn libmodbus_server() -> Option<(Child, SocketAddr)> {
-    let source = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/peer/modbus_server.c");
-    let out = std::env::temp_dir().join(format!("iogate-libmodbus-server-{}", std::process::id()));
-    let flags = Command::new("pkg-config")
-        .args(["--cflags", "--libs", "libmodbus"])
-        .output()
-        .ok()
-        .filter(|o| o.status.success())?;
-    let flags = String::from_utf8_lossy(&flags.stdout).to_string();
-    let built = Command::new("cc")
-        .arg("-O2")
-        .arg(&source)
-        .arg("-o")
-        .arg(&out)
-        .args(flags.split_whitespace())
-        .status()
-        .ok()?;
-    if !built.success() {
-        return None;
-    }
+    let program = common::build_peer("modbus_server")?;
     let port = free_port().ok()?;
-    let mut child = Command::new(&out)
+    let mut child = Command::new(&program)
         .arg(port.to_string())
         .stdout(Stdio::piped())
         .spawn()

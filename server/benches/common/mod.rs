@@ -2,6 +2,8 @@
 //! directory, the listeners' addresses read from what the gateway prints, the process
 //! killed when the handle is dropped.
 
+pub mod http;
+
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -69,4 +71,45 @@ pub fn start(dir: &Path, config: &str) -> anyhow::Result<Gateway> {
         grpc: grpc.ok_or_else(|| anyhow::anyhow!("no gRPC address"))?,
         child,
     })
+}
+
+/// Builds the C program `benches/peer/{name}.c` against libmodbus (after
+/// `benches/peer/install.sh` has installed the compiler and the library when missing);
+/// `None` when that cannot be done here.
+#[allow(dead_code)]
+pub fn build_peer(name: &str) -> Option<PathBuf> {
+    let peer = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/peer");
+    let _ = Command::new("bash")
+        .arg(peer.join("install.sh"))
+        .stdout(Stdio::null())
+        .status();
+    let out = std::env::temp_dir().join(format!("iogate-peer-{name}-{}", std::process::id()));
+    let flags = Command::new("pkg-config")
+        .args(["--cflags", "--libs", "libmodbus"])
+        .output()
+        .ok()
+        .filter(|o| o.status.success())?;
+    let flags = String::from_utf8_lossy(&flags.stdout).to_string();
+    let built = Command::new("cc")
+        .arg("-O2")
+        .arg(peer.join(format!("{name}.c")))
+        .arg("-o")
+        .arg(&out)
+        .args(flags.split_whitespace())
+        .status()
+        .ok()?;
+    built.success().then_some(out)
+}
+
+/// Resident memory of process `pid` in KiB (0 when it cannot be read).
+#[allow(dead_code)]
+pub fn rss_kib(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1).and_then(|n| n.parse().ok()))
+        })
+        .unwrap_or(0)
 }

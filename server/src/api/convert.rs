@@ -313,12 +313,23 @@ pub struct LinkInfo {
     /// 0 OK, 1 no port configured, 2 open failed, 3 port lost.
     pub error_code: i16,
     pub devices: Vec<String>,
+    /// The share of the line's time the devices' refresh rates demand (serial links; above
+    /// 1 they cannot all be kept).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub planned_utilisation: Option<f64>,
+    /// The share of time the line was busy over the last measuring window (about a
+    /// second); absent before the first window ends.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub utilisation: Option<f64>,
 }
 
 pub fn link_info(link: &Link) -> LinkInfo {
     let diag = link.diagnostics();
     let devices = link.members().iter().map(|d| d.name().to_owned()).collect();
+    let (planned_utilisation, utilisation) = link.utilisation.get();
     let mut info = LinkInfo {
+        planned_utilisation,
+        utilisation,
         name: link.name().to_owned(),
         kind: String::new(),
         port: None,

@@ -65,6 +65,26 @@ impl Progress {
     }
 }
 
+/// How busy the line is: the share of time the refresh rates demand (`planned`, serial
+/// links), and the share the link's task measured over its last window of transactions.
+#[derive(Debug, Default)]
+pub struct Utilisation(Mutex<(Option<f64>, Option<f64>)>);
+
+impl Utilisation {
+    pub fn set_planned(&self, planned: Option<f64>) {
+        super::lock(&self.0).0 = planned;
+    }
+
+    pub fn set_measured(&self, measured: f64) {
+        super::lock(&self.0).1 = Some(measured);
+    }
+
+    /// `(planned, measured)`.
+    pub fn get(&self) -> (Option<f64>, Option<f64>) {
+        *super::lock(&self.0)
+    }
+}
+
 /// A link, its diagnostics and the devices on it.
 #[derive(Debug)]
 pub struct Link {
@@ -82,6 +102,7 @@ pub struct Link {
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
     /// Whether the link's task keeps within its transactions' bounds.
     pub progress: Arc<Progress>,
+    pub utilisation: Arc<Utilisation>,
 }
 
 impl Link {
@@ -99,6 +120,7 @@ impl Link {
             queue: Mutex::new(VecDeque::new()),
             task: Mutex::new(None),
             progress: Arc::new(Progress::default()),
+            utilisation: Arc::new(Utilisation::default()),
         }
     }
 

@@ -39,6 +39,7 @@ pub struct RtuTransport {
     guard: Duration,
     /// When the line was last busy (the end of the last frame sent or received).
     last_activity: Instant,
+    timer: precise::Timer,
     pub counters: Counters,
 }
 
@@ -49,6 +50,7 @@ impl RtuTransport {
             timing,
             guard,
             last_activity: Instant::now(),
+            timer: precise::Timer::new(),
             counters: Counters::default(),
         }
     }
@@ -163,19 +165,13 @@ impl RtuTransport {
             if Instant::now() >= until {
                 return Ok(());
             }
-            // The runtime's timer until just before the silence ends, then the precise clock
-            // (`precise`): the silence ends within a tenth of a millisecond, not at the
-            // timer's next tick. A byte arriving meanwhile starts the silence again.
-            let read = match precise::coarse(until) {
-                Some(early) => match timeout_at(early, self.io.read(&mut scratch)).await {
-                    Err(_) => continue,
-                    Ok(read) => read,
-                },
-                None => tokio::select! {
-                    biased;
-                    read = self.io.read(&mut scratch) => read,
-                    _ = precise::finish(until) => return Ok(()),
-                },
+            // A precise timer (`precise`): the silence ends within a tenth of a millisecond,
+            // not at the runtime timer's next tick. A byte arriving meanwhile starts the
+            // silence again.
+            let read = tokio::select! {
+                biased;
+                read = self.io.read(&mut scratch) => read,
+                _ = self.timer.sleep_until(until) => return Ok(()),
             };
             match read {
                 Ok(0) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use crate::cache::{Device, Progress};
+use crate::cache::{Device, Progress, Utilisation};
 use crate::link::frame::{Malformed, Request, Response};
 use crate::link::{Connection, Counters, TxError};
 use crate::metrics::Metrics;
@@ -25,6 +25,8 @@ pub(super) struct Bus {
     pub(super) planned: Option<f64>,
     /// Each transaction's deadline, for the watchdog.
     progress: Arc<Progress>,
+    /// Where the measured utilisation is shown (besides the metrics).
+    utilisation: Arc<Utilisation>,
     /// Transactions sent since the caller last took the count.
     sent: u32,
 }
@@ -39,9 +41,11 @@ impl Bus {
         metrics: Arc<Metrics>,
         link: String,
         progress: Arc<Progress>,
+        utilisation: Arc<Utilisation>,
     ) -> Self {
         Bus {
             progress,
+            utilisation,
             sent: 0,
             counted: conn.counters(),
             conn,
@@ -148,6 +152,7 @@ impl Bus {
             let measured = self.busy.as_secs_f64() / window.as_secs_f64();
             self.metrics
                 .link_utilisation(&self.link, self.planned, measured.min(1.0));
+            self.utilisation.set_measured(measured.min(1.0));
             self.busy = Duration::ZERO;
             self.window_start = Instant::now();
         }

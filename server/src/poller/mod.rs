@@ -161,6 +161,7 @@ impl LinkTask {
             )),
             Transport::Tcp { .. } => None,
         };
+        self.link.utilisation.set_planned(self.planned);
         if let Some(u) = self.planned {
             self.metrics
                 .link_utilisation(self.link.name(), self.planned, 0.0);
@@ -217,6 +218,7 @@ impl LinkTask {
                         self.metrics.clone(),
                         name.clone(),
                         self.link.progress.clone(),
+                        self.link.utilisation.clone(),
                     );
                     match self.serve(bus, &token).await {
                         Ended::Shutdown => break,
@@ -447,7 +449,13 @@ mod tests {
             Some(timing),
             Duration::ZERO,
         ));
-        let bus = Bus::new(conn, metrics, "bus".into(), Default::default());
+        let bus = Bus::new(
+            conn,
+            metrics,
+            "bus".into(),
+            Default::default(),
+            Default::default(),
+        );
         let token = CancellationToken::new();
         let stop = token.clone();
         let serving = tokio::spawn(async move { task.serve(bus, &stop).await });

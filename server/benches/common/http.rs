@@ -1,0 +1,65 @@
+#![allow(dead_code)]
+
+//! A small HTTP/1.1 load generator: kept-alive connections each requesting one path as fast
+//! as the server answers.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+/// Requests `path` over one kept-alive connection until `until`; answers the count.
+async fn client(addr: SocketAddr, path: &'static str, until: Instant) -> anyhow::Result<u64> {
+    let mut stream = TcpStream::connect(addr).await?;
+    stream.set_nodelay(true)?;
+    let request = format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n");
+    let mut buf = vec![0u8; 64 * 1024];
+    let mut n = 0;
+    while Instant::now() < until {
+        stream.write_all(request.as_bytes()).await?;
+        // Read the head, then the body by its Content-Length.
+        let mut have = 0;
+        let (head, length) = loop {
+            let read = stream.read(&mut buf[have..]).await?;
+            anyhow::ensure!(read > 0, "closed");
+            have += read;
+            if let Some(end) = buf[..have].windows(4).position(|w| w == b"\r\n\r\n") {
+                let head = String::from_utf8_lossy(&buf[..end]).to_lowercase();
+                anyhow::ensure!(head.starts_with("http/1.1 200"), "{head}");
+                let length: usize = head
+                    .lines()
+                    .find_map(|l| l.strip_prefix("content-length:"))
+                    .and_then(|v| v.trim().parse().ok())
+                    .ok_or_else(|| anyhow::anyhow!("no content-length: {head}"))?;
+                break (end + 4, length);
+            }
+        };
+        while have < head + length {
+            let read = stream.read(&mut buf[have..]).await?;
+            anyhow::ensure!(read > 0, "closed");
+            have += read;
+        }
+        n += 1;
+    }
+    Ok(n)
+}
+
+/// Requests per second for `path` over `connections` kept-alive connections during `run`.
+pub async fn rate(
+    addr: SocketAddr,
+    path: &'static str,
+    connections: usize,
+    run: Duration,
+) -> anyhow::Result<f64> {
+    let until = Instant::now() + run;
+    let started = Instant::now();
+    let tasks: Vec<_> = (0..connections)
+        .map(|_| tokio::spawn(client(addr, path, until)))
+        .collect();
+    let mut total = 0;
+    for t in tasks {
+        total += t.await??;
+    }
+    Ok(total as f64 / started.elapsed().as_secs_f64())
+}
