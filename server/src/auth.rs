@@ -147,7 +147,9 @@ fn constant_eq(a: &[u8], b: &[u8]) -> bool {
 
 /// The role a REST request needs: `None` for the open endpoints (health, metrics).
 pub fn rest_role(method: &str, path: &str) -> Option<Role> {
-    if matches!(path, "/livez" | "/readyz" | "/metrics") {
+    // The web page's files hold no data; what it shows comes from the API, with the
+    // visitor's token.
+    if matches!(path, "/livez" | "/readyz" | "/metrics") || crate::api::ui::is_ui_path(path) {
         return None;
     }
     let api = path.strip_prefix("/api/v1").unwrap_or(path);

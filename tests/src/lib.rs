@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use iogate::app::{self, Running, Setup};
 
+pub mod browser;
 pub mod devices;
 pub mod pki;
 
@@ -50,9 +51,18 @@ pub struct TestGateway {
 impl TestGateway {
     /// Starts the gateway from config text, with the repository's profiles.
     pub async fn start(config_yaml: &str) -> anyhow::Result<TestGateway> {
+        TestGateway::start_on(config_yaml, "127.0.0.1:0".parse()?).await
+    }
+
+    /// Starts the gateway from config text with its HTTP listener on `http` (a restart on
+    /// the port a previous gateway had).
+    pub async fn start_on(
+        config_yaml: &str,
+        http: std::net::SocketAddr,
+    ) -> anyhow::Result<TestGateway> {
         let mut config =
             iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
-        config.http = "127.0.0.1:0".parse()?;
+        config.http = http;
         config.grpc = "127.0.0.1:0".parse()?;
         if let Some(server) = config.modbus_server.as_mut() {
             server.listen = "127.0.0.1:0".parse()?;

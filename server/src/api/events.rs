@@ -31,9 +31,11 @@ fn event(name: &str, data: &impl Serialize) -> Event {
 
 /// Changes of values and diagnostics, as `value` and `diagnostics` events whose data is
 /// the JSON of `GET .../fields/{field}` and of a device's diagnostics; without `device`,
-/// also `transaction` events (the JSON of `GET /api/v1/transactions/{name}`).
+/// also `transaction` events (the JSON of `GET /api/v1/transactions/{name}`). With
+/// `values=false`, no `value` events (an overview of many devices).
 #[utoipa::path(get, path = "/api/v1/events", tag = "devices",
-    params(("device" = Option<String>, Query, description = "only this device")),
+    params(("device" = Option<String>, Query, description = "only this device"),
+           ("values" = Option<bool>, Query, description = "`false`: no `value` events, only diagnostics (and transactions)")),
     responses((status = 200, description = "a stream of `value` and `diagnostics` events: current values first, then each change", content_type = "text/event-stream"),
               (status = 400, description = "an unknown query parameter", body = ErrorBody), (status = 404, description = "unknown device", body = ErrorBody)))]
 pub async fn events(
@@ -41,14 +43,30 @@ pub async fn events(
     query: Result<Query<HashMap<String, String>>, QueryRejection>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let Query(query) = query.map_err(|e| ApiError::bad_request("invalid_query", e.body_text()))?;
-    if let Some(unknown) = query.keys().find(|k| k.as_str() != "device") {
+    if let Some(unknown) = query
+        .keys()
+        .find(|k| !matches!(k.as_str(), "device" | "values"))
+    {
         return Err(ApiError::bad_request(
             "invalid_query",
-            format!("unknown query parameter `{unknown}` (expected: device)"),
+            format!("unknown query parameter `{unknown}` (expected: device, values)"),
         ));
     }
+    let values = match query.get("values").map(String::as_str) {
+        None | Some("true") => true,
+        Some("false") => false,
+        Some(other) => {
+            return Err(ApiError::bad_request(
+                "invalid_query",
+                format!("values must be true or false, not `{other}`"),
+            ));
+        }
+    };
     let devices: Vec<&String> = query.get("device").into_iter().collect();
-    let selection = service.select::<_, &str>(&devices, &[])?;
+    let mut selection = service.select::<_, &str>(&devices, &[])?;
+    if !values {
+        selection.fields.clear();
+    }
     // Standing transactions with everything, not with one device.
     let transactions = if devices.is_empty() {
         service.transaction_changes()

@@ -15,6 +15,7 @@ pub mod modbus;
 pub mod pb;
 pub mod rest;
 pub mod transactions;
+pub mod ui;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -203,6 +204,7 @@ pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Route
         .route("/readyz", get(rest::readyz))
         .route("/metrics", get(metrics))
         .nest(API_PREFIX, api)
+        .merge(ui::routes())
         .fallback(not_found)
         .layer(axum::middleware::from_fn_with_state(
             service.clone(),

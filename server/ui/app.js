@@ -1,0 +1,574 @@
+// The iogate web page: an overview of links and devices, and a page per device with its
+// fields live from the event stream, inputs of simulated devices set and outputs written.
+
+import { api, events, ApiError, setToken } from './api.js';
+import { h, fill, text, sparkline } from './dom.js';
+
+// Source document 000's error codes, in its words.
+const LINK_CODES = {
+  0: 'OK — port is open',
+  1: 'No port configured (port string is empty)',
+  2: 'Port open failed (device doesn’t exist, permission denied, or busy)',
+  3: 'Port lost (was open, now disconnected)',
+};
+const DEVICE_CODES = {
+  0: 'OK — device is responding',
+  1: 'No link configured (link string is empty)',
+  2: 'No slave configured (slave_id is 0)',
+  10: 'Communication error (timeout, CRC mismatch, or device not responding)',
+};
+// Seed 002's transaction states.
+const TRANSACTION_STATES = {
+  0: 'not run yet',
+  4: 'done',
+  [-1]: 'interface unavailable',
+  [-2]: 'response timeout',
+  [-3]: 'unknown error',
+};
+const NUMERIC = new Set(['SINT', 'INT', 'DINT', 'LINT', 'USINT', 'UINT', 'UDINT', 'ULINT',
+  'BYTE', 'WORD', 'DWORD', 'LWORD', 'REAL', 'LREAL']);
+const TREND_POINTS = 60;
+const REFRESH_MS = 2000;
+
+const main = document.getElementById('main');
+const banner = document.getElementById('banner');
+const connection = document.getElementById('connection');
+
+let current = null; // { abort: AbortController }
+
+// ---------------------------------------------------------------- connection state
+
+function connected() {
+  connection.className = 'connection live';
+  text(connection, 'live');
+  banner.hidden = true;
+}
+
+function lost(reason) {
+  connection.className = 'connection lost';
+  text(connection, 'connection lost');
+  fill(banner, h('strong', {}, 'Connection to the gateway lost'),
+    ` (${reason}). Values shown are the last received; reconnecting…`);
+  banner.hidden = false;
+}
+
+function sleep(ms, signal) {
+  return new Promise((resolve) => {
+    const timer = setTimeout(resolve, ms);
+    signal.addEventListener('abort', () => { clearTimeout(timer); resolve(); }, { once: true });
+  });
+}
+
+/** Asks for a token (the API answered 401), then shows the page again. */
+function askToken(message) {
+  const dialog = document.getElementById('login');
+  const form = document.getElementById('login-form');
+  const input = document.getElementById('login-token');
+  text(document.getElementById('login-reason'), message);
+  if (dialog.open) return;
+  form.onsubmit = (event) => {
+    event.preventDefault();
+    setToken(input.value.trim());
+    input.value = '';
+    dialog.close();
+    render();
+  };
+  dialog.showModal();
+  input.focus();
+}
+
+/**
+ * Follows the event stream at `path` for as long as the view lives, reconnecting with
+ * backoff; after a lost connection the view is built again from fresh data.
+ */
+async function follow(path, onEvent, signal) {
+  let delay = 500;
+  let wasLost = false;
+  while (!signal.aborted) {
+    try {
+      await events(path, {
+        signal,
+        onEvent,
+        onOpen: () => {
+          connected();
+          delay = 500;
+          if (wasLost) render();
+        },
+      });
+      if (signal.aborted) return;
+      wasLost = true;
+      lost('the gateway closed the event stream');
+    } catch (e) {
+      if (signal.aborted || e.name === 'AbortError') return;
+      if (e instanceof ApiError && e.status === 401) { askToken(e.message); return; }
+      if (e instanceof ApiError && e.status >= 400 && e.status < 500) {
+        showError(e);
+        return;
+      }
+      wasLost = true;
+      lost(e.message);
+    }
+    await sleep(delay, signal);
+    delay = Math.min(delay * 2, 5000);
+  }
+}
+
+function showError(e) {
+  fill(main, h('h1', {}, 'Cannot show this'),
+    h('p', { class: 'error', role: 'alert' }, e.message),
+    h('p', {}, h('a', { href: '#/' }, 'Back to the overview')));
+}
+
+// ---------------------------------------------------------------- formatting
+
+function formatValue(type, value) {
+  if (value === null || value === undefined) return '—';
+  if (type === 'BOOL') return value ? 'TRUE' : 'FALSE';
+  if (type === 'REAL' || type === 'LREAL') {
+    return Number.isInteger(value) ? String(value) : String(Number(value.toPrecision(7)));
+  }
+  if (type === 'TIME') return `${value} ms`;
+  return String(value);
+}
+
+function age(timestamp) {
+  if (!timestamp) return '—';
+  const seconds = (Date.now() - Date.parse(timestamp)) / 1000;
+  if (!Number.isFinite(seconds)) return '—';
+  if (seconds < 1) return 'now';
+  if (seconds < 60) return `${Math.floor(seconds)} s`;
+  if (seconds < 3600) return `${Math.floor(seconds / 60)} min`;
+  return `${Math.floor(seconds / 3600)} h`;
+}
+
+function percent(ratio) {
+  return ratio === undefined || ratio === null ? '—' : `${(ratio * 100).toFixed(1)} %`;
+}
+
+/** A typed value from what was typed: the API checks it and names what is wrong. */
+function parseInput(type, raw) {
+  const t = raw.trim();
+  if (type === 'STRING') return raw;
+  if (type === 'BOOL') {
+    if (/^(true|1|on)$/i.test(t)) return true;
+    if (/^(false|0|off)$/i.test(t)) return false;
+    return t;
+  }
+  if (/^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/.test(t)) return Number(t);
+  return t;
+}
+
+const enc = encodeURIComponent;
+
+// ---------------------------------------------------------------- overview
+
+function linkState(link) {
+  const ok = link.connected && link.error_code === 0;
+  return h('span', { class: `badge ${ok ? 'ok' : 'bad'}` },
+    ok ? 'connected' : `error ${link.error_code}`);
+}
+
+function deviceState(d) {
+  const ok = d.connected && d.error_code === 0;
+  return h('span', { class: `badge ${ok ? 'ok' : 'bad'}`, 'data-state': ok ? 'connected' : 'disconnected' },
+    ok ? 'connected' : `disconnected · error ${d.error_code}`);
+}
+
+function cell(label, ...children) {
+  return h('td', { 'data-label': label }, ...children);
+}
+
+async function overview(signal) {
+  const [links, devices] = await Promise.all([api('GET', '/links', undefined, { signal }),
+    api('GET', '/devices', undefined, { signal })]);
+  const summary = h('p', { class: 'summary', id: 'summary' });
+  const linkBody = h('tbody');
+  const deviceBody = h('tbody');
+  const transactionBody = h('tbody');
+  const transactionSection = h('section', { hidden: true, 'aria-labelledby': 'tx-title' },
+    h('h2', { id: 'tx-title' }, 'Standing transactions'),
+    h('div', { class: 'scroll' }, h('table', { class: 'list' },
+      h('thead', {}, h('tr', {}, ...['Name', 'Link', 'Kind', 'State', 'Value', 'Runs', 'Failures', 'Last run']
+        .map((c) => h('th', { scope: 'col' }, c)))),
+      transactionBody)));
+  const deviceRows = new Map();
+  const linkState$ = new Map(links.links.map((l) => [l.name, l]));
+  const deviceState$ = new Map(devices.devices.map((d) => [d.name, d]));
+
+  function renderSummary() {
+    const linksDown = [...linkState$.values()].filter((l) => !l.connected || l.error_code !== 0).length;
+    const devicesDown = [...deviceState$.values()].filter((d) => !d.connected || d.error_code !== 0).length;
+    fill(summary,
+      h('span', { class: `badge ${linksDown ? 'bad' : 'ok'}` },
+        `${linkState$.size} link${linkState$.size === 1 ? '' : 's'}${linksDown ? `, ${linksDown} down` : ''}`),
+      ' ',
+      h('span', { class: `badge ${devicesDown ? 'bad' : 'ok'}` },
+        `${deviceState$.size} device${deviceState$.size === 1 ? '' : 's'}${devicesDown ? `, ${devicesDown} not answering` : ''}`));
+  }
+
+  function renderLinks() {
+    fill(linkBody, ...[...linkState$.values()].map((l) => {
+      const ok = l.connected && l.error_code === 0;
+      const endpoint = l.kind === 'serial'
+        ? `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}`
+        : `${l.host}:${l.tcp_port} (${l.framing})`;
+      const over = (l.planned_utilisation ?? 0) > 0.9 || (l.utilisation ?? 0) > 0.9;
+      return h('tr', { class: ok ? '' : 'problem', 'data-link': l.name },
+        cell('Link', h('strong', {}, l.name)),
+        cell('Endpoint', endpoint),
+        cell('State', linkState(l), h('div', { class: 'meaning' }, LINK_CODES[l.error_code] ?? '')),
+        cell('Utilisation', h('span', { class: over ? 'warn' : '' },
+          `${percent(l.utilisation)} measured`), h('div', { class: 'meaning' }, `${percent(l.planned_utilisation)} planned`)),
+        cell('Devices', String(l.devices.length)));
+    }));
+    if (!linkState$.size) linkBody.append(h('tr', {}, h('td', { colspan: 5, class: 'muted' }, 'No links: simulated devices only.')));
+  }
+
+  function deviceRow(d) {
+    const state = h('td', { 'data-label': 'State' });
+    const cycles = cell('I/O cycles');
+    const response = cell('Last response');
+    const row = h('tr', { 'data-device': d.name },
+      cell('Device', h('a', { href: `#/devices/${enc(d.name)}` }, d.name)),
+      cell('Profile', d.profile),
+      cell('Link', d.link ?? (d.protocol === 'simulated' ? 'simulated' : '—')),
+      state, cycles, response);
+    const update = (diag) => {
+      const ok = diag.connected && diag.error_code === 0;
+      row.classList.toggle('problem', !ok);
+      fill(state, deviceState(diag), h('div', { class: 'meaning' }, DEVICE_CODES[diag.error_code] ?? ''));
+      text(cycles, diag.io_cycles);
+      text(response, `${Number(diag.last_response_ms).toFixed(1)} ms`);
+    };
+    update(d);
+    deviceRows.set(d.name, update);
+    return row;
+  }
+
+  fill(main,
+    h('h1', {}, 'Overview'),
+    summary,
+    h('section', { 'aria-labelledby': 'links-title' },
+      h('h2', { id: 'links-title' }, 'Links'),
+      h('div', { class: 'scroll' }, h('table', { class: 'list' },
+        h('thead', {}, h('tr', {}, ...['Link', 'Endpoint', 'State', 'Utilisation', 'Devices']
+          .map((c) => h('th', { scope: 'col' }, c)))),
+        linkBody))),
+    h('section', { 'aria-labelledby': 'devices-title' },
+      h('h2', { id: 'devices-title' }, 'Devices'),
+      h('div', { class: 'scroll' }, h('table', { class: 'list', id: 'devices' },
+        h('thead', {}, h('tr', {}, ...['Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response']
+          .map((c) => h('th', { scope: 'col' }, c)))),
+        deviceBody))),
+    transactionSection);
+  renderLinks();
+  fill(deviceBody, ...devices.devices.map(deviceRow));
+  renderSummary();
+
+  const transactions = new Map();
+  function renderTransactions() {
+    transactionSection.hidden = transactions.size === 0;
+    fill(transactionBody, ...[...transactions.values()].map((t) => {
+      const good = t.state === 4 || t.state === 0;
+      return h('tr', { class: good ? '' : 'problem' },
+        cell('Name', h('strong', {}, t.name)), cell('Link', t.link), cell('Kind', t.kind),
+        cell('State', h('span', { class: `badge ${good ? 'ok' : 'bad'}` },
+          `${t.state} ${TRANSACTION_STATES[t.state] ?? ''}`),
+        t.error ? h('div', { class: 'meaning' }, t.error) : null),
+        cell('Value', t.value ?? '—'), cell('Runs', String(t.runs)), cell('Failures', String(t.failures)),
+        cell('Last run', age(t.timestamp)));
+    }));
+  }
+
+  // State changes arrive as events at once; counters (cycles, response time, utilisation)
+  // are refreshed every two seconds.
+  const poll = setInterval(async () => {
+    try {
+      const [fresh, counters] = await Promise.all([api('GET', '/links', undefined, { signal }),
+        api('GET', '/devices', undefined, { signal })]);
+      linkState$.clear();
+      for (const l of fresh.links) linkState$.set(l.name, l);
+      renderLinks();
+      for (const d of counters.devices) {
+        deviceState$.set(d.name, d);
+        deviceRows.get(d.name)?.(d);
+      }
+      renderSummary();
+    } catch { /* the event stream reports a lost gateway */ }
+  }, REFRESH_MS);
+  signal.addEventListener('abort', () => clearInterval(poll), { once: true });
+
+  follow('/events?values=false', (name, data) => {
+    if (name === 'diagnostics') {
+      deviceState$.set(data.device, { ...deviceState$.get(data.device), ...data });
+      deviceRows.get(data.device)?.(data);
+      renderSummary();
+    } else if (name === 'transaction') {
+      transactions.set(data.name, data);
+      renderTransactions();
+    }
+  }, signal);
+}
+
+// ---------------------------------------------------------------- a device
+
+/** Follows the outcome of write `generation` until it is no longer pending. */
+async function followWrite(generation, out, signal) {
+  const started = Date.now();
+  while (!signal.aborted && Date.now() - started < 60000) {
+    let w;
+    try {
+      w = await api('GET', `/writes/${generation}`, undefined, { signal });
+    } catch (e) {
+      if (e.name === 'AbortError') return;
+      out.className = 'outcome error';
+      text(out, e.message);
+      return;
+    }
+    out.dataset.status = w.status;
+    if (w.status !== 'pending') {
+      out.className = `outcome ${w.status === 'failed' ? 'error' : w.status}`;
+      text(out, w.status === 'failed' ? `failed: ${w.error ?? 'no reason given'}`
+        : `${w.status}${w.attempts > 1 ? ` after ${w.attempts} attempts` : ''}`);
+      return;
+    }
+    text(out, 'pending…');
+    await sleep(200, signal);
+  }
+}
+
+function fieldControl(device, f, simulated, signal, currentValue) {
+  // Outputs (and in-outs) are written as clients write them; a simulated device's inputs
+  // are set as the device itself would change them.
+  const isOutput = f.direction === 'output' || f.direction === 'inout';
+  if (!isOutput && !simulated) return null;
+  const path = `/devices/${enc(device)}/fields/${enc(f.field)}${isOutput ? '' : '/simulate'}`;
+  const verb = isOutput ? 'Write' : 'Set';
+  const out = h('output', { class: 'outcome', 'aria-live': 'polite' });
+
+  async function send(value) {
+    out.className = 'outcome';
+    delete out.dataset.status;
+    text(out, 'sending…');
+    try {
+      const answer = await api('PUT', path, { value }, { signal });
+      if (isOutput && answer && answer.generation !== undefined) {
+        out.dataset.generation = answer.generation;
+        text(out, 'pending…');
+        out.dataset.status = 'pending';
+        await followWrite(answer.generation, out, signal);
+      } else {
+        out.className = 'outcome written';
+        out.dataset.status = 'set';
+        text(out, 'set');
+      }
+    } catch (e) {
+      if (e.name === 'AbortError') return;
+      if (e instanceof ApiError && e.status === 401) askToken(e.message);
+      out.className = 'outcome error';
+      out.dataset.status = 'error';
+      text(out, e.message);
+    }
+  }
+
+  const label = `${verb} ${f.field}`;
+  if (f.type === 'BOOL') {
+    const button = h('button', {
+      type: 'button', class: 'toggle', 'aria-label': `Toggle ${f.field}`,
+      onclick: () => send(!currentValue()),
+    }, isOutput ? 'Toggle' : 'Toggle input');
+    return h('div', { class: 'control' }, button, out);
+  }
+  const input = h('input', {
+    type: 'text', inputmode: NUMERIC.has(f.type) ? 'decimal' : 'text',
+    'aria-label': `New value of ${f.field}`, placeholder: f.type === 'TIME' ? 'ms or T#1s500ms' : f.type,
+    autocomplete: 'off', spellcheck: 'false',
+  });
+  const form = h('form', {
+    class: 'control',
+    onsubmit: (event) => { event.preventDefault(); send(parseInput(f.type, input.value)); },
+  }, input, h('button', { type: 'submit', 'aria-label': label }, verb), out);
+  return form;
+}
+
+async function deviceView(name, signal) {
+  const detail = await api('GET', `/devices/${enc(name)}`, undefined, { signal });
+  const simulated = detail.protocol === 'simulated';
+  let profile = null;
+  try { profile = await api('GET', `/profiles/${enc(detail.profile)}`, undefined, { signal }); } catch { /* shown without */ }
+  const meta = new Map((profile?.fields ?? []).map((f) => [f.name, f]));
+
+  const state = h('span', {});
+  const cycles = h('span', {});
+  const response = h('span', {});
+  const meaning = h('span', { class: 'meaning' });
+  function diagnostics(d) {
+    fill(state, deviceState(d));
+    text(meaning, DEVICE_CODES[d.error_code] ?? '');
+    text(cycles, d.io_cycles);
+    text(response, `${Number(d.last_response_ms).toFixed(1)} ms`);
+    document.body.classList.toggle('device-down', !(d.connected && d.error_code === 0));
+  }
+  diagnostics(detail);
+
+  const rows = new Map();
+  const body = h('tbody');
+  for (const [fieldName, f] of Object.entries(detail.fields)) {
+    const m = meta.get(fieldName);
+    let last = f;
+    const trend = [];
+    const valueCell = h('td', { 'data-label': 'Value', class: 'value' });
+    const quality = h('td', { 'data-label': 'Quality' });
+    const ageCell = h('td', { 'data-label': 'Age' });
+    const trendCell = h('td', { 'data-label': 'Trend', class: 'trend' });
+    const control = fieldControl(name, f, simulated, signal, () => last.value);
+    const row = h('tr', { 'data-field': fieldName },
+      h('th', { scope: 'row' }, fieldName,
+        m?.description ? h('div', { class: 'meaning' }, m.description) : null),
+      valueCell,
+      h('td', { 'data-label': 'Unit' }, f.unit ?? m?.register?.unit ?? ''),
+      h('td', { 'data-label': 'Type' }, f.type),
+      h('td', { 'data-label': 'Direction' }, f.direction),
+      quality, ageCell, trendCell,
+      h('td', { 'data-label': control ? (f.direction === 'input' ? 'Simulate' : 'Write') : '' }, control));
+    function update(v) {
+      last = v;
+      fill(valueCell, h('span', { class: 'v' }, formatValue(v.type, v.value)),
+        v.mismatch ? h('div', { class: 'meaning warn' },
+          `device holds this; requested ${formatValue(v.type, v.desired)}`) : null);
+      const good = v.quality === 'good';
+      fill(quality, h('span', { class: `badge q-${v.quality} ${good ? 'ok' : 'bad'}` }, v.quality.replace('_', ' ')),
+        v.error ? h('div', { class: 'meaning' }, v.error) : null);
+      ageCell.dataset.timestamp = v.timestamp ?? '';
+      text(ageCell, age(v.timestamp));
+      if (NUMERIC.has(v.type) && typeof v.value === 'number' && v.quality === 'good') {
+        trend.push(v.value);
+        if (trend.length > TREND_POINTS) trend.shift();
+        fill(trendCell, sparkline(trend, `recent values of ${fieldName}`));
+      }
+    }
+    update(f);
+    rows.set(fieldName, update);
+    body.append(row);
+  }
+
+  const st = h('pre', { class: 'code' }, '…');
+  const layout = h('tbody');
+  for (const e of profile?.layout ?? []) {
+    layout.append(h('tr', {}, cell('Member', e.name), cell('Type', e.ty ?? e.type),
+      cell('Section', e.section), cell('Role', e.role), cell('Description', e.description)));
+  }
+  const stDetails = h('details', {
+    ontoggle: async (event) => {
+      if (!event.target.open || st.dataset.loaded) return;
+      try {
+        text(st, await api('GET', `/profiles/${enc(detail.profile)}/st`, undefined, { signal, text: true }));
+        st.dataset.loaded = '1';
+      } catch (e) { text(st, e.message); }
+    },
+  }, h('summary', {}, 'ST declaration'), st);
+  const mapBody = h('tbody');
+  const mapNote = h('p', { class: 'meaning' });
+  const mapSection = h('details', {
+    ontoggle: async (event) => {
+      if (!event.target.open || mapSection.dataset.loaded) return;
+      mapSection.dataset.loaded = '1';
+      try {
+        const map = await api('GET', '/map', undefined, { signal });
+        const mine = map.bindings.filter((b) => b.device === name);
+        text(mapNote, mine.length ? `unit id ${map.unit_id}, ${map.address_space} address space`
+          : 'No field of this device is bound to a located address.');
+        fill(mapBody, ...mine.map((b) => h('tr', {}, cell('Located address', b.at), cell('Table', b.table),
+          cell('Address', String(b.address)), cell('Field', b.field), cell('Type', b.type), cell('Access', b.access))));
+      } catch (e) {
+        text(mapNote, e.message);
+      }
+    },
+  }, h('summary', {}, 'Modbus TCP server addresses'), mapNote,
+  h('div', { class: 'scroll' }, h('table', { class: 'list' },
+    h('thead', {}, h('tr', {}, ...['Located address', 'Table', 'Address', 'Field', 'Type', 'Access']
+      .map((c) => h('th', { scope: 'col' }, c)))), mapBody)));
+
+  fill(main,
+    h('p', { class: 'crumbs' }, h('a', { href: '#/' }, 'Overview'), ' › ', name),
+    h('h1', {}, name, ' ', state),
+    h('dl', { class: 'facts' },
+      h('dt', {}, 'Profile'), h('dd', {}, detail.profile, profile?.vendor ? ` (${profile.vendor})` : ''),
+      h('dt', {}, 'Link'), h('dd', {}, simulated ? 'simulated' : `${detail.link ?? '—'}${detail.slave_id ? ` · slave ${detail.slave_id}` : ''}`),
+      h('dt', {}, 'Refresh rate'), h('dd', {}, `${detail.refresh_rate_ms} ms`),
+      h('dt', {}, 'Error code'), h('dd', {}, meaning),
+      h('dt', {}, 'I/O cycles'), h('dd', {}, cycles),
+      h('dt', {}, 'Last response'), h('dd', {}, response)),
+    simulated ? h('p', { class: 'hint' }, 'A simulated device: set its inputs here and watch its outputs change as clients write them.') : null,
+    h('section', { 'aria-labelledby': 'fields-title' },
+      h('h2', { id: 'fields-title' }, 'Fields'),
+      h('div', { class: 'scroll' }, h('table', { class: 'fields list', id: 'fields' },
+        h('thead', {}, h('tr', {}, ...['Field', 'Value', 'Unit', 'Type', 'Direction', 'Quality', 'Age', 'Trend', '']
+          .map((c) => h('th', { scope: 'col' }, c)))),
+        body))),
+    h('section', { 'aria-labelledby': 'profile-title' },
+      h('h2', { id: 'profile-title' }, 'Profile'),
+      h('details', {}, h('summary', {}, 'Function-block layout'),
+        h('div', { class: 'scroll' }, h('table', { class: 'list' },
+          h('thead', {}, h('tr', {}, ...['Member', 'Type', 'Section', 'Role', 'Description']
+            .map((c) => h('th', { scope: 'col' }, c)))), layout))),
+      stDetails,
+      mapSection));
+
+  const ages = setInterval(() => {
+    for (const td of body.querySelectorAll('td[data-label="Age"]')) text(td, age(td.dataset.timestamp));
+  }, 1000);
+  // The device's counters (cycles, response time); its values and state come as events.
+  const counters = setInterval(async () => {
+    try {
+      const list = await api('GET', '/devices', undefined, { signal });
+      const d = list.devices.find((x) => x.name === name);
+      if (d) diagnostics(d);
+    } catch { /* the event stream reports a lost gateway */ }
+  }, REFRESH_MS);
+  signal.addEventListener('abort', () => {
+    clearInterval(ages);
+    clearInterval(counters);
+    document.body.classList.remove('device-down');
+  }, { once: true });
+
+  follow(`/events?device=${enc(name)}`, (event, data) => {
+    if (event === 'value') rows.get(data.field)?.(data);
+    else if (event === 'diagnostics') diagnostics(data);
+  }, signal);
+}
+
+// ---------------------------------------------------------------- routing
+
+async function render() {
+  current?.abort.abort();
+  const abort = new AbortController();
+  current = { abort };
+  const route = location.hash.replace(/^#/, '') || '/';
+  const device = route.match(/^\/devices\/(.+)$/);
+  try {
+    if (device) {
+      document.title = `${decodeURIComponent(device[1])} · iogate`;
+      await deviceView(decodeURIComponent(device[1]), abort.signal);
+    } else {
+      document.title = 'iogate';
+      await overview(abort.signal);
+    }
+  } catch (e) {
+    if (abort.signal.aborted || e.name === 'AbortError') return;
+    if (e instanceof ApiError && e.status === 401) { askToken(e.message); return; }
+    if (e instanceof ApiError && e.status === 0) {
+      lost(e.message);
+      await sleep(2000, abort.signal);
+      if (!abort.signal.aborted) render();
+      return;
+    }
+    showError(e);
+  }
+}
+
+window.addEventListener('hashchange', () => {
+  render();
+  main.focus({ preventScroll: true });
+});
+render();

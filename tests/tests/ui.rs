@@ -1,0 +1,454 @@
+//! The web page at `/ui` in a real headless Chromium (WebDriver): the demo's simulated
+//! devices and a Modbus RTU device on a pseudo-terminal bus, each through the gateway's real
+//! HTTP listener. Screenshots of the overview and a device page, at desktop and phone
+//! widths, are written to `target/ui-screenshots/`.
+
+use std::time::Duration;
+
+use iogate_tests::browser::{Browser, screenshots_dir};
+use iogate_tests::devices::{Behaviour, RtuBus};
+use iogate_tests::{TestGateway, bus_gateway, eventually};
+use reqwest::Method;
+use serde_json::json;
+
+const DEVICES: &str = "  - { name: sim, profile: SimIo, refresh_rate: 100ms }\n  - { name: plant, profile: SimPlant, refresh_rate: 250ms }\n  - { name: rack, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, timeout: 100ms, retries: 0 }\n";
+
+const DESKTOP: (u32, u32) = (1280, 900);
+const PHONE: (u32, u32) = (390, 844);
+
+/// Console messages at error level (a failed request, an exception, a CSP violation).
+async fn console_errors(browser: &Browser) -> anyhow::Result<Vec<String>> {
+    Ok(browser
+        .console()
+        .await?
+        .into_iter()
+        .filter(|(level, _)| level == "SEVERE")
+        .map(|(_, message)| message)
+        .collect())
+}
+
+async fn rest_value(
+    gw: &TestGateway,
+    device: &str,
+    field: &str,
+) -> anyhow::Result<serde_json::Value> {
+    let (_, body) = gw
+        .get(&format!("/api/v1/devices/{device}/fields/{field}"))
+        .await?;
+    Ok(body["value"].clone())
+}
+
+#[tokio::test]
+async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconnected()
+-> anyhow::Result<()> {
+    let bus = RtuBus::default();
+    bus.slave(1, |_| {});
+    let (gw, _pty, task, _) = bus_gateway("ui-overview", &bus, &[], DEVICES).await;
+    gw.until("/api/v1/devices/rack", "connected", |b| {
+        b["connected"] == true
+    })
+    .await?;
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/")).await?;
+    for device in ["sim", "plant", "rack"] {
+        browser
+            .wait_for(&format!(
+                "tr[data-device='{device}'] a[href='#/devices/{device}']"
+            ))
+            .await?;
+    }
+    browser
+        .until_text("tr[data-device='rack']", Duration::from_secs(10), |t| {
+            t.contains("connected") && !t.contains("disconnected")
+        })
+        .await?;
+    // The link with its utilisation (measured once its first window has passed).
+    browser.wait_for("tr[data-link='bus']").await?;
+    browser
+        .until_text("tr[data-link='bus']", Duration::from_secs(10), |t| {
+            t.contains("% measured") && t.contains("% planned")
+        })
+        .await?;
+    // I/O cycles count up live, from the event stream.
+    let cycles = |t: &str| -> u64 {
+        t.split_whitespace()
+            .filter_map(|w| w.parse().ok())
+            .next()
+            .unwrap_or(0)
+    };
+    let before = cycles(
+        &browser
+            .text("tr[data-device='sim'] td[data-label='I/O cycles']")
+            .await?,
+    );
+    browser
+        .until_text(
+            "tr[data-device='sim'] td[data-label='I/O cycles']",
+            Duration::from_secs(5),
+            |t| cycles(t) > before,
+        )
+        .await?;
+    browser
+        .screenshot(&screenshots_dir().join("overview-desktop.png"))
+        .await?;
+    browser.resize(PHONE.0, PHONE.1).await?;
+    browser
+        .screenshot(&screenshots_dir().join("overview-phone.png"))
+        .await?;
+    browser.resize(DESKTOP.0, DESKTOP.1).await?;
+
+    // The device stops answering: its row turns disconnected with the code's meaning.
+    bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    let row = browser
+        .until_text("tr[data-device='rack']", Duration::from_secs(10), |t| {
+            t.contains("disconnected")
+        })
+        .await?;
+    assert!(row.contains("error 10"), "{row}");
+    assert!(row.contains("Communication error"), "{row}");
+    let marked = browser
+        .run(
+            "return document.querySelector(\"tr[data-device='rack']\").classList.contains('problem');",
+            json!([]),
+        )
+        .await?;
+    assert_eq!(marked, json!(true), "the row is marked as a problem");
+    assert!(browser.text("#summary").await?.contains("1 not answering"));
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    task.abort();
+    Ok(())
+}
+
+#[tokio::test]
+async fn simulated_inputs_toggled_in_the_page_reach_rest_and_rest_writes_show_in_the_page()
+-> anyhow::Result<()> {
+    let gw = TestGateway::demo().await?;
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/ui#/devices/sim")).await?;
+    let toggle = browser
+        .wait_for("tr[data-field='DI_0'] button.toggle")
+        .await?;
+    browser
+        .until_text(
+            "tr[data-field='DI_0'] td.value",
+            Duration::from_secs(5),
+            |t| t.contains("FALSE"),
+        )
+        .await?;
+    assert_eq!(rest_value(&gw, "sim", "DI_0").await?, json!(false));
+
+    // Toggling the simulated input in the page changes what REST reads.
+    browser.click(&toggle).await?;
+    eventually("DI_0 true over REST", || async {
+        rest_value(&gw, "sim", "DI_0").await.ok() == Some(json!(true))
+    })
+    .await?;
+    browser
+        .until_text(
+            "tr[data-field='DI_0'] td.value",
+            Duration::from_secs(5),
+            |t| t.contains("TRUE"),
+        )
+        .await?;
+
+    // A write made over REST shows in the page within a second, without a reload.
+    let marker = browser
+        .run("window.__notReloaded = 1; return 1;", json!([]))
+        .await?;
+    assert_eq!(marker, json!(1));
+    let current = rest_value(&gw, "sim", "DO_0").await?;
+    let wanted = !current.as_bool().unwrap_or(false);
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DO_0",
+            json!({ "value": wanted }).to_string(),
+        )
+        .await?;
+    assert_eq!(status, 202);
+    let shown = if wanted { "TRUE" } else { "FALSE" };
+    browser
+        .until_text(
+            "tr[data-field='DO_0'] td.value",
+            Duration::from_secs(1),
+            |t| t.contains(shown),
+        )
+        .await?;
+    assert_eq!(
+        browser
+            .run("return window.__notReloaded === 1;", json!([]))
+            .await?,
+        json!(true)
+    );
+
+    // A write made in the page ends `written`, and REST reads it.
+    let write = browser
+        .wait_for("tr[data-field='DO_0'] button.toggle")
+        .await?;
+    browser.click(&write).await?;
+    browser
+        .until_text(
+            "tr[data-field='DO_0'] output.outcome",
+            Duration::from_secs(10),
+            |t| t.starts_with("written"),
+        )
+        .await?;
+    assert_eq!(rest_value(&gw, "sim", "DO_0").await?, json!(!wanted));
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    Ok(())
+}
+
+#[tokio::test]
+async fn invalid_values_show_the_apis_error_and_numbers_are_written() -> anyhow::Result<()> {
+    let gw = TestGateway::demo().await?;
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/ui#/devices/plant")).await?;
+    let input = browser.wait_for("tr[data-field='Recipe'] input").await?;
+    let submit = browser
+        .wait_for("tr[data-field='Recipe'] button[type='submit']")
+        .await?;
+
+    // Out of range for USINT: the page shows the API's own message.
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant/fields/Recipe",
+            json!({ "value": 300 }).to_string(),
+        )
+        .await?;
+    assert_eq!(status, 400);
+    let message = body["error"]["message"].as_str().unwrap_or("").to_owned();
+    assert!(!message.is_empty());
+    browser.type_text(&input, "300").await?;
+    browser.click(&submit).await?;
+    let shown = browser
+        .until_text(
+            "tr[data-field='Recipe'] output.outcome",
+            Duration::from_secs(5),
+            |t| !t.is_empty() && !t.contains("sending"),
+        )
+        .await?;
+    assert_eq!(shown, message);
+
+    // Not a number at all: again the API's words.
+    let (_, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant/fields/Recipe",
+            json!({ "value": "lots" }).to_string(),
+        )
+        .await?;
+    let message = body["error"]["message"].as_str().unwrap_or("").to_owned();
+    browser.clear(&input).await?;
+    browser.type_text(&input, "lots").await?;
+    browser.click(&submit).await?;
+    browser
+        .until_text(
+            "tr[data-field='Recipe'] output.outcome",
+            Duration::from_secs(5),
+            |t| t == message,
+        )
+        .await?;
+
+    // A good value is written, and a TIME as IEC literal too.
+    browser.clear(&input).await?;
+    browser.type_text(&input, "7").await?;
+    browser.click(&submit).await?;
+    browser
+        .until_text(
+            "tr[data-field='Recipe'] output.outcome",
+            Duration::from_secs(10),
+            |t| t.starts_with("written"),
+        )
+        .await?;
+    assert_eq!(rest_value(&gw, "plant", "Recipe").await?, json!(7));
+    let time = browser.wait_for("tr[data-field='MixTime'] input").await?;
+    browser.type_text(&time, "T#1s500ms").await?;
+    let set = browser
+        .wait_for("tr[data-field='MixTime'] button[type='submit']")
+        .await?;
+    browser.click(&set).await?;
+    browser
+        .until_text(
+            "tr[data-field='MixTime'] output.outcome",
+            Duration::from_secs(10),
+            |t| t.starts_with("written"),
+        )
+        .await?;
+    assert_eq!(rest_value(&gw, "plant", "MixTime").await?, json!(1500));
+    browser
+        .until_text(
+            "tr[data-field='MixTime'] td.value",
+            Duration::from_secs(5),
+            |t| t.contains("1500 ms"),
+        )
+        .await?;
+
+    browser
+        .run(
+            "window.scrollTo(0, 0); document.activeElement.blur();",
+            json!([]),
+        )
+        .await?;
+    browser
+        .screenshot(&screenshots_dir().join("device-desktop.png"))
+        .await?;
+    browser.resize(PHONE.0, PHONE.1).await?;
+    browser
+        .screenshot(&screenshots_dir().join("device-phone.png"))
+        .await?;
+    // On a phone each field is a card with labelled cells, nothing wider than the screen.
+    let overflow = browser
+        .run(
+            "return document.documentElement.scrollWidth > window.innerWidth + 1;",
+            json!([]),
+        )
+        .await?;
+    assert_eq!(
+        overflow,
+        json!(false),
+        "the page scrolls sideways on a phone"
+    );
+    // The refused values' answers (400) are logged by the browser as failed loads; nothing
+    // else may be.
+    let errors: Vec<String> = console_errors(&browser)
+        .await?
+        .into_iter()
+        .filter(|m| !m.contains("status of 400"))
+        .collect();
+    assert_eq!(errors, Vec::<String>::new());
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_page_says_when_the_gateway_is_gone_and_reconnects_by_itself() -> anyhow::Result<()> {
+    let config = "devices:\n  - { name: sim, profile: SimIo, refresh_rate: 100ms }\n";
+    let gw = TestGateway::start(config).await?;
+    let addr: std::net::SocketAddr = gw.base.trim_start_matches("http://").parse()?;
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/ui#/devices/sim")).await?;
+    browser.wait_for("tr[data-field='DI_0']").await?;
+    browser
+        .until_text("#connection", Duration::from_secs(5), |t| t == "live")
+        .await?;
+    gw.shutdown().await;
+    browser
+        .until_text("#banner", Duration::from_secs(10), |t| {
+            t.contains("Connection to the gateway lost")
+        })
+        .await?;
+    assert_eq!(browser.text("#connection").await?, "connection lost");
+
+    // The gateway comes back on the same port with DI_0 set: the page follows by itself.
+    let gw = TestGateway::start_on(config, addr).await?;
+    gw.send(
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DI_0/simulate",
+        json!({ "value": true }).to_string(),
+    )
+    .await?;
+    browser
+        .until_text("#connection", Duration::from_secs(15), |t| t == "live")
+        .await?;
+    let hidden = browser
+        .run(
+            "return document.getElementById('banner').hidden;",
+            json!([]),
+        )
+        .await?;
+    assert_eq!(hidden, json!(true));
+    browser
+        .until_text(
+            "tr[data-field='DI_0'] td.value",
+            Duration::from_secs(5),
+            |t| t.contains("TRUE"),
+        )
+        .await?;
+    // Failed fetches while the gateway was away are the network's errors, not the page's.
+    let errors: Vec<String> = console_errors(&browser)
+        .await?
+        .into_iter()
+        .filter(|m| !m.contains("net::ERR_CONNECTION_REFUSED") && !m.contains("Failed to fetch"))
+        .collect();
+    assert_eq!(errors, Vec::<String>::new());
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_page_is_served_with_a_strict_policy_and_without_a_token() -> anyhow::Result<()> {
+    let gw = TestGateway::demo().await?;
+    let client = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()?;
+    let root = client.get(gw.url("/")).send().await?;
+    assert!(root.status().is_redirection());
+    assert_eq!(root.headers()["location"], "/ui");
+    for path in [
+        "/ui",
+        "/ui/",
+        "/ui/app.js",
+        "/ui/api.js",
+        "/ui/dom.js",
+        "/ui/style.css",
+        "/ui/icon.svg",
+    ] {
+        let r = client.get(gw.url(path)).send().await?;
+        assert_eq!(r.status(), 200, "{path}");
+        let csp = r.headers()["content-security-policy"].to_str()?.to_owned();
+        for directive in [
+            "default-src 'none'",
+            "script-src 'self'",
+            "require-trusted-types-for 'script'",
+            "frame-ancestors 'none'",
+        ] {
+            assert!(csp.contains(directive), "{path}: {csp}");
+        }
+        assert!(!csp.contains("unsafe"), "{path}: {csp}");
+        assert_eq!(r.headers()["x-content-type-options"], "nosniff");
+    }
+    let missing = client.get(gw.url("/ui/missing.js")).send().await?;
+    assert_eq!(missing.status(), 404);
+    Ok(())
+}
+
+#[tokio::test]
+async fn with_tokens_the_page_asks_for_one_and_uses_it() -> anyhow::Result<()> {
+    let dir = iogate_tests::devices::temp_dir("ui-tokens");
+    let tokens = dir.join("tokens");
+    std::fs::write(&tokens, "read reader-0123456789abcdef\n")?;
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\nsecurity:\n  tokens_file: {}\n",
+        tokens.display()
+    ))
+    .await?;
+    // The page's files need no token; the API does.
+    let (status, _) = gw.get("/api/v1/devices").await?;
+    assert_eq!(status, 401);
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/ui")).await?;
+    let input = browser.wait_for("dialog[open] #login-token").await?;
+    browser.type_text(&input, "reader-0123456789abcdef").await?;
+    let submit = browser
+        .wait_for("dialog[open] button[type='submit']")
+        .await?;
+    browser.click(&submit).await?;
+    browser.wait_for("tr[data-device='sim']").await?;
+    browser
+        .until_text("#connection", Duration::from_secs(5), |t| t == "live")
+        .await?;
+    // A reader cannot write: the page shows the API's refusal.
+    browser.goto(&gw.url("/ui#/devices/sim")).await?;
+    let toggle = browser
+        .wait_for("tr[data-field='DO_0'] button.toggle")
+        .await?;
+    browser.click(&toggle).await?;
+    let refused = browser
+        .until_text(
+            "tr[data-field='DO_0'] output.outcome",
+            Duration::from_secs(5),
+            |t| t.contains("role"),
+        )
+        .await?;
+    assert!(refused.contains("write"), "{refused}");
+    Ok(())
+}
