@@ -209,12 +209,10 @@ async function overview(signal) {
   function renderLinks() {
     fill(linkBody, ...[...linkState$.values()].map((l) => {
       const ok = l.connected && l.error_code === 0;
-      const endpoint = l.kind === 'serial'
-        ? `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}`
-        : `${l.host}:${l.tcp_port} (${l.framing})`;
+      const endpoint = endpointOf(l);
       const over = (l.planned_utilisation ?? 0) > 0.9 || (l.utilisation ?? 0) > 0.9;
       return h('tr', { class: ok ? '' : 'problem', 'data-link': l.name },
-        cell('Link', h('strong', {}, l.name)),
+        cell('Link', h('a', { href: `#/links/${enc(l.name)}` }, h('strong', {}, l.name))),
         cell('Endpoint', endpoint),
         cell('State', linkState(l), h('div', { class: 'meaning' }, LINK_CODES[l.error_code] ?? '')),
         cell('Utilisation', h('span', { class: over ? 'warn' : '' },
@@ -494,7 +492,8 @@ async function deviceView(name, signal) {
     h('h1', {}, name, ' ', state),
     h('dl', { class: 'facts' },
       h('dt', {}, 'Profile'), h('dd', {}, detail.profile, profile?.vendor ? ` (${profile.vendor})` : ''),
-      h('dt', {}, 'Link'), h('dd', {}, simulated ? 'simulated' : `${detail.link ?? '—'}${detail.slave_id ? ` · slave ${detail.slave_id}` : ''}`),
+      h('dt', {}, 'Link'), h('dd', {}, simulated || !detail.link ? 'simulated'
+        : [h('a', { href: `#/links/${enc(detail.link)}` }, detail.link), detail.slave_id ? ` · slave ${detail.slave_id}` : '']),
       h('dt', {}, 'Refresh rate'), h('dd', {}, `${detail.refresh_rate_ms} ms`),
       h('dt', {}, 'Error code'), h('dd', {}, meaning),
       h('dt', {}, 'I/O cycles'), h('dd', {}, cycles),
@@ -538,6 +537,45 @@ async function deviceView(name, signal) {
   }, signal);
 }
 
+// ---------------------------------------------------------------- a link
+
+function endpointOf(l) {
+  return l.kind === 'serial'
+    ? `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}`
+    : `${l.host}:${l.tcp_port} (${l.framing})`;
+}
+
+async function linkView(name, signal) {
+  const facts = h('dl', { class: 'facts' });
+  const state = h('span', {});
+  const plan = h('pre', { class: 'code', id: 'plan' }, '…');
+  const devices = h('ul', { class: 'devices' });
+  async function refresh() {
+    const l = await api('GET', `/links/${enc(name)}`, undefined, { signal });
+    fill(state, linkState(l));
+    fill(facts,
+      h('dt', {}, 'Endpoint'), h('dd', {}, endpointOf(l)),
+      h('dt', {}, 'Error code'), h('dd', {}, `${l.error_code} — ${LINK_CODES[l.error_code] ?? ''}`),
+      h('dt', {}, 'Utilisation'), h('dd', {}, `${percent(l.utilisation)} measured, ${percent(l.planned_utilisation)} planned`));
+    fill(devices, ...l.devices.map((d) => h('li', {}, h('a', { href: `#/devices/${enc(d)}` }, d))));
+  }
+  await refresh();
+  text(plan, await api('GET', `/links/${enc(name)}/plan`, undefined, { signal, text: true }));
+  fill(main,
+    h('p', { class: 'crumbs' }, h('a', { href: '#/' }, 'Overview'), ' › ', name),
+    h('h1', {}, name, ' ', state),
+    facts,
+    h('h2', {}, 'Devices'), devices,
+    h('h2', {}, 'Poll plan'),
+    h('p', { class: 'meaning' }, 'Each device\'s read transactions with their wire time, as `iogate plan` prints them.'),
+    plan);
+  const poll = setInterval(() => refresh().catch(() => { /* shown by the overview's stream */ }), REFRESH_MS);
+  signal.addEventListener('abort', () => clearInterval(poll), { once: true });
+  follow('/events?values=false', (event) => {
+    if (event === 'diagnostics') refresh().catch(() => {});
+  }, signal);
+}
+
 // ---------------------------------------------------------------- routing
 
 async function render() {
@@ -546,8 +584,12 @@ async function render() {
   current = { abort };
   const route = location.hash.replace(/^#/, '') || '/';
   const device = route.match(/^\/devices\/(.+)$/);
+  const link = route.match(/^\/links\/(.+)$/);
   try {
-    if (device) {
+    if (link) {
+      document.title = `${decodeURIComponent(link[1])} · iogate`;
+      await linkView(decodeURIComponent(link[1]), abort.signal);
+    } else if (device) {
       document.title = `${decodeURIComponent(device[1])} · iogate`;
       await deviceView(decodeURIComponent(device[1]), abort.signal);
     } else {

@@ -759,3 +759,41 @@ async fn every_error_is_the_apis_json_and_echoes_little_of_its_input() {
     );
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn events_without_values_carry_only_diagnostics() {
+    let gw = demo().await;
+    let mut events = SseReader::open(&gw, "/api/v1/events?values=false")
+        .await
+        .expect("open");
+    // Both devices' diagnostics come first; a change of a value does not follow.
+    let mut seen = std::collections::BTreeSet::new();
+    while seen.len() < 2 {
+        let (name, data) = events.next().await.expect("event").expect("not ended");
+        assert_eq!(name, "diagnostics", "{data}");
+        seen.insert(data["device"].as_str().unwrap_or("").to_owned());
+    }
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DI_0/simulate",
+            json!({"value": true}).to_string(),
+        )
+        .await
+        .expect("simulate");
+    assert!((200..300).contains(&status), "{status}");
+    let next = tokio::time::timeout(std::time::Duration::from_millis(500), events.next()).await;
+    if let Ok(Ok(Some((name, data)))) = next {
+        assert_ne!(name, "value", "{data}");
+    }
+    let (status, body) = gw.get("/api/v1/events?values=maybe").await.expect("get");
+    assert_eq!(status, 400);
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .unwrap_or("")
+            .contains("values must be true or false"),
+        "{body}"
+    );
+    gw.shutdown().await;
+}

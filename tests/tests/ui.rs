@@ -114,6 +114,17 @@ async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconne
         .await?;
     assert_eq!(marked, json!(true), "the row is marked as a problem");
     assert!(browser.text("#summary").await?.contains("1 not answering"));
+
+    // The link's page: its devices and its poll plan, as `iogate plan` prints it.
+    let link = browser.wait_for("tr[data-link='bus'] a").await?;
+    browser.click(&link).await?;
+    let plan = browser
+        .until_text("#plan", Duration::from_secs(5), |t| {
+            t.contains("device rack")
+        })
+        .await?;
+    assert!(plan.contains("profile MyIoModule"), "{plan}");
+    assert!(plan.contains("bus utilisation"), "{plan}");
     assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
     task.abort();
     Ok(())

@@ -42,7 +42,7 @@ pub const MAX_BODY: usize = 1024 * 1024;
     info(title = "iogate", description = "I/O gateway for industrial devices: cached field values, last-value-wins writes."),
     paths(
         rest::livez, rest::readyz,
-        rest::list_links, rest::get_link,
+        rest::list_links, rest::get_link, rest::get_link_plan,
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
         rest::list_profiles, rest::get_profile, rest::get_profile_st,
@@ -147,6 +147,7 @@ pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Route
                 .put(declare::put_link)
                 .delete(declare::delete_link),
         )
+        .route("/links/{link}/plan", get(rest::get_link_plan))
         .route(
             "/links/{link}/transactions",
             axum::routing::post(transactions::post_transaction),

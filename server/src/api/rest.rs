@@ -82,6 +82,30 @@ pub async fn get_link(
     Ok(Json(link_info(service.link(&name)?.as_ref())))
 }
 
+/// A link's poll plan as `iogate plan` prints it (its devices now, declared ones included):
+/// each device's read transactions, their wire time, the cycle and the bus utilisation.
+#[utoipa::path(get, path = "/api/v1/links/{link}/plan", tag = "links",
+    params(("link" = String, Path, description = "link name")),
+    responses((status = 200, description = "the plan as text", content_type = "text/plain"), (status = 404, description = "an unknown name", body = ErrorBody)))]
+pub async fn get_link_plan(
+    State(service): ServiceRef,
+    Path(name): Path<String>,
+) -> Result<([(axum::http::HeaderName, &'static str); 1], String), ApiError> {
+    let link = service.link(&name)?;
+    let members = link.members();
+    let text = crate::plan::link_plan(
+        &link.config(),
+        members.iter().map(|d| (&d.config, d.profile.as_ref())),
+    );
+    Ok((
+        [(
+            axum::http::header::CONTENT_TYPE,
+            "text/plain; charset=utf-8",
+        )],
+        text,
+    ))
+}
+
 /// Every device with its diagnostics.
 #[utoipa::path(get, path = "/api/v1/devices", tag = "devices", responses((status = 200, description = "every device", body = DeviceList)))]
 pub async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {

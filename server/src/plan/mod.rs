@@ -8,7 +8,7 @@ mod write;
 
 pub use budget::{cycle_time, rtu_sizes, transaction_time, utilisation};
 pub use read::{ReadBatch, read_batches};
-pub use report::{render, warnings};
+pub use report::{link_plan, render, warnings};
 pub use write::{WriteItem, WriteOp, write_ops};
 
 /// A profile from field lines, for the tests of this module.

@@ -61,97 +61,115 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
         out.push_str("No links configured: nothing is polled on a bus.\n");
     }
     for link in &config.links {
-        let devices = devices_of(config, catalog, link);
-        let timing = match &link.transport {
-            Transport::Serial(s) => {
-                let t = LineTiming::new(s);
-                let _ = writeln!(
-                    out,
-                    "link {}: serial {} {} {}{}{} ({} bits per character, {:.3} ms per character, {:.3} ms inter-frame silence{})",
-                    link.name,
-                    s.port,
-                    s.baud,
-                    s.data_bits,
-                    s.parity.letter(),
-                    s.stop_bits,
-                    t.bits_per_char,
-                    ms(t.char_time()),
-                    ms(t.silence()),
-                    if link.guard_time.is_zero() {
-                        String::new()
-                    } else {
-                        format!(" + {:.3} ms guard time", ms(link.guard_time))
-                    }
-                );
-                Some(t)
-            }
-            Transport::Tcp {
-                host,
-                port,
-                framing,
-            } => {
-                let _ = writeln!(
-                    out,
-                    "link {}: tcp {host}:{port} ({}); no wire-time budget",
-                    link.name,
-                    framing.name()
-                );
-                None
-            }
-        };
-        for (d, profile, batches) in &devices {
-            let _ = writeln!(
-                out,
-                "  device {} (profile {}, slave {}, every {} ms): {} transaction(s) per cycle",
-                d.name,
-                profile.name,
-                d.slave_id.unwrap_or(0),
-                d.refresh_rate.as_millis(),
-                batches.len()
-            );
-            for b in batches {
-                let request = b.request();
-                let names: Vec<&str> = b
-                    .fields
-                    .iter()
-                    .map(|&i| profile.fields[i].name.as_str())
-                    .collect();
-                let wire = timing
-                    .map(|t| {
-                        let time = transaction_time(&request, &t, link.guard_time);
-                        format!(" {:>8.3} ms", ms(time))
-                    })
-                    .unwrap_or_default();
-                let _ = writeln!(
-                    out,
-                    "    {} slave {:>3} address {:>5} count {:>4}{wire}  {}",
-                    request.function(),
-                    d.slave_id.unwrap_or(0),
-                    b.address,
-                    b.count,
-                    names.join(", ")
-                );
-            }
-            if let Some(t) = timing {
-                let _ = writeln!(
-                    out,
-                    "    cycle: {:.3} ms of bus time",
-                    ms(cycle_time(batches, &t, link.guard_time))
-                );
-            }
-        }
-        if let Some(u) = link_utilisation(link, &devices) {
-            let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
-            if u > 1.0 {
-                let _ = writeln!(
-                    out,
-                    "  WARNING: the refresh rates need {:.0}% of what the line can carry; devices will be polled less often than configured",
-                    u * 100.0
-                );
-            }
-        }
+        render_link(&mut out, link, &devices_of(config, catalog, link));
     }
     out
+}
+
+/// The poll plan of one link and its devices (each with its profile), as `iogate plan`
+/// prints it: for a running gateway's links, with the devices declared since it started.
+pub fn link_plan<'a>(
+    link: &LinkConfig,
+    devices: impl IntoIterator<Item = (&'a DeviceConfig, &'a Profile)>,
+) -> String {
+    let planned: Planned<'a> = devices
+        .into_iter()
+        .map(|(d, p)| (d, p, read_batches(p, d.max_batch, d.max_gap)))
+        .collect();
+    let mut out = String::new();
+    render_link(&mut out, link, &planned);
+    out
+}
+
+fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>) {
+    let timing = match &link.transport {
+        Transport::Serial(s) => {
+            let t = LineTiming::new(s);
+            let _ = writeln!(
+                out,
+                "link {}: serial {} {} {}{}{} ({} bits per character, {:.3} ms per character, {:.3} ms inter-frame silence{})",
+                link.name,
+                s.port,
+                s.baud,
+                s.data_bits,
+                s.parity.letter(),
+                s.stop_bits,
+                t.bits_per_char,
+                ms(t.char_time()),
+                ms(t.silence()),
+                if link.guard_time.is_zero() {
+                    String::new()
+                } else {
+                    format!(" + {:.3} ms guard time", ms(link.guard_time))
+                }
+            );
+            Some(t)
+        }
+        Transport::Tcp {
+            host,
+            port,
+            framing,
+        } => {
+            let _ = writeln!(
+                out,
+                "link {}: tcp {host}:{port} ({}); no wire-time budget",
+                link.name,
+                framing.name()
+            );
+            None
+        }
+    };
+    for (d, profile, batches) in devices {
+        let _ = writeln!(
+            out,
+            "  device {} (profile {}, slave {}, every {} ms): {} transaction(s) per cycle",
+            d.name,
+            profile.name,
+            d.slave_id.unwrap_or(0),
+            d.refresh_rate.as_millis(),
+            batches.len()
+        );
+        for b in batches {
+            let request = b.request();
+            let names: Vec<&str> = b
+                .fields
+                .iter()
+                .map(|&i| profile.fields[i].name.as_str())
+                .collect();
+            let wire = timing
+                .map(|t| {
+                    let time = transaction_time(&request, &t, link.guard_time);
+                    format!(" {:>8.3} ms", ms(time))
+                })
+                .unwrap_or_default();
+            let _ = writeln!(
+                out,
+                "    {} slave {:>3} address {:>5} count {:>4}{wire}  {}",
+                request.function(),
+                d.slave_id.unwrap_or(0),
+                b.address,
+                b.count,
+                names.join(", ")
+            );
+        }
+        if let Some(t) = timing {
+            let _ = writeln!(
+                out,
+                "    cycle: {:.3} ms of bus time",
+                ms(cycle_time(batches, &t, link.guard_time))
+            );
+        }
+    }
+    if let Some(u) = link_utilisation(link, devices) {
+        let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
+        if u > 1.0 {
+            let _ = writeln!(
+                out,
+                "  WARNING: the refresh rates need {:.0}% of what the line can carry; devices will be polled less often than configured",
+                u * 100.0
+            );
+        }
+    }
 }
 
 fn ms(d: Duration) -> f64 {
