@@ -399,10 +399,10 @@ async function deviceView(name, signal) {
   const state = h('span', {});
   const cycles = h('span', {});
   const response = h('span', {});
-  const meaning = h('span', { class: 'meaning' });
+  const meaning = h('span', {});
   function diagnostics(d) {
     fill(state, deviceState(d));
-    text(meaning, DEVICE_CODES[d.error_code] ?? '');
+    text(meaning, `${d.error_code} — ${DEVICE_CODES[d.error_code] ?? 'unknown code'}`);
     text(cycles, d.io_cycles);
     text(response, `${Number(d.last_response_ms).toFixed(1)} ms`);
     document.body.classList.toggle('device-down', !(d.connected && d.error_code === 0));

@@ -125,6 +125,21 @@ async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconne
         .await?;
     assert!(plan.contains("profile MyIoModule"), "{plan}");
     assert!(plan.contains("bus utilisation"), "{plan}");
+
+    // The silent device's page: every field bad, with the reason.
+    browser.goto(&gw.url("/ui#/devices/rack")).await?;
+    let quality = browser
+        .until_text(
+            "tr[data-field='DI_0'] td[data-label='Quality']",
+            Duration::from_secs(10),
+            |t| t.contains("bad"),
+        )
+        .await?;
+    assert!(
+        quality.lines().count() > 1,
+        "a reason under the quality: {quality}"
+    );
+    assert!(browser.text("h1").await?.contains("disconnected"));
     assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
     task.abort();
     Ok(())
@@ -192,11 +207,12 @@ async fn simulated_inputs_toggled_in_the_page_reach_rest_and_rest_writes_show_in
         json!(true)
     );
 
-    // A write made in the page ends `written`, and REST reads it.
+    // A write made in the page ends `written`, and REST reads it; with the keyboard alone
+    // (the button focused, Enter pressed).
     let write = browser
         .wait_for("tr[data-field='DO_0'] button.toggle")
         .await?;
-    browser.click(&write).await?;
+    browser.type_text(&write, "\u{E007}").await?;
     browser
         .until_text(
             "tr[data-field='DO_0'] output.outcome",
