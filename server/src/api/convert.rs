@@ -1,5 +1,6 @@
 //! Domain values to JSON and back, and the JSON shapes of the REST API.
 
+use std::borrow::Cow;
 use std::time::SystemTime;
 
 use serde::Serialize;
@@ -83,24 +84,61 @@ pub fn rfc3339(t: SystemTime) -> String {
     humantime::format_rfc3339_millis(t).to_string()
 }
 
-/// A field's value with its type, quality and timestamp.
+/// A value serialised as [`value_to_json`] renders it (`None` as null), written straight to
+/// the output: no JSON tree, and a REAL's shortest text without a round trip through a
+/// string.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValueJson(pub Option<Value>);
+
+impl Serialize for ValueJson {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match &self.0 {
+            None => serializer.serialize_none(),
+            Some(Value::Bool(b)) => serializer.serialize_bool(*b),
+            Some(Value::Int(i) | Value::Time(i)) => serializer.serialize_i64(*i),
+            Some(Value::UInt(u)) => serializer.serialize_u64(*u),
+            // serde_json writes an f32 as its shortest text that reads back the same f32.
+            Some(Value::Real(r)) if r.is_finite() => serializer.serialize_f32(*r),
+            Some(Value::LReal(r)) if r.is_finite() => serializer.serialize_f64(*r),
+            Some(Value::Real(_) | Value::LReal(_)) => serializer.serialize_none(),
+            Some(Value::String(s)) => serializer.serialize_str(s),
+        }
+    }
+}
+
+/// A wall-clock time serialised as RFC 3339 with milliseconds, formatted into the output.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Timestamp(pub SystemTime);
+
+impl Serialize for Timestamp {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(&humantime::format_rfc3339_millis(self.0))
+    }
+}
+
+/// A field's value with its type, quality and timestamp. Names are borrowed from the device
+/// while a response or event is written; [`FieldValue::into_owned`] keeps one.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct FieldValue {
-    pub device: String,
-    pub field: String,
+pub struct FieldValue<'a> {
+    #[schema(value_type = String)]
+    pub device: Cow<'a, str>,
+    #[schema(value_type = String)]
+    pub field: Cow<'a, str>,
     /// IEC 61131-3 type, e.g. `REAL`.
     #[serde(rename = "type")]
     pub ty: &'static str,
     pub direction: &'static str,
     /// The value as the JSON of its type; null until first read.
     #[schema(value_type = Object)]
-    pub value: Json,
+    pub value: ValueJson,
     /// `good`, `stale`, `never_read` or `bad`.
     pub quality: &'static str,
     /// When the value was last refreshed (RFC 3339).
-    pub timestamp: Option<String>,
+    #[schema(value_type = Option<String>)]
+    pub timestamp: Option<Timestamp>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub unit: Option<String>,
+    #[schema(value_type = Option<String>)]
+    pub unit: Option<Cow<'a, str>>,
     /// Why the quality is bad.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -114,21 +152,21 @@ pub struct FieldValue {
     /// The newest value requested for this output, when the device holds another.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Object>)]
-    pub desired: Option<Json>,
+    pub desired: Option<ValueJson>,
 }
 
-pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
+pub fn field_value<'a>(device: &'a Device, idx: usize, sample: &Sample) -> FieldValue<'a> {
     let field = device.field(idx);
     let now = tokio::time::Instant::now();
     FieldValue {
-        device: device.name().to_owned(),
-        field: field.name.clone(),
+        device: Cow::Borrowed(device.name()),
+        field: Cow::Borrowed(&field.name),
         ty: field.ty.name(),
         direction: field.direction.name(),
-        value: sample.value.as_ref().map_or(Json::Null, value_to_json),
+        value: ValueJson(sample.value.clone()),
         quality: sample.quality_at(now, device.stale_after()).name(),
-        timestamp: sample.updated.map(|(_, wall)| rfc3339(wall)),
-        unit: field.register.unit.clone(),
+        timestamp: sample.updated.map(|(_, wall)| Timestamp(wall)),
+        unit: field.register.unit.as_deref().map(Cow::Borrowed),
         error: sample.error.as_ref().map(ToString::to_string),
         last_write: None,
         mismatch: false,
@@ -137,10 +175,28 @@ pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> FieldValue {
     .with_desired(device.mismatch(idx))
 }
 
-impl FieldValue {
+impl FieldValue<'_> {
+    /// The same value owning its names.
+    pub fn into_owned(self) -> FieldValue<'static> {
+        FieldValue {
+            device: Cow::Owned(self.device.into_owned()),
+            field: Cow::Owned(self.field.into_owned()),
+            unit: self.unit.map(|u| Cow::Owned(u.into_owned())),
+            ty: self.ty,
+            direction: self.direction,
+            value: self.value,
+            quality: self.quality,
+            timestamp: self.timestamp,
+            error: self.error,
+            last_write: self.last_write,
+            mismatch: self.mismatch,
+            desired: self.desired,
+        }
+    }
+
     fn with_desired(mut self, desired: Option<crate::codec::Value>) -> Self {
         self.mismatch = desired.is_some();
-        self.desired = desired.as_ref().map(value_to_json);
+        self.desired = desired.map(|d| ValueJson(Some(d)));
         self
     }
 }
@@ -231,15 +287,15 @@ pub struct DeviceList {
 
 /// A device with its diagnostics and every field's value, in profile order.
 #[derive(Debug, ToSchema)]
-pub struct DeviceDetail {
+pub struct DeviceDetail<'a> {
     #[serde(flatten)]
     pub device: DeviceInfo,
     /// Field name to value object.
     #[schema(value_type = Object)]
-    pub fields: FieldMap,
+    pub fields: FieldMap<'a>,
 }
 
-impl Serialize for DeviceDetail {
+impl Serialize for DeviceDetail<'_> {
     /// The device's own keys, then `fields`: what `#[serde(flatten)]` would give, without
     /// its buffering.
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
@@ -265,9 +321,9 @@ impl Serialize for DeviceDetail {
 /// Field values serialised as an object keyed by field name, in profile order, straight
 /// from the values (no intermediate JSON tree).
 #[derive(Debug)]
-pub struct FieldMap(pub Vec<FieldValue>);
+pub struct FieldMap<'a>(pub Vec<FieldValue<'a>>);
 
-impl Serialize for FieldMap {
+impl Serialize for FieldMap<'_> {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeMap;
         let mut map = serializer.serialize_map(Some(self.0.len()))?;
@@ -506,6 +562,34 @@ mod tests {
     #[test]
     fn reals_print_as_written() {
         assert_eq!(value_to_json(&Value::Real(0.1)).to_string(), "0.1");
+        for v in [
+            Value::Real(0.1),
+            Value::Real(21.5),
+            Value::Real(-3.0e-7),
+            Value::Real(1.0),
+            Value::Real(f32::NAN),
+            Value::Real(f32::MAX),
+            Value::LReal(0.1),
+            Value::LReal(f64::INFINITY),
+            Value::Int(-5),
+            Value::Time(1500),
+            Value::UInt(u64::MAX),
+            Value::Bool(true),
+            Value::String("a \"quoted\"\n line".into()),
+        ] {
+            let direct = serde_json::to_string(&ValueJson(Some(v.clone()))).expect("direct");
+            let tree = value_to_json(&v).to_string();
+            assert_eq!(
+                serde_json::from_str::<Json>(&direct).expect("json"),
+                serde_json::from_str::<Json>(&tree).expect("json"),
+                "{v:?}: {direct} vs {tree}"
+            );
+        }
+        let at = SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(1_795_000_000_123);
+        assert_eq!(
+            serde_json::to_string(&Timestamp(at)).expect("timestamp"),
+            format!("\"{}\"", rfc3339(at))
+        );
         assert_eq!(value_to_json(&Value::Real(21.5)).to_string(), "21.5");
         assert_eq!(value_to_json(&Value::LReal(0.1)).to_string(), "0.1");
     }

@@ -103,13 +103,11 @@ pub async fn get_map(State(service): State<Arc<Service>>) -> Result<Json<MapInfo
 pub async fn get_located(
     State(service): State<Arc<Service>>,
     Path(at): Path<String>,
-) -> Result<Json<FieldValue>, ApiError> {
+) -> Result<Json<FieldValue<'static>>, ApiError> {
     let (device, idx) = service.located(&at)?;
-    Ok(Json(convert::field_value(
-        &device,
-        idx,
-        &device.sample(idx),
-    )))
+    Ok(Json(
+        convert::field_value(&device, idx, &device.sample(idx)).into_owned(),
+    ))
 }
 
 /// Writes the field bound to a located address (last value wins), as `PUT .../fields/{f}`.

@@ -6,6 +6,7 @@ use axum::Json;
 use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 use serde_json::Value as Json_;
 use utoipa::ToSchema;
@@ -114,7 +115,7 @@ pub async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {
     })
 }
 
-fn field_json(device: &Device, idx: usize, service: &Service) -> FieldValue {
+fn field_json<'a>(device: &'a Device, idx: usize, service: &Service) -> FieldValue<'a> {
     let mut value = field_value(device, idx, &device.sample(idx));
     value.last_write = service
         .last_write(device, idx)
@@ -129,15 +130,41 @@ fn field_json(device: &Device, idx: usize, service: &Service) -> FieldValue {
 pub async fn get_device(
     State(service): ServiceRef,
     Path(name): Path<String>,
-) -> Result<Json<DeviceDetail>, ApiError> {
+) -> Result<Response, ApiError> {
     let device = service.device(&name)?;
     let fields = (0..device.profile.fields.len())
         .map(|i| field_json(&device, i, &service))
-        .collect();
-    Ok(Json(DeviceDetail {
-        device: device_info(&device),
-        fields: FieldMap(fields),
-    }))
+        .collect::<Vec<_>>();
+    // About 130 bytes a field: one buffer, grown rarely.
+    let capacity = 512 + 160 * fields.len();
+    json_response(
+        &DeviceDetail {
+            device: device_info(&device),
+            fields: FieldMap(fields),
+        },
+        capacity,
+    )
+}
+
+/// `value` as a JSON response, written straight into one buffer while it borrows from the
+/// cache (names are not copied).
+fn json_response(value: &impl serde::Serialize, capacity: usize) -> Result<Response, ApiError> {
+    let mut body = Vec::with_capacity(capacity);
+    serde_json::to_writer(&mut body, value).map_err(|e| {
+        ApiError::new(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            "internal",
+            format!("the answer could not be written as JSON: {e}"),
+        )
+    })?;
+    Ok((
+        [(
+            axum::http::header::CONTENT_TYPE,
+            axum::http::HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response())
 }
 
 /// One field's value, type, quality and timestamp.
@@ -148,10 +175,10 @@ pub async fn get_device(
 pub async fn get_field(
     State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
-) -> Result<Json<FieldValue>, ApiError> {
+) -> Result<Response, ApiError> {
     let device = service.device(&name)?;
     let idx = device.field_index(&field)?;
-    Ok(Json(field_json(&device, idx, &service)))
+    json_response(&field_json(&device, idx, &service), 256)
 }
 
 /// The body of a single-field write.
