@@ -135,7 +135,7 @@ function age(timestamp) {
   if (!timestamp) return '—';
   const seconds = (Date.now() - Date.parse(timestamp)) / 1000;
   if (!Number.isFinite(seconds)) return '—';
-  if (seconds < 1) return 'now';
+  if (seconds < 1) return '< 1 s';
   if (seconds < 60) return `${Math.floor(seconds)} s`;
   if (seconds < 3600) return `${Math.floor(seconds / 60)} min`;
   return `${Math.floor(seconds / 3600)} h`;
@@ -417,7 +417,9 @@ async function deviceView(name, signal) {
     const trend = [];
     const valueCell = h('td', { 'data-label': 'Value', class: 'value' });
     const quality = h('td', { 'data-label': 'Quality' });
-    const ageCell = h('td', { 'data-label': 'Age' });
+    // Events come when a value or its quality changes: the age shown is since the last
+    // change (a value read again unchanged keeps it; its quality says whether it is fresh).
+    const ageCell = h('td', { 'data-label': 'Changed', class: 'age' });
     const trendCell = h('td', { 'data-label': 'Trend', class: 'trend' });
     const control = fieldControl(name, f, simulated, signal, () => last.value);
     const row = h('tr', { 'data-field': fieldName },
@@ -438,7 +440,7 @@ async function deviceView(name, signal) {
       fill(quality, h('span', { class: `badge q-${v.quality} ${good ? 'ok' : 'bad'}` }, v.quality.replace('_', ' ')),
         v.error ? h('div', { class: 'meaning' }, v.error) : null);
       ageCell.dataset.timestamp = v.timestamp ?? '';
-      text(ageCell, age(v.timestamp));
+      text(ageCell, `${age(v.timestamp)}${v.timestamp ? ' ago' : ''}`);
       if (NUMERIC.has(v.type) && typeof v.value === 'number' && v.quality === 'good') {
         trend.push(v.value);
         if (trend.length > TREND_POINTS) trend.shift();
@@ -502,7 +504,7 @@ async function deviceView(name, signal) {
     h('section', { 'aria-labelledby': 'fields-title' },
       h('h2', { id: 'fields-title' }, 'Fields'),
       h('div', { class: 'scroll' }, h('table', { class: 'fields list', id: 'fields' },
-        h('thead', {}, h('tr', {}, ...['Field', 'Value', 'Unit', 'Type', 'Direction', 'Quality', 'Age', 'Trend', '']
+        h('thead', {}, h('tr', {}, ...['Field', 'Value', 'Unit', 'Type', 'Direction', 'Quality', 'Changed', 'Trend', '']
           .map((c) => h('th', { scope: 'col' }, c)))),
         body))),
     h('section', { 'aria-labelledby': 'profile-title' },
@@ -515,7 +517,7 @@ async function deviceView(name, signal) {
       mapSection));
 
   const ages = setInterval(() => {
-    for (const td of body.querySelectorAll('td[data-label="Age"]')) text(td, age(td.dataset.timestamp));
+    for (const td of body.querySelectorAll('td.age')) text(td, `${age(td.dataset.timestamp)}${td.dataset.timestamp ? ' ago' : ''}`);
   }, 1000);
   // The device's counters (cycles, response time); its values and state come as events.
   const counters = setInterval(async () => {
