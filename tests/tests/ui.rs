@@ -27,6 +27,49 @@ async fn console_errors(browser: &Browser) -> anyhow::Result<Vec<String>> {
         .collect())
 }
 
+/// Types `text` into the field's input in the device page and submits it.
+async fn enter(browser: &Browser, field: &str, text: &str) -> anyhow::Result<()> {
+    let input = browser
+        .wait_for(&format!("tr[data-field='{field}'] input"))
+        .await?;
+    browser.clear(&input).await?;
+    browser.type_text(&input, text).await?;
+    let submit = browser
+        .wait_for(&format!("tr[data-field='{field}'] button[type='submit']"))
+        .await?;
+    browser.click(&submit).await
+}
+
+/// Waits until the field's outcome (in its row of the device page) satisfies `pred`.
+async fn outcome(
+    browser: &Browser,
+    field: &str,
+    pred: impl Fn(&str) -> bool,
+) -> anyhow::Result<String> {
+    browser
+        .until_text(
+            &format!("tr[data-field='{field}'] output.outcome"),
+            Duration::from_secs(10),
+            pred,
+        )
+        .await
+}
+
+/// Waits until the field's value cell shows `shown`, for at most `within`.
+async fn value_shows(
+    browser: &Browser,
+    field: &str,
+    shown: &str,
+    within: Duration,
+) -> anyhow::Result<()> {
+    browser
+        .until_text(&format!("tr[data-field='{field}'] td.value"), within, |t| {
+            t.contains(shown)
+        })
+        .await
+        .map(drop)
+}
+
 async fn rest_value(
     gw: &TestGateway,
     device: &str,
@@ -154,13 +197,7 @@ async fn simulated_inputs_toggled_in_the_page_reach_rest_and_rest_writes_show_in
     let toggle = browser
         .wait_for("tr[data-field='DI_0'] button.toggle")
         .await?;
-    browser
-        .until_text(
-            "tr[data-field='DI_0'] td.value",
-            Duration::from_secs(5),
-            |t| t.contains("FALSE"),
-        )
-        .await?;
+    value_shows(&browser, "DI_0", "FALSE", Duration::from_secs(5)).await?;
     assert_eq!(rest_value(&gw, "sim", "DI_0").await?, json!(false));
 
     // Toggling the simulated input in the page changes what REST reads.
@@ -169,13 +206,7 @@ async fn simulated_inputs_toggled_in_the_page_reach_rest_and_rest_writes_show_in
         rest_value(&gw, "sim", "DI_0").await.ok() == Some(json!(true))
     })
     .await?;
-    browser
-        .until_text(
-            "tr[data-field='DI_0'] td.value",
-            Duration::from_secs(5),
-            |t| t.contains("TRUE"),
-        )
-        .await?;
+    value_shows(&browser, "DI_0", "TRUE", Duration::from_secs(5)).await?;
 
     // A write made over REST shows in the page within a second, without a reload.
     let marker = browser
@@ -193,13 +224,7 @@ async fn simulated_inputs_toggled_in_the_page_reach_rest_and_rest_writes_show_in
         .await?;
     assert_eq!(status, 202);
     let shown = if wanted { "TRUE" } else { "FALSE" };
-    browser
-        .until_text(
-            "tr[data-field='DO_0'] td.value",
-            Duration::from_secs(1),
-            |t| t.contains(shown),
-        )
-        .await?;
+    value_shows(&browser, "DO_0", shown, Duration::from_secs(1)).await?;
     assert_eq!(
         browser
             .run("return window.__notReloaded === 1;", json!([]))
@@ -213,13 +238,7 @@ async fn simulated_inputs_toggled_in_the_page_reach_rest_and_rest_writes_show_in
         .wait_for("tr[data-field='DO_0'] button.toggle")
         .await?;
     browser.type_text(&write, "\u{E007}").await?;
-    browser
-        .until_text(
-            "tr[data-field='DO_0'] output.outcome",
-            Duration::from_secs(10),
-            |t| t.starts_with("written"),
-        )
-        .await?;
+    outcome(&browser, "DO_0", |t| t.starts_with("written")).await?;
     assert_eq!(rest_value(&gw, "sim", "DO_0").await?, json!(!wanted));
     assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
     Ok(())
@@ -230,10 +249,6 @@ async fn invalid_values_show_the_apis_error_and_numbers_are_written() -> anyhow:
     let gw = TestGateway::demo().await?;
     let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
     browser.goto(&gw.url("/ui#/devices/plant")).await?;
-    let input = browser.wait_for("tr[data-field='Recipe'] input").await?;
-    let submit = browser
-        .wait_for("tr[data-field='Recipe'] button[type='submit']")
-        .await?;
 
     // Out of range for USINT: the page shows the API's own message.
     let (status, body) = gw
@@ -246,15 +261,11 @@ async fn invalid_values_show_the_apis_error_and_numbers_are_written() -> anyhow:
     assert_eq!(status, 400);
     let message = body["error"]["message"].as_str().unwrap_or("").to_owned();
     assert!(!message.is_empty());
-    browser.type_text(&input, "300").await?;
-    browser.click(&submit).await?;
-    let shown = browser
-        .until_text(
-            "tr[data-field='Recipe'] output.outcome",
-            Duration::from_secs(5),
-            |t| !t.is_empty() && !t.contains("sending"),
-        )
-        .await?;
+    enter(&browser, "Recipe", "300").await?;
+    let shown = outcome(&browser, "Recipe", |t| {
+        !t.is_empty() && !t.contains("sending")
+    })
+    .await?;
     assert_eq!(shown, message);
 
     // Not a number at all: again the API's words.
@@ -266,50 +277,17 @@ async fn invalid_values_show_the_apis_error_and_numbers_are_written() -> anyhow:
         )
         .await?;
     let message = body["error"]["message"].as_str().unwrap_or("").to_owned();
-    browser.clear(&input).await?;
-    browser.type_text(&input, "lots").await?;
-    browser.click(&submit).await?;
-    browser
-        .until_text(
-            "tr[data-field='Recipe'] output.outcome",
-            Duration::from_secs(5),
-            |t| t == message,
-        )
-        .await?;
+    enter(&browser, "Recipe", "lots").await?;
+    outcome(&browser, "Recipe", |t| t == message).await?;
 
     // A good value is written, and a TIME as IEC literal too.
-    browser.clear(&input).await?;
-    browser.type_text(&input, "7").await?;
-    browser.click(&submit).await?;
-    browser
-        .until_text(
-            "tr[data-field='Recipe'] output.outcome",
-            Duration::from_secs(10),
-            |t| t.starts_with("written"),
-        )
-        .await?;
+    enter(&browser, "Recipe", "7").await?;
+    outcome(&browser, "Recipe", |t| t.starts_with("written")).await?;
     assert_eq!(rest_value(&gw, "plant", "Recipe").await?, json!(7));
-    let time = browser.wait_for("tr[data-field='MixTime'] input").await?;
-    browser.type_text(&time, "T#1s500ms").await?;
-    let set = browser
-        .wait_for("tr[data-field='MixTime'] button[type='submit']")
-        .await?;
-    browser.click(&set).await?;
-    browser
-        .until_text(
-            "tr[data-field='MixTime'] output.outcome",
-            Duration::from_secs(10),
-            |t| t.starts_with("written"),
-        )
-        .await?;
+    enter(&browser, "MixTime", "T#1s500ms").await?;
+    outcome(&browser, "MixTime", |t| t.starts_with("written")).await?;
     assert_eq!(rest_value(&gw, "plant", "MixTime").await?, json!(1500));
-    browser
-        .until_text(
-            "tr[data-field='MixTime'] td.value",
-            Duration::from_secs(5),
-            |t| t.contains("1500 ms"),
-        )
-        .await?;
+    value_shows(&browser, "MixTime", "1500 ms", Duration::from_secs(5)).await?;
 
     browser
         .run(
@@ -469,13 +447,7 @@ async fn with_tokens_the_page_asks_for_one_and_uses_it() -> anyhow::Result<()> {
         .wait_for("tr[data-field='DO_0'] button.toggle")
         .await?;
     browser.click(&toggle).await?;
-    let refused = browser
-        .until_text(
-            "tr[data-field='DO_0'] output.outcome",
-            Duration::from_secs(5),
-            |t| t.contains("role"),
-        )
-        .await?;
+    let refused = outcome(&browser, "DO_0", |t| t.contains("role")).await?;
     assert!(refused.contains("write"), "{refused}");
     Ok(())
 }

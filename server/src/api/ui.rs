@@ -22,37 +22,26 @@ struct Asset {
     body: &'static str,
 }
 
+/// A file of `server/ui/`, compiled in.
+macro_rules! asset {
+    ($path:literal, $file:literal, $content_type:expr) => {
+        Asset {
+            path: $path,
+            content_type: $content_type,
+            body: include_str!(concat!("../../ui/", $file)),
+        }
+    };
+}
+
+const JS: &str = "text/javascript; charset=utf-8";
+
 const ASSETS: &[Asset] = &[
-    Asset {
-        path: "/ui",
-        content_type: "text/html; charset=utf-8",
-        body: include_str!("../../ui/index.html"),
-    },
-    Asset {
-        path: "/ui/app.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_str!("../../ui/app.js"),
-    },
-    Asset {
-        path: "/ui/api.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_str!("../../ui/api.js"),
-    },
-    Asset {
-        path: "/ui/dom.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_str!("../../ui/dom.js"),
-    },
-    Asset {
-        path: "/ui/style.css",
-        content_type: "text/css; charset=utf-8",
-        body: include_str!("../../ui/style.css"),
-    },
-    Asset {
-        path: "/ui/icon.svg",
-        content_type: "image/svg+xml",
-        body: include_str!("../../ui/icon.svg"),
-    },
+    asset!("/ui", "index.html", "text/html; charset=utf-8"),
+    asset!("/ui/app.js", "app.js", JS),
+    asset!("/ui/api.js", "api.js", JS),
+    asset!("/ui/dom.js", "dom.js", JS),
+    asset!("/ui/style.css", "style.css", "text/css; charset=utf-8"),
+    asset!("/ui/icon.svg", "icon.svg", "image/svg+xml"),
 ];
 
 /// Whether `path` is the page's (served without a token: it holds no data).
