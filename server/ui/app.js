@@ -433,7 +433,10 @@ async function deviceView(name, signal) {
       h('td', { 'data-label': control ? (f.direction === 'input' ? 'Simulate' : 'Write') : '' }, control));
     function update(v) {
       last = v;
-      fill(valueCell, h('span', { class: 'v' }, formatValue(v.type, v.value)),
+      // A value that is not good is the last good one (or none): shown, but dimmed.
+      valueCell.classList.toggle('dim', v.quality !== 'good');
+      fill(valueCell, h('span', { class: 'v', title: v.quality === 'good' ? null : 'the last good value' },
+        formatValue(v.type, v.value)),
         v.mismatch ? h('div', { class: 'meaning warn' },
           `device holds this; requested ${formatValue(v.type, v.desired)}`) : null);
       const good = v.quality === 'good';
