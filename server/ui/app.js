@@ -192,22 +192,22 @@ async function overview(signal) {
         .map((c) => h('th', { scope: 'col' }, c)))),
       transactionBody)));
   const deviceRows = new Map();
-  const linkState$ = new Map(links.links.map((l) => [l.name, l]));
-  const deviceState$ = new Map(devices.devices.map((d) => [d.name, d]));
+  const linksByName = new Map(links.links.map((l) => [l.name, l]));
+  const devicesByName = new Map(devices.devices.map((d) => [d.name, d]));
 
   function renderSummary() {
-    const linksDown = [...linkState$.values()].filter((l) => !l.connected || l.error_code !== 0).length;
-    const devicesDown = [...deviceState$.values()].filter((d) => !d.connected || d.error_code !== 0).length;
+    const linksDown = [...linksByName.values()].filter((l) => !l.connected || l.error_code !== 0).length;
+    const devicesDown = [...devicesByName.values()].filter((d) => !d.connected || d.error_code !== 0).length;
     fill(summary,
       h('span', { class: `badge ${linksDown ? 'bad' : 'ok'}` },
-        `${linkState$.size} link${linkState$.size === 1 ? '' : 's'}${linksDown ? `, ${linksDown} down` : ''}`),
+        `${linksByName.size} link${linksByName.size === 1 ? '' : 's'}${linksDown ? `, ${linksDown} down` : ''}`),
       ' ',
       h('span', { class: `badge ${devicesDown ? 'bad' : 'ok'}` },
-        `${deviceState$.size} device${deviceState$.size === 1 ? '' : 's'}${devicesDown ? `, ${devicesDown} not answering` : ''}`));
+        `${devicesByName.size} device${devicesByName.size === 1 ? '' : 's'}${devicesDown ? `, ${devicesDown} not answering` : ''}`));
   }
 
   function renderLinks() {
-    fill(linkBody, ...[...linkState$.values()].map((l) => {
+    fill(linkBody, ...[...linksByName.values()].map((l) => {
       const ok = l.connected && l.error_code === 0;
       const endpoint = endpointOf(l);
       const over = (l.planned_utilisation ?? 0) > 0.9 || (l.utilisation ?? 0) > 0.9;
@@ -219,7 +219,7 @@ async function overview(signal) {
           `${percent(l.utilisation)} measured`), h('div', { class: 'meaning' }, `${percent(l.planned_utilisation)} planned`)),
         cell('Devices', String(l.devices.length)));
     }));
-    if (!linkState$.size) linkBody.append(h('tr', {}, h('td', { colspan: 5, class: 'muted' }, 'No links: simulated devices only.')));
+    if (!linksByName.size) linkBody.append(h('tr', {}, h('td', { colspan: 5, class: 'muted' }, 'No links: simulated devices only.')));
   }
 
   function deviceRow(d) {
@@ -239,7 +239,7 @@ async function overview(signal) {
       text(response, `${Number(diag.last_response_ms).toFixed(1)} ms`);
     };
     update(d);
-    deviceRows.set(d.name, update);
+    deviceRows.set(d.name, { row, update });
     return row;
   }
 
@@ -284,12 +284,22 @@ async function overview(signal) {
     try {
       const [fresh, counters] = await Promise.all([api('GET', '/links', undefined, { signal }),
         api('GET', '/devices', undefined, { signal })]);
-      linkState$.clear();
-      for (const l of fresh.links) linkState$.set(l.name, l);
+      linksByName.clear();
+      for (const l of fresh.links) linksByName.set(l.name, l);
       renderLinks();
+      // Devices declared or removed at run time come and go here.
+      const listed = new Set();
       for (const d of counters.devices) {
-        deviceState$.set(d.name, d);
-        deviceRows.get(d.name)?.(d);
+        listed.add(d.name);
+        devicesByName.set(d.name, d);
+        if (deviceRows.has(d.name)) deviceRows.get(d.name).update(d);
+        else deviceBody.append(deviceRow(d));
+      }
+      for (const [name, { row }] of deviceRows) {
+        if (listed.has(name)) continue;
+        row.remove();
+        deviceRows.delete(name);
+        devicesByName.delete(name);
       }
       renderSummary();
     } catch { /* the event stream reports a lost gateway */ }
@@ -298,8 +308,8 @@ async function overview(signal) {
 
   follow('/events?values=false', (name, data) => {
     if (name === 'diagnostics') {
-      deviceState$.set(data.device, { ...deviceState$.get(data.device), ...data });
-      deviceRows.get(data.device)?.(data);
+      devicesByName.set(data.device, { ...devicesByName.get(data.device), ...data });
+      deviceRows.get(data.device)?.update(data);
       renderSummary();
     } else if (name === 'transaction') {
       transactions.set(data.name, data);

@@ -131,6 +131,31 @@ async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconne
             |t| cycles(t) > before,
         )
         .await?;
+    // A device declared at run time appears without a reload, and goes when removed.
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/extra",
+            json!({ "profile": "SimIo" }).to_string(),
+        )
+        .await?;
+    assert_eq!(status, 201);
+    browser.wait_for("tr[data-device='extra']").await?;
+    let removed = gw
+        .client
+        .delete(gw.url("/api/v1/devices/extra"))
+        .send()
+        .await?;
+    assert_eq!(removed.status(), 204);
+    eventually("the removed device's row goes", || async {
+        browser
+            .find("tr[data-device='extra']")
+            .await
+            .ok()
+            .flatten()
+            .is_none()
+    })
+    .await?;
     browser
         .screenshot(&screenshots_dir().join("overview-desktop.png"))
         .await?;
