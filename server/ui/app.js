@@ -268,13 +268,13 @@ async function overview(signal) {
     transactionSection.hidden = transactions.size === 0;
     fill(transactionBody, ...[...transactions.values()].map((t) => {
       const good = t.state === 4 || t.state === 0;
-      return h('tr', { class: good ? '' : 'problem' },
+      return h('tr', { class: good ? '' : 'problem', 'data-transaction': t.name },
         cell('Name', h('strong', {}, t.name)), cell('Link', t.link), cell('Kind', t.kind),
         cell('State', h('span', { class: `badge ${good ? 'ok' : 'bad'}` },
           `${t.state} ${TRANSACTION_STATES[t.state] ?? ''}`),
         t.error ? h('div', { class: 'meaning' }, t.error) : null),
         cell('Value', t.value ?? '—'), cell('Runs', String(t.runs)), cell('Failures', String(t.failures)),
-        cell('Last run', age(t.timestamp)));
+        cell('Last run', t.timestamp ? `${age(t.timestamp)} ago` : 'not yet'));
     }));
   }
 

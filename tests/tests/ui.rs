@@ -86,7 +86,11 @@ async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconne
 -> anyhow::Result<()> {
     let bus = RtuBus::default();
     bus.slave(1, |_| {});
-    let (gw, _pty, task, _) = bus_gateway("ui-overview", &bus, &[], DEVICES).await;
+    // A standing read transaction on the same bus (seed 004's parameters).
+    let config = format!(
+        "{DEVICES}transactions:\n  - {{ name: temp, link: bus, function: 3, slave: 1, address: 0, value_type: SIGNED_NUMBER16, divisor: 10, precision: 1, byte_order: BigEndian, timeout_ms: 100, refresh_interval: 200ms }}\n"
+    );
+    let (gw, _pty, task, _) = bus_gateway("ui-overview", &bus, &[], &config).await;
     gw.until("/api/v1/devices/rack", "connected", |b| {
         b["connected"] == true
     })
@@ -131,6 +135,16 @@ async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconne
             |t| cycles(t) > before,
         )
         .await?;
+    // The standing transaction with seed 002's state.
+    let tx = browser
+        .until_text(
+            "tr[data-transaction='temp']",
+            Duration::from_secs(10),
+            |t| t.contains("4 done"),
+        )
+        .await?;
+    assert!(tx.contains("bus"), "{tx}");
+
     // A device declared at run time appears without a reload, and goes when removed.
     let (status, _) = gw
         .send(
@@ -182,6 +196,13 @@ async fn the_overview_lists_every_device_live_and_a_silent_device_turns_disconne
         .await?;
     assert_eq!(marked, json!(true), "the row is marked as a problem");
     assert!(browser.text("#summary").await?.contains("1 not answering"));
+    browser
+        .until_text(
+            "tr[data-transaction='temp']",
+            Duration::from_secs(10),
+            |t| t.contains("-2 response timeout"),
+        )
+        .await?;
 
     // The link's page: its devices and its poll plan, as `iogate plan` prints it.
     let link = browser.wait_for("tr[data-link='bus'] a").await?;
