@@ -181,7 +181,7 @@ impl Device {
     pub fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
         let now = (Instant::now(), SystemTime::now());
         self.samples[idx].send_if_modified(|s| {
-            let before = (s.value.clone(), s.quality);
+            let before = (s.value.clone(), s.quality, s.stale_told);
             match read {
                 Ok(v) => {
                     s.value = Some(v);
@@ -194,8 +194,28 @@ impl Device {
                 }
             }
             s.updated = Some(now);
-            before != (s.value.clone(), s.quality)
+            s.stale_told = false;
+            before != (s.value.clone(), s.quality, s.stale_told)
         });
+    }
+
+    /// Wakes the subscribers of every field whose good value went stale as of `now` (once
+    /// per stale spell), so that streams show `stale` without waiting for another change.
+    pub fn tell_stale(&self, now: Instant) {
+        let stale_after = self.stale_after();
+        let went_stale =
+            |s: &Sample| !s.stale_told && s.quality_at(now, stale_after) == Quality::Stale;
+        for sample in &self.samples {
+            // A read lock first: most fields are fresh, or stale and told.
+            if !went_stale(&sample.borrow()) {
+                continue;
+            }
+            sample.send_if_modified(|s| {
+                let tell = went_stale(s);
+                s.stale_told |= tell;
+                tell
+            });
+        }
     }
 
     /// Records the end of an I/O cycle. Subscribers are woken when `connected` or

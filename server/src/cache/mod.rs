@@ -231,6 +231,47 @@ mod tests {
         Cache::new(&config, Catalog::new([profile]))
     }
 
+    #[tokio::test(start_paused = true)]
+    async fn a_value_gone_stale_is_told_once_and_its_next_refresh_again() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        let di = io.field_index("DI").expect("field");
+        io.publish(di, Ok(Value::Bool(true)));
+        let mut rx = io.subscribe(di);
+        rx.borrow_and_update();
+        let quality = |rx: &mut tokio::sync::watch::Receiver<sample::Sample>| {
+            rx.borrow_and_update()
+                .quality_at(Instant::now(), io.stale_after())
+        };
+        io.tell_stale(Instant::now());
+        assert!(!rx.has_changed().expect("open"), "fresh: nothing to tell");
+        tokio::time::advance(io.stale_after() + Duration::from_millis(1)).await;
+        io.tell_stale(Instant::now());
+        assert!(rx.has_changed().expect("open"), "gone stale: told");
+        assert_eq!(quality(&mut rx), Quality::Stale);
+        io.tell_stale(Instant::now());
+        assert!(!rx.has_changed().expect("open"), "told once");
+        // Read again, unchanged: subscribers learn it is fresh again.
+        io.publish(di, Ok(Value::Bool(true)));
+        assert!(
+            rx.has_changed().expect("open"),
+            "the refresh after a stale spell"
+        );
+        assert_eq!(quality(&mut rx), Quality::Good);
+        io.publish(di, Ok(Value::Bool(true)));
+        assert!(
+            !rx.has_changed().expect("open"),
+            "an unchanged refresh is not told"
+        );
+        // A value never read is never stale.
+        let sp = io.field_index("SP").expect("field");
+        let mut never = io.subscribe(sp);
+        never.borrow_and_update();
+        tokio::time::advance(io.stale_after() * 2).await;
+        io.tell_stale(Instant::now());
+        assert!(!never.has_changed().expect("open"));
+    }
+
     #[test]
     fn a_burst_of_writes_leaves_one_pending_and_supersedes_the_rest() {
         let cache = cache();

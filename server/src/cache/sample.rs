@@ -42,6 +42,9 @@ pub struct Sample {
     pub error: Option<FieldError>,
     /// When the value was last refreshed.
     pub updated: Option<(Instant, SystemTime)>,
+    /// Subscribers were woken when this good value went stale (so that live views show it);
+    /// the next refresh wakes them again.
+    pub stale_told: bool,
 }
 
 impl Sample {
@@ -51,6 +54,7 @@ impl Sample {
             quality: Quality::NeverRead,
             error: None,
             updated: None,
+            stale_told: false,
         }
     }
 

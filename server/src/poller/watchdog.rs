@@ -2,6 +2,8 @@
 //! link's task still inside one past that bound and [`Progress::GRACE`] makes no progress.
 //! Such a link is reported as it is (`connected: false`, error 3, its devices error 10, the
 //! `iogate_link_stalled` metric, `/readyz`), and again as connected once the task moves on.
+//! The same look tells the subscribers of fields whose values went stale (not refreshed
+//! within their device's `stale_after`), which no read would tell them.
 
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -26,6 +28,10 @@ pub async fn run(cache: Arc<Cache>, token: CancellationToken) {
             _ = tick.tick() => {}
         }
         look(&cache, &mut stalled);
+        let now = tokio::time::Instant::now();
+        for device in cache.devices() {
+            device.tell_stale(now);
+        }
     }
 }
 
