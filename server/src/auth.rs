@@ -149,7 +149,7 @@ fn constant_eq(a: &[u8], b: &[u8]) -> bool {
 pub fn rest_role(method: &str, path: &str) -> Option<Role> {
     // The web page's files hold no data; what it shows comes from the API, with the
     // visitor's token.
-    if matches!(path, "/livez" | "/readyz" | "/metrics") || crate::api::ui::is_ui_path(path) {
+    if matches!(path, "/livez" | "/readyz" | "/metrics" | "/" | "/ui") || path.starts_with("/ui/") {
         return None;
     }
     let api = path.strip_prefix("/api/v1").unwrap_or(path);

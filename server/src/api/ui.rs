@@ -2,8 +2,9 @@
 //! network beyond the gateway, no build step), served with a strict Content-Security-Policy:
 //! scripts and styles only from these files, no inline script or style, no `eval`, DOM
 //! string sinks refused (Trusted Types), connections only back to the gateway. The page
-//! itself holds no data; it reads the REST API and its event stream with the visitor's
-//! token, so the API's access rules are the page's.
+//! itself holds no data (so `auth::rest_role` serves its files without a token); it reads
+//! the REST API and its event stream with the visitor's token, so the API's access rules
+//! are the page's.
 
 use axum::Router;
 use axum::http::{HeaderValue, StatusCode, header};
@@ -43,11 +44,6 @@ const ASSETS: &[Asset] = &[
     asset!("/ui/style.css", "style.css", "text/css; charset=utf-8"),
     asset!("/ui/icon.svg", "icon.svg", "image/svg+xml"),
 ];
-
-/// Whether `path` is the page's (served without a token: it holds no data).
-pub fn is_ui_path(path: &str) -> bool {
-    path == "/" || path == "/ui" || path.starts_with("/ui/")
-}
 
 fn serve(asset: &'static Asset) -> Response {
     let mut response = asset.body.into_response();
