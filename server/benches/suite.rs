@@ -158,6 +158,14 @@ impl Drop for Device {
     }
 }
 
+/// The wire limit for FC03 of `registers` at `baud`: an 8-byte request, its answer, and the
+/// silence before each, in transactions per second.
+fn limit_tps(baud: u32, registers: u16) -> f64 {
+    1.0 / timing(baud)
+        .transaction_time(8, 5 + 2 * usize::from(registers))
+        .as_secs_f64()
+}
+
 /// How long to measure a line: 2 s and at least 12 transactions at the wire limit.
 fn window(limit_tps: f64) -> Duration {
     Duration::from_secs_f64((12.0 / limit_tps).max(2.0))
@@ -195,10 +203,7 @@ fn iogate_on_line(baud: u32, registers: u16, line: Option<LineTiming>) -> anyhow
             device.path
         ),
     )?;
-    let limit = 1.0
-        / timing(baud)
-            .transaction_time(8, 5 + 2 * registers as usize)
-            .as_secs_f64();
+    let limit = limit_tps(baud, registers);
     let warm = device.answered();
     let deadline = Instant::now() + Duration::from_secs(10);
     while device.answered() < warm + 3 && Instant::now() < deadline {
@@ -217,10 +222,7 @@ fn libmodbus_on_line(
     line: Option<LineTiming>,
 ) -> anyhow::Result<f64> {
     let device = Device::start(line)?;
-    let limit = 1.0
-        / timing(baud)
-            .transaction_time(8, 5 + 2 * registers as usize)
-            .as_secs_f64();
+    let limit = limit_tps(baud, registers);
     let output = Command::new(program)
         .arg(&device.path)
         .arg(baud.to_string())
@@ -257,10 +259,7 @@ fn lines(rounds: usize, rows: &mut Vec<Row>) -> anyhow::Result<()> {
     for baud in [9600, 19_200, 115_200] {
         for registers in [10u16, 125] {
             let line = timing(baud);
-            let limit = 1.0
-                / line
-                    .transaction_time(8, 5 + 2 * registers as usize)
-                    .as_secs_f64();
+            let limit = limit_tps(baud, registers);
             let mut ours = Vec::new();
             let mut theirs = Vec::new();
             for _ in 0..rounds {

@@ -160,16 +160,41 @@ function parseInput(type, raw) {
 
 const enc = encodeURIComponent;
 
+/** A link or device that is connected with error code 0. */
+function healthy(x) {
+  return x.connected && x.error_code === 0;
+}
+
+/** How long ago `timestamp` was, or 'not yet'. */
+function ago(timestamp) {
+  return timestamp ? `${age(timestamp)} ago` : 'not yet';
+}
+
+/** A table head with these column names. */
+function head(...names) {
+  return h('thead', {}, h('tr', {}, ...names.map((c) => h('th', { scope: 'col' }, c))));
+}
+
+/** Calls `load` the first time `details` is opened. */
+function loadOnOpen(details, load) {
+  details.addEventListener('toggle', () => {
+    if (!details.open || details.dataset.loaded) return;
+    details.dataset.loaded = '1';
+    load();
+  });
+  return details;
+}
+
 // ---------------------------------------------------------------- overview
 
 function linkState(link) {
-  const ok = link.connected && link.error_code === 0;
+  const ok = healthy(link);
   return h('span', { class: `badge ${ok ? 'ok' : 'bad'}` },
     ok ? 'connected' : `error ${link.error_code}`);
 }
 
 function deviceState(d) {
-  const ok = d.connected && d.error_code === 0;
+  const ok = healthy(d);
   return h('span', { class: `badge ${ok ? 'ok' : 'bad'}`, 'data-state': ok ? 'connected' : 'disconnected' },
     ok ? 'connected' : `disconnected · error ${d.error_code}`);
 }
@@ -188,16 +213,15 @@ async function overview(signal) {
   const transactionSection = h('section', { hidden: true, 'aria-labelledby': 'tx-title' },
     h('h2', { id: 'tx-title' }, 'Standing transactions'),
     h('div', { class: 'scroll' }, h('table', { class: 'list' },
-      h('thead', {}, h('tr', {}, ...['Name', 'Link', 'Kind', 'State', 'Value', 'Runs', 'Failures', 'Last run']
-        .map((c) => h('th', { scope: 'col' }, c)))),
+      head('Name', 'Link', 'Kind', 'State', 'Value', 'Runs', 'Failures', 'Last run'),
       transactionBody)));
   const deviceRows = new Map();
   const linksByName = new Map(links.links.map((l) => [l.name, l]));
   const devicesByName = new Map(devices.devices.map((d) => [d.name, d]));
 
   function renderSummary() {
-    const linksDown = [...linksByName.values()].filter((l) => !l.connected || l.error_code !== 0).length;
-    const devicesDown = [...devicesByName.values()].filter((d) => !d.connected || d.error_code !== 0).length;
+    const linksDown = [...linksByName.values()].filter((l) => !healthy(l)).length;
+    const devicesDown = [...devicesByName.values()].filter((d) => !healthy(d)).length;
     fill(summary,
       h('span', { class: `badge ${linksDown ? 'bad' : 'ok'}` },
         `${linksByName.size} link${linksByName.size === 1 ? '' : 's'}${linksDown ? `, ${linksDown} down` : ''}`),
@@ -208,12 +232,10 @@ async function overview(signal) {
 
   function renderLinks() {
     fill(linkBody, ...[...linksByName.values()].map((l) => {
-      const ok = l.connected && l.error_code === 0;
-      const endpoint = endpointOf(l);
       const over = (l.planned_utilisation ?? 0) > 0.9 || (l.utilisation ?? 0) > 0.9;
-      return h('tr', { class: ok ? '' : 'problem', 'data-link': l.name },
+      return h('tr', { class: healthy(l) ? '' : 'problem', 'data-link': l.name },
         cell('Link', h('a', { href: `#/links/${enc(l.name)}` }, h('strong', {}, l.name))),
-        cell('Endpoint', endpoint),
+        cell('Endpoint', endpointOf(l)),
         cell('State', linkState(l), h('div', { class: 'meaning' }, LINK_CODES[l.error_code] ?? '')),
         cell('Utilisation', h('span', { class: over ? 'warn' : '' },
           `${percent(l.utilisation)} measured`), h('div', { class: 'meaning' }, `${percent(l.planned_utilisation)} planned`)),
@@ -232,8 +254,7 @@ async function overview(signal) {
       cell('Link', d.link ?? (d.protocol === 'simulated' ? 'simulated' : '—')),
       state, cycles, response);
     const update = (diag) => {
-      const ok = diag.connected && diag.error_code === 0;
-      row.classList.toggle('problem', !ok);
+      row.classList.toggle('problem', !healthy(diag));
       fill(state, deviceState(diag), h('div', { class: 'meaning' }, DEVICE_CODES[diag.error_code] ?? ''));
       text(cycles, diag.io_cycles);
       text(response, `${Number(diag.last_response_ms).toFixed(1)} ms`);
@@ -249,14 +270,12 @@ async function overview(signal) {
     h('section', { 'aria-labelledby': 'links-title' },
       h('h2', { id: 'links-title' }, 'Links'),
       h('div', { class: 'scroll' }, h('table', { class: 'list' },
-        h('thead', {}, h('tr', {}, ...['Link', 'Endpoint', 'State', 'Utilisation', 'Devices']
-          .map((c) => h('th', { scope: 'col' }, c)))),
+        head('Link', 'Endpoint', 'State', 'Utilisation', 'Devices'),
         linkBody))),
     h('section', { 'aria-labelledby': 'devices-title' },
       h('h2', { id: 'devices-title' }, 'Devices'),
       h('div', { class: 'scroll' }, h('table', { class: 'list', id: 'devices' },
-        h('thead', {}, h('tr', {}, ...['Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response']
-          .map((c) => h('th', { scope: 'col' }, c)))),
+        head('Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response'),
         deviceBody))),
     transactionSection);
   renderLinks();
@@ -274,7 +293,7 @@ async function overview(signal) {
           `${t.state} ${TRANSACTION_STATES[t.state] ?? ''}`),
         t.error ? h('div', { class: 'meaning' }, t.error) : null),
         cell('Value', t.value ?? '—'), cell('Runs', String(t.runs)), cell('Failures', String(t.failures)),
-        cell('Last run', t.timestamp ? `${age(t.timestamp)} ago` : 'not yet'));
+        cell('Last run', ago(t.timestamp)));
     }));
   }
 
@@ -361,7 +380,6 @@ function fieldControl(device, f, simulated, signal, currentValue) {
     try {
       const answer = await api('PUT', path, { value }, { signal });
       if (isOutput && answer && answer.generation !== undefined) {
-        out.dataset.generation = answer.generation;
         text(out, 'pending…');
         out.dataset.status = 'pending';
         await followWrite(answer.generation, out, signal);
@@ -379,7 +397,6 @@ function fieldControl(device, f, simulated, signal, currentValue) {
     }
   }
 
-  const label = `${verb} ${f.field}`;
   if (f.type === 'BOOL') {
     const button = h('button', {
       type: 'button', class: 'toggle', 'aria-label': `Toggle ${f.field}`,
@@ -395,7 +412,7 @@ function fieldControl(device, f, simulated, signal, currentValue) {
   const form = h('form', {
     class: 'control',
     onsubmit: (event) => { event.preventDefault(); send(parseInput(f.type, input.value)); },
-  }, input, h('button', { type: 'submit', 'aria-label': label }, verb), out);
+  }, input, h('button', { type: 'submit', 'aria-label': `${verb} ${f.field}` }, verb), out);
   return form;
 }
 
@@ -415,7 +432,6 @@ async function deviceView(name, signal) {
     text(meaning, `${d.error_code} — ${DEVICE_CODES[d.error_code] ?? 'unknown code'}`);
     text(cycles, d.io_cycles);
     text(response, `${Number(d.last_response_ms).toFixed(1)} ms`);
-    document.body.classList.toggle('device-down', !(d.connected && d.error_code === 0));
   }
   diagnostics(detail);
 
@@ -436,25 +452,25 @@ async function deviceView(name, signal) {
       h('th', { scope: 'row' }, fieldName,
         m?.description ? h('div', { class: 'meaning' }, m.description) : null),
       valueCell,
-      h('td', { 'data-label': 'Unit' }, f.unit ?? m?.register?.unit ?? ''),
+      h('td', { 'data-label': 'Unit' }, f.unit ?? ''),
       h('td', { 'data-label': 'Type' }, f.type),
       h('td', { 'data-label': 'Direction' }, f.direction),
       quality, ageCell, trendCell,
       h('td', { 'data-label': control ? (f.direction === 'input' ? 'Simulate' : 'Write') : '' }, control));
     function update(v) {
       last = v;
+      const good = v.quality === 'good';
       // A value that is not good is the last good one (or none): shown, but dimmed.
-      valueCell.classList.toggle('dim', v.quality !== 'good');
-      fill(valueCell, h('span', { class: 'v', title: v.quality === 'good' ? null : 'the last good value' },
+      valueCell.classList.toggle('dim', !good);
+      fill(valueCell, h('span', { class: 'v', title: good ? null : 'the last good value' },
         formatValue(v.type, v.value)),
         v.mismatch ? h('div', { class: 'meaning warn' },
           `device holds this; requested ${formatValue(v.type, v.desired)}`) : null);
-      const good = v.quality === 'good';
       fill(quality, h('span', { class: `badge q-${v.quality} ${good ? 'ok' : 'bad'}` }, v.quality.replace('_', ' ')),
         v.error ? h('div', { class: 'meaning' }, v.error) : null);
       ageCell.dataset.timestamp = v.timestamp ?? '';
-      text(ageCell, `${age(v.timestamp)}${v.timestamp ? ' ago' : ''}`);
-      if (NUMERIC.has(v.type) && typeof v.value === 'number' && v.quality === 'good') {
+      text(ageCell, ago(v.timestamp));
+      if (NUMERIC.has(v.type) && typeof v.value === 'number' && good) {
         trend.push(v.value);
         if (trend.length > TREND_POINTS) trend.shift();
         fill(trendCell, sparkline(trend, `recent values of ${fieldName}`));
@@ -468,39 +484,30 @@ async function deviceView(name, signal) {
   const st = h('pre', { class: 'code' }, '…');
   const layout = h('tbody');
   for (const e of profile?.layout ?? []) {
-    layout.append(h('tr', {}, cell('Member', e.name), cell('Type', e.ty ?? e.type),
+    layout.append(h('tr', {}, cell('Member', e.name), cell('Type', e.type),
       cell('Section', e.section), cell('Role', e.role), cell('Description', e.description)));
   }
-  const stDetails = h('details', {
-    ontoggle: async (event) => {
-      if (!event.target.open || st.dataset.loaded) return;
-      try {
-        text(st, await api('GET', `/profiles/${enc(detail.profile)}/st`, undefined, { signal, text: true }));
-        st.dataset.loaded = '1';
-      } catch (e) { text(st, e.message); }
-    },
-  }, h('summary', {}, 'ST declaration'), st);
+  const stDetails = loadOnOpen(h('details', {}, h('summary', {}, 'ST declaration'), st), async () => {
+    try {
+      text(st, await api('GET', `/profiles/${enc(detail.profile)}/st`, undefined, { signal, text: true }));
+    } catch (e) { text(st, e.message); }
+  });
   const mapBody = h('tbody');
   const mapNote = h('p', { class: 'meaning' });
-  const mapSection = h('details', {
-    ontoggle: async (event) => {
-      if (!event.target.open || mapSection.dataset.loaded) return;
-      mapSection.dataset.loaded = '1';
-      try {
-        const map = await api('GET', '/map', undefined, { signal });
-        const mine = map.bindings.filter((b) => b.device === name);
-        text(mapNote, mine.length ? `unit id ${map.unit_id}, ${map.address_space} address space`
-          : 'No field of this device is bound to a located address.');
-        fill(mapBody, ...mine.map((b) => h('tr', {}, cell('Located address', b.at), cell('Table', b.table),
-          cell('Address', String(b.address)), cell('Field', b.field), cell('Type', b.type), cell('Access', b.access))));
-      } catch (e) {
-        text(mapNote, e.message);
-      }
-    },
-  }, h('summary', {}, 'Modbus TCP server addresses'), mapNote,
-  h('div', { class: 'scroll' }, h('table', { class: 'list' },
-    h('thead', {}, h('tr', {}, ...['Located address', 'Table', 'Address', 'Field', 'Type', 'Access']
-      .map((c) => h('th', { scope: 'col' }, c)))), mapBody)));
+  const mapSection = loadOnOpen(h('details', {}, h('summary', {}, 'Modbus TCP server addresses'), mapNote,
+    h('div', { class: 'scroll' }, h('table', { class: 'list' },
+      head('Located address', 'Table', 'Address', 'Field', 'Type', 'Access'), mapBody))), async () => {
+    try {
+      const map = await api('GET', '/map', undefined, { signal });
+      const mine = map.bindings.filter((b) => b.device === name);
+      text(mapNote, mine.length ? `unit id ${map.unit_id}, ${map.address_space} address space`
+        : 'No field of this device is bound to a located address.');
+      fill(mapBody, ...mine.map((b) => h('tr', {}, cell('Located address', b.at), cell('Table', b.table),
+        cell('Address', String(b.address)), cell('Field', b.field), cell('Type', b.type), cell('Access', b.access))));
+    } catch (e) {
+      text(mapNote, e.message);
+    }
+  });
 
   fill(main,
     h('p', { class: 'crumbs' }, h('a', { href: '#/' }, 'Overview'), ' › ', name),
@@ -517,20 +524,18 @@ async function deviceView(name, signal) {
     h('section', { 'aria-labelledby': 'fields-title' },
       h('h2', { id: 'fields-title' }, 'Fields'),
       h('div', { class: 'scroll' }, h('table', { class: 'fields list', id: 'fields' },
-        h('thead', {}, h('tr', {}, ...['Field', 'Value', 'Unit', 'Type', 'Direction', 'Quality', 'Changed', 'Trend', '']
-          .map((c) => h('th', { scope: 'col' }, c)))),
+        head('Field', 'Value', 'Unit', 'Type', 'Direction', 'Quality', 'Changed', 'Trend', ''),
         body))),
     h('section', { 'aria-labelledby': 'profile-title' },
       h('h2', { id: 'profile-title' }, 'Profile'),
       h('details', {}, h('summary', {}, 'Function-block layout'),
         h('div', { class: 'scroll' }, h('table', { class: 'list' },
-          h('thead', {}, h('tr', {}, ...['Member', 'Type', 'Section', 'Role', 'Description']
-            .map((c) => h('th', { scope: 'col' }, c)))), layout))),
+          head('Member', 'Type', 'Section', 'Role', 'Description'), layout))),
       stDetails,
       mapSection));
 
   const ages = setInterval(() => {
-    for (const td of body.querySelectorAll('td.age')) text(td, `${age(td.dataset.timestamp)}${td.dataset.timestamp ? ' ago' : ''}`);
+    for (const td of body.querySelectorAll('td.age')) text(td, ago(td.dataset.timestamp));
   }, 1000);
   // The device's counters (cycles, response time); its values and state come as events.
   const counters = setInterval(async () => {
@@ -543,7 +548,6 @@ async function deviceView(name, signal) {
   signal.addEventListener('abort', () => {
     clearInterval(ages);
     clearInterval(counters);
-    document.body.classList.remove('device-down');
   }, { once: true });
 
   follow(`/events?device=${enc(name)}`, (event, data) => {

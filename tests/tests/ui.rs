@@ -335,6 +335,28 @@ async fn invalid_values_show_the_apis_error_and_numbers_are_written() -> anyhow:
     assert_eq!(rest_value(&gw, "plant", "MixTime").await?, json!(1500));
     value_shows(&browser, "MixTime", "1500 ms", Duration::from_secs(5)).await?;
 
+    // A numeric field's recent values draw a trend: one point per value the stream brought.
+    for level in [10.5, 42.0, 17.25] {
+        enter(&browser, "Level", &level.to_string()).await?;
+        value_shows(
+            &browser,
+            "Level",
+            &level.to_string(),
+            Duration::from_secs(5),
+        )
+        .await?;
+    }
+    let points = browser
+        .run(
+            "const p = document.querySelector(\"tr[data-field='Level'] svg.spark polyline\"); return p ? p.getAttribute('points').trim().split(' ').length : 0;",
+            json!([]),
+        )
+        .await?;
+    assert!(
+        points.as_u64().is_some_and(|n| n >= 4),
+        "the first value and three set: {points}"
+    );
+
     browser
         .run(
             "window.scrollTo(0, 0); document.activeElement.blur();",

@@ -1,6 +1,5 @@
 //! Domain values to JSON and back, and the JSON shapes of the REST API.
 
-use std::borrow::Cow;
 use std::time::SystemTime;
 
 use serde::Serialize;
@@ -117,13 +116,11 @@ impl Serialize for Timestamp {
 }
 
 /// A field's value with its type, quality and timestamp. Names are borrowed from the device
-/// while a response or event is written; [`FieldValue::into_owned`] keeps one.
+/// while a response or event is written.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct FieldValue<'a> {
-    #[schema(value_type = String)]
-    pub device: Cow<'a, str>,
-    #[schema(value_type = String)]
-    pub field: Cow<'a, str>,
+    pub device: &'a str,
+    pub field: &'a str,
     /// IEC 61131-3 type, e.g. `REAL`.
     #[serde(rename = "type")]
     pub ty: &'static str,
@@ -137,8 +134,7 @@ pub struct FieldValue<'a> {
     #[schema(value_type = Option<String>)]
     pub timestamp: Option<Timestamp>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    #[schema(value_type = Option<String>)]
-    pub unit: Option<Cow<'a, str>>,
+    pub unit: Option<&'a str>,
     /// Why the quality is bad.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -159,14 +155,14 @@ pub fn field_value<'a>(device: &'a Device, idx: usize, sample: &Sample) -> Field
     let field = device.field(idx);
     let now = tokio::time::Instant::now();
     FieldValue {
-        device: Cow::Borrowed(device.name()),
-        field: Cow::Borrowed(&field.name),
+        device: device.name(),
+        field: &field.name,
         ty: field.ty.name(),
         direction: field.direction.name(),
         value: ValueJson(sample.value.clone()),
         quality: sample.quality_at(now, device.stale_after()).name(),
         timestamp: sample.updated.map(|(_, wall)| Timestamp(wall)),
-        unit: field.register.unit.as_deref().map(Cow::Borrowed),
+        unit: field.register.unit.as_deref(),
         error: sample.error.as_ref().map(ToString::to_string),
         last_write: None,
         mismatch: false,
@@ -176,24 +172,6 @@ pub fn field_value<'a>(device: &'a Device, idx: usize, sample: &Sample) -> Field
 }
 
 impl FieldValue<'_> {
-    /// The same value owning its names.
-    pub fn into_owned(self) -> FieldValue<'static> {
-        FieldValue {
-            device: Cow::Owned(self.device.into_owned()),
-            field: Cow::Owned(self.field.into_owned()),
-            unit: self.unit.map(|u| Cow::Owned(u.into_owned())),
-            ty: self.ty,
-            direction: self.direction,
-            value: self.value,
-            quality: self.quality,
-            timestamp: self.timestamp,
-            error: self.error,
-            last_write: self.last_write,
-            mismatch: self.mismatch,
-            desired: self.desired,
-        }
-    }
-
     fn with_desired(mut self, desired: Option<crate::codec::Value>) -> Self {
         self.mismatch = desired.is_some();
         self.desired = desired.map(|d| ValueJson(Some(d)));

@@ -103,11 +103,12 @@ pub async fn get_map(State(service): State<Arc<Service>>) -> Result<Json<MapInfo
 pub async fn get_located(
     State(service): State<Arc<Service>>,
     Path(at): Path<String>,
-) -> Result<Json<FieldValue<'static>>, ApiError> {
+) -> Result<axum::response::Response, ApiError> {
     let (device, idx) = service.located(&at)?;
-    Ok(Json(
-        convert::field_value(&device, idx, &device.sample(idx)).into_owned(),
-    ))
+    super::rest::json_response(
+        &convert::field_value(&device, idx, &device.sample(idx)),
+        256,
+    )
 }
 
 /// Writes the field bound to a located address (last value wins), as `PUT .../fields/{f}`.

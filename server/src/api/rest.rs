@@ -148,7 +148,10 @@ pub async fn get_device(
 
 /// `value` as a JSON response, written straight into one buffer while it borrows from the
 /// cache (names are not copied).
-fn json_response(value: &impl serde::Serialize, capacity: usize) -> Result<Response, ApiError> {
+pub(super) fn json_response(
+    value: &impl serde::Serialize,
+    capacity: usize,
+) -> Result<Response, ApiError> {
     let mut body = Vec::with_capacity(capacity);
     serde_json::to_writer(&mut body, value).map_err(|e| {
         ApiError::new(

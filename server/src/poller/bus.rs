@@ -21,11 +21,10 @@ pub(super) struct Bus {
     busy: Duration,
     window_start: Instant,
     counted: Counters,
-    /// The bus utilisation the refresh rates demand (serial links).
-    pub(super) planned: Option<f64>,
     /// Each transaction's deadline, for the watchdog.
     progress: Arc<Progress>,
-    /// Where the measured utilisation is shown (besides the metrics).
+    /// The link's utilisation: the planned share read, the measured one kept (besides the
+    /// metrics).
     utilisation: Arc<Utilisation>,
     /// Transactions sent since the caller last took the count.
     sent: u32,
@@ -53,7 +52,6 @@ impl Bus {
             link,
             busy: Duration::ZERO,
             window_start: Instant::now(),
-            planned: None,
         }
     }
 
@@ -149,10 +147,10 @@ impl Bus {
         self.counted = now;
         let window = self.window_start.elapsed();
         if window >= UTILISATION_WINDOW {
-            let measured = self.busy.as_secs_f64() / window.as_secs_f64();
-            self.metrics
-                .link_utilisation(&self.link, self.planned, measured.min(1.0));
-            self.utilisation.set_measured(measured.min(1.0));
+            let measured = (self.busy.as_secs_f64() / window.as_secs_f64()).min(1.0);
+            let (planned, _) = self.utilisation.get();
+            self.metrics.link_utilisation(&self.link, planned, measured);
+            self.utilisation.set_measured(measured);
             self.busy = Duration::ZERO;
             self.window_start = Instant::now();
         }

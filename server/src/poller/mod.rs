@@ -97,8 +97,6 @@ pub struct LinkTask {
     /// The link's member version `devices` reflects.
     version: u64,
     metrics: Arc<Metrics>,
-    /// The bus utilisation the refresh rates demand (serial links).
-    planned: Option<f64>,
     /// Round-robin position for writes.
     cursor: usize,
 }
@@ -110,7 +108,6 @@ impl LinkTask {
             devices: Vec::new(),
             version: u64::MAX,
             metrics,
-            planned: None,
             cursor: 0,
         };
         task.sync_members();
@@ -151,7 +148,8 @@ impl LinkTask {
             });
         }
         let config = self.link.config();
-        self.planned = match &config.transport {
+        // The bus utilisation the refresh rates demand (serial links), kept with the link.
+        let planned = match &config.transport {
             Transport::Serial(s) => Some(plan::utilisation(
                 self.devices
                     .iter()
@@ -161,10 +159,10 @@ impl LinkTask {
             )),
             Transport::Tcp { .. } => None,
         };
-        self.link.utilisation.set_planned(self.planned);
-        if let Some(u) = self.planned {
+        self.link.utilisation.set_planned(planned);
+        if let Some(u) = planned {
             self.metrics
-                .link_utilisation(self.link.name(), self.planned, 0.0);
+                .link_utilisation(self.link.name(), planned, 0.0);
             if u > 1.0 {
                 tracing::warn!(link = %self.link.name(), utilisation = format!("{:.0}%", u * 100.0), "the refresh rates need more than the line can carry");
             }
@@ -298,7 +296,6 @@ impl LinkTask {
                 return Ended::Shutdown;
             }
             self.sync_members();
-            bus.planned = self.planned;
             let step = if let Some(queued) = self.link.take_queued() {
                 self.pass_through(queued, &mut bus).await
             } else if let Some(i) = self.next_writer() {
