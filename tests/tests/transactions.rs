@@ -793,3 +793,160 @@ async fn every_function_type_and_order_over_a_modbus_tcp_link() {
     gw.shutdown().await;
     server.abort();
 }
+
+/// A gateway with a Modbus TCP link to a tokio-modbus device, and an independent master
+/// (tokio-modbus's client) connected to the same device to set and read its tables.
+async fn with_tcp_device() -> (
+    TestGateway,
+    tokio_modbus::client::Context,
+    tokio::task::JoinHandle<()>,
+) {
+    use iogate_tests::devices::{ModbusDevice, modbus_tcp_server};
+    let (port, server) = modbus_tcp_server(ModbusDevice::default()).await;
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: rs485, tcp: {{ host: 127.0.0.1, port: {port} }} }}\n"
+    ))
+    .await
+    .expect("gateway");
+    let master = tokio_modbus::client::tcp::connect_slave(
+        ([127, 0, 0, 1], port).into(),
+        tokio_modbus::Slave(1),
+    )
+    .await
+    .expect("master");
+    (gw, master, server)
+}
+
+/// The documented rule for FC01/02 (README, "Raw transactions"), written out as bytes of
+/// bit strings: byte k holds coils 8k.., the last only the bits left over; the bytes are
+/// ordered as register bytes, then their bits are concatenated, most significant first.
+fn expected_bits(coils: &[bool], order: &str) -> u64 {
+    let bytes: Vec<String> = coils
+        .chunks(8)
+        .map(|c| c.iter().rev().map(|&b| if b { '1' } else { '0' }).collect())
+        .collect();
+    let words: Vec<Vec<String>> = bytes.chunks(2).map(<[String]>::to_vec).collect();
+    let ordered: Vec<String> = match order {
+        "BigEndian" => bytes.clone(),
+        "LittleEndian" => bytes.iter().rev().cloned().collect(),
+        "SwapBytes" => words.iter().flat_map(|w| w.iter().rev().cloned()).collect(),
+        _ => words.iter().rev().flatten().cloned().collect(),
+    };
+    u64::from_str_radix(&ordered.concat(), 2).expect("bits")
+}
+
+#[tokio::test]
+async fn every_bit_count_under_every_byte_order_reads_every_coil_an_independent_master_set() {
+    use tokio_modbus::client::Writer;
+    let (gw, mut master, server) = with_tcp_device().await;
+    // A pattern with no symmetry: bit i of 0x9E3779B97 on coil i.
+    let pattern: Vec<bool> = (0..32).map(|i| 0x9E37_79B9u64 >> i & 1 == 1).collect();
+    master
+        .write_multiple_coils(0, &pattern)
+        .await
+        .expect("io")
+        .expect("written");
+    for n in 1..=32usize {
+        for order in ["LittleEndian", "BigEndian", "SwapBytes", "SwapWords"] {
+            let (status, answer) = gw
+                .send(
+                    Method::POST,
+                    "/api/v1/links/rs485/transactions",
+                    json!({"function": 1, "slave": 1, "address": 0, "bit_count": n,
+                           "byte_order": order, "precision": 0, "timeout_ms": 500})
+                    .to_string(),
+                )
+                .await
+                .expect("transaction");
+            assert_eq!(status, 200, "{answer}");
+            let expected = expected_bits(&pattern[..n], order);
+            assert_eq!(
+                answer["value"].as_f64(),
+                Some(expected as f64),
+                "{n} bits, {order}: {answer}"
+            );
+        }
+    }
+    gw.shutdown().await;
+    server.abort();
+}
+
+#[tokio::test]
+async fn floats_keep_the_digits_the_device_meant_and_int32_is_always_an_integer() {
+    use tokio_modbus::client::{Reader, Writer};
+    let (gw, mut master, server) = with_tcp_device().await;
+    let read = |address: u16, precision: u8| {
+        json!({"function": 3, "slave": 1, "address": address, "value_type": "FLOAT",
+               "byte_order": "BigEndian", "precision": precision, "timeout_ms": 500})
+    };
+    // Values packed by hand by the master, the documented losses before.
+    for (k, (x, precision, shown)) in [
+        (0.29f32, 2u8, 0.29f64),
+        (100.1, 1, 100.1),
+        (21.57, 3, 21.57),
+        (23.987, 3, 23.987),
+        (23.987, 2, 23.98),
+        (-0.29, 2, -0.29),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let address = 2 * k as u16;
+        let bits = x.to_bits();
+        master
+            .write_multiple_registers(address, &[(bits >> 16) as u16, bits as u16])
+            .await
+            .expect("io")
+            .expect("written");
+        let (status, answer) = transact(&gw, read(address, precision)).await;
+        assert_eq!(status, 200, "{answer}");
+        assert_eq!(
+            answer["value"],
+            json!(shown),
+            "{x} with {precision}: {answer}"
+        );
+    }
+    // The type decides the encoding, never the value.
+    let write = |ty: &str, value: Value| {
+        json!({"function": 16, "slave": 1, "address": 100, "type": ty,
+               "byte_order": "BigEndian", "values": [value], "timeout_ms": 500})
+    };
+    let cases = [
+        ("int32", json!(12), Some([0x0000, 0x000C])),
+        ("int32", json!(12.0), Some([0x0000, 0x000C])),
+        ("int32", json!(12.6), None),
+        ("float", json!(12), Some([0x4140, 0x0000])),
+        ("float", json!(12.6), Some([0x4149, 0x999A])),
+        ("int32/float", json!(12), Some([0x0000, 0x000C])),
+        (
+            "int32/float",
+            serde_json::from_str("12.0").expect("json"),
+            Some([0x4140, 0x0000]),
+        ),
+    ];
+    for (ty, value, registers) in cases {
+        master
+            .write_multiple_registers(100, &[0xDEAD, 0xBEEF])
+            .await
+            .expect("io")
+            .expect("written");
+        let (status, answer) = transact(&gw, write(ty, value.clone())).await;
+        let held = master
+            .read_holding_registers(100, 2)
+            .await
+            .expect("io")
+            .expect("read");
+        match registers {
+            Some(r) => {
+                assert_eq!((status, &answer["actual"]), (200, &json!(true)), "{answer}");
+                assert_eq!(held, r.to_vec(), "{ty} {value}");
+            }
+            None => {
+                assert_eq!(status, 400, "{ty} {value}: {answer}");
+                assert_eq!(held, vec![0xDEAD, 0xBEEF], "nothing was written");
+            }
+        }
+    }
+    gw.shutdown().await;
+    server.abort();
+}

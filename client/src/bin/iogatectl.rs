@@ -85,7 +85,7 @@ enum Command {
         /// Response timeout in ms, 10-60000 (default 1000).
         #[arg(long, default_value_t = 0)]
         timeout_ms: u32,
-        /// Writes: uint8, int8, uint16, int16, int32, float.
+        /// Writes: uint8, int8, uint16, int16, int32 (an integer), float (IEEE-754); int32/float is IEEE-754 (values are doubles).
         #[arg(long = "type", default_value = "")]
         write_type: String,
         /// Writes: the values.

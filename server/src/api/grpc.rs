@@ -63,13 +63,10 @@ pub fn status(e: ServiceError) -> Status {
     Status::new(code, message)
 }
 
-/// A number as the JSON a transaction's values are: whole numbers as integers.
+/// A transaction's value as JSON: a double is a float (so `int32/float` writes it as
+/// IEEE-754; the integer types take it when it is whole). Not finite: null, refused.
 fn json_number(n: f64) -> serde_json::Value {
-    if n.fract() == 0.0 && n.abs() < 9e15 {
-        serde_json::Value::from(n as i64)
-    } else {
-        serde_json::Number::from_f64(n).map_or(serde_json::Value::Null, Into::into)
-    }
+    serde_json::Number::from_f64(n).map_or(serde_json::Value::Null, Into::into)
 }
 
 /// The link and parameters of a transaction request.

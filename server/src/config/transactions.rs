@@ -29,7 +29,7 @@ pub struct TransactionSpec {
     pub byte_order: Option<String>,
     /// responseTimeout, 10-60000 ms (default 1000).
     pub timeout_ms: Option<i64>,
-    /// Writes: uint8, int8, uint16, int16, int32, float.
+    /// Writes: uint8, int8, uint16, int16, int32 (an integer), float (IEEE-754), int32/float (IEEE-754 for a number written with a point, else int32).
     #[serde(rename = "type")]
     pub write_type: Option<String>,
     /// Writes: the values (numbers; for coils, numbers or booleans).

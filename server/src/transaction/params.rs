@@ -193,7 +193,7 @@ fn write_request(
     let mut bytes = Vec::with_capacity(values.len() * ty.bytes());
     for v in values {
         let Some(b) = value_bytes(ty, v) else {
-            errors.push(format!("{INVALID_VALUES} `{v}` does not fit {ty:?}"));
+            errors.push(format!("{INVALID_VALUES} `{v}`: {}", ty.describe()));
             return None;
         };
         let mut b = b;

@@ -43,8 +43,13 @@ pub enum WriteType {
     Int8,
     Uint16,
     Int16,
+    /// Always a signed 32-bit integer.
     Int32,
+    /// Always IEEE-754 single precision.
     Float,
+    /// Source document 002's `int32/float`: a float (a number written with a point or an
+    /// exponent) as IEEE-754, an integer as a signed 32-bit integer.
+    Int32OrFloat,
 }
 
 impl WriteType {
@@ -55,16 +60,32 @@ impl WriteType {
             "uint16" => WriteType::Uint16,
             "int16" => WriteType::Int16,
             "int32" => WriteType::Int32,
-            "float" | "int32/float" => WriteType::Float,
+            "float" => WriteType::Float,
+            "int32/float" => WriteType::Int32OrFloat,
             _ => return None,
         })
+    }
+
+    /// The name the write block gives it, and the values it takes.
+    pub fn describe(self) -> &'static str {
+        match self {
+            WriteType::Uint8 => "uint8 takes whole numbers 0 to 255",
+            WriteType::Int8 => "int8 takes whole numbers -128 to 127",
+            WriteType::Uint16 => "uint16 takes whole numbers 0 to 65535",
+            WriteType::Int16 => "int16 takes whole numbers -32768 to 32767",
+            WriteType::Int32 => "int32 takes whole numbers -2147483648 to 2147483647",
+            WriteType::Float => "float takes finite numbers within ±3.4028235e38",
+            WriteType::Int32OrFloat => {
+                "int32/float takes integers -2147483648 to 2147483647 (written as int32) and numbers with a point or an exponent within ±3.4028235e38 (written as IEEE-754)"
+            }
+        }
     }
 
     /// Bytes of one value; uint8 and int8 still take a register each (documented).
     pub fn bytes(self) -> usize {
         match self {
             WriteType::Uint8 | WriteType::Int8 | WriteType::Uint16 | WriteType::Int16 => 2,
-            WriteType::Int32 | WriteType::Float => 4,
+            WriteType::Int32 | WriteType::Float | WriteType::Int32OrFloat => 4,
         }
     }
 }
