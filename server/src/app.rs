@@ -72,13 +72,13 @@ impl Setup {
         Setup::from_config(config, base)
     }
 
-    /// Every profile field that relies on the default `word_count` of 1 although its type is
-    /// wider: `check` and `serve` print these, they do not stop anything.
-    pub fn profile_warnings(&self) -> Vec<crate::yaml::Problem> {
-        self.catalog
-            .iter()
-            .flat_map(|p| p.width_warnings())
-            .collect()
+    /// What `check` and `serve` print without stopping anything: every profile field that
+    /// relies on the default `word_count` of 1 although its type is wider, and every map
+    /// binding that cannot show every value of its field (a TIME at `%MD`).
+    pub fn warnings(&self) -> Vec<crate::yaml::Problem> {
+        let profiles = self.catalog.iter().flat_map(|p| p.width_warnings());
+        let map = self.map.iter().flat_map(|m| m.warnings.iter().cloned());
+        profiles.chain(map).collect()
     }
 
     /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in

@@ -152,7 +152,7 @@ fn main() -> ExitCode {
         }
     };
     if matches!(action, Action::Check | Action::Serve) {
-        for warning in setup.profile_warnings() {
+        for warning in setup.warnings() {
             eprintln!("warning: {warning}");
         }
     }

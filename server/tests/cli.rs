@@ -178,6 +178,40 @@ fn check_warns_about_wide_fields_that_rely_on_the_default_word_count() {
 }
 
 #[test]
+fn check_warns_about_a_time_bound_at_a_double_word() {
+    let dir = temp_dir("time-md");
+    let config = dir.join("iogate.yaml");
+    std::fs::write(
+        &config,
+        format!(
+            "profiles: {}\ndevices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 50ms }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  map:\n    - {{ at: \"%MD7\", field: plant.MixTime }}\n",
+            repo().join("profiles").display()
+        ),
+    )
+    .expect("write");
+    let out = iogate()
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "a warning: {stderr}");
+    assert!(
+        stderr.contains("iogate.yaml:7: modbus_server.map: %MD7: plant.MixTime: TIME is 64-bit milliseconds; %MD7 holds -2147483648 to 2147483647 ms"),
+        "{stderr}"
+    );
+    let out = iogate()
+        .arg("map")
+        .arg("--config")
+        .arg(&config)
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("%MD7"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn serve_refuses_a_broken_config() {
     let out = iogate()
         .args(["serve", "--config"])

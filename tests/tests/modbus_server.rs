@@ -602,3 +602,44 @@ async fn an_idle_master_is_closed_after_idle_timeout() {
     assert!(started.elapsed() >= Duration::from_millis(150));
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_time_that_does_not_fit_its_double_word_is_an_exception_not_a_clamped_number() {
+    let gw = TestGateway::start(
+        "devices:\n  - { name: plant, profile: SimPlant, refresh_rate: 20ms }\n\
+         modbus_server:\n  listen: 127.0.0.1:0\n  map:\n    - { at: \"%MD3\", field: plant.MixTime }\n",
+    )
+    .await
+    .expect("gateway");
+    let mut ctx = master(gw.modbus.expect("modbus server"), 1).await;
+    // T#24d20h31m23s647ms fits: 0x7FFFFFFF.
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant/fields/MixTime",
+            json!({"value": 2_147_483_647i64}).to_string(),
+        )
+        .await
+        .expect("write");
+    assert_eq!(status, 202, "{body}");
+    until("the largest TIME a double word holds", async || {
+        matches!(ctx.read_holding_registers(2054, 2).await, Ok(Ok(v)) if v == [0x7FFF, 0xFFFF])
+    })
+    .await;
+    // T#30d does not: exception 0B, never 2147483647.
+    gw.send(
+        Method::PUT,
+        "/api/v1/devices/plant/fields/MixTime",
+        json!({"value": "T#30d"}).to_string(),
+    )
+    .await
+    .expect("write");
+    until("T#30d refused", async || {
+        matches!(
+            ctx.read_holding_registers(2054, 2).await,
+            Ok(Err(ExceptionCode::GatewayTargetDevice))
+        )
+    })
+    .await;
+    gw.shutdown().await;
+}

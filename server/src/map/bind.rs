@@ -83,6 +83,9 @@ pub struct Plan {
     pub bindings: Vec<Binding>,
     /// Fields `auto` could not bind (no location of their kind left, or a STRING).
     pub unbound: Vec<String>,
+    /// Bindings that work but may not show every value (a TIME at `%MD`): `check` and
+    /// `serve` print them, they stop nothing.
+    pub warnings: Vec<crate::yaml::Problem>,
 }
 
 /// How a field or diagnostic fits a location, or why it does not.
@@ -114,7 +117,8 @@ fn fit(
     Ok((repr, writable))
 }
 
-/// The kind of location `auto` gives a field, if any.
+/// The kind of location `auto` gives a field, if any. TIME is 64-bit milliseconds (source
+/// document 000), so it goes to `%ML`, where every value fits.
 fn auto_kind(ty: IecType, one_register: bool, writable: bool) -> Option<(Area, Size)> {
     let io = if writable { Area::Output } else { Area::Input };
     [
@@ -124,6 +128,7 @@ fn auto_kind(ty: IecType, one_register: bool, writable: bool) -> Option<(Area, S
         (Area::Memory, Size::Long),
     ]
     .into_iter()
+    .filter(|(_, size)| !(ty == IecType::Time && *size == Size::Double))
     .find(|(_, size)| Repr::of(ty, *size, one_register).is_some())
 }
 
@@ -163,6 +168,7 @@ fn resolve(
             .and_then(|d| catalog.get(&d.profile))
     };
     let mut bindings: Vec<Binding> = Vec::new();
+    let mut warnings = Vec::new();
     // Which binding holds each table address, to refuse overlaps.
     let mut taken: HashMap<(super::space::Table, u16), Location> = HashMap::new();
     let mut claim = |slot: Slot, at: Location| -> Result<(), Location> {
@@ -236,6 +242,19 @@ fn resolve(
                 continue;
             }
         };
+        if ty == IecType::Time && entry.at.size == Size::Double {
+            warnings.push(crate::yaml::Problem {
+                file: config.source.clone(),
+                line: entry.line,
+                context: ctx.clone(),
+                message: format!(
+                    "{}.{name}: TIME is 64-bit milliseconds; {} holds -2147483648 to 2147483647 ms \
+                     (about ±24.8 days) and a value outside is answered with exception 0B, not \
+                     clamped: bind it at %ML to serve every value",
+                    entry.device, entry.at
+                ),
+            });
+        }
         if let Err(other) = claim(slot, entry.at) {
             report.push(
                 entry.line,
@@ -332,5 +351,6 @@ fn resolve(
         space,
         bindings,
         unbound,
+        warnings,
     }
 }

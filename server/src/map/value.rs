@@ -49,29 +49,33 @@ impl Repr {
         })
     }
 
-    /// The registers showing `value` (zeros when there is none yet). Integers that do not
-    /// fit are clamped to the location's range.
-    pub fn registers(self, value: Option<&Value>, encoding: Option<&Encoding>) -> Vec<u16> {
-        let int =
-            |min: i128, max: i128| value.and_then(Value::as_i128).unwrap_or(0).clamp(min, max);
+    /// The registers showing `value` (zeros when there is none yet), or `None` when the
+    /// value does not fit the location (a TIME past ±2147483647 ms at `%MD`): such a value
+    /// is refused, never clamped into a different number.
+    pub fn registers(self, value: Option<&Value>, encoding: Option<&Encoding>) -> Option<Vec<u16>> {
+        let int = |min: i128, max: i128| {
+            let n = value.and_then(Value::as_i128).unwrap_or(0);
+            (min..=max).contains(&n).then_some(n)
+        };
         let real = || value.and_then(Value::as_f64).unwrap_or(0.0);
         let bool_as_int = || i128::from(matches!(value, Some(Value::Bool(true))));
-        match self {
+        Some(match self {
             Repr::Bit => vec![bool_as_int() as u16],
-            Repr::Int16 => vec![int(i16::MIN.into(), i16::MAX.into()) as i16 as u16],
-            Repr::Uint16 => vec![int(0, u16::MAX.into()) as u16],
-            Repr::Raw16 => value
-                .zip(Self::raw_encoding(encoding))
-                .and_then(|(v, e)| e.encode(v).ok())
-                .filter(|r| r.len() == 1)
-                .unwrap_or_else(|| vec![0]),
-            Repr::Int32 => words(&(int(i32::MIN.into(), i32::MAX.into()) as i32).to_be_bytes()),
-            Repr::Uint32 => words(&(int(0, u32::MAX.into()) as u32).to_be_bytes()),
+            Repr::Int16 => vec![int(i16::MIN.into(), i16::MAX.into())? as i16 as u16],
+            Repr::Uint16 => vec![int(0, u16::MAX.into())? as u16],
+            Repr::Raw16 => match value {
+                None => vec![0],
+                Some(v) => Self::raw_encoding(encoding)
+                    .and_then(|e| e.encode(v).ok())
+                    .filter(|r| r.len() == 1)?,
+            },
+            Repr::Int32 => words(&(int(i32::MIN.into(), i32::MAX.into())? as i32).to_be_bytes()),
+            Repr::Uint32 => words(&(int(0, u32::MAX.into())? as u32).to_be_bytes()),
             Repr::Real32 => words(&(real() as f32).to_be_bytes()),
-            Repr::Int64 => words(&(int(i64::MIN.into(), i64::MAX.into()) as i64).to_be_bytes()),
-            Repr::Uint64 => words(&(int(0, u64::MAX.into()) as u64).to_be_bytes()),
+            Repr::Int64 => words(&(int(i64::MIN.into(), i64::MAX.into())? as i64).to_be_bytes()),
+            Repr::Uint64 => words(&(int(0, u64::MAX.into())? as u64).to_be_bytes()),
             Repr::Real64 => words(&real().to_be_bytes()),
-        }
+        })
     }
 
     /// The value of type `ty` a master's registers (or bit, as 0/1) stand for, or why they
@@ -129,21 +133,35 @@ mod tests {
     fn values_are_served_big_endian_high_word_first() {
         assert_eq!(
             Repr::Real32.registers(Some(&Value::Real(1.0)), None),
-            vec![0x3F80, 0x0000]
+            Some(vec![0x3F80, 0x0000])
         );
         assert_eq!(
             Repr::Int32.registers(Some(&Value::Int(-2)), None),
-            vec![0xFFFF, 0xFFFE]
+            Some(vec![0xFFFF, 0xFFFE])
         );
         assert_eq!(
             Repr::Uint64.registers(Some(&Value::UInt(0x0102_0304_0506_0708)), None),
-            vec![0x0102, 0x0304, 0x0506, 0x0708]
+            Some(vec![0x0102, 0x0304, 0x0506, 0x0708])
         );
         assert_eq!(
             Repr::Int16.registers(Some(&Value::Int(-5)), None),
-            vec![0xFFFB]
+            Some(vec![0xFFFB])
         );
-        assert_eq!(Repr::Int16.registers(None, None), vec![0]);
+        assert_eq!(Repr::Int16.registers(None, None), Some(vec![0]));
+    }
+
+    #[test]
+    fn a_time_that_does_not_fit_a_double_word_is_refused_not_clamped() {
+        let month = Value::Time(30 * 24 * 3_600_000);
+        assert_eq!(Repr::Int32.registers(Some(&month), None), None);
+        assert_eq!(
+            Repr::Int64.registers(Some(&month), None),
+            Some(vec![0, 0, 0x9A7E, 0xC800])
+        );
+        assert_eq!(
+            Repr::Int32.registers(Some(&Value::Time(i64::from(i32::MAX))), None),
+            Some(vec![0x7FFF, 0xFFFF])
+        );
     }
 
     #[test]

@@ -171,7 +171,12 @@ impl ModbusImage {
             match self.at(table, a) {
                 Some((b, k)) => {
                     let value = self.current(b)?;
-                    let regs = b.binding.repr.registers(value.as_ref(), Self::encoding(b));
+                    // A value the location cannot show is refused as a bad value is.
+                    let regs = b
+                        .binding
+                        .repr
+                        .registers(value.as_ref(), Self::encoding(b))
+                        .ok_or(Exception::GATEWAY_TARGET_FAILED)?;
                     let take = (b.binding.slot.width - k).min(address + count - a);
                     out.extend_from_slice(&regs[usize::from(k)..usize::from(k + take)]);
                     a += take;
