@@ -366,9 +366,9 @@ mod tests {
         // 20 coils: bytes 0x21, 0x43, 0x5 (four bits).
         let c = coils(20, 0x5_4321);
         assert_eq!(bits(20, ByteOrder::LittleEndian, c.clone()), 0x5_4321);
-        assert_eq!(bits(20, ByteOrder::BigEndian, c.clone()), 0x21_43_5);
-        assert_eq!(bits(20, ByteOrder::SwapBytes, c.clone()), 0x43_21_5);
-        assert_eq!(bits(20, ByteOrder::SwapWords, c), 0x5_21_43);
+        assert_eq!(bits(20, ByteOrder::BigEndian, c.clone()), 0x2_1435);
+        assert_eq!(bits(20, ByteOrder::SwapBytes, c.clone()), 0x4_3215);
+        assert_eq!(bits(20, ByteOrder::SwapWords, c), 0x5_2143);
         // 32 coils: as four register bytes.
         let c = coils(32, 0x4433_2211);
         assert_eq!(bits(32, ByteOrder::BigEndian, c.clone()), 0x1122_3344);
