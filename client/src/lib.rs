@@ -474,7 +474,17 @@ impl Client {
         Ok(())
     }
 
-    /// Removes a link declared at run time (its devices first).
+    /// Removes a standing transaction declared at run time.
+    pub async fn remove_transaction(&mut self, name: &str) -> Result<(), Error> {
+        self.inner
+            .remove_transaction(pb::RemoveTransactionRequest {
+                name: name.to_owned(),
+            })
+            .await?;
+        Ok(())
+    }
+
+    /// Removes a link declared at run time (its devices and transactions first).
     pub async fn remove_link(&mut self, name: &str) -> Result<(), Error> {
         self.inner
             .remove_link(pb::RemoveLinkRequest {

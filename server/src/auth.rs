@@ -174,9 +174,8 @@ pub fn grpc_role(path: &str) -> Option<Role> {
     }
     let method = path.rsplit('/').next().unwrap_or("");
     Some(match method {
-        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" | "RemoveDevice" | "RemoveLink" => {
-            Role::Admin
-        }
+        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" | "RemoveDevice" | "RemoveLink"
+        | "RemoveTransaction" => Role::Admin,
         "Write" | "Exchange" | "Transact" | "SetTransaction" => Role::Write,
         _ => Role::Read,
     })
@@ -275,6 +274,14 @@ mod tests {
         );
         assert_eq!(
             grpc_role("/iogate.v1.Gateway/RemoveLink"),
+            Some(Role::Admin)
+        );
+        assert_eq!(
+            grpc_role("/iogate.v1.Gateway/RemoveTransaction"),
+            Some(Role::Admin)
+        );
+        assert_eq!(
+            rest_role("DELETE", "/api/v1/transactions/poll"),
             Some(Role::Admin)
         );
     }

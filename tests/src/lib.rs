@@ -214,6 +214,10 @@ impl Drop for TestGateway {
 async fn json_of(response: reqwest::Response) -> anyhow::Result<(u16, serde_json::Value)> {
     let status = response.status().as_u16();
     let text = response.text().await?;
+    // An answer with no body (204) is null.
+    if text.is_empty() && status == 204 {
+        return Ok((status, serde_json::Value::Null));
+    }
     let json = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("status {status}, body is not JSON ({e}): {text}"))?;
     Ok((status, json))

@@ -434,7 +434,9 @@ async fn standing_reads_and_writes_repeat_and_can_be_switched_and_triggered() {
         "{before} {after}"
     );
 
-    // Declared at run time with no period: runs only when triggered.
+    // Declared at run time with no period: runs only when triggered, never by itself; a
+    // declared cyclic read first runs about 2 s after its declaration (source document 004).
+    let declared_at = std::time::Instant::now();
     let (status, declared) = gw
         .send(
             Method::PUT,
@@ -455,17 +457,52 @@ async fn standing_reads_and_writes_repeat_and_can_be_switched_and_triggered() {
         .await
         .expect("again");
     assert_eq!(again["name"], "once", "idempotent");
-    gw.until("/api/v1/transactions/once", "first run", |b| b["runs"] == 1)
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/transactions/cyclic",
+            json!({"link": "rs485", "function": 3, "slave": 1, "address": 0, "value_type": "UNSIGNED_NUMBER16",
+                   "byte_order": "BigEndian", "timeout_ms": 100, "refresh_interval_ms": 50}).to_string(),
+        )
         .await
-        .expect("one run at start");
+        .expect("declare");
+    assert_eq!(status, 200);
+    gw.until("/api/v1/transactions/cyclic", "first cyclic read", |b| {
+        b["runs"] == 1
+    })
+    .await
+    .expect("a first cyclic read");
+    let first = declared_at.elapsed();
+    assert!(
+        first >= std::time::Duration::from_millis(1900),
+        "first read after {first:?}"
+    );
+    let (_, once) = gw.get("/api/v1/transactions/once").await.expect("get");
+    assert_eq!(once["runs"], 0, "period 0 never runs by itself: {once}");
     gw.send(Method::POST, "/api/v1/transactions/once/trigger", "")
         .await
         .expect("trigger");
-    gw.until("/api/v1/transactions/once", "triggered", |b| b["runs"] == 2)
+    gw.until("/api/v1/transactions/once", "triggered", |b| b["runs"] == 1)
         .await
         .expect("triggered");
+
+    // A failed read keeps its last good value (the block's output 1) and says the error
+    // beside it.
+    bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    let failed = gw
+        .until("/api/v1/transactions/cyclic", "a failed read", |b| {
+            b["actual"] == false
+        })
+        .await
+        .expect("failed");
+    assert_eq!(
+        (&failed["value"], &failed["error"], &failed["state"]),
+        (&json!(215.0), &json!("Slave timeout"), &json!(-2)),
+        "{failed}"
+    );
+    bus.slave(1, |s| s.behaviour = Behaviour::Normal);
     let (_, list) = gw.get("/api/v1/transactions").await.expect("list");
-    assert_eq!(list["transactions"].as_array().map(Vec::len), Some(3));
+    assert_eq!(list["transactions"].as_array().map(Vec::len), Some(4));
     let metrics = gw.metrics().await.expect("metrics");
     assert!(
         metrics.contains("iogate_transaction_runs_total{transaction=\"temp\",outcome=\"ok\"}"),
@@ -701,6 +738,31 @@ async fn standing_transactions_over_grpc_are_declared_switched_and_streamed() {
         .expect("list")
         .into_inner();
     assert_eq!(listed.transactions.len(), 1);
+    // Removed: it runs no more and is gone from the list; removing it again is NOT_FOUND.
+    client
+        .raw()
+        .remove_transaction(proto::RemoveTransactionRequest {
+            name: "temp".into(),
+        })
+        .await
+        .expect("removed");
+    let listed = client
+        .raw()
+        .list_transactions(proto::ListTransactionsRequest {})
+        .await
+        .expect("list")
+        .into_inner();
+    assert!(listed.transactions.is_empty());
+    let again = client
+        .raw()
+        .remove_transaction(proto::RemoveTransactionRequest {
+            name: "temp".into(),
+        })
+        .await;
+    assert_eq!(
+        again.map(|_| ()).map_err(|s| s.code()),
+        Err(tonic::Code::NotFound)
+    );
     let missing = client
         .raw()
         .set_transaction(proto::SetTransactionRequest {
@@ -949,4 +1011,79 @@ async fn floats_keep_the_digits_the_device_meant_and_int32_is_always_an_integer(
     }
     gw.shutdown().await;
     server.abort();
+}
+
+#[tokio::test]
+async fn a_declared_transaction_is_removed_and_then_its_link_can_be() {
+    use iogate_tests::devices::{ModbusDevice, modbus_tcp_server};
+    let (port, server) = modbus_tcp_server(ModbusDevice::default()).await;
+    let (other, other_server) = modbus_tcp_server(ModbusDevice::default()).await;
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {port} }} }}\n\
+         transactions:\n  - {{ name: configured, link: plant, function: 3, slave: 1, address: 0, \
+         value_type: UNSIGNED_NUMBER16, byte_order: BigEndian, refresh_interval: 0s }}\n"
+    ))
+    .await
+    .expect("gateway");
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/links/rt",
+            json!({"tcp": {"host": "127.0.0.1", "port": other}}).to_string(),
+        )
+        .await
+        .expect("link");
+    assert!(status == 200 || status == 201, "{body}");
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/transactions/poll",
+            json!({"link": "rt", "function": 3, "slave": 1, "address": 0, "value_type": "UNSIGNED_NUMBER16",
+                   "byte_order": "BigEndian", "timeout_ms": 200, "refresh_interval_ms": 20}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 200, "{body}");
+    let (status, refused) = gw
+        .send(Method::DELETE, "/api/v1/links/rt", String::new())
+        .await
+        .expect("delete");
+    assert_eq!(status, 409, "{refused}");
+    assert!(
+        refused["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("transaction poll")),
+        "{refused}"
+    );
+    let (status, body) = gw
+        .send(Method::DELETE, "/api/v1/transactions/poll", String::new())
+        .await
+        .expect("delete");
+    assert_eq!(status, 204, "{body}");
+    let (status, _) = gw.get("/api/v1/transactions/poll").await.expect("get");
+    assert_eq!(status, 404);
+    let (status, body) = gw
+        .send(Method::DELETE, "/api/v1/links/rt", String::new())
+        .await
+        .expect("delete");
+    assert_eq!(status, 204, "{body}");
+    // One from the config file stays, as configured devices do.
+    let (status, body) = gw
+        .send(
+            Method::DELETE,
+            "/api/v1/transactions/configured",
+            String::new(),
+        )
+        .await
+        .expect("delete");
+    assert_eq!(status, 409, "{body}");
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("comes from the config file")),
+        "{body}"
+    );
+    gw.shutdown().await;
+    server.abort();
+    other_server.abort();
 }

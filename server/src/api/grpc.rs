@@ -529,6 +529,16 @@ impl Gateway for GrpcApi {
             .map_err(status)?;
         Ok(Response::new(pb::RemoveLinkResponse {}))
     }
+
+    async fn remove_transaction(
+        &self,
+        request: Request<pb::RemoveTransactionRequest>,
+    ) -> Result<Response<pb::RemoveTransactionResponse>, Status> {
+        self.service
+            .remove_transaction(&request.into_inner().name)
+            .map_err(status)?;
+        Ok(Response::new(pb::RemoveTransactionResponse {}))
+    }
 }
 
 #[cfg(test)]

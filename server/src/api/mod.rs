@@ -49,7 +49,8 @@ pub const MAX_BODY: usize = 1024 * 1024;
         events::events, declare::put_link, declare::put_device, declare::delete_link, declare::delete_device, openapi_json, metrics,
         map::get_map, map::get_located, map::put_located, map::get_memory,
         transactions::post_transaction, transactions::list_standing,
-        transactions::get_standing, transactions::put_standing, transactions::enable_standing,
+        transactions::get_standing, transactions::put_standing, transactions::delete_standing,
+        transactions::enable_standing,
         transactions::disable_standing, transactions::trigger_standing,
         transactions::put_standing_values,
     ),
@@ -182,7 +183,9 @@ pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Route
         .route("/transactions", get(transactions::list_standing))
         .route(
             "/transactions/{name}",
-            get(transactions::get_standing).put(transactions::put_standing),
+            get(transactions::get_standing)
+                .put(transactions::put_standing)
+                .delete(transactions::delete_standing),
         )
         .route(
             "/transactions/{name}/enable",

@@ -211,6 +211,21 @@ pub async fn put_standing(
     answer(&s)
 }
 
+/// Removes a standing transaction declared at run time: it runs no more, and its link can
+/// then be removed; one from the config file stays.
+#[utoipa::path(delete, path = "/api/v1/transactions/{name}", tag = "transactions",
+    params(("name" = String, Path, description = "transaction name")),
+    responses((status = 204, description = "the transaction was removed"),
+              (status = 404, description = "no such transaction", body = ErrorBody),
+              (status = 409, description = "the transaction comes from the config file", body = ErrorBody)))]
+pub async fn delete_standing(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Result<axum::http::StatusCode, ApiError> {
+    service.remove_transaction(&name)?;
+    Ok(axum::http::StatusCode::NO_CONTENT)
+}
+
 /// Enables a standing transaction.
 #[utoipa::path(post, path = "/api/v1/transactions/{name}/enable", tag = "transactions",
     params(("name" = String, Path, description = "transaction name")),

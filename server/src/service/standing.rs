@@ -13,6 +13,9 @@ use super::{Service, ServiceError};
 use crate::config::transactions::StandingConfig;
 use crate::transaction::{Outcome, Plan, TransactionSpec};
 
+/// How long after start (or declaration) a standing read first runs by itself.
+pub const FIRST_CYCLIC_READ: Duration = Duration::from_secs(2);
+
 /// The latest state of a standing transaction.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StandingStatus {
@@ -34,6 +37,10 @@ pub struct Standing {
     status: watch::Sender<StandingStatus>,
     /// Wakes the task: enabled, values changed, or a trigger.
     wake: Notify,
+    /// The config file's line, 0 for one declared at run time.
+    line: u64,
+    /// Stops its task when it is removed (a child of the gateway's token).
+    stop: tokio_util::sync::CancellationToken,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -60,7 +67,7 @@ impl Standing {
             spec: self.spec(),
             period: self.period,
             enabled: self.status().enabled,
-            line: 0,
+            line: self.line,
         }
     }
 }
@@ -148,6 +155,8 @@ impl Service {
                 updated: None,
             }),
             wake: Notify::new(),
+            line: config.line,
+            stop: self.tasks().token().child_token(),
         });
         set.push(standing.clone());
         drop(set);
@@ -188,6 +197,31 @@ impl Service {
         Ok(s)
     }
 
+    /// Removes a standing transaction declared at run time: its task stops (a run in flight
+    /// is finished by the link, its answer dropped) and its link can then be removed. One
+    /// from the config file stays, as configured devices do.
+    pub fn remove_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
+        self.accepting()?;
+        let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
+        let at = set
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| ServiceError::UnknownTransaction(crate::text::quote(name)))?;
+        if set[at].line != 0 {
+            return Err(ServiceError::Declare(
+                crate::declare::DeclareError::FromConfig {
+                    what: "transaction",
+                    name: set[at].name.clone(),
+                },
+            ));
+        }
+        let removed = set.remove(at);
+        drop(set);
+        removed.stop.cancel();
+        tracing::info!(transaction = %removed.name, "transaction removed");
+        Ok(removed)
+    }
+
     /// Runs a standing transaction now; ignored while one of its runs is in flight.
     pub fn trigger_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         let s = self.transaction(name)?;
@@ -196,23 +230,62 @@ impl Service {
     }
 
     async fn run_standing(self: Arc<Self>, s: Arc<Standing>) {
-        let token = self.tasks().token().clone();
+        let token = s.stop.clone();
+        // Source document 004: the first cyclic read about 2 s after start (of the gateway
+        // for a configured read, of its declaration for a declared one). A write starts at
+        // once, as the write block does while `enable` is held. Period 0: only when
+        // triggered (or, for a write, when its values are set or it is enabled).
+        let mut next = match (s.period.is_zero(), s.is_write) {
+            (true, _) => None,
+            (false, true) => Some(Instant::now()),
+            (false, false) => Some(Instant::now() + FIRST_CYCLIC_READ),
+        };
         loop {
             if !s.status().enabled {
                 tokio::select! {
                     _ = token.cancelled() => return,
-                    _ = s.wake.notified() => continue,
+                    _ = s.wake.notified() => {}
                 }
+                if s.status().enabled && !s.period.is_zero() {
+                    next = Some(Instant::now());
+                }
+                continue;
+            }
+            let due = async {
+                match next {
+                    Some(at) => sleep_until(at).await,
+                    None => std::future::pending::<()>().await,
+                }
+            };
+            tokio::select! {
+                _ = token.cancelled() => return,
+                _ = due => {}
+                _ = s.wake.notified() => {}
+            }
+            if !s.status().enabled {
+                continue;
             }
             let started = Instant::now();
-            let outcome = self.transact(&s.link, &s.spec()).await;
+            let spec = s.spec();
+            let outcome = tokio::select! {
+                _ = token.cancelled() => return,
+                outcome = self.transact(&s.link, &spec) => outcome,
+            };
             let ok = matches!(&outcome, Ok(o) if o.actual);
             s.status.send_modify(|st| {
                 st.runs += 1;
                 if !ok {
                     st.failures += 1;
                 }
-                st.last = outcome.as_ref().ok().cloned();
+                // The read block's output 1 keeps the last value read correctly; the error
+                // is said beside it.
+                let kept = st.last.as_ref().and_then(|o| o.value);
+                st.last = outcome.as_ref().ok().cloned().map(|mut o| {
+                    if !o.actual && !s.is_write {
+                        o.value = kept;
+                    }
+                    o
+                });
                 st.updated = Some(SystemTime::now());
             });
             self.metrics.transaction_run(&s.name, ok);
@@ -220,23 +293,11 @@ impl Service {
                 return;
             }
             // Writes repeat from the start of the previous one, reads after it finished.
-            let next = if s.is_write {
-                started + s.period
-            } else {
-                Instant::now() + s.period
+            next = match (s.period.is_zero(), s.is_write) {
+                (true, _) => None,
+                (false, true) => Some(started + s.period),
+                (false, false) => Some(Instant::now() + s.period),
             };
-            let wait = async {
-                if s.period.is_zero() {
-                    std::future::pending::<()>().await;
-                } else {
-                    sleep_until(next).await;
-                }
-            };
-            tokio::select! {
-                _ = token.cancelled() => return,
-                _ = wait => {}
-                _ = s.wake.notified() => {}
-            }
         }
     }
 }
