@@ -19,7 +19,8 @@ use crate::cache::Cache;
 use crate::link::TxError;
 use crate::link::frame::Function;
 
-pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+mod format;
+pub use format::Format;
 
 // Counter names get `_total` appended by the encoder.
 pub const LINK_UP: &str = "iogate_link_up";
@@ -425,8 +426,8 @@ impl Metrics {
             .inc();
     }
 
-    /// The registry in OpenMetrics text, with states copied from the cache first.
-    pub fn render(&self, cache: &Cache) -> String {
+    /// The registry in the text format `format`, with states copied from the cache first.
+    pub fn render(&self, cache: &Cache, format: Format) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.
         self.link_up.clear();
         self.link_error_code.clear();
@@ -496,6 +497,9 @@ impl Metrics {
         if prometheus_client::encoding::text::encode(&mut out, &self.registry).is_err() {
             tracing::error!("cannot encode the metrics");
         }
-        out
+        match format {
+            Format::OpenMetrics => out,
+            Format::Prometheus => format::to_prometheus(&out),
+        }
     }
 }

@@ -356,6 +356,100 @@ async fn every_metric_of_the_dashboard_and_the_alerts_is_exported() {
     task.abort();
 }
 
+/// Runs `program` with `input` on its standard input; its exit status and output.
+fn piped(program: &str, args: &[&str], input: &str) -> (bool, String) {
+    use std::io::Write;
+    let mut child = Command::new(program)
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("{program}: {e}"));
+    if let Some(mut stdin) = child.stdin.take() {
+        stdin.write_all(input.as_bytes()).expect("stdin");
+    }
+    let out = child.wait_with_output().expect("output");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+#[tokio::test]
+async fn metrics_pass_promtool_and_openmetrics_is_served_to_who_asks_for_it() {
+    tools();
+    let (gw, _pty, task, _) = busy_gateway().await;
+    let client = reqwest::Client::new();
+    let scrape = |accept: Option<&'static str>| {
+        let request = client.get(gw.url("/metrics"));
+        let request = match accept {
+            Some(a) => request.header("accept", a),
+            None => request,
+        };
+        async move {
+            let response = request.send().await.expect("scrape");
+            let content_type = response
+                .headers()
+                .get("content-type")
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("")
+                .to_owned();
+            (content_type, response.text().await.expect("body"))
+        }
+    };
+    // As curl asks: the Prometheus text format 0.0.4, which promtool checks and lints.
+    for accept in [None, Some("*/*"), Some("text/plain;version=0.0.4")] {
+        let (content_type, text) = scrape(accept).await;
+        assert_eq!(
+            content_type, "text/plain; version=0.0.4; charset=utf-8",
+            "{accept:?}"
+        );
+        assert!(
+            !text.contains("# EOF") && !text.contains("# UNIT"),
+            "{text}"
+        );
+        assert!(
+            text.contains("# TYPE iogate_device_requests_total counter"),
+            "{text}"
+        );
+        let (ok, report) = piped("promtool", &["check", "metrics"], &text);
+        assert!(ok, "promtool check metrics:\n{report}\n{text}");
+    }
+    // As Prometheus asks: OpenMetrics 1.0, read by the official Python client's parser.
+    let (content_type, text) = scrape(Some(
+        "application/openmetrics-text;version=1.0.0,application/openmetrics-text;version=0.0.1;q=0.75,text/plain;version=0.0.4;q=0.5,*/*;q=0.1",
+    ))
+    .await;
+    assert_eq!(
+        content_type,
+        "application/openmetrics-text; version=1.0.0; charset=utf-8"
+    );
+    assert!(text.ends_with("# EOF\n"), "{text}");
+    let (ok, report) = piped(
+        "python3",
+        &[
+            "-c",
+            "import sys\nfrom prometheus_client.openmetrics.parser import text_string_to_metric_families as parse\n\
+             families = list(parse(sys.stdin.read()))\nprint(len(families), sum(len(f.samples) for f in families))",
+        ],
+        &text,
+    );
+    assert!(ok, "the OpenMetrics parser refused it:\n{report}\n{text}");
+    let counts: Vec<usize> = report
+        .split_whitespace()
+        .filter_map(|n| n.parse().ok())
+        .collect();
+    assert!(
+        counts.len() == 2 && counts[0] >= 10 && counts[1] >= 30,
+        "families and samples: {report}"
+    );
+    gw.shutdown().await;
+    task.abort();
+}
+
 #[tokio::test]
 async fn a_real_prometheus_scrapes_the_gateway_and_evaluates_every_alert_rule() {
     tools();

@@ -23,7 +23,7 @@ use std::sync::Arc;
 use axum::Json;
 use axum::Router;
 use axum::extract::State;
-use axum::http::{Uri, header};
+use axum::http::{HeaderMap, Uri, header};
 use axum::response::IntoResponse;
 use axum::routing::{get, put};
 use tokio::net::TcpListener;
@@ -77,14 +77,17 @@ async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
     Json(openapi())
 }
 
-/// Prometheus metrics in the OpenMetrics text format.
+/// Prometheus metrics: the Prometheus text format 0.0.4, or OpenMetrics 1.0 when the
+/// scraper asks for it in `Accept` (as Prometheus does).
 #[utoipa::path(get, path = "/metrics", tag = "health",
     responses((status = 200, description = "every metric family, with states copied from the cache at the scrape",
-               content_type = "application/openmetrics-text")))]
-async fn metrics(State(service): State<Arc<Service>>) -> impl IntoResponse {
+               content((String = "text/plain"), (String = "application/openmetrics-text")))))]
+async fn metrics(State(service): State<Arc<Service>>, headers: HeaderMap) -> impl IntoResponse {
+    let accept = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok());
+    let format = crate::metrics::Format::negotiate(accept);
     (
-        [(header::CONTENT_TYPE, crate::metrics::CONTENT_TYPE)],
-        service.metrics.render(&service.cache),
+        [(header::CONTENT_TYPE, format.content_type())],
+        service.metrics.render(&service.cache, format),
     )
 }
 
