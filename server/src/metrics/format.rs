@@ -100,10 +100,7 @@ pub fn to_prometheus(openmetrics: &str) -> String {
         if line.starts_with('#') {
             continue;
         }
-        let metric = line
-            .split(|c: char| c == '{' || c == ' ')
-            .next()
-            .unwrap_or("");
+        let metric = line.split(['{', ' ']).next().unwrap_or("");
         let created = metric
             .strip_suffix("_created")
             .is_some_and(|family| types.get(family) == Some(&"counter"));
@@ -124,7 +121,8 @@ pub fn to_prometheus(openmetrics: &str) -> String {
 
 /// Where a sample's label set ends (after its closing brace), or 0 without one.
 fn label_end(line: &str) -> usize {
-    let Some(open) = line.find('{') else {
+    // A label set follows the name directly; a brace after a space is an exemplar's.
+    let Some(open) = line.find(['{', ' ']).filter(|&at| line[at..].starts_with('{')) else {
         return 0;
     };
     let mut quoted = false;
