@@ -123,6 +123,8 @@ pub struct Running {
     pub grpc_addr: SocketAddr,
     /// The Modbus TCP server's address, when one is configured.
     pub modbus_addr: Option<SocketAddr>,
+    /// Whether HTTP and gRPC are served over TLS.
+    pub secure: bool,
     tracker: TaskTracker,
 }
 
@@ -149,7 +151,9 @@ impl Running {
 }
 
 /// Binds the listeners and starts every task. The HTTP listener's address (port 0 picks a
-/// free port) is in the result.
+/// free port) is in the result. Every listener is bound (and the access configuration and
+/// the Modbus memory read) before any link is opened or any device polled, so a gateway
+/// that cannot serve stops without having touched a bus.
 pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let Setup {
         config,
@@ -157,9 +161,36 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         map,
         ..
     } = setup;
+    let config::Access { tokens, tls } =
+        config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
+    let modbus_listener = match &config.modbus_server {
+        Some(server) => Some(TcpListener::bind(server.listen).await.map_err(|e| {
+            anyhow::anyhow!(
+                "cannot listen on {} (modbus_server.listen): {e}",
+                server.listen
+            )
+        })?),
+        None => None,
+    };
+    let listener = TcpListener::bind(config.http)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
+    let http_addr = listener.local_addr()?;
+    let grpc_listener = TcpListener::bind(config.grpc)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc): {e}", config.grpc))?;
+    let grpc_addr = grpc_listener.local_addr()?;
+
     let token = CancellationToken::new();
     let tracker = TaskTracker::new();
     let cache = Arc::new(Cache::new(&config, catalog));
+    let image = match (&config.modbus_server, &map) {
+        (Some(server), Some(plan)) => Some(
+            crate::service::ModbusImage::new(server, plan, &cache)
+                .map_err(|e| anyhow::anyhow!("{e} (modbus_server.memory_file)"))?,
+        ),
+        _ => None,
+    };
 
     let tasks = Tasks::new(tracker.clone(), token.clone(), Arc::new(Metrics::new()));
     for device in cache.devices() {
@@ -172,8 +203,6 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     }
     tasks.spawn(crate::poller::watchdog::run(cache.clone(), token.clone()));
 
-    let config::Access { tokens, tls } =
-        config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
     let tls = tls.map(Arc::new);
     if let Some(tls) = &tls {
         tracker.spawn(tls.clone().watch(token.clone()));
@@ -190,18 +219,8 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let mut service = Service::new(cache.clone(), tasks)
         .with_policy(config.security.declare.clone())
         .with_access(tokens, config.security.read_only);
-    let mut modbus_listener = None;
-    if let (Some(server), Some(plan)) = (&config.modbus_server, &map) {
-        let image = crate::service::ModbusImage::new(server, plan, &cache)
-            .map_err(|e| anyhow::anyhow!("{e} (modbus_server.memory_file)"))?;
+    if let Some(image) = image {
         service = service.with_modbus(image);
-        let listener = TcpListener::bind(server.listen).await.map_err(|e| {
-            anyhow::anyhow!(
-                "cannot listen on {} (modbus_server.listen): {e}",
-                server.listen
-            )
-        })?;
-        modbus_listener = Some(listener);
     }
     let service = Arc::new(service);
     for standing in &config.transactions {
@@ -222,16 +241,9 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         }
         None => None,
     };
-    let listener = TcpListener::bind(config.http)
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
-    let http_addr = listener.local_addr()?;
-    let grpc_listener = TcpListener::bind(config.grpc)
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc): {e}", config.grpc))?;
-    let grpc_addr = grpc_listener.local_addr()?;
     let (grpc_service, shutdown) = (service.clone(), token.clone());
     let header_timeout = config.header_timeout;
+    let secure = tls.is_some();
     let grpc_tls = tls.clone();
     tracker.spawn(async move {
         let served = api::serve_grpc(
@@ -270,6 +282,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         http_addr,
         grpc_addr,
         modbus_addr,
+        secure,
         tracker,
     })
 }
@@ -279,10 +292,12 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     let demo = setup.demo;
     let signal = shutdown_signal();
     let running = start(setup).await?;
-    let base = format!("http://{}", running.http_addr);
+    let scheme = if running.secure { "https" } else { "http" };
+    let base = format!("{scheme}://{}", running.http_addr);
     if demo {
         println!("iogate is running its built-in demo (simulated devices sim and plant).");
     }
+    println!("Web page:  {base}/ui");
     println!("REST API:  {base}/api/v1/devices");
     println!(
         "gRPC:      {} (iogate.v1.Gateway, reflection, health)",

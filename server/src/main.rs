@@ -219,7 +219,8 @@ fn main() -> ExitCode {
     match runtime.block_on(app::run(setup)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("iogate: {e:#}");
+            // A log line, so a log collector reading JSON lines sees why.
+            tracing::error!(error = %format!("{e:#}"), "the gateway could not start");
             ExitCode::FAILURE
         }
     }

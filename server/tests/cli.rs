@@ -230,7 +230,7 @@ fn serve_runs_until_sigterm_and_exits_promptly() {
     std::fs::write(
         &config,
         format!(
-            "listen: {{ http: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}\n",
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}\n",
             repo().join("profiles").display()
         ),
     )
@@ -252,8 +252,11 @@ fn serve_runs_until_sigterm_and_exits_promptly() {
     let line = rx
         .recv_timeout(Duration::from_secs(20))
         .expect("prints its URLs");
-    assert!(line.starts_with("REST API:  http://127.0.0.1:"), "{line}");
+    assert!(line.starts_with("Web page:  http://127.0.0.1:"), "{line}");
+    assert!(line.ends_with("/ui"), "{line}");
     assert!(!line.contains(":0/"), "prints the bound port: {line}");
+    let line = rx.recv_timeout(Duration::from_secs(5)).expect("REST");
+    assert!(line.starts_with("REST API:  http://127.0.0.1:"), "{line}");
 
     let killed = Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
@@ -272,6 +275,47 @@ fn serve_runs_until_sigterm_and_exits_promptly() {
         );
         std::thread::sleep(Duration::from_millis(20));
     }
+}
+
+#[test]
+fn serve_that_cannot_listen_stops_before_it_touches_a_bus() {
+    // A device's TCP endpoint that records whether the gateway ever connected.
+    let device = std::net::TcpListener::bind("127.0.0.1:0").expect("device");
+    device.set_nonblocking(true).expect("nonblocking");
+    let device_port = device.local_addr().expect("addr").port();
+    // The HTTP port, taken.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("taken");
+    let taken_port = taken.local_addr().expect("addr").port();
+    let dir = temp_dir("no-listen");
+    let config = dir.join("iogate.yaml");
+    std::fs::write(
+        &config,
+        format!(
+            "listen: {{ http: 127.0.0.1:{taken_port}, grpc: 127.0.0.1:0 }}\nprofiles: {}\nlinks:\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {device_port} }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: plant, slave_id: 1, refresh_rate: 10ms }}\n",
+            repo().join("profiles").display()
+        ),
+    )
+    .expect("write config");
+    let out = iogate()
+        .args(["serve", "--config"])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "cannot listen on 127.0.0.1:{taken_port} (listen.http)"
+        )),
+        "{stderr}"
+    );
+    assert!(out.stdout.is_empty(), "no URLs printed");
+    match device.accept() {
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+        other => panic!("the gateway connected to the device: {other:?}"),
+    }
+    drop(taken);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -371,8 +415,8 @@ fn version_and_json_logs_for_log_collectors() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.starts_with("iogate "), "{text}");
 
-    // A gateway whose HTTP port is taken logs "no tokens configured" and then fails to
-    // start: the log line is one JSON object.
+    // A gateway whose HTTP port is taken fails to start and says why in a log line: one
+    // JSON object.
     let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
     let port = taken.local_addr().expect("addr").port();
     let dir = temp_dir("json-logs");
@@ -401,16 +445,17 @@ fn version_and_json_logs_for_log_collectors() {
         let stderr = String::from_utf8_lossy(&out.stderr);
         let line = stderr
             .lines()
-            .find(|l| l.contains("no tokens configured"))
+            .find(|l| l.contains("could not start"))
             .unwrap_or_else(|| panic!("no log line: {stderr}"));
+        assert!(line.contains("(listen.http)"), "{line}");
         let parsed = serde_json::from_str::<serde_json::Value>(line);
         if json {
             let object = parsed.unwrap_or_else(|e| panic!("{e}: {line}"));
-            assert_eq!(object["level"], "INFO", "{object}");
+            assert_eq!(object["level"], "ERROR", "{object}");
             assert!(object["timestamp"].is_string(), "{object}");
         } else {
             assert!(parsed.is_err(), "text, not JSON: {line}");
-            assert!(line.contains("INFO"), "{line}");
+            assert!(line.contains("ERROR"), "{line}");
         }
     }
     drop(taken);

@@ -45,12 +45,15 @@ pub struct Binding {
 }
 
 impl Binding {
-    /// The device's error code for this binding (a simulated device needs none).
+    /// The device's error code for this binding before its first answer: 1 or 2 for what is
+    /// missing, else 10 (not responding yet), so `error_code` is 0 exactly when `connected`
+    /// is true. A simulated device needs no binding and answers from the start.
     fn code(&self, simulated: bool) -> DeviceCode {
         match (simulated, &self.link, self.slave_id) {
+            (true, _, _) => DeviceCode::Ok,
             (false, None, _) => DeviceCode::NoLink,
             (false, _, None) => DeviceCode::NoSlave,
-            _ => DeviceCode::Ok,
+            (false, Some(_), Some(_)) => DeviceCode::CommError,
         }
     }
 }
@@ -74,7 +77,7 @@ impl Device {
                 .map(|_| watch::Sender::new(Sample::never_read()))
                 .collect(),
             diagnostics: watch::Sender::new(Diagnostics {
-                connected: false,
+                connected: simulated,
                 error_code,
                 io_cycles: 0,
                 last_response_ms: 0.0,

@@ -231,6 +231,17 @@ mod tests {
         Cache::new(&config, Catalog::new([profile]))
     }
 
+    #[test]
+    fn before_its_first_answer_a_device_is_not_connected_and_says_why() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        let d = io.diagnostics();
+        assert_eq!((d.connected, d.error_code), (false, DeviceCode::CommError));
+        io.record_cycle(true, Duration::from_millis(3));
+        let d = io.diagnostics();
+        assert_eq!((d.connected, d.error_code), (true, DeviceCode::Ok));
+    }
+
     #[tokio::test(start_paused = true)]
     async fn a_value_gone_stale_is_told_once_and_its_next_refresh_again() {
         let cache = cache();

@@ -122,7 +122,10 @@ pub fn to_prometheus(openmetrics: &str) -> String {
 /// Where a sample's label set ends (after its closing brace), or 0 without one.
 fn label_end(line: &str) -> usize {
     // A label set follows the name directly; a brace after a space is an exemplar's.
-    let Some(open) = line.find(['{', ' ']).filter(|&at| line[at..].starts_with('{')) else {
+    let Some(open) = line
+        .find(['{', ' '])
+        .filter(|&at| line[at..].starts_with('{'))
+    else {
         return 0;
     };
     let mut quoted = false;

@@ -41,5 +41,29 @@ pub fn utilisation<'a>(
             cycle_time(batches, timing, guard).as_secs_f64()
                 / d.refresh_rate.as_secs_f64().max(1e-6)
         })
-        .sum()
+        // Not `sum()`: the sum of no floats is -0.0, and a link with no devices would
+        // report a utilisation of -0.0.
+        .fold(0.0, |total, u| total + u)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_link_with_no_devices_uses_none_of_the_line_not_minus_zero() {
+        let line = crate::config::SerialSettings {
+            port: "/dev/ttyUSB0".to_owned(),
+            baud: 9600,
+            parity: crate::config::Parity::None,
+            data_bits: 8,
+            stop_bits: 1,
+        };
+        let u = utilisation(
+            std::iter::empty::<(&DeviceConfig, &[ReadBatch])>(),
+            &LineTiming::new(&line),
+            Duration::ZERO,
+        );
+        assert_eq!(u.to_bits(), 0.0f64.to_bits(), "{u}");
+    }
 }
