@@ -436,3 +436,58 @@ async fn a_failed_write_shows_as_a_mismatch_on_the_event_stream_at_once() {
     gw.shutdown().await;
     task.abort();
 }
+
+#[tokio::test]
+async fn a_patch_of_adjacent_outputs_is_always_one_write_group() {
+    let bus = RtuBus::default();
+    bus.slave(1, |_| {});
+    let (gw, _pty, task, _) = bus_gateway(
+        "one-group",
+        &bus,
+        &[],
+        "  - { name: vfd, profile: GenericVfd, link: bus, slave_id: 1, refresh_rate: 1s }\n",
+    )
+    .await;
+    gw.until("/api/v1/devices/vfd", "connected", |b| {
+        b["connected"] == true
+    })
+    .await
+    .expect("connected");
+    // FrequencySetpoint (register 1), AccelTime (2-3), DecelTime (4-5): adjacent, so one
+    // FC16 of 5 registers at 1 each time, however the request meets the device's task.
+    let mut last = 0;
+    for k in 0..40u64 {
+        let (status, body) = gw
+            .send(
+                Method::PATCH,
+                "/api/v1/devices/vfd/fields",
+                json!({"FrequencySetpoint": 10 + k, "AccelTime": 1000 + k, "DecelTime": 2000 + k})
+                    .to_string(),
+            )
+            .await
+            .expect("patch");
+        assert_eq!(status, 202, "{body}");
+        last = body["writes"]
+            .as_array()
+            .and_then(|w| w.iter().filter_map(|w| w["generation"].as_u64()).max())
+            .unwrap_or_else(|| panic!("generations: {body}"));
+        // The task idle, waiting for the next request: it wakes at its first write.
+        outcome(&gw, last).await;
+    }
+    outcome(&gw, last).await;
+    let writes: Vec<_> = bus
+        .seen()
+        .into_iter()
+        .filter(|s| matches!(s.function, 6 | 16))
+        .collect();
+    assert!(!writes.is_empty());
+    for w in &writes {
+        assert_eq!((w.function, w.address, w.count), (16, 1, 5), "{writes:?}");
+    }
+    assert_eq!(
+        bus.read_slave(1, |s| s.tables.holding[1..6].to_vec()),
+        Some(vec![4900, 0, 1039, 0, 2039]),
+    );
+    gw.shutdown().await;
+    task.abort();
+}

@@ -304,6 +304,28 @@ impl Device {
         Ok(self.request(idx, value, Origin::Client, Some(writer)))
     }
 
+    /// Requests several checked writes of this device as one: the device's task takes them
+    /// together (so adjacent registers become one FC16, never an FC06 and an FC16), and is
+    /// woken once. Nothing is requested when one is refused.
+    pub fn request_writes(
+        &self,
+        writes: Vec<(usize, Value)>,
+        writer: Option<u64>,
+    ) -> Result<Vec<u64>, AccessError> {
+        for (idx, value) in &writes {
+            self.check_write(*idx, value)?;
+        }
+        let named = writes
+            .into_iter()
+            .map(|(idx, value)| (self.field(idx).name.as_str(), idx, value))
+            .collect();
+        let generations = self
+            .outputs
+            .request_all(self.name(), named, Origin::Client, writer);
+        lock(&self.wake).notify_one();
+        Ok(generations)
+    }
+
     /// Requests a write the gateway asks for itself (`origin`).
     pub fn request_own(&self, idx: usize, value: Value, origin: Origin) -> u64 {
         self.request(idx, value, origin, None)

@@ -116,6 +116,32 @@ impl Outputs {
         generation
     }
 
+    /// Requests several writes at once (`(field name, idx, value)`), under one lock: the
+    /// device's task takes all of them or none, so one client request is one write group.
+    pub fn request_all(
+        &self,
+        device: &str,
+        writes: Vec<(&str, usize, Value)>,
+        origin: Origin,
+        writer: Option<u64>,
+    ) -> Vec<u64> {
+        let mut slots = lock(&self.slots);
+        writes
+            .into_iter()
+            .map(|(field, idx, value)| {
+                let slot = &mut slots[idx];
+                let generation = self.log.begin_from(device, field, value.clone(), origin);
+                if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
+                    self.log.finish(old, WriteStatus::Superseded, None);
+                }
+                slot.latest = Some(value);
+                slot.last_generation = Some(generation);
+                slot.writer = writer;
+                generation
+            })
+            .collect()
+    }
+
     /// Records a write of field `idx`'s requested value that the device's task sends now
     /// on its own (after a reconnect); it becomes the field's newest write.
     pub fn replay(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {

@@ -118,10 +118,49 @@ impl Service {
             }
             return Err(ServiceError::NothingWritten(access));
         }
-        ok.into_iter()
-            .filter_map(Result::ok)
-            .map(|w| self.write(w))
-            .collect()
+        self.request_group(ok.into_iter().filter_map(Result::ok).collect(), None)
+    }
+
+    /// Requests checked writes as one: those of one device together, so its task takes
+    /// them in one go and plans them as one write group. Answers in the order given.
+    fn request_group(
+        &self,
+        writes: Vec<Prepared>,
+        writer: Option<u64>,
+    ) -> Result<Vec<Accepted>, ServiceError> {
+        self.accepting_writes()?;
+        // Devices in the order they first appear; each with its writes' positions.
+        let mut groups: Vec<(Arc<Device>, Vec<(usize, usize, Value)>)> = Vec::new();
+        for (at, w) in writes.into_iter().enumerate() {
+            match groups.iter_mut().find(|(d, _)| Arc::ptr_eq(d, &w.device)) {
+                Some((_, items)) => items.push((at, w.idx, w.value)),
+                None => groups.push((w.device, vec![(at, w.idx, w.value)])),
+            }
+        }
+        let mut accepted: Vec<(usize, Accepted)> = Vec::new();
+        for (device, items) in groups {
+            let positions: Vec<(usize, usize)> =
+                items.iter().map(|(at, idx, _)| (*at, *idx)).collect();
+            let generations = device.request_writes(
+                items
+                    .into_iter()
+                    .map(|(_, idx, value)| (idx, value))
+                    .collect(),
+                writer,
+            )?;
+            for ((at, idx), generation) in positions.into_iter().zip(generations) {
+                accepted.push((
+                    at,
+                    Accepted {
+                        device: device.name().to_owned(),
+                        field: device.field(idx).name.clone(),
+                        generation,
+                    },
+                ));
+            }
+        }
+        accepted.sort_by_key(|(at, _)| *at);
+        Ok(accepted.into_iter().map(|(_, a)| a).collect())
     }
 
     /// Where the write with `generation` stands.
@@ -278,7 +317,7 @@ impl ScanCycle {
                 }
             }
         }
-        let mut acks = Vec::new();
+        let mut changed = Vec::new();
         for out in outputs {
             match out {
                 Ok(w) if w.device.latest_value(w.idx).as_ref() == Some(&w.value) => {
@@ -297,13 +336,18 @@ impl ScanCycle {
                         ));
                     }
                 }
-                Ok(w) => match self.service.write_as(w, Some(self.id)) {
-                    Ok(ack) => acks.push(ack),
-                    Err(e) => errors.push(e.to_string()),
-                },
+                Ok(w) => changed.push(w),
                 Err(e) => errors.push(e.to_string()),
             }
         }
+        // The cycle's changed outputs as one request: one write group per device.
+        let acks = match self.service.request_group(changed, Some(self.id)) {
+            Ok(acks) => acks,
+            Err(e) => {
+                errors.push(e.to_string());
+                Vec::new()
+            }
+        };
         self.cycle += 1;
         CycleOutcome {
             cycle: self.cycle,
