@@ -129,8 +129,10 @@ impl Service {
         writer: Option<u64>,
     ) -> Result<Vec<Accepted>, ServiceError> {
         self.accepting_writes()?;
-        // Devices in the order they first appear; each with its writes' positions.
-        let mut groups: Vec<(Arc<Device>, Vec<(usize, usize, Value)>)> = Vec::new();
+        // Devices in the order they first appear; each with its writes (position, field,
+        // value).
+        type Group = (Arc<Device>, Vec<(usize, usize, Value)>);
+        let mut groups: Vec<Group> = Vec::new();
         for (at, w) in writes.into_iter().enumerate() {
             match groups.iter_mut().find(|(d, _)| Arc::ptr_eq(d, &w.device)) {
                 Some((_, items)) => items.push((at, w.idx, w.value)),
