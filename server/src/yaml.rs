@@ -21,14 +21,17 @@ pub struct Problem {
 }
 
 impl fmt::Display for Problem {
+    /// `file:line: context: message`; a message's further lines (iogate's detail after a
+    /// source document's own words) are indented under it.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let message = self.message.replace('\n', "\n    ");
         if self.context.is_empty() {
-            write!(f, "{}:{}: {}", self.file, self.line, self.message)
+            write!(f, "{}:{}: {message}", self.file, self.line)
         } else {
             write!(
                 f,
-                "{}:{}: {}: {}",
-                self.file, self.line, self.context, self.message
+                "{}:{}: {}: {message}",
+                self.file, self.line, self.context
             )
         }
     }

@@ -1,5 +1,6 @@
 //! Every broken profile and config in `fixtures/` is rejected with exactly the problems its
-//! `# expect: [FILE:]LINE: TEXT` comments name, each at its line.
+//! `# expect: [FILE:]LINE: TEXT` comments name, each at its line (`\n` in TEXT is a line
+//! break).
 
 use std::path::{Path, PathBuf};
 
@@ -26,7 +27,7 @@ fn expectations(path: &Path) -> Vec<Expectation> {
             Expectation {
                 file,
                 line: line.parse().expect("line number"),
-                text: text.to_owned(),
+                text: text.replace("\\n", "\n"),
             }
         })
         .collect()

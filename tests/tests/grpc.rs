@@ -269,7 +269,12 @@ async fn declarations_are_idempotent_and_conflicts_are_named() {
             .await,
     );
     assert_eq!(c, Code::FailedPrecondition);
-    assert!(message.contains("Baudrate configuration mismatch on /nonexistent/ttyIOGATE0: 19200 declared, 9600 in use"), "{message}");
+    assert!(
+        message.contains(
+            "Baudrate configuration mismatch.\n/nonexistent/ttyIOGATE0: 19200 declared, 9600 in use"
+        ),
+        "{message}"
+    );
     assert!(
         message.contains("Parity configuration mismatch"),
         "{message}"

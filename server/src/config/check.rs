@@ -27,7 +27,7 @@ pub(super) fn check_ports(links: &[LinkConfig], report: &mut Report) {
                 link.line,
                 &ctx,
                 format!(
-                    "{} configuration mismatch on {}: {} here, {} in link {} (line {})",
+                    "{} configuration mismatch.\n{}: {} here, {} in link {} (line {})",
                     m.setting, s.port, m.want, m.have, first.name, first.line
                 ),
             );

@@ -304,7 +304,7 @@ mod tests {
     fn serial_settings_mismatch_on_one_port_is_an_error() {
         let text = "links:\n  - { name: a, serial: { port: /dev/ttyS0, baud: 9600 } }\n  - { name: b, serial: { port: /dev/ttyS0, baud: 19200, parity: E } }\n";
         let all = problems(text);
-        assert!(all.contains("c.yaml:3: link b: Baudrate configuration mismatch on /dev/ttyS0: 19200 here, 9600 in link a (line 2)"), "{all}");
+        assert!(all.contains("c.yaml:3: link b: Baudrate configuration mismatch.\n    /dev/ttyS0: 19200 here, 9600 in link a (line 2)"), "{all}");
         assert!(all.contains("Parity configuration mismatch"), "{all}");
     }
 
@@ -314,8 +314,8 @@ mod tests {
         let all = problems(text);
         for needle in [
             "c.yaml:1: listen.http: `localhost` is not an address",
-            "c.yaml:3: link a: serial.parity: Invalid parity configuration: `X`",
-            "c.yaml:3: link a: serial.stop_bits: Invalid stop bits configuration: 3",
+            "c.yaml:3: link a: serial.parity: Invalid parity configuration.\n    `X` is not N, E or O",
+            "c.yaml:3: link a: serial.stop_bits: Invalid stop bits configuration.\n    3 stop bits: 1 or 2",
             "c.yaml:5: device d: slave_id: 300 is outside",
             "c.yaml:5: device d: refresh_rate: `50` has no unit",
             "c.yaml:6: device d: refresh_rate: `soon` is not a duration",

@@ -243,6 +243,10 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
     let ctx = format!("{link}: serial");
     let mut map = node.map(report, &ctx)?;
     let at = |k: &str| format!("{ctx}.{k}");
+    let lines: Vec<(&str, u64)> = ["port", "baud", "parity", "data_bits", "stop_bits"]
+        .into_iter()
+        .filter_map(|k| map.get(k).map(|n| (k, n.line)))
+        .collect();
     let port = map
         .require("port", report, &ctx)
         .and_then(|n| n.scalar_text(report, &at("port")));
@@ -268,14 +272,19 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
     let checked = rules::serial(
         port.unwrap_or_else(|| "-".to_owned()),
         baud.map_or(9600, |b| b as u64),
-        parity.unwrap_or(Parity::None),
+        Ok(parity.unwrap_or(Parity::None)),
         data_bits.map_or(u64::from(rules::DEFAULT_DATA_BITS), |b| b as u64),
         stop_bits.map_or(u64::from(rules::DEFAULT_STOP_BITS), |b| b as u64),
     );
     let settings = checked
         .map_err(|errors| {
             for e in errors {
-                report.push(node.line, at(e.key()), e.to_string());
+                // At the key's own line when it is written, else the mapping's.
+                let line = lines
+                    .iter()
+                    .find(|(k, _)| *k == e.key())
+                    .map_or(node.line, |(_, l)| *l);
+                report.push(line, at(e.key()), e.to_string());
             }
         })
         .ok()?;

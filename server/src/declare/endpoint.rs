@@ -39,7 +39,6 @@ impl Endpoint {
                     "" => Ok(Parity::None),
                     text => rules::parse_parity(text),
                 };
-                let parity = parity.map_err(|e| DeclareError::Rules(vec![e]))?;
                 // An empty port is a state, not a mistake, at run time: the link reports
                 // `SerialLink` error 1 until it is declared again with one.
                 let unset = port.trim().is_empty();

@@ -54,7 +54,7 @@ impl fmt::Display for Conflict {
         match self {
             Conflict::Serial { port, mismatch: m } => write!(
                 f,
-                "{} configuration mismatch on {port}: {} declared, {} in use",
+                "{} configuration mismatch.\n{port}: {} declared, {} in use",
                 m.setting, m.want, m.have
             ),
             Conflict::Framing { have, want } => write!(

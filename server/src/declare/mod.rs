@@ -489,16 +489,17 @@ mod tests {
             panic!("valid serial settings")
         };
         assert_eq!((s.data_bits, s.stop_bits, s.parity), (8, 1, Parity::None));
-        let err = serial(5, "X").transport().expect_err("bad parity");
+        let err = serial(5, "X").transport().expect_err("bad parity and baud");
         assert_eq!(
             err.to_string(),
-            "parity: Invalid parity configuration: `X` (expected N, E or O)"
+            "parity: Invalid parity configuration.\n`X` is not N, E or O; baud: Invalid baudrate configuration.\n5 baud is outside 300-4000000",
+            "every problem at once"
         );
         let err = serial(5, "E").transport().expect_err("bad baud");
         assert_eq!(err.refusal(), Refusal::Invalid);
         assert!(
             err.to_string()
-                .contains("Invalid baudrate configuration: 5")
+                .contains("Invalid baudrate configuration.\n5 baud")
         );
         let tcp = Endpoint::Tcp {
             host: "127.0.0.1".into(),
