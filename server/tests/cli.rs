@@ -318,6 +318,89 @@ fn serve_that_cannot_listen_stops_before_it_touches_a_bus() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Installs blark (an IEC 61131-3 ST parser, from PyPI) once, with the project's script.
+fn blark() -> &'static str {
+    static DONE: std::sync::OnceLock<()> = std::sync::OnceLock::new();
+    DONE.get_or_init(|| {
+        let status = Command::new("bash")
+            .arg(repo().join("tests/st/install.sh"))
+            .status()
+            .expect("run tests/st/install.sh");
+        assert!(status.success(), "tests/st/install.sh failed");
+    });
+    "blark"
+}
+
+/// Whether blark parses `text` as ST source; its report.
+fn parses(name: &str, text: &str) -> (bool, String) {
+    let dir = temp_dir("st");
+    let file = dir.join(format!("{name}.st"));
+    std::fs::write(&file, text).expect("write");
+    let out = Command::new(blark())
+        .arg("parse")
+        .arg(&file)
+        .output()
+        .expect("run blark");
+    let report = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (
+        out.status.success() && !report.contains("Failed to parse"),
+        report,
+    )
+}
+
+#[test]
+fn every_generated_st_declaration_parses_with_an_independent_iec_parser() {
+    let out = iogate().args(["fb", "st"]).output().expect("runs");
+    let blocks = String::from_utf8_lossy(&out.stdout).into_owned();
+    let (ok, report) = parses("blocks", &blocks);
+    assert!(ok, "iogate fb st:\n{report}\n{blocks}");
+    for keyword in ["function :", "type :", "interface :"] {
+        assert!(!blocks.contains(keyword), "{keyword} in\n{blocks}");
+    }
+    // Every shipped profile's function block.
+    let profiles: Vec<String> = std::fs::read_dir(repo().join("profiles"))
+        .expect("profiles")
+        .filter_map(Result::ok)
+        .filter_map(|e| std::fs::read_to_string(e.path()).ok())
+        .filter_map(|text| {
+            text.lines()
+                .find_map(|l| l.strip_prefix("name: ").map(|n| n.trim().to_owned()))
+        })
+        .collect();
+    assert!(profiles.len() >= 5, "{profiles:?}");
+    for name in &profiles {
+        let out = iogate()
+            .args(["profile", "st", name])
+            .arg("--config")
+            .arg(repo().join("examples/demo.yaml"))
+            .output()
+            .expect("runs");
+        let st = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let (ok, report) = parses(name, &st);
+        assert!(ok, "{name}:\n{report}\n{st}");
+    }
+    // The Modbus map's AT declarations for the demo (every field of every type).
+    let out = iogate().args(["map", "--st"]).output().expect("runs");
+    let map = String::from_utf8_lossy(&out.stdout).into_owned();
+    let (ok, report) = parses("map", &map);
+    assert!(ok, "iogate map --st:\n{report}\n{map}");
+    // And the parser does refuse a keyword as a name, so the checks above mean something.
+    let (ok, _) = parses(
+        "keyword",
+        "FUNCTION_BLOCK X\nVAR\n    TYPE : BOOL;\nEND_VAR\nEND_FUNCTION_BLOCK\n",
+    );
+    assert!(!ok, "blark took TYPE as a name");
+}
+
 #[test]
 fn plan_prints_transactions_wire_time_and_utilisation() {
     let dir = temp_dir("plan");

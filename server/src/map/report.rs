@@ -46,9 +46,8 @@ pub fn st(plan: &Plan) -> String {
     for b in &plan.bindings {
         let _ = writeln!(
             out,
-            "    {}_{} AT {} : {};  (* {} {} *)",
-            b.device,
-            b.name,
+            "    {} AT {} : {};  (* {} {} *)",
+            crate::profile::keywords::identifier(&[&b.device, &b.name]),
             b.at,
             b.ty.name(),
             b.slot.table.name(),

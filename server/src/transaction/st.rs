@@ -37,13 +37,13 @@ FUNCTION_BLOCK ModbusWrite
 VAR_INPUT
     enable : BOOL;                (* TRUE: send, and again every polling period *)
     value0 : LREAL;               (* value0 .. valueX: the values to write *)
-    interface : STRING;           (* the link *)
+    link : STRING;                (* the link (the block's Interface) *)
     pollingPeriod : TIME := T#1s; (* from the start of the previous transaction *)
     timeout : TIME := T#100ms;
-    function : USINT;             (* 5, 6, 15, 16 *)
+    functionCode : USINT;         (* the block's Function: 5, 6, 15, 16 *)
     networkNumber : USINT;        (* the slave, 1-255 *)
     dataAddress : UINT;
-    type : STRING;                (* uint8, int8, uint16, int16, int32, float *)
+    dataType : STRING;            (* the block's Type: uint8, int8, uint16, int16, int32, float, int32/float *)
     byteOrder : STRING;           (* Little-endian, Big-endian, Big-endian (2 bytes) *)
 END_VAR
 VAR_OUTPUT

@@ -247,7 +247,16 @@ fn identifier(node: &Node, report: &mut Report, ctx: &str) -> Option<String> {
         .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
         && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
         && !text.contains("__");
-    if valid {
+    if valid && crate::profile::keywords::is_keyword(text) {
+        report.push(
+            node.line,
+            ctx,
+            format!(
+                "`{text}` is an IEC 61131-3 keyword: the generated function block would not parse (choose another name; the README's \"Device profiles\" lists the keywords)"
+            ),
+        );
+        None
+    } else if valid {
         Some(text.to_owned())
     } else {
         report.push(
@@ -465,6 +474,14 @@ mod tests {
         let text = "name: 9lives\nfields:\n  - { name: connected, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n";
         assert_problem(text, 1, "not an IEC identifier");
         assert_problem(text, 3, "name is taken");
+        for keyword in ["TYPE", "END_VAR", "Function"] {
+            let text = format!(
+                "name: Io\nfields:\n  - {{ name: {keyword}, type: BOOL, direction: input, register: {{ address: 0, kind: coil }} }}\n"
+            );
+            assert_problem(&text, 3, "is an IEC 61131-3 keyword");
+        }
+        let text = "name: Program\nfields:\n  - { name: A, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n";
+        assert_problem(text, 1, "is an IEC 61131-3 keyword");
     }
 
     proptest::proptest! {
