@@ -328,18 +328,18 @@ mod tests {
 
     #[test]
     fn devices_are_checked_against_profiles_and_links() {
-        let config = parse("c.yaml", "links:\n  - { name: bus, tcp: { host: 127.0.0.1 } }\ndevices:\n  - { name: a, profile: Sim, link: bus }\n  - { name: b, profile: Real }\n  - { name: c, profile: Nope }\n  - { name: e, profile: Real, link: other, slave_id: 1 }\n").expect("parses");
+        let config = parse("c.yaml", "links:\n  - { name: bus, tcp: { host: 127.0.0.1 } }\ndevices:\n  - { name: a, profile: Sim, link: bus }\n  - { name: b, profile: Meter }\n  - { name: c, profile: Nope }\n  - { name: e, profile: Meter, link: other, slave_id: 1 }\n").expect("parses");
         let sim = crate::profile::load_str("s.yaml", "name: Sim\nprotocol: simulated\nfields:\n  - { name: X, type: BOOL, direction: input, register: { address: 0, kind: virtual } }\n").expect("sim");
-        let real = crate::profile::load_str("r.yaml", "name: Real\nfields:\n  - { name: X, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n").expect("real");
+        let real = crate::profile::load_str("r.yaml", "name: Meter\nfields:\n  - { name: X, type: BOOL, direction: input, register: { address: 0, kind: coil } }\n").expect("real");
         let catalog = Catalog::new([sim, real]);
         let all = check_devices(&config, &catalog)
             .expect_err("fails")
             .to_string();
         for needle in [
             "c.yaml:4: device a: a simulated device has no link",
-            "c.yaml:5: device b: profile Real is modbus-rtu: the device needs a `link`",
+            "c.yaml:5: device b: profile Meter is modbus-rtu: the device needs a `link`",
             "c.yaml:5: device b: no slave configured",
-            "c.yaml:6: device c: unknown profile `Nope` (known: Real, Sim)",
+            "c.yaml:6: device c: unknown profile `Nope` (known: Meter, Sim)",
             "c.yaml:7: device e: unknown link `other` (known: bus)",
         ] {
             assert!(all.contains(needle), "missing {needle:?} in\n{all}");
