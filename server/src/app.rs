@@ -62,14 +62,29 @@ impl Setup {
     }
 
     /// Loads a config file, then its profiles, then checks the devices against both.
-    /// Every problem of every file is reported.
+    /// Every problem of every file is reported: what could not be read is left out of the
+    /// checks that follow, and the rest is still checked.
     pub fn from_file(path: &Path) -> Result<Setup, Problems> {
-        let config = Config::load(path)?;
+        let (config, mut problems) = Config::load_partial(path);
+        let Some(config) = config else {
+            return Err(problems);
+        };
         let base = path
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
-        Setup::from_config(config, base)
+        match Setup::from_config(config, base) {
+            Ok(setup) if problems.is_empty() => Ok(setup),
+            Ok(_) => Err(problems),
+            Err(more) => {
+                problems.extend(more);
+                // File by file, in line order, as an editor shows them.
+                problems
+                    .0
+                    .sort_by(|a, b| (&a.file, a.line).cmp(&(&b.file, b.line)));
+                Err(problems)
+            }
+        }
     }
 
     /// What `check` and `serve` print without stopping anything: every profile field that
@@ -82,16 +97,22 @@ impl Setup {
     }
 
     /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in
-    /// `base` or up to six parents) and checks its devices.
+    /// `base` or up to six parents) and checks its devices, security, standing transactions
+    /// and Modbus map: every problem of every stage at once.
     pub fn from_config(config: Config, base: &Path) -> Result<Setup, Problems> {
+        let mut problems = Problems::default();
         let dir = profile::find_dir(config.profiles.as_deref(), base);
         let catalog = match &dir {
-            Some(dir) => profile::load_catalog(dir)?,
+            Some(dir) => {
+                let (catalog, more) = profile::load_catalog_partial(dir);
+                problems.extend(more);
+                catalog
+            }
             None if config.devices.is_empty() => Catalog::default(),
             None => {
                 let mut report = Report::new(&config.source);
                 report.push(
-                    1,
+                    config.lines.profiles.max(1),
                     "profiles",
                     format!(
                         "no profiles directory found in {} or its {} parents; set `profiles:`",
@@ -102,10 +123,19 @@ impl Setup {
                 return Err(report.into_problems());
             }
         };
-        config::check_devices(&config, &catalog)?;
-        config::check_security(&config)?;
-        crate::transaction::check_standing(&config)?;
-        let map = crate::map::plan(&config, &catalog)?;
+        let checks = [
+            config::check_devices(&config, &catalog).err(),
+            config::check_security(&config).err(),
+            crate::transaction::check_standing(&config).err(),
+        ];
+        problems.extend_all(checks.into_iter().flatten());
+        let map = crate::map::plan(&config, &catalog).unwrap_or_else(|more| {
+            problems.extend(more);
+            None
+        });
+        if !problems.is_empty() {
+            return Err(problems);
+        }
         Ok(Setup {
             config,
             catalog,

@@ -57,55 +57,90 @@ impl std::fmt::Debug for Tokens {
 }
 
 impl Tokens {
-    /// Parses `ROLE TOKEN` lines (blank lines and `#` comments skipped); `source` names the
-    /// text in problems, which give the line but never the token.
-    pub fn parse(source: &str, text: &str) -> Result<Tokens, String> {
+    /// Parses `ROLE TOKEN` lines (blank lines and `#` comments skipped): the tokens, or
+    /// every bad line (1-based) with what is wrong, never the token itself.
+    pub fn parse(text: &str) -> Result<Tokens, Vec<(u64, String)>> {
         let mut tokens = HashMap::new();
+        let mut bad = Vec::new();
         for (n, line) in text.lines().enumerate() {
+            let n = n as u64 + 1;
             let line = line.trim();
             if line.is_empty() || line.starts_with('#') {
                 continue;
             }
             let mut parts = line.split_whitespace();
             let (Some(role), Some(token), None) = (parts.next(), parts.next(), parts.next()) else {
-                return Err(format!(
-                    "{source}:{}: expected `ROLE TOKEN` (ROLE is read, write or admin)",
-                    n + 1
+                bad.push((
+                    n,
+                    "expected `ROLE TOKEN` (ROLE is read, write or admin)".to_owned(),
                 ));
+                continue;
             };
             let Some(role) = Role::parse(role) else {
-                return Err(format!(
-                    "{source}:{}: unknown role `{}` (expected read, write or admin)",
-                    n + 1,
-                    crate::text::quote(role)
+                bad.push((
+                    n,
+                    format!(
+                        "unknown role `{}` (expected read, write or admin)",
+                        crate::text::quote(role)
+                    ),
                 ));
+                continue;
             };
             if token.len() < 16 {
-                return Err(format!(
-                    "{source}:{}: the token is too short (at least 16 characters)",
-                    n + 1
+                bad.push((
+                    n,
+                    "the token is too short (at least 16 characters)".to_owned(),
                 ));
+                continue;
             }
             tokens.insert(token.to_owned(), role);
         }
-        Ok(Tokens(tokens))
+        if bad.is_empty() {
+            Ok(Tokens(tokens))
+        } else {
+            Err(bad)
+        }
     }
 
     /// The tokens of `file` and of the `IOGATE_TOKENS` environment variable (lines, or
-    /// entries separated by `;`).
-    pub fn load(file: Option<&Path>) -> Result<Tokens, String> {
+    /// entries separated by `;`), or every problem: `(source, line, message)`, where the
+    /// source is the file or `IOGATE_TOKENS` and the line 0 when the file cannot be read.
+    pub fn load(file: Option<&Path>) -> Result<Tokens, Vec<(String, u64, String)>> {
         let mut all = Tokens::default();
+        let mut problems = Vec::new();
         if let Some(path) = file {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| format!("cannot read the tokens file {}: {e}", path.display()))?;
-            all.0
-                .extend(Tokens::parse(&path.display().to_string(), &text)?.0);
+            let shown = path.display().to_string();
+            match crate::text::read_file(path) {
+                Ok(text) => match Tokens::parse(&text) {
+                    Ok(t) => all.0.extend(t.0),
+                    Err(bad) => {
+                        problems.extend(bad.into_iter().map(|(line, m)| (shown.clone(), line, m)))
+                    }
+                },
+                Err(e) => problems.push((
+                    shown.clone(),
+                    e.line().unwrap_or(0),
+                    format!("the tokens file {shown}: {e}"),
+                )),
+            }
         }
         if let Ok(env) = std::env::var("IOGATE_TOKENS") {
-            all.0
-                .extend(Tokens::parse("IOGATE_TOKENS", &env.replace(';', "\n"))?.0);
+            match Tokens::parse(&env.replace(';', "\n")) {
+                Ok(t) => all.0.extend(t.0),
+                Err(bad) => problems.extend(bad.into_iter().map(|(line, m)| {
+                    (
+                        "IOGATE_TOKENS".to_owned(),
+                        line,
+                        format!("entry {line}: {m}"),
+                    )
+                })),
+            }
         }
-        Ok(all)
+        if problems.is_empty() {
+            Ok(all)
+        } else {
+            Err(problems)
+        }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -190,10 +225,9 @@ mod tests {
     const ADMIN: &str = "admin-0123456789abcdefg";
 
     fn tokens() -> Tokens {
-        Tokens::parse(
-            "tokens",
-            &format!("# roles\nread {READ}\n\nwrite {WRITE}\nadmin {ADMIN}\n"),
-        )
+        Tokens::parse(&format!(
+            "# roles\nread {READ}\n\nwrite {WRITE}\nadmin {ADMIN}\n"
+        ))
         .expect("tokens")
     }
 
@@ -219,12 +253,14 @@ mod tests {
     }
 
     #[test]
-    fn bad_token_files_name_the_line_never_the_token() {
-        let e = Tokens::parse("t", "root s3cret-s3cret-s3cret\n").expect_err("role");
-        assert!(e.contains("t:1: unknown role `root`"), "{e}");
-        assert!(!e.contains("s3cret"), "{e}");
-        let e = Tokens::parse("t", "read short\n").expect_err("short");
-        assert!(e.contains("too short") && !e.contains("short\n"), "{e}");
+    fn bad_token_files_name_every_line_never_the_token() {
+        let e = Tokens::parse("root s3cret-s3cret-s3cret\n# fine\nread short\nwrite\n")
+            .expect_err("bad lines");
+        let lines: Vec<u64> = e.iter().map(|(l, _)| *l).collect();
+        assert_eq!(lines, [1, 3, 4], "{e:?}");
+        assert!(e[0].1.contains("unknown role `root`"), "{e:?}");
+        assert!(e[1].1.contains("too short"), "{e:?}");
+        assert!(!format!("{e:?}").contains("s3cret"), "{e:?}");
         assert!(format!("{:?}", tokens()).contains("3 configured"));
     }
 

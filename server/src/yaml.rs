@@ -54,6 +54,12 @@ impl Problems {
         self.0.iter()
     }
 
+    pub fn extend_all(&mut self, others: impl IntoIterator<Item = Problems>) {
+        for other in others {
+            self.extend(other);
+        }
+    }
+
     pub fn extend(&mut self, other: Problems) {
         self.0.extend(other.0);
     }

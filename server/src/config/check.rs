@@ -52,6 +52,9 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
     for d in &config.devices {
         let ctx = format!("device {}", d.name);
         let Some(profile) = catalog.get(&d.profile) else {
+            if catalog.is_unreadable(&d.profile) {
+                continue; // the profile's own problems are reported
+            }
             let known: Vec<_> = catalog.iter().map(|p| p.name.as_str()).collect();
             report.push(
                 d.line,
@@ -69,12 +72,18 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
             continue;
         };
         let link = d.link.as_deref();
+        let slave_refused = config.unreadable.slave_ids.contains(&d.name);
         for e in rules::binding(profile, link, d.slave_id.map(u64::from)) {
+            // A slave_id that was written but refused is reported where it is written.
+            if slave_refused && matches!(e, rules::RuleError::NoSlave) {
+                continue;
+            }
             report.push(d.line, &ctx, e.to_string());
         }
         if let Some(link) = link
             && profile.protocol != crate::profile::Protocol::Simulated
             && !config.links.iter().any(|l| l.name == link)
+            && !config.unreadable.links.iter().any(|l| l == link)
         {
             let known: Vec<_> = config.links.iter().map(|l| l.name.as_str()).collect();
             report.push(
@@ -142,19 +151,48 @@ pub struct Access {
 /// HTTP and gRPC listeners stay on loopback unless `security.insecure: true` says otherwise.
 pub fn check_security(config: &Config) -> Result<Access, Problems> {
     let mut report = Report::new(&config.source);
-    let tokens = crate::auth::Tokens::load(config.security.tokens_file.as_deref())
-        .map_err(|e| report.push(0, "security.tokens_file", e))
-        .unwrap_or_default();
-    let tls = config.security.tls.clone().and_then(|files| {
+    let mut problems = Problems::default();
+    let security = &config.security;
+    let tokens = match crate::auth::Tokens::load(security.tokens_file.as_deref()) {
+        Ok(tokens) => tokens,
+        Err(bad) => {
+            for (source, line, message) in bad {
+                // A line of the tokens file is reported in that file; a file that cannot
+                // be read at the config's `tokens_file` key; IOGATE_TOKENS by its entry.
+                let in_file = line > 0
+                    && security
+                        .tokens_file
+                        .as_ref()
+                        .is_some_and(|f| f.display().to_string() == source);
+                if in_file {
+                    problems.0.push(crate::yaml::Problem {
+                        file: source,
+                        line,
+                        context: "security.tokens_file".to_owned(),
+                        message,
+                    });
+                } else if source == "IOGATE_TOKENS" {
+                    report.push(security.tokens_file_line, "IOGATE_TOKENS", message);
+                } else {
+                    report.push(security.tokens_file_line, "security.tokens_file", message);
+                }
+            }
+            crate::auth::Tokens::default()
+        }
+    };
+    let tls = security.tls.clone().and_then(|files| {
         crate::tls::Tls::load(files)
-            .map_err(|e| report.push(0, "security.tls", e.to_string()))
+            .map_err(|e| report.push(security.tls_line, "security.tls", e.to_string()))
             .ok()
     });
-    if tokens.is_empty() && !config.security.insecure {
-        for (key, addr) in [("listen.http", config.http), ("listen.grpc", config.grpc)] {
+    if tokens.is_empty() && !security.insecure {
+        for (key, addr, line) in [
+            ("listen.http", config.http, config.lines.http),
+            ("listen.grpc", config.grpc, config.lines.grpc),
+        ] {
             if !addr.ip().is_loopback() {
                 report.push(
-                    0,
+                    line,
                     key,
                     format!(
                         "{addr} is not a loopback address and no tokens are configured: set security.tokens_file (or IOGATE_TOKENS), or security.insecure: true to serve it unauthenticated"
@@ -163,7 +201,7 @@ pub fn check_security(config: &Config) -> Result<Access, Problems> {
             }
         }
     }
-    let problems = report.into_problems();
+    problems.extend(report.into_problems());
     if problems.is_empty() {
         Ok(Access { tokens, tls })
     } else {

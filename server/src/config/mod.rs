@@ -45,6 +45,30 @@ pub struct Config {
     pub security: security::SecurityConfig,
     /// The file the config came from.
     pub source: String,
+    /// Where keys checked after reading are written, for their problems' lines.
+    pub lines: KeyLines,
+    /// What was written but could not be read (its problems are reported already), so the
+    /// checks that follow do not report it again as missing.
+    pub unreadable: Unreadable,
+}
+
+/// The lines of keys whose problems are found after reading (0: not written).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct KeyLines {
+    pub http: u64,
+    pub grpc: u64,
+    pub profiles: u64,
+}
+
+/// Entries of the config file that had problems of their own.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Unreadable {
+    /// Links written but not read.
+    pub links: Vec<String>,
+    /// Devices written but not read.
+    pub devices: Vec<String>,
+    /// Devices whose `slave_id` was written but refused.
+    pub slave_ids: Vec<String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -232,18 +256,36 @@ impl Config {
             transactions: Vec::new(),
             security: security::SecurityConfig::default(),
             source: source.to_owned(),
+            lines: KeyLines::default(),
+            unreadable: Unreadable::default(),
         }
     }
 
     /// Reads and parses a config file.
     pub fn load(path: &Path) -> Result<Config, Problems> {
+        match Config::load_partial(path) {
+            (Some(config), problems) if problems.is_empty() => Ok(config),
+            (_, problems) => Err(problems),
+        }
+    }
+
+    /// Reads a config file as far as it can be read: what could be read (nothing when the
+    /// file or its YAML cannot be), and every problem found, so the checks that follow can
+    /// still look at the rest.
+    pub fn load_partial(path: &Path) -> (Option<Config>, Problems) {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            let mut report = Report::new(&file);
-            report.push(0, "", format!("cannot read the config file: {e}"));
-            report.into_problems()
-        })?;
-        let mut config = parse(&file, &text)?;
+        let text = match crate::text::read_file(path) {
+            Ok(text) => text,
+            Err(e) => {
+                let mut report = Report::new(&file);
+                report.push(e.line().unwrap_or(0), "", e.to_string());
+                return (None, report.into_problems());
+            }
+        };
+        let (config, problems) = parse_partial(&file, &text);
+        let Some(mut config) = config else {
+            return (None, problems);
+        };
         if let Some(dir) = &config.profiles
             && dir.is_relative()
         {
@@ -261,19 +303,24 @@ impl Config {
         {
             *file = path.parent().unwrap_or(Path::new(".")).join(&*file);
         }
-        Ok(config)
+        (Some(config), problems)
     }
 }
 
 /// Parses config text; `file` names it in problems.
 pub fn parse(file: &str, text: &str) -> Result<Config, Problems> {
+    match parse_partial(file, text) {
+        (Some(c), problems) if problems.is_empty() => Ok(c),
+        (_, problems) => Err(problems),
+    }
+}
+
+/// Parses config text as far as it can be read, with every problem found.
+pub fn parse_partial(file: &str, text: &str) -> (Option<Config>, Problems) {
     let mut report = Report::new(file);
     let config =
         yaml::parse(text, &mut report).and_then(|root| read::read_config(&root, &mut report));
-    match config {
-        Some(c) if !report.has_problems() => Ok(c),
-        _ => Err(report.into_problems()),
-    }
+    (config, report.into_problems())
 }
 
 #[cfg(test)]

@@ -217,18 +217,20 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         })
         .unwrap_or_default();
     map.finish(report, ctx, KEYS);
+    // A setting that was refused (and reported) takes its default, so that the map is
+    // still checked against the devices.
     Some(ModbusServerConfig {
-        listen: listen?,
-        address_space: address_space?,
-        unit_id: unit_id?,
+        listen: listen.unwrap_or(SocketAddr::from(([127, 0, 0, 1], 5020))),
+        address_space: address_space.unwrap_or(AddressSpace::Linux),
+        unit_id: unit_id.unwrap_or(1),
         map: entries,
-        auto: auto?,
+        auto: auto.unwrap_or(false),
         forward,
-        read_only: read_only?,
-        max_connections: max_connections?,
-        idle_timeout: idle_timeout?,
+        read_only: read_only.unwrap_or(false),
+        max_connections: max_connections.unwrap_or(DEFAULT_MAX_CONNECTIONS),
+        idle_timeout: idle_timeout.unwrap_or(DEFAULT_IDLE_TIMEOUT),
         memory_file,
-        on_bad_quality: on_bad_quality?,
+        on_bad_quality: on_bad_quality.unwrap_or_default(),
         line: node.line,
     })
 }

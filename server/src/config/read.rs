@@ -109,8 +109,12 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     let mut map = root.map(report, "config")?;
     if let Some(listen) = map.get("listen").and_then(|n| n.map(report, "listen")) {
         let mut listen = listen;
-        for (key, slot) in [("http", &mut config.http), ("grpc", &mut config.grpc)] {
+        for (key, slot, line) in [
+            ("http", &mut config.http, &mut config.lines.http),
+            ("grpc", &mut config.grpc, &mut config.lines.grpc),
+        ] {
             if let Some(node) = listen.get(key) {
+                *line = node.line;
                 let ctx = format!("listen.{key}");
                 if let Some(text) = node.scalar_text(report, &ctx) {
                     match text.parse::<SocketAddr>() {
@@ -148,25 +152,40 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         }
         listen.finish(report, "listen", LISTEN_KEYS);
     }
-    config.profiles = map
-        .get("profiles")
-        .and_then(|n| n.scalar_text(report, "profiles"))
-        .map(PathBuf::from);
+    if let Some(n) = map.get("profiles") {
+        config.lines.profiles = n.line;
+        config.profiles = n.scalar_text(report, "profiles").map(PathBuf::from);
+    }
     if let Some(links) = map.get("links").and_then(|n| n.seq(report, "links")) {
         check_unique(&entry_names(links), "link", report);
-        config.links = links
-            .iter()
-            .enumerate()
-            .filter_map(|(i, n)| read_link(n, i, report))
-            .collect();
+        for (i, n) in links.iter().enumerate() {
+            match read_link(n, i, report) {
+                Some(link) => config.links.push(link),
+                None => config.unreadable.links.extend(
+                    entry_names(std::slice::from_ref(n))
+                        .into_iter()
+                        .map(|(name, _)| name),
+                ),
+            }
+        }
     }
     if let Some(devices) = map.get("devices").and_then(|n| n.seq(report, "devices")) {
         check_unique(&entry_names(devices), "device", report);
-        config.devices = devices
-            .iter()
-            .enumerate()
-            .filter_map(|(i, n)| read_device(n, i, report))
-            .collect();
+        for (i, n) in devices.iter().enumerate() {
+            match read_device(n, i, report) {
+                Some((device, slave_refused)) => {
+                    if slave_refused {
+                        config.unreadable.slave_ids.push(device.name.clone());
+                    }
+                    config.devices.push(device);
+                }
+                None => config.unreadable.devices.extend(
+                    entry_names(std::slice::from_ref(n))
+                        .into_iter()
+                        .map(|(name, _)| name),
+                ),
+            }
+        }
     }
     config.modbus_server = map
         .get("modbus_server")
@@ -366,7 +385,10 @@ fn duration_value(node: &Node, report: &mut Report, ctx: &str, min: Duration) ->
     }
 }
 
-fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceConfig> {
+/// A device as far as it can be read (with whether a written `slave_id` was refused):
+/// values that were refused (their problems reported) take their defaults, so that the
+/// device is still checked against its profile and links.
+fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<(DeviceConfig, bool)> {
     let mut map = node.map(report, &format!("devices[{index}]"))?;
     let (name, ctx) = name_of(&mut map, report, "device", index);
     let at = |k: &str| format!("{ctx}: {k}");
@@ -376,10 +398,12 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
     let link = map
         .get("link")
         .and_then(|n| n.scalar_text(report, &at("link")));
-    let slave_id = map.get("slave_id").and_then(|n| {
+    let slave_node = map.get("slave_id");
+    let slave_id = slave_node.and_then(|n| {
         let id = n.int_in(report, &at("slave_id"), 0, i128::from(u32::MAX))?;
         ruled(rules::slave_id(id as u64), n.line, &at("slave_id"), report)
     });
+    let slave_refused = slave_node.is_some() && slave_id.is_none();
     let mut duration_of = |key: &str, default: Duration, min: Duration| -> Option<Duration> {
         map.get(key).map_or(Some(default), |node| {
             duration_value(node, report, &at(key), min)
@@ -423,20 +447,23 @@ fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<DeviceC
         Some(n) => read_client_loss(n, report, &at("on_client_loss")),
     };
     map.finish(report, &ctx, DEVICE_KEYS);
-    Some(DeviceConfig {
-        name: name?,
-        profile: profile?,
-        link,
-        slave_id,
-        refresh_rate: refresh_rate?,
-        timeout: timeout?,
-        retries: retries?,
-        max_batch: max_batch?,
-        max_gap: max_gap?,
-        write_mode: write_mode?,
-        on_client_loss: on_client_loss?,
-        line: node.line,
-    })
+    Some((
+        DeviceConfig {
+            name: name?,
+            profile: profile?,
+            link,
+            slave_id,
+            refresh_rate: refresh_rate.unwrap_or(rules::DEFAULT_REFRESH),
+            timeout: timeout.unwrap_or(rules::DEFAULT_TIMEOUT),
+            retries: retries.unwrap_or(rules::DEFAULT_RETRIES),
+            max_batch: max_batch.unwrap_or(rules::MAX_READ_REGISTERS),
+            max_gap: max_gap.unwrap_or(0),
+            write_mode: write_mode.unwrap_or_default(),
+            on_client_loss: on_client_loss.flatten(),
+            line: node.line,
+        },
+        slave_refused,
+    ))
 }
 
 /// The `name` of every entry that has one, with its line, whatever else is wrong with it.

@@ -133,6 +133,10 @@ pub struct SecurityConfig {
     pub insecure: bool,
     pub tls: Option<crate::tls::TlsFiles>,
     pub declare: DeclarePolicy,
+    /// The lines of `tokens_file` and `tls` (0: not written), for problems found when their
+    /// files are loaded.
+    pub tokens_file_line: u64,
+    pub tls_line: u64,
 }
 
 impl SecurityConfig {
@@ -205,10 +209,12 @@ pub(super) fn read(node: &Node, report: &mut Report) -> SecurityConfig {
     let Some(mut map) = node.map(report, "security") else {
         return out;
     };
-    out.tokens_file = map
-        .get("tokens_file")
-        .and_then(|n| n.scalar_text(report, "security.tokens_file"))
-        .map(PathBuf::from);
+    if let Some(n) = map.get("tokens_file") {
+        out.tokens_file_line = n.line;
+        out.tokens_file = n
+            .scalar_text(report, "security.tokens_file")
+            .map(PathBuf::from);
+    }
     if let Some(n) = map.get("read_only") {
         out.read_only = flag(n, report, "security.read_only");
     }
@@ -216,6 +222,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> SecurityConfig {
         out.insecure = flag(n, report, "security.insecure");
     }
     if let Some(n) = map.get("tls") {
+        out.tls_line = n.line;
         out.tls = read_tls(n, report);
     }
     if let Some(declare) = map.get("declare")

@@ -191,6 +191,13 @@ fn resolve(
             }
         };
         let Some(profile) = profile_of(&entry.device) else {
+            // A device (or its profile) that could not be read has its problems reported.
+            // So has a device whose profile is unknown (`check` names the profile).
+            let reported = config.unreadable.devices.contains(&entry.device)
+                || config.devices.iter().any(|d| d.name == entry.device);
+            if reported {
+                continue;
+            }
             report.push(
                 entry.line,
                 &ctx,
@@ -276,7 +283,9 @@ fn resolve(
         });
     }
     for f in &server.forward {
-        if !config.links.iter().any(|l| l.name == f.link) {
+        if !config.links.iter().any(|l| l.name == f.link)
+            && !config.unreadable.links.contains(&f.link)
+        {
             report.push(
                 f.line,
                 "modbus_server.forward",

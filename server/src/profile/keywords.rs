@@ -98,7 +98,6 @@ pub const KEYWORDS: &[&str] = &[
     "OF",
     "ON",
     "OR",
-    "OVERLAP",
     "OVERRIDE",
     "PRIORITY",
     "PRIVATE",

@@ -230,6 +230,8 @@ pub(crate) fn raw_of(ty: IecType, register: &Register) -> Raw {
 #[derive(Debug, Clone, Default)]
 pub struct Catalog {
     profiles: BTreeMap<String, Arc<Profile>>,
+    /// Names of profiles whose files have problems (reported when they were loaded).
+    unreadable: Vec<String>,
 }
 
 impl Catalog {
@@ -239,7 +241,14 @@ impl Catalog {
                 .into_iter()
                 .map(|p| (p.name.clone(), Arc::new(p)))
                 .collect(),
+            unreadable: Vec::new(),
         }
+    }
+
+    /// Whether `name` is a profile whose file could not be loaded: its problems are
+    /// reported already, so a device that uses it is not checked against it.
+    pub fn is_unreadable(&self, name: &str) -> bool {
+        self.unreadable.iter().any(|n| n == name)
     }
 
     pub fn get(&self, name: &str) -> Option<&Arc<Profile>> {
@@ -281,6 +290,15 @@ pub fn find_dir(configured: Option<&Path>, start: &Path) -> Option<PathBuf> {
 /// Loads a catalog from a directory, or says every problem.
 pub fn load_catalog(dir: &Path) -> Result<Catalog, Problems> {
     load_dir(dir).map(Catalog::new)
+}
+
+/// The profiles of `dir` that load, knowing the names of those that do not, and every
+/// problem: for checking everything else at once.
+pub fn load_catalog_partial(dir: &Path) -> (Catalog, Problems) {
+    let (profiles, unreadable, problems) = load::load_dir_partial(dir);
+    let mut catalog = Catalog::new(profiles);
+    catalog.unreadable = unreadable;
+    (catalog, problems)
 }
 
 #[cfg(test)]

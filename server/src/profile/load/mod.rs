@@ -41,13 +41,22 @@ const MAX_STRING_WORDS: u16 = 125;
 
 /// Loads every `*.yaml`/`*.yml` file of `dir`. Nothing is returned if any file has a problem.
 pub fn load_dir(dir: &Path) -> Result<Vec<Profile>, Problems> {
+    match load_dir_partial(dir) {
+        (profiles, _, problems) if problems.is_empty() => Ok(profiles),
+        (_, _, problems) => Err(problems),
+    }
+}
+
+/// Loads every `*.yaml`/`*.yml` file of `dir` that has no problem; the names of the profiles
+/// in files that have one (as far as a `name:` line shows them); every problem.
+pub fn load_dir_partial(dir: &Path) -> (Vec<Profile>, Vec<String>, Problems) {
     let shown = dir.display().to_string();
     let entries = match std::fs::read_dir(dir) {
         Ok(entries) => entries,
         Err(e) => {
             let mut report = Report::new(shown);
             report.push(0, "", format!("cannot read the profiles directory: {e}"));
-            return Err(report.into_problems());
+            return (Vec::new(), Vec::new(), report.into_problems());
         }
     };
     let mut paths: Vec<_> = entries
@@ -60,27 +69,54 @@ pub fn load_dir(dir: &Path) -> Result<Vec<Profile>, Problems> {
         })
         .collect();
     paths.sort();
-    let mut files = Vec::with_capacity(paths.len());
+    let mut profiles: Vec<Profile> = Vec::new();
+    let mut unreadable = Vec::new();
     let mut problems = Problems::default();
+    let mut seen: HashMap<String, (String, u64)> = HashMap::new();
     for path in paths {
         let name = path.display().to_string();
-        match std::fs::read_to_string(&path) {
-            Ok(text) => files.push((name, text)),
+        let text = match crate::text::read_file(&path) {
+            Ok(text) => text,
             Err(e) => {
                 let mut report = Report::new(name);
-                report.push(0, "", format!("cannot read the file: {e}"));
+                report.push(e.line().unwrap_or(0), "", e.to_string());
                 problems.extend(report.into_problems());
+                continue;
+            }
+        };
+        match load_unique(&name, &text, &mut seen) {
+            Ok(profile) => profiles.push(profile),
+            Err(more) => {
+                problems.extend(more);
+                unreadable.extend(text.lines().find_map(|l| {
+                    l.strip_prefix("name:")
+                        .map(|n| n.trim().trim_matches(['"', '\'']).to_owned())
+                }));
             }
         }
     }
-    match load_files(files.iter().map(|(n, t)| (n.as_str(), t.as_str()))) {
-        Ok(profiles) if problems.is_empty() => Ok(profiles),
-        Ok(_) => Err(problems),
-        Err(more) => {
-            problems.extend(more);
-            Err(problems)
-        }
+    (profiles, unreadable, problems)
+}
+
+/// One profile whose name no profile of `seen` has (ignoring case).
+fn load_unique(
+    file: &str,
+    text: &str,
+    seen: &mut HashMap<String, (String, u64)>,
+) -> Result<Profile, Problems> {
+    let profile = load_str(file, text)?;
+    let key = profile.name.to_ascii_lowercase();
+    if let Some((other, line)) = seen.get(&key) {
+        let mut report = Report::new(file);
+        report.push(
+            1,
+            format!("profile {}", profile.name),
+            format!("profile name already used in {other}:{line}"),
+        );
+        return Err(report.into_problems());
     }
+    seen.insert(key, (file.to_owned(), 1));
+    Ok(profile)
 }
 
 /// Loads profiles from `(file name, text)` pairs; profile names must be unique across them.
@@ -91,22 +127,8 @@ pub fn load_files<'a>(
     let mut profiles: Vec<Profile> = Vec::new();
     let mut seen: HashMap<String, (String, u64)> = HashMap::new();
     for (file, text) in files {
-        match load_str(file, text) {
-            Ok(profile) => {
-                let key = profile.name.to_ascii_lowercase();
-                if let Some((other, line)) = seen.get(&key) {
-                    let mut report = Report::new(file);
-                    report.push(
-                        1,
-                        format!("profile {}", profile.name),
-                        format!("profile name already used in {other}:{line}"),
-                    );
-                    problems.extend(report.into_problems());
-                } else {
-                    seen.insert(key, (file.to_owned(), 1));
-                    profiles.push(profile);
-                }
-            }
+        match load_unique(file, text, &mut seen) {
+            Ok(profile) => profiles.push(profile),
             Err(more) => problems.extend(more),
         }
     }
