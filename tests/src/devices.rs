@@ -158,6 +158,8 @@ pub enum Behaviour {
     Silent,
     /// Answers after this long, with registers full of 0xBAD0.
     Late(Duration),
+    /// Answers after this long, with its real data (a slow device).
+    Slow(Duration),
     /// Answers with a corrupted CRC.
     BadCrc,
     /// Answers a register read with one register too few (and a valid CRC).
@@ -306,6 +308,7 @@ impl RtuBus {
                     }
                 }
             }
+            Behaviour::Slow(after) => delay = after,
             Behaviour::WrongLength if matches!(function, 3 | 4) && pdu.len() > 3 => {
                 pdu.truncate(pdu.len() - 2);
                 pdu[1] -= 2;

@@ -643,3 +643,47 @@ async fn a_time_that_does_not_fit_its_double_word_is_an_exception_not_a_clamped_
     .await;
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn masters_forwarding_to_a_slow_slave_never_get_each_others_registers() {
+    // A slave answering 300 ms late (the forward's timeout is 200 ms): its late answer to one
+    // master's read must never be taken as the answer to the other master's read.
+    let bus = RtuBus::default();
+    bus.slave(2, |s| {
+        s.behaviour = iogate_tests::devices::Behaviour::Slow(Duration::from_millis(300));
+        s.tables.holding[0] = 1000;
+        s.tables.holding[500] = 5000;
+    });
+    let dir = temp_dir("mbs-slow-forward");
+    let port = dir.join("ttySLOW");
+    let (device_end, _holder) = pty_at(&port).expect("pty");
+    let task = bus.serve(device_end);
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 115200 }} }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  forward:\n    - {{ unit_ids: \"2\", link: rs485 }}\n",
+        port.display()
+    ))
+    .await
+    .expect("gateway");
+    let addr = gw.modbus.expect("modbus server");
+    let reader = |address: u16, value: u16| async move {
+        let mut ctx = master(addr, 2).await;
+        let mut wrong = 0;
+        let mut answered = 0;
+        for _ in 0..4 {
+            match ctx.read_holding_registers(address, 1).await {
+                Ok(Ok(v)) if v == [value] => answered += 1,
+                Ok(Ok(_)) => wrong += 1,
+                Ok(Err(_)) | Err(_) => {}
+            }
+        }
+        (wrong, answered)
+    };
+    let (a, b) = tokio::join!(reader(0, 1000), reader(500, 5000));
+    assert_eq!(
+        (a.0, b.0),
+        (0, 0),
+        "answers taken for another read: {a:?} {b:?}"
+    );
+    gw.shutdown().await;
+    task.abort();
+}

@@ -13,6 +13,13 @@
 //!   so a late reply is dropped rather than taken as the answer to the next request. The
 //!   window restarts with every byte, so it only has to cover the gap before a late frame's
 //!   first byte; a dead device costs its timeout plus that window.
+//! - after a timeout, remembers that the slave may still answer until twice the timeout
+//!   (at most a second past it). RTU frames carry no transaction id: a late answer to one
+//!   read looks exactly like the answer to another read of the same slave, function and
+//!   length (two masters forwarding reads of registers 0 and 500 to a slow slave). Such a
+//!   request is not sent until the late answer has arrived and been discarded, or that
+//!   horizon has passed. Any other request goes at once: a late frame arriving in its
+//!   place fails its slave, function or length check, an error, never a wrong value.
 
 use std::io;
 use std::time::Duration;
@@ -31,6 +38,20 @@ use super::{ByteStream, Counters, TxError};
 const MAX_FRAME: usize = 260;
 /// The longest late-reply window.
 pub const MAX_LATE_WINDOW: Duration = Duration::from_millis(50);
+/// How long past its timeout a silent slave's answer is still waited out, at most.
+pub const MAX_LATE_HORIZON: Duration = Duration::from_secs(1);
+
+/// A request that timed out: its answer may still come, until `until`.
+#[derive(Debug, Clone, Copy)]
+struct Late {
+    slave: u8,
+    function: u8,
+    /// The answer's frame length: an answer of another length is no confusion.
+    answer_len: usize,
+    until: Instant,
+    /// Bytes discarded since the timeout; a whole answer's worth means it came.
+    discarded: usize,
+}
 
 pub struct RtuTransport {
     io: Box<dyn ByteStream>,
@@ -40,6 +61,8 @@ pub struct RtuTransport {
     /// When the line was last busy (the end of the last frame sent or received).
     last_activity: Instant,
     timer: precise::Timer,
+    /// A request that timed out and whose answer may still come.
+    late: Option<Late>,
     pub counters: Counters,
 }
 
@@ -51,6 +74,7 @@ impl RtuTransport {
             guard,
             last_activity: Instant::now(),
             timer: precise::Timer::new(),
+            late: None,
             counters: Counters::default(),
         }
     }
@@ -70,6 +94,9 @@ impl RtuTransport {
         request: &Request,
         timeout: Duration,
     ) -> Result<Response, TxError> {
+        let answer_len = request.response_len() + 3;
+        self.wait_out_late(slave, request.function().code(), answer_len)
+            .await?;
         self.quiet_line(self.silence()).await?;
         let frame = rtu_frame(slave, request);
         self.io.write_all(&frame).await?;
@@ -80,7 +107,16 @@ impl RtuTransport {
         let result = self.read_response(slave, request, sent + timeout).await;
         match &result {
             Ok(_) | Err(TxError::Exception(_)) | Err(TxError::Io(_)) => {}
-            Err(_) => {
+            Err(e) => {
+                if matches!(e, TxError::Timeout) {
+                    self.late = Some(Late {
+                        slave,
+                        function: request.function().code(),
+                        answer_len,
+                        until: sent + timeout + timeout.min(MAX_LATE_HORIZON),
+                        discarded: 0,
+                    });
+                }
                 // The quiet window starts now: a reply still on its way is discarded.
                 self.last_activity = Instant::now();
                 let window = (timeout / 2).min(MAX_LATE_WINDOW).max(self.silence());
@@ -88,6 +124,46 @@ impl RtuTransport {
             }
         }
         result
+    }
+
+    /// Before a request that a late answer could be taken for (same slave, function and
+    /// answer length as one that timed out), discards input until that answer has come or
+    /// its horizon has passed.
+    async fn wait_out_late(
+        &mut self,
+        slave: u8,
+        function: u8,
+        answer_len: usize,
+    ) -> Result<(), TxError> {
+        let Some(late) = self.late else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let came = late.discarded >= late.answer_len;
+        if came || now >= late.until {
+            self.late = None;
+            return Ok(());
+        }
+        if (late.slave, late.function, late.answer_len) != (slave, function, answer_len) {
+            return Ok(());
+        }
+        let mut scratch = [0u8; MAX_FRAME];
+        while let Some(late) = self.late {
+            if late.discarded >= late.answer_len {
+                break;
+            }
+            let read = tokio::select! {
+                read = self.io.read(&mut scratch) => read,
+                _ = self.timer.sleep_until(late.until) => break,
+            };
+            match read {
+                Ok(0) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
+                Ok(n) => self.discard(n),
+                Err(e) => return Err(e.into()),
+            }
+        }
+        self.late = None;
+        Ok(())
     }
 
     async fn read_response(
@@ -185,6 +261,9 @@ impl RtuTransport {
         self.counters.bytes_received += n as u64;
         self.counters.bytes_discarded += n as u64;
         self.last_activity = Instant::now();
+        if let Some(late) = &mut self.late {
+            late.discarded += n;
+        }
     }
 }
 
@@ -295,6 +374,54 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
+    async fn a_late_answer_to_one_read_is_never_taken_for_another_read_of_the_slave() {
+        // A slave that answers every read 1.5 timeouts late, with the register address it
+        // was asked for as the data: reads of 0 and 500 alternate, as two masters forwarding
+        // through the gateway would send them.
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO);
+        tokio::spawn(async move {
+            loop {
+                let (req, _) = request(&mut device).await;
+                let address = u16::from_be_bytes([req[2], req[3]]);
+                tokio::time::sleep(TIMEOUT * 3 / 2).await;
+                if device
+                    .write_all(&registers(1, address, address))
+                    .await
+                    .is_err()
+                {
+                    return;
+                }
+            }
+        });
+        let read = |address| Request::ReadHoldingRegisters { address, count: 2 };
+        let mut answers = 0;
+        for k in 0..20u16 {
+            let address = if k % 2 == 0 { 0 } else { 500 };
+            match t.transact(1, &read(address), TIMEOUT).await {
+                Ok(Response::Registers(values)) => {
+                    assert_eq!(values, vec![address, address], "another read's answer");
+                    answers += 1;
+                }
+                Ok(other) => panic!("{other:?}"),
+                Err(TxError::Timeout) => {}
+                Err(e) => panic!("{e}"),
+            }
+        }
+        // Every read timed out (the slave is too slow) and none got another's value.
+        assert_eq!(answers, 0);
+        assert!(
+            t.counters.bytes_discarded >= 9 * 19,
+            "late answers were discarded"
+        );
+        // A long enough timeout gets the right answer again.
+        assert_eq!(
+            t.transact(1, &read(7), TIMEOUT * 2).await.expect("in time"),
+            Response::Registers(vec![7, 7])
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
     async fn a_silent_device_costs_its_timeout_and_the_late_reply_window() {
         let (gateway, _device) = tokio::io::duplex(1024);
         let mut t = transport(gateway, Duration::ZERO);
@@ -312,11 +439,12 @@ mod tests {
             cost >= expected && cost <= expected + Duration::from_millis(2),
             "{cost:?}"
         );
-        // A long timeout keeps a window of at most 50 ms.
+        // A long timeout keeps a window of at most 50 ms (another slave, so the first one's
+        // late answer is not waited out).
         let long = Duration::from_secs(1);
         let started = Instant::now();
         assert!(matches!(
-            t.transact(1, &read2(), long).await,
+            t.transact(2, &read2(), long).await,
             Err(TxError::Timeout)
         ));
         let cost = started.elapsed();
