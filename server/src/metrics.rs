@@ -32,6 +32,9 @@ pub const LINK_RECEIVED_BYTES: &str = "iogate_link_received_bytes";
 pub const LINK_DISCARDED_BYTES: &str = "iogate_link_discarded_bytes";
 pub const LINK_PLANNED_UTILISATION: &str = "iogate_link_planned_utilisation_ratio";
 pub const LINK_UTILISATION: &str = "iogate_link_utilisation_ratio";
+pub const LINK_INBOX_DEPTH: &str = "iogate_link_inbox_requests";
+pub const LINK_INBOX_OLDEST: &str = "iogate_link_inbox_oldest_seconds";
+pub const LINK_INBOX_DROPPED: &str = "iogate_link_inbox_dropped";
 pub const DEVICE_CONNECTED: &str = "iogate_device_connected";
 pub const DEVICE_ERROR_CODE: &str = "iogate_device_error_code";
 pub const DEVICE_IO_CYCLES: &str = "iogate_device_io_cycles";
@@ -52,6 +55,14 @@ pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct LinkLabels {
     pub link: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct DroppedLabels {
+    pub link: String,
+    /// `busy` (the inbox was full), `expired` (its deadline would pass), `abandoned` (its
+    /// caller had gone).
+    pub reason: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
@@ -113,6 +124,9 @@ pub struct Metrics {
     link_discarded: Family<LinkLabels, Counter>,
     link_planned: Family<LinkLabels, Ratio>,
     link_utilisation: Family<LinkLabels, Ratio>,
+    inbox_depth: Family<LinkLabels, Gauge>,
+    inbox_oldest: Family<LinkLabels, Ratio>,
+    inbox_dropped: Family<DroppedLabels, Counter>,
     device_connected: Family<DeviceLabels, Gauge>,
     device_error_code: Family<DeviceLabels, Gauge>,
     device_io_cycles: Family<DeviceLabels, Counter>,
@@ -156,6 +170,9 @@ impl Metrics {
             link_discarded: Family::default(),
             link_planned: Family::default(),
             link_utilisation: Family::default(),
+            inbox_depth: Family::default(),
+            inbox_oldest: Family::default(),
+            inbox_dropped: Family::default(),
             device_connected: Family::default(),
             device_error_code: Family::default(),
             device_io_cycles: Family::default(),
@@ -223,6 +240,21 @@ impl Metrics {
             LINK_PLANNED_UTILISATION,
             "Share of the line's time the refresh rates demand (serial links)",
             m.link_planned.clone(),
+        );
+        registry.register(
+            LINK_INBOX_DEPTH,
+            "Requests (forwarded Modbus, raw transactions) waiting in the link's inbox",
+            m.inbox_depth.clone(),
+        );
+        registry.register(
+            LINK_INBOX_OLDEST,
+            "How long the oldest request in the link's inbox has waited",
+            m.inbox_oldest.clone(),
+        );
+        registry.register(
+            LINK_INBOX_DROPPED,
+            "Requests never sent: the inbox was full (busy), the caller's deadline would pass (expired), or the caller had gone (abandoned)",
+            m.inbox_dropped.clone(),
         );
         registry.register(
             LINK_UTILISATION,
@@ -399,6 +431,16 @@ impl Metrics {
         self.link_discarded.get_or_create(&labels).inc_by(discarded);
     }
 
+    /// A request dropped from a link's inbox without being sent.
+    pub fn inbox_dropped(&self, link: &str, reason: &str) {
+        self.inbox_dropped
+            .get_or_create(&DroppedLabels {
+                link: link.to_owned(),
+                reason: reason.to_owned(),
+            })
+            .inc();
+    }
+
     pub fn link_reconnected(&self, link: &str) {
         self.link_reconnects
             .get_or_create(&LinkLabels {
@@ -430,6 +472,8 @@ impl Metrics {
     pub fn render(&self, cache: &Cache, format: Format) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.
         self.link_up.clear();
+        self.inbox_depth.clear();
+        self.inbox_oldest.clear();
         self.link_error_code.clear();
         self.link_stalled.clear();
         self.device_connected.clear();
@@ -446,6 +490,19 @@ impl Metrics {
             let _ = self.link_received.get_or_create(&labels);
             let _ = self.link_discarded.get_or_create(&labels);
             let _ = self.link_utilisation.get_or_create(&labels);
+            let (depth, oldest) = link.inbox();
+            self.inbox_depth
+                .get_or_create(&labels)
+                .set(i64::try_from(depth).unwrap_or(i64::MAX));
+            self.inbox_oldest
+                .get_or_create(&labels)
+                .set(oldest.as_secs_f64());
+            for reason in ["busy", "expired", "abandoned"] {
+                let _ = self.inbox_dropped.get_or_create(&DroppedLabels {
+                    link: labels.link.clone(),
+                    reason: reason.to_owned(),
+                });
+            }
             self.link_up
                 .get_or_create(&labels)
                 .set(i64::from(d.connected));

@@ -202,6 +202,8 @@ pub struct Seen {
     pub function: u8,
     pub address: u16,
     pub count: u16,
+    /// FC06: the value written.
+    pub value: Option<u16>,
 }
 
 #[derive(Debug, Default)]
@@ -285,6 +287,7 @@ impl RtuBus {
             function,
             address,
             count,
+            value: (function == 6).then(|| u16::from_be_bytes([frame[4], frame[5]])),
         });
         let slave = state.slaves.get_mut(&slave_id)?;
         let write = matches!(function, 5 | 6 | 15 | 16);

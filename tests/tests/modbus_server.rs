@@ -687,3 +687,96 @@ async fn masters_forwarding_to_a_slow_slave_never_get_each_others_registers() {
     gw.shutdown().await;
     task.abort();
 }
+
+#[tokio::test]
+async fn a_flood_of_forwarded_writes_gets_busy_answers_and_never_starves_polling() {
+    // A slave answering writes after 120 ms, forwarded to by 12 masters at once, on a line
+    // that also polls a device every 10 ms.
+    let bus = RtuBus::default();
+    bus.slave(1, |_| {});
+    bus.slave(2, |s| {
+        s.behaviour = iogate_tests::devices::Behaviour::Slow(Duration::from_millis(120));
+    });
+    let dir = temp_dir("mbs-flood");
+    let port = dir.join("ttyFLOOD");
+    let (device_end, _holder) = pty_at(&port).expect("pty");
+    let task = bus.serve(device_end);
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 115200 }} }}\ndevices:\n  - {{ name: io, profile: MyIoModule, link: rs485, slave_id: 1, refresh_rate: 10ms }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  forward:\n    - {{ unit_ids: \"2\", link: rs485 }}\n",
+        port.display()
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/devices/io", "polled", |b| b["connected"] == true)
+        .await
+        .expect("polled");
+    let cycles = |b: &serde_json::Value| b["io_cycles"].as_u64().unwrap_or(0);
+    let before = cycles(&gw.get("/api/v1/devices/io").await.expect("io").1);
+    let addr = gw.modbus.expect("modbus server");
+    let masters = (0..12u16).map(|m| async move {
+        let mut ctx = master(addr, 2).await;
+        let mut answers = Vec::new();
+        for k in 0..4u16 {
+            let value = 1000 * (m + 1) + k;
+            let answer =
+                tokio::time::timeout(Duration::from_secs(10), ctx.write_single_register(m, value))
+                    .await
+                    .expect("the gateway answers");
+            answers.push((value, answer.expect("io")));
+        }
+        answers
+    });
+    let answers: Vec<(u16, Result<(), ExceptionCode>)> = futures_util::future::join_all(masters)
+        .await
+        .into_iter()
+        .flatten()
+        .collect();
+    let after = cycles(&gw.get("/api/v1/devices/io").await.expect("io").1);
+    let executed: Vec<u16> = bus
+        .seen()
+        .into_iter()
+        .filter(|s| s.slave == 2 && s.function == 6)
+        .filter_map(|s| s.value)
+        .collect();
+    let busy = answers
+        .iter()
+        .filter(|(_, a)| *a == Err(ExceptionCode::ServerDeviceBusy))
+        .count();
+    assert!(busy > 0, "the inbox filled up: {answers:?}");
+    for (value, answer) in &answers {
+        match answer {
+            Ok(()) => assert!(
+                executed.contains(value),
+                "{value} answered OK but not written"
+            ),
+            Err(_) => assert!(
+                !executed.contains(value),
+                "{value} answered {answer:?} but written"
+            ),
+        }
+    }
+    // At most one forwarded request between two poll cycles while polls are due.
+    let polled = after - before;
+    eprintln!(
+        "{} writes: {} OK, {busy} busy, {} executed; {polled} poll cycles meanwhile",
+        answers.len(),
+        answers.iter().filter(|(_, a)| a.is_ok()).count(),
+        executed.len()
+    );
+    assert!(
+        polled as usize >= executed.len() / 2,
+        "{polled} poll cycles for {} forwarded writes",
+        executed.len()
+    );
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains("iogate_link_inbox_dropped_total{link=\"rs485\",reason=\"busy\"}"),
+        "{metrics}"
+    );
+    assert!(
+        metrics.contains("iogate_link_inbox_requests{link=\"rs485\"} 0"),
+        "{metrics}"
+    );
+    gw.shutdown().await;
+    task.abort();
+}

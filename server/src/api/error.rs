@@ -94,6 +94,7 @@ impl From<ServiceError> for ApiError {
             ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
             ServiceError::ReadOnly => (StatusCode::FORBIDDEN, "read_only"),
             ServiceError::TooManyStreams(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many_streams"),
+            ServiceError::Busy(_) => (StatusCode::SERVICE_UNAVAILABLE, "busy"),
             ServiceError::Location(_) => (StatusCode::BAD_REQUEST, "invalid_location"),
             ServiceError::Transaction(_) => (StatusCode::BAD_REQUEST, "invalid_transaction"),
             ServiceError::UnknownTransaction(_) => (StatusCode::NOT_FOUND, "unknown_transaction"),

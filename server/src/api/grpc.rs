@@ -55,7 +55,7 @@ pub fn status(e: ServiceError) -> Status {
         },
         ServiceError::ShuttingDown => tonic::Code::Unavailable,
         ServiceError::ReadOnly => tonic::Code::PermissionDenied,
-        ServiceError::TooManyStreams(_) => tonic::Code::ResourceExhausted,
+        ServiceError::TooManyStreams(_) | ServiceError::Busy(_) => tonic::Code::ResourceExhausted,
         ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,
         ServiceError::Unbound(_) | ServiceError::UnknownTransaction(_) => tonic::Code::NotFound,
         ServiceError::TransactionConflict(_) => tonic::Code::FailedPrecondition,

@@ -17,23 +17,40 @@ use crate::link::frame::{Request, Response};
 use crate::link::{LinkCode, LinkFault, TxError};
 
 /// A request put on the link as it is, for another master (a Modbus TCP client forwarding
-/// to a slave, a raw transaction): queued, and sent by the link's task between polls so
-/// it never collides with them on a half-duplex line.
+/// to a slave, a raw transaction): queued in the link's bounded inbox, and sent by the link's
+/// task between polls so it never collides with them on a half-duplex line.
 #[derive(Debug)]
 pub struct Passthrough {
     pub slave: u8,
     pub request: Request,
     pub timeout: Duration,
+    /// When its caller stops waiting: a request that cannot be answered by then is never
+    /// sent.
+    pub deadline: tokio::time::Instant,
     pub reply: oneshot::Sender<Result<Response, PassthroughError>>,
 }
 
-/// Why a queued request got no answer.
+/// How many requests a link's inbox holds; one more is answered busy at once.
+pub const INBOX_CAPACITY: usize = 8;
+
+/// Why a queued request got no answer. `Busy` and `Expired` were never sent.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum PassthroughError {
     #[error(transparent)]
     Tx(#[from] TxError),
     #[error("the link is down: {0}")]
     LinkDown(LinkFault),
+    #[error("the link's inbox is full ({INBOX_CAPACITY} requests); nothing was sent")]
+    Busy,
+    #[error("the request waited past its caller's deadline; nothing was sent")]
+    Expired,
+}
+
+/// A queued request with when it came.
+#[derive(Debug)]
+struct Queued {
+    request: Passthrough,
+    since: tokio::time::Instant,
 }
 
 /// Where the link's task is: in a transaction that must end by a deadline, or not. A task
@@ -97,7 +114,7 @@ pub struct Link {
     members: RwLock<Vec<Arc<Device>>>,
     /// Counts changes of `members` and of the configuration, so the link's task notices.
     version: AtomicU64,
-    queue: Mutex<VecDeque<Passthrough>>,
+    queue: Mutex<VecDeque<Queued>>,
     /// Stops the link's task when the link is removed.
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
     /// Whether the link's task keeps within its transactions' bounds.
@@ -188,15 +205,38 @@ impl Link {
         self.version.load(Ordering::Acquire)
     }
 
-    /// Queues a request for the link's task; the answer comes on its `reply`.
+    /// Queues a request for the link's task; the answer comes on its `reply`: at once
+    /// [`PassthroughError::Busy`] when the inbox is full.
     pub fn submit(&self, request: Passthrough) {
-        super::lock(&self.queue).push_back(request);
+        let mut queue = super::lock(&self.queue);
+        if queue.len() >= INBOX_CAPACITY {
+            drop(queue);
+            let _ = request.reply.send(Err(PassthroughError::Busy));
+            return;
+        }
+        queue.push_back(Queued {
+            request,
+            since: tokio::time::Instant::now(),
+        });
+        drop(queue);
         self.wake.notify_one();
     }
 
     /// The oldest queued request, for the link's task.
     pub fn take_queued(&self) -> Option<Passthrough> {
-        super::lock(&self.queue).pop_front()
+        super::lock(&self.queue).pop_front().map(|q| q.request)
+    }
+
+    /// Whether a request is waiting.
+    pub fn has_queued(&self) -> bool {
+        !super::lock(&self.queue).is_empty()
+    }
+
+    /// How many requests wait, and how long the oldest has.
+    pub fn inbox(&self) -> (usize, Duration) {
+        let queue = super::lock(&self.queue);
+        let oldest = queue.front().map_or(Duration::ZERO, |q| q.since.elapsed());
+        (queue.len(), oldest)
     }
 
     /// Takes a removed device off the link; its task stops polling it.

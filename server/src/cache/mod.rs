@@ -21,7 +21,7 @@ use crate::text::quote;
 use crate::writes::WriteLog;
 
 pub use device::{Binding, Device, SIM_STRING_MAX};
-pub use link::{Link, Passthrough, PassthroughError, Progress, Utilisation};
+pub use link::{INBOX_CAPACITY, Link, Passthrough, PassthroughError, Progress, Utilisation};
 pub use outputs::{Outputs, TakenWrite, WriteError};
 pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
 

@@ -256,8 +256,18 @@ impl LinkTask {
         tracing::debug!(link = %name, "link task stopped");
     }
 
-    /// Sends a queued request as it is, and answers it.
+    /// Sends a queued request as it is, and answers it; unless its caller has gone, or its
+    /// deadline would pass before the slave's timeout: such a request is never sent.
     async fn pass_through(&mut self, queued: Passthrough, bus: &mut Bus) -> Step {
+        if queued.reply.is_closed() {
+            self.metrics.inbox_dropped(self.link.name(), "abandoned");
+            return Ok(());
+        }
+        if Instant::now() + queued.timeout > queued.deadline {
+            self.metrics.inbox_dropped(self.link.name(), "expired");
+            let _ = queued.reply.send(Err(PassthroughError::Expired));
+            return Ok(());
+        }
         let label = self
             .devices
             .iter()
@@ -291,12 +301,23 @@ impl LinkTask {
     }
 
     async fn serve(&mut self, mut bus: Bus, token: &CancellationToken) -> Ended {
+        // Requests and polling share the line: while a poll is due, at most one request
+        // goes between two poll cycles, so a device keeps its refresh rate as far as the
+        // line carries it, however many requests wait.
+        let mut after_request = false;
         loop {
             if token.is_cancelled() {
                 return Ended::Shutdown;
             }
             self.sync_members();
-            let step = if let Some(queued) = self.link.take_queued() {
+            let poll_due = self.next_due(Instant::now()).is_some();
+            let request = if after_request && poll_due {
+                None
+            } else {
+                self.link.take_queued()
+            };
+            after_request = request.is_some();
+            let step = if let Some(queued) = request {
                 self.pass_through(queued, &mut bus).await
             } else if let Some(i) = self.next_writer() {
                 self.write_device(i, &mut bus).await

@@ -51,6 +51,12 @@ pub enum ServiceError {
     ReadOnly,
     #[error("too many open change streams (at most {0}); try again later")]
     TooManyStreams(usize),
+    /// A link's inbox was full, or could not reach the request by its deadline: nothing
+    /// was sent.
+    #[error(
+        "RS485 busy: link {0} has more requests waiting than it takes; nothing was sent, try again"
+    )]
+    Busy(String),
     #[error("{0}")]
     Location(#[from] iogate_types::LocationError),
     /// A raw transaction's parameters, with every message of the read block that applies.

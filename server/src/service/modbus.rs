@@ -21,6 +21,10 @@ use crate::map::memory::{Memory, MemoryError};
 use crate::map::{Binding, Diag, Plan, Space, Table, Target};
 use iogate_types::Quality;
 
+/// How long past a forwarded request's own timeout a master is waited for: a request still
+/// in the link's inbox after that is dropped (exception 06), never sent late.
+pub const FORWARD_PATIENCE: Duration = Duration::from_secs(1);
+
 /// A binding with its device.
 #[derive(Debug)]
 pub struct Bound {
@@ -259,21 +263,30 @@ impl Service {
             Route::Unknown => Err(Exception::GATEWAY_PATH_UNAVAILABLE),
             Route::Forward(link, timeout) => {
                 let (reply, answer) = oneshot::channel();
+                // A master waits about a second for an answer; a request the link cannot
+                // send by then (after the slave's timeout) is dropped, never sent late.
+                let deadline = Instant::now() + timeout + FORWARD_PATIENCE;
                 link.submit(Passthrough {
                     slave: unit,
                     request: request.clone(),
                     timeout,
+                    deadline,
                     reply,
                 });
-                // The link's task answers within the timeout (plus a transaction in flight);
-                // a task that has stopped never will.
-                let patience = timeout * 2 + Duration::from_secs(2);
-                match tokio::time::timeout(patience, answer).await {
+                // A request sent before its deadline ends within its timeout and the line's
+                // waits; a task that has stopped never answers.
+                let patience = deadline + timeout + Duration::from_secs(2);
+                match tokio::time::timeout_at(patience, answer).await {
                     Ok(Ok(Ok(response))) => Ok(response),
                     Ok(Ok(Err(PassthroughError::Tx(TxError::Exception(x))))) => Err(x),
                     Ok(Ok(Err(PassthroughError::LinkDown(_)))) => {
                         Err(Exception::GATEWAY_PATH_UNAVAILABLE)
                     }
+                    Ok(Ok(Err(PassthroughError::Busy))) => {
+                        self.metrics.inbox_dropped(link.name(), "busy");
+                        Err(Exception::SERVER_DEVICE_BUSY)
+                    }
+                    Ok(Ok(Err(PassthroughError::Expired))) => Err(Exception::SERVER_DEVICE_BUSY),
                     _ => Err(Exception::GATEWAY_TARGET_FAILED),
                 }
             }

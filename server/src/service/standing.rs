@@ -279,13 +279,15 @@ impl Service {
                 }
                 // The read block's output 1 keeps the last value read correctly; the error
                 // is said beside it.
+                // A run refused before it was sent (a busy link) leaves the last outcome.
                 let kept = st.last.as_ref().and_then(|o| o.value);
-                st.last = outcome.as_ref().ok().cloned().map(|mut o| {
+                if let Ok(o) = &outcome {
+                    let mut o = o.clone();
                     if !o.actual && !s.is_write {
                         o.value = kept;
                     }
-                    o
-                });
+                    st.last = Some(o);
+                }
                 st.updated = Some(SystemTime::now());
             });
             self.metrics.transaction_run(&s.name, ok);

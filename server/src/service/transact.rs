@@ -93,14 +93,24 @@ impl Service {
             ));
         }
         let (reply, answer) = oneshot::channel();
+        // The request waits at most its timeout plus a second in the link's inbox; one the
+        // link cannot send by then is dropped (busy), never sent late.
+        let deadline = started + checked.timeout * 2 + Duration::from_secs(1);
         link.submit(Passthrough {
             slave,
             request: request.clone(),
             timeout: checked.timeout,
+            deadline,
             reply,
         });
-        let patience = checked.timeout * 2 + Duration::from_secs(2);
-        let answered = tokio::time::timeout(patience, answer).await;
+        let patience = deadline + checked.timeout + Duration::from_secs(2);
+        let answered = tokio::time::timeout_at(patience, answer).await;
+        if let Ok(Ok(Err(e @ (PassthroughError::Busy | PassthroughError::Expired)))) = &answered {
+            if matches!(e, PassthroughError::Busy) {
+                self.metrics.inbox_dropped(link.name(), "busy");
+            }
+            return Err(ServiceError::Busy(link.name().to_owned()));
+        }
         Ok(match answered {
             Ok(Ok(Ok(response))) => {
                 let response_frame = Some(frame(rtu, slave, &response.to_pdu(&request)));
