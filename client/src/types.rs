@@ -32,6 +32,14 @@ pub struct FieldValue {
     /// Milliseconds since 1970 (for JSON output).
     pub timestamp_ms: Option<u128>,
     pub error: Option<String>,
+    /// The profile's engineering unit.
+    pub unit: Option<String>,
+    /// The device holds another value than the newest requested (`desired`), with no write
+    /// of it waiting.
+    pub mismatch: bool,
+    pub desired: Option<Value>,
+    /// The latest write to the field, while the gateway's log keeps it.
+    pub last_write: Option<Box<WriteStatus>>,
 }
 
 impl FieldValue {
@@ -45,6 +53,10 @@ impl FieldValue {
             timestamp_ms: millis(&timestamp),
             timestamp,
             error: (!v.error.is_empty()).then_some(v.error),
+            unit: (!v.unit.is_empty()).then_some(v.unit),
+            mismatch: v.mismatch,
+            desired: v.desired.as_ref().and_then(Value::from_pb),
+            last_write: v.last_write.map(|w| Box::new(WriteStatus::from_pb(w))),
             device: v.device,
             field: v.field,
         }

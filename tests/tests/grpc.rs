@@ -613,3 +613,67 @@ async fn malformed_messages_are_invalid_arguments() {
     assert_eq!(status.code(), Code::NotFound, "{status:?}");
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn rest_sse_the_map_and_grpc_give_one_view_of_a_field() {
+    let (gw, mut client) = demo().await;
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant/fields/TemperatureSetpoint",
+            r#"{"value": 65.5}"#.to_owned(),
+        )
+        .await
+        .expect("write");
+    assert_eq!(status, 202, "{body}");
+    let generation = body["generation"].as_u64().expect("generation");
+    let rest = gw
+        .until(
+            "/api/v1/devices/plant/fields/TemperatureSetpoint",
+            "written and read back",
+            |b| b["last_write"]["status"] == "written" && b["value"] == 65.5,
+        )
+        .await
+        .expect("written");
+    // The map over REST (%MD1 in the demo) and the event stream carry the same JSON.
+    let (_, map) = gw.get("/api/v1/map/%25MD1").await.expect("map");
+    let mut events = iogate_tests::SseReader::open(&gw, "/api/v1/events?device=plant")
+        .await
+        .expect("events");
+    let sse = events
+        .until(|name, data| name == "value" && data["field"] == "TemperatureSetpoint")
+        .await
+        .expect("an event");
+    for key in [
+        "device",
+        "field",
+        "type",
+        "direction",
+        "value",
+        "quality",
+        "timestamp",
+        "unit",
+        "mismatch",
+        "last_write",
+    ] {
+        assert_eq!(map[key], rest[key], "/map: {key}");
+        assert_eq!(sse[key], rest[key], "SSE: {key}");
+    }
+    assert_eq!(rest["unit"], "°C");
+    assert_eq!(rest["last_write"]["generation"], generation);
+    // gRPC: the same value, quality, unit and last write.
+    let grpc = client
+        .get("plant", "TemperatureSetpoint")
+        .await
+        .expect("get");
+    assert_eq!(grpc.value, Some(Value::Real(65.5)));
+    assert_eq!(grpc.quality, Quality::Good);
+    assert_eq!(grpc.unit.as_deref(), Some("°C"));
+    assert!(!grpc.mismatch);
+    let last = grpc.last_write.expect("last write");
+    assert_eq!(
+        (last.generation, last.outcome),
+        (generation, WriteOutcome::Written)
+    );
+    gw.shutdown().await;
+}

@@ -6,10 +6,11 @@ use serde::Serialize;
 use serde_json::{Number, Value as Json};
 use utoipa::ToSchema;
 
-use crate::cache::{Device, Diagnostics, Link, Sample};
+use crate::cache::{Device, Diagnostics, Link};
 use crate::codec::{IecType, Value};
 use crate::config::Transport;
 use crate::profile::{LayoutEntry, Profile, fb_layout};
+use crate::service::FieldView;
 use crate::writes::WriteRecord;
 
 /// A value as the JSON of its type: BOOL as true/false, numbers as numbers, STRING as a
@@ -151,31 +152,22 @@ pub struct FieldValue<'a> {
     pub desired: Option<ValueJson>,
 }
 
-pub fn field_value<'a>(device: &'a Device, idx: usize, sample: &Sample) -> FieldValue<'a> {
-    let field = device.field(idx);
-    let now = tokio::time::Instant::now();
+/// The JSON of a field's view.
+pub fn field_value<'a>(view: &FieldView<'a>) -> FieldValue<'a> {
+    let field = view.field;
     FieldValue {
-        device: device.name(),
+        device: view.device.name(),
         field: &field.name,
         ty: field.ty.name(),
         direction: field.direction.name(),
-        value: ValueJson(sample.value.clone()),
-        quality: sample.quality_at(now, device.stale_after()).name(),
-        timestamp: sample.updated.map(|(_, wall)| Timestamp(wall)),
+        value: ValueJson(view.value.clone()),
+        quality: view.quality.name(),
+        timestamp: view.timestamp.map(Timestamp),
         unit: field.register.unit.as_deref(),
-        error: sample.error.as_ref().map(ToString::to_string),
-        last_write: None,
-        mismatch: false,
-        desired: None,
-    }
-    .with_desired(device.mismatch(idx))
-}
-
-impl FieldValue<'_> {
-    fn with_desired(mut self, desired: Option<crate::codec::Value>) -> Self {
-        self.mismatch = desired.is_some();
-        self.desired = desired.map(|d| ValueJson(Some(d)));
-        self
+        error: view.error.clone(),
+        last_write: view.last_write.as_ref().map(WriteInfo::from),
+        mismatch: view.mismatch(),
+        desired: view.desired.clone().map(|d| ValueJson(Some(d))),
     }
 }
 

@@ -79,13 +79,17 @@ pub async fn events(
             &super::transactions::standing_info(&standing, &status),
         ))
     });
-    let stream = service.subscribe(selection, true)?.map(|change| {
+    let viewer = service.clone();
+    let stream = service.subscribe(selection, true)?.map(move |change| {
         Ok(match change {
             Change::Value {
                 device,
                 idx,
                 sample,
-            } => event(EVENT_VALUE, &field_value(&device, idx, &sample)),
+            } => event(
+                EVENT_VALUE,
+                &field_value(&viewer.field_view(&device, idx, &sample)),
+            ),
             Change::Diagnostics {
                 device,
                 diagnostics: d,

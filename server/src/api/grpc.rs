@@ -215,7 +215,7 @@ impl Gateway for GrpcApi {
                 .service
                 .devices()
                 .iter()
-                .map(|d| to_pb::device(d, false))
+                .map(|d| to_pb::device(d, None))
                 .collect(),
         }))
     }
@@ -228,7 +228,7 @@ impl Gateway for GrpcApi {
             .service
             .device(&request.get_ref().name)
             .map_err(status)?;
-        Ok(Response::new(to_pb::device(&device, true)))
+        Ok(Response::new(to_pb::device(&device, Some(&self.service))))
     }
 
     async fn read(
@@ -241,7 +241,9 @@ impl Gateway for GrpcApi {
             values: snapshot
                 .values
                 .iter()
-                .map(|(f, sample)| to_pb::field_value(&f.device, f.idx, sample))
+                .map(|(f, sample)| {
+                    to_pb::field_value(&self.service.field_view(&f.device, f.idx, sample))
+                })
                 .collect(),
             diagnostics: snapshot
                 .diagnostics
@@ -295,13 +297,16 @@ impl Gateway for GrpcApi {
             .service
             .subscribe(selection, r.diagnostics)
             .map_err(status)?;
-        let updates = changes.map(|change| {
+        let viewer = self.service.clone();
+        let updates = changes.map(move |change| {
             let kind = match change {
                 Change::Value {
                     device,
                     idx,
                     sample,
-                } => pb::update::Kind::Value(to_pb::field_value(&device, idx, &sample)),
+                } => pb::update::Kind::Value(to_pb::field_value(
+                    &viewer.field_view(&device, idx, &sample),
+                )),
                 Change::Diagnostics {
                     device,
                     diagnostics,
@@ -361,7 +366,7 @@ impl Gateway for GrpcApi {
                     cycle: outcome.cycle,
                     inputs: outcome
                         .inputs()
-                        .map(|(d, i)| to_pb::field_value(d, i, &d.sample(i)))
+                        .map(|(d, i)| to_pb::field_value(&service.field_view_now(d, i)))
                         .collect(),
                     diagnostics: outcome
                         .devices
@@ -505,7 +510,7 @@ impl Gateway for GrpcApi {
             })
             .map_err(status)?;
         Ok(Response::new(pb::EnsureDeviceResponse {
-            device: Some(to_pb::device(&ensured.value, false)),
+            device: Some(to_pb::device(&ensured.value, None)),
             created: ensured.created,
         }))
     }

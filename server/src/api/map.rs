@@ -106,7 +106,7 @@ pub async fn get_located(
 ) -> Result<axum::response::Response, ApiError> {
     let (device, idx) = service.located(&at)?;
     super::rest::json_response(
-        &convert::field_value(&device, idx, &device.sample(idx)),
+        &convert::field_value(&service.field_view_now(&device, idx)),
         256,
     )
 }

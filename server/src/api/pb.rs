@@ -4,10 +4,11 @@ use std::time::SystemTime;
 
 use iogate_proto::pb;
 
-use crate::cache::{Device, Diagnostics, Link, Sample};
+use crate::cache::{Device, Diagnostics, Link};
 use crate::codec::{IecType, Value};
 use crate::config::{SerialSettings, Transport};
 use crate::profile::{Profile, fb_layout, st_declaration};
+use crate::service::{FieldView, Service};
 use crate::writes::{WriteRecord, WriteStatus};
 
 pub fn iec_type(ty: IecType) -> pb::IecType {
@@ -22,24 +23,24 @@ pub fn timestamp(t: SystemTime) -> prost_types::Timestamp {
     prost_types::Timestamp::from(t)
 }
 
-pub fn field_value(device: &Device, idx: usize, sample: &Sample) -> pb::FieldValue {
-    let field = device.field(idx);
-    let now = tokio::time::Instant::now();
-    let desired = device.mismatch(idx);
+/// The protobuf of a field's view.
+pub fn field_value(view: &FieldView<'_>) -> pb::FieldValue {
+    let field = view.field;
     pb::FieldValue {
-        device: device.name().to_owned(),
+        device: view.device.name().to_owned(),
         field: field.name.clone(),
-        value: sample.value.as_ref().map(|v| value(field.ty, v)),
-        quality: sample.quality_at(now, device.stale_after()).to_pb().into(),
-        timestamp: sample.updated.map(|(_, wall)| timestamp(wall)),
-        error: sample
-            .error
-            .as_ref()
-            .map(ToString::to_string)
-            .unwrap_or_default(),
+        value: view.value.as_ref().map(|v| value(field.ty, v)),
+        quality: view.quality.to_pb().into(),
+        timestamp: view.timestamp.map(timestamp),
+        error: view.error.clone().unwrap_or_default(),
         direction: field.direction.to_pb().into(),
-        mismatch: desired.is_some(),
-        desired: desired.as_ref().map(|v| value(field.ty, v)),
+        mismatch: view.mismatch(),
+        desired: view.desired.as_ref().map(|v| value(field.ty, v)),
+        unit: view.unit().unwrap_or_default().to_owned(),
+        last_write: view
+            .last_write
+            .as_ref()
+            .map(|r| write_status(r, Some(field.ty))),
     }
 }
 
@@ -53,7 +54,8 @@ pub fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
     }
 }
 
-pub fn device(device: &Device, with_fields: bool) -> pb::Device {
+/// A device with its diagnostics, and with every field's view from `fields` when given.
+pub fn device(device: &Device, fields: Option<&Service>) -> pb::Device {
     let c = &device.config;
     let binding = device.binding();
     pb::Device {
@@ -65,13 +67,11 @@ pub fn device(device: &Device, with_fields: bool) -> pb::Device {
         refresh_rate_ms: millis(c.refresh_rate),
         timeout_ms: millis(c.timeout),
         diagnostics: Some(diagnostics(device, &device.diagnostics())),
-        fields: if with_fields {
+        fields: fields.map_or_else(Vec::new, |service| {
             (0..device.profile.fields.len())
-                .map(|i| field_value(device, i, &device.sample(i)))
+                .map(|i| field_value(&service.field_view_now(device, i)))
                 .collect()
-        } else {
-            Vec::new()
-        },
+        }),
     }
 }
 

@@ -116,11 +116,7 @@ pub async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {
 }
 
 fn field_json<'a>(device: &'a Device, idx: usize, service: &Service) -> FieldValue<'a> {
-    let mut value = field_value(device, idx, &device.sample(idx));
-    value.last_write = service
-        .last_write(device, idx)
-        .map(|record| WriteInfo::from(&record));
-    value
+    field_value(&service.field_view_now(device, idx))
 }
 
 /// One device: diagnostics and every field's value.

@@ -9,6 +9,7 @@ mod select;
 mod standing;
 mod subscribe;
 mod transact;
+mod view;
 mod write;
 
 use std::sync::Arc;
@@ -24,6 +25,7 @@ pub use modbus::{Bound, ModbusImage, Route};
 pub use select::{FieldRef, Selection, Snapshot};
 pub use standing::{Standing, StandingSet, StandingStatus};
 pub use subscribe::{Change, Changes};
+pub use view::FieldView;
 pub use write::{Accepted, CycleOutcome, Prepared, ScanCycle};
 
 /// Why the service refused a request.
