@@ -16,10 +16,8 @@ use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 
 use crate::link::frame::{Exception, Request};
+use crate::link::mbap;
 use crate::service::Service;
-
-/// The longest MBAP length field: unit id plus a 253-byte PDU.
-const MAX_MBAP_LENGTH: usize = 254;
 
 /// Accepts masters until `shutdown`; each connection runs as a task of the gateway.
 pub async fn serve_modbus(
@@ -76,7 +74,7 @@ async fn connection(
     // Buffered: one read usually brings a whole request (or several pipelined ones).
     let mut stream = BufReader::new(stream);
     let mut counters = Counters::default();
-    let mut header = [0u8; 7];
+    let mut header = [0u8; mbap::HEADER_LEN];
     loop {
         let read = tokio::select! {
             _ = token.cancelled() => return Ok(()),
@@ -88,28 +86,16 @@ async fn connection(
             Ok(Err(e)) => return Err(e.to_string()),
             Ok(Ok(_)) => {}
         }
-        let transaction = [header[0], header[1]];
-        let protocol = u16::from_be_bytes([header[2], header[3]]);
-        let length = usize::from(u16::from_be_bytes([header[4], header[5]]));
-        let unit = header[6];
-        if protocol != 0 || !(2..=MAX_MBAP_LENGTH).contains(&length) {
-            return Err(format!(
-                "malformed MBAP header: protocol {protocol}, length {length}"
-            ));
-        }
-        let mut pdu = vec![0u8; length - 1];
+        let header = mbap::Header::parse(&header).map_err(|e| format!("malformed {e}"))?;
+        let unit = header.unit;
+        let mut pdu = vec![0u8; header.pdu_len];
         match tokio::time::timeout(idle, stream.read_exact(&mut pdu)).await {
             Ok(Ok(_)) => {}
             Ok(Err(e)) => return Err(e.to_string()),
             Err(_) => return Err("idle timeout in the middle of a frame".into()),
         }
         let answer = answer(service, unit, &pdu, &mut counters).await;
-        let mut frame = Vec::with_capacity(7 + answer.len());
-        frame.extend_from_slice(&transaction);
-        frame.extend_from_slice(&[0, 0]);
-        frame.extend_from_slice(&((answer.len() + 1) as u16).to_be_bytes());
-        frame.push(unit);
-        frame.extend_from_slice(&answer);
+        let frame = mbap::frame(header.transaction, unit, &answer);
         stream.write_all(&frame).await.map_err(|e| e.to_string())?;
     }
 }

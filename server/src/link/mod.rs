@@ -2,6 +2,7 @@
 //! transactions on it. Bytes belong here; values belong to `codec`.
 
 pub mod frame;
+pub mod mbap;
 pub mod precise;
 pub mod rtu;
 pub mod tcp;

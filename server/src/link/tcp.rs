@@ -9,6 +9,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{Instant, timeout_at};
 
 use super::frame::{Malformed, Request, Response};
+use super::mbap;
 use super::{ByteStream, Counters, TxError};
 
 pub struct MbapTransport {
@@ -36,40 +37,28 @@ impl MbapTransport {
         self.next_id = self.next_id.wrapping_add(1);
         let mut pdu = Vec::with_capacity(6 + 2 * usize::from(request.count()));
         request.encode(&mut pdu);
-        let mut frame = Vec::with_capacity(7 + pdu.len());
-        frame.extend_from_slice(&id.to_be_bytes());
-        frame.extend_from_slice(&[0, 0]);
-        frame.extend_from_slice(&(pdu.len() as u16 + 1).to_be_bytes());
-        frame.push(unit);
-        frame.extend_from_slice(&pdu);
+        let frame = mbap::frame(id, unit, &pdu);
         self.io.write_all(&frame).await?;
         self.io.flush().await?;
         self.counters.bytes_sent += frame.len() as u64;
 
         let deadline = Instant::now() + timeout;
         loop {
-            let mut header = [0u8; 7];
-            self.read_into(&mut header, deadline).await?;
-            let answer_id = u16::from_be_bytes([header[0], header[1]]);
-            let protocol = u16::from_be_bytes([header[2], header[3]]);
-            let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
-            if protocol != 0 || !(2..=254).contains(&len) {
-                // The stream is out of step; only a new connection can recover it.
-                return Err(io::Error::new(
-                    io::ErrorKind::InvalidData,
-                    format!("MBAP header with protocol {protocol} and length {len}"),
-                )
-                .into());
-            }
-            let mut body = vec![0u8; len - 1];
+            let mut bytes = [0u8; mbap::HEADER_LEN];
+            self.read_into(&mut bytes, deadline).await?;
+            // A malformed header leaves the stream out of step; only a new connection can
+            // recover it.
+            let header = mbap::Header::parse(&bytes)
+                .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e.to_string()))?;
+            let mut body = vec![0u8; header.pdu_len];
             self.read_into(&mut body, deadline).await?;
-            if answer_id != id {
-                self.counters.bytes_discarded += (7 + body.len()) as u64;
+            if header.transaction != id {
+                self.counters.bytes_discarded += (mbap::HEADER_LEN + body.len()) as u64;
                 continue;
             }
-            if header[6] != unit {
+            if header.unit != unit {
                 return Err(TxError::Invalid(Malformed::Unit {
-                    found: header[6],
+                    found: header.unit,
                     expected: unit,
                 }));
             }
