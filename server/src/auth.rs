@@ -180,40 +180,49 @@ fn constant_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-/// The role a REST request needs: `None` for the open endpoints (health, metrics).
-pub fn rest_role(method: &str, path: &str) -> Option<Role> {
-    // The web page's files hold no data; what it shows comes from the API, with the
-    // visitor's token.
-    if matches!(path, "/livez" | "/readyz" | "/metrics" | "/" | "/ui") || path.starts_with("/ui/") {
-        return None;
-    }
-    let api = path.strip_prefix("/api/v1").unwrap_or(path);
-    let declaration = (method == "PUT"
-        && (api.starts_with("/links/") && !api.ends_with("/transactions")
-            || (api.starts_with("/devices/") && api.matches('/').count() == 2)
-            || (api.starts_with("/transactions/") && api.matches('/').count() == 2)))
-        || method == "DELETE";
-    Some(if declaration {
-        Role::Admin
-    } else if matches!(method, "GET" | "HEAD" | "OPTIONS") {
-        Role::Read
-    } else {
-        Role::Write
-    })
+/// Everything a client can ask of the gateway, whatever the front-end: each front-end names
+/// the operation a request is (a REST route, a gRPC method), and the role it needs is
+/// declared here, once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Operation {
+    /// Values, diagnostics, links, devices, profiles, write outcomes, the map, memory,
+    /// standing transactions' states, plans, the OpenAPI document.
+    Read,
+    /// A stream of changes (SSE, gRPC Subscribe).
+    Subscribe,
+    /// Writing outputs (REST PUT/PATCH, gRPC Write, the map, a scan-cycle exchange).
+    WriteOutputs,
+    /// Setting a simulated device's input.
+    Simulate,
+    /// A raw transaction on a link.
+    Transact,
+    /// Switching, triggering or setting the values of a standing transaction.
+    SwitchTransaction,
+    /// Declaring a link, device or standing transaction.
+    Declare,
+    /// Removing what was declared.
+    Remove,
 }
 
-/// The role a gRPC method needs: `None` for health checks.
-pub fn grpc_role(path: &str) -> Option<Role> {
-    if path.starts_with("/grpc.health.") {
-        return None;
+impl Operation {
+    /// The role the operation needs.
+    pub const fn role(self) -> Role {
+        match self {
+            Operation::Read | Operation::Subscribe => Role::Read,
+            Operation::WriteOutputs
+            | Operation::Simulate
+            | Operation::Transact
+            | Operation::SwitchTransaction => Role::Write,
+            Operation::Declare | Operation::Remove => Role::Admin,
+        }
     }
-    let method = path.rsplit('/').next().unwrap_or("");
-    Some(match method {
-        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" | "RemoveDevice" | "RemoveLink"
-        | "RemoveTransaction" => Role::Admin,
-        "Write" | "Exchange" | "Transact" | "SetTransaction" => Role::Write,
-        _ => Role::Read,
-    })
+}
+
+impl Tokens {
+    /// Whether a request with `authorization` (the header's value) may do `operation`.
+    pub fn allows(&self, authorization: Option<&str>, operation: Operation) -> Result<(), Denied> {
+        self.check(authorization, operation.role())
+    }
 }
 
 #[cfg(test)]
@@ -265,60 +274,21 @@ mod tests {
     }
 
     #[test]
-    fn every_route_needs_its_role() {
-        assert_eq!(rest_role("GET", "/livez"), None);
-        assert_eq!(rest_role("GET", "/metrics"), None);
-        assert_eq!(rest_role("GET", "/api/v1/devices"), Some(Role::Read));
-        assert_eq!(rest_role("GET", "/api/v1/events"), Some(Role::Read));
+    fn each_operation_needs_its_role() {
+        let bearer = |tok: &str| format!("Bearer {tok}");
+        assert_eq!(Operation::Read.role(), Role::Read);
+        assert_eq!(Operation::Subscribe.role(), Role::Read);
+        assert_eq!(Operation::WriteOutputs.role(), Role::Write);
+        assert_eq!(Operation::Transact.role(), Role::Write);
+        assert_eq!(Operation::Declare.role(), Role::Admin);
+        assert_eq!(Operation::Remove.role(), Role::Admin);
+        let t = tokens();
         assert_eq!(
-            rest_role("PUT", "/api/v1/devices/sim/fields/DO_0"),
-            Some(Role::Write)
+            t.allows(Some(&bearer(READ)), Operation::WriteOutputs),
+            Err(Denied::Forbidden {
+                needed: Role::Write
+            })
         );
-        assert_eq!(
-            rest_role("PATCH", "/api/v1/devices/sim/fields"),
-            Some(Role::Write)
-        );
-        assert_eq!(
-            rest_role("POST", "/api/v1/links/rs485/transactions"),
-            Some(Role::Write)
-        );
-        assert_eq!(rest_role("PUT", "/api/v1/devices/adc"), Some(Role::Admin));
-        assert_eq!(rest_role("PUT", "/api/v1/links/plc"), Some(Role::Admin));
-        assert_eq!(
-            rest_role("PUT", "/api/v1/transactions/t"),
-            Some(Role::Admin)
-        );
-        assert_eq!(
-            rest_role("PUT", "/api/v1/transactions/t/values"),
-            Some(Role::Write)
-        );
-        assert_eq!(grpc_role("/grpc.health.v1.Health/Check"), None);
-        assert_eq!(grpc_role("/iogate.v1.Gateway/Read"), Some(Role::Read));
-        assert_eq!(grpc_role("/iogate.v1.Gateway/Write"), Some(Role::Write));
-        assert_eq!(
-            grpc_role("/iogate.v1.Gateway/EnsureDevice"),
-            Some(Role::Admin)
-        );
-        assert_eq!(
-            rest_role("DELETE", "/api/v1/devices/adc"),
-            Some(Role::Admin)
-        );
-        assert_eq!(rest_role("DELETE", "/api/v1/links/plc"), Some(Role::Admin));
-        assert_eq!(
-            grpc_role("/iogate.v1.Gateway/RemoveDevice"),
-            Some(Role::Admin)
-        );
-        assert_eq!(
-            grpc_role("/iogate.v1.Gateway/RemoveLink"),
-            Some(Role::Admin)
-        );
-        assert_eq!(
-            grpc_role("/iogate.v1.Gateway/RemoveTransaction"),
-            Some(Role::Admin)
-        );
-        assert_eq!(
-            rest_role("DELETE", "/api/v1/transactions/poll"),
-            Some(Role::Admin)
-        );
+        assert_eq!(t.allows(Some(&bearer(ADMIN)), Operation::Remove), Ok(()));
     }
 }

@@ -12,6 +12,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
 use super::pb as to_pb;
+use crate::auth::Operation;
 use crate::cache::AccessError;
 use crate::codec::{Value, ValueError};
 use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration, Refusal};
@@ -61,6 +62,27 @@ pub fn status(e: ServiceError) -> Status {
         ServiceError::TransactionConflict(_) => tonic::Code::FailedPrecondition,
     };
     Status::new(code, message)
+}
+
+/// The operation a gRPC method is (`/iogate.v1.Gateway/Write`): every method of the
+/// service named once; health checks need no token (reflection is a read).
+pub fn operation(path: &str) -> Option<Operation> {
+    if path.starts_with("/grpc.health.") {
+        return None;
+    }
+    let method = path.rsplit('/').next().unwrap_or("");
+    Some(match method {
+        "ListProfiles" | "DescribeProfile" | "ListLinks" | "DescribeLink" | "ListDevices"
+        | "DescribeDevice" | "Read" | "GetWrite" | "ListTransactions" => Operation::Read,
+        "Subscribe" => Operation::Subscribe,
+        "Write" | "Exchange" => Operation::WriteOutputs,
+        "Transact" => Operation::Transact,
+        "SetTransaction" => Operation::SwitchTransaction,
+        "EnsureLink" | "EnsureDevice" | "EnsureTransaction" => Operation::Declare,
+        "RemoveDevice" | "RemoveLink" | "RemoveTransaction" => Operation::Remove,
+        // Not a method of the service (UNIMPLEMENTED): as a read.
+        _ => Operation::Read,
+    })
 }
 
 /// A transaction's value as JSON: a double is a float (so `int32/float` writes it as

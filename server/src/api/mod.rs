@@ -30,6 +30,7 @@ use tokio::net::TcpListener;
 use tower_http::trace::TraceLayer;
 use utoipa::OpenApi;
 
+use crate::auth::Operation;
 use crate::service::Service;
 use error::ApiError;
 
@@ -101,22 +102,18 @@ async fn not_found(uri: Uri) -> ApiError {
     )
 }
 
-/// Refuses a request without the role its route needs: 401 without a known token, 403
-/// with one whose role is too low, both as the API's JSON.
+/// Refuses a request without the role its route's operation needs: 401 without a known
+/// token, 403 with one whose role is too low, both as the API's JSON.
 async fn authorize(
-    State(service): State<Arc<Service>>,
+    State((service, operation)): State<(Arc<Service>, Operation)>,
     request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> axum::response::Response {
-    let Some(needed) = crate::auth::rest_role(request.method().as_str(), request.uri().path())
-    else {
-        return next.run(request).await;
-    };
     let header = request
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok());
-    match service.tokens.check(header, needed) {
+    match service.tokens.allows(header, operation) {
         Ok(()) => next.run(request).await,
         Err(crate::auth::Denied::Unauthenticated) => {
             let mut response = ApiError::new(
@@ -140,71 +137,109 @@ async fn authorize(
     }
 }
 
-/// The HTTP routes, each request body to arrive within `body_timeout`.
+type Method = axum::routing::MethodRouter<Arc<Service>>;
+
+/// `method`, refused to a client without the role `operation` needs: every route names the
+/// operation it is, and the role comes from that ([`Operation::role`]).
+fn needs(service: &Arc<Service>, operation: Operation, method: Method) -> Method {
+    method.layer(axum::middleware::from_fn_with_state(
+        (service.clone(), operation),
+        authorize,
+    ))
+}
+
+/// The HTTP routes, each request body to arrive within `body_timeout`. The API's routes
+/// each name their operation; health, metrics and the web page's files need no token.
 pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Router {
+    use Operation::*;
+    use axum::routing::{delete, patch, post};
+    let s = &service;
     let api = Router::new()
-        .route("/openapi.json", get(openapi_json))
-        .route("/links", get(rest::list_links))
+        .route("/openapi.json", needs(s, Read, get(openapi_json)))
+        .route("/links", needs(s, Read, get(rest::list_links)))
         .route(
             "/links/{link}",
-            get(rest::get_link)
-                .put(declare::put_link)
-                .delete(declare::delete_link),
+            needs(s, Read, get(rest::get_link))
+                .merge(needs(s, Declare, put(declare::put_link)))
+                .merge(needs(s, Remove, delete(declare::delete_link))),
         )
-        .route("/links/{link}/plan", get(rest::get_link_plan))
+        .route(
+            "/links/{link}/plan",
+            needs(s, Read, get(rest::get_link_plan)),
+        )
         .route(
             "/links/{link}/transactions",
-            axum::routing::post(transactions::post_transaction),
+            needs(s, Transact, post(transactions::post_transaction)),
         )
-        .route("/devices", get(rest::list_devices))
+        .route("/devices", needs(s, Read, get(rest::list_devices)))
         .route(
             "/devices/{device}",
-            get(rest::get_device)
-                .put(declare::put_device)
-                .delete(declare::delete_device),
+            needs(s, Read, get(rest::get_device))
+                .merge(needs(s, Declare, put(declare::put_device)))
+                .merge(needs(s, Remove, delete(declare::delete_device))),
         )
         .route(
             "/devices/{device}/fields",
-            axum::routing::patch(rest::patch_fields),
+            needs(s, WriteOutputs, patch(rest::patch_fields)),
         )
         .route(
             "/devices/{device}/fields/{field}",
-            get(rest::get_field).put(rest::put_field),
+            needs(s, Read, get(rest::get_field)).merge(needs(
+                s,
+                WriteOutputs,
+                put(rest::put_field),
+            )),
         )
         .route(
             "/devices/{device}/fields/{field}/simulate",
-            put(rest::simulate_field),
+            needs(s, Simulate, put(rest::simulate_field)),
         )
-        .route("/writes/{generation}", get(rest::get_write))
-        .route("/profiles", get(rest::list_profiles))
-        .route("/profiles/{profile}", get(rest::get_profile))
-        .route("/profiles/{profile}/st", get(rest::get_profile_st))
-        .route("/events", get(events::events))
-        .route("/map", get(map::get_map))
-        .route("/map/{at}", get(map::get_located).put(map::put_located))
-        .route("/memory", get(map::get_memory))
-        .route("/transactions", get(transactions::list_standing))
+        .route("/writes/{generation}", needs(s, Read, get(rest::get_write)))
+        .route("/profiles", needs(s, Read, get(rest::list_profiles)))
+        .route(
+            "/profiles/{profile}",
+            needs(s, Read, get(rest::get_profile)),
+        )
+        .route(
+            "/profiles/{profile}/st",
+            needs(s, Read, get(rest::get_profile_st)),
+        )
+        .route("/events", needs(s, Subscribe, get(events::events)))
+        .route("/map", needs(s, Read, get(map::get_map)))
+        .route(
+            "/map/{at}",
+            needs(s, Read, get(map::get_located)).merge(needs(
+                s,
+                WriteOutputs,
+                put(map::put_located),
+            )),
+        )
+        .route("/memory", needs(s, Read, get(map::get_memory)))
+        .route(
+            "/transactions",
+            needs(s, Read, get(transactions::list_standing)),
+        )
         .route(
             "/transactions/{name}",
-            get(transactions::get_standing)
-                .put(transactions::put_standing)
-                .delete(transactions::delete_standing),
+            needs(s, Read, get(transactions::get_standing))
+                .merge(needs(s, Declare, put(transactions::put_standing)))
+                .merge(needs(s, Remove, delete(transactions::delete_standing))),
         )
         .route(
             "/transactions/{name}/enable",
-            axum::routing::post(transactions::enable_standing),
+            needs(s, SwitchTransaction, post(transactions::enable_standing)),
         )
         .route(
             "/transactions/{name}/disable",
-            axum::routing::post(transactions::disable_standing),
+            needs(s, SwitchTransaction, post(transactions::disable_standing)),
         )
         .route(
             "/transactions/{name}/trigger",
-            axum::routing::post(transactions::trigger_standing),
+            needs(s, SwitchTransaction, post(transactions::trigger_standing)),
         )
         .route(
             "/transactions/{name}/values",
-            put(transactions::put_standing_values),
+            needs(s, SwitchTransaction, put(transactions::put_standing_values)),
         );
     Router::new()
         .route("/livez", get(rest::livez))
@@ -213,10 +248,6 @@ pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Route
         .nest(API_PREFIX, api)
         .merge(ui::routes())
         .fallback(not_found)
-        .layer(axum::middleware::from_fn_with_state(
-            service.clone(),
-            authorize,
-        ))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
         .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
             body_timeout,
@@ -310,12 +341,12 @@ where
     }
 
     fn call(&mut self, request: axum::http::Request<B>) -> Self::Future {
-        let denied = crate::auth::grpc_role(request.uri().path()).and_then(|needed| {
+        let denied = grpc::operation(request.uri().path()).and_then(|operation| {
             let header = request
                 .headers()
                 .get("authorization")
                 .and_then(|v| v.to_str().ok());
-            self.tokens.check(header, needed).err()
+            self.tokens.allows(header, operation).err()
         });
         match denied {
             None => Box::pin(self.inner.call(request)),

@@ -2,7 +2,7 @@
 //! network beyond the gateway, no build step), served with a strict Content-Security-Policy:
 //! scripts and styles only from these files, no inline script or style, no `eval`, DOM
 //! string sinks refused (Trusted Types), connections only back to the gateway. The page
-//! itself holds no data (so `auth::rest_role` serves its files without a token); it reads
+//! itself holds no data (so its routes name no operation and need no token); it reads
 //! the REST API and its event stream with the visitor's token, so the API's access rules
 //! are the page's.
 
