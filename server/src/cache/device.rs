@@ -37,6 +37,33 @@ pub struct Device {
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
 }
 
+/// A value checked for a field of a device: the field is writable, the value of its type and
+/// within its raw register after scaling. Only [`Device::check_write`] makes one, and it
+/// carries the registers the value becomes, so the write path encodes a value once.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checked {
+    idx: usize,
+    value: Value,
+    registers: Option<Vec<u16>>,
+}
+
+impl Checked {
+    /// The field's index in its profile.
+    pub fn idx(&self) -> usize {
+        self.idx
+    }
+
+    pub fn value(&self) -> &Value {
+        &self.value
+    }
+
+    /// The value and the registers it becomes (`None` for a coil, a bit in a register or a
+    /// simulated field).
+    pub(crate) fn into_parts(self) -> (usize, Value, Option<Vec<u16>>) {
+        (self.idx, self.value, self.registers)
+    }
+}
+
 /// Where a device is reached.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Binding {
@@ -242,7 +269,7 @@ impl Device {
 
     /// Checks that `value` can be written to field `idx`: the field is writable and the value
     /// fits the field's type and raw register after scaling.
-    pub fn check_write(&self, idx: usize, value: &Value) -> Result<(), AccessError> {
+    pub fn check_write(&self, idx: usize, value: Value) -> Result<Checked, AccessError> {
         let field = self.field(idx);
         if !field.direction.is_writable() {
             return Err(AccessError::NotWritable {
@@ -250,10 +277,17 @@ impl Device {
                 field: field.name.clone(),
             });
         }
-        self.check_value(idx, value)
+        let registers = self.check_value(idx, &value)?;
+        Ok(Checked {
+            idx,
+            value,
+            registers,
+        })
     }
 
-    fn check_value(&self, idx: usize, value: &Value) -> Result<(), AccessError> {
+    /// Checks `value` for field `idx`: its type, and that it fits the raw register after
+    /// scaling; the registers it becomes (`None` for a simulated or bit field).
+    fn check_value(&self, idx: usize, value: &Value) -> Result<Option<Vec<u16>>, AccessError> {
         let field = self.field(idx);
         let invalid = |reason: String| AccessError::InvalidValue {
             device: self.name().to_owned(),
@@ -276,54 +310,39 @@ impl Device {
                     .to_string(),
                 ));
             }
-            return Ok(());
+            return Ok(None);
         }
-        field
+        let registers = field
             .encoding
             .encode(value)
-            .map(drop)
-            .map_err(|e| invalid(e.to_string()))
+            .map_err(|e| invalid(e.to_string()))?;
+        let stored_as_registers = field.register.kind == RegisterKind::HoldingRegister
+            && !matches!(field.encoding.raw, crate::codec::Raw::RegisterBit(_));
+        Ok(stored_as_registers.then_some(registers))
     }
 
     /// Requests a write: the newest value replaces any pending one (which is then
     /// superseded). Returns the write's generation.
     pub fn request_write(&self, idx: usize, value: Value) -> Result<u64, AccessError> {
-        self.check_write(idx, &value)?;
-        Ok(self.request(idx, value, Origin::Client, None))
-    }
-
-    /// As [`Device::request_write`], by the scan-cycle stream `writer` (whose loss may
-    /// write the field's safe value).
-    pub fn request_write_by(
-        &self,
-        idx: usize,
-        value: Value,
-        writer: u64,
-    ) -> Result<u64, AccessError> {
-        self.check_write(idx, &value)?;
-        Ok(self.request(idx, value, Origin::Client, Some(writer)))
+        let checked = self.check_write(idx, value)?;
+        Ok(self.request_writes(vec![checked], None)[0])
     }
 
     /// Requests several checked writes of this device as one: the device's task takes them
     /// together (so adjacent registers become one FC16, never an FC06 and an FC16), and is
-    /// woken once. Nothing is requested when one is refused.
-    pub fn request_writes(
-        &self,
-        writes: Vec<(usize, Value)>,
-        writer: Option<u64>,
-    ) -> Result<Vec<u64>, AccessError> {
-        for (idx, value) in &writes {
-            self.check_write(*idx, value)?;
-        }
+    /// woken once. A [`Checked`] is the proof of its check: nothing is checked or encoded
+    /// again; its registers go on the bus as they are. `writer` is the scan-cycle stream
+    /// that asked (its loss may write the fields' safe values).
+    pub fn request_writes(&self, writes: Vec<Checked>, writer: Option<u64>) -> Vec<u64> {
         let named = writes
             .into_iter()
-            .map(|(idx, value)| (self.field(idx).name.as_str(), idx, value))
+            .map(|c| (self.field(c.idx).name.as_str(), c))
             .collect();
         let generations = self
             .outputs
             .request_all(self.name(), named, Origin::Client, writer);
         lock(&self.wake).notify_one();
-        Ok(generations)
+        generations
     }
 
     /// Requests a write the gateway asks for itself (`origin`).

@@ -20,6 +20,7 @@ use crate::profile::{Catalog, Profile};
 use crate::text::quote;
 use crate::writes::WriteLog;
 
+pub use device::Checked;
 pub use device::{Binding, Device, SIM_STRING_MAX};
 pub use link::{INBOX_CAPACITY, Link, Passthrough, PassthroughError, Progress, Utilisation};
 pub use outputs::{Outputs, TakenWrite, WriteError};

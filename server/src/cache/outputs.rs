@@ -51,12 +51,16 @@ pub struct TakenWrite {
     pub field: usize,
     pub generation: u64,
     pub value: Value,
+    /// The registers the value becomes, when its check made them (a client's write).
+    pub registers: Option<Vec<u16>>,
 }
 
 #[derive(Debug, Default)]
 struct WriteSlot {
     /// The newest requested value not yet taken by the link.
     pending: Option<(u64, Value)>,
+    /// The registers the pending value becomes, when its check made them.
+    encoded: Option<Vec<u16>>,
     /// The newest value ever requested, written again after a reconnect.
     latest: Option<Value>,
     /// The generation of the newest write.
@@ -110,30 +114,34 @@ impl Outputs {
         if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
             self.log.finish(old, WriteStatus::Superseded, None);
         }
+        // The gateway's own value is encoded when it is planned.
+        slot.encoded = None;
         slot.latest = Some(value);
         slot.last_generation = Some(generation);
         slot.writer = writer;
         generation
     }
 
-    /// Requests several writes at once (`(field name, idx, value)`), under one lock: the
+    /// Requests several checked writes at once (`(field name, proof)`), under one lock: the
     /// device's task takes all of them or none, so one client request is one write group.
     pub fn request_all(
         &self,
         device: &str,
-        writes: Vec<(&str, usize, Value)>,
+        writes: Vec<(&str, super::device::Checked)>,
         origin: Origin,
         writer: Option<u64>,
     ) -> Vec<u64> {
         let mut slots = lock(&self.slots);
         writes
             .into_iter()
-            .map(|(field, idx, value)| {
+            .map(|(field, checked)| {
+                let (idx, value, registers) = checked.into_parts();
                 let slot = &mut slots[idx];
                 let generation = self.log.begin_from(device, field, value.clone(), origin);
                 if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
                     self.log.finish(old, WriteStatus::Superseded, None);
                 }
+                slot.encoded = registers;
                 slot.latest = Some(value);
                 slot.last_generation = Some(generation);
                 slot.writer = writer;
@@ -170,6 +178,7 @@ impl Outputs {
                     field,
                     generation,
                     value,
+                    registers: slot.encoded.take(),
                 })
             })
             .collect()

@@ -71,6 +71,7 @@ impl LinkTask {
                 field: w.field,
                 value: w.value,
                 generation: Some(w.generation),
+                registers: w.registers,
             })
             .collect();
         if p.rewrite {
@@ -87,6 +88,7 @@ impl LinkTask {
                         field,
                         value,
                         generation: Some(generation),
+                        registers: None,
                     });
                 }
             }

@@ -4,17 +4,32 @@
 use std::sync::Arc;
 
 use super::{Service, ServiceError};
-use crate::cache::{AccessError, Device};
+use crate::cache::{AccessError, Checked, Device};
 use crate::codec::{IecType, Value};
 use crate::profile::Direction;
 use crate::writes::{FIELD_HISTORY, Lookup, WriteRecord};
 
-/// A write that passed every check and can be requested.
+/// A write that passed every check and can be requested: only [`Service::prepare`] makes
+/// one, and it carries the proof of its check (with the registers the value becomes), so
+/// nothing downstream checks or encodes it again.
 #[derive(Debug, Clone)]
 pub struct Prepared {
-    pub device: Arc<Device>,
-    pub idx: usize,
-    pub value: Value,
+    device: Arc<Device>,
+    checked: Checked,
+}
+
+impl Prepared {
+    pub fn device(&self) -> &Arc<Device> {
+        &self.device
+    }
+
+    pub fn idx(&self) -> usize {
+        self.checked.idx()
+    }
+
+    pub fn value(&self) -> &Value {
+        self.checked.value()
+    }
 }
 
 /// A requested write: follow it by its generation.
@@ -53,11 +68,9 @@ impl Service {
         convert: impl FnOnce(IecType) -> Result<Value, E>,
     ) -> Result<Prepared, AccessError> {
         let (idx, value) = typed(device, field, convert)?;
-        device.check_write(idx, &value)?;
         Ok(Prepared {
             device: device.clone(),
-            idx,
-            value,
+            checked: device.check_write(idx, value)?,
         })
     }
 
@@ -81,16 +94,8 @@ impl Service {
 
     /// As [`Service::write`], by the scan-cycle stream `writer` when one asks.
     pub fn write_as(&self, write: Prepared, writer: Option<u64>) -> Result<Accepted, ServiceError> {
-        self.accepting_writes()?;
-        let generation = match writer {
-            Some(id) => write.device.request_write_by(write.idx, write.value, id)?,
-            None => write.device.request_write(write.idx, write.value)?,
-        };
-        Ok(Accepted {
-            device: write.device.name().to_owned(),
-            field: write.device.field(write.idx).name.clone(),
-            generation,
-        })
+        let mut accepted = self.request_group(vec![write], writer)?;
+        accepted.pop().ok_or(ServiceError::ShuttingDown)
     }
 
     /// Requests every write, or none of them if any was refused; then every refusal is
@@ -129,27 +134,23 @@ impl Service {
         writer: Option<u64>,
     ) -> Result<Vec<Accepted>, ServiceError> {
         self.accepting_writes()?;
-        // Devices in the order they first appear; each with its writes (position, field,
-        // value).
-        type Group = (Arc<Device>, Vec<(usize, usize, Value)>);
+        // Devices in the order they first appear; each with its writes (position, proof).
+        type Group = (Arc<Device>, Vec<(usize, Checked)>);
         let mut groups: Vec<Group> = Vec::new();
         for (at, w) in writes.into_iter().enumerate() {
             match groups.iter_mut().find(|(d, _)| Arc::ptr_eq(d, &w.device)) {
-                Some((_, items)) => items.push((at, w.idx, w.value)),
-                None => groups.push((w.device, vec![(at, w.idx, w.value)])),
+                Some((_, items)) => items.push((at, w.checked)),
+                None => groups.push((w.device, vec![(at, w.checked)])),
             }
         }
         let mut accepted: Vec<(usize, Accepted)> = Vec::new();
         for (device, items) in groups {
             let positions: Vec<(usize, usize)> =
-                items.iter().map(|(at, idx, _)| (*at, *idx)).collect();
+                items.iter().map(|(at, c)| (*at, c.idx())).collect();
             let generations = device.request_writes(
-                items
-                    .into_iter()
-                    .map(|(_, idx, value)| (idx, value))
-                    .collect(),
+                items.into_iter().map(|(_, checked)| checked).collect(),
                 writer,
-            )?;
+            );
             for ((at, idx), generation) in positions.into_iter().zip(generations) {
                 accepted.push((
                     at,
@@ -322,17 +323,17 @@ impl ScanCycle {
         let mut changed = Vec::new();
         for out in outputs {
             match out {
-                Ok(w) if w.device.latest_value(w.idx).as_ref() == Some(&w.value) => {
-                    if w.device.mismatch(w.idx).is_some() {
-                        let actual = w.device.sample(w.idx).value;
+                Ok(w) if w.device.latest_value(w.idx()).as_ref() == Some(w.value()) => {
+                    if w.device.mismatch(w.idx()).is_some() {
+                        let actual = w.device.sample(w.idx()).value;
                         errors.push(format!(
                             "{}.{}: the device holds {}, not the requested {}{}",
                             w.device.name(),
-                            w.device.field(w.idx).name,
+                            w.device.field(w.idx()).name,
                             actual.map_or_else(|| "nothing".to_owned(), |v| v.to_string()),
-                            w.value,
+                            w.value(),
                             self.service
-                                .last_write(&w.device, w.idx)
+                                .last_write(&w.device, w.idx())
                                 .and_then(|r| r.error.map(|e| format!(" (last write: {e})")))
                                 .unwrap_or_default()
                         ));
