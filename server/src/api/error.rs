@@ -7,7 +7,7 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use crate::cache::AccessError;
-use crate::declare::{DeclareError, Refusal};
+use crate::service::Refusal;
 use crate::service::ServiceError;
 
 /// An error answer: `{"error": {"code": "...", "message": "..."}}`.
@@ -49,59 +49,30 @@ impl ApiError {
     }
 }
 
-fn access_status(e: &AccessError) -> (StatusCode, &'static str) {
-    match e {
-        AccessError::UnknownDevice(_) => (StatusCode::NOT_FOUND, "unknown_device"),
-        AccessError::UnknownField { .. } => (StatusCode::NOT_FOUND, "unknown_field"),
-        AccessError::UnknownLink(_) => (StatusCode::NOT_FOUND, "unknown_link"),
-        AccessError::UnknownProfile(_) => (StatusCode::NOT_FOUND, "unknown_profile"),
-        AccessError::NotWritable { .. } => (StatusCode::CONFLICT, "not_writable"),
-        AccessError::NotAnInput { .. } => (StatusCode::CONFLICT, "not_an_input"),
-        AccessError::NotSimulated(_) => (StatusCode::CONFLICT, "not_simulated"),
-        AccessError::InvalidValue { .. } => (StatusCode::BAD_REQUEST, "invalid_value"),
+/// The HTTP status of each kind of refusal: the REST API's one table.
+fn http_status(refusal: Refusal) -> StatusCode {
+    match refusal {
+        Refusal::Invalid => StatusCode::BAD_REQUEST,
+        Refusal::NotFound => StatusCode::NOT_FOUND,
+        Refusal::Conflict => StatusCode::CONFLICT,
+        Refusal::Forbidden => StatusCode::FORBIDDEN,
+        Refusal::Gone => StatusCode::GONE,
+        Refusal::Unavailable | Refusal::Busy => StatusCode::SERVICE_UNAVAILABLE,
+        Refusal::TooMany => StatusCode::TOO_MANY_REQUESTS,
     }
 }
 
 impl From<AccessError> for ApiError {
     fn from(e: AccessError) -> Self {
-        let (status, code) = access_status(&e);
-        ApiError::new(status, code, e.to_string())
+        let (refusal, code) = e.refusal();
+        ApiError::new(http_status(refusal), code, e.to_string())
     }
 }
 
 impl From<ServiceError> for ApiError {
     fn from(e: ServiceError) -> Self {
-        let (status, code) = match &e {
-            ServiceError::Access(a) => access_status(a),
-            ServiceError::NothingWritten(all) => all
-                .first()
-                .map_or((StatusCode::BAD_REQUEST, "invalid_value"), access_status),
-            ServiceError::UnknownWrite(_) => (StatusCode::NOT_FOUND, "unknown_write"),
-            ServiceError::WriteExpired { .. } => (StatusCode::GONE, "write_expired"),
-            ServiceError::Declare(DeclareError::UnknownProfile(_)) => {
-                (StatusCode::NOT_FOUND, "unknown_profile")
-            }
-            ServiceError::Declare(DeclareError::UnknownLink(_)) => {
-                (StatusCode::NOT_FOUND, "unknown_link")
-            }
-            ServiceError::Declare(DeclareError::NotFound(a)) => access_status(a),
-            ServiceError::Declare(d) => match d.refusal() {
-                Refusal::Invalid => (StatusCode::BAD_REQUEST, "invalid_declaration"),
-                Refusal::NotFound => (StatusCode::NOT_FOUND, "not_found"),
-                Refusal::Conflict => (StatusCode::CONFLICT, "declaration_conflict"),
-                Refusal::Forbidden => (StatusCode::FORBIDDEN, "not_allowed"),
-            },
-            ServiceError::ShuttingDown => (StatusCode::SERVICE_UNAVAILABLE, "shutting_down"),
-            ServiceError::ReadOnly => (StatusCode::FORBIDDEN, "read_only"),
-            ServiceError::TooManyStreams(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many_streams"),
-            ServiceError::Busy(_) => (StatusCode::SERVICE_UNAVAILABLE, "busy"),
-            ServiceError::Location(_) => (StatusCode::BAD_REQUEST, "invalid_location"),
-            ServiceError::Transaction(_) => (StatusCode::BAD_REQUEST, "invalid_transaction"),
-            ServiceError::UnknownTransaction(_) => (StatusCode::NOT_FOUND, "unknown_transaction"),
-            ServiceError::TransactionConflict(_) => (StatusCode::CONFLICT, "declaration_conflict"),
-            ServiceError::Unbound(_) => (StatusCode::NOT_FOUND, "unbound_location"),
-        };
-        ApiError::new(status, code, e.to_string())
+        let (refusal, code) = e.refusal();
+        ApiError::new(http_status(refusal), code, e.to_string())
     }
 }
 

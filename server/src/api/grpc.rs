@@ -13,9 +13,9 @@ use tonic::{Request, Response, Status, Streaming};
 
 use super::pb as to_pb;
 use crate::auth::Operation;
-use crate::cache::AccessError;
 use crate::codec::{Value, ValueError};
-use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration, Refusal};
+use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration};
+use crate::service::Refusal;
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 use crate::transaction::TransactionSpec;
 
@@ -29,39 +29,22 @@ pub struct GrpcApi {
     service: Arc<Service>,
 }
 
-/// The gRPC code of a service error: unknown names NOT_FOUND, a rule of the gateway
-/// FAILED_PRECONDITION, a bad value or argument INVALID_ARGUMENT.
+/// The gRPC code of each kind of refusal: the gRPC API's one table.
+fn grpc_code(refusal: Refusal) -> tonic::Code {
+    match refusal {
+        Refusal::Invalid => tonic::Code::InvalidArgument,
+        Refusal::NotFound | Refusal::Gone => tonic::Code::NotFound,
+        Refusal::Conflict => tonic::Code::FailedPrecondition,
+        Refusal::Forbidden => tonic::Code::PermissionDenied,
+        Refusal::Unavailable => tonic::Code::Unavailable,
+        Refusal::TooMany | Refusal::Busy => tonic::Code::ResourceExhausted,
+    }
+}
+
+/// The gRPC status of a service error.
 pub fn status(e: ServiceError) -> Status {
-    let message = e.to_string();
-    let access = |a: &AccessError| match a {
-        AccessError::UnknownDevice(_)
-        | AccessError::UnknownField { .. }
-        | AccessError::UnknownLink(_)
-        | AccessError::UnknownProfile(_) => tonic::Code::NotFound,
-        AccessError::NotWritable { .. }
-        | AccessError::NotAnInput { .. }
-        | AccessError::NotSimulated(_) => tonic::Code::FailedPrecondition,
-        AccessError::InvalidValue { .. } => tonic::Code::InvalidArgument,
-    };
-    let code = match &e {
-        ServiceError::Access(_) | ServiceError::NothingWritten(_) => {
-            e.primary().map_or(tonic::Code::InvalidArgument, access)
-        }
-        ServiceError::UnknownWrite(_) | ServiceError::WriteExpired { .. } => tonic::Code::NotFound,
-        ServiceError::Declare(d) => match d.refusal() {
-            Refusal::Invalid => tonic::Code::InvalidArgument,
-            Refusal::NotFound => tonic::Code::NotFound,
-            Refusal::Conflict => tonic::Code::FailedPrecondition,
-            Refusal::Forbidden => tonic::Code::PermissionDenied,
-        },
-        ServiceError::ShuttingDown => tonic::Code::Unavailable,
-        ServiceError::ReadOnly => tonic::Code::PermissionDenied,
-        ServiceError::TooManyStreams(_) | ServiceError::Busy(_) => tonic::Code::ResourceExhausted,
-        ServiceError::Location(_) | ServiceError::Transaction(_) => tonic::Code::InvalidArgument,
-        ServiceError::Unbound(_) | ServiceError::UnknownTransaction(_) => tonic::Code::NotFound,
-        ServiceError::TransactionConflict(_) => tonic::Code::FailedPrecondition,
-    };
-    Status::new(code, message)
+    let (refusal, _) = e.refusal();
+    Status::new(grpc_code(refusal), e.to_string())
 }
 
 /// The operation a gRPC method is (`/iogate.v1.Gateway/Write`): every method of the

@@ -5,6 +5,7 @@
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
 mod modbus;
+mod refusal;
 mod select;
 mod standing;
 mod subscribe;
@@ -22,6 +23,7 @@ use crate::profile::Profile;
 use crate::runtime::Tasks;
 
 pub use modbus::{Bound, ModbusImage, Route};
+pub use refusal::Refusal;
 pub use select::{FieldRef, Selection, Snapshot};
 pub use standing::{Standing, StandingSet, StandingStatus};
 pub use subscribe::{Change, Changes};
@@ -87,17 +89,6 @@ fn join(errors: &[AccessError]) -> String {
         text.push_str(&format!("; and {} more", errors.len() - NAMED));
     }
     text
-}
-
-impl ServiceError {
-    /// The error that decides how a refusal is classified (the first refused write).
-    pub fn primary(&self) -> Option<&AccessError> {
-        match self {
-            ServiceError::Access(e) => Some(e),
-            ServiceError::NothingWritten(all) => all.first(),
-            _ => None,
-        }
-    }
 }
 
 /// The running gateway as its clients see it.

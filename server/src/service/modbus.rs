@@ -10,7 +10,7 @@ use std::time::Duration;
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 
-use super::{Service, ServiceError};
+use super::Service;
 use crate::cache::{AccessError, Cache, Device, Link, Passthrough, PassthroughError};
 use crate::codec::Value;
 use crate::config::modbus::{ModbusServerConfig, OnBadQuality};
@@ -210,12 +210,20 @@ pub enum Route {
     Unknown,
 }
 
-fn refusal(e: &AccessError) -> Exception {
-    match e {
-        AccessError::InvalidValue { .. } => Exception::ILLEGAL_DATA_VALUE,
-        AccessError::NotWritable { .. } => Exception::ILLEGAL_DATA_ADDRESS,
-        _ => Exception::SERVER_DEVICE_FAILURE,
+/// The Modbus exception of each kind of refusal: the Modbus server's one table.
+fn exception(refusal: super::Refusal) -> Exception {
+    use super::Refusal as R;
+    match refusal {
+        R::Invalid => Exception::ILLEGAL_DATA_VALUE,
+        R::Conflict | R::NotFound => Exception::ILLEGAL_DATA_ADDRESS,
+        R::Busy => Exception::SERVER_DEVICE_BUSY,
+        R::Forbidden => Exception::ILLEGAL_FUNCTION,
+        R::Gone | R::Unavailable | R::TooMany => Exception::SERVER_DEVICE_FAILURE,
     }
+}
+
+fn refusal(e: &AccessError) -> Exception {
+    exception(e.refusal().0)
 }
 
 impl Service {
@@ -418,12 +426,7 @@ impl Service {
     ) -> Result<Response, Exception> {
         if !writes.is_empty() {
             self.write_all(writes.into_iter().map(Ok::<_, AccessError>).collect())
-                .map_err(|e| match e {
-                    ServiceError::ShuttingDown => Exception::SERVER_DEVICE_FAILURE,
-                    other => other
-                        .primary()
-                        .map_or(Exception::SERVER_DEVICE_FAILURE, refusal),
-                })?;
+                .map_err(|e| exception(e.refusal().0))?;
         }
         if !coils.is_empty() || !registers.is_empty() {
             image.memory.set(coils, registers).map_err(|e| {

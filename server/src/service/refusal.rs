@@ -1,0 +1,119 @@
+//! What kind of "no" a refusal is, and its stable code: decided here once for every
+//! [`ServiceError`], so that each front-end maps kinds to its wire in one small table (HTTP
+//! status, gRPC code, Modbus exception, and later MQTT and OPC UA status codes) and none
+//! looks at the error's variants.
+
+use super::ServiceError;
+use crate::cache::AccessError;
+use crate::declare::DeclareError;
+
+/// The kinds of refusal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refusal {
+    /// The request itself is wrong: a value, a parameter, a declaration.
+    Invalid,
+    /// It names something that does not exist.
+    NotFound,
+    /// It contradicts what is (writing an input, a conflicting declaration).
+    Conflict,
+    /// The gateway's policy does not allow it (read-only, declarations not allowed).
+    Forbidden,
+    /// It names something that existed and is no longer kept (an old write).
+    Gone,
+    /// The gateway cannot take requests now (shutting down).
+    Unavailable,
+    /// Too many open streams: come back later.
+    TooMany,
+    /// A link's inbox is full (or could not reach it in time): nothing was sent; try again.
+    Busy,
+}
+
+fn access(e: &AccessError) -> (Refusal, &'static str) {
+    match e {
+        AccessError::UnknownDevice(_) => (Refusal::NotFound, "unknown_device"),
+        AccessError::UnknownField { .. } => (Refusal::NotFound, "unknown_field"),
+        AccessError::UnknownLink(_) => (Refusal::NotFound, "unknown_link"),
+        AccessError::UnknownProfile(_) => (Refusal::NotFound, "unknown_profile"),
+        AccessError::NotWritable { .. } => (Refusal::Conflict, "not_writable"),
+        AccessError::NotAnInput { .. } => (Refusal::Conflict, "not_an_input"),
+        AccessError::NotSimulated(_) => (Refusal::Conflict, "not_simulated"),
+        AccessError::InvalidValue { .. } => (Refusal::Invalid, "invalid_value"),
+    }
+}
+
+fn declare(e: &DeclareError) -> (Refusal, &'static str) {
+    use crate::declare::Refusal as D;
+    match e {
+        DeclareError::UnknownProfile(_) => (Refusal::NotFound, "unknown_profile"),
+        DeclareError::UnknownLink(_) => (Refusal::NotFound, "unknown_link"),
+        DeclareError::NotFound(a) => access(a),
+        other => match other.refusal() {
+            D::Invalid => (Refusal::Invalid, "invalid_declaration"),
+            D::NotFound => (Refusal::NotFound, "not_found"),
+            D::Conflict => (Refusal::Conflict, "declaration_conflict"),
+            D::Forbidden => (Refusal::Forbidden, "not_allowed"),
+        },
+    }
+}
+
+impl ServiceError {
+    /// The kind of refusal and its stable code (the `code` of the REST API's errors).
+    pub fn refusal(&self) -> (Refusal, &'static str) {
+        match self {
+            ServiceError::Access(a) => access(a),
+            ServiceError::NothingWritten(all) => all
+                .first()
+                .map_or((Refusal::Invalid, "invalid_value"), access),
+            ServiceError::UnknownWrite(_) => (Refusal::NotFound, "unknown_write"),
+            ServiceError::WriteExpired { .. } => (Refusal::Gone, "write_expired"),
+            ServiceError::Declare(d) => declare(d),
+            ServiceError::ShuttingDown => (Refusal::Unavailable, "shutting_down"),
+            ServiceError::ReadOnly => (Refusal::Forbidden, "read_only"),
+            ServiceError::TooManyStreams(_) => (Refusal::TooMany, "too_many_streams"),
+            ServiceError::Busy(_) => (Refusal::Busy, "busy"),
+            ServiceError::Location(_) => (Refusal::Invalid, "invalid_location"),
+            ServiceError::Transaction(_) => (Refusal::Invalid, "invalid_transaction"),
+            ServiceError::UnknownTransaction(_) => (Refusal::NotFound, "unknown_transaction"),
+            ServiceError::TransactionConflict(_) => (Refusal::Conflict, "declaration_conflict"),
+            ServiceError::Unbound(_) => (Refusal::NotFound, "unbound_location"),
+        }
+    }
+}
+
+impl AccessError {
+    /// The kind of refusal and its stable code.
+    pub fn refusal(&self) -> (Refusal, &'static str) {
+        access(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_refusal_has_its_kind_and_code() {
+        let unknown = ServiceError::Access(AccessError::UnknownDevice("x".into()));
+        assert_eq!(unknown.refusal(), (Refusal::NotFound, "unknown_device"));
+        let input = AccessError::NotWritable {
+            device: "d".into(),
+            field: "f".into(),
+        };
+        assert_eq!(
+            ServiceError::NothingWritten(vec![input]).refusal(),
+            (Refusal::Conflict, "not_writable")
+        );
+        assert_eq!(
+            ServiceError::Busy("rs485".into()).refusal(),
+            (Refusal::Busy, "busy")
+        );
+        assert_eq!(
+            ServiceError::WriteExpired {
+                generation: 1,
+                kept: 128
+            }
+            .refusal(),
+            (Refusal::Gone, "write_expired")
+        );
+    }
+}
