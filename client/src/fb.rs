@@ -214,6 +214,8 @@ pub struct ModbusWrite {
 }
 
 impl ModbusWrite {
+    /// The block for `request` (its function, slave, address, type, byte order and
+    /// timeout), re-sending every `polling_period` while `enable` is held TRUE.
     pub fn new(client: Client, request: TransactRequest, polling_period: Duration) -> ModbusWrite {
         ModbusWrite {
             client,
@@ -278,10 +280,13 @@ impl ModbusWrite {
         }
     }
 
+    /// Output `actual`: the last command got a correct response.
     pub fn actual(&self) -> bool {
         self.actual
     }
 
+    /// Output `state`: 0 not active, 1 waiting, 2 access, 3 in progress, 4 done, -1, -2, -3
+    /// failures (source document 002).
     pub fn state(&self) -> i32 {
         self.state
     }

@@ -10,6 +10,7 @@
 //! # Ok(()) }
 //! ```
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 use std::time::Duration;
 
@@ -25,14 +26,19 @@ mod types;
 /// How a raw transaction ended, as the read and write function blocks report it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct TransactOutcome {
+    /// The last command got a correct response.
     pub actual: bool,
     /// 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
     pub state: i32,
+    /// A read's value, after divisor and precision.
     pub value: Option<f64>,
+    /// The read block's message for what went wrong.
     pub error: Option<String>,
     /// The frames in hex.
     pub request: String,
+    /// The answer's frame in hex, when one came.
     pub response: Option<String>,
+    /// How long it took.
     pub elapsed_ms: f64,
 }
 
@@ -48,17 +54,26 @@ pub use iogate_proto::pb as proto;
 /// What went wrong talking to the gateway.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// The gateway could not be reached.
     #[error("cannot connect to {url}: {source}")]
     Connect {
+        /// The address tried.
         url: String,
+        /// Why it failed.
         source: tonic::transport::Error,
     },
     /// The gateway refused the request; `code` is the gRPC status code.
     #[error("{message} ({code:?})")]
-    Status { code: tonic::Code, message: String },
+    Status {
+        /// The gRPC status code.
+        code: tonic::Code,
+        /// The gateway's message, naming the problem.
+        message: String,
+    },
     /// The answer lacked something it must have.
     #[error("unexpected answer: {0}")]
     Protocol(String),
+    /// The request could not be made (a bad argument).
     #[error("{0}")]
     Invalid(String),
 }
@@ -76,15 +91,19 @@ impl From<tonic::Status> for Error {
 /// nothing chosen means everything.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Selection {
+    /// Devices whose every field is chosen.
     pub devices: Vec<String>,
+    /// Single fields, `(device, field)`.
     pub fields: Vec<(String, String)>,
 }
 
 impl Selection {
+    /// Everything.
     pub fn all() -> Selection {
         Selection::default()
     }
 
+    /// Every field of one device.
     pub fn device(name: impl Into<String>) -> Selection {
         Selection {
             devices: vec![name.into()],
@@ -92,6 +111,7 @@ impl Selection {
         }
     }
 
+    /// One field.
     pub fn field(device: impl Into<String>, field: impl Into<String>) -> Selection {
         Selection {
             devices: Vec::new(),
@@ -113,33 +133,45 @@ impl Selection {
 /// A serial link as a runtime's `SerialLink` call declares it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SerialLink {
+    /// The serial port path; empty declares a link without one yet.
     pub port: String,
+    /// Baud rate.
     pub baud: u32,
     /// 'N', 'E' or 'O'.
     pub parity: char,
+    /// 7 or 8.
     pub data_bits: u8,
+    /// 1 or 2.
     pub stop_bits: u8,
 }
 
 /// A device as a runtime's device function-block call declares it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DeviceDeclaration {
+    /// The device's name.
     pub name: String,
+    /// Its profile's name.
     pub profile: String,
     /// A link name or the serial port path (`serial.port`); empty for simulated profiles.
     pub link: String,
+    /// 1-247; 0 declares the device without one yet.
     pub slave_id: u32,
+    /// How often it is polled.
     pub refresh_rate: Duration,
 }
 
 /// One scan cycle's answer on an exchange stream.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ExchangeReply {
+    /// The cycle's number on this stream.
     pub cycle: u64,
+    /// The inputs (and inouts) of the chosen devices.
     pub inputs: Vec<FieldValue>,
+    /// The chosen devices' diagnostics.
     pub diagnostics: Vec<Diagnostics>,
     /// Generations of the outputs written this cycle (changed values only).
     pub written: Vec<(String, String, u64)>,
+    /// What the cycle refused or found, as messages.
     pub errors: Vec<String>,
 }
 
@@ -218,6 +250,7 @@ impl Client {
         &mut self.inner
     }
 
+    /// Every profile.
     pub async fn profiles(&mut self) -> Result<Vec<ProfileInfo>, Error> {
         let r = self.inner.list_profiles(pb::ListProfilesRequest {}).await?;
         Ok(r.into_inner()
@@ -227,6 +260,7 @@ impl Client {
             .collect())
     }
 
+    /// One profile, with its fields and function-block layout.
     pub async fn profile(&mut self, name: &str) -> Result<ProfileInfo, Error> {
         let r = self
             .inner
@@ -235,6 +269,7 @@ impl Client {
         Ok(ProfileInfo::from_pb(r.into_inner()))
     }
 
+    /// Every link with its diagnostics.
     pub async fn links(&mut self) -> Result<Vec<LinkInfo>, Error> {
         let r = self.inner.list_links(pb::ListLinksRequest {}).await?;
         Ok(r.into_inner()
@@ -244,6 +279,7 @@ impl Client {
             .collect())
     }
 
+    /// Every device with its diagnostics.
     pub async fn devices(&mut self) -> Result<Vec<DeviceInfo>, Error> {
         let r = self.inner.list_devices(pb::ListDevicesRequest {}).await?;
         Ok(r.into_inner()
@@ -318,6 +354,7 @@ impl Client {
         Ok(acks.into_iter().map(|a| a.generation).collect())
     }
 
+    /// Where the write with `generation` stands.
     pub async fn write_status(&mut self, generation: u64) -> Result<WriteStatus, Error> {
         let r = self
             .inner

@@ -19,24 +19,32 @@ fn millis(t: &Option<SystemTime>) -> Option<u128> {
 /// A field's value with its type, quality and the time it was refreshed.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FieldValue {
+    /// The device's name.
     pub device: String,
+    /// The field's name.
     pub field: String,
     /// `None` when the value has no type yet (never read).
     #[serde(rename = "type")]
     pub ty: Option<IecType>,
+    /// Input, output or inout.
     pub direction: Direction,
+    /// `None` until the field is first read.
     pub value: Option<Value>,
+    /// Good, stale, never read or bad, as of the answer.
     pub quality: Quality,
+    /// When the value was last refreshed.
     #[serde(skip)]
     pub timestamp: Option<SystemTime>,
     /// Milliseconds since 1970 (for JSON output).
     pub timestamp_ms: Option<u128>,
+    /// Why the quality is bad.
     pub error: Option<String>,
     /// The profile's engineering unit.
     pub unit: Option<String>,
     /// The device holds another value than the newest requested (`desired`), with no write
     /// of it waiting.
     pub mismatch: bool,
+    /// The newest value requested, when the device holds another.
     pub desired: Option<Value>,
     /// The latest write to the field, while the gateway's log keeps it.
     pub last_write: Option<Box<WriteStatus>>,
@@ -66,10 +74,15 @@ impl FieldValue {
 /// A device's diagnostics: `error_code` 0 OK, 1 no link, 2 no slave, 10 communication error.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Diagnostics {
+    /// The device's name.
     pub device: String,
+    /// TRUE if the device is responding.
     pub connected: bool,
+    /// 0 OK, 1 no link, 2 no slave, 10 communication error.
     pub error_code: i32,
+    /// Successful I/O cycles.
     pub io_cycles: u64,
+    /// The last round trip, in milliseconds.
     pub last_response_ms: f64,
 }
 
@@ -85,15 +98,24 @@ impl Diagnostics {
     }
 }
 
+/// A device: its binding, settings and diagnostics.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DeviceInfo {
+    /// The device's name.
     pub name: String,
+    /// Its profile's name.
     pub profile: String,
+    /// `modbus-rtu`, `modbus-tcp` or `simulated`.
     pub protocol: String,
+    /// Its link, once it has one.
     pub link: Option<String>,
+    /// Its slave id, once it has one.
     pub slave_id: Option<u32>,
+    /// How often it is polled.
     pub refresh_rate_ms: u32,
+    /// Each transaction's timeout.
     pub timeout_ms: u32,
+    /// Its diagnostics.
     pub diagnostics: Option<Diagnostics>,
     /// Every field's value (from `device`, not from `devices`).
     pub fields: Vec<FieldValue>,
@@ -115,14 +137,18 @@ impl DeviceInfo {
     }
 }
 
+/// A link: its endpoint, state and devices.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LinkInfo {
+    /// The link's name.
     pub name: String,
     /// `serial PORT BAUD 8N1` or `tcp HOST:PORT (framing)`.
     pub endpoint: String,
+    /// TRUE while its port or connection is open.
     pub connected: bool,
     /// 0 OK, 1 no port configured, 2 open failed, 3 port lost.
     pub error_code: i32,
+    /// The devices on it.
     pub devices: Vec<String>,
 }
 
@@ -148,35 +174,56 @@ impl LinkInfo {
     }
 }
 
+/// A field of a profile.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FieldInfo {
+    /// The field's name.
     pub name: String,
+    /// Its IEC type.
     #[serde(rename = "type")]
     pub ty: Option<IecType>,
+    /// Input, output or inout.
     pub direction: Direction,
+    /// Its register address.
     pub address: u32,
+    /// `coil`, `discrete_input`, `holding_register`, `input_register` or `virtual`.
     pub kind: String,
+    /// Its engineering unit; empty when none.
     pub unit: String,
 }
 
+/// A member of a profile's generated function block.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LayoutMember {
+    /// The member's name.
     pub name: String,
+    /// Its IEC type.
     #[serde(rename = "type")]
     pub ty: Option<IecType>,
+    /// `VAR_INPUT` or `VAR`.
     pub section: String,
+    /// Link binding, parameter, diagnostic or I/O field.
     pub role: String,
 }
 
+/// A device profile.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ProfileInfo {
+    /// The profile's (function block type's) name.
     pub name: String,
+    /// Its vendor; empty when not given.
     pub vendor: String,
+    /// `modbus-rtu`, `modbus-tcp` or `simulated`.
     pub protocol: String,
+    /// Its description; empty when not given.
     pub description: String,
+    /// How many fields it has.
     pub field_count: u32,
+    /// Its fields (from `profile`, not from `profiles`).
     pub fields: Vec<FieldInfo>,
+    /// Its generated function block's members, in order.
     pub layout: Vec<LayoutMember>,
+    /// Its function block as an IEC 61131-3 ST declaration.
     pub st_declaration: String,
 }
 
@@ -223,7 +270,9 @@ impl ProfileInfo {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Update {
+    /// A field's new value or quality.
     Value(FieldValue),
+    /// A device's new diagnostics.
     Diagnostics(Diagnostics),
 }
 
@@ -231,18 +280,28 @@ pub enum Update {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "outcome", content = "error", rename_all = "snake_case")]
 pub enum WriteOutcome {
+    /// Waiting for the bus.
     Pending,
+    /// The device took it.
     Written,
+    /// A newer write to the field replaced it before it was sent.
     Superseded,
+    /// It failed, with the reason.
     Failed(String),
 }
 
+/// A write and where it stands.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct WriteStatus {
+    /// The write's generation (increasing across the gateway).
     pub generation: u64,
+    /// The device written.
     pub device: String,
+    /// The field written.
     pub field: String,
+    /// The value requested.
     pub value: Option<Value>,
+    /// Pending, written, superseded or failed.
     pub outcome: WriteOutcome,
 }
 

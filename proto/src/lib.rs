@@ -1,5 +1,6 @@
 //! iogate's gRPC API, package `iogate.v1`: messages and tonic client and server stubs.
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub mod codec;
 

@@ -8,26 +8,44 @@ use serde::Serialize;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "UPPERCASE")]
 pub enum IecType {
+    /// TRUE/FALSE, one bit.
     Bool,
+    /// 8-bit signed, -128..127.
     Sint,
+    /// 16-bit signed.
     Int,
+    /// 32-bit signed.
     Dint,
+    /// 64-bit signed.
     Lint,
+    /// 8-bit unsigned, 0..255.
     Usint,
+    /// 16-bit unsigned.
     Uint,
+    /// 32-bit unsigned.
     Udint,
+    /// 64-bit unsigned.
     Ulint,
+    /// 32-bit IEEE-754.
     Real,
+    /// 64-bit IEEE-754.
     Lreal,
+    /// 8-bit pattern.
     Byte,
+    /// 16-bit pattern.
     Word,
+    /// 32-bit pattern.
     Dword,
+    /// 64-bit pattern.
     Lword,
+    /// Text.
     String,
+    /// A duration in milliseconds (64-bit).
     Time,
 }
 
 impl IecType {
+    /// Every type, in the order of the profile format's table.
     pub const ALL: [IecType; 17] = [
         IecType::Bool,
         IecType::Sint,
@@ -48,6 +66,7 @@ impl IecType {
         IecType::Time,
     ];
 
+    /// The IEC name, e.g. `REAL`.
     pub fn name(self) -> &'static str {
         match self {
             IecType::Bool => "BOOL",
@@ -98,6 +117,7 @@ impl IecType {
             .map(|(bits, signed)| int_range(bits, signed))
     }
 
+    /// REAL or LREAL.
     pub fn is_real(self) -> bool {
         matches!(self, IecType::Real | IecType::Lreal)
     }

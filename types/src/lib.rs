@@ -3,6 +3,7 @@
 //! is ([`Quality`]), which way a field goes ([`Direction`]), IEC duration literals
 //! ([`time`]), and each of these to and from the protobuf messages of `iogate.v1` ([`pb`]).
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 mod iec;
 pub mod located;

@@ -11,12 +11,16 @@ use serde::Serialize;
 /// I (input), Q (output) or M (memory).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 pub enum Area {
+    /// `%I`: inputs.
     Input,
+    /// `%Q`: outputs.
     Output,
+    /// `%M`: memory.
     Memory,
 }
 
 impl Area {
+    /// The location prefix: I, Q or M.
     pub fn letter(self) -> char {
         match self {
             Area::Input => 'I',
@@ -29,14 +33,20 @@ impl Area {
 /// X (1 bit), B (8 bits), W (16 bits), D (32 bits) or L (64 bits).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 pub enum Size {
+    /// `X`: 1 bit.
     Bit,
+    /// `B`: 8 bits.
     Byte,
+    /// `W`: 16 bits.
     Word,
+    /// `D`: 32 bits.
     Double,
+    /// `L`: 64 bits.
     Long,
 }
 
 impl Size {
+    /// The size prefix: X, B, W, D or L.
     pub fn letter(self) -> char {
         match self {
             Size::Bit => 'X',
@@ -65,7 +75,9 @@ pub const MAX_BIT_BYTE: u32 = 1023;
 /// A located address, e.g. `%QX2.6` or `%MD0`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 pub struct Location {
+    /// I, Q or M.
     pub area: Area,
+    /// X, B, W, D or L.
     pub size: Size,
     /// The address; for X the byte (most significant part).
     pub index: u32,
@@ -77,27 +89,37 @@ pub struct Location {
 /// them.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum LocationError {
+    /// No `%` at the start.
     #[error("`{0}`: a located address starts with `%`")]
     NoPercent(String),
+    /// Not I, Q or M.
     #[error("`{0}`: the location prefix must be I (input), Q (output) or M (memory)")]
     Area(String),
+    /// Not X, B, W, D or L.
     #[error("`{0}`: the size prefix must be X, B, W, D or L")]
     Size(String),
+    /// The address is not a natural number.
     #[error("`{0}`: the address must be a natural number")]
     Number(String),
+    /// `%IX0.8`.
     #[error("`{0}`: the least significant index is greater than 7")]
     BitIndex(String),
+    /// A bit address past byte 1023.
     #[error("`{0}`: the most significant part must be no more than {MAX_BIT_BYTE}")]
     ByteIndex(String),
+    /// `%QX0.0.1`.
     #[error("`{0}`: three part hierarchy is not permitted")]
     ThreeParts(String),
+    /// `%IB1.1`.
     #[error("`{0}`: two part hierarchy is only permitted for X data size")]
     TwoParts(String),
+    /// `%IX3`: a bit address without its bit.
     #[error("`{0}`: a bit address has two parts, byte.bit (e.g. %IX0.0)")]
     OnePartBit(String),
 }
 
 impl Location {
+    /// The location of these parts (unchecked: [`Location::parse`] checks text).
     pub fn new(area: Area, size: Size, index: u32, bit: Option<u8>) -> Self {
         Location {
             area,

@@ -7,6 +7,7 @@ use crate::time;
 use crate::{Direction, IecType, Quality, Value, ValueError};
 
 impl IecType {
+    /// The protobuf enum of the type.
     pub fn to_pb(self) -> pb::IecType {
         match self {
             IecType::Bool => pb::IecType::Bool,
@@ -114,6 +115,7 @@ fn kind_name(kind: &pb::value::Kind) -> &'static str {
 }
 
 impl Quality {
+    /// The protobuf enum of the quality.
     pub fn to_pb(self) -> pb::Quality {
         match self {
             Quality::Good => pb::Quality::Good,
@@ -135,6 +137,7 @@ impl Quality {
 }
 
 impl Direction {
+    /// The protobuf enum of the direction.
     pub fn to_pb(self) -> pb::Direction {
         match self {
             Direction::Input => pb::Direction::Input,

@@ -17,6 +17,7 @@ pub enum Quality {
 }
 
 impl Quality {
+    /// `good`, `stale`, `never_read` or `bad`.
     pub fn name(self) -> &'static str {
         match self {
             Quality::Good => "good",
@@ -31,14 +32,19 @@ impl Quality {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Direction {
+    /// Device to client: read from the device.
     Input,
+    /// Client to device: written to the device (and read back).
     Output,
+    /// Both.
     Inout,
 }
 
 impl Direction {
+    /// Every direction.
     pub const ALL: [Direction; 3] = [Direction::Input, Direction::Output, Direction::Inout];
 
+    /// `input`, `output` or `inout`.
     pub fn name(self) -> &'static str {
         match self {
             Direction::Input => "input",

@@ -13,8 +13,10 @@ const UNITS: [(&str, f64); 6] = [
 /// Why a duration literal was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum TimeError {
+    /// Not a duration literal.
     #[error("`{0}` is not a duration (write e.g. `50ms`, `2s`, `1m30s` or `T#1s500ms`)")]
     NotADuration(String),
+    /// Past what milliseconds in 64 bits hold.
     #[error("`{0}` is too long a duration")]
     TooLong(String),
 }

@@ -14,39 +14,85 @@ use crate::time::{self, TimeError};
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum Value {
+    /// BOOL.
     Bool(bool),
+    /// SINT, INT, DINT, LINT.
     Int(i64),
+    /// USINT, UINT, UDINT, ULINT, BYTE, WORD, DWORD, LWORD.
     UInt(u64),
+    /// REAL.
     Real(f32),
+    /// LREAL.
     LReal(f64),
+    /// STRING.
     String(String),
+    /// TIME, in milliseconds.
     Time(i64),
 }
 
 /// Why a value does not fit a type.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ValueError {
+    /// A number outside the type's range.
     #[error("{value} is out of range for {ty} ({min} to {max})")]
     OutOfRange {
+        /// The number as given.
         value: String,
+        /// The type it was meant for.
         ty: IecType,
+        /// The type's smallest value.
         min: String,
+        /// The type's largest value.
         max: String,
     },
+    /// NaN or an infinity for a real type.
     #[error("{ty} needs a finite number")]
-    NotFinite { ty: IecType },
+    NotFinite {
+        /// The type it was meant for.
+        ty: IecType,
+    },
+    /// A fraction for an integer type.
     #[error("{ty} needs a whole number, got {value}")]
-    NotWhole { value: f64, ty: IecType },
+    NotWhole {
+        /// The number as given.
+        value: f64,
+        /// The type it was meant for.
+        ty: IecType,
+    },
+    /// A value of another kind (a string for a number, ...).
     #[error("{ty} does not take {found}")]
-    WrongType { ty: IecType, found: &'static str },
+    WrongType {
+        /// The type it was meant for.
+        ty: IecType,
+        /// What was given.
+        found: &'static str,
+    },
+    /// A typed value whose type is not the field's.
     #[error("the field is {ty}, the value says {declared}")]
-    Mislabelled { ty: IecType, declared: IecType },
+    Mislabelled {
+        /// The field's type.
+        ty: IecType,
+        /// The type the value was labelled with.
+        declared: IecType,
+    },
+    /// No value at all.
     #[error("{ty} needs a value; none was set")]
-    Missing { ty: IecType },
+    Missing {
+        /// The type it was meant for.
+        ty: IecType,
+    },
+    /// A protobuf type number iogate does not know.
     #[error("{0} is not an IEC type number of iogate.v1.IecType")]
     UnknownType(i32),
+    /// Text that does not parse as a value of the type.
     #[error("`{text}` is not a {ty} value")]
-    NotAValue { text: String, ty: IecType },
+    NotAValue {
+        /// The text as given.
+        text: String,
+        /// The type it was meant for.
+        ty: IecType,
+    },
+    /// A duration literal that does not parse.
     #[error(transparent)]
     Time(#[from] TimeError),
 }
