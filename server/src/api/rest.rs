@@ -24,6 +24,10 @@ pub struct Health {
     /// Links whose task is stuck in a transaction past its bound (then 503).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub stalled_links: Vec<String>,
+    /// Devices that answer but whose polls get no line time (their values go stale): the
+    /// gateway still serves, so this alone does not make it unready.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub starved_devices: Vec<String>,
 }
 
 /// The process is alive.
@@ -32,6 +36,7 @@ pub async fn livez() -> Json<Health> {
     Json(Health {
         status: "ok".into(),
         stalled_links: Vec::new(),
+        starved_devices: Vec::new(),
     })
 }
 
@@ -45,12 +50,20 @@ pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
         .filter(|l| l.stalled().is_some())
         .map(|l| l.name().to_owned())
         .collect();
+    let now = tokio::time::Instant::now();
+    let starved_devices: Vec<String> = service
+        .devices()
+        .iter()
+        .filter(|d| d.starved(now))
+        .map(|d| d.name().to_owned())
+        .collect();
     if service.is_ready() && stalled_links.is_empty() {
         (
             StatusCode::OK,
             Json(Health {
                 status: "ready".into(),
                 stalled_links,
+                starved_devices,
             }),
         )
     } else {
@@ -59,6 +72,7 @@ pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
             Json(Health {
                 status: "not ready".into(),
                 stalled_links,
+                starved_devices,
             }),
         )
     }

@@ -35,6 +35,8 @@ pub struct Device {
     wake: Mutex<Arc<Notify>>,
     /// Stops a simulated device's task when the device is removed.
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
+    /// When its last I/O cycle ended, answered or not.
+    last_cycle: Mutex<Option<tokio::time::Instant>>,
 }
 
 /// A value checked for a field of a device: the field is writable, the value of its type and
@@ -117,6 +119,7 @@ impl Device {
             binding: RwLock::new(binding),
             wake: Mutex::new(wake),
             task: Mutex::new(None),
+            last_cycle: Mutex::new(None),
         }
     }
 
@@ -174,6 +177,15 @@ impl Device {
     /// How long a value stays good without a refresh.
     pub fn stale_after(&self) -> Duration {
         (self.config.refresh_rate * 3 + self.config.timeout).max(Duration::from_secs(1))
+    }
+
+    /// Whether the device answers but gets no line time: connected, and its last I/O cycle
+    /// ended longer ago than its values take to go stale (its polls wait behind other
+    /// traffic). A device that stopped answering is backed off on purpose, not starved.
+    pub fn starved(&self, now: tokio::time::Instant) -> bool {
+        let last = *lock(&self.last_cycle);
+        self.diagnostics().connected
+            && last.is_some_and(|at| now.saturating_duration_since(at) > self.stale_after())
     }
 
     /// A field index by name, ignoring case as IEC identifiers do.
@@ -251,6 +263,7 @@ impl Device {
     /// Records the end of an I/O cycle. Subscribers are woken when `connected` or
     /// `error_code` change, not on every cycle.
     pub fn record_cycle(&self, ok: bool, response: Duration) {
+        *lock(&self.last_cycle) = Some(tokio::time::Instant::now());
         self.diagnostics.send_if_modified(|d| {
             let before = (d.connected, d.error_code);
             d.connected = ok;

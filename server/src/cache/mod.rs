@@ -232,6 +232,20 @@ mod tests {
         Cache::new(&config, Catalog::new([profile]))
     }
 
+    #[tokio::test(start_paused = true)]
+    async fn a_connected_device_whose_polls_get_no_line_time_is_starved() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        assert!(!io.starved(Instant::now()), "never polled: not starved");
+        io.record_cycle(true, Duration::from_millis(3));
+        assert!(!io.starved(Instant::now()));
+        tokio::time::advance(io.stale_after() + Duration::from_millis(1)).await;
+        assert!(io.starved(Instant::now()));
+        io.record_cycle(false, Duration::from_millis(200));
+        tokio::time::advance(io.stale_after() + Duration::from_millis(1)).await;
+        assert!(!io.starved(Instant::now()), "not answering: backed off, not starved");
+    }
+
     #[test]
     fn before_its_first_answer_a_device_is_not_connected_and_says_why() {
         let cache = cache();
