@@ -243,7 +243,10 @@ mod tests {
         assert!(io.starved(Instant::now()));
         io.record_cycle(false, Duration::from_millis(200));
         tokio::time::advance(io.stale_after() + Duration::from_millis(1)).await;
-        assert!(!io.starved(Instant::now()), "not answering: backed off, not starved");
+        assert!(
+            !io.starved(Instant::now()),
+            "not answering: backed off, not starved"
+        );
     }
 
     #[test]
