@@ -197,7 +197,7 @@ pub async fn put_standing(
     if period > Duration::from_secs(3600) {
         return Err(ApiError::bad_request(
             "invalid_transaction",
-            crate::transaction::params::INVALID_REFRESH,
+            crate::transaction::params::ParamError::Refresh.to_string(),
         ));
     }
     let (s, _) = service.ensure_transaction(StandingConfig {

@@ -64,8 +64,8 @@ pub enum ServiceError {
     #[error("{0}")]
     Location(#[from] iogate_types::LocationError),
     /// A raw transaction's parameters, with every message of the read block that applies.
-    #[error("{}", .0.join(" "))]
-    Transaction(Vec<String>),
+    #[error("{}", crate::transaction::params::messages(.0))]
+    Transaction(Vec<crate::transaction::params::ParamError>),
     #[error("no transaction `{0}`")]
     UnknownTransaction(String),
     #[error("transaction `{0}` exists with other settings")]

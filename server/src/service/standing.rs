@@ -125,7 +125,7 @@ impl Service {
         if self.cache.link(&config.link).is_err() || checked.is_err() {
             let mut errors = checked.err().unwrap_or_default();
             if self.cache.link(&config.link).is_err() {
-                errors.push(crate::transaction::params::MISSING_RS485.to_owned());
+                errors.push(crate::transaction::params::ParamError::MissingRs485);
             }
             return Err(ServiceError::Transaction(errors));
         }

@@ -10,7 +10,7 @@ use super::{Service, ServiceError};
 use crate::cache::{Passthrough, PassthroughError};
 use crate::config::{Framing, Transport};
 use crate::link::frame::{Request, crc16};
-use crate::transaction::params::MISSING_RS485;
+use crate::transaction::params::ParamError;
 use crate::transaction::{Outcome, Plan, TransactionSpec, codec, failure, hex, state};
 
 /// The frame as it goes on the line: RTU (slave, PDU, CRC) on serial links and RTU over
@@ -51,13 +51,13 @@ impl Service {
             (result, _) => {
                 let mut errors = result.err().unwrap_or_default();
                 if link.is_none() {
-                    errors.push(MISSING_RS485.to_owned());
+                    errors.push(ParamError::MissingRs485);
                 }
                 return Err(ServiceError::Transaction(errors));
             }
         };
         let Some(link) = link else {
-            return Err(ServiceError::Transaction(vec![MISSING_RS485.to_owned()]));
+            return Err(ServiceError::Transaction(vec![ParamError::MissingRs485]));
         };
         if matches!(checked.plan, Plan::Write(_)) {
             self.accepting_writes()?;

@@ -77,10 +77,10 @@ pub fn check_standing(config: &crate::config::Config) -> Result<(), crate::yaml:
         let mut errors = t.spec.check().err().unwrap_or_default();
         let unreadable = config.unreadable.links.contains(&t.link);
         if !config.links.iter().any(|l| l.name == t.link) && !unreadable {
-            errors.push(params::MISSING_RS485.to_owned());
+            errors.push(params::ParamError::MissingRs485);
         }
         if !errors.is_empty() {
-            report.push(t.line, &ctx, errors.join(" "));
+            report.push(t.line, &ctx, params::messages(&errors));
         }
     }
     let problems = report.into_problems();

@@ -14,8 +14,8 @@ const DEFAULT_TIMEOUT_MS: i64 = 1000;
 
 impl TransactionSpec {
     /// The checked transaction, or every configuration message that applies.
-    pub fn check(&self) -> Result<Checked, Vec<String>> {
-        let mut errors: Vec<String> = Vec::new();
+    pub fn check(&self) -> Result<Checked, Vec<ParamError>> {
+        let mut errors: Vec<ParamError> = Vec::new();
         let function = match self.function {
             Some(1) => Some(Function::ReadCoils),
             Some(2) => Some(Function::ReadDiscreteInputs),
@@ -26,7 +26,7 @@ impl TransactionSpec {
             Some(15) => Some(Function::WriteMultipleCoils),
             Some(16) => Some(Function::WriteMultipleRegisters),
             _ => {
-                errors.push(INVALID_FUNCTION.to_owned());
+                errors.push(ParamError::Function);
                 None
             }
         };
@@ -34,31 +34,31 @@ impl TransactionSpec {
             .slave
             .and_then(|s| u8::try_from(s).ok())
             .filter(|&s| s >= 1);
-        let slave = reported(slave, &mut errors, INVALID_DEVICE);
+        let slave = reported(slave, &mut errors, ParamError::Device);
         let address = self.address.and_then(|a| u16::try_from(a).ok());
-        let address = reported(address, &mut errors, INVALID_REGISTER);
+        let address = reported(address, &mut errors, ParamError::Register);
         let timeout = Some(self.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS))
             .filter(|t| (10..=60_000).contains(t))
             .and_then(|t| u64::try_from(t).ok())
             .map(Duration::from_millis);
-        let timeout = reported(timeout, &mut errors, INVALID_TIMEOUT);
+        let timeout = reported(timeout, &mut errors, ParamError::Timeout);
         let order = self.byte_order.as_deref().map(parse_byte_order);
         let plan = match function {
             Some(f @ (Function::ReadCoils | Function::ReadDiscreteInputs)) => {
                 let bits = match self.bit_count {
                     Some(b @ 1..=32) => Some(b as u8),
                     _ => {
-                        errors.push(INVALID_BIT_COUNT.to_owned());
+                        errors.push(ParamError::BitCount);
                         None
                     }
                 };
                 let order = match (bits, order) {
                     (Some(b), None) if b > 8 => {
-                        errors.push(INVALID_ENDIANESS.to_owned());
+                        errors.push(ParamError::Endianess);
                         None
                     }
                     (_, Some(None)) => {
-                        errors.push(INVALID_ENDIANESS.to_owned());
+                        errors.push(ParamError::Endianess);
                         None
                     }
                     (_, Some(Some(o))) => Some(o),
@@ -80,8 +80,8 @@ impl TransactionSpec {
             }
             Some(f @ (Function::ReadHoldingRegisters | Function::ReadInputRegisters)) => {
                 let value_type = self.value_type.as_deref().and_then(ValueType::parse);
-                let value_type = reported(value_type, &mut errors, INVALID_VALUE_TYPE);
-                let order = reported(order.flatten(), &mut errors, INVALID_ENDIANESS);
+                let value_type = reported(value_type, &mut errors, ParamError::ValueType);
+                let order = reported(order.flatten(), &mut errors, ParamError::Endianess);
                 self.read_rest(&mut errors)
                     .and_then(|(divisor, precision)| {
                         Some(Plan::Read(ReadPlan {
@@ -111,18 +111,18 @@ impl TransactionSpec {
     }
 
     /// Divisor and precision of a read.
-    fn read_rest(&self, errors: &mut Vec<String>) -> Option<(u32, u8)> {
+    fn read_rest(&self, errors: &mut Vec<ParamError>) -> Option<(u32, u8)> {
         let divisor = match self.divisor.unwrap_or(1) {
             d @ 1..=4_294_967_295 => Some(d as u32),
             _ => {
-                errors.push(INVALID_DIVISOR.to_owned());
+                errors.push(ParamError::Divisor);
                 None
             }
         };
         let precision = match self.precision.unwrap_or(3) {
             p @ 0..=3 => Some(p as u8),
             _ => {
-                errors.push(INVALID_PRECISION.to_owned());
+                errors.push(ParamError::Precision);
                 None
             }
         };
@@ -136,12 +136,12 @@ fn write_request(
     f: Function,
     address: Option<u16>,
     order: Option<Option<ByteOrder>>,
-    errors: &mut Vec<String>,
+    errors: &mut Vec<ParamError>,
 ) -> Option<Request> {
     let values = match &spec.values {
         Some(v) if !v.is_empty() => Some(v.as_slice()),
         _ => {
-            errors.push(INVALID_VALUES.to_owned());
+            errors.push(ParamError::Values);
             None
         }
     };
@@ -156,11 +156,11 @@ fn write_request(
                 .collect::<Option<Vec<bool>>>()
         })?;
         let Some(bits) = bits.filter(|b| f == Function::WriteMultipleCoils || b.len() == 1) else {
-            errors.push(INVALID_VALUES.to_owned());
+            errors.push(ParamError::Values);
             return None;
         };
         if bits.len() > 1968 {
-            errors.push(INVALID_VALUES.to_owned());
+            errors.push(ParamError::Values);
             return None;
         }
         let address = address?;
@@ -177,7 +177,7 @@ fn write_request(
         });
     }
     let ty = spec.write_type.as_deref().and_then(WriteType::parse);
-    let ty = reported(ty, errors, INVALID_WRITE_TYPE);
+    let ty = reported(ty, errors, ParamError::WriteType);
     let order = match order {
         Some(Some(o)) => Some(o),
         // One byte needs no order; anything else does.
@@ -185,7 +185,7 @@ fn write_request(
             Some(ByteOrder::BigEndian)
         }
         _ => {
-            errors.push(INVALID_ENDIANESS.to_owned());
+            errors.push(ParamError::Endianess);
             None
         }
     };
@@ -193,7 +193,10 @@ fn write_request(
     let mut bytes = Vec::with_capacity(values.len() * ty.bytes());
     for v in values {
         let Some(b) = value_bytes(ty, v) else {
-            errors.push(format!("{INVALID_VALUES} `{v}`: {}", ty.describe()));
+            errors.push(ParamError::Value {
+                value: v.to_string(),
+                ty,
+            });
             return None;
         };
         let mut b = b;
@@ -219,15 +222,15 @@ fn write_request(
             })
         }
         _ => {
-            errors.push(INVALID_FUNCTION.to_owned());
+            errors.push(ParamError::Function);
             None
         }
     }
 }
-/// `found`, or `message` added to the errors when there is nothing.
-fn reported<T>(found: Option<T>, errors: &mut Vec<String>, message: &str) -> Option<T> {
+/// `found`, or `error` added to the errors when there is nothing.
+fn reported<T>(found: Option<T>, errors: &mut Vec<ParamError>, error: ParamError) -> Option<T> {
     if found.is_none() {
-        errors.push(message.to_owned());
+        errors.push(error);
     }
     found
 }

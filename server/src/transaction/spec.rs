@@ -169,17 +169,68 @@ impl Checked {
     }
 }
 
-pub const INVALID_FUNCTION: &str = "Invalid function code configuration.";
-pub const INVALID_DEVICE: &str = "Invalid device address configuration.";
-pub const INVALID_REGISTER: &str = "Invalid register address configuration.";
-pub const INVALID_BIT_COUNT: &str = "Invalid bit count configuration.";
-pub const INVALID_VALUE_TYPE: &str = "Invalid value type configuration.";
-pub const INVALID_DIVISOR: &str = "Invalid divisor configuration.";
-pub const INVALID_PRECISION: &str = "Invalid precision configuration.";
-pub const INVALID_ENDIANESS: &str = "Invalid endianess configuration.";
-pub const INVALID_REFRESH: &str = "Invalid refresh interval configuration.";
-pub const INVALID_TIMEOUT: &str = "Invalid response timeout configuration.";
-pub const MISSING_RS485: &str = "Missing RS485 configuration.";
-pub const INVALID_INPUT_EDGE: &str = "Invalid input edge configuration.";
-pub const INVALID_WRITE_TYPE: &str = "Invalid type configuration.";
-pub const INVALID_VALUES: &str = "Invalid values configuration.";
+/// A raw transaction's parameter that the blocks refuse, as a kind; its message is source
+/// document 004's (the write block's type and values in the same form), rendered from the
+/// kind.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ParamError {
+    /// `functionCode` / Function.
+    #[error("Invalid function code configuration.")]
+    Function,
+    /// `deviceAddress` / Network Number.
+    #[error("Invalid device address configuration.")]
+    Device,
+    /// `registerAddress` / Data Address.
+    #[error("Invalid register address configuration.")]
+    Register,
+    /// `bitCount`.
+    #[error("Invalid bit count configuration.")]
+    BitCount,
+    /// `valueType`.
+    #[error("Invalid value type configuration.")]
+    ValueType,
+    /// `divisor`.
+    #[error("Invalid divisor configuration.")]
+    Divisor,
+    /// `precision`.
+    #[error("Invalid precision configuration.")]
+    Precision,
+    /// `endianess` / Byte Order.
+    #[error("Invalid endianess configuration.")]
+    Endianess,
+    /// `refreshInterval` / Polling Period.
+    #[error("Invalid refresh interval configuration.")]
+    Refresh,
+    /// `responseTimeout` / Timeout.
+    #[error("Invalid response timeout configuration.")]
+    Timeout,
+    /// No link of that name (the block's `server`).
+    #[error("Missing RS485 configuration.")]
+    MissingRs485,
+    /// `input_edge`.
+    #[error("Invalid input edge configuration.")]
+    InputEdge,
+    /// The write block's Type.
+    #[error("Invalid type configuration.")]
+    WriteType,
+    /// The write block's values: none, or too many for the function.
+    #[error("Invalid values configuration.")]
+    Values,
+    /// One value the type does not take.
+    #[error("Invalid values configuration. `{value}`: {}", .ty.describe())]
+    Value {
+        /// The value as given.
+        value: String,
+        /// The type it was meant for.
+        ty: WriteType,
+    },
+}
+
+/// Every message of `errors`, in order, as one text.
+pub fn messages(errors: &[ParamError]) -> String {
+    errors
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
