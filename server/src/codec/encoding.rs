@@ -210,7 +210,7 @@ impl Encoding {
 
     /// Register contents as bytes in value order (most significant first).
     fn value_bytes(&self, regs: &[u16]) -> Vec<u8> {
-        let mut bytes: Vec<u8> = regs.iter().flat_map(|r| r.to_be_bytes()).collect();
+        let mut bytes = super::register_bytes(regs);
         self.order.reorder(&mut bytes);
         bytes
     }
@@ -218,10 +218,7 @@ impl Encoding {
     /// Bytes in value order to registers.
     fn registers(&self, mut bytes: Vec<u8>) -> Vec<u16> {
         self.order.reorder(&mut bytes);
-        bytes
-            .chunks_exact(2)
-            .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
-            .collect()
+        super::bytes_registers(&bytes)
     }
 }
 

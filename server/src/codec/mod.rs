@@ -12,6 +12,21 @@ pub use encoding::{Encoding, Raw};
 
 pub use iogate_types::{IecType, Value, ValueError, int_range};
 
+/// Registers as bytes, each register high byte first: the one place registers are
+/// unpacked (the codec, the Modbus map, raw transactions).
+pub fn register_bytes(regs: &[u16]) -> Vec<u8> {
+    regs.iter().flat_map(|r| r.to_be_bytes()).collect()
+}
+
+/// Bytes as registers, two by two, the first of each pair the high byte (an odd last byte
+/// is left out): the one place registers are packed.
+pub fn bytes_registers(bytes: &[u8]) -> Vec<u16> {
+    bytes
+        .chunks_exact(2)
+        .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
+        .collect()
+}
+
 /// Registers a type's full width takes: 32-bit types two, 64-bit types four, everything
 /// else one. Without `word_count` every field takes one register (source document 000:
 /// "default 1 ... use 2 for 32-bit DINT/REAL values"); this is the count to add for the

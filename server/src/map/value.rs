@@ -86,7 +86,7 @@ impl Repr {
         ty: IecType,
         encoding: Option<&Encoding>,
     ) -> Result<Value, String> {
-        let bytes: Vec<u8> = regs.iter().flat_map(|r| r.to_be_bytes()).collect();
+        let bytes = crate::codec::register_bytes(regs);
         let int = |n: i128| Value::from_int(ty, n).map_err(|e| e.to_string());
         let real = |x: f64| Value::from_real(ty, x).map_err(|e| e.to_string());
         let get = |n: usize| -> Result<&[u8], String> {
@@ -113,10 +113,7 @@ impl Repr {
 }
 
 fn words(bytes: &[u8]) -> Vec<u16> {
-    bytes
-        .chunks_exact(2)
-        .map(|p| u16::from_be_bytes([p[0], p[1]]))
-        .collect()
+    crate::codec::bytes_registers(bytes)
 }
 
 fn arr<const N: usize>(bytes: &[u8]) -> [u8; N] {

@@ -170,12 +170,9 @@ pub fn read_value(plan: &ReadPlan, response: &Response) -> Result<f64, ParseFail
             Decimal::int(i64::try_from(value).map_err(|_| ParseFailed)?)
         }
         (Response::Registers(regs), _, Some(ty)) => {
-            let mut bytes: Vec<u8> = regs
-                .get(..usize::from(ty.registers()))
-                .ok_or(ParseFailed)?
-                .iter()
-                .flat_map(|r| r.to_be_bytes())
-                .collect();
+            let mut bytes = crate::codec::register_bytes(
+                regs.get(..usize::from(ty.registers())).ok_or(ParseFailed)?,
+            );
             plan.order.reorder(&mut bytes);
             let four = || [bytes[0], bytes[1], bytes[2], bytes[3]];
             match ty {

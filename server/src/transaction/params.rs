@@ -203,10 +203,7 @@ fn write_request(
         order.reorder(&mut b);
         bytes.extend_from_slice(&b);
     }
-    let registers: Vec<u16> = bytes
-        .chunks_exact(2)
-        .map(|p| u16::from_be_bytes([p[0], p[1]]))
-        .collect();
+    let registers = crate::codec::bytes_registers(&bytes);
     let address = address?;
     match f {
         Function::WriteSingleRegister if registers.len() == 1 => {
