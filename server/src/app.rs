@@ -262,7 +262,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         Some(listener) => {
             let addr = listener.local_addr()?;
             let (modbus_service, shutdown) = (service.clone(), token.clone());
-            tracker.spawn(api::modbus::serve_modbus(
+            tracker.spawn(api::modbus_server::serve_modbus(
                 listener,
                 modbus_service,
                 shutdown,

@@ -26,7 +26,7 @@ pub mod sim;
 pub mod text;
 pub mod tls;
 pub mod transaction;
-pub mod writes;
+pub mod write_log;
 pub mod yaml;
 
 /// Exit status of `iogate check` (and `serve`) when the configuration has problems.

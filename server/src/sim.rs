@@ -40,7 +40,7 @@ mod tests {
     use crate::cache::{Cache, Quality};
     use crate::codec::Value;
     use crate::profile::Catalog;
-    use crate::writes::{Lookup, WriteStatus};
+    use crate::write_log::{Lookup, WriteStatus};
     use std::time::Duration;
 
     #[tokio::test(start_paused = true)]

@@ -11,7 +11,7 @@ use crate::codec::{IecType, Value};
 use crate::config::Transport;
 use crate::profile::{LayoutEntry, Profile, fb_layout};
 use crate::service::FieldView;
-use crate::writes::WriteRecord;
+use crate::write_log::WriteRecord;
 
 /// A value as the JSON of its type: BOOL as true/false, numbers as numbers, STRING as a
 /// string, TIME as milliseconds.

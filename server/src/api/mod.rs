@@ -11,7 +11,7 @@ pub mod grpc;
 pub mod http;
 pub mod limit;
 pub mod map;
-pub mod modbus;
+pub mod modbus_server;
 pub mod pb;
 pub mod rest;
 pub mod transactions;

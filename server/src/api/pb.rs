@@ -9,7 +9,7 @@ use crate::codec::{IecType, Value};
 use crate::config::{SerialSettings, Transport};
 use crate::profile::{Profile, fb_layout, st_declaration};
 use crate::service::{FieldView, Service};
-use crate::writes::{WriteRecord, WriteStatus};
+use crate::write_log::{WriteRecord, WriteStatus};
 
 pub fn iec_type(ty: IecType) -> pb::IecType {
     ty.to_pb()

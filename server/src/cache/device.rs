@@ -13,7 +13,7 @@ use super::{AccessError, lock};
 use crate::codec::{CodecError, Value};
 use crate::config::DeviceConfig;
 use crate::profile::{Direction, Field, Profile, Protocol, RegisterKind};
-use crate::writes::{Origin, WriteLog};
+use crate::write_log::{Origin, WriteLog};
 
 /// The longest string a simulated STRING field holds (the IEC default STRING length).
 pub const SIM_STRING_MAX: usize = 254;

@@ -18,7 +18,7 @@ use crate::codec::IecType;
 use crate::config::{Config, DeviceConfig, LinkConfig};
 use crate::profile::{Catalog, Profile};
 use crate::text::quote;
-use crate::writes::WriteLog;
+use crate::write_log::WriteLog;
 
 pub use device::Checked;
 pub use device::{Binding, Device, SIM_STRING_MAX};
@@ -214,7 +214,7 @@ impl Cache {
 mod tests {
     use super::*;
     use crate::codec::Value;
-    use crate::writes::{Lookup, WriteStatus};
+    use crate::write_log::{Lookup, WriteStatus};
     use std::time::Duration;
     use tokio::time::Instant;
 

@@ -9,7 +9,7 @@ use crate::codec::{CodecError, Value};
 use crate::link::frame::Exception;
 use crate::link::{LinkFault, TxError};
 use crate::profile::RegisterKind;
-use crate::writes::{Origin, WriteLog, WriteStatus};
+use crate::write_log::{Origin, WriteLog, WriteStatus};
 
 /// Why a write did not reach the device.
 #[derive(Debug, Clone, thiserror::Error)]

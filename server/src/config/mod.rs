@@ -4,8 +4,8 @@
 //! other and devices against the loaded profiles.
 
 mod check;
-pub mod modbus;
-mod read;
+pub mod modbus_server;
+mod parse;
 pub mod rules;
 pub mod security;
 pub mod transactions;
@@ -39,7 +39,7 @@ pub struct Config {
     pub links: Vec<LinkConfig>,
     pub devices: Vec<DeviceConfig>,
     /// The Modbus TCP server, when configured.
-    pub modbus_server: Option<modbus::ModbusServerConfig>,
+    pub modbus_server: Option<modbus_server::ModbusServerConfig>,
     /// Standing raw transactions.
     pub transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,
@@ -319,7 +319,7 @@ pub fn parse(file: &str, text: &str) -> Result<Config, Problems> {
 pub fn parse_partial(file: &str, text: &str) -> (Option<Config>, Problems) {
     let mut report = Report::new(file);
     let config =
-        yaml::parse(text, &mut report).and_then(|root| read::read_config(&root, &mut report));
+        yaml::parse(text, &mut report).and_then(|root| parse::read_config(&root, &mut report));
     (config, report.into_problems())
 }
 

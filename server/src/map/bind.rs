@@ -11,7 +11,7 @@ use super::space::{Slot, Space};
 use super::value::Repr;
 use crate::codec::IecType;
 use crate::config::Config;
-use crate::config::modbus::ModbusServerConfig;
+use crate::config::modbus_server::ModbusServerConfig;
 use crate::profile::{Catalog, Profile, RegisterKind};
 use crate::yaml::{Problems, Report};
 

@@ -11,7 +11,7 @@
 
 use iogate_types::{Area, Location, Size};
 
-use crate::config::modbus::AddressSpace;
+use crate::config::modbus_server::AddressSpace;
 
 /// The four Modbus tables.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]

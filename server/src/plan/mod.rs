@@ -2,14 +2,14 @@
 //! the bus-time budget of a link (`budget`), and the `iogate plan` report (`report`).
 
 mod budget;
-mod read;
+mod read_batches;
 mod report;
-mod write;
+mod write_groups;
 
 pub use budget::{cycle_time, rtu_sizes, transaction_time, utilisation};
-pub use read::{ReadBatch, read_batches};
+pub use read_batches::{ReadBatch, read_batches};
 pub use report::{link_plan, render, warnings};
-pub use write::{WriteItem, WriteOp, write_ops};
+pub use write_groups::{WriteItem, WriteOp, write_ops};
 
 /// A profile from field lines, for the tests of this module.
 #[cfg(test)]

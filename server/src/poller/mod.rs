@@ -7,9 +7,9 @@
 //! putting its requested outputs on the bus.
 
 mod bus;
-mod read;
+mod poll_cycle;
 pub mod watchdog;
-mod write;
+mod write_outputs;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -376,7 +376,7 @@ mod tests {
     use crate::link::frame::crc16;
     use crate::link::rtu::RtuTransport;
     use crate::profile::Catalog;
-    use crate::writes::{Lookup, WriteStatus};
+    use crate::write_log::{Lookup, WriteStatus};
     use std::sync::atomic::{AtomicU32, Ordering};
     use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 

@@ -4,7 +4,7 @@
 //! over this layer: they parse their request, call one function here, and map the result
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
-mod modbus;
+mod modbus_map;
 mod refusal;
 mod select;
 mod standing;
@@ -22,7 +22,7 @@ use crate::metrics::Metrics;
 use crate::profile::Profile;
 use crate::runtime::Tasks;
 
-pub use modbus::{Bound, ModbusImage, Route};
+pub use modbus_map::{Bound, ModbusImage, Route};
 pub use refusal::Refusal;
 pub use select::{FieldRef, Selection, Snapshot};
 pub use standing::{Standing, StandingSet, StandingStatus};

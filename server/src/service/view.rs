@@ -11,7 +11,7 @@ use super::Service;
 use crate::cache::{Device, Sample};
 use crate::codec::Value;
 use crate::profile::Field;
-use crate::writes::WriteRecord;
+use crate::write_log::WriteRecord;
 
 /// A field as of now. Names are borrowed from the device while a response is written.
 #[derive(Debug, Clone)]

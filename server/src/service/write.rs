@@ -7,7 +7,7 @@ use super::{Service, ServiceError};
 use crate::cache::{AccessError, Checked, Device};
 use crate::codec::{IecType, Value};
 use crate::profile::Direction;
-use crate::writes::{FIELD_HISTORY, Lookup, WriteRecord};
+use crate::write_log::{FIELD_HISTORY, Lookup, WriteRecord};
 
 /// A write that passed every check and can be requested: only [`Service::prepare`] makes
 /// one, and it carries the proof of its check (with the registers the value becomes), so
@@ -218,7 +218,7 @@ impl Service {
                     }
                     let field = device.field(idx).name.clone();
                     tracing::warn!(device = %device.name(), field = %field, value = %value, "client lost: writing the safe value");
-                    device.request_own(idx, value, crate::writes::Origin::Safety);
+                    device.request_own(idx, value, crate::write_log::Origin::Safety);
                     metrics.safe_value_written(device.name());
                 }
             });

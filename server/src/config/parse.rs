@@ -189,7 +189,7 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     }
     config.modbus_server = map
         .get("modbus_server")
-        .and_then(|n| super::modbus::read(n, report));
+        .and_then(|n| super::modbus_server::read(n, report));
     if let Some(n) = map.get("security") {
         config.security = super::security::read(n, report);
     }

@@ -13,7 +13,7 @@ use tokio::time::Instant;
 use super::Service;
 use crate::cache::{AccessError, Cache, Device, Link, Passthrough, PassthroughError};
 use crate::codec::Value;
-use crate::config::modbus::{ModbusServerConfig, OnBadQuality};
+use crate::config::modbus_server::{ModbusServerConfig, OnBadQuality};
 use crate::config::rules::DEFAULT_TIMEOUT;
 use crate::link::TxError;
 use crate::link::frame::{Exception, Request, Response};

@@ -127,7 +127,7 @@ impl super::Polled {
             let field = &self.device.field(idx).name;
             tracing::info!(device = %self.device.name(), field = %field, "device holds another value than requested; writing it again");
             self.device
-                .request_own(idx, desired, crate::writes::Origin::Reconcile);
+                .request_own(idx, desired, crate::write_log::Origin::Reconcile);
         }
     }
 }
