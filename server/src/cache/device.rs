@@ -7,7 +7,7 @@ use std::time::{Duration, SystemTime};
 use tokio::sync::{Notify, watch};
 use tokio::time::Instant;
 
-use super::outputs::{Outputs, TakenWrite, WriteError};
+use super::outputs::{Checked, Outputs, TakenWrite, WriteError};
 use super::sample::{DeviceCode, Diagnostics, FieldError, Quality, Sample};
 use super::{AccessError, lock};
 use crate::codec::{CodecError, Value};
@@ -37,33 +37,6 @@ pub struct Device {
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
     /// When its last I/O cycle ended, answered or not.
     last_cycle: Mutex<Option<tokio::time::Instant>>,
-}
-
-/// A value checked for a field of a device: the field is writable, the value of its type and
-/// within its raw register after scaling. Only [`Device::check_write`] makes one, and it
-/// carries the registers the value becomes, so the write path encodes a value once.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Checked {
-    idx: usize,
-    value: Value,
-    registers: Option<Vec<u16>>,
-}
-
-impl Checked {
-    /// The field's index in its profile.
-    pub fn idx(&self) -> usize {
-        self.idx
-    }
-
-    pub fn value(&self) -> &Value {
-        &self.value
-    }
-
-    /// The value and the registers it becomes (`None` for a coil, a bit in a register or a
-    /// simulated field).
-    pub(crate) fn into_parts(self) -> (usize, Value, Option<Vec<u16>>) {
-        (self.idx, self.value, self.registers)
-    }
 }
 
 /// Where a device is reached.
@@ -291,11 +264,7 @@ impl Device {
             });
         }
         let registers = self.check_value(idx, &value)?;
-        Ok(Checked {
-            idx,
-            value,
-            registers,
-        })
+        Ok(Checked::new(idx, value, registers))
     }
 
     /// Checks `value` for field `idx`: its type, and that it fits the raw register after
@@ -349,7 +318,7 @@ impl Device {
     pub fn request_writes(&self, writes: Vec<Checked>, writer: Option<u64>) -> Vec<u64> {
         let named = writes
             .into_iter()
-            .map(|c| (self.field(c.idx).name.as_str(), c))
+            .map(|c| (self.field(c.idx()).name.as_str(), c))
             .collect();
         let generations = self
             .outputs

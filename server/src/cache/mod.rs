@@ -20,10 +20,9 @@ use crate::profile::{Catalog, Profile};
 use crate::text::quote;
 use crate::write_log::WriteLog;
 
-pub use device::Checked;
 pub use device::{Binding, Device, SIM_STRING_MAX};
 pub use link::{INBOX_CAPACITY, Link, Passthrough, PassthroughError, Progress, Utilisation};
-pub use outputs::{Outputs, TakenWrite, WriteError};
+pub use outputs::{Checked, Outputs, TakenWrite, WriteError};
 pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {

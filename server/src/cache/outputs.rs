@@ -45,6 +45,42 @@ impl From<TxError> for WriteError {
     }
 }
 
+/// A value checked for a field of a device: the field is writable, the value of its type and
+/// within its raw register after scaling. Only [`super::Device::check_write`] makes one, and it
+/// carries the registers the value becomes, so the write path encodes a value once.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checked {
+    idx: usize,
+    value: Value,
+    registers: Option<Vec<u16>>,
+}
+
+impl Checked {
+    /// Made by [`super::Device::check_write`] only (the cache's own constructor).
+    pub(super) fn new(idx: usize, value: Value, registers: Option<Vec<u16>>) -> Checked {
+        Checked {
+            idx,
+            value,
+            registers,
+        }
+    }
+
+    /// The field's index in its profile.
+    pub fn idx(&self) -> usize {
+        self.idx
+    }
+
+    pub fn value(&self) -> &Value {
+        &self.value
+    }
+
+    /// The value and the registers it becomes (`None` for a coil, a bit in a register or a
+    /// simulated field).
+    pub(crate) fn into_parts(self) -> (usize, Value, Option<Vec<u16>>) {
+        (self.idx, self.value, self.registers)
+    }
+}
+
 /// A write taken by the device's task to put on the bus.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TakenWrite {
@@ -127,7 +163,7 @@ impl Outputs {
     pub fn request_all(
         &self,
         device: &str,
-        writes: Vec<(&str, super::device::Checked)>,
+        writes: Vec<(&str, Checked)>,
         origin: Origin,
         writer: Option<u64>,
     ) -> Vec<u64> {
