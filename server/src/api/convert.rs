@@ -34,7 +34,7 @@ pub fn value_to_json(value: &Value) -> Json {
 
 /// A JSON value for a field of type `ty`. BOOL also takes 0 and 1; TIME takes milliseconds
 /// or a literal such as `"T#1s500ms"`; integer types take whole numbers only.
-pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, String> {
+pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, crate::codec::CodecError> {
     let found = describe(json);
 
     match (ty, json) {
@@ -42,20 +42,22 @@ pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, String> {
         (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(0) => Ok(Value::Bool(false)),
         (IecType::Bool, Json::Number(n)) if n.as_u64() == Some(1) => Ok(Value::Bool(true)),
         (IecType::String, Json::String(s)) => Ok(Value::String(s.clone())),
-        (IecType::Time, Json::String(s)) => crate::duration::parse_ms(s)
-            .map(Value::Time)
-            .map_err(|e| e.to_string()),
+        (IecType::Time, Json::String(s)) => Ok(Value::Time(crate::duration::parse_ms(s)?)),
         (t, Json::Number(n)) if t != IecType::Bool && t != IecType::String => {
-            if let Some(i) = n.as_i64() {
-                Value::from_int(t, i.into()).map_err(|e| e.to_string())
+            Ok(if let Some(i) = n.as_i64() {
+                Value::from_int(t, i.into())?
             } else if let Some(u) = n.as_u64() {
-                Value::from_int(t, u.into()).map_err(|e| e.to_string())
+                Value::from_int(t, u.into())?
             } else {
                 let x = n.as_f64().unwrap_or(f64::NAN);
-                Value::from_real(t, x).map_err(|e| e.to_string())
-            }
+                Value::from_real(t, x)?
+            })
         }
-        _ => Err(format!("{ty} needs {}, got {found}", expected(ty))),
+        _ => Err(crate::codec::CodecError::Expected {
+            ty,
+            expected: expected(ty),
+            found,
+        }),
     }
 }
 
@@ -575,7 +577,7 @@ mod tests {
         assert_eq!(json_to_value(IecType::Int, &json!(-3)), Ok(Value::Int(-3)));
         assert_eq!(json_to_value(IecType::Int, &json!(3.0)), Ok(Value::Int(3)));
         let err = json_to_value(IecType::Usint, &json!(300)).expect_err("range");
-        assert!(err.contains("out of range for USINT"), "{err}");
+        assert!(err.to_string().contains("out of range for USINT"), "{err}");
         assert!(json_to_value(IecType::Int, &json!(2.5)).is_err());
         assert_eq!(
             json_to_value(IecType::Ulint, &json!(u64::MAX)),
@@ -594,7 +596,7 @@ mod tests {
             Ok(Value::Time(250))
         );
         let err = json_to_value(IecType::Real, &json!("hot")).expect_err("type");
-        assert_eq!(err, "REAL needs a number, got a string");
+        assert_eq!(err.to_string(), "REAL needs a number, got a string");
         assert!(json_to_value(IecType::String, &json!(null)).is_err());
     }
 

@@ -271,33 +271,27 @@ impl Device {
     /// scaling; the registers it becomes (`None` for a simulated or bit field).
     fn check_value(&self, idx: usize, value: &Value) -> Result<Option<Vec<u16>>, AccessError> {
         let field = self.field(idx);
-        let invalid = |reason: String| AccessError::InvalidValue {
+        let invalid = |reason: CodecError| AccessError::InvalidValue {
             device: self.name().to_owned(),
             field: field.name.clone(),
             ty: field.ty,
-            reason,
+            reason: Box::new(reason),
         };
         if !value.is_of(field.ty) {
-            return Err(invalid(format!("a {} value is needed", field.ty)));
+            return Err(invalid(CodecError::NotOfType { ty: field.ty }));
         }
         if self.is_simulated() || field.register.kind == RegisterKind::Virtual {
             if let Value::String(s) = value
                 && s.len() > SIM_STRING_MAX
             {
-                return Err(invalid(
-                    CodecError::TooLong {
-                        len: s.len(),
-                        max: SIM_STRING_MAX,
-                    }
-                    .to_string(),
-                ));
+                return Err(invalid(CodecError::TooLong {
+                    len: s.len(),
+                    max: SIM_STRING_MAX,
+                }));
             }
             return Ok(None);
         }
-        let registers = field
-            .encoding
-            .encode(value)
-            .map_err(|e| invalid(e.to_string()))?;
+        let registers = field.encoding.encode(value).map_err(invalid)?;
         let stored_as_registers = field.register.kind == RegisterKind::HoldingRegister
             && !matches!(field.encoding.raw, crate::codec::Raw::RegisterBit(_));
         Ok(stored_as_registers.then_some(registers))

@@ -52,7 +52,8 @@ pub enum AccessError {
         device: String,
         field: String,
         ty: IecType,
-        reason: String,
+        /// Why, as a kind (its message is rendered from it).
+        reason: Box<crate::codec::CodecError>,
     },
 }
 

@@ -122,6 +122,19 @@ pub enum CodecError {
     TooLong { len: usize, max: usize },
     #[error("expected {expected} registers, got {found}")]
     WrongLength { expected: usize, found: usize },
+    /// A client's value of the wrong kind for the type (a string for a BOOL, ...).
+    #[error("{ty} needs {expected}, got {found}")]
+    Expected {
+        ty: IecType,
+        expected: &'static str,
+        found: &'static str,
+    },
+    /// A duration literal that does not parse.
+    #[error(transparent)]
+    Time(#[from] iogate_types::time::TimeError),
+    /// A value of another type than the field's.
+    #[error("a {ty} value is needed")]
+    NotOfType { ty: IecType },
 }
 
 #[cfg(test)]

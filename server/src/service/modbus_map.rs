@@ -412,8 +412,10 @@ impl Service {
             return Err(Exception::ILLEGAL_DATA_ADDRESS);
         }
         let name = &b.device.field(idx).name;
-        self.prepare(&b.device, name, |_| Ok::<_, String>(value))
-            .map_err(|e| refusal(&e))
+        self.prepare(&b.device, name, |_| {
+            Ok::<_, crate::codec::CodecError>(value)
+        })
+        .map_err(|e| refusal(&e))
     }
 
     /// Requests every checked write (all or nothing) and sets the memory locations.

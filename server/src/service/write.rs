@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use super::{Service, ServiceError};
 use crate::cache::{AccessError, Checked, Device};
-use crate::codec::{IecType, Value};
+use crate::codec::{CodecError, IecType, Value};
 use crate::profile::Direction;
 use crate::write_log::{FIELD_HISTORY, Lookup, WriteRecord};
 
@@ -41,7 +41,7 @@ pub struct Accepted {
 }
 
 /// Field `field` of `device` and the value `convert` makes for its type.
-fn typed<E: ToString>(
+fn typed<E: Into<CodecError>>(
     device: &Device,
     field: &str,
     convert: impl FnOnce(IecType) -> Result<Value, E>,
@@ -52,7 +52,7 @@ fn typed<E: ToString>(
         device: device.name().to_owned(),
         field: f.name.clone(),
         ty: f.ty,
-        reason: e.to_string(),
+        reason: Box::new(e.into()),
     })?;
     Ok((idx, value))
 }
@@ -61,7 +61,7 @@ impl Service {
     /// Checks a write of field `field` of `device`: the field exists and is writable, and
     /// the value (converted by the front-end's `convert` for the field's type) fits it.
     /// Nothing is written.
-    pub fn prepare<E: ToString>(
+    pub fn prepare<E: Into<CodecError>>(
         &self,
         device: &Arc<Device>,
         field: &str,
@@ -76,7 +76,7 @@ impl Service {
 
     /// Like [`Service::prepare`] for a device given by name, or a field given by its
     /// located address.
-    pub fn prepare_named<E: ToString>(
+    pub fn prepare_named<E: Into<CodecError>>(
         &self,
         device: &str,
         field: &str,
@@ -234,7 +234,7 @@ impl Service {
     }
 
     /// Sets an input of a simulated device, as if the device had read it.
-    pub fn simulate<E: ToString>(
+    pub fn simulate<E: Into<CodecError>>(
         &self,
         device: &Arc<Device>,
         field: &str,
