@@ -74,17 +74,15 @@ impl Setup {
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
         match Setup::from_config(config, base) {
-            Ok(setup) if problems.is_empty() => Ok(setup),
-            Ok(_) => Err(problems),
-            Err(more) => {
-                problems.extend(more);
-                // File by file, in line order, as an editor shows them.
-                problems
-                    .0
-                    .sort_by(|a, b| (&a.file, a.line).cmp(&(&b.file, b.line)));
-                Err(problems)
-            }
+            Ok(setup) if problems.is_empty() => return Ok(setup),
+            Ok(_) => {}
+            Err(more) => problems.extend(more),
         }
+        // File by file, in line order, as an editor shows them.
+        problems
+            .0
+            .sort_by(|a, b| (&a.file, a.line).cmp(&(&b.file, b.line)));
+        Err(problems)
     }
 
     /// What `check` and `serve` print without stopping anything: every profile field that

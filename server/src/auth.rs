@@ -45,6 +45,17 @@ pub enum Denied {
     Forbidden { needed: Role },
 }
 
+/// A problem of the tokens, and where it is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum TokensProblem {
+    /// A bad line of the tokens file (1-based).
+    Line { line: u64, message: String },
+    /// The tokens file cannot be read; `line` when a byte of it is not UTF-8.
+    File { line: Option<u64>, message: String },
+    /// A bad entry of `IOGATE_TOKENS` (1-based).
+    Env { entry: u64, message: String },
+}
+
 /// The known tokens.
 #[derive(Clone, Default)]
 pub struct Tokens(HashMap<String, Role>);
@@ -103,37 +114,32 @@ impl Tokens {
     }
 
     /// The tokens of `file` and of the `IOGATE_TOKENS` environment variable (lines, or
-    /// entries separated by `;`), or every problem: `(source, line, message)`, where the
-    /// source is the file or `IOGATE_TOKENS` and the line 0 when the file cannot be read.
-    pub fn load(file: Option<&Path>) -> Result<Tokens, Vec<(String, u64, String)>> {
+    /// entries separated by `;`), or every problem with where it is.
+    pub fn load(file: Option<&Path>) -> Result<Tokens, Vec<TokensProblem>> {
         let mut all = Tokens::default();
         let mut problems = Vec::new();
         if let Some(path) = file {
-            let shown = path.display().to_string();
             match crate::text::read_file(path) {
                 Ok(text) => match Tokens::parse(&text) {
                     Ok(t) => all.0.extend(t.0),
-                    Err(bad) => {
-                        problems.extend(bad.into_iter().map(|(line, m)| (shown.clone(), line, m)))
-                    }
+                    Err(bad) => problems.extend(
+                        bad.into_iter()
+                            .map(|(line, message)| TokensProblem::Line { line, message }),
+                    ),
                 },
-                Err(e) => problems.push((
-                    shown.clone(),
-                    e.line().unwrap_or(0),
-                    format!("the tokens file {shown}: {e}"),
-                )),
+                Err(e) => problems.push(TokensProblem::File {
+                    line: e.line(),
+                    message: format!("the tokens file {}: {e}", path.display()),
+                }),
             }
         }
         if let Ok(env) = std::env::var("IOGATE_TOKENS") {
             match Tokens::parse(&env.replace(';', "\n")) {
                 Ok(t) => all.0.extend(t.0),
-                Err(bad) => problems.extend(bad.into_iter().map(|(line, m)| {
-                    (
-                        "IOGATE_TOKENS".to_owned(),
-                        line,
-                        format!("entry {line}: {m}"),
-                    )
-                })),
+                Err(bad) => problems.extend(
+                    bad.into_iter()
+                        .map(|(entry, message)| TokensProblem::Env { entry, message }),
+                ),
             }
         }
         if problems.is_empty() {

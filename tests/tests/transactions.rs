@@ -1168,3 +1168,44 @@ async fn a_request_whose_caller_is_gone_or_late_is_never_sent() {
     on.gw.shutdown().await;
     on.task.abort();
 }
+
+#[tokio::test]
+async fn a_write_of_period_zero_runs_when_enabled_and_when_given_values() {
+    let bus = RtuBus::default();
+    bus.slave(17, |_| {});
+    let on = on_bus(
+        "tx-write-zero",
+        &bus,
+        "transactions:\n  - { name: once, link: rs485, function: 6, slave: 17, address: 1, type: uint16, byte_order: Big-endian, values: [5], timeout_ms: 100, enabled: false }\n",
+    )
+    .await;
+    let gw = &on.gw;
+    let (status, _) = gw
+        .send(Method::POST, "/api/v1/transactions/once/enable", "")
+        .await
+        .expect("enable");
+    assert_eq!(status, 200);
+    gw.until("/api/v1/transactions/once", "sent when enabled", |b| {
+        b["runs"] == 1 && b["state"] == 4
+    })
+    .await
+    .expect("one run");
+    assert_eq!(bus.read_slave(17, |s| s.tables.holding[1]), Some(5));
+    gw.send(
+        Method::PUT,
+        "/api/v1/transactions/once/values",
+        json!({"values": [6]}).to_string(),
+    )
+    .await
+    .expect("values");
+    gw.until(
+        "/api/v1/transactions/once",
+        "sent with its new values",
+        |b| b["runs"] == 2,
+    )
+    .await
+    .expect("a second run");
+    assert_eq!(bus.read_slave(17, |s| s.tables.holding[1]), Some(6));
+    on.gw.shutdown().await;
+    on.task.abort();
+}

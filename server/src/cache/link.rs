@@ -227,11 +227,6 @@ impl Link {
         super::lock(&self.queue).pop_front().map(|q| q.request)
     }
 
-    /// Whether a request is waiting.
-    pub fn has_queued(&self) -> bool {
-        !super::lock(&self.queue).is_empty()
-    }
-
     /// How many requests wait, and how long the oldest has.
     pub fn inbox(&self) -> (usize, Duration) {
         let queue = super::lock(&self.queue);

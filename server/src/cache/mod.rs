@@ -57,6 +57,28 @@ pub enum AccessError {
     },
 }
 
+/// The kinds of refusal, whatever refuses (a name, a value, a declaration, the service):
+/// each front-end maps them to its wire in one table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refusal {
+    /// The request itself is wrong: a value, a parameter, a declaration.
+    Invalid,
+    /// It names something that does not exist.
+    NotFound,
+    /// It contradicts what is (writing an input, a conflicting declaration).
+    Conflict,
+    /// The gateway's policy does not allow it (read-only, declarations not allowed).
+    Forbidden,
+    /// It names something that existed and is no longer kept (an old write).
+    Gone,
+    /// The gateway cannot take requests now (shutting down).
+    Unavailable,
+    /// Too many open streams: come back later.
+    TooMany,
+    /// A link's inbox is full (or could not reach it in time): nothing was sent; try again.
+    Busy,
+}
+
 fn read<T>(l: &RwLock<T>) -> RwLockReadGuard<'_, T> {
     l.read().unwrap_or_else(|e| e.into_inner())
 }

@@ -156,25 +156,34 @@ pub fn check_security(config: &Config) -> Result<Access, Problems> {
     let tokens = match crate::auth::Tokens::load(security.tokens_file.as_deref()) {
         Ok(tokens) => tokens,
         Err(bad) => {
-            for (source, line, message) in bad {
-                // A line of the tokens file is reported in that file; a file that cannot
-                // be read at the config's `tokens_file` key; IOGATE_TOKENS by its entry.
-                let in_file = line > 0
-                    && security
-                        .tokens_file
-                        .as_ref()
-                        .is_some_and(|f| f.display().to_string() == source);
-                if in_file {
-                    problems.0.push(crate::yaml::Problem {
-                        file: source,
-                        line,
-                        context: "security.tokens_file".to_owned(),
+            use crate::auth::TokensProblem;
+            // A bad line (or byte) of the tokens file is reported in that file; a file that
+            // cannot be read at the config's `tokens_file` key.
+            let in_tokens_file = |line: u64, message: String| crate::yaml::Problem {
+                file: security
+                    .tokens_file
+                    .as_ref()
+                    .map_or_else(String::new, |f| f.display().to_string()),
+                line,
+                context: "security.tokens_file".to_owned(),
+                message,
+            };
+            for problem in bad {
+                match problem {
+                    TokensProblem::Line { line, message }
+                    | TokensProblem::File {
+                        line: Some(line),
                         message,
-                    });
-                } else if source == "IOGATE_TOKENS" {
-                    report.push(security.tokens_file_line, "IOGATE_TOKENS", message);
-                } else {
-                    report.push(security.tokens_file_line, "security.tokens_file", message);
+                    } => problems.0.push(in_tokens_file(line, message)),
+                    TokensProblem::File {
+                        line: None,
+                        message,
+                    } => report.push(security.tokens_file_line, "security.tokens_file", message),
+                    TokensProblem::Env { entry, message } => report.push(
+                        security.tokens_file_line,
+                        "IOGATE_TOKENS",
+                        format!("entry {entry}: {message}"),
+                    ),
                 }
             }
             crate::auth::Tokens::default()

@@ -4,7 +4,7 @@
 use std::fmt;
 use std::time::Duration;
 
-use crate::cache::AccessError;
+use crate::cache::{AccessError, Refusal};
 use crate::config::Framing;
 use crate::config::rules::{Mismatch, RuleError};
 
@@ -85,19 +85,6 @@ impl fmt::Display for Conflict {
             ),
         }
     }
-}
-
-/// How a declaration was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refusal {
-    /// The declaration itself is wrong.
-    Invalid,
-    /// It names a profile or link that does not exist.
-    NotFound,
-    /// It contradicts what exists.
-    Conflict,
-    /// The security policy does not allow it.
-    Forbidden,
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -17,8 +17,9 @@ use crate::profile::Protocol;
 use crate::runtime::Tasks;
 use crate::text::quote;
 
+pub use crate::cache::Refusal;
 pub use endpoint::Endpoint;
-pub use error::{Conflict, DeclareError, Refusal};
+pub use error::{Conflict, DeclareError};
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinkDeclaration {

@@ -310,8 +310,8 @@ impl LinkTask {
                 return Ended::Shutdown;
             }
             self.sync_members();
-            let poll_due = self.next_due(Instant::now()).is_some();
-            let request = if after_request && poll_due {
+            let due = self.next_due(Instant::now());
+            let request = if after_request && due.is_some() {
                 None
             } else {
                 self.link.take_queued()
@@ -321,7 +321,7 @@ impl LinkTask {
                 self.pass_through(queued, &mut bus).await
             } else if let Some(i) = self.next_writer() {
                 self.write_device(i, &mut bus).await
-            } else if let Some(i) = self.next_due(Instant::now()) {
+            } else if let Some(i) = due {
                 self.poll_device(i, &mut bus).await
             } else {
                 let until = self

@@ -22,8 +22,8 @@ use crate::metrics::Metrics;
 use crate::profile::Profile;
 use crate::runtime::Tasks;
 
+pub use crate::cache::Refusal;
 pub use modbus_map::{Bound, ModbusImage, Route};
-pub use refusal::Refusal;
 pub use select::{FieldRef, Selection, Snapshot};
 pub use standing::{Standing, StandingSet, StandingStatus};
 pub use subscribe::{Change, Changes};

@@ -4,29 +4,8 @@
 //! looks at the error's variants.
 
 use super::ServiceError;
-use crate::cache::AccessError;
+use crate::cache::{AccessError, Refusal};
 use crate::declare::DeclareError;
-
-/// The kinds of refusal.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refusal {
-    /// The request itself is wrong: a value, a parameter, a declaration.
-    Invalid,
-    /// It names something that does not exist.
-    NotFound,
-    /// It contradicts what is (writing an input, a conflicting declaration).
-    Conflict,
-    /// The gateway's policy does not allow it (read-only, declarations not allowed).
-    Forbidden,
-    /// It names something that existed and is no longer kept (an old write).
-    Gone,
-    /// The gateway cannot take requests now (shutting down).
-    Unavailable,
-    /// Too many open streams: come back later.
-    TooMany,
-    /// A link's inbox is full (or could not reach it in time): nothing was sent; try again.
-    Busy,
-}
 
 fn access(e: &AccessError) -> (Refusal, &'static str) {
     match e {
@@ -42,17 +21,20 @@ fn access(e: &AccessError) -> (Refusal, &'static str) {
 }
 
 fn declare(e: &DeclareError) -> (Refusal, &'static str) {
-    use crate::declare::Refusal as D;
     match e {
         DeclareError::UnknownProfile(_) => (Refusal::NotFound, "unknown_profile"),
         DeclareError::UnknownLink(_) => (Refusal::NotFound, "unknown_link"),
         DeclareError::NotFound(a) => access(a),
-        other => match other.refusal() {
-            D::Invalid => (Refusal::Invalid, "invalid_declaration"),
-            D::NotFound => (Refusal::NotFound, "not_found"),
-            D::Conflict => (Refusal::Conflict, "declaration_conflict"),
-            D::Forbidden => (Refusal::Forbidden, "not_allowed"),
-        },
+        other => {
+            let kind = other.refusal();
+            let code = match kind {
+                Refusal::NotFound => "not_found",
+                Refusal::Conflict => "declaration_conflict",
+                Refusal::Forbidden => "not_allowed",
+                _ => "invalid_declaration",
+            };
+            (kind, code)
+        }
     }
 }
 

@@ -246,7 +246,9 @@ impl Service {
                     _ = token.cancelled() => return,
                     _ = s.wake.notified() => {}
                 }
-                if s.status().enabled && !s.period.is_zero() {
+                // Enabled: a write sends at once (as its block does when `enable` goes
+                // TRUE), a cyclic read reads at once; a read of period 0 waits for a trigger.
+                if s.status().enabled && (s.is_write || !s.period.is_zero()) {
                     next = Some(Instant::now());
                 }
                 continue;
