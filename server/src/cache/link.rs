@@ -1,10 +1,10 @@
-//! One link as the cache sees it: its configuration, its diagnostics and the devices on it.
-//! Devices can be added at run time, and a link declared without a port can be given one;
-//! the link's task notices either by the version counter.
+//! One link as the cache sees it: its settings and devices, its diagnostics, and the inbox
+//! of its task. Devices can be added at run time, and a link declared without a port can be
+//! given one: each change publishes a new [`LinkState`], which the link's task takes in at its
+//! next turn ([`Link::subscribe`]); the task owns what it builds from it.
 
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, Mutex};
 
 use tokio::sync::{Notify, oneshot, watch};
 
@@ -102,18 +102,25 @@ impl Utilisation {
     }
 }
 
+/// What a link is told to be: its settings and the devices it polls, in the order they
+/// were added. Published whole on each change; the link's task takes in the newest.
+#[derive(Debug, Clone)]
+pub struct LinkState {
+    pub config: LinkConfig,
+    pub members: Vec<Arc<Device>>,
+}
+
 /// A link, its diagnostics and the devices on it.
 #[derive(Debug)]
 pub struct Link {
     name: String,
-    config: RwLock<LinkConfig>,
+    /// Settings and membership, sent to the link's task as a message that holds only the
+    /// newest (a change made while the task is busy replaces the one before it).
+    state: watch::Sender<LinkState>,
     diagnostics: watch::Sender<LinkDiagnostics>,
-    /// Wakes the link's task when a write to one of its devices is requested, or a device
-    /// is added.
+    /// Wakes the link's task when a write to one of its devices is requested or a request
+    /// is queued.
     pub wake: Arc<Notify>,
-    members: RwLock<Vec<Arc<Device>>>,
-    /// Counts changes of `members` and of the configuration, so the link's task notices.
-    version: AtomicU64,
     queue: Mutex<VecDeque<Queued>>,
     /// Stops the link's task when the link is removed.
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
@@ -127,13 +134,14 @@ impl Link {
         Link {
             wake: Arc::new(Notify::new()),
             name: config.name.clone(),
-            config: RwLock::new(config),
+            state: watch::Sender::new(LinkState {
+                config,
+                members: Vec::new(),
+            }),
             diagnostics: watch::Sender::new(LinkDiagnostics {
                 connected: false,
                 error_code: LinkCode::Ok,
             }),
-            members: RwLock::new(Vec::new()),
-            version: AtomicU64::new(0),
             queue: Mutex::new(VecDeque::new()),
             task: Mutex::new(None),
             progress: Arc::new(Progress::default()),
@@ -164,24 +172,29 @@ impl Link {
 
     /// The link's settings as they are now.
     pub fn config(&self) -> LinkConfig {
-        super::read(&self.config).clone()
+        self.state.borrow().config.clone()
     }
 
     /// Whether the link has a transport to open: a serial link declared with an empty port
     /// has none until it is declared again with one (`SerialLink` error 1 meanwhile).
     pub fn is_configured(&self) -> bool {
-        super::read(&self.config).transport.is_configured()
+        self.state.borrow().config.transport.is_configured()
+    }
+
+    /// The link's settings and members, as its task takes them in: the receiver sees the
+    /// current state as new, and each change after it.
+    pub fn subscribe(&self) -> watch::Receiver<LinkState> {
+        let mut receiver = self.state.subscribe();
+        receiver.mark_changed();
+        receiver
     }
 
     /// Gives an unconfigured link its transport; its task opens it at once.
     pub(crate) fn configure(&self, transport: Transport, guard_time: Duration) {
-        {
-            let mut config = super::write(&self.config);
-            config.transport = transport;
-            config.guard_time = guard_time;
-        }
-        self.version.fetch_add(1, Ordering::AcqRel);
-        self.wake.notify_one();
+        self.state.send_modify(|s| {
+            s.config.transport = transport;
+            s.config.guard_time = guard_time;
+        });
     }
 
     pub fn diagnostics(&self) -> LinkDiagnostics {
@@ -198,11 +211,7 @@ impl Link {
 
     /// The devices on the link, in the order they were added.
     pub fn members(&self) -> Vec<Arc<Device>> {
-        super::read(&self.members).clone()
-    }
-
-    pub fn version(&self) -> u64 {
-        self.version.load(Ordering::Acquire)
+        self.state.borrow().members.clone()
     }
 
     /// Queues a request for the link's task; the answer comes on its `reply`: at once
@@ -236,14 +245,18 @@ impl Link {
 
     /// Takes a removed device off the link; its task stops polling it.
     pub(super) fn remove_member(&self, device: &Arc<Device>) {
-        super::write(&self.members).retain(|m| !Arc::ptr_eq(m, device));
-        self.version.fetch_add(1, Ordering::AcqRel);
-        self.wake.notify_one();
+        self.state
+            .send_modify(|s| s.members.retain(|m| !Arc::ptr_eq(m, device)));
     }
 
+    /// Puts a device on the link, once.
     pub(super) fn add_member(&self, device: Arc<Device>) {
-        super::write(&self.members).push(device);
-        self.version.fetch_add(1, Ordering::AcqRel);
-        self.wake.notify_one();
+        self.state.send_if_modified(|s| {
+            let new = !s.members.iter().any(|m| Arc::ptr_eq(m, &device));
+            if new {
+                s.members.push(device);
+            }
+            new
+        });
     }
 }

@@ -21,7 +21,9 @@ use crate::text::quote;
 use crate::write_log::WriteLog;
 
 pub use device::{Binding, Device, SIM_STRING_MAX};
-pub use link::{INBOX_CAPACITY, Link, Passthrough, PassthroughError, Progress, Utilisation};
+pub use link::{
+    INBOX_CAPACITY, Link, LinkState, Passthrough, PassthroughError, Progress, Utilisation,
+};
 pub use outputs::{Checked, Outputs, TakenWrite, WriteError};
 pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
 
@@ -170,9 +172,7 @@ impl Cache {
         let wake = link.map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
         let member = link.filter(|_| binding.slave_id.is_some()).cloned();
         device.bind(binding, wake);
-        if let Some(link) = member
-            && !link.members().iter().any(|m| Arc::ptr_eq(m, device))
-        {
+        if let Some(link) = member {
             link.add_member(device.clone());
         }
     }

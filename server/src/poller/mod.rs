@@ -17,10 +17,12 @@ use std::time::Duration;
 use tokio::time::{Instant, sleep_until};
 use tokio_util::sync::CancellationToken;
 
+use tokio::sync::watch;
+
 use crate::cache::{
-    Device, FieldError, Link, LinkDiagnostics, Passthrough, PassthroughError, WriteError,
+    Device, FieldError, Link, LinkDiagnostics, LinkState, Passthrough, PassthroughError, WriteError,
 };
-use crate::config::Transport;
+use crate::config::{LinkConfig, Transport};
 use crate::link::timing::LineTiming;
 use crate::link::{self, LinkCode, LinkFault, TxError};
 use crate::metrics::Metrics;
@@ -93,9 +95,11 @@ fn connection_fault(e: &TxError) -> Option<LinkFault> {
 
 pub struct LinkTask {
     link: Arc<Link>,
+    /// The link's settings and members as published; taken in between transactions.
+    state: watch::Receiver<LinkState>,
+    /// The settings taken in last.
+    config: LinkConfig,
     devices: Vec<Polled>,
-    /// The link's member version `devices` reflects.
-    version: u64,
     metrics: Arc<Metrics>,
     /// Round-robin position for writes.
     cursor: usize,
@@ -103,10 +107,13 @@ pub struct LinkTask {
 
 impl LinkTask {
     pub fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
+        let state = link.subscribe();
+        let config = link.config();
         let mut task = LinkTask {
             link,
+            state,
+            config,
             devices: Vec::new(),
-            version: u64::MAX,
             metrics,
             cursor: 0,
         };
@@ -114,15 +121,19 @@ impl LinkTask {
         task
     }
 
-    /// Takes in devices added to the link since the last look, and lets removed ones go.
+    /// Takes in the link's newest settings and members, if they changed since the last
+    /// look: new devices are polled at once, removed ones let go.
     fn sync_members(&mut self) {
-        let version = self.link.version();
-        if version == self.version {
-            return;
+        if self.state.has_changed().unwrap_or(false) {
+            self.take_state();
         }
-        self.version = version;
+    }
+
+    /// Takes in the link's newest settings and members.
+    fn take_state(&mut self) {
+        let LinkState { config, members } = self.state.borrow_and_update().clone();
+        self.config = config;
         let now = Instant::now();
-        let members = self.link.members();
         self.devices
             .retain(|p| members.iter().any(|m| Arc::ptr_eq(m, &p.device)));
         self.cursor = 0;
@@ -147,7 +158,7 @@ impl LinkTask {
                 reconciled: std::collections::HashMap::new(),
             });
         }
-        let config = self.link.config();
+        let config = &self.config;
         // The bus utilisation the refresh rates demand (serial links), kept with the link.
         let planned = match &config.transport {
             Transport::Serial(s) => Some(plan::utilisation(
@@ -184,7 +195,7 @@ impl LinkTask {
         let mut down: Option<LinkFault> = None;
         'reopen: loop {
             self.sync_members();
-            let tried = self.link.config();
+            let tried = self.config.clone();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
                 r = tokio::time::timeout(CONNECT_TIMEOUT, link::open(&tried, tried.guard_time)) => r,
@@ -238,8 +249,13 @@ impl LinkTask {
                     _ = token.cancelled() => break 'reopen,
                     _ = sleep_until(retry_at) => break,
                     _ = self.link.wake.notified() => {
-                        self.sync_members();
-                        if self.link.config() != tried {
+                        if let Some(fault) = &down {
+                            self.all_unreachable(fault);
+                        }
+                    }
+                    Ok(()) = self.state.changed() => {
+                        self.take_state();
+                        if self.config != tried {
                             // Declared again with a port: open it now.
                             reopen = REOPEN_MIN;
                             continue 'reopen;
@@ -334,6 +350,7 @@ impl LinkTask {
                     _ = token.cancelled() => return Ended::Shutdown,
                     _ = sleep_until(until) => {}
                     _ = self.link.wake.notified() => {}
+                    Ok(()) = self.state.changed() => self.take_state(),
                 }
                 Ok(())
             };
