@@ -20,9 +20,9 @@ use crate::service::Service;
 use crate::yaml::{Problems, Report};
 
 /// The config file looked for in the working directory when none is given.
-pub const DEFAULT_CONFIG: &str = "iogate.yaml";
+pub(crate) const DEFAULT_CONFIG: &str = "iogate.yaml";
 /// How long shutdown waits for tasks before giving up on them.
-pub const SHUTDOWN_GRACE: Duration = Duration::from_millis(1500);
+pub(crate) const SHUTDOWN_GRACE: Duration = Duration::from_millis(1500);
 
 /// A checked configuration with its profiles: what `check` validates and `serve` runs.
 #[derive(Debug, Clone)]

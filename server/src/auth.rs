@@ -8,7 +8,7 @@ use std::path::Path;
 
 /// What a token allows; each role includes the ones before it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Role {
+pub(crate) enum Role {
     /// Read values, diagnostics, events, profiles, the map.
     Read,
     /// Also write outputs, set simulated inputs, run transactions.
@@ -18,7 +18,7 @@ pub enum Role {
 }
 
 impl Role {
-    pub fn parse(text: &str) -> Option<Role> {
+    pub(crate) fn parse(text: &str) -> Option<Role> {
         match text {
             "read" => Some(Role::Read),
             "write" => Some(Role::Write),
@@ -27,7 +27,7 @@ impl Role {
         }
     }
 
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Role::Read => "read",
             Role::Write => "write",
@@ -38,7 +38,7 @@ impl Role {
 
 /// Why a request is refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Denied {
+pub(crate) enum Denied {
     /// No token, or one that is not known (401 / UNAUTHENTICATED).
     Unauthenticated,
     /// A known token whose role is too low (403 / PERMISSION_DENIED).
@@ -47,7 +47,7 @@ pub enum Denied {
 
 /// A problem of the tokens, and where it is.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum TokensProblem {
+pub(crate) enum TokensProblem {
     /// A bad line of the tokens file (1-based).
     Line { line: u64, message: String },
     /// The tokens file cannot be read; `line` when a byte of it is not UTF-8.
@@ -70,7 +70,7 @@ impl std::fmt::Debug for Tokens {
 impl Tokens {
     /// Parses `ROLE TOKEN` lines (blank lines and `#` comments skipped): the tokens, or
     /// every bad line (1-based) with what is wrong, never the token itself.
-    pub fn parse(text: &str) -> Result<Tokens, Vec<(u64, String)>> {
+    pub(crate) fn parse(text: &str) -> Result<Tokens, Vec<(u64, String)>> {
         let mut tokens = HashMap::new();
         let mut bad = Vec::new();
         for (n, line) in text.lines().enumerate() {
@@ -115,7 +115,7 @@ impl Tokens {
 
     /// The tokens of `file` and of the `IOGATE_TOKENS` environment variable (lines, or
     /// entries separated by `;`), or every problem with where it is.
-    pub fn load(file: Option<&Path>) -> Result<Tokens, Vec<TokensProblem>> {
+    pub(crate) fn load(file: Option<&Path>) -> Result<Tokens, Vec<TokensProblem>> {
         let mut all = Tokens::default();
         let mut problems = Vec::new();
         if let Some(path) = file {
@@ -149,13 +149,13 @@ impl Tokens {
         }
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
 
     /// Whether a request with `authorization` (the header's value) may do what `needed`
     /// allows. Without tokens configured everything is allowed.
-    pub fn check(&self, authorization: Option<&str>, needed: Role) -> Result<(), Denied> {
+    pub(crate) fn check(&self, authorization: Option<&str>, needed: Role) -> Result<(), Denied> {
         if self.0.is_empty() {
             return Ok(());
         }
@@ -190,7 +190,7 @@ fn constant_eq(a: &[u8], b: &[u8]) -> bool {
 /// the operation a request is (a REST route, a gRPC method), and the role it needs is
 /// declared here, once.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Operation {
+pub(crate) enum Operation {
     /// Values, diagnostics, links, devices, profiles, write outcomes, the map, memory,
     /// standing transactions' states, plans, the OpenAPI document.
     Read,
@@ -212,7 +212,7 @@ pub enum Operation {
 
 impl Operation {
     /// The role the operation needs.
-    pub const fn role(self) -> Role {
+    pub(crate) const fn role(self) -> Role {
         match self {
             Operation::Read | Operation::Subscribe => Role::Read,
             Operation::WriteOutputs
@@ -226,7 +226,11 @@ impl Operation {
 
 impl Tokens {
     /// Whether a request with `authorization` (the header's value) may do `operation`.
-    pub fn allows(&self, authorization: Option<&str>, operation: Operation) -> Result<(), Denied> {
+    pub(crate) fn allows(
+        &self,
+        authorization: Option<&str>,
+        operation: Operation,
+    ) -> Result<(), Denied> {
         self.check(authorization, operation.role())
     }
 }

@@ -6,13 +6,13 @@ use crate::profile::{self, Catalog};
 use crate::yaml::Problems;
 
 /// The demo configuration (`examples/demo.yaml`).
-pub const CONFIG: (&str, &str) = (
+pub(crate) const CONFIG: (&str, &str) = (
     "examples/demo.yaml",
     include_str!("../../examples/demo.yaml"),
 );
 
 /// The shipped profiles (`profiles/`).
-pub const PROFILES: &[(&str, &str)] = &[
+pub(crate) const PROFILES: &[(&str, &str)] = &[
     (
         "profiles/energy_meter_sdm630.yaml",
         include_str!("../../profiles/energy_meter_sdm630.yaml"),
@@ -37,7 +37,7 @@ pub const PROFILES: &[(&str, &str)] = &[
 ];
 
 /// The demo's config and profiles.
-pub fn load() -> Result<(Config, Catalog), Problems> {
+pub(crate) fn load() -> Result<(Config, Catalog), Problems> {
     let config = config::parse(CONFIG.0, CONFIG.1)?;
     let catalog = Catalog::new(profile::load_files(PROFILES.iter().copied())?);
     config::check_devices(&config, &catalog)?;

@@ -3,10 +3,10 @@
 
 use std::time::Duration;
 
-pub use iogate_types::time::{format_iec, parse_ms};
+pub(crate) use iogate_types::time::parse_ms;
 
 /// Parses a non-negative duration.
-pub fn parse(text: &str) -> Result<Duration, String> {
+pub(crate) fn parse(text: &str) -> Result<Duration, String> {
     let ms = parse_ms(text).map_err(|e| e.to_string())?;
     u64::try_from(ms)
         .map(Duration::from_millis)

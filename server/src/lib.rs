@@ -4,29 +4,29 @@
 //! field's latest value; the APIs serve the cache and accept last-value-wins writes.
 #![forbid(unsafe_code)]
 
-pub mod api;
+pub(crate) mod api;
 pub mod app;
-pub mod auth;
+pub(crate) mod auth;
 pub mod cache;
-pub mod codec;
+pub(crate) mod codec;
 pub mod config;
-pub mod declare;
-pub mod demo;
-pub mod duration;
+pub(crate) mod declare;
+pub(crate) mod demo;
+pub(crate) mod duration;
 pub mod link;
 pub mod logging;
 pub mod map;
 pub mod metrics;
 pub mod plan;
-pub mod poller;
+pub(crate) mod poller;
 pub mod profile;
-pub mod runtime;
+pub(crate) mod runtime;
 pub mod service;
-pub mod sim;
-pub mod text;
-pub mod tls;
+pub(crate) mod sim;
+pub(crate) mod text;
+pub(crate) mod tls;
 pub mod transaction;
-pub mod write_log;
+pub(crate) mod write_log;
 pub mod yaml;
 
 /// Exit status of `iogate check` (and `serve`) when the configuration has problems.

@@ -37,7 +37,7 @@ pub fn init(format: LogFormat, filter: EnvFilter) {
 
 /// Makes writers that escape control characters.
 #[derive(Debug, Clone, Copy)]
-pub struct Escaping<M>(pub M);
+pub(crate) struct Escaping<M>(pub M);
 
 impl<'a, M: MakeWriter<'a>> MakeWriter<'a> for Escaping<M> {
     type Writer = EscapingWriter<M::Writer>;
@@ -48,11 +48,11 @@ impl<'a, M: MakeWriter<'a>> MakeWriter<'a> for Escaping<M> {
 }
 
 /// Writes a formatted line with its control characters escaped, the final newline kept.
-pub struct EscapingWriter<W>(W);
+pub(crate) struct EscapingWriter<W>(W);
 
 /// `text` with every control character but a final newline (and tabs) as `\n`, `\r` or
 /// `\u{1b}`.
-pub fn escape_line(text: &str) -> std::borrow::Cow<'_, str> {
+pub(crate) fn escape_line(text: &str) -> std::borrow::Cow<'_, str> {
     let body = text.strip_suffix('\n').unwrap_or(text);
     if !body.chars().any(|c| c.is_control() && c != '\t') {
         return std::borrow::Cow::Borrowed(text);

@@ -20,7 +20,7 @@ use crate::link::TxError;
 use crate::link::frame::Function;
 
 mod format;
-pub use format::Format;
+pub(crate) use format::Format;
 
 // Counter names get `_total` appended by the encoder.
 pub const LINK_UP: &str = "iogate_link_up";
@@ -53,12 +53,12 @@ pub const MODBUS_SERVER_REQUESTS: &str = "iogate_modbus_server_requests";
 pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct LinkLabels {
+pub(crate) struct LinkLabels {
     pub link: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct DroppedLabels {
+pub(crate) struct DroppedLabels {
     pub link: String,
     /// `busy` (the inbox was full), `expired` (its deadline would pass), `abandoned` (its
     /// caller had gone).
@@ -66,42 +66,42 @@ pub struct DroppedLabels {
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct DeviceLabels {
+pub(crate) struct DeviceLabels {
     pub device: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct RequestLabels {
+pub(crate) struct RequestLabels {
     pub device: String,
     pub function: String,
     pub outcome: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct ExceptionLabels {
+pub(crate) struct ExceptionLabels {
     pub device: String,
     pub code: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct ServerRequestLabels {
+pub(crate) struct ServerRequestLabels {
     pub function: String,
     pub outcome: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct TransactionLabels {
+pub(crate) struct TransactionLabels {
     pub transaction: String,
     pub outcome: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct CodeLabels {
+pub(crate) struct CodeLabels {
     pub code: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct WriteLabels {
+pub(crate) struct WriteLabels {
     pub device: String,
     pub outcome: String,
 }
@@ -158,7 +158,7 @@ impl Default for Metrics {
 }
 
 impl Metrics {
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         let mut registry = Registry::default();
         let m = Metrics {
             link_up: Family::default(),
@@ -335,7 +335,7 @@ impl Metrics {
     }
 
     /// One run of a standing transaction.
-    pub fn transaction_run(&self, name: &str, ok: bool) {
+    pub(crate) fn transaction_run(&self, name: &str, ok: bool) {
         self.transaction_runs
             .get_or_create(&TransactionLabels {
                 transaction: name.to_owned(),
@@ -345,7 +345,7 @@ impl Metrics {
     }
 
     /// A master connected (`true`) or went away.
-    pub fn server_connection(&self, open: bool) {
+    pub(crate) fn server_connection(&self, open: bool) {
         if open {
             self.server_connections.inc();
         } else {
@@ -353,13 +353,13 @@ impl Metrics {
         }
     }
 
-    pub fn server_refused(&self) {
+    pub(crate) fn server_refused(&self) {
         self.server_refused.inc();
     }
 
     /// The counter of requests the Modbus TCP server answered with `function` (as `fc03`)
     /// and `outcome` (`ok` or `exception`); a handle to keep, so counting costs no lookup.
-    pub fn server_requests(&self, function: &str, outcome: &str) -> Counter {
+    pub(crate) fn server_requests(&self, function: &str, outcome: &str) -> Counter {
         self.server_requests
             .get_or_create(&ServerRequestLabels {
                 function: function.to_owned(),
@@ -369,7 +369,7 @@ impl Metrics {
     }
 
     /// The counter of the Modbus TCP server's exception responses with `code`.
-    pub fn server_exceptions(&self, code: u8) -> Counter {
+    pub(crate) fn server_exceptions(&self, code: u8) -> Counter {
         self.server_exceptions
             .get_or_create(&CodeLabels {
                 code: format!("{code:02}"),
@@ -378,7 +378,7 @@ impl Metrics {
     }
 
     /// Records one transaction's outcome.
-    pub fn transaction<T>(
+    pub(crate) fn transaction<T>(
         &self,
         device: &str,
         function: Function,
@@ -422,7 +422,7 @@ impl Metrics {
         }
     }
 
-    pub fn link_bytes(&self, link: &str, sent: u64, received: u64, discarded: u64) {
+    pub(crate) fn link_bytes(&self, link: &str, sent: u64, received: u64, discarded: u64) {
         let labels = LinkLabels {
             link: link.to_owned(),
         };
@@ -432,7 +432,7 @@ impl Metrics {
     }
 
     /// A request dropped from a link's inbox without being sent.
-    pub fn inbox_dropped(&self, link: &str, reason: &str) {
+    pub(crate) fn inbox_dropped(&self, link: &str, reason: &str) {
         self.inbox_dropped
             .get_or_create(&DroppedLabels {
                 link: link.to_owned(),
@@ -441,7 +441,7 @@ impl Metrics {
             .inc();
     }
 
-    pub fn link_reconnected(&self, link: &str) {
+    pub(crate) fn link_reconnected(&self, link: &str) {
         self.link_reconnects
             .get_or_create(&LinkLabels {
                 link: link.to_owned(),
@@ -449,7 +449,7 @@ impl Metrics {
             .inc();
     }
 
-    pub fn link_utilisation(&self, link: &str, planned: Option<f64>, measured: f64) {
+    pub(crate) fn link_utilisation(&self, link: &str, planned: Option<f64>, measured: f64) {
         let labels = LinkLabels {
             link: link.to_owned(),
         };
@@ -460,7 +460,7 @@ impl Metrics {
     }
 
     /// A safe value was written for `device` after its client was lost.
-    pub fn safe_value_written(&self, device: &str) {
+    pub(crate) fn safe_value_written(&self, device: &str) {
         self.safe_writes
             .get_or_create(&DeviceLabels {
                 device: device.to_owned(),
@@ -469,7 +469,7 @@ impl Metrics {
     }
 
     /// The registry in the text format `format`, with states copied from the cache first.
-    pub fn render(&self, cache: &Cache, format: Format) -> String {
+    pub(crate) fn render(&self, cache: &Cache, format: Format) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.
         self.link_up.clear();
         self.inbox_depth.clear();

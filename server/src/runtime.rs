@@ -15,14 +15,18 @@ use crate::poller::LinkTask;
 /// Starts the tasks that own links and simulated devices, at start-up and when one is
 /// declared at run time, and any other task that must end with the gateway.
 #[derive(Debug, Clone)]
-pub struct Tasks {
+pub(crate) struct Tasks {
     tracker: TaskTracker,
     token: CancellationToken,
     metrics: Arc<Metrics>,
 }
 
 impl Tasks {
-    pub fn new(tracker: TaskTracker, token: CancellationToken, metrics: Arc<Metrics>) -> Self {
+    pub(crate) fn new(
+        tracker: TaskTracker,
+        token: CancellationToken,
+        metrics: Arc<Metrics>,
+    ) -> Self {
         Tasks {
             tracker,
             token,
@@ -30,17 +34,17 @@ impl Tasks {
         }
     }
 
-    pub fn metrics(&self) -> &Arc<Metrics> {
+    pub(crate) fn metrics(&self) -> &Arc<Metrics> {
         &self.metrics
     }
 
     /// The token cancelled at shutdown.
-    pub fn token(&self) -> &CancellationToken {
+    pub(crate) fn token(&self) -> &CancellationToken {
         &self.token
     }
 
     /// Starts a link's task; it ends at shutdown or when the link is removed.
-    pub fn spawn_link(&self, link: Arc<Link>) {
+    pub(crate) fn spawn_link(&self, link: Arc<Link>) {
         let token = self.token.child_token();
         link.attach_task(token.clone());
         let task = LinkTask::new(link, self.metrics.clone());
@@ -48,14 +52,14 @@ impl Tasks {
     }
 
     /// Starts a simulated device's task; it ends at shutdown or when the device is removed.
-    pub fn spawn_sim(&self, device: Arc<Device>) {
+    pub(crate) fn spawn_sim(&self, device: Arc<Device>) {
         let token = self.token.child_token();
         device.attach_task(token.clone());
         self.tracker.spawn(crate::sim::run(device, token));
     }
 
     /// Runs `task` until it ends; shutdown waits for it, so it must watch [`Tasks::token`].
-    pub fn spawn<F>(&self, task: F)
+    pub(crate) fn spawn<F>(&self, task: F)
     where
         F: Future<Output = ()> + Send + 'static,
     {

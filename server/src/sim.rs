@@ -9,7 +9,7 @@ use tokio_util::sync::CancellationToken;
 use crate::cache::Device;
 
 /// Runs one simulated device until `token` is cancelled.
-pub async fn run(device: Arc<Device>, token: CancellationToken) {
+pub(crate) async fn run(device: Arc<Device>, token: CancellationToken) {
     let mut tick = tokio::time::interval(device.config.refresh_rate);
     // On the grid of its refresh rate: a late cycle does not shift the next ones.
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
@@ -37,7 +37,8 @@ pub async fn run(device: Arc<Device>, token: CancellationToken) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cache::{Cache, Quality};
+    use crate::cache::Cache;
+    use crate::cache::sample::Quality;
     use crate::codec::Value;
     use crate::profile::Catalog;
     use crate::write_log::{Lookup, WriteStatus};

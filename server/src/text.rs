@@ -2,11 +2,11 @@
 //! so that a 60 KB name gives a short error and a newline cannot forge a log line.
 
 /// The longest part of a client's input an error message quotes.
-pub const QUOTE_MAX: usize = 64;
+pub(crate) const QUOTE_MAX: usize = 64;
 
 /// At most [`QUOTE_MAX`] characters of `text`, with `…` when cut, control characters and
 /// quotes escaped.
-pub fn quote(text: &str) -> String {
+pub(crate) fn quote(text: &str) -> String {
     let mut out: String = text
         .chars()
         .take(QUOTE_MAX)
@@ -28,7 +28,7 @@ pub fn quote(text: &str) -> String {
 /// Why a text file could not be read: the file itself, or a byte that is not UTF-8 (with
 /// its line, 1-based, so the problem points where it is).
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum ReadError {
+pub(crate) enum ReadError {
     Io(String),
     NotUtf8 { line: u64, column: usize, byte: u8 },
 }
@@ -47,7 +47,7 @@ impl std::fmt::Display for ReadError {
 
 impl ReadError {
     /// The line it concerns, when it is in the text.
-    pub fn line(&self) -> Option<u64> {
+    pub(crate) fn line(&self) -> Option<u64> {
         match self {
             ReadError::Io(_) => None,
             ReadError::NotUtf8 { line, .. } => Some(*line),
@@ -56,7 +56,7 @@ impl ReadError {
 }
 
 /// The text of a file, or why not.
-pub fn read_file(path: &std::path::Path) -> Result<String, ReadError> {
+pub(crate) fn read_file(path: &std::path::Path) -> Result<String, ReadError> {
     let bytes = std::fs::read(path).map_err(|e| ReadError::Io(e.to_string()))?;
     String::from_utf8(bytes).map_err(|e| {
         let bytes = e.as_bytes();

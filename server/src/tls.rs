@@ -14,7 +14,7 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use tokio_util::sync::CancellationToken;
 
 /// How often the files are compared with what was loaded.
-pub const WATCH_EVERY: Duration = Duration::from_secs(1);
+pub(crate) const WATCH_EVERY: Duration = Duration::from_secs(1);
 
 /// The files of `security.tls`.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -29,7 +29,7 @@ pub struct TlsFiles {
 
 /// Why a set of files cannot serve TLS. The key's content is never in the message.
 #[derive(Debug, thiserror::Error)]
-pub enum TlsError {
+pub(crate) enum TlsError {
     #[error("cannot read {}: {reason}", path.display())]
     Read {
         path: PathBuf,
@@ -49,7 +49,7 @@ pub enum TlsError {
 type Contents = Vec<Vec<u8>>;
 
 /// The listeners' TLS configuration, replaced as a whole when its files change.
-pub struct Tls {
+pub(crate) struct Tls {
     files: TlsFiles,
     current: RwLock<(Arc<ServerConfig>, Contents)>,
 }
@@ -62,7 +62,7 @@ impl std::fmt::Debug for Tls {
 
 impl Tls {
     /// Loads the files; an error names the file and what is wrong with it.
-    pub fn load(files: TlsFiles) -> Result<Tls, TlsError> {
+    pub(crate) fn load(files: TlsFiles) -> Result<Tls, TlsError> {
         let contents = read_all(&files)?;
         let config = build(&files, &contents)?;
         Ok(Tls {
@@ -72,12 +72,12 @@ impl Tls {
     }
 
     /// Whether clients must present a certificate.
-    pub fn requires_client_certificates(&self) -> bool {
+    pub(crate) fn requires_client_certificates(&self) -> bool {
         self.files.client_ca.is_some()
     }
 
     /// The configuration new connections are served with.
-    pub fn acceptor(&self) -> tokio_rustls::TlsAcceptor {
+    pub(crate) fn acceptor(&self) -> tokio_rustls::TlsAcceptor {
         let config = match self.current.read() {
             Ok(current) => current.0.clone(),
             Err(poisoned) => poisoned.into_inner().0.clone(),
@@ -87,7 +87,7 @@ impl Tls {
 
     /// Reads the files again; when they changed and load, they serve the next connections.
     /// `Ok(true)` when the configuration was replaced.
-    pub fn reload(&self) -> Result<bool, TlsError> {
+    pub(crate) fn reload(&self) -> Result<bool, TlsError> {
         let contents = read_all(&self.files)?;
         let unchanged = match self.current.read() {
             Ok(current) => current.1 == contents,
@@ -107,7 +107,7 @@ impl Tls {
 
     /// Reloads on a change of the files (checked every [`WATCH_EVERY`]) and on SIGHUP,
     /// until `token` is cancelled.
-    pub async fn watch(self: Arc<Self>, token: CancellationToken) {
+    pub(crate) async fn watch(self: Arc<Self>, token: CancellationToken) {
         let mut hangup = hangup();
         let mut tick = tokio::time::interval(WATCH_EVERY);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);

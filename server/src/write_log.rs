@@ -14,10 +14,10 @@ use std::time::SystemTime;
 use crate::codec::Value;
 
 /// Writes kept per field.
-pub const FIELD_HISTORY: usize = 128;
+pub(crate) const FIELD_HISTORY: usize = 128;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WriteStatus {
+pub(crate) enum WriteStatus {
     /// Accepted; waiting for the device's link (or on the bus now).
     Pending,
     /// The device acknowledged the value.
@@ -29,7 +29,7 @@ pub enum WriteStatus {
 }
 
 impl WriteStatus {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             WriteStatus::Pending => "pending",
             WriteStatus::Written => "written",
@@ -41,7 +41,7 @@ impl WriteStatus {
 
 /// Who asked for a write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Origin {
+pub(crate) enum Origin {
     /// A client: REST, gRPC, a scan cycle, a Modbus master.
     Client,
     /// The gateway wrote the requested value again after the link or device came back.
@@ -55,7 +55,7 @@ pub enum Origin {
 }
 
 impl Origin {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Origin::Client => "client",
             Origin::Replay => "replay",
@@ -66,7 +66,7 @@ impl Origin {
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct WriteRecord {
+pub(crate) struct WriteRecord {
     pub generation: u64,
     pub device: String,
     pub field: String,
@@ -98,7 +98,7 @@ struct Inner {
 
 /// What the log knows of a generation.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Lookup {
+pub(crate) enum Lookup {
     Found(WriteRecord),
     /// Older than what its field's history keeps.
     Expired,
@@ -138,12 +138,19 @@ impl WriteLog {
     }
 
     /// Records a new pending write from a client and returns its generation.
-    pub fn begin(&self, device: &str, field: &str, value: Value) -> u64 {
+    #[cfg(test)]
+    pub(crate) fn begin(&self, device: &str, field: &str, value: Value) -> u64 {
         self.begin_from(device, field, value, Origin::Client)
     }
 
     /// Records a new pending write from `origin` and returns its generation.
-    pub fn begin_from(&self, device: &str, field: &str, value: Value, origin: Origin) -> u64 {
+    pub(crate) fn begin_from(
+        &self,
+        device: &str,
+        field: &str,
+        value: Value,
+        origin: Origin,
+    ) -> u64 {
         let mut inner = self.lock();
         let generation = inner.next;
         inner.next += 1;
@@ -174,12 +181,12 @@ impl WriteLog {
     }
 
     /// Sets the final status of a generation.
-    pub fn finish(&self, generation: u64, status: WriteStatus, error: Option<String>) {
+    pub(crate) fn finish(&self, generation: u64, status: WriteStatus, error: Option<String>) {
         self.finish_after(generation, status, error, 0);
     }
 
     /// Sets the final status of a generation that took `attempts` transactions.
-    pub fn finish_after(
+    pub(crate) fn finish_after(
         &self,
         generation: u64,
         status: WriteStatus,
@@ -199,7 +206,7 @@ impl WriteLog {
     }
 
     /// How many writes ended with each status, per device.
-    pub fn outcome_counts(&self) -> Vec<(String, &'static str, u64)> {
+    pub(crate) fn outcome_counts(&self) -> Vec<(String, &'static str, u64)> {
         self.lock()
             .outcomes
             .iter()
@@ -207,7 +214,7 @@ impl WriteLog {
             .collect()
     }
 
-    pub fn get(&self, generation: u64) -> Lookup {
+    pub(crate) fn get(&self, generation: u64) -> Lookup {
         let mut inner = self.lock();
         if generation == 0 || generation >= inner.next {
             return Lookup::Unknown;
@@ -220,7 +227,7 @@ impl WriteLog {
 
     /// The writes kept for one field, oldest first.
     #[cfg(test)]
-    pub fn history(&self, device: &str, field: &str) -> Vec<WriteRecord> {
+    pub(crate) fn history(&self, device: &str, field: &str) -> Vec<WriteRecord> {
         self.lock()
             .fields
             .get(&(device.to_owned(), field.to_owned()))

@@ -54,13 +54,13 @@ impl Problems {
         self.0.iter()
     }
 
-    pub fn extend_all(&mut self, others: impl IntoIterator<Item = Problems>) {
+    pub(crate) fn extend_all(&mut self, others: impl IntoIterator<Item = Problems>) {
         for other in others {
             self.extend(other);
         }
     }
 
-    pub fn extend(&mut self, other: Problems) {
+    pub(crate) fn extend(&mut self, other: Problems) {
         self.0.extend(other.0);
     }
 }
@@ -81,24 +81,29 @@ impl std::error::Error for Problems {}
 
 /// Collects the problems of one file.
 #[derive(Debug)]
-pub struct Report {
+pub(crate) struct Report {
     file: String,
     problems: Vec<Problem>,
 }
 
 impl Report {
-    pub fn new(file: impl Into<String>) -> Self {
+    pub(crate) fn new(file: impl Into<String>) -> Self {
         Self {
             file: file.into(),
             problems: Vec::new(),
         }
     }
 
-    pub fn file(&self) -> &str {
+    pub(crate) fn file(&self) -> &str {
         &self.file
     }
 
-    pub fn push(&mut self, line: u64, context: impl Into<String>, message: impl Into<String>) {
+    pub(crate) fn push(
+        &mut self,
+        line: u64,
+        context: impl Into<String>,
+        message: impl Into<String>,
+    ) {
         self.problems.push(Problem {
             file: self.file.clone(),
             line,
@@ -107,12 +112,12 @@ impl Report {
         });
     }
 
-    pub fn has_problems(&self) -> bool {
+    pub(crate) fn has_problems(&self) -> bool {
         !self.problems.is_empty()
     }
 
     /// The problems, in line order.
-    pub fn into_problems(mut self) -> Problems {
+    pub(crate) fn into_problems(mut self) -> Problems {
         self.problems.sort_by_key(|p| p.line);
         Problems(self.problems)
     }
@@ -120,13 +125,13 @@ impl Report {
 
 /// A YAML value with the line it starts on.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Node {
+pub(crate) struct Node {
     pub line: u64,
     pub kind: Kind,
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub enum Kind {
+pub(crate) enum Kind {
     Null,
     Bool(bool),
     Int(i128),
@@ -137,14 +142,14 @@ pub enum Kind {
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct Key {
+pub(crate) struct Key {
     pub name: String,
     pub line: u64,
 }
 
 /// Parses YAML text into a [`Node`] tree; a syntax error is one problem with its line.
 /// An empty document is `Null`.
-pub fn parse(text: &str, report: &mut Report) -> Option<Node> {
+pub(crate) fn parse(text: &str, report: &mut Report) -> Option<Node> {
     // YAML 1.2 booleans only: `parity: N` is the letter N, not false.
     let options = serde_saphyr::options! { with_snippet: false, strict_booleans: true };
     match serde_saphyr::from_str_with_options::<Option<Node>>(text, options) {
@@ -177,7 +182,7 @@ fn strip_location(msg: &str) -> &str {
 }
 
 impl Node {
-    pub fn describe(&self) -> &'static str {
+    pub(crate) fn describe(&self) -> &'static str {
         match self.kind {
             Kind::Null => "nothing",
             Kind::Bool(_) => "a boolean",
@@ -190,7 +195,7 @@ impl Node {
     }
 
     /// A string scalar. Numbers and booleans are not silently turned into strings.
-    pub fn str(&self, report: &mut Report, ctx: &str) -> Option<&str> {
+    pub(crate) fn str(&self, report: &mut Report, ctx: &str) -> Option<&str> {
         match &self.kind {
             Kind::Str(s) => Some(s),
             _ => {
@@ -205,7 +210,7 @@ impl Node {
     }
 
     /// A string, or a scalar number written without quotes (host names, port paths, addresses).
-    pub fn scalar_text(&self, report: &mut Report, ctx: &str) -> Option<String> {
+    pub(crate) fn scalar_text(&self, report: &mut Report, ctx: &str) -> Option<String> {
         match &self.kind {
             Kind::Str(s) => Some(s.clone()),
             Kind::Int(i) => Some(i.to_string()),
@@ -222,7 +227,13 @@ impl Node {
     }
 
     /// An integer within `min..=max`.
-    pub fn int_in(&self, report: &mut Report, ctx: &str, min: i128, max: i128) -> Option<i128> {
+    pub(crate) fn int_in(
+        &self,
+        report: &mut Report,
+        ctx: &str,
+        min: i128,
+        max: i128,
+    ) -> Option<i128> {
         match self.kind {
             Kind::Int(i) if (min..=max).contains(&i) => Some(i),
             Kind::Int(i) => {
@@ -245,7 +256,7 @@ impl Node {
     }
 
     /// A finite number (integers are accepted as numbers).
-    pub fn number(&self, report: &mut Report, ctx: &str) -> Option<f64> {
+    pub(crate) fn number(&self, report: &mut Report, ctx: &str) -> Option<f64> {
         let value = match self.kind {
             Kind::Int(i) => i as f64,
             Kind::Float(f) => f,
@@ -266,7 +277,7 @@ impl Node {
         }
     }
 
-    pub fn seq(&self, report: &mut Report, ctx: &str) -> Option<&[Node]> {
+    pub(crate) fn seq(&self, report: &mut Report, ctx: &str) -> Option<&[Node]> {
         match &self.kind {
             Kind::Seq(items) => Some(items),
             _ => {
@@ -281,7 +292,7 @@ impl Node {
     }
 
     /// Opens a mapping for reading its keys; anything else is reported.
-    pub fn map<'a>(&'a self, report: &mut Report, ctx: &str) -> Option<MapReader<'a>> {
+    pub(crate) fn map<'a>(&'a self, report: &mut Report, ctx: &str) -> Option<MapReader<'a>> {
         match &self.kind {
             Kind::Map(entries) => Some(MapReader {
                 line: self.line,
@@ -301,7 +312,7 @@ impl Node {
 }
 
 /// Reads the keys of a mapping; [`MapReader::finish`] reports every key nobody asked for.
-pub struct MapReader<'a> {
+pub(crate) struct MapReader<'a> {
     pub line: u64,
     entries: &'a [(Key, Node)],
     used: Vec<bool>,
@@ -309,7 +320,7 @@ pub struct MapReader<'a> {
 
 impl<'a> MapReader<'a> {
     /// The value of `key`, if present (a `null` value counts as absent).
-    pub fn get(&mut self, key: &str) -> Option<&'a Node> {
+    pub(crate) fn get(&mut self, key: &str) -> Option<&'a Node> {
         let idx = self.entries.iter().position(|(k, _)| k.name == key)?;
         self.used[idx] = true;
         let node = &self.entries[idx].1;
@@ -317,7 +328,12 @@ impl<'a> MapReader<'a> {
     }
 
     /// The value of a key that must be present.
-    pub fn require(&mut self, key: &str, report: &mut Report, ctx: &str) -> Option<&'a Node> {
+    pub(crate) fn require(
+        &mut self,
+        key: &str,
+        report: &mut Report,
+        ctx: &str,
+    ) -> Option<&'a Node> {
         let node = self.get(key);
         if node.is_none() {
             report.push(self.line, ctx, format!("missing required key `{key}`"));
@@ -326,7 +342,7 @@ impl<'a> MapReader<'a> {
     }
 
     /// Reports every key that was not read, naming the keys that are allowed.
-    pub fn finish(self, report: &mut Report, ctx: &str, allowed: &[&str]) {
+    pub(crate) fn finish(self, report: &mut Report, ctx: &str, allowed: &[&str]) {
         for ((key, _), used) in self.entries.iter().zip(&self.used) {
             if !used {
                 report.push(

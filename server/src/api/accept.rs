@@ -22,17 +22,17 @@ use super::limit::{self, Limited};
 use crate::tls::Tls;
 
 /// Connections waiting for their first byte or TLS handshake at once, per listener.
-pub const MAX_PREPARING: usize = 1024;
+pub(crate) const MAX_PREPARING: usize = 1024;
 
 /// A connection ready for HTTP: plain, or TLS after its handshake.
-pub enum Conn {
+pub(crate) enum Conn {
     Plain(Limited),
     Tls(Box<TlsStream<Limited>>),
 }
 
 impl Conn {
     /// The peer's address, when the socket still knows it.
-    pub fn peer(&self) -> Option<std::net::SocketAddr> {
+    pub(crate) fn peer(&self) -> Option<std::net::SocketAddr> {
         match self {
             Conn::Plain(c) => c.peer(),
             Conn::Tls(c) => c.get_ref().0.peer(),
@@ -42,7 +42,7 @@ impl Conn {
 
 /// The listener's connections, at most `max` open at once, each ready to serve: its TLS
 /// handshake done (when `tls` is given) or its first byte arrived, within `ready_within`.
-pub fn ready(
+pub(crate) fn ready(
     listener: TcpListener,
     max: usize,
     tls: Option<Arc<Tls>>,

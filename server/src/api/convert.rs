@@ -15,7 +15,7 @@ use crate::write_log::WriteRecord;
 
 /// A value as the JSON of its type: BOOL as true/false, numbers as numbers, STRING as a
 /// string, TIME as milliseconds.
-pub fn value_to_json(value: &Value) -> Json {
+pub(crate) fn value_to_json(value: &Value) -> Json {
     match value {
         Value::Bool(b) => Json::Bool(*b),
         Value::Int(i) | Value::Time(i) => Json::from(*i),
@@ -34,7 +34,7 @@ pub fn value_to_json(value: &Value) -> Json {
 
 /// A JSON value for a field of type `ty`. BOOL also takes 0 and 1; TIME takes milliseconds
 /// or a literal such as `"T#1s500ms"`; integer types take whole numbers only.
-pub fn json_to_value(ty: IecType, json: &Json) -> Result<Value, crate::codec::CodecError> {
+pub(crate) fn json_to_value(ty: IecType, json: &Json) -> Result<Value, crate::codec::CodecError> {
     let found = describe(json);
 
     match (ty, json) {
@@ -82,7 +82,7 @@ fn describe(json: &Json) -> &'static str {
     }
 }
 
-pub fn rfc3339(t: SystemTime) -> String {
+pub(crate) fn rfc3339(t: SystemTime) -> String {
     humantime::format_rfc3339_millis(t).to_string()
 }
 
@@ -90,7 +90,7 @@ pub fn rfc3339(t: SystemTime) -> String {
 /// the output: no JSON tree, and a REAL's shortest text without a round trip through a
 /// string.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ValueJson(pub Option<Value>);
+pub(crate) struct ValueJson(pub Option<Value>);
 
 impl Serialize for ValueJson {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
@@ -110,7 +110,7 @@ impl Serialize for ValueJson {
 
 /// A wall-clock time serialised as RFC 3339 with milliseconds, formatted into the output.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Timestamp(pub SystemTime);
+pub(crate) struct Timestamp(pub SystemTime);
 
 impl Serialize for Timestamp {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
@@ -121,7 +121,7 @@ impl Serialize for Timestamp {
 /// A field's value with its type, quality and timestamp. Names are borrowed from the device
 /// while a response or event is written.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct FieldValue<'a> {
+pub(crate) struct FieldValue<'a> {
     pub device: &'a str,
     pub field: &'a str,
     /// IEC 61131-3 type, e.g. `REAL`.
@@ -155,7 +155,7 @@ pub struct FieldValue<'a> {
 }
 
 /// The JSON of a field's view.
-pub fn field_value<'a>(view: &FieldView<'a>) -> FieldValue<'a> {
+pub(crate) fn field_value<'a>(view: &FieldView<'a>) -> FieldValue<'a> {
     let field = view.field;
     FieldValue {
         device: view.device.name(),
@@ -175,7 +175,7 @@ pub fn field_value<'a>(view: &FieldView<'a>) -> FieldValue<'a> {
 
 /// Where a write stands.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct WriteInfo {
+pub(crate) struct WriteInfo {
     pub generation: u64,
     pub device: String,
     pub field: String,
@@ -214,7 +214,7 @@ impl From<&WriteRecord> for WriteInfo {
 
 /// A device with its diagnostics.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct DeviceInfo {
+pub(crate) struct DeviceInfo {
     pub name: String,
     pub profile: String,
     pub protocol: String,
@@ -229,7 +229,7 @@ pub struct DeviceInfo {
     pub last_response_ms: f64,
 }
 
-pub fn device_info(device: &Device) -> DeviceInfo {
+pub(crate) fn device_info(device: &Device) -> DeviceInfo {
     let binding = device.binding();
     let Diagnostics {
         connected,
@@ -253,13 +253,13 @@ pub fn device_info(device: &Device) -> DeviceInfo {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct DeviceList {
+pub(crate) struct DeviceList {
     pub devices: Vec<DeviceInfo>,
 }
 
 /// A device with its diagnostics and every field's value, in profile order.
 #[derive(Debug, ToSchema)]
-pub struct DeviceDetail<'a> {
+pub(crate) struct DeviceDetail<'a> {
     #[serde(flatten)]
     pub device: DeviceInfo,
     /// Field name to value object.
@@ -293,7 +293,7 @@ impl Serialize for DeviceDetail<'_> {
 /// Field values serialised as an object keyed by field name, in profile order, straight
 /// from the values (no intermediate JSON tree).
 #[derive(Debug)]
-pub struct FieldMap<'a>(pub Vec<FieldValue<'a>>);
+pub(crate) struct FieldMap<'a>(pub Vec<FieldValue<'a>>);
 
 impl Serialize for FieldMap<'_> {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
@@ -308,7 +308,7 @@ impl Serialize for FieldMap<'_> {
 
 /// A device's diagnostics, as sent on the event stream.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct DiagnosticsEvent {
+pub(crate) struct DiagnosticsEvent {
     pub device: String,
     pub connected: bool,
     pub error_code: i16,
@@ -317,7 +317,7 @@ pub struct DiagnosticsEvent {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct LinkInfo {
+pub(crate) struct LinkInfo {
     pub name: String,
     /// `serial` or `tcp`.
     pub kind: String,
@@ -351,7 +351,7 @@ pub struct LinkInfo {
     pub utilisation: Option<f64>,
 }
 
-pub fn link_info(link: &Link) -> LinkInfo {
+pub(crate) fn link_info(link: &Link) -> LinkInfo {
     let diag = link.diagnostics();
     let devices = link.members().iter().map(|d| d.name().to_owned()).collect();
     let (planned_utilisation, utilisation) = link.utilisation.get();
@@ -396,12 +396,12 @@ pub fn link_info(link: &Link) -> LinkInfo {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct LinkList {
+pub(crate) struct LinkList {
     pub links: Vec<LinkInfo>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct ProfileSummary {
+pub(crate) struct ProfileSummary {
     pub name: String,
     pub vendor: Option<String>,
     pub protocol: String,
@@ -410,7 +410,7 @@ pub struct ProfileSummary {
     pub source: String,
 }
 
-pub fn profile_summary(p: &Profile) -> ProfileSummary {
+pub(crate) fn profile_summary(p: &Profile) -> ProfileSummary {
     ProfileSummary {
         name: p.name.clone(),
         vendor: p.vendor.clone(),
@@ -422,12 +422,12 @@ pub fn profile_summary(p: &Profile) -> ProfileSummary {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct ProfileList {
+pub(crate) struct ProfileList {
     pub profiles: Vec<ProfileSummary>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct RegisterInfo {
+pub(crate) struct RegisterInfo {
     pub address: u16,
     pub kind: String,
     pub bit: Option<u8>,
@@ -440,7 +440,7 @@ pub struct RegisterInfo {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct FieldInfo {
+pub(crate) struct FieldInfo {
     pub name: String,
     #[serde(rename = "type")]
     pub ty: String,
@@ -451,7 +451,7 @@ pub struct FieldInfo {
 
 /// One member of the generated function block.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct LayoutInfo {
+pub(crate) struct LayoutInfo {
     pub name: String,
     #[serde(rename = "type")]
     pub ty: String,
@@ -475,7 +475,7 @@ impl From<LayoutEntry> for LayoutInfo {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct ProfileDetail {
+pub(crate) struct ProfileDetail {
     #[serde(flatten)]
     pub summary: ProfileSummary,
     pub fields: Vec<FieldInfo>,
@@ -483,7 +483,7 @@ pub struct ProfileDetail {
     pub layout: Vec<LayoutInfo>,
 }
 
-pub fn profile_detail(p: &Profile) -> ProfileDetail {
+pub(crate) fn profile_detail(p: &Profile) -> ProfileDetail {
     ProfileDetail {
         summary: profile_summary(p),
         fields: p
@@ -513,7 +513,7 @@ pub fn profile_detail(p: &Profile) -> ProfileDetail {
 
 /// The answer to an accepted write.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct WriteAccepted {
+pub(crate) struct WriteAccepted {
     pub device: String,
     pub field: String,
     pub generation: u64,
@@ -522,7 +522,7 @@ pub struct WriteAccepted {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct WritesAccepted {
+pub(crate) struct WritesAccepted {
     pub writes: Vec<WriteAccepted>,
 }
 

@@ -24,7 +24,7 @@ use crate::service::Service;
 /// one.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct SerialDeclaration {
+pub(crate) struct SerialDeclaration {
     #[serde(default)]
     pub port: String,
     pub baud: u64,
@@ -42,7 +42,7 @@ pub struct SerialDeclaration {
 /// A Modbus TCP endpoint (or RTU frames over TCP).
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct TcpDeclaration {
+pub(crate) struct TcpDeclaration {
     pub host: String,
     /// Default 502.
     #[serde(default)]
@@ -55,7 +55,7 @@ pub struct TcpDeclaration {
 /// The body of `PUT /api/v1/links/{link}`: `serial` or `tcp`.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct LinkDeclarationBody {
+pub(crate) struct LinkDeclarationBody {
     pub serial: Option<SerialDeclaration>,
     pub tcp: Option<TcpDeclaration>,
     /// Extra silence between frames, 0-1000 ms.
@@ -67,7 +67,7 @@ pub struct LinkDeclarationBody {
 /// with `slave_id` 0) is accepted and reports error 1 (or 2) until declared again with it.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct DeviceDeclarationBody {
+pub(crate) struct DeviceDeclarationBody {
     pub profile: String,
     /// A link name, or a serial port path as a `SerialLink`'s `port`; none for simulated
     /// devices.
@@ -82,14 +82,14 @@ pub struct DeviceDeclarationBody {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct LinkDeclared {
+pub(crate) struct LinkDeclared {
     pub link: LinkInfo,
     /// Whether the declaration created the link (else it existed, or was given its port).
     pub created: bool,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct DeviceDeclared {
+pub(crate) struct DeviceDeclared {
     pub device: DeviceInfo,
     /// Whether the declaration created the device (else it existed, or was bound).
     pub created: bool,
@@ -118,7 +118,7 @@ fn status(created: bool) -> StatusCode {
               (status = 201, description = "the link was created and is being opened", body = LinkDeclared),
               (status = 400, description = "a setting breaks a rule", body = ErrorBody),
               (status = 409, description = "the port or name is in use with other settings", body = ErrorBody)))]
-pub async fn put_link(
+pub(crate) async fn put_link(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
     body: Bytes,
@@ -168,7 +168,7 @@ pub async fn put_link(
               (status = 400, description = "a setting breaks a rule", body = ErrorBody),
               (status = 404, description = "unknown profile or link", body = ErrorBody),
               (status = 409, description = "the device exists with other settings", body = ErrorBody)))]
-pub async fn put_device(
+pub(crate) async fn put_device(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
     body: Bytes,
@@ -201,7 +201,7 @@ pub async fn put_device(
     responses((status = 204, description = "the link was removed"),
               (status = 404, description = "unknown link", body = ErrorBody),
               (status = 409, description = "the link comes from the config file, or devices or transactions still use it", body = ErrorBody)))]
-pub async fn delete_link(
+pub(crate) async fn delete_link(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
 ) -> Result<StatusCode, ApiError> {
@@ -216,7 +216,7 @@ pub async fn delete_link(
     responses((status = 204, description = "the device was removed"),
               (status = 404, description = "unknown device", body = ErrorBody),
               (status = 409, description = "the device comes from the config file", body = ErrorBody)))]
-pub async fn delete_device(
+pub(crate) async fn delete_device(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
 ) -> Result<StatusCode, ApiError> {

@@ -12,19 +12,19 @@ use crate::service::ServiceError;
 
 /// An error answer: `{"error": {"code": "...", "message": "..."}}`.
 #[derive(Debug)]
-pub struct ApiError {
+pub(crate) struct ApiError {
     pub status: StatusCode,
     pub code: &'static str,
     pub message: String,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct ErrorBody {
+pub(crate) struct ErrorBody {
     pub error: ErrorDetail,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct ErrorDetail {
+pub(crate) struct ErrorDetail {
     /// A stable, machine-readable code, e.g. `unknown_device`.
     pub code: String,
     /// What is wrong, for people.
@@ -32,7 +32,7 @@ pub struct ErrorDetail {
 }
 
 impl ApiError {
-    pub fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> Self {
+    pub(crate) fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> Self {
         ApiError {
             status,
             code,
@@ -40,11 +40,11 @@ impl ApiError {
         }
     }
 
-    pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
+    pub(crate) fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
         ApiError::new(StatusCode::BAD_REQUEST, code, message)
     }
 
-    pub fn not_found(code: &'static str, message: impl Into<String>) -> Self {
+    pub(crate) fn not_found(code: &'static str, message: impl Into<String>) -> Self {
         ApiError::new(StatusCode::NOT_FOUND, code, message)
     }
 }
@@ -88,7 +88,7 @@ impl IntoResponse for ApiError {
     }
 }
 
-pub use crate::text::quote;
+pub(crate) use crate::text::quote;
 
 /// The stable code of an error status the framework answers before a handler runs.
 fn status_code(status: StatusCode) -> &'static str {
@@ -110,7 +110,7 @@ fn status_code(status: StatusCode) -> &'static str {
 /// Every error answer in the API's JSON shape: an error that is not JSON already (a
 /// method not allowed, a path that does not decode, a body too large, ...) is answered again
 /// as `{"error": {"code", "message"}}`, its status and headers (such as `Allow`) kept.
-pub async fn json_errors(response: Response) -> Response {
+pub(crate) async fn json_errors(response: Response) -> Response {
     let status = response.status();
     let is_json = response
         .headers()

@@ -17,9 +17,9 @@ use super::convert::{DiagnosticsEvent, field_value};
 use super::error::{ApiError, ErrorBody};
 use crate::service::{Change, Service};
 
-pub const EVENT_VALUE: &str = "value";
-pub const EVENT_DIAGNOSTICS: &str = "diagnostics";
-pub const EVENT_TRANSACTION: &str = "transaction";
+pub(crate) const EVENT_VALUE: &str = "value";
+pub(crate) const EVENT_DIAGNOSTICS: &str = "diagnostics";
+pub(crate) const EVENT_TRANSACTION: &str = "transaction";
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
 fn event(name: &str, data: &impl Serialize) -> Event {
@@ -38,7 +38,7 @@ fn event(name: &str, data: &impl Serialize) -> Event {
            ("values" = Option<bool>, Query, description = "`false`: no `value` events, only diagnostics (and transactions)")),
     responses((status = 200, description = "a stream of `value` and `diagnostics` events: current values first, then each change", content_type = "text/event-stream"),
               (status = 400, description = "an unknown query parameter", body = ErrorBody), (status = 404, description = "unknown device", body = ErrorBody)))]
-pub async fn events(
+pub(crate) async fn events(
     State(service): State<Arc<Service>>,
     query: Result<Query<HashMap<String, String>>, QueryRejection>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {

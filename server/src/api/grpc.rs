@@ -23,9 +23,9 @@ type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::Update, Status>> + Send
 type ExchangeStream = Pin<Box<dyn Stream<Item = Result<pb::ExchangeResponse, Status>> + Send>>;
 
 /// The largest gRPC message either way (a snapshot of thousands of fields fits).
-pub const MAX_MESSAGE: usize = 16 * 1024 * 1024;
+pub(crate) const MAX_MESSAGE: usize = 16 * 1024 * 1024;
 
-pub struct GrpcApi {
+pub(crate) struct GrpcApi {
     service: Arc<Service>,
 }
 
@@ -42,14 +42,14 @@ fn grpc_code(refusal: Refusal) -> tonic::Code {
 }
 
 /// The gRPC status of a service error.
-pub fn status(e: ServiceError) -> Status {
+pub(crate) fn status(e: ServiceError) -> Status {
     let (refusal, _) = e.refusal();
     Status::new(grpc_code(refusal), e.to_string())
 }
 
 /// The operation a gRPC method is (`/iogate.v1.Gateway/Write`): every method of the
 /// service named once; health checks need no token (reflection is a read).
-pub fn operation(path: &str) -> Option<Operation> {
+pub(crate) fn operation(path: &str) -> Option<Operation> {
     if path.starts_with("/grpc.health.") {
         return None;
     }
@@ -131,12 +131,12 @@ fn ack(a: Accepted) -> pb::WriteAck {
 }
 
 impl GrpcApi {
-    pub fn new(service: Arc<Service>) -> Self {
+    pub(crate) fn new(service: Arc<Service>) -> Self {
         GrpcApi { service }
     }
 
     /// The server for this service.
-    pub fn server(service: Arc<Service>) -> GatewayServer<GrpcApi> {
+    pub(crate) fn server(service: Arc<Service>) -> GatewayServer<GrpcApi> {
         GatewayServer::new(GrpcApi::new(service))
             .max_decoding_message_size(MAX_MESSAGE)
             .max_encoding_message_size(MAX_MESSAGE)

@@ -18,11 +18,11 @@ use tokio_stream::StreamExt;
 use crate::service::Service;
 
 /// Connections served at once; more are closed as soon as they are accepted.
-pub const MAX_CONNECTIONS: usize = 4096;
+pub(crate) const MAX_CONNECTIONS: usize = 4096;
 
 /// The HTTP listener's timeouts (`listen.header_timeout`, `listen.body_timeout`).
 #[derive(Debug, Clone, Copy)]
-pub struct Limits {
+pub(crate) struct Limits {
     /// For the TLS handshake or first byte, then for each request's headers (and the wait
     /// for the next request on a kept-alive connection).
     pub header_timeout: Duration,
@@ -32,7 +32,7 @@ pub struct Limits {
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
 /// in flight (at most the gateway's shutdown grace).
-pub async fn serve(
+pub(crate) async fn serve(
     listener: TcpListener,
     service: Arc<Service>,
     limits: Limits,

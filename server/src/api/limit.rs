@@ -15,13 +15,13 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tonic::transport::server::{Connected, TcpConnectInfo};
 
 /// An accepted connection holding one of the listener's slots until it closes.
-pub struct Limited {
+pub(crate) struct Limited {
     stream: TcpStream,
     _slot: OwnedSemaphorePermit,
 }
 
 /// The connections accepted on `listener`, at most `max` open at once.
-pub fn incoming(
+pub(crate) fn incoming(
     listener: TcpListener,
     max: usize,
 ) -> impl Stream<Item = io::Result<Limited>> + Send + 'static {
@@ -52,12 +52,12 @@ pub fn incoming(
 
 impl Limited {
     /// The peer's address, when the socket still knows it.
-    pub fn peer(&self) -> Option<std::net::SocketAddr> {
+    pub(crate) fn peer(&self) -> Option<std::net::SocketAddr> {
         self.stream.peer_addr().ok()
     }
 
     /// Waits until the peer has sent its first byte (which stays to be read) or closed.
-    pub async fn first_byte(&self) -> io::Result<()> {
+    pub(crate) async fn first_byte(&self) -> io::Result<()> {
         self.stream.peek(&mut [0u8; 1]).await.map(|_| ())
     }
 }

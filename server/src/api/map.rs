@@ -19,7 +19,7 @@ use crate::service::Service;
 
 /// One binding: a located address, its Modbus table and address, and what it shows.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct BindingInfo {
+pub(crate) struct BindingInfo {
     /// The IEC located address, e.g. `%QX2.6`.
     pub at: String,
     /// `coil`, `discrete input`, `input register` or `holding register`.
@@ -53,7 +53,7 @@ impl From<&Binding> for BindingInfo {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct MapInfo {
+pub(crate) struct MapInfo {
     /// `linux`, `esp32` or `atmega`.
     pub address_space: String,
     pub unit_id: u8,
@@ -63,7 +63,7 @@ pub struct MapInfo {
 
 /// The gateway memory: set coils and non-zero registers by located address.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct MemoryInfo {
+pub(crate) struct MemoryInfo {
     pub coils: BTreeMap<String, bool>,
     /// `%QW`/`%MW` as 16-bit, `%MD` as 32-bit and `%ML` as 64-bit unsigned numbers.
     pub registers: BTreeMap<String, u64>,
@@ -80,7 +80,9 @@ fn no_server() -> ApiError {
 #[utoipa::path(get, path = "/api/v1/map", tag = "modbus",
     responses((status = 200, description = "the bindings", body = MapInfo),
               (status = 404, description = "no Modbus server is configured", body = ErrorBody)))]
-pub async fn get_map(State(service): State<Arc<Service>>) -> Result<Json<MapInfo>, ApiError> {
+pub(crate) async fn get_map(
+    State(service): State<Arc<Service>>,
+) -> Result<Json<MapInfo>, ApiError> {
     let image = service.modbus().ok_or_else(no_server)?;
     Ok(Json(MapInfo {
         address_space: image.space.kind.name().to_owned(),
@@ -100,7 +102,7 @@ pub async fn get_map(State(service): State<Arc<Service>>) -> Result<Json<MapInfo
     responses((status = 200, description = "the field's value", body = FieldValue),
               (status = 400, description = "not a located address", body = ErrorBody),
               (status = 404, description = "no field is bound there", body = ErrorBody)))]
-pub async fn get_located(
+pub(crate) async fn get_located(
     State(service): State<Arc<Service>>,
     Path(at): Path<String>,
 ) -> Result<axum::response::Response, ApiError> {
@@ -119,7 +121,7 @@ pub async fn get_located(
               (status = 400, description = "not a located address, or a value the field does not take", body = ErrorBody),
               (status = 404, description = "no field is bound there", body = ErrorBody),
               (status = 409, description = "the field is an input", body = ErrorBody)))]
-pub async fn put_located(
+pub(crate) async fn put_located(
     State(service): State<Arc<Service>>,
     Path(at): Path<String>,
     body: Bytes,
@@ -144,7 +146,9 @@ pub async fn put_located(
 #[utoipa::path(get, path = "/api/v1/memory", tag = "modbus",
     responses((status = 200, description = "set coils and non-zero registers", body = MemoryInfo),
               (status = 404, description = "no Modbus server is configured", body = ErrorBody)))]
-pub async fn get_memory(State(service): State<Arc<Service>>) -> Result<Json<MemoryInfo>, ApiError> {
+pub(crate) async fn get_memory(
+    State(service): State<Arc<Service>>,
+) -> Result<Json<MemoryInfo>, ApiError> {
     let image = service.modbus().ok_or_else(no_server)?;
     let (coils, registers) = image.memory.contents();
     let coils = coils

@@ -2,20 +2,20 @@
 //! health, OpenAPI and metrics on the HTTP listener; the gRPC service (with health and
 //! reflection) on its own. Each handler parses, calls the service, and maps the answer.
 
-pub mod accept;
-pub mod convert;
-pub mod declare;
-pub mod error;
-pub mod events;
-pub mod grpc;
-pub mod http;
-pub mod limit;
-pub mod map;
-pub mod modbus_server;
-pub mod pb;
-pub mod rest;
-pub mod transactions;
-pub mod ui;
+pub(crate) mod accept;
+pub(crate) mod convert;
+pub(crate) mod declare;
+pub(crate) mod error;
+pub(crate) mod events;
+pub(crate) mod grpc;
+pub(crate) mod http;
+pub(crate) mod limit;
+pub(crate) mod map;
+pub(crate) mod modbus_server;
+pub(crate) mod pb;
+pub(crate) mod rest;
+pub(crate) mod transactions;
+pub(crate) mod ui;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -34,9 +34,9 @@ use crate::auth::Operation;
 use crate::service::Service;
 use error::ApiError;
 
-pub const API_PREFIX: &str = "/api/v1";
+pub(crate) const API_PREFIX: &str = "/api/v1";
 /// The largest request body (a PATCH of every field of a big device fits).
-pub const MAX_BODY: usize = 1024 * 1024;
+pub(crate) const MAX_BODY: usize = 1024 * 1024;
 
 #[derive(OpenApi)]
 #[openapi(
@@ -64,10 +64,10 @@ pub const MAX_BODY: usize = 1024 * 1024;
         (name = "modbus", description = "the Modbus TCP server's map of IEC located addresses, and its memory"),
     )
 )]
-pub struct ApiDoc;
+pub(crate) struct ApiDoc;
 
 /// The OpenAPI document of the REST API.
-pub fn openapi() -> utoipa::openapi::OpenApi {
+pub(crate) fn openapi() -> utoipa::openapi::OpenApi {
     ApiDoc::openapi()
 }
 
@@ -150,7 +150,7 @@ fn needs(service: &Arc<Service>, operation: Operation, method: Method) -> Method
 
 /// The HTTP routes, each request body to arrive within `body_timeout`. The API's routes
 /// each name their operation; health, metrics and the web page's files need no token.
-pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Router {
+pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Router {
     use Operation::*;
     use axum::routing::{delete, patch, post};
     let s = &service;
@@ -259,7 +259,7 @@ pub fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Route
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, within the limits of
 /// [`http`].
-pub async fn serve_http(
+pub(crate) async fn serve_http(
     listener: TcpListener,
     service: Arc<Service>,
     limits: http::Limits,
@@ -271,7 +271,7 @@ pub async fn serve_http(
 
 /// Serves the gRPC API, with `grpc.health.v1` and server reflection, on `listener` until
 /// `shutdown` resolves; connections as the HTTP listener's ([`accept`]).
-pub async fn serve_grpc(
+pub(crate) async fn serve_grpc(
     listener: TcpListener,
     service: Arc<Service>,
     header_timeout: std::time::Duration,

@@ -20,7 +20,7 @@ use crate::link::mbap;
 use crate::service::Service;
 
 /// Accepts masters until `shutdown`; each connection runs as a task of the gateway.
-pub async fn serve_modbus(
+pub(crate) async fn serve_modbus(
     listener: TcpListener,
     service: Arc<Service>,
     shutdown: CancellationToken,

@@ -11,20 +11,20 @@ use crate::profile::{Profile, fb_layout, st_declaration};
 use crate::service::{FieldView, Service};
 use crate::write_log::{WriteRecord, WriteStatus};
 
-pub fn iec_type(ty: IecType) -> pb::IecType {
+pub(crate) fn iec_type(ty: IecType) -> pb::IecType {
     ty.to_pb()
 }
 
-pub fn value(ty: IecType, v: &Value) -> pb::Value {
+pub(crate) fn value(ty: IecType, v: &Value) -> pb::Value {
     v.to_pb(Some(ty))
 }
 
-pub fn timestamp(t: SystemTime) -> prost_types::Timestamp {
+pub(crate) fn timestamp(t: SystemTime) -> prost_types::Timestamp {
     prost_types::Timestamp::from(t)
 }
 
 /// The protobuf of a field's view.
-pub fn field_value(view: &FieldView<'_>) -> pb::FieldValue {
+pub(crate) fn field_value(view: &FieldView<'_>) -> pb::FieldValue {
     let field = view.field;
     pb::FieldValue {
         device: view.device.name().to_owned(),
@@ -44,7 +44,7 @@ pub fn field_value(view: &FieldView<'_>) -> pb::FieldValue {
     }
 }
 
-pub fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
+pub(crate) fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
     pb::Diagnostics {
         device: device.name().to_owned(),
         connected: d.connected,
@@ -55,7 +55,7 @@ pub fn diagnostics(device: &Device, d: &Diagnostics) -> pb::Diagnostics {
 }
 
 /// A device with its diagnostics, and with every field's view from `fields` when given.
-pub fn device(device: &Device, fields: Option<&Service>) -> pb::Device {
+pub(crate) fn device(device: &Device, fields: Option<&Service>) -> pb::Device {
     let c = &device.config;
     let binding = device.binding();
     pb::Device {
@@ -79,7 +79,7 @@ fn millis(d: std::time::Duration) -> u32 {
     u32::try_from(d.as_millis()).unwrap_or(u32::MAX)
 }
 
-pub fn serial(s: &SerialSettings) -> pb::SerialSettings {
+pub(crate) fn serial(s: &SerialSettings) -> pb::SerialSettings {
     pb::SerialSettings {
         port: s.port.clone(),
         baud: s.baud,
@@ -89,7 +89,7 @@ pub fn serial(s: &SerialSettings) -> pb::SerialSettings {
     }
 }
 
-pub fn link(link: &Link) -> pb::Link {
+pub(crate) fn link(link: &Link) -> pb::Link {
     let d = link.diagnostics();
     let config = link.config();
     let transport = match config.transport {
@@ -114,7 +114,7 @@ pub fn link(link: &Link) -> pb::Link {
     }
 }
 
-pub fn profile(p: &Profile, full: bool) -> pb::Profile {
+pub(crate) fn profile(p: &Profile, full: bool) -> pb::Profile {
     let mut out = pb::Profile {
         name: p.name.clone(),
         vendor: p.vendor.clone().unwrap_or_default(),
@@ -163,7 +163,7 @@ pub fn profile(p: &Profile, full: bool) -> pb::Profile {
     out
 }
 
-pub fn write_outcome(s: WriteStatus) -> pb::WriteOutcome {
+pub(crate) fn write_outcome(s: WriteStatus) -> pb::WriteOutcome {
     match s {
         WriteStatus::Pending => pb::WriteOutcome::Pending,
         WriteStatus::Written => pb::WriteOutcome::Written,
@@ -172,7 +172,7 @@ pub fn write_outcome(s: WriteStatus) -> pb::WriteOutcome {
     }
 }
 
-pub fn write_status(r: &WriteRecord, ty: Option<IecType>) -> pb::WriteStatus {
+pub(crate) fn write_status(r: &WriteRecord, ty: Option<IecType>) -> pb::WriteStatus {
     pb::WriteStatus {
         generation: r.generation,
         device: r.device.clone(),

@@ -19,7 +19,7 @@ use crate::service::{Accepted, Service};
 type ServiceRef = State<Arc<Service>>;
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct Health {
+pub(crate) struct Health {
     pub status: String,
     /// Links whose task is stuck in a transaction past its bound (then 503).
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -32,7 +32,7 @@ pub struct Health {
 
 /// The process is alive.
 #[utoipa::path(get, path = "/livez", tag = "health", responses((status = 200, description = "the process is alive", body = Health)))]
-pub async fn livez() -> Json<Health> {
+pub(crate) async fn livez() -> Json<Health> {
     Json(Health {
         status: "ok".into(),
         stalled_links: Vec::new(),
@@ -43,7 +43,7 @@ pub async fn livez() -> Json<Health> {
 /// The gateway is serving (not starting, not shutting down, and no link's task stuck).
 #[utoipa::path(get, path = "/readyz", tag = "health",
     responses((status = 200, description = "serving", body = Health), (status = 503, description = "starting, shutting down, or a link stalled (named)", body = Health)))]
-pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
+pub(crate) async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
     let stalled_links: Vec<String> = service
         .links()
         .iter()
@@ -80,7 +80,7 @@ pub async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Health>) {
 
 /// Every link with its settings and diagnostics.
 #[utoipa::path(get, path = "/api/v1/links", tag = "links", responses((status = 200, description = "every link", body = LinkList)))]
-pub async fn list_links(State(service): ServiceRef) -> Json<LinkList> {
+pub(crate) async fn list_links(State(service): ServiceRef) -> Json<LinkList> {
     Json(LinkList {
         links: service.links().iter().map(|l| link_info(l)).collect(),
     })
@@ -90,7 +90,7 @@ pub async fn list_links(State(service): ServiceRef) -> Json<LinkList> {
 #[utoipa::path(get, path = "/api/v1/links/{link}", tag = "links",
     params(("link" = String, Path, description = "link name")),
     responses((status = 200, description = "the link", body = LinkInfo), (status = 404, description = "an unknown name", body = ErrorBody)))]
-pub async fn get_link(
+pub(crate) async fn get_link(
     State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Json<LinkInfo>, ApiError> {
@@ -102,7 +102,7 @@ pub async fn get_link(
 #[utoipa::path(get, path = "/api/v1/links/{link}/plan", tag = "links",
     params(("link" = String, Path, description = "link name")),
     responses((status = 200, description = "the plan as text", content_type = "text/plain"), (status = 404, description = "an unknown name", body = ErrorBody)))]
-pub async fn get_link_plan(
+pub(crate) async fn get_link_plan(
     State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<([(axum::http::HeaderName, &'static str); 1], String), ApiError> {
@@ -123,7 +123,7 @@ pub async fn get_link_plan(
 
 /// Every device with its diagnostics.
 #[utoipa::path(get, path = "/api/v1/devices", tag = "devices", responses((status = 200, description = "every device", body = DeviceList)))]
-pub async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {
+pub(crate) async fn list_devices(State(service): ServiceRef) -> Json<DeviceList> {
     Json(DeviceList {
         devices: service.devices().iter().map(|d| device_info(d)).collect(),
     })
@@ -137,7 +137,7 @@ fn field_json<'a>(device: &'a Device, idx: usize, service: &Service) -> FieldVal
 #[utoipa::path(get, path = "/api/v1/devices/{device}", tag = "devices",
     params(("device" = String, Path, description = "device name")),
     responses((status = 200, description = "the device with every field", body = DeviceDetail), (status = 404, description = "an unknown name", body = ErrorBody)))]
-pub async fn get_device(
+pub(crate) async fn get_device(
     State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Response, ApiError> {
@@ -185,7 +185,7 @@ pub(super) fn json_response(
     params(("device" = String, Path, description = "device name"),
            ("field" = String, Path, description = "field name (case-insensitive)")),
     responses((status = 200, description = "the field's value, type, quality and timestamp", body = FieldValue), (status = 404, description = "an unknown name", body = ErrorBody)))]
-pub async fn get_field(
+pub(crate) async fn get_field(
     State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
@@ -200,7 +200,7 @@ pub async fn get_field(
     dead_code,
     reason = "documents the request body in the OpenAPI document"
 )]
-pub struct WriteRequest {
+pub(crate) struct WriteRequest {
     /// The value as the JSON of the field's type.
     #[schema(value_type = Object)]
     value: Json_,
@@ -247,7 +247,7 @@ pub(super) fn value_of(body: Json_) -> Json_ {
               (status = 400, description = "wrong type or out of range", body = ErrorBody),
               (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 409, description = "the field is an input", body = ErrorBody)))]
-pub async fn put_field(
+pub(crate) async fn put_field(
     State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
     body: Bytes,
@@ -266,7 +266,7 @@ pub async fn put_field(
     responses((status = 202, description = "every write accepted: pending", body = WritesAccepted),
               (status = 400, description = "a malformed request or a value the field does not take", body = ErrorBody), (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 409, description = "the field is an input (or the device not simulated)", body = ErrorBody)))]
-pub async fn patch_fields(
+pub(crate) async fn patch_fields(
     State(service): ServiceRef,
     Path(name): Path<String>,
     body: Bytes,
@@ -295,7 +295,7 @@ pub async fn patch_fields(
 
 /// What a simulated input was set to.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct Simulated {
+pub(crate) struct Simulated {
     pub device: String,
     pub field: String,
     #[schema(value_type = Object)]
@@ -311,7 +311,7 @@ pub struct Simulated {
     responses((status = 202, description = "the input is set; it shows on the next cycle", body = Simulated), (status = 400, description = "a malformed request or a value the field does not take", body = ErrorBody),
               (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 409, description = "not a simulated device, or an output", body = ErrorBody)))]
-pub async fn simulate_field(
+pub(crate) async fn simulate_field(
     State(service): ServiceRef,
     Path((name, field)): Path<(String, String)>,
     body: Bytes,
@@ -336,7 +336,7 @@ pub async fn simulate_field(
     responses((status = 200, description = "where the write stands", body = WriteInfo), (status = 400, description = "a malformed request or a value the field does not take", body = ErrorBody),
               (status = 404, description = "an unknown name", body = ErrorBody),
               (status = 410, description = "too old: no longer kept", body = ErrorBody)))]
-pub async fn get_write(
+pub(crate) async fn get_write(
     State(service): ServiceRef,
     Path(generation): Path<String>,
 ) -> Result<Json<WriteInfo>, ApiError> {
@@ -351,7 +351,7 @@ pub async fn get_write(
 
 /// Every loaded profile.
 #[utoipa::path(get, path = "/api/v1/profiles", tag = "profiles", responses((status = 200, description = "every loaded profile", body = ProfileList)))]
-pub async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
+pub(crate) async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
     Json(ProfileList {
         profiles: service.profiles().map(|p| profile_summary(p)).collect(),
     })
@@ -362,7 +362,7 @@ pub async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
     params(("profile" = String, Path, description = "profile name")),
     responses((status = 200, description = "the declaration", content_type = "text/plain"),
               (status = 404, description = "an unknown name", body = ErrorBody)))]
-pub async fn get_profile_st(
+pub(crate) async fn get_profile_st(
     State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<([(axum::http::HeaderName, &'static str); 1], String), ApiError> {
@@ -380,7 +380,7 @@ pub async fn get_profile_st(
 #[utoipa::path(get, path = "/api/v1/profiles/{profile}", tag = "profiles",
     params(("profile" = String, Path, description = "profile name")),
     responses((status = 200, description = "the profile, its fields and FB layout", body = ProfileDetail), (status = 404, description = "an unknown name", body = ErrorBody)))]
-pub async fn get_profile(
+pub(crate) async fn get_profile(
     State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Json<ProfileDetail>, ApiError> {

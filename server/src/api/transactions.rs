@@ -17,7 +17,7 @@ use crate::transaction::{Outcome, TransactionSpec};
 
 /// How a transaction ended.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct TransactionResult {
+pub(crate) struct TransactionResult {
     /// The command got a correct response.
     pub actual: bool,
     /// 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
@@ -55,7 +55,7 @@ impl From<Outcome> for TransactionResult {
     request_body = TransactionSpec,
     responses((status = 200, description = "the transaction ran (check `actual`)", body = TransactionResult),
               (status = 400, description = "every parameter problem, in the read block's messages", body = ErrorBody)))]
-pub async fn post_transaction(
+pub(crate) async fn post_transaction(
     State(service): State<Arc<Service>>,
     Path(link): Path<String>,
     body: Bytes,
@@ -69,7 +69,7 @@ pub async fn post_transaction(
 /// A standing transaction: its settings and its latest outcome (the fields of a one-shot's
 /// answer) with `name`, `enabled` and a timestamp.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct StandingInfo {
+pub(crate) struct StandingInfo {
     pub name: String,
     pub link: String,
     /// `read` or `write`.
@@ -93,7 +93,7 @@ pub struct StandingInfo {
     pub parameters: TransactionSpec,
 }
 
-pub fn standing_info(s: &Standing, status: &StandingStatus) -> StandingInfo {
+pub(crate) fn standing_info(s: &Standing, status: &StandingStatus) -> StandingInfo {
     let last = status.last.as_ref();
     StandingInfo {
         name: s.name.clone(),
@@ -116,14 +116,14 @@ pub fn standing_info(s: &Standing, status: &StandingStatus) -> StandingInfo {
 }
 
 #[derive(Debug, Serialize, ToSchema)]
-pub struct StandingList {
+pub(crate) struct StandingList {
     pub transactions: Vec<StandingInfo>,
 }
 
 /// The body of `PUT /api/v1/transactions/{name}`: the one-shot's keys plus `link` and a
 /// period.
 #[derive(Debug, serde::Deserialize, ToSchema)]
-pub struct StandingDeclaration {
+pub(crate) struct StandingDeclaration {
     pub link: String,
     /// Reads: milliseconds between the end of one run and the next (0: only triggered).
     #[serde(default)]
@@ -144,7 +144,7 @@ fn enabled_by_default() -> bool {
 /// The values a standing write sends.
 #[derive(Debug, serde::Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct StandingValues {
+pub(crate) struct StandingValues {
     #[schema(value_type = Vec<Object>)]
     pub values: Vec<serde_json::Value>,
 }
@@ -158,7 +158,7 @@ fn answer(s: &Standing) -> Answer {
 /// Every standing transaction.
 #[utoipa::path(get, path = "/api/v1/transactions", tag = "transactions",
     responses((status = 200, description = "every standing transaction", body = StandingList)))]
-pub async fn list_standing(State(service): State<Arc<Service>>) -> Json<StandingList> {
+pub(crate) async fn list_standing(State(service): State<Arc<Service>>) -> Json<StandingList> {
     Json(StandingList {
         transactions: service
             .standing()
@@ -174,7 +174,10 @@ pub async fn list_standing(State(service): State<Arc<Service>>) -> Json<Standing
     params(("name" = String, Path, description = "transaction name")),
     responses((status = 200, description = "the transaction", body = StandingInfo),
               (status = 404, description = "no such transaction", body = ErrorBody)))]
-pub async fn get_standing(State(service): State<Arc<Service>>, Path(name): Path<String>) -> Answer {
+pub(crate) async fn get_standing(
+    State(service): State<Arc<Service>>,
+    Path(name): Path<String>,
+) -> Answer {
     answer(service.transaction(&name)?.as_ref())
 }
 
@@ -185,7 +188,7 @@ pub async fn get_standing(State(service): State<Arc<Service>>, Path(name): Path<
     responses((status = 200, description = "declared (or existed with these settings)", body = StandingInfo),
               (status = 400, description = "every parameter problem", body = ErrorBody),
               (status = 409, description = "exists with other settings", body = ErrorBody)))]
-pub async fn put_standing(
+pub(crate) async fn put_standing(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
     body: Bytes,
@@ -218,7 +221,7 @@ pub async fn put_standing(
     responses((status = 204, description = "the transaction was removed"),
               (status = 404, description = "no such transaction", body = ErrorBody),
               (status = 409, description = "the transaction comes from the config file", body = ErrorBody)))]
-pub async fn delete_standing(
+pub(crate) async fn delete_standing(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
 ) -> Result<axum::http::StatusCode, ApiError> {
@@ -231,7 +234,7 @@ pub async fn delete_standing(
     params(("name" = String, Path, description = "transaction name")),
     responses((status = 200, description = "enabled", body = StandingInfo),
               (status = 404, description = "no such transaction", body = ErrorBody)))]
-pub async fn enable_standing(
+pub(crate) async fn enable_standing(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
 ) -> Answer {
@@ -243,7 +246,7 @@ pub async fn enable_standing(
     params(("name" = String, Path, description = "transaction name")),
     responses((status = 200, description = "disabled", body = StandingInfo),
               (status = 404, description = "no such transaction", body = ErrorBody)))]
-pub async fn disable_standing(
+pub(crate) async fn disable_standing(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
 ) -> Answer {
@@ -255,7 +258,7 @@ pub async fn disable_standing(
     params(("name" = String, Path, description = "transaction name")),
     responses((status = 200, description = "triggered", body = StandingInfo),
               (status = 404, description = "no such transaction", body = ErrorBody)))]
-pub async fn trigger_standing(
+pub(crate) async fn trigger_standing(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
 ) -> Answer {
@@ -269,7 +272,7 @@ pub async fn trigger_standing(
     responses((status = 200, description = "set", body = StandingInfo),
               (status = 400, description = "values the write does not take", body = ErrorBody),
               (status = 404, description = "no such transaction", body = ErrorBody)))]
-pub async fn put_standing_values(
+pub(crate) async fn put_standing_values(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,
     body: Bytes,

@@ -12,7 +12,7 @@ use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
 
 /// The page's policy: nothing from elsewhere, nothing inline, nothing evaluated.
-pub const CONTENT_SECURITY_POLICY: &str = "default-src 'none'; script-src 'self'; \
+pub(crate) const CONTENT_SECURITY_POLICY: &str = "default-src 'none'; script-src 'self'; \
      style-src 'self'; img-src 'self'; connect-src 'self'; manifest-src 'self'; \
      base-uri 'none'; form-action 'none'; frame-ancestors 'none'; \
      require-trusted-types-for 'script'; trusted-types 'none'";
@@ -71,7 +71,7 @@ fn serve(asset: &'static Asset) -> Response {
 }
 
 /// `/` redirects to `/ui`; `/ui` and `/ui/` are the page; `/ui/{asset}` its files.
-pub fn routes<S: Clone + Send + Sync + 'static>() -> Router<S> {
+pub(crate) fn routes<S: Clone + Send + Sync + 'static>() -> Router<S> {
     let mut router = Router::new()
         .route("/", get(|| async { Redirect::to("/ui") }))
         .route("/ui/", get(|| async { serve(&ASSETS[0]) }));

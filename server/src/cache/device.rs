@@ -16,7 +16,7 @@ use crate::profile::{Direction, Field, Profile, Protocol, RegisterKind};
 use crate::write_log::{Origin, WriteLog};
 
 /// The longest string a simulated STRING field holds (the IEC default STRING length).
-pub const SIM_STRING_MAX: usize = 254;
+pub(crate) const SIM_STRING_MAX: usize = 254;
 
 /// One configured device: its profile, cached samples, diagnostics and requested outputs.
 #[derive(Debug)]
@@ -41,7 +41,7 @@ pub struct Device {
 
 /// Where a device is reached.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Binding {
+pub(crate) struct Binding {
     pub link: Option<String>,
     pub slave_id: Option<u8>,
 }
@@ -61,7 +61,7 @@ impl Binding {
 }
 
 impl Device {
-    pub fn new(
+    pub(crate) fn new(
         config: DeviceConfig,
         profile: Arc<Profile>,
         log: Arc<WriteLog>,
@@ -97,7 +97,7 @@ impl Device {
     }
 
     /// Remembers the token that stops the device's own task (a simulated device's).
-    pub fn attach_task(&self, token: tokio_util::sync::CancellationToken) {
+    pub(crate) fn attach_task(&self, token: tokio_util::sync::CancellationToken) {
         *self.task.lock().unwrap_or_else(|e| e.into_inner()) = Some(token);
     }
 
@@ -113,14 +113,14 @@ impl Device {
     }
 
     /// The link and slave id the device is polled with now.
-    pub fn binding(&self) -> Binding {
+    pub(crate) fn binding(&self) -> Binding {
         self.binding
             .read()
             .unwrap_or_else(|e| e.into_inner())
             .clone()
     }
 
-    pub fn slave_id(&self) -> Option<u8> {
+    pub(crate) fn slave_id(&self) -> Option<u8> {
         self.binding
             .read()
             .unwrap_or_else(|e| e.into_inner())
@@ -139,30 +139,30 @@ impl Device {
         });
     }
 
-    pub fn name(&self) -> &str {
+    pub(crate) fn name(&self) -> &str {
         &self.config.name
     }
 
-    pub fn is_simulated(&self) -> bool {
+    pub(crate) fn is_simulated(&self) -> bool {
         self.sim.is_some()
     }
 
     /// How long a value stays good without a refresh.
-    pub fn stale_after(&self) -> Duration {
+    pub(crate) fn stale_after(&self) -> Duration {
         (self.config.refresh_rate * 3 + self.config.timeout).max(Duration::from_secs(1))
     }
 
     /// Whether the device answers but gets no line time: connected, and its last I/O cycle
     /// ended longer ago than its values take to go stale (its polls wait behind other
     /// traffic). A device that stopped answering is backed off on purpose, not starved.
-    pub fn starved(&self, now: tokio::time::Instant) -> bool {
+    pub(crate) fn starved(&self, now: tokio::time::Instant) -> bool {
         let last = *lock(&self.last_cycle);
         self.diagnostics().connected
             && last.is_some_and(|at| now.saturating_duration_since(at) > self.stale_after())
     }
 
     /// A field index by name, ignoring case as IEC identifiers do.
-    pub fn field_index(&self, name: &str) -> Result<usize, AccessError> {
+    pub(crate) fn field_index(&self, name: &str) -> Result<usize, AccessError> {
         self.profile
             .field_index(name)
             .ok_or_else(|| AccessError::UnknownField {
@@ -171,29 +171,29 @@ impl Device {
             })
     }
 
-    pub fn field(&self, idx: usize) -> &Field {
+    pub(crate) fn field(&self, idx: usize) -> &Field {
         &self.profile.fields[idx]
     }
 
-    pub fn sample(&self, idx: usize) -> Sample {
+    pub(crate) fn sample(&self, idx: usize) -> Sample {
         self.samples[idx].borrow().clone()
     }
 
-    pub fn subscribe(&self, idx: usize) -> watch::Receiver<Sample> {
+    pub(crate) fn subscribe(&self, idx: usize) -> watch::Receiver<Sample> {
         self.samples[idx].subscribe()
     }
 
-    pub fn diagnostics(&self) -> Diagnostics {
+    pub(crate) fn diagnostics(&self) -> Diagnostics {
         self.diagnostics.borrow().clone()
     }
 
-    pub fn subscribe_diagnostics(&self) -> watch::Receiver<Diagnostics> {
+    pub(crate) fn subscribe_diagnostics(&self) -> watch::Receiver<Diagnostics> {
         self.diagnostics.subscribe()
     }
 
     /// Stores a freshly read value (or why it could not be read). Subscribers are woken only
     /// when the value or its quality changes.
-    pub fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
+    pub(crate) fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
         let now = (Instant::now(), SystemTime::now());
         self.samples[idx].send_if_modified(|s| {
             let before = (s.value.clone(), s.quality, s.stale_told);
@@ -216,7 +216,7 @@ impl Device {
 
     /// Wakes the subscribers of every field whose good value went stale as of `now` (once
     /// per stale spell), so that streams show `stale` without waiting for another change.
-    pub fn tell_stale(&self, now: Instant) {
+    pub(crate) fn tell_stale(&self, now: Instant) {
         let stale_after = self.stale_after();
         let went_stale =
             |s: &Sample| !s.stale_told && s.quality_at(now, stale_after) == Quality::Stale;
@@ -235,7 +235,7 @@ impl Device {
 
     /// Records the end of an I/O cycle. Subscribers are woken when `connected` or
     /// `error_code` change, not on every cycle.
-    pub fn record_cycle(&self, ok: bool, response: Duration) {
+    pub(crate) fn record_cycle(&self, ok: bool, response: Duration) {
         *lock(&self.last_cycle) = Some(tokio::time::Instant::now());
         self.diagnostics.send_if_modified(|d| {
             let before = (d.connected, d.error_code);
@@ -255,7 +255,7 @@ impl Device {
 
     /// Checks that `value` can be written to field `idx`: the field is writable and the value
     /// fits the field's type and raw register after scaling.
-    pub fn check_write(&self, idx: usize, value: Value) -> Result<Checked, AccessError> {
+    pub(crate) fn check_write(&self, idx: usize, value: Value) -> Result<Checked, AccessError> {
         let field = self.field(idx);
         if !field.direction.is_writable() {
             return Err(AccessError::NotWritable {
@@ -299,7 +299,8 @@ impl Device {
 
     /// Requests a write: the newest value replaces any pending one (which is then
     /// superseded). Returns the write's generation.
-    pub fn request_write(&self, idx: usize, value: Value) -> Result<u64, AccessError> {
+    #[cfg(test)]
+    pub(crate) fn request_write(&self, idx: usize, value: Value) -> Result<u64, AccessError> {
         let checked = self.check_write(idx, value)?;
         Ok(self.request_writes(vec![checked], None)[0])
     }
@@ -309,7 +310,7 @@ impl Device {
     /// woken once. A [`Checked`] is the proof of its check: nothing is checked or encoded
     /// again; its registers go on the bus as they are. `writer` is the scan-cycle stream
     /// that asked (its loss may write the fields' safe values).
-    pub fn request_writes(&self, writes: Vec<Checked>, writer: Option<u64>) -> Vec<u64> {
+    pub(crate) fn request_writes(&self, writes: Vec<Checked>, writer: Option<u64>) -> Vec<u64> {
         let named = writes
             .into_iter()
             .map(|c| (self.field(c.idx()).name.as_str(), c))
@@ -322,7 +323,7 @@ impl Device {
     }
 
     /// Requests a write the gateway asks for itself (`origin`).
-    pub fn request_own(&self, idx: usize, value: Value, origin: Origin) -> u64 {
+    pub(crate) fn request_own(&self, idx: usize, value: Value, origin: Origin) -> u64 {
         self.request(idx, value, origin, None)
     }
 
@@ -340,34 +341,34 @@ impl Device {
     }
 
     /// The device's requested outputs: pending writes, newest values, generations.
-    pub fn outputs(&self) -> &Outputs {
+    pub(crate) fn outputs(&self) -> &Outputs {
         &self.outputs
     }
 
     /// Takes every pending write, for the device's task to put on the bus.
-    pub fn take_writes(&self) -> Vec<TakenWrite> {
+    pub(crate) fn take_writes(&self) -> Vec<TakenWrite> {
         self.outputs.take()
     }
 
     /// The newest value requested for field `idx`.
-    pub fn latest_value(&self, idx: usize) -> Option<Value> {
+    pub(crate) fn latest_value(&self, idx: usize) -> Option<Value> {
         self.outputs.latest(idx)
     }
 
     /// The generation of the newest write to field `idx`.
-    pub fn last_write(&self, idx: usize) -> Option<u64> {
+    pub(crate) fn last_write(&self, idx: usize) -> Option<u64> {
         self.outputs.last_generation(idx)
     }
 
     /// Reports the outcome of a taken write.
-    pub fn finish_write(&self, generation: u64, result: Result<(), WriteError>) {
+    pub(crate) fn finish_write(&self, generation: u64, result: Result<(), WriteError>) {
         self.finish_write_after(generation, result, 0);
     }
 
     /// Reports the outcome of a taken write that took `attempts` transactions. A failed
     /// one wakes the field's subscribers: what the device holds now differs from what was
     /// asked ([`Device::mismatch`]).
-    pub fn finish_write_after(
+    pub(crate) fn finish_write_after(
         &self,
         generation: u64,
         result: Result<(), WriteError>,
@@ -383,7 +384,7 @@ impl Device {
     /// The desired value of output `idx` (the newest requested) when the device holds
     /// another: read back good, with no write of it waiting or on the bus. `None` when they
     /// agree, or nothing was requested, or the value is not known now.
-    pub fn mismatch(&self, idx: usize) -> Option<Value> {
+    pub(crate) fn mismatch(&self, idx: usize) -> Option<Value> {
         let desired = self.outputs.latest(idx)?;
         if self.outputs.is_due(idx) {
             return None;
@@ -405,7 +406,7 @@ impl Device {
     }
 
     /// Marks every field read from the bus as bad, keeping the last good values.
-    pub fn fail_reads(&self, reason: &FieldError) {
+    pub(crate) fn fail_reads(&self, reason: &FieldError) {
         for (idx, field) in self.profile.fields.iter().enumerate() {
             if field.register.kind != RegisterKind::Virtual {
                 self.publish(idx, Err(reason.clone()));
@@ -414,7 +415,7 @@ impl Device {
     }
 
     /// Records that the device could not be reached at all (its link is down).
-    pub fn set_unreachable(&self) {
+    pub(crate) fn set_unreachable(&self) {
         self.diagnostics.send_if_modified(|d| {
             let changed = d.connected || d.error_code != DeviceCode::CommError;
             d.connected = false;
@@ -424,7 +425,7 @@ impl Device {
     }
 
     /// Sets an input (or inout) of a simulated device; it shows on the next cycle.
-    pub fn simulate(&self, idx: usize, value: Value) -> Result<(), AccessError> {
+    pub(crate) fn simulate(&self, idx: usize, value: Value) -> Result<(), AccessError> {
         let Some(memory) = &self.sim else {
             return Err(AccessError::NotSimulated(self.name().to_owned()));
         };

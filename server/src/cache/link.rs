@@ -63,7 +63,7 @@ pub struct Progress {
 impl Progress {
     /// Beyond a transaction's own bound (its timeout and wire time) before the link counts
     /// as stalled.
-    pub const GRACE: Duration = Duration::from_secs(5);
+    pub(crate) const GRACE: Duration = Duration::from_secs(5);
 
     /// A transaction began that must end by `deadline`.
     pub fn started(&self, deadline: tokio::time::Instant) {
@@ -76,7 +76,7 @@ impl Progress {
     }
 
     /// How long the task is past its transaction's deadline and grace, if it is.
-    pub fn stalled_for(&self, now: tokio::time::Instant) -> Option<Duration> {
+    pub(crate) fn stalled_for(&self, now: tokio::time::Instant) -> Option<Duration> {
         let deadline = (*super::lock(&self.deadline))?;
         now.checked_duration_since(deadline + Self::GRACE)
     }
@@ -88,16 +88,16 @@ impl Progress {
 pub struct Utilisation(Mutex<(Option<f64>, Option<f64>)>);
 
 impl Utilisation {
-    pub fn set_planned(&self, planned: Option<f64>) {
+    pub(crate) fn set_planned(&self, planned: Option<f64>) {
         super::lock(&self.0).0 = planned;
     }
 
-    pub fn set_measured(&self, measured: f64) {
+    pub(crate) fn set_measured(&self, measured: f64) {
         super::lock(&self.0).1 = Some(measured);
     }
 
     /// `(planned, measured)`.
-    pub fn get(&self) -> (Option<f64>, Option<f64>) {
+    pub(crate) fn get(&self) -> (Option<f64>, Option<f64>) {
         *super::lock(&self.0)
     }
 }
@@ -130,7 +130,7 @@ pub struct Link {
 }
 
 impl Link {
-    pub fn new(config: LinkConfig) -> Self {
+    pub(crate) fn new(config: LinkConfig) -> Self {
         Link {
             wake: Arc::new(Notify::new()),
             name: config.name.clone(),
@@ -150,12 +150,12 @@ impl Link {
     }
 
     /// Whether the link's task is stuck in a transaction past its bound (and since when).
-    pub fn stalled(&self) -> Option<Duration> {
+    pub(crate) fn stalled(&self) -> Option<Duration> {
         self.progress.stalled_for(tokio::time::Instant::now())
     }
 
     /// Remembers the token that stops the link's task.
-    pub fn attach_task(&self, token: tokio_util::sync::CancellationToken) {
+    pub(crate) fn attach_task(&self, token: tokio_util::sync::CancellationToken) {
         *super::lock(&self.task) = Some(token);
     }
 
@@ -166,24 +166,24 @@ impl Link {
         }
     }
 
-    pub fn name(&self) -> &str {
+    pub(crate) fn name(&self) -> &str {
         &self.name
     }
 
     /// The link's settings as they are now.
-    pub fn config(&self) -> LinkConfig {
+    pub(crate) fn config(&self) -> LinkConfig {
         self.state.borrow().config.clone()
     }
 
     /// Whether the link has a transport to open: a serial link declared with an empty port
     /// has none until it is declared again with one (`SerialLink` error 1 meanwhile).
-    pub fn is_configured(&self) -> bool {
+    pub(crate) fn is_configured(&self) -> bool {
         self.state.borrow().config.transport.is_configured()
     }
 
     /// The link's settings and members, as its task takes them in: the receiver sees the
     /// current state as new, and each change after it.
-    pub fn subscribe(&self) -> watch::Receiver<LinkState> {
+    pub(crate) fn subscribe(&self) -> watch::Receiver<LinkState> {
         let mut receiver = self.state.subscribe();
         receiver.mark_changed();
         receiver
@@ -197,11 +197,11 @@ impl Link {
         });
     }
 
-    pub fn diagnostics(&self) -> LinkDiagnostics {
+    pub(crate) fn diagnostics(&self) -> LinkDiagnostics {
         self.diagnostics.borrow().clone()
     }
 
-    pub fn set_diagnostics(&self, diagnostics: LinkDiagnostics) {
+    pub(crate) fn set_diagnostics(&self, diagnostics: LinkDiagnostics) {
         self.diagnostics.send_if_modified(|d| {
             let changed = *d != diagnostics;
             *d = diagnostics;
@@ -210,7 +210,7 @@ impl Link {
     }
 
     /// The devices on the link, in the order they were added.
-    pub fn members(&self) -> Vec<Arc<Device>> {
+    pub(crate) fn members(&self) -> Vec<Arc<Device>> {
         self.state.borrow().members.clone()
     }
 
@@ -232,12 +232,12 @@ impl Link {
     }
 
     /// The oldest queued request, for the link's task.
-    pub fn take_queued(&self) -> Option<Passthrough> {
+    pub(crate) fn take_queued(&self) -> Option<Passthrough> {
         super::lock(&self.queue).pop_front().map(|q| q.request)
     }
 
     /// How many requests wait, and how long the oldest has.
-    pub fn inbox(&self) -> (usize, Duration) {
+    pub(crate) fn inbox(&self) -> (usize, Duration) {
         let queue = super::lock(&self.queue);
         let oldest = queue.front().map_or(Duration::ZERO, |q| q.since.elapsed());
         (queue.len(), oldest)

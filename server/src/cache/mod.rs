@@ -8,7 +8,7 @@
 mod device;
 mod link;
 mod outputs;
-mod sample;
+pub(crate) mod sample;
 
 use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
@@ -20,12 +20,12 @@ use crate::profile::{Catalog, Profile};
 use crate::text::quote;
 use crate::write_log::WriteLog;
 
-pub use device::{Binding, Device, SIM_STRING_MAX};
+pub(crate) use device::{Binding, Device};
 pub use link::{
     INBOX_CAPACITY, Link, LinkState, Passthrough, PassthroughError, Progress, Utilisation,
 };
-pub use outputs::{Checked, Outputs, TakenWrite, WriteError};
-pub use sample::{DeviceCode, Diagnostics, FieldError, LinkDiagnostics, Quality, Sample};
+pub(crate) use outputs::{Checked, WriteError};
+pub(crate) use sample::{Diagnostics, FieldError, LinkDiagnostics, Sample};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     // Sections under these locks are single assignments; a poisoned lock holds whole values.
@@ -62,7 +62,7 @@ pub enum AccessError {
 /// The kinds of refusal, whatever refuses (a name, a value, a declaration, the service):
 /// each front-end maps them to its wire in one table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refusal {
+pub(crate) enum Refusal {
     /// The request itself is wrong: a value, a parameter, a declaration.
     Invalid,
     /// It names something that does not exist.
@@ -116,7 +116,7 @@ pub struct Cache {
 
 impl Cache {
     /// Builds the cache for a config whose devices were checked against `catalog`.
-    pub fn new(config: &Config, catalog: Catalog) -> Self {
+    pub(crate) fn new(config: &Config, catalog: Catalog) -> Self {
         let cache = Cache {
             catalog,
             writes: Arc::new(WriteLog::default()),
@@ -202,16 +202,16 @@ impl Cache {
     }
 
     /// Every device, in the order they were added.
-    pub fn devices(&self) -> Vec<Arc<Device>> {
+    pub(crate) fn devices(&self) -> Vec<Arc<Device>> {
         read(&self.registry).devices.clone()
     }
 
     /// Every link, in the order they were added.
-    pub fn links(&self) -> Vec<Arc<Link>> {
+    pub(crate) fn links(&self) -> Vec<Arc<Link>> {
         read(&self.registry).links.clone()
     }
 
-    pub fn device(&self, name: &str) -> Result<Arc<Device>, AccessError> {
+    pub(crate) fn device(&self, name: &str) -> Result<Arc<Device>, AccessError> {
         read(&self.registry)
             .device(name)
             .cloned()
@@ -225,7 +225,7 @@ impl Cache {
             .ok_or_else(|| AccessError::UnknownLink(quote(name)))
     }
 
-    pub fn profile(&self, name: &str) -> Result<&Arc<Profile>, AccessError> {
+    pub(crate) fn profile(&self, name: &str) -> Result<&Arc<Profile>, AccessError> {
         self.catalog
             .get(name)
             .ok_or_else(|| AccessError::UnknownProfile(quote(name)))
@@ -234,6 +234,7 @@ impl Cache {
 
 #[cfg(test)]
 mod tests {
+    use super::sample::{DeviceCode, Quality};
     use super::*;
     use crate::codec::Value;
     use crate::write_log::{Lookup, WriteStatus};

@@ -13,7 +13,7 @@ use crate::write_log::{Origin, WriteLog, WriteStatus};
 
 /// Why a write did not reach the device.
 #[derive(Debug, Clone, thiserror::Error)]
-pub enum WriteError {
+pub(crate) enum WriteError {
     /// The device answered with an exception.
     #[error("{0}")]
     Exception(Exception),
@@ -49,7 +49,7 @@ impl From<TxError> for WriteError {
 /// within its raw register after scaling. Only [`super::Device::check_write`] makes one, and it
 /// carries the registers the value becomes, so the write path encodes a value once.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Checked {
+pub(crate) struct Checked {
     idx: usize,
     value: Value,
     registers: Option<Vec<u16>>,
@@ -66,11 +66,11 @@ impl Checked {
     }
 
     /// The field's index in its profile.
-    pub fn idx(&self) -> usize {
+    pub(crate) fn idx(&self) -> usize {
         self.idx
     }
 
-    pub fn value(&self) -> &Value {
+    pub(crate) fn value(&self) -> &Value {
         &self.value
     }
 
@@ -83,7 +83,7 @@ impl Checked {
 
 /// A write taken by the device's task to put on the bus.
 #[derive(Debug, Clone, PartialEq)]
-pub struct TakenWrite {
+pub(crate) struct TakenWrite {
     pub field: usize,
     pub generation: u64,
     pub value: Value,
@@ -109,33 +109,27 @@ struct WriteSlot {
 
 /// The write slots of one device's fields, and the gateway's write log they report to.
 #[derive(Debug)]
-pub struct Outputs {
+pub(crate) struct Outputs {
     slots: Mutex<Vec<WriteSlot>>,
     log: Arc<WriteLog>,
 }
 
 impl Outputs {
-    pub fn new(fields: usize, log: Arc<WriteLog>) -> Self {
+    pub(crate) fn new(fields: usize, log: Arc<WriteLog>) -> Self {
         Outputs {
             slots: Mutex::new((0..fields).map(|_| WriteSlot::default()).collect()),
             log,
         }
     }
 
-    /// Stores `value` as field `idx`'s pending write; a write already pending is
-    /// superseded. Returns the new write's generation.
-    pub fn request(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
-        self.request_from(device, field, idx, value, Origin::Client, None)
-    }
-
     /// The scan-cycle stream that requested field `idx`'s newest value, if one did.
-    pub fn writer(&self, idx: usize) -> Option<u64> {
+    pub(crate) fn writer(&self, idx: usize) -> Option<u64> {
         lock(&self.slots)[idx].writer
     }
 
     /// As [`Outputs::request`], from `origin`, by the scan-cycle stream `writer` if one
     /// asks (remembered with the value, under the same lock).
-    pub fn request_from(
+    pub(crate) fn request_from(
         &self,
         device: &str,
         field: &str,
@@ -160,7 +154,7 @@ impl Outputs {
 
     /// Requests several checked writes at once (`(field name, proof)`), under one lock: the
     /// device's task takes all of them or none, so one client request is one write group.
-    pub fn request_all(
+    pub(crate) fn request_all(
         &self,
         device: &str,
         writes: Vec<(&str, Checked)>,
@@ -188,7 +182,7 @@ impl Outputs {
 
     /// Records a write of field `idx`'s requested value that the device's task sends now
     /// on its own (after a reconnect); it becomes the field's newest write.
-    pub fn replay(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
+    pub(crate) fn replay(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
         let mut slots = lock(&self.slots);
         let generation = self.log.begin_from(device, field, value, Origin::Replay);
         slots[idx].last_generation = Some(generation);
@@ -197,13 +191,13 @@ impl Outputs {
     }
 
     /// Whether a write of field `idx` is waiting or on the bus.
-    pub fn is_due(&self, idx: usize) -> bool {
+    pub(crate) fn is_due(&self, idx: usize) -> bool {
         let slots = lock(&self.slots);
         slots[idx].pending.is_some() || slots[idx].in_flight.is_some()
     }
 
     /// Takes every pending write.
-    pub fn take(&self) -> Vec<TakenWrite> {
+    pub(crate) fn take(&self) -> Vec<TakenWrite> {
         lock(&self.slots)
             .iter_mut()
             .enumerate()
@@ -221,21 +215,21 @@ impl Outputs {
     }
 
     /// The newest value requested for field `idx`.
-    pub fn latest(&self, idx: usize) -> Option<Value> {
+    pub(crate) fn latest(&self, idx: usize) -> Option<Value> {
         lock(&self.slots)[idx].latest.clone()
     }
 
     /// The generation of the newest write to field `idx`.
-    pub fn last_generation(&self, idx: usize) -> Option<u64> {
+    pub(crate) fn last_generation(&self, idx: usize) -> Option<u64> {
         lock(&self.slots)[idx].last_generation
     }
 
-    pub fn has_pending(&self) -> bool {
+    pub(crate) fn has_pending(&self) -> bool {
         lock(&self.slots).iter().any(|s| s.pending.is_some())
     }
 
     /// The newest value requested for each output that has one.
-    pub fn latest_requested(&self) -> Vec<(usize, Value)> {
+    pub(crate) fn latest_requested(&self) -> Vec<(usize, Value)> {
         lock(&self.slots)
             .iter()
             .enumerate()
@@ -243,13 +237,13 @@ impl Outputs {
             .collect()
     }
 
-    pub fn has_requested(&self) -> bool {
+    pub(crate) fn has_requested(&self) -> bool {
         lock(&self.slots).iter().any(|s| s.latest.is_some())
     }
 
     /// Records the outcome of a taken write that took `attempts` transactions; answers the
     /// field it was for, when it was the field's write on the bus.
-    pub fn finish(
+    pub(crate) fn finish(
         &self,
         generation: u64,
         result: Result<(), WriteError>,

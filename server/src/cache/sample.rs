@@ -10,11 +10,11 @@ use crate::codec::{CodecError, Value};
 use crate::link::frame::Exception;
 use crate::link::{LinkCode, LinkFault, TxError};
 
-pub use iogate_types::Quality;
+pub(crate) use iogate_types::Quality;
 
 /// Why a field could not be read.
 #[derive(Debug, Clone, thiserror::Error)]
-pub enum FieldError {
+pub(crate) enum FieldError {
     /// The device answered the read with an exception.
     #[error("{0}")]
     Exception(Exception),
@@ -34,7 +34,7 @@ pub enum FieldError {
 
 /// A field's latest value.
 #[derive(Debug, Clone)]
-pub struct Sample {
+pub(crate) struct Sample {
     /// The last good value; kept (and marked) when later reads fail.
     pub value: Option<Value>,
     pub quality: Quality,
@@ -59,7 +59,7 @@ impl Sample {
     }
 
     /// The quality as of `now`: a good value not refreshed within `stale_after` is stale.
-    pub fn quality_at(&self, now: Instant, stale_after: Duration) -> Quality {
+    pub(crate) fn quality_at(&self, now: Instant, stale_after: Duration) -> Quality {
         match (self.quality, self.updated) {
             (Quality::Good, Some((at, _))) if now.saturating_duration_since(at) > stale_after => {
                 Quality::Stale
@@ -71,7 +71,7 @@ impl Sample {
 
 /// A device's error code, as source document 000's device function blocks report it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DeviceCode {
+pub(crate) enum DeviceCode {
     Ok = 0,
     NoLink = 1,
     NoSlave = 2,
@@ -80,14 +80,14 @@ pub enum DeviceCode {
 
 impl DeviceCode {
     /// The number the APIs and metrics show.
-    pub fn code(self) -> i16 {
+    pub(crate) fn code(self) -> i16 {
         self as i16
     }
 }
 
 /// Device diagnostics, as source document 000's device function blocks report them.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Diagnostics {
+pub(crate) struct Diagnostics {
     pub connected: bool,
     pub error_code: DeviceCode,
     pub io_cycles: u64,
@@ -96,7 +96,7 @@ pub struct Diagnostics {
 
 /// Link diagnostics, as source document 000's `SerialLink` reports them.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct LinkDiagnostics {
+pub(crate) struct LinkDiagnostics {
     pub connected: bool,
     pub error_code: LinkCode,
 }

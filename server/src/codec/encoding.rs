@@ -22,7 +22,7 @@ pub enum Raw {
 
 impl Raw {
     /// The registers the raw value takes (coils and discrete inputs: none).
-    pub fn words(self) -> usize {
+    pub(crate) fn words(self) -> usize {
         match self {
             Raw::Bit => 0,
             Raw::RegisterBit(_) | Raw::RegisterFlag => 1,
@@ -48,7 +48,8 @@ pub struct Encoding {
 
 impl Encoding {
     /// An unscaled encoding in big-endian order.
-    pub fn plain(ty: IecType, raw: Raw) -> Self {
+    #[cfg(test)]
+    pub(crate) fn plain(ty: IecType, raw: Raw) -> Self {
         Encoding {
             ty,
             raw,
@@ -58,7 +59,7 @@ impl Encoding {
         }
     }
 
-    pub fn words(&self) -> usize {
+    pub(crate) fn words(&self) -> usize {
         self.raw.words()
     }
 
@@ -67,12 +68,12 @@ impl Encoding {
     }
 
     /// The value of a coil or discrete input.
-    pub fn decode_bit(&self, on: bool) -> Value {
+    pub(crate) fn decode_bit(&self, on: bool) -> Value {
         Value::Bool(on)
     }
 
     /// The value held in `regs` (exactly [`Encoding::words`] registers).
-    pub fn decode(&self, regs: &[u16]) -> Result<Value, CodecError> {
+    pub(crate) fn decode(&self, regs: &[u16]) -> Result<Value, CodecError> {
         if regs.len() != self.words() {
             return Err(CodecError::WrongLength {
                 expected: self.words(),
@@ -118,7 +119,7 @@ impl Encoding {
 
     /// The registers that hold `value` (for a coil: one register, 1 or 0; for a bit in a
     /// register: the register with only that bit set, see [`Encoding::apply_bit`]).
-    pub fn encode(&self, value: &Value) -> Result<Vec<u16>, CodecError> {
+    pub(crate) fn encode(&self, value: &Value) -> Result<Vec<u16>, CodecError> {
         if !value.is_of(self.ty) {
             return Err(CodecError::WrongType {
                 ty: self.ty,
@@ -177,7 +178,8 @@ impl Encoding {
     }
 
     /// `current` with this field's bit set to `on` and every other bit kept.
-    pub fn apply_bit(&self, current: u16, on: bool) -> u16 {
+    #[cfg(test)]
+    pub(crate) fn apply_bit(&self, current: u16, on: bool) -> u16 {
         match self.raw {
             Raw::RegisterBit(bit) if on => current | 1 << bit,
             Raw::RegisterBit(bit) => current & !(1 << bit),

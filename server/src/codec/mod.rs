@@ -8,19 +8,19 @@ mod encoding;
 
 use std::fmt;
 
-pub use encoding::{Encoding, Raw};
+pub(crate) use encoding::{Encoding, Raw};
 
-pub use iogate_types::{IecType, Value, ValueError, int_range};
+pub(crate) use iogate_types::{IecType, Value, ValueError, int_range};
 
 /// Registers as bytes, each register high byte first: the one place registers are
 /// unpacked (the codec, the Modbus map, raw transactions).
-pub fn register_bytes(regs: &[u16]) -> Vec<u8> {
+pub(crate) fn register_bytes(regs: &[u16]) -> Vec<u8> {
     regs.iter().flat_map(|r| r.to_be_bytes()).collect()
 }
 
 /// Bytes as registers, two by two, the first of each pair the high byte (an odd last byte
 /// is left out): the one place registers are packed.
-pub fn bytes_registers(bytes: &[u8]) -> Vec<u16> {
+pub(crate) fn bytes_registers(bytes: &[u8]) -> Vec<u16> {
     bytes
         .chunks_exact(2)
         .map(|pair| u16::from_be_bytes([pair[0], pair[1]]))
@@ -31,7 +31,7 @@ pub fn bytes_registers(bytes: &[u8]) -> Vec<u16> {
 /// else one. Without `word_count` every field takes one register (source document 000:
 /// "default 1 ... use 2 for 32-bit DINT/REAL values"); this is the count to add for the
 /// full width, and the size of a `raw_type`.
-pub fn full_words(ty: IecType) -> u16 {
+pub(crate) fn full_words(ty: IecType) -> u16 {
     match ty {
         IecType::Real => 2,
         IecType::Lreal => 4,
@@ -58,14 +58,14 @@ pub enum ByteOrder {
 }
 
 impl ByteOrder {
-    pub const ALL: [ByteOrder; 4] = [
+    pub(crate) const ALL: [ByteOrder; 4] = [
         ByteOrder::BigEndian,
         ByteOrder::LittleEndian,
         ByteOrder::SwapBytes,
         ByteOrder::SwapWords,
     ];
 
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             ByteOrder::BigEndian => "big-endian",
             ByteOrder::LittleEndian => "little-endian",
@@ -74,13 +74,9 @@ impl ByteOrder {
         }
     }
 
-    pub fn parse(name: &str) -> Option<ByteOrder> {
-        ByteOrder::ALL.into_iter().find(|o| o.name() == name)
-    }
-
     /// Reorders bytes between value order and register order. Every order is its own
     /// inverse, so the same call serves both directions.
-    pub fn reorder(self, bytes: &mut [u8]) {
+    pub(crate) fn reorder(self, bytes: &mut [u8]) {
         match self {
             ByteOrder::BigEndian => {}
             ByteOrder::LittleEndian => bytes.reverse(),

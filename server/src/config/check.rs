@@ -47,7 +47,7 @@ pub(super) fn check_ports(links: &[LinkConfig], report: &mut Report) {
 
 /// Checks devices against the profiles and links: profile exists, simulated devices have no
 /// link and slave id, Modbus devices have both.
-pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems> {
+pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems> {
     let mut report = Report::new(&config.source);
     for d in &config.devices {
         let ctx = format!("device {}", d.name);
@@ -115,7 +115,7 @@ pub fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems>
 
 /// The field index and value of one `on_client_loss.safe` entry: an output (or inout) of
 /// the profile, and a value of its type.
-pub fn safe_value(
+pub(crate) fn safe_value(
     profile: &crate::profile::Profile,
     field: &str,
     text: &str,
@@ -142,14 +142,14 @@ pub fn safe_value(
 
 /// What the security section gives the listeners.
 #[derive(Debug, Default)]
-pub struct Access {
+pub(crate) struct Access {
     pub tokens: crate::auth::Tokens,
     pub tls: Option<crate::tls::Tls>,
 }
 
 /// The security rules of a config: its tokens and TLS files load, and without tokens the
 /// HTTP and gRPC listeners stay on loopback unless `security.insecure: true` says otherwise.
-pub fn check_security(config: &Config) -> Result<Access, Problems> {
+pub(crate) fn check_security(config: &Config) -> Result<Access, Problems> {
     let mut report = Report::new(&config.source);
     let mut problems = Problems::default();
     let security = &config.security;

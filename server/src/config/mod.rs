@@ -4,11 +4,11 @@
 //! other and devices against the loaded profiles.
 
 mod check;
-pub mod modbus_server;
+pub(crate) mod modbus_server;
 mod parse;
-pub mod rules;
+pub(crate) mod rules;
 pub mod security;
-pub mod transactions;
+pub(crate) mod transactions;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -16,15 +16,14 @@ use std::time::Duration;
 
 use crate::yaml::{self, Problems, Report};
 
-pub use check::{Access, check_devices, check_security, safe_value};
-pub use rules::{DEFAULT_REFRESH, DEFAULT_RETRIES, DEFAULT_TIMEOUT, MAX_READ_REGISTERS};
+pub(crate) use check::{Access, check_devices, check_security, safe_value};
 
-pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
-pub const DEFAULT_GRPC: &str = "127.0.0.1:50051";
+pub(crate) const DEFAULT_HTTP: &str = "127.0.0.1:8080";
+pub(crate) const DEFAULT_GRPC: &str = "127.0.0.1:50051";
 /// How long an HTTP client may take to send a request's headers, by default.
-pub const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+pub(crate) const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a request body (at most 1 MiB) may take to arrive, by default.
-pub const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
+pub(crate) const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -92,7 +91,7 @@ pub enum Transport {
 
 impl SerialSettings {
     /// Whether a port is given (a declaration may leave it empty, for now).
-    pub fn is_configured_port(&self) -> bool {
+    pub(crate) fn is_configured_port(&self) -> bool {
         !self.port.trim().is_empty()
     }
 }
@@ -100,7 +99,7 @@ impl SerialSettings {
 impl Transport {
     /// Whether there is something to open: a serial port can be declared empty at run time
     /// (`SerialLink` error 1 of source document 000, "no port configured") and given later.
-    pub fn is_configured(&self) -> bool {
+    pub(crate) fn is_configured(&self) -> bool {
         match self {
             Transport::Serial(s) => !s.port.trim().is_empty(),
             Transport::Tcp { .. } => true,
@@ -109,7 +108,7 @@ impl Transport {
 
     /// Whether both reach the same port or TCP endpoint (whatever their other settings);
     /// unconfigured serial links are each their own.
-    pub fn same_endpoint(&self, other: &Transport) -> bool {
+    pub(crate) fn same_endpoint(&self, other: &Transport) -> bool {
         match (self, other) {
             (Transport::Serial(a), Transport::Serial(b)) => {
                 a.port == b.port && self.is_configured()
@@ -151,7 +150,7 @@ pub enum Framing {
 }
 
 impl Framing {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Framing::Mbap => "mbap",
             Framing::Rtu => "rtu",
@@ -167,7 +166,7 @@ pub enum Parity {
 }
 
 impl Parity {
-    pub fn letter(self) -> char {
+    pub(crate) fn letter(self) -> char {
         match self {
             Parity::None => 'N',
             Parity::Even => 'E',
@@ -228,7 +227,7 @@ pub enum WriteMode {
 }
 
 impl WriteMode {
-    pub fn parse(text: &str) -> Option<WriteMode> {
+    pub(crate) fn parse(text: &str) -> Option<WriteMode> {
         match text {
             "on_change" => Some(WriteMode::OnChange),
             "reconcile" => Some(WriteMode::Reconcile),
@@ -239,7 +238,7 @@ impl WriteMode {
 
 impl Config {
     /// A config with default listeners and nothing else.
-    pub fn empty(source: &str) -> Self {
+    pub(crate) fn empty(source: &str) -> Self {
         Config {
             http: DEFAULT_HTTP
                 .parse()
@@ -261,18 +260,10 @@ impl Config {
         }
     }
 
-    /// Reads and parses a config file.
-    pub fn load(path: &Path) -> Result<Config, Problems> {
-        match Config::load_partial(path) {
-            (Some(config), problems) if problems.is_empty() => Ok(config),
-            (_, problems) => Err(problems),
-        }
-    }
-
     /// Reads a config file as far as it can be read: what could be read (nothing when the
     /// file or its YAML cannot be), and every problem found, so the checks that follow can
     /// still look at the rest.
-    pub fn load_partial(path: &Path) -> (Option<Config>, Problems) {
+    pub(crate) fn load_partial(path: &Path) -> (Option<Config>, Problems) {
         let file = path.display().to_string();
         let text = match crate::text::read_file(path) {
             Ok(text) => text,
@@ -316,7 +307,7 @@ pub fn parse(file: &str, text: &str) -> Result<Config, Problems> {
 }
 
 /// Parses config text as far as it can be read, with every problem found.
-pub fn parse_partial(file: &str, text: &str) -> (Option<Config>, Problems) {
+pub(crate) fn parse_partial(file: &str, text: &str) -> (Option<Config>, Problems) {
     let mut report = Report::new(file);
     let config =
         yaml::parse(text, &mut report).and_then(|root| parse::read_config(&root, &mut report));

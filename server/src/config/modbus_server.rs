@@ -27,8 +27,8 @@ const KEYS: &[&str] = &[
 const MAP_KEYS: &[&str] = &["at", "field"];
 const FORWARD_KEYS: &[&str] = &["unit_ids", "link"];
 
-pub const DEFAULT_MAX_CONNECTIONS: usize = 16;
-pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 16;
+pub(crate) const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 
 /// The three address maps of source document 001.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -43,7 +43,7 @@ pub enum AddressSpace {
 }
 
 impl AddressSpace {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             AddressSpace::Linux => "linux",
             AddressSpace::Esp32 => "esp32",

@@ -10,24 +10,24 @@ use std::time::Duration;
 use super::{Framing, Parity, SerialSettings};
 use crate::profile::{Profile, Protocol};
 
-pub const DEFAULT_TCP_PORT: u16 = 502;
-pub const DEFAULT_REFRESH: Duration = Duration::from_millis(100);
-pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(200);
-pub const DEFAULT_RETRIES: u32 = 1;
-pub const MAX_RETRIES: u32 = 10;
+pub(crate) const DEFAULT_TCP_PORT: u16 = 502;
+pub(crate) const DEFAULT_REFRESH: Duration = Duration::from_millis(100);
+pub(crate) const DEFAULT_TIMEOUT: Duration = Duration::from_millis(200);
+pub(crate) const DEFAULT_RETRIES: u32 = 1;
+pub(crate) const MAX_RETRIES: u32 = 10;
 /// Registers per read transaction (the Modbus limit; coils are limited separately to 2000).
-pub const MAX_READ_REGISTERS: u16 = 125;
-pub const DEFAULT_DATA_BITS: u8 = 8;
-pub const DEFAULT_STOP_BITS: u8 = 1;
-pub const BAUD_RATES: RangeInclusive<u32> = 300..=4_000_000;
-pub const DATA_BITS: [u8; 2] = [7, 8];
-pub const STOP_BITS: [u8; 2] = [1, 2];
-pub const SLAVE_IDS: RangeInclusive<u32> = 1..=247;
-pub const TCP_PORTS: RangeInclusive<u32> = 1..=65535;
+pub(crate) const MAX_READ_REGISTERS: u16 = 125;
+pub(crate) const DEFAULT_DATA_BITS: u8 = 8;
+pub(crate) const DEFAULT_STOP_BITS: u8 = 1;
+pub(crate) const BAUD_RATES: RangeInclusive<u32> = 300..=4_000_000;
+pub(crate) const DATA_BITS: [u8; 2] = [7, 8];
+pub(crate) const STOP_BITS: [u8; 2] = [1, 2];
+pub(crate) const SLAVE_IDS: RangeInclusive<u32> = 1..=247;
+pub(crate) const TCP_PORTS: RangeInclusive<u32> = 1..=65535;
 /// The shortest refresh rate and timeout.
-pub const MIN_PERIOD: Duration = Duration::from_millis(1);
+pub(crate) const MIN_PERIOD: Duration = Duration::from_millis(1);
 /// The longest extra silence between frames: beyond it a line would do little else.
-pub const MAX_GUARD_TIME: Duration = Duration::from_secs(1);
+pub(crate) const MAX_GUARD_TIME: Duration = Duration::from_secs(1);
 
 /// A rule a link or a device breaks. Each names the setting it concerns ([`RuleError::key`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -84,7 +84,7 @@ pub enum RuleError {
 
 impl RuleError {
     /// The setting the rule is about, as the config file spells it.
-    pub fn key(&self) -> &'static str {
+    pub(crate) fn key(&self) -> &'static str {
         match self {
             RuleError::NoPort => "port",
             RuleError::Baud(_) => "baud",
@@ -106,11 +106,11 @@ impl RuleError {
 }
 
 /// The longest name of a link, device or transaction.
-pub const MAX_NAME: usize = 64;
+pub(crate) const MAX_NAME: usize = 64;
 
 /// A link, device or transaction name: 1-64 of `A-Z a-z 0-9 _ - .`, not starting with `-` or
 /// `.` (so no `..`, no `/`, nothing a path or a log line could misread).
-pub fn name(text: &str) -> Result<(), RuleError> {
+pub(crate) fn name(text: &str) -> Result<(), RuleError> {
     let ok = !text.is_empty()
         && text.len() <= MAX_NAME
         && text
@@ -125,7 +125,7 @@ pub fn name(text: &str) -> Result<(), RuleError> {
 }
 
 /// `N`, `E`, `O` (or `none`, `even`, `odd`), in any case.
-pub fn parse_parity(text: &str) -> Result<Parity, RuleError> {
+pub(crate) fn parse_parity(text: &str) -> Result<Parity, RuleError> {
     match text.to_ascii_uppercase().as_str() {
         "N" | "NONE" => Ok(Parity::None),
         "E" | "EVEN" => Ok(Parity::Even),
@@ -135,7 +135,7 @@ pub fn parse_parity(text: &str) -> Result<Parity, RuleError> {
 }
 
 /// `mbap` (Modbus TCP) or `rtu` (RTU frames over a raw socket).
-pub fn parse_framing(text: &str) -> Result<Framing, RuleError> {
+pub(crate) fn parse_framing(text: &str) -> Result<Framing, RuleError> {
     match text {
         "mbap" => Ok(Framing::Mbap),
         "rtu" => Ok(Framing::Rtu),
@@ -146,16 +146,16 @@ pub fn parse_framing(text: &str) -> Result<Framing, RuleError> {
 /// The most bits a character of a Modbus serial line has: a start bit, 8 data bits, a
 /// parity bit and a stop bit, or no parity and 2 stop bits (the Modbus serial line
 /// specification's 11-bit character).
-pub const MAX_CHARACTER_BITS: u32 = 11;
+pub(crate) const MAX_CHARACTER_BITS: u32 = 11;
 
 /// The bits one character takes on the line.
-pub fn character_bits(data_bits: u8, parity: Parity, stop_bits: u8) -> u32 {
+pub(crate) fn character_bits(data_bits: u8, parity: Parity, stop_bits: u8) -> u32 {
     1 + u32::from(data_bits) + u32::from(parity != Parity::None) + u32::from(stop_bits)
 }
 
 /// A serial line's settings as given (unchecked numbers, the parity as parsed), checked:
 /// every broken rule at once.
-pub fn serial(
+pub(crate) fn serial(
     port: String,
     baud: u64,
     parity: Result<Parity, RuleError>,
@@ -210,7 +210,7 @@ pub fn serial(
 }
 
 /// A TCP endpoint's host and port, checked.
-pub fn tcp_endpoint(host: &str, port: u64) -> Result<u16, Vec<RuleError>> {
+pub(crate) fn tcp_endpoint(host: &str, port: u64) -> Result<u16, Vec<RuleError>> {
     let mut errors = Vec::new();
     if host.trim().is_empty() {
         errors.push(RuleError::NoHost);
@@ -229,7 +229,7 @@ pub fn tcp_endpoint(host: &str, port: u64) -> Result<u16, Vec<RuleError>> {
     }
 }
 
-pub fn guard_time(d: Duration) -> Result<Duration, RuleError> {
+pub(crate) fn guard_time(d: Duration) -> Result<Duration, RuleError> {
     if d > MAX_GUARD_TIME {
         Err(RuleError::GuardTime(d))
     } else {
@@ -238,7 +238,7 @@ pub fn guard_time(d: Duration) -> Result<Duration, RuleError> {
 }
 
 /// A refresh rate or timeout (`key` names which), at least [`MIN_PERIOD`].
-pub fn period(key: &'static str, d: Duration) -> Result<Duration, RuleError> {
+pub(crate) fn period(key: &'static str, d: Duration) -> Result<Duration, RuleError> {
     if d < MIN_PERIOD {
         Err(RuleError::TooShort(key))
     } else {
@@ -248,7 +248,11 @@ pub fn period(key: &'static str, d: Duration) -> Result<Duration, RuleError> {
 
 /// How a device of `profile` is bound: a simulated device has neither link nor slave id; a
 /// Modbus device needs both, the slave id within 1-247.
-pub fn binding(profile: &Profile, link: Option<&str>, slave_id: Option<u64>) -> Vec<RuleError> {
+pub(crate) fn binding(
+    profile: &Profile,
+    link: Option<&str>,
+    slave_id: Option<u64>,
+) -> Vec<RuleError> {
     let mut errors = Vec::new();
     if profile.protocol == Protocol::Simulated {
         if let Some(link) = link {
@@ -274,7 +278,7 @@ pub fn binding(profile: &Profile, link: Option<&str>, slave_id: Option<u64>) -> 
 }
 
 /// A Modbus slave address: 1-247 (0 is broadcast, 248-255 reserved).
-pub fn slave_id(id: u64) -> Result<u8, RuleError> {
+pub(crate) fn slave_id(id: u64) -> Result<u8, RuleError> {
     u8::try_from(id)
         .ok()
         .filter(|i| SLAVE_IDS.contains(&u32::from(*i)))
@@ -293,7 +297,7 @@ pub struct Mismatch {
 }
 
 /// Every setting of `want` that differs from `have` on the same port.
-pub fn serial_mismatches(have: &SerialSettings, want: &SerialSettings) -> Vec<Mismatch> {
+pub(crate) fn serial_mismatches(have: &SerialSettings, want: &SerialSettings) -> Vec<Mismatch> {
     [
         ("Baudrate", have.baud.to_string(), want.baud.to_string()),
         (

@@ -12,7 +12,7 @@ const TLS_KEYS: &[&str] = &["cert", "key", "client_ca"];
 const DECLARE_KEYS: &[&str] = &["serial_ports", "tcp_hosts"];
 
 /// Serial ports a run-time declaration may open when none are configured.
-pub const DEFAULT_SERIAL_PORTS: &[&str] = &[
+pub(crate) const DEFAULT_SERIAL_PORTS: &[&str] = &[
     "/dev/ttyS*",
     "/dev/ttyUSB*",
     "/dev/ttyACM*",
@@ -55,7 +55,7 @@ impl HostRule {
     }
 
     /// Whether `host:port` is allowed by this rule.
-    pub fn allows(&self, host: &str, port: u16) -> bool {
+    pub(crate) fn allows(&self, host: &str, port: u16) -> bool {
         match self {
             HostRule::Network { addr, prefix } => {
                 let Ok(ip) = host.parse::<IpAddr>() else {
@@ -102,7 +102,7 @@ impl Default for DeclarePolicy {
 }
 
 /// `*` matches any run of characters (also `/`); everything else itself.
-pub fn glob(pattern: &str, text: &str) -> bool {
+pub(crate) fn glob(pattern: &str, text: &str) -> bool {
     match pattern.split_once('*') {
         None => pattern == text,
         Some((head, rest)) => {
@@ -117,11 +117,11 @@ pub fn glob(pattern: &str, text: &str) -> bool {
 }
 
 impl DeclarePolicy {
-    pub fn allows_serial(&self, port: &str) -> bool {
+    pub(crate) fn allows_serial(&self, port: &str) -> bool {
         self.serial_ports.iter().any(|p| glob(p, port))
     }
 
-    pub fn allows_tcp(&self, host: &str, port: u16) -> bool {
+    pub(crate) fn allows_tcp(&self, host: &str, port: u16) -> bool {
         self.tcp_hosts.iter().any(|r| r.allows(host, port))
     }
 }
@@ -141,7 +141,7 @@ pub struct SecurityConfig {
 
 impl SecurityConfig {
     /// Makes the relative paths relative to `base`, the config file's directory.
-    pub fn resolve(&mut self, base: &std::path::Path) {
+    pub(crate) fn resolve(&mut self, base: &std::path::Path) {
         let paths = [self.tokens_file.as_mut()].into_iter().chain(
             self.tls
                 .iter_mut()

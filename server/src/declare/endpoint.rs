@@ -8,7 +8,7 @@ use crate::config::{Framing, Parity, Transport};
 /// A link's endpoint as a declaration gives it: numbers unchecked, zero or empty for "the
 /// default" (8 data bits, 1 stop bit, no parity, port 502, MBAP framing).
 #[derive(Debug, Clone, PartialEq)]
-pub enum Endpoint {
+pub(crate) enum Endpoint {
     Serial {
         port: String,
         baud: u64,
@@ -25,7 +25,7 @@ pub enum Endpoint {
 
 impl Endpoint {
     /// The transport, checked by the same rules as the config file's.
-    pub fn transport(&self) -> Result<Transport, DeclareError> {
+    pub(crate) fn transport(&self) -> Result<Transport, DeclareError> {
         let or = |n: u64, default: u8| if n == 0 { u64::from(default) } else { n };
         match self {
             Endpoint::Serial {

@@ -134,7 +134,7 @@ pub enum DeclareError {
 }
 
 impl DeclareError {
-    pub fn refusal(&self) -> Refusal {
+    pub(crate) fn refusal(&self) -> Refusal {
         match self {
             DeclareError::Rules(_)
             | DeclareError::BadName { .. }

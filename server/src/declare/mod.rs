@@ -17,12 +17,11 @@ use crate::profile::Protocol;
 use crate::runtime::Tasks;
 use crate::text::quote;
 
-pub use crate::cache::Refusal;
-pub use endpoint::Endpoint;
-pub use error::{Conflict, DeclareError};
+pub(crate) use endpoint::Endpoint;
+pub(crate) use error::{Conflict, DeclareError};
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct LinkDeclaration {
+pub(crate) struct LinkDeclaration {
     /// Optional: by default the name is made from the port (`/dev/ttyUSB0` → `dev_ttyUSB0`)
     /// or the endpoint (`192.0.2.10_502`).
     pub name: Option<String>,
@@ -31,7 +30,7 @@ pub struct LinkDeclaration {
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct DeviceDeclaration {
+pub(crate) struct DeviceDeclaration {
     pub name: String,
     pub profile: String,
     /// A link name, or a serial port path as a `SerialLink` instance's `port` gives it.
@@ -43,7 +42,7 @@ pub struct DeviceDeclaration {
 
 /// What a declaration resolved to, and whether it was created by it.
 #[derive(Debug, Clone)]
-pub struct Ensured<T> {
+pub(crate) struct Ensured<T> {
     pub value: Arc<T>,
     pub created: bool,
 }
@@ -72,13 +71,13 @@ fn valid_name(what: &'static str, name: &str) -> Result<(), DeclareError> {
 }
 
 /// The most links and devices declarations may add to a gateway.
-pub const MAX_DECLARED_LINKS: usize = 64;
-pub const MAX_DECLARED_DEVICES: usize = 1024;
+pub(crate) const MAX_DECLARED_LINKS: usize = 64;
+pub(crate) const MAX_DECLARED_DEVICES: usize = 1024;
 /// The timeouts a declared device may have.
-pub const TIMEOUTS: std::ops::RangeInclusive<Duration> =
+pub(crate) const TIMEOUTS: std::ops::RangeInclusive<Duration> =
     Duration::from_millis(10)..=Duration::from_secs(10);
 /// The refresh rates a declared device may have.
-pub const REFRESH_RATES: std::ops::RangeInclusive<Duration> =
+pub(crate) const REFRESH_RATES: std::ops::RangeInclusive<Duration> =
     Duration::from_millis(1)..=Duration::from_secs(3600);
 
 /// Whether a declaration may reach `transport`: a serial port matching the allowed patterns
@@ -151,7 +150,7 @@ fn link_conflicts(existing: &Link, declared: &Transport, name: Option<&String>) 
 
 /// Declares a link: returns the link with the same port (or endpoint) if its settings agree,
 /// creates it (and starts its task) if there is none.
-pub fn ensure_link(
+pub(crate) fn ensure_link(
     cache: &Cache,
     tasks: &Tasks,
     policy: &DeclarePolicy,
@@ -238,7 +237,7 @@ pub fn ensure_link(
 
 /// Removes a device declared at run time: it is no longer polled, its simulator stops, and
 /// writes still waiting for it fail. A device from the config file stays.
-pub fn remove_device(cache: &Cache, name: &str) -> Result<Arc<Device>, DeclareError> {
+pub(crate) fn remove_device(cache: &Cache, name: &str) -> Result<Arc<Device>, DeclareError> {
     let device = cache.change(|registry: &mut Registry| {
         let device = registry
             .device(name)
@@ -259,7 +258,7 @@ pub fn remove_device(cache: &Cache, name: &str) -> Result<Arc<Device>, DeclareEr
 
 /// Removes a link declared at run time once no device (and nothing in `users`, the standing
 /// transactions on it) uses it; its task stops and closes the port or socket.
-pub fn remove_link(
+pub(crate) fn remove_link(
     cache: &Cache,
     name: &str,
     users: Vec<String>,
@@ -346,7 +345,7 @@ fn device_conflicts(
 /// error 1 (no link) or 2 (no slave) until it is declared again with them, as the device
 /// function blocks of source document 000 do when called before their link is set. (A
 /// config file refuses such devices: a file has no "later".)
-pub fn ensure_device(
+pub(crate) fn ensure_device(
     cache: &Cache,
     tasks: &Tasks,
     decl: DeviceDeclaration,
@@ -469,6 +468,7 @@ pub fn ensure_device(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cache::Refusal;
     use crate::config::{Framing, Parity};
     use crate::metrics::Metrics;
     use tokio_util::sync::CancellationToken;

@@ -18,7 +18,7 @@ pub enum Function {
 }
 
 impl Function {
-    pub const ALL: [Function; 8] = [
+    pub(crate) const ALL: [Function; 8] = [
         Function::ReadCoils,
         Function::ReadDiscreteInputs,
         Function::ReadHoldingRegisters,
@@ -29,12 +29,12 @@ impl Function {
         Function::WriteMultipleRegisters,
     ];
 
-    pub fn code(self) -> u8 {
+    pub(crate) fn code(self) -> u8 {
         self as u8
     }
 
     /// A short label for logs and metrics, e.g. `fc03`.
-    pub fn label(self) -> &'static str {
+    pub(crate) fn label(self) -> &'static str {
         match self {
             Function::ReadCoils => "fc01",
             Function::ReadDiscreteInputs => "fc02",
@@ -55,10 +55,10 @@ impl fmt::Display for Function {
 }
 
 /// Modbus limits per transaction.
-pub const MAX_READ_BITS: u16 = 2000;
-pub const MAX_READ_REGISTERS: u16 = 125;
-pub const MAX_WRITE_BITS: u16 = 1968;
-pub const MAX_WRITE_REGISTERS: u16 = 123;
+pub(crate) const MAX_READ_BITS: u16 = 2000;
+pub(crate) const MAX_READ_REGISTERS: u16 = 125;
+pub(crate) const MAX_WRITE_BITS: u16 = 1968;
+pub(crate) const MAX_WRITE_REGISTERS: u16 = 123;
 
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Request {
@@ -74,7 +74,7 @@ pub enum Request {
 
 impl Request {
     /// Whether the request changes the device (functions 05, 06, 15, 16).
-    pub fn is_write(&self) -> bool {
+    pub(crate) fn is_write(&self) -> bool {
         matches!(
             self,
             Request::WriteSingleCoil { .. }
@@ -98,13 +98,13 @@ pub enum Response {
 pub struct Exception(pub u8);
 
 impl Exception {
-    pub const ILLEGAL_FUNCTION: Exception = Exception(1);
-    pub const ILLEGAL_DATA_ADDRESS: Exception = Exception(2);
-    pub const ILLEGAL_DATA_VALUE: Exception = Exception(3);
-    pub const ACKNOWLEDGE: Exception = Exception(5);
-    pub const SERVER_DEVICE_BUSY: Exception = Exception(6);
+    pub(crate) const ILLEGAL_FUNCTION: Exception = Exception(1);
+    pub(crate) const ILLEGAL_DATA_ADDRESS: Exception = Exception(2);
+    pub(crate) const ILLEGAL_DATA_VALUE: Exception = Exception(3);
+    pub(crate) const ACKNOWLEDGE: Exception = Exception(5);
+    pub(crate) const SERVER_DEVICE_BUSY: Exception = Exception(6);
 
-    pub fn describe(self) -> &'static str {
+    pub(crate) fn describe(self) -> &'static str {
         match self.0 {
             1 => "illegal function",
             2 => "illegal data address",
@@ -162,7 +162,7 @@ pub enum Malformed {
 
 /// Why a response was not accepted.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum ResponseError {
+pub(crate) enum ResponseError {
     #[error("the device answered with {0}")]
     Exception(Exception),
     #[error("invalid response: {0}")]
@@ -170,7 +170,7 @@ pub enum ResponseError {
 }
 
 impl Request {
-    pub fn function(&self) -> Function {
+    pub(crate) fn function(&self) -> Function {
         match self {
             Request::ReadCoils { .. } => Function::ReadCoils,
             Request::ReadDiscreteInputs { .. } => Function::ReadDiscreteInputs,
@@ -183,7 +183,7 @@ impl Request {
         }
     }
 
-    pub fn address(&self) -> u16 {
+    pub(crate) fn address(&self) -> u16 {
         match *self {
             Request::ReadCoils { address, .. }
             | Request::ReadDiscreteInputs { address, .. }
@@ -196,7 +196,7 @@ impl Request {
         }
     }
 
-    pub fn is_read(&self) -> bool {
+    pub(crate) fn is_read(&self) -> bool {
         matches!(
             self,
             Request::ReadCoils { .. }
@@ -207,7 +207,7 @@ impl Request {
     }
 
     /// Items (bits or registers) the request covers.
-    pub fn count(&self) -> u16 {
+    pub(crate) fn count(&self) -> u16 {
         match self {
             Request::ReadCoils { count, .. }
             | Request::ReadDiscreteInputs { count, .. }
@@ -220,7 +220,7 @@ impl Request {
     }
 
     /// The PDU: function code and data.
-    pub fn encode(&self, out: &mut Vec<u8>) {
+    pub(crate) fn encode(&self, out: &mut Vec<u8>) {
         out.push(self.function().code());
         out.extend_from_slice(&self.address().to_be_bytes());
         match self {
@@ -253,7 +253,7 @@ impl Request {
     }
 
     /// The length of a good response PDU (function code included).
-    pub fn response_len(&self) -> usize {
+    pub(crate) fn response_len(&self) -> usize {
         match self {
             Request::ReadCoils { count, .. } | Request::ReadDiscreteInputs { count, .. } => {
                 2 + usize::from(*count).div_ceil(8)
@@ -265,7 +265,7 @@ impl Request {
     }
 
     /// Parses a response PDU to this request.
-    pub fn parse_response(&self, pdu: &[u8]) -> Result<Response, ResponseError> {
+    pub(crate) fn parse_response(&self, pdu: &[u8]) -> Result<Response, ResponseError> {
         let invalid = |m: Malformed| Err(ResponseError::Invalid(m));
         let Some(&code) = pdu.first() else {
             return invalid(Malformed::EmptyPdu);
@@ -337,7 +337,7 @@ impl Request {
 impl Request {
     /// A request PDU as a master sends it (the server side): exception 01 for a function
     /// iogate does not serve, 03 for a quantity out of bounds or a malformed body.
-    pub fn parse(pdu: &[u8]) -> Result<Request, Exception> {
+    pub(crate) fn parse(pdu: &[u8]) -> Result<Request, Exception> {
         let Some((&code, body)) = pdu.split_first() else {
             return Err(Exception::ILLEGAL_FUNCTION);
         };
@@ -433,7 +433,7 @@ impl Request {
 
 impl Response {
     /// The response PDU answering `request` (the server side).
-    pub fn to_pdu(&self, request: &Request) -> Vec<u8> {
+    pub(crate) fn to_pdu(&self, request: &Request) -> Vec<u8> {
         let mut out = vec![request.function().code()];
         match self {
             Response::Bits(bits) => {
@@ -459,17 +459,17 @@ impl Response {
 }
 
 impl Exception {
-    pub const SERVER_DEVICE_FAILURE: Exception = Exception(4);
-    pub const GATEWAY_PATH_UNAVAILABLE: Exception = Exception(0x0A);
-    pub const GATEWAY_TARGET_FAILED: Exception = Exception(0x0B);
+    pub(crate) const SERVER_DEVICE_FAILURE: Exception = Exception(4);
+    pub(crate) const GATEWAY_PATH_UNAVAILABLE: Exception = Exception(0x0A);
+    pub(crate) const GATEWAY_TARGET_FAILED: Exception = Exception(0x0B);
 
     /// The exception response PDU to a request of function `code`.
-    pub fn to_pdu(self, code: u8) -> Vec<u8> {
+    pub(crate) fn to_pdu(self, code: u8) -> Vec<u8> {
         vec![code | 0x80, self.0]
     }
 }
 
-pub fn pack_bits(bits: &[bool]) -> Vec<u8> {
+pub(crate) fn pack_bits(bits: &[bool]) -> Vec<u8> {
     let mut out = vec![0u8; bits.len().div_ceil(8)];
     for (i, &b) in bits.iter().enumerate() {
         if b {
@@ -479,7 +479,7 @@ pub fn pack_bits(bits: &[bool]) -> Vec<u8> {
     out
 }
 
-pub fn unpack_bits(bytes: &[u8], count: usize) -> Vec<bool> {
+pub(crate) fn unpack_bits(bytes: &[u8], count: usize) -> Vec<bool> {
     (0..count)
         .map(|i| bytes[i / 8] >> (i % 8) & 1 == 1)
         .collect()
@@ -502,7 +502,7 @@ pub fn crc16(data: &[u8]) -> u16 {
 }
 
 /// A whole RTU frame: slave, PDU, CRC.
-pub fn rtu_frame(slave: u8, request: &Request) -> Vec<u8> {
+pub(crate) fn rtu_frame(slave: u8, request: &Request) -> Vec<u8> {
     let mut frame = Vec::with_capacity(9 + 2 * usize::from(request.count()));
     frame.push(slave);
     request.encode(&mut frame);

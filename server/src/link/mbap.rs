@@ -3,13 +3,13 @@
 //! (`api::modbus`) reads requests and sends answers with it.
 
 /// Bytes of the header: transaction id, protocol id, length, unit id.
-pub const HEADER_LEN: usize = 7;
+pub(crate) const HEADER_LEN: usize = 7;
 /// The longest length field: unit id plus a 253-byte PDU.
-pub const MAX_LENGTH: usize = 254;
+pub(crate) const MAX_LENGTH: usize = 254;
 
 /// A header as read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Header {
+pub(crate) struct Header {
     pub transaction: u16,
     pub unit: u8,
     /// Bytes of the PDU that follows (the length field less the unit id).
@@ -20,13 +20,13 @@ pub struct Header {
 /// step, and only a new connection recovers it.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("MBAP header with protocol {protocol} and length {length}")]
-pub struct Malformed {
+pub(crate) struct Malformed {
     pub protocol: u16,
     pub length: usize,
 }
 
 impl Header {
-    pub fn parse(bytes: &[u8; HEADER_LEN]) -> Result<Header, Malformed> {
+    pub(crate) fn parse(bytes: &[u8; HEADER_LEN]) -> Result<Header, Malformed> {
         let protocol = u16::from_be_bytes([bytes[2], bytes[3]]);
         let length = usize::from(u16::from_be_bytes([bytes[4], bytes[5]]));
         if protocol != 0 || !(2..=MAX_LENGTH).contains(&length) {
@@ -41,7 +41,7 @@ impl Header {
 }
 
 /// A whole frame: the header for `pdu`, then `pdu`.
-pub fn frame(transaction: u16, unit: u8, pdu: &[u8]) -> Vec<u8> {
+pub(crate) fn frame(transaction: u16, unit: u8, pdu: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER_LEN + pdu.len());
     out.extend_from_slice(&transaction.to_be_bytes());
     out.extend_from_slice(&[0, 0]);

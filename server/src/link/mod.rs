@@ -2,10 +2,10 @@
 //! transactions on it. Bytes belong here; values belong to `codec`.
 
 pub mod frame;
-pub mod mbap;
+pub(crate) mod mbap;
 pub mod precise;
 pub mod rtu;
-pub mod tcp;
+pub(crate) mod tcp;
 pub mod timing;
 
 use std::io;
@@ -23,7 +23,7 @@ use timing::LineTiming;
 
 /// A link's error code, as source document 000's `SerialLink` reports it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LinkCode {
+pub(crate) enum LinkCode {
     Ok = 0,
     NoPort = 1,
     OpenFailed = 2,
@@ -32,7 +32,7 @@ pub enum LinkCode {
 
 impl LinkCode {
     /// The number the APIs and metrics show.
-    pub fn code(self) -> i16 {
+    pub(crate) fn code(self) -> i16 {
         self as i16
     }
 }
@@ -57,7 +57,7 @@ pub enum LinkFault {
 }
 
 impl LinkFault {
-    pub fn code(&self) -> LinkCode {
+    pub(crate) fn code(&self) -> LinkCode {
         match self {
             LinkFault::NoPort => LinkCode::NoPort,
             LinkFault::Lost(_) => LinkCode::Lost,
@@ -113,7 +113,7 @@ impl From<frame::ResponseError> for TxError {
 
 impl TxError {
     /// A label for metrics.
-    pub fn outcome(&self) -> &'static str {
+    pub(crate) fn outcome(&self) -> &'static str {
         match self {
             TxError::Exception(_) => "exception",
             TxError::Timeout => "timeout",
@@ -125,13 +125,13 @@ impl TxError {
 }
 
 /// An open connection.
-pub enum Connection {
+pub(crate) enum Connection {
     Rtu(RtuTransport),
     Mbap(MbapTransport),
 }
 
 impl Connection {
-    pub async fn transact(
+    pub(crate) async fn transact(
         &mut self,
         slave: u8,
         request: &Request,
@@ -143,7 +143,7 @@ impl Connection {
         }
     }
 
-    pub fn counters(&self) -> Counters {
+    pub(crate) fn counters(&self) -> Counters {
         match self {
             Connection::Rtu(t) => t.counters,
             Connection::Mbap(t) => t.counters,
@@ -152,7 +152,7 @@ impl Connection {
 }
 
 /// Opens the link's port or socket.
-pub async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, LinkFault> {
+pub(crate) async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, LinkFault> {
     match &config.transport {
         Transport::Serial(s) => {
             if s.port.trim().is_empty() {

@@ -20,7 +20,7 @@ use tokio::time::Instant;
 
 /// How long before a deadline the timerfd hands over to the clock: above the wake-up
 /// latency of nearly every timerfd expiration.
-pub const FINISH: Duration = Duration::from_micros(250);
+pub(crate) const FINISH: Duration = Duration::from_micros(250);
 
 /// A timer for one user at a time (a link's transport keeps one).
 #[derive(Default)]
@@ -129,16 +129,16 @@ mod linux {
     use nix::sys::timerfd::{ClockId, Expiration, TimerFd, TimerFlags, TimerSetTimeFlags};
 
     /// A non-blocking CLOCK_MONOTONIC timerfd (tokio's clock is the monotonic clock).
-    pub struct Fd(TimerFd);
+    pub(crate) struct Fd(TimerFd);
 
     impl Fd {
-        pub fn new() -> io::Result<Fd> {
+        pub(crate) fn new() -> io::Result<Fd> {
             let flags = TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC;
             Ok(Fd(TimerFd::new(ClockId::CLOCK_MONOTONIC, flags)?))
         }
 
         /// Fires once, `after` from now.
-        pub fn arm(&self, after: Duration) -> io::Result<()> {
+        pub(crate) fn arm(&self, after: Duration) -> io::Result<()> {
             // A zero expiration would disarm it.
             let after = after.max(Duration::from_nanos(1));
             let expiration = Expiration::OneShot(TimeSpec::from_duration(after));
@@ -146,7 +146,7 @@ mod linux {
         }
 
         /// Consumes the expiration; `WouldBlock` when it has not fired.
-        pub fn expired(&self) -> io::Result<()> {
+        pub(crate) fn expired(&self) -> io::Result<()> {
             Ok(self.0.wait()?)
         }
     }

@@ -37,9 +37,9 @@ use super::{ByteStream, Counters, TxError};
 /// Room for the longest frame a byte count can announce: 5 + 255 bytes.
 const MAX_FRAME: usize = 260;
 /// The longest late-reply window.
-pub const MAX_LATE_WINDOW: Duration = Duration::from_millis(50);
+pub(crate) const MAX_LATE_WINDOW: Duration = Duration::from_millis(50);
 /// How long past its timeout a silent slave's answer is still waited out, at most.
-pub const MAX_LATE_HORIZON: Duration = Duration::from_secs(1);
+pub(crate) const MAX_LATE_HORIZON: Duration = Duration::from_secs(1);
 
 /// A request that timed out: its answer may still come, until `until`.
 #[derive(Debug, Clone, Copy)]

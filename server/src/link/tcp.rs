@@ -12,14 +12,14 @@ use super::frame::{Malformed, Request, Response};
 use super::mbap;
 use super::{ByteStream, Counters, TxError};
 
-pub struct MbapTransport {
+pub(crate) struct MbapTransport {
     io: Box<dyn ByteStream>,
     next_id: u16,
     pub counters: Counters,
 }
 
 impl MbapTransport {
-    pub fn new(io: Box<dyn ByteStream>) -> Self {
+    pub(crate) fn new(io: Box<dyn ByteStream>) -> Self {
         MbapTransport {
             io,
             next_id: 1,
@@ -27,7 +27,7 @@ impl MbapTransport {
         }
     }
 
-    pub async fn transact(
+    pub(crate) async fn transact(
         &mut self,
         unit: u8,
         request: &Request,

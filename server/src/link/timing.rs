@@ -5,7 +5,7 @@ use std::time::Duration;
 use crate::config::{Parity, SerialSettings};
 
 /// The fixed inter-frame silence above 19200 baud (Modbus over serial line, 2.5.1.1).
-pub const FAST_SILENCE: Duration = Duration::from_micros(1750);
+pub(crate) const FAST_SILENCE: Duration = Duration::from_micros(1750);
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LineTiming {

@@ -25,7 +25,7 @@ pub enum Diag {
 }
 
 impl Diag {
-    pub const ALL: [Diag; 4] = [
+    pub(crate) const ALL: [Diag; 4] = [
         Diag::Connected,
         Diag::ErrorCode,
         Diag::IoCycles,
@@ -33,7 +33,7 @@ impl Diag {
     ];
 
     /// The name and type of the function block's diagnostic output.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Diag::Connected => "connected",
             Diag::ErrorCode => "error_code",
@@ -42,7 +42,7 @@ impl Diag {
         }
     }
 
-    pub fn ty(self) -> IecType {
+    pub(crate) fn ty(self) -> IecType {
         match self {
             Diag::Connected => IecType::Bool,
             Diag::ErrorCode => IecType::Int,
@@ -139,7 +139,7 @@ fn one_register(profile: &Profile, idx: usize) -> bool {
 
 /// Resolves the server's map against the config's devices and the profiles; every problem
 /// with its line.
-pub fn plan(config: &Config, catalog: &Catalog) -> Result<Option<Plan>, Problems> {
+pub(crate) fn plan(config: &Config, catalog: &Catalog) -> Result<Option<Plan>, Problems> {
     let Some(server) = &config.modbus_server else {
         return Ok(None);
     };

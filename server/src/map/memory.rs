@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 /// The memory image: one bool per coil, one word per holding register.
 #[derive(Debug)]
-pub struct Memory {
+pub(crate) struct Memory {
     inner: Mutex<Image>,
     file: Option<PathBuf>,
 }
@@ -31,7 +31,7 @@ struct Saved {
 
 /// Why memory could not be kept.
 #[derive(Debug, thiserror::Error)]
-pub enum MemoryError {
+pub(crate) enum MemoryError {
     #[error("cannot read the memory file {path}: {reason}")]
     Read { path: String, reason: String },
     #[error("cannot write the memory file {path}: {reason}")]
@@ -41,7 +41,11 @@ pub enum MemoryError {
 impl Memory {
     /// Memory for `coils` coils and `registers` holding registers, loaded from `file` when
     /// it exists.
-    pub fn new(coils: usize, registers: usize, file: Option<PathBuf>) -> Result<Self, MemoryError> {
+    pub(crate) fn new(
+        coils: usize,
+        registers: usize,
+        file: Option<PathBuf>,
+    ) -> Result<Self, MemoryError> {
         let mut image = Image {
             coils: vec![false; coils],
             registers: vec![0; registers],
@@ -75,7 +79,7 @@ impl Memory {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    pub fn coil(&self, address: u16) -> bool {
+    pub(crate) fn coil(&self, address: u16) -> bool {
         self.lock()
             .coils
             .get(usize::from(address))
@@ -83,7 +87,7 @@ impl Memory {
             .unwrap_or(false)
     }
 
-    pub fn register(&self, address: u16) -> u16 {
+    pub(crate) fn register(&self, address: u16) -> u16 {
         self.lock()
             .registers
             .get(usize::from(address))
@@ -92,7 +96,11 @@ impl Memory {
     }
 
     /// Sets coils and registers at once, and saves the image if it is kept in a file.
-    pub fn set(&self, coils: &[(u16, bool)], registers: &[(u16, u16)]) -> Result<(), MemoryError> {
+    pub(crate) fn set(
+        &self,
+        coils: &[(u16, bool)],
+        registers: &[(u16, u16)],
+    ) -> Result<(), MemoryError> {
         let snapshot = {
             let mut image = self.lock();
             for &(a, v) in coils {
@@ -114,7 +122,7 @@ impl Memory {
     }
 
     /// The set coils and the non-zero registers, by address.
-    pub fn contents(&self) -> (Vec<u16>, Vec<(u16, u16)>) {
+    pub(crate) fn contents(&self) -> (Vec<u16>, Vec<(u16, u16)>) {
         let image = self.lock();
         (
             (0..image.coils.len())

@@ -3,12 +3,11 @@
 //! how a value shows in a location's registers (`value`), and the gateway memory behind
 //! the unbound output and memory locations (`memory`).
 
-pub mod bind;
-pub mod memory;
+pub(crate) mod bind;
+pub(crate) mod memory;
 pub mod report;
-pub mod space;
-pub mod value;
+pub(crate) mod space;
+pub(crate) mod value;
 
-pub use bind::{Binding, Diag, Plan, Target, plan};
-pub use space::{Slot, Space, Table};
-pub use value::Repr;
+pub(crate) use bind::{Binding, Diag, Plan, Target, plan};
+pub(crate) use space::{Space, Table};

@@ -23,17 +23,13 @@ pub enum Table {
 }
 
 impl Table {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Table::Coils => "coil",
             Table::DiscreteInputs => "discrete input",
             Table::InputRegisters => "input register",
             Table::HoldingRegisters => "holding register",
         }
-    }
-
-    pub fn is_bits(self) -> bool {
-        matches!(self, Table::Coils | Table::DiscreteInputs)
     }
 }
 
@@ -67,7 +63,7 @@ pub struct Space {
 }
 
 impl Space {
-    pub fn of(kind: AddressSpace) -> Space {
+    pub(crate) fn of(kind: AddressSpace) -> Space {
         let m = |start, count| Memory { start, count };
         match kind {
             AddressSpace::Linux => Space {
@@ -98,7 +94,7 @@ impl Space {
     }
 
     /// The table and address of `at`, or why it has none in this space.
-    pub fn slot(&self, at: &Location) -> Result<Slot, String> {
+    pub(crate) fn slot(&self, at: &Location) -> Result<Slot, String> {
         let none = || {
             format!(
                 "{at} has no Modbus address in the {} address space",
@@ -161,7 +157,7 @@ impl Space {
     }
 
     /// How many bits or registers a table has in this space (addresses 0 to this minus 1).
-    pub fn table_len(&self, table: Table) -> u32 {
+    pub(crate) fn table_len(&self, table: Table) -> u32 {
         match table {
             Table::Coils => self.coil_bytes * 8,
             Table::DiscreteInputs => self.input_bytes * 8,
@@ -175,7 +171,7 @@ impl Space {
 
     /// The location that starts at a holding register or bit address, for showing memory:
     /// `%QX`, `%QW`, `%MW`, `%MD` or `%ML` (a wider memory kind only at its first register).
-    pub fn location_at(&self, table: Table, address: u16) -> Option<Location> {
+    pub(crate) fn location_at(&self, table: Table, address: u16) -> Option<Location> {
         let a = u32::from(address);
         match table {
             Table::Coils => (a < self.table_len(table))
@@ -200,7 +196,7 @@ impl Space {
     }
 
     /// Every location of a kind in address order, for sequential (`auto`) binding.
-    pub fn locations(&self, area: Area, size: Size) -> impl Iterator<Item = Location> + '_ {
+    pub(crate) fn locations(&self, area: Area, size: Size) -> impl Iterator<Item = Location> + '_ {
         let count = match (area, size) {
             (Area::Input, Size::Bit) => self.input_bytes * 8,
             (Area::Output, Size::Bit) => self.coil_bytes * 8,

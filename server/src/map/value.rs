@@ -24,7 +24,7 @@ pub enum Repr {
 impl Repr {
     /// How a value of `ty` fits a location of `size`; `one_register` says the field is a
     /// REAL/LREAL stored on a single device register (scaled integer).
-    pub fn of(ty: IecType, size: Size, one_register: bool) -> Option<Repr> {
+    pub(crate) fn of(ty: IecType, size: Size, one_register: bool) -> Option<Repr> {
         use IecType as T;
         Some(match (size, ty) {
             (Size::Bit, T::Bool) => Repr::Bit,
@@ -52,7 +52,11 @@ impl Repr {
     /// The registers showing `value` (zeros when there is none yet), or `None` when the
     /// value does not fit the location (a TIME past ±2147483647 ms at `%MD`): such a value
     /// is refused, never clamped into a different number.
-    pub fn registers(self, value: Option<&Value>, encoding: Option<&Encoding>) -> Option<Vec<u16>> {
+    pub(crate) fn registers(
+        self,
+        value: Option<&Value>,
+        encoding: Option<&Encoding>,
+    ) -> Option<Vec<u16>> {
         let int = |min: i128, max: i128| {
             let n = value.and_then(Value::as_i128).unwrap_or(0);
             (min..=max).contains(&n).then_some(n)
@@ -80,7 +84,7 @@ impl Repr {
 
     /// The value of type `ty` a master's registers (or bit, as 0/1) stand for, or why they
     /// do not fit the field.
-    pub fn value(
+    pub(crate) fn value(
         self,
         regs: &[u16],
         ty: IecType,

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 
 /// A text exposition format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Format {
+pub(crate) enum Format {
     /// `application/openmetrics-text; version=1.0.0`.
     OpenMetrics,
     /// `text/plain; version=0.0.4`.
@@ -20,7 +20,7 @@ impl Format {
     /// The format an `Accept` header asks for: OpenMetrics when it names
     /// `application/openmetrics-text` with a quality at least that of any other type it
     /// names; else (no header, `*/*`, `text/plain`, anything else) the Prometheus format.
-    pub fn negotiate(accept: Option<&str>) -> Format {
+    pub(crate) fn negotiate(accept: Option<&str>) -> Format {
         let Some(accept) = accept else {
             return Format::Prometheus;
         };
@@ -46,7 +46,7 @@ impl Format {
         }
     }
 
-    pub fn content_type(self) -> &'static str {
+    pub(crate) fn content_type(self) -> &'static str {
         match self {
             Format::OpenMetrics => "application/openmetrics-text; version=1.0.0; charset=utf-8",
             Format::Prometheus => "text/plain; version=0.0.4; charset=utf-8",
@@ -64,7 +64,7 @@ fn family_types(openmetrics: &str) -> HashMap<&str, &str> {
 }
 
 /// The Prometheus 0.0.4 text of an OpenMetrics 1.0 exposition.
-pub fn to_prometheus(openmetrics: &str) -> String {
+pub(crate) fn to_prometheus(openmetrics: &str) -> String {
     let types = family_types(openmetrics);
     // The name a family's HELP and TYPE lines carry in 0.0.4.
     let renamed = |name: &str| -> String {

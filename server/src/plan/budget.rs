@@ -9,20 +9,24 @@ use crate::link::frame::Request;
 use crate::link::timing::LineTiming;
 
 /// Bytes of an RTU request and its good response.
-pub fn rtu_sizes(request: &Request) -> (usize, usize) {
+pub(crate) fn rtu_sizes(request: &Request) -> (usize, usize) {
     let mut pdu = Vec::new();
     request.encode(&mut pdu);
     (pdu.len() + 3, request.response_len() + 3)
 }
 
 /// The bus time of one transaction: both frames, each after the silence and guard time.
-pub fn transaction_time(request: &Request, timing: &LineTiming, guard: Duration) -> Duration {
+pub(crate) fn transaction_time(
+    request: &Request,
+    timing: &LineTiming,
+    guard: Duration,
+) -> Duration {
     let (req, resp) = rtu_sizes(request);
     timing.transaction_time(req, resp) + guard * 2
 }
 
 /// The bus time one poll cycle of a device needs at `timing`.
-pub fn cycle_time(batches: &[ReadBatch], timing: &LineTiming, guard: Duration) -> Duration {
+pub(crate) fn cycle_time(batches: &[ReadBatch], timing: &LineTiming, guard: Duration) -> Duration {
     batches
         .iter()
         .map(|b| transaction_time(&b.request(), timing, guard))
@@ -30,7 +34,7 @@ pub fn cycle_time(batches: &[ReadBatch], timing: &LineTiming, guard: Duration) -
 }
 
 /// The share of a line's time the devices' refresh rates demand (1.0 = all of it).
-pub fn utilisation<'a>(
+pub(crate) fn utilisation<'a>(
     devices: impl IntoIterator<Item = (&'a DeviceConfig, &'a [ReadBatch])>,
     timing: &LineTiming,
     guard: Duration,

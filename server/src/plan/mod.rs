@@ -6,10 +6,10 @@ mod read_batches;
 mod report;
 mod write_groups;
 
-pub use budget::{cycle_time, rtu_sizes, transaction_time, utilisation};
-pub use read_batches::{ReadBatch, read_batches};
+pub(crate) use budget::{cycle_time, transaction_time, utilisation};
+pub(crate) use read_batches::{ReadBatch, read_batches};
 pub use report::{link_plan, render, warnings};
-pub use write_groups::{WriteItem, WriteOp, write_ops};
+pub(crate) use write_groups::{WriteItem, WriteOp, write_ops};
 
 /// A profile from field lines, for the tests of this module.
 #[cfg(test)]

@@ -11,7 +11,7 @@ use crate::profile::{Field, Profile, RegisterKind};
 
 /// Fields of one register kind read in one transaction.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ReadBatch {
+pub(crate) struct ReadBatch {
     pub kind: RegisterKind,
     pub address: u16,
     pub count: u16,
@@ -20,7 +20,7 @@ pub struct ReadBatch {
 }
 
 impl ReadBatch {
-    pub fn request(&self) -> Request {
+    pub(crate) fn request(&self) -> Request {
         let (address, count) = (self.address, self.count);
         match self.kind {
             RegisterKind::Coil => Request::ReadCoils { address, count },
@@ -33,7 +33,7 @@ impl ReadBatch {
     }
 
     /// The batch as two halves, by field, when it has more than one field.
-    pub fn split(&self, profile: &Profile) -> Option<(ReadBatch, ReadBatch)> {
+    pub(crate) fn split(&self, profile: &Profile) -> Option<(ReadBatch, ReadBatch)> {
         if self.fields.len() < 2 {
             return None;
         }
@@ -45,7 +45,7 @@ impl ReadBatch {
     }
 
     /// Each field's value, or why it could not be decoded, from the batch's response.
-    pub fn decode(
+    pub(crate) fn decode(
         &self,
         profile: &Profile,
         response: &Response,
@@ -99,7 +99,7 @@ fn end_of(field: &Field) -> u32 {
 /// The read batches of a device: the fields of each register kind in address order, merged
 /// while they are consecutive (or at most `max_gap` apart) and fit the Modbus limit and
 /// `max_batch` registers. Virtual fields are not on the bus.
-pub fn read_batches(profile: &Profile, max_batch: u16, max_gap: u16) -> Vec<ReadBatch> {
+pub(crate) fn read_batches(profile: &Profile, max_batch: u16, max_gap: u16) -> Vec<ReadBatch> {
     let mut by_kind: BTreeMap<RegisterKind, Vec<usize>> = BTreeMap::new();
     for (i, f) in profile.fields.iter().enumerate() {
         if f.register.kind != RegisterKind::Virtual {

@@ -11,7 +11,7 @@ use crate::profile::{Profile, RegisterKind};
 /// A value to put on the bus: a client's write (with its generation) or the latest value
 /// written again after a reconnect (without).
 #[derive(Debug, Clone, PartialEq)]
-pub struct WriteItem {
+pub(crate) struct WriteItem {
     pub field: usize,
     pub value: Value,
     pub generation: Option<u64>,
@@ -21,7 +21,7 @@ pub struct WriteItem {
 
 /// One write transaction and the items it carries.
 #[derive(Debug, Clone, PartialEq)]
-pub enum WriteOp {
+pub(crate) enum WriteOp {
     /// FC05/FC06/FC15/FC16.
     Direct { request: Request, items: Vec<usize> },
     /// BOOL fields packed into one holding register: read it (FC03), set the bits, write it
@@ -35,14 +35,14 @@ pub enum WriteOp {
 
 impl WriteOp {
     /// Indexes into the item list this op carries.
-    pub fn items(&self) -> &[usize] {
+    pub(crate) fn items(&self) -> &[usize] {
         match self {
             WriteOp::Direct { items, .. } | WriteOp::Bits { items, .. } => items,
         }
     }
 
     /// The op with its item indexes looked up in `map` (for ops planned from a subset).
-    pub fn remap(mut self, map: &[usize]) -> WriteOp {
+    pub(crate) fn remap(mut self, map: &[usize]) -> WriteOp {
         let items = match &mut self {
             WriteOp::Direct { items, .. } | WriteOp::Bits { items, .. } => items,
         };
@@ -53,7 +53,7 @@ impl WriteOp {
     }
 
     /// Whether the op uses FC15 or FC16.
-    pub fn is_multiple(&self) -> bool {
+    pub(crate) fn is_multiple(&self) -> bool {
         matches!(
             self,
             WriteOp::Direct {
@@ -70,7 +70,7 @@ impl WriteOp {
 /// `single`, for devices without FC15/FC16, every coil and one-register value goes alone
 /// (values of several registers still need FC16). Items that cannot be encoded are returned
 /// with the reason.
-pub fn write_ops(
+pub(crate) fn write_ops(
     profile: &Profile,
     items: &[WriteItem],
     single: bool,

@@ -8,7 +8,7 @@
 
 mod bus;
 mod poll_cycle;
-pub mod watchdog;
+pub(crate) mod watchdog;
 mod write_outputs;
 
 use std::sync::Arc;
@@ -30,13 +30,13 @@ use crate::plan::{self, ReadBatch};
 use bus::Bus;
 
 /// Waits between attempts to open a link: doubling from the first to the last.
-pub const REOPEN_MIN: Duration = Duration::from_millis(250);
-pub const REOPEN_MAX: Duration = Duration::from_secs(8);
+pub(crate) const REOPEN_MIN: Duration = Duration::from_millis(250);
+pub(crate) const REOPEN_MAX: Duration = Duration::from_secs(8);
 /// How long a device that stopped answering is left alone: doubling up to the maximum.
-pub const BACKOFF_MIN: Duration = Duration::from_secs(1);
-pub const BACKOFF_MAX: Duration = Duration::from_secs(16);
+pub(crate) const BACKOFF_MIN: Duration = Duration::from_secs(1);
+pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(16);
 /// Connecting to a TCP endpoint gives up after this long.
-pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
+pub(crate) const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// A step of the task ends the connection only when the port or socket failed.
 type Step = Result<(), LinkFault>;
@@ -93,7 +93,7 @@ fn connection_fault(e: &TxError) -> Option<LinkFault> {
     }
 }
 
-pub struct LinkTask {
+pub(crate) struct LinkTask {
     link: Arc<Link>,
     /// The link's settings and members as published; taken in between transactions.
     state: watch::Receiver<LinkState>,
@@ -106,7 +106,7 @@ pub struct LinkTask {
 }
 
 impl LinkTask {
-    pub fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
+    pub(crate) fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
         let state = link.subscribe();
         let config = link.config();
         let mut task = LinkTask {
@@ -187,7 +187,7 @@ impl LinkTask {
         });
     }
 
-    pub async fn run(mut self, token: CancellationToken) {
+    pub(crate) async fn run(mut self, token: CancellationToken) {
         let name = self.link.name().to_owned();
         let mut reopen = REOPEN_MIN;
         let mut lost = false;

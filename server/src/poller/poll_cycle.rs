@@ -97,14 +97,14 @@ impl LinkTask {
 /// that was due at `due` started. Late starts never shift the grid, so a 10 ms device is
 /// polled 100 times a second when the line allows; a poll more than a period late skips the
 /// points it missed (one poll, never a burst to catch up).
-pub fn next_on_grid(due: Instant, period: Duration, started: Instant) -> Instant {
+pub(crate) fn next_on_grid(due: Instant, period: Duration, started: Instant) -> Instant {
     let late = started.saturating_duration_since(due);
     let periods = late.as_nanos() / period.as_nanos().max(1) + 1;
     due + period * u32::try_from(periods).unwrap_or(u32::MAX)
 }
 
 /// The least time between two reconciling writes of one output.
-pub const RECONCILE_MIN: Duration = Duration::from_millis(100);
+pub(crate) const RECONCILE_MIN: Duration = Duration::from_millis(100);
 
 impl super::Polled {
     /// Requests the desired value of every output the device was just read holding another

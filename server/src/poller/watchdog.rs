@@ -15,10 +15,10 @@ use crate::cache::{Cache, LinkDiagnostics, Progress};
 use crate::link::LinkCode;
 
 /// How often the links are looked at.
-pub const EVERY: Duration = Duration::from_secs(1);
+pub(crate) const EVERY: Duration = Duration::from_secs(1);
 
 /// Looks at every link each [`EVERY`] until `token` is cancelled.
-pub async fn run(cache: Arc<Cache>, token: CancellationToken) {
+pub(crate) async fn run(cache: Arc<Cache>, token: CancellationToken) {
     let mut tick = tokio::time::interval(EVERY);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut stalled = HashSet::new();

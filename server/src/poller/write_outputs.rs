@@ -14,8 +14,8 @@ use crate::plan::{self, WriteItem, WriteOp};
 
 /// The first wait before a write answered "busy" (06) or "acknowledge" (05) is sent again;
 /// it doubles with each try, up to [`BUSY_BACKOFF_MAX`].
-pub const BUSY_BACKOFF: Duration = Duration::from_millis(20);
-pub const BUSY_BACKOFF_MAX: Duration = Duration::from_millis(320);
+pub(crate) const BUSY_BACKOFF: Duration = Duration::from_millis(20);
+pub(crate) const BUSY_BACKOFF_MAX: Duration = Duration::from_millis(320);
 
 /// Whether an exception says "later", not "no".
 fn transient(e: &TxError) -> bool {

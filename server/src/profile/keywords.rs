@@ -4,7 +4,7 @@
 //! does not parse.
 
 /// Every keyword, in upper case.
-pub const KEYWORDS: &[&str] = &[
+pub(crate) const KEYWORDS: &[&str] = &[
     "ABSTRACT",
     "ACTION",
     "AND",
@@ -154,13 +154,13 @@ pub const KEYWORDS: &[&str] = &[
 ];
 
 /// Whether `name` is a keyword (ST is case-insensitive: `Function` is `FUNCTION`).
-pub fn is_keyword(name: &str) -> bool {
+pub(crate) fn is_keyword(name: &str) -> bool {
     KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(name))
 }
 
 /// `parts` joined with `_` as an IEC identifier: other characters become `_`, no double
 /// or trailing `_`, a leading digit or a keyword behind a `_`.
-pub fn identifier(parts: &[&str]) -> String {
+pub(crate) fn identifier(parts: &[&str]) -> String {
     let mut out = String::new();
     for c in parts.join("_").chars() {
         let c = if c.is_ascii_alphanumeric() { c } else { '_' };

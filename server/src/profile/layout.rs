@@ -11,7 +11,7 @@ pub enum LayoutSection {
 }
 
 impl LayoutSection {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             LayoutSection::VarInput => "VAR_INPUT",
             LayoutSection::Var => "VAR",

@@ -1,6 +1,6 @@
 //! Device profiles: the model, loading with validation, and the generated FB layout.
 
-pub mod keywords;
+pub(crate) mod keywords;
 mod layout;
 mod load;
 
@@ -15,7 +15,7 @@ pub use layout::{LayoutEntry, LayoutSection, fb_layout, st_declaration};
 pub use load::{load_dir, load_files, load_str};
 
 /// How many parent directories are searched for a `profiles/` folder.
-pub const PARENT_SEARCH_DEPTH: usize = 6;
+pub(crate) const PARENT_SEARCH_DEPTH: usize = 6;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Protocol {
@@ -25,13 +25,13 @@ pub enum Protocol {
 }
 
 impl Protocol {
-    pub const ALL: [Protocol; 3] = [
+    pub(crate) const ALL: [Protocol; 3] = [
         Protocol::ModbusRtu,
         Protocol::ModbusTcp,
         Protocol::Simulated,
     ];
 
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Protocol::ModbusRtu => "modbus-rtu",
             Protocol::ModbusTcp => "modbus-tcp",
@@ -40,7 +40,7 @@ impl Protocol {
     }
 }
 
-pub use iogate_types::Direction;
+pub(crate) use iogate_types::Direction;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum RegisterKind {
@@ -52,7 +52,7 @@ pub enum RegisterKind {
 }
 
 impl RegisterKind {
-    pub const ALL: [RegisterKind; 5] = [
+    pub(crate) const ALL: [RegisterKind; 5] = [
         RegisterKind::Coil,
         RegisterKind::DiscreteInput,
         RegisterKind::HoldingRegister,
@@ -60,7 +60,7 @@ impl RegisterKind {
         RegisterKind::Virtual,
     ];
 
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             RegisterKind::Coil => "coil",
             RegisterKind::DiscreteInput => "discrete_input",
@@ -71,11 +71,11 @@ impl RegisterKind {
     }
 
     /// Coils and discrete inputs hold single bits.
-    pub fn is_bit(self) -> bool {
+    pub(crate) fn is_bit(self) -> bool {
         matches!(self, RegisterKind::Coil | RegisterKind::DiscreteInput)
     }
 
-    pub fn is_read_only(self) -> bool {
+    pub(crate) fn is_read_only(self) -> bool {
         matches!(
             self,
             RegisterKind::DiscreteInput | RegisterKind::InputRegister
@@ -115,7 +115,7 @@ pub struct Field {
 impl Field {
     /// The registers (or coils) the field takes, from its address. A virtual field is one
     /// value at its address.
-    pub fn span(&self) -> u32 {
+    pub(crate) fn span(&self) -> u32 {
         if self.register.kind.is_bit() || self.register.kind == RegisterKind::Virtual {
             1
         } else {
@@ -140,7 +140,7 @@ impl Profile {
     /// of 1 and so reads one register (where a friendlier default would have read the full
     /// width): 32/64-bit integers and TIME, and REAL/LREAL that are neither scaled nor given
     /// a `raw_type` (a scaled REAL on one register is the documented 16-bit idiom).
-    pub fn width_warnings(&self) -> Vec<crate::yaml::Problem> {
+    pub(crate) fn width_warnings(&self) -> Vec<crate::yaml::Problem> {
         self.fields
             .iter()
             .filter(|f| {
@@ -179,7 +179,7 @@ impl Profile {
     }
 
     /// A field by name; IEC identifiers ignore case.
-    pub fn field_index(&self, name: &str) -> Option<usize> {
+    pub(crate) fn field_index(&self, name: &str) -> Option<usize> {
         self.fields
             .iter()
             .position(|f| f.name.eq_ignore_ascii_case(name))
@@ -247,7 +247,7 @@ impl Catalog {
 
     /// Whether `name` is a profile whose file could not be loaded: its problems are
     /// reported already, so a device that uses it is not checked against it.
-    pub fn is_unreadable(&self, name: &str) -> bool {
+    pub(crate) fn is_unreadable(&self, name: &str) -> bool {
         self.unreadable.iter().any(|n| n == name)
     }
 
@@ -270,7 +270,7 @@ impl Catalog {
 
 /// The `profiles/` directory: `configured` if given, else `./profiles` in `start` or one of
 /// up to [`PARENT_SEARCH_DEPTH`] parent directories.
-pub fn find_dir(configured: Option<&Path>, start: &Path) -> Option<PathBuf> {
+pub(crate) fn find_dir(configured: Option<&Path>, start: &Path) -> Option<PathBuf> {
     if let Some(dir) = configured {
         return Some(dir.to_path_buf());
     }
@@ -287,14 +287,9 @@ pub fn find_dir(configured: Option<&Path>, start: &Path) -> Option<PathBuf> {
         .find(|dir| dir.is_dir())
 }
 
-/// Loads a catalog from a directory, or says every problem.
-pub fn load_catalog(dir: &Path) -> Result<Catalog, Problems> {
-    load_dir(dir).map(Catalog::new)
-}
-
 /// The profiles of `dir` that load, knowing the names of those that do not, and every
 /// problem: for checking everything else at once.
-pub fn load_catalog_partial(dir: &Path) -> (Catalog, Problems) {
+pub(crate) fn load_catalog_partial(dir: &Path) -> (Catalog, Problems) {
     let (profiles, unreadable, problems) = load::load_dir_partial(dir);
     let mut catalog = Catalog::new(profiles);
     catalog.unreadable = unreadable;

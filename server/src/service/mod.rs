@@ -22,13 +22,13 @@ use crate::metrics::Metrics;
 use crate::profile::Profile;
 use crate::runtime::Tasks;
 
-pub use crate::cache::Refusal;
-pub use modbus_map::{Bound, ModbusImage, Route};
-pub use select::{FieldRef, Selection, Snapshot};
-pub use standing::{Standing, StandingSet, StandingStatus};
-pub use subscribe::{Change, Changes};
-pub use view::FieldView;
-pub use write::{Accepted, CycleOutcome, Prepared, ScanCycle};
+pub(crate) use crate::cache::Refusal;
+pub(crate) use modbus_map::ModbusImage;
+pub(crate) use select::Selection;
+pub(crate) use standing::{Standing, StandingSet, StandingStatus};
+pub(crate) use subscribe::Change;
+pub(crate) use view::FieldView;
+pub(crate) use write::{Accepted, Prepared, ScanCycle};
 
 /// Why the service refused a request.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -112,11 +112,11 @@ pub struct Service {
 }
 
 /// The most change streams (SSE, gRPC Subscribe and Exchange) open at once.
-pub const MAX_STREAMS: usize = 2048;
+pub(crate) const MAX_STREAMS: usize = 2048;
 
 /// A place among the open change streams; dropping it frees the place.
 #[derive(Debug)]
-pub struct StreamSlot(Arc<std::sync::atomic::AtomicUsize>);
+pub(crate) struct StreamSlot(Arc<std::sync::atomic::AtomicUsize>);
 
 impl Drop for StreamSlot {
     fn drop(&mut self) {
@@ -127,7 +127,7 @@ impl Drop for StreamSlot {
 impl Service {
     /// The service of a gateway whose tasks are started by `tasks`; not ready until
     /// [`Service::set_ready`].
-    pub fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
+    pub(crate) fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
         Service {
             metrics: tasks.metrics().clone(),
             cache,
@@ -143,7 +143,7 @@ impl Service {
     }
 
     /// A place for one more change stream, or `TooManyStreams`.
-    pub fn stream_slot(&self) -> Result<StreamSlot, ServiceError> {
+    pub(crate) fn stream_slot(&self) -> Result<StreamSlot, ServiceError> {
         let before = self.streams.fetch_add(1, Ordering::AcqRel);
         let slot = StreamSlot(self.streams.clone());
         if before >= MAX_STREAMS {
@@ -153,14 +153,14 @@ impl Service {
     }
 
     /// The service with the tokens and the read-only switch of `security:`.
-    pub fn with_access(mut self, tokens: crate::auth::Tokens, read_only: bool) -> Self {
+    pub(crate) fn with_access(mut self, tokens: crate::auth::Tokens, read_only: bool) -> Self {
         self.tokens = tokens;
         self.read_only = read_only;
         self
     }
 
     /// Refuses writes when the gateway is read-only (or shutting down).
-    pub fn accepting_writes(&self) -> Result<(), ServiceError> {
+    pub(crate) fn accepting_writes(&self) -> Result<(), ServiceError> {
         self.accepting()?;
         if self.read_only {
             Err(ServiceError::ReadOnly)
@@ -170,36 +170,36 @@ impl Service {
     }
 
     /// The service with a declaration policy other than the default.
-    pub fn with_policy(mut self, policy: crate::config::security::DeclarePolicy) -> Self {
+    pub(crate) fn with_policy(mut self, policy: crate::config::security::DeclarePolicy) -> Self {
         self.policy = policy;
         self
     }
 
     /// The service with a Modbus TCP server's image.
-    pub fn with_modbus(mut self, image: ModbusImage) -> Self {
+    pub(crate) fn with_modbus(mut self, image: ModbusImage) -> Self {
         self.modbus = Some(image);
         self
     }
 
-    pub fn tasks(&self) -> &Tasks {
+    pub(crate) fn tasks(&self) -> &Tasks {
         &self.tasks
     }
 
-    pub fn set_ready(&self, ready: bool) {
+    pub(crate) fn set_ready(&self, ready: bool) {
         self.ready.store(ready, Ordering::Relaxed);
     }
 
     /// Serving: started and not shutting down.
-    pub fn is_ready(&self) -> bool {
+    pub(crate) fn is_ready(&self) -> bool {
         self.ready.load(Ordering::Relaxed) && !self.is_shutting_down()
     }
 
-    pub fn is_shutting_down(&self) -> bool {
+    pub(crate) fn is_shutting_down(&self) -> bool {
         self.tasks.token().is_cancelled()
     }
 
     /// Refuses new work (writes, streams, declarations) once shutdown has begun.
-    pub fn accepting(&self) -> Result<(), ServiceError> {
+    pub(crate) fn accepting(&self) -> Result<(), ServiceError> {
         if self.is_shutting_down() {
             Err(ServiceError::ShuttingDown)
         } else {
@@ -207,17 +207,21 @@ impl Service {
         }
     }
 
-    pub fn devices(&self) -> Vec<Arc<Device>> {
+    pub(crate) fn devices(&self) -> Vec<Arc<Device>> {
         self.cache.devices()
     }
 
-    pub fn device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
+    pub(crate) fn device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
         Ok(self.cache.device(name)?)
     }
 
     /// A field named either `device` + `field`, or by a located address (`%QX2.6`) in
     /// `field` (with `device` empty) or in `device`, as the Modbus server's map binds it.
-    pub fn field(&self, device: &str, field: &str) -> Result<(Arc<Device>, usize), ServiceError> {
+    pub(crate) fn field(
+        &self,
+        device: &str,
+        field: &str,
+    ) -> Result<(Arc<Device>, usize), ServiceError> {
         let located = [field, device]
             .into_iter()
             .find(|t| t.trim_start().starts_with('%'));
@@ -234,7 +238,7 @@ impl Service {
     }
 
     /// The field bound to a located address.
-    pub fn located(&self, at: &str) -> Result<(Arc<Device>, usize), ServiceError> {
+    pub(crate) fn located(&self, at: &str) -> Result<(Arc<Device>, usize), ServiceError> {
         let location = iogate_types::Location::parse(at)?;
         self.modbus()
             .and_then(|m| {
@@ -248,7 +252,7 @@ impl Service {
             .ok_or_else(|| ServiceError::Unbound(location.to_string()))
     }
 
-    pub fn links(&self) -> Vec<Arc<Link>> {
+    pub(crate) fn links(&self) -> Vec<Arc<Link>> {
         self.cache.links()
     }
 
@@ -256,16 +260,16 @@ impl Service {
         Ok(self.cache.link(name)?)
     }
 
-    pub fn profiles(&self) -> impl Iterator<Item = &Arc<Profile>> {
+    pub(crate) fn profiles(&self) -> impl Iterator<Item = &Arc<Profile>> {
         self.cache.catalog.iter()
     }
 
-    pub fn profile(&self, name: &str) -> Result<&Arc<Profile>, ServiceError> {
+    pub(crate) fn profile(&self, name: &str) -> Result<&Arc<Profile>, ServiceError> {
         Ok(self.cache.profile(name)?)
     }
 
     /// Declares a link (idempotent); a new one starts polling at once.
-    pub fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
+    pub(crate) fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
         self.accepting()?;
         Ok(declare::ensure_link(
             &self.cache,
@@ -276,19 +280,22 @@ impl Service {
     }
 
     /// Declares a device (idempotent); a new one is polled by its link at once.
-    pub fn ensure_device(&self, decl: DeviceDeclaration) -> Result<Ensured<Device>, ServiceError> {
+    pub(crate) fn ensure_device(
+        &self,
+        decl: DeviceDeclaration,
+    ) -> Result<Ensured<Device>, ServiceError> {
         self.accepting()?;
         Ok(declare::ensure_device(&self.cache, &self.tasks, decl)?)
     }
 
     /// Removes a device declared at run time.
-    pub fn remove_device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
+    pub(crate) fn remove_device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
         self.accepting()?;
         Ok(declare::remove_device(&self.cache, name)?)
     }
 
     /// Removes a link declared at run time that no device or standing transaction uses.
-    pub fn remove_link(&self, name: &str) -> Result<Arc<Link>, ServiceError> {
+    pub(crate) fn remove_link(&self, name: &str) -> Result<Arc<Link>, ServiceError> {
         self.accepting()?;
         let users = self
             .standing()

@@ -23,18 +23,18 @@ use iogate_types::Quality;
 
 /// How long past a forwarded request's own timeout a master is waited for: a request still
 /// in the link's inbox after that is dropped (exception 06), never sent late.
-pub const FORWARD_PATIENCE: Duration = Duration::from_secs(1);
+pub(crate) const FORWARD_PATIENCE: Duration = Duration::from_secs(1);
 
 /// A binding with its device.
 #[derive(Debug)]
-pub struct Bound {
+pub(crate) struct Bound {
     pub binding: Binding,
     pub device: Arc<Device>,
 }
 
 /// The server's image: bindings by table address, memory, and the routes of unit ids.
 #[derive(Debug)]
-pub struct ModbusImage {
+pub(crate) struct ModbusImage {
     pub config: ModbusServerConfig,
     pub space: Space,
     pub bound: Vec<Bound>,
@@ -61,7 +61,7 @@ const TABLES: [Table; 4] = [
 
 impl ModbusImage {
     /// The image of `plan` over the devices of `cache`.
-    pub fn new(
+    pub(crate) fn new(
         config: &ModbusServerConfig,
         plan: &Plan,
         cache: &Cache,
@@ -146,7 +146,7 @@ impl ModbusImage {
         }
     }
 
-    pub fn read_bits(
+    pub(crate) fn read_bits(
         &self,
         table: Table,
         address: u16,
@@ -162,7 +162,7 @@ impl ModbusImage {
             .collect()
     }
 
-    pub fn read_registers(
+    pub(crate) fn read_registers(
         &self,
         table: Table,
         address: u16,
@@ -201,7 +201,7 @@ impl ModbusImage {
 
 /// Where a unit id's requests go.
 #[derive(Debug)]
-pub enum Route {
+pub(crate) enum Route {
     /// Answered from the map.
     Local,
     /// Forwarded to this slave on this link, with this timeout.
@@ -228,13 +228,13 @@ fn refusal(e: &AccessError) -> Exception {
 
 impl Service {
     /// The Modbus server's image, when one is configured.
-    pub fn modbus(&self) -> Option<&ModbusImage> {
+    pub(crate) fn modbus(&self) -> Option<&ModbusImage> {
         self.modbus.as_ref()
     }
 
     /// Where requests for `unit` go: the server's own unit id (and 0 and 255, as Modbus
     /// TCP devices answer them) from the map; a unit listed under `forward` to its link.
-    pub fn modbus_route(&self, unit: u8) -> Route {
+    pub(crate) fn modbus_route(&self, unit: u8) -> Route {
         let Some(image) = &self.modbus else {
             return Route::Unknown;
         };
@@ -262,7 +262,11 @@ impl Service {
 
     /// Answers one request for `unit`. A read-only gateway answers every write function with exception 01, whether it would
     /// land in the map, the memory or a forwarded device.
-    pub async fn modbus_request(&self, unit: u8, request: &Request) -> Result<Response, Exception> {
+    pub(crate) async fn modbus_request(
+        &self,
+        unit: u8,
+        request: &Request,
+    ) -> Result<Response, Exception> {
         if request.is_write() && self.read_only {
             return Err(Exception::ILLEGAL_FUNCTION);
         }

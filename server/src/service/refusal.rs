@@ -40,7 +40,7 @@ fn declare(e: &DeclareError) -> (Refusal, &'static str) {
 
 impl ServiceError {
     /// The kind of refusal and its stable code (the `code` of the REST API's errors).
-    pub fn refusal(&self) -> (Refusal, &'static str) {
+    pub(crate) fn refusal(&self) -> (Refusal, &'static str) {
         match self {
             ServiceError::Access(a) => access(a),
             ServiceError::NothingWritten(all) => all
@@ -64,7 +64,7 @@ impl ServiceError {
 
 impl AccessError {
     /// The kind of refusal and its stable code.
-    pub fn refusal(&self) -> (Refusal, &'static str) {
+    pub(crate) fn refusal(&self) -> (Refusal, &'static str) {
         access(self)
     }
 }

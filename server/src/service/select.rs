@@ -7,14 +7,14 @@ use crate::cache::{Device, Diagnostics, Sample};
 
 /// One field of one device.
 #[derive(Debug, Clone)]
-pub struct FieldRef {
+pub(crate) struct FieldRef {
     pub device: Arc<Device>,
     pub idx: usize,
 }
 
 /// The chosen fields, each once, in the order asked for; and their devices, each once.
 #[derive(Debug, Clone, Default)]
-pub struct Selection {
+pub(crate) struct Selection {
     pub fields: Vec<FieldRef>,
     pub devices: Vec<Arc<Device>>,
 }
@@ -39,7 +39,7 @@ impl Selection {
 
 /// The current samples of a selection and the diagnostics of its devices.
 #[derive(Debug, Clone)]
-pub struct Snapshot {
+pub(crate) struct Snapshot {
     pub values: Vec<(FieldRef, Sample)>,
     pub diagnostics: Vec<(Arc<Device>, Diagnostics)>,
 }
@@ -47,7 +47,11 @@ pub struct Snapshot {
 impl Service {
     /// Every field of the named devices plus the named `(device, field)` pairs; every field
     /// of every device when nothing is named. An unknown name refuses the whole selection.
-    pub fn select<D, F>(&self, devices: &[D], fields: &[(F, F)]) -> Result<Selection, ServiceError>
+    pub(crate) fn select<D, F>(
+        &self,
+        devices: &[D],
+        fields: &[(F, F)],
+    ) -> Result<Selection, ServiceError>
     where
         D: AsRef<str>,
         F: AsRef<str>,
@@ -77,7 +81,7 @@ impl Service {
     }
 
     /// The newest samples of `selection`, never waiting for a bus.
-    pub fn read(&self, selection: &Selection) -> Snapshot {
+    pub(crate) fn read(&self, selection: &Selection) -> Snapshot {
         Snapshot {
             values: selection
                 .fields

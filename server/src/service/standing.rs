@@ -14,11 +14,11 @@ use crate::config::transactions::StandingConfig;
 use crate::transaction::{Outcome, Plan, TransactionSpec};
 
 /// How long after start (or declaration) a standing read first runs by itself.
-pub const FIRST_CYCLIC_READ: Duration = Duration::from_secs(2);
+pub(crate) const FIRST_CYCLIC_READ: Duration = Duration::from_secs(2);
 
 /// The latest state of a standing transaction.
 #[derive(Debug, Clone, PartialEq)]
-pub struct StandingStatus {
+pub(crate) struct StandingStatus {
     pub enabled: bool,
     pub last: Option<Outcome>,
     pub runs: u64,
@@ -28,7 +28,7 @@ pub struct StandingStatus {
 
 /// A standing transaction.
 #[derive(Debug)]
-pub struct Standing {
+pub(crate) struct Standing {
     pub name: String,
     pub link: String,
     pub period: Duration,
@@ -48,15 +48,15 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 impl Standing {
-    pub fn spec(&self) -> TransactionSpec {
+    pub(crate) fn spec(&self) -> TransactionSpec {
         lock(&self.spec).clone()
     }
 
-    pub fn status(&self) -> StandingStatus {
+    pub(crate) fn status(&self) -> StandingStatus {
         self.status.borrow().clone()
     }
 
-    pub fn subscribe(&self) -> watch::Receiver<StandingStatus> {
+    pub(crate) fn subscribe(&self) -> watch::Receiver<StandingStatus> {
         self.status.subscribe()
     }
 
@@ -74,25 +74,25 @@ impl Standing {
 
 /// The standing transactions of a gateway.
 #[derive(Debug, Default)]
-pub struct StandingSet(RwLock<Vec<Arc<Standing>>>);
+pub(crate) struct StandingSet(RwLock<Vec<Arc<Standing>>>);
 
 impl StandingSet {
-    pub fn all(&self) -> Vec<Arc<Standing>> {
+    pub(crate) fn all(&self) -> Vec<Arc<Standing>> {
         self.0.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
-    pub fn get(&self, name: &str) -> Option<Arc<Standing>> {
+    pub(crate) fn get(&self, name: &str) -> Option<Arc<Standing>> {
         self.all().into_iter().find(|s| s.name == name)
     }
 }
 
 /// Changes of standing transactions' states.
-pub type StandingChanges =
+pub(crate) type StandingChanges =
     std::pin::Pin<Box<dyn futures_util::Stream<Item = (Arc<Standing>, StandingStatus)> + Send>>;
 
 impl Service {
     /// Every standing transaction's current state, then each change, until shutdown.
-    pub fn transaction_changes(&self) -> StandingChanges {
+    pub(crate) fn transaction_changes(&self) -> StandingChanges {
         use futures_util::StreamExt;
         let mut streams = tokio_stream::StreamMap::new();
         for (n, s) in self.standing.all().into_iter().enumerate() {
@@ -104,11 +104,11 @@ impl Service {
         Box::pin(streams.map(|(_, change)| change).take_until(shutdown))
     }
 
-    pub fn standing(&self) -> &StandingSet {
+    pub(crate) fn standing(&self) -> &StandingSet {
         &self.standing
     }
 
-    pub fn transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
+    pub(crate) fn transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         self.standing
             .get(name)
             .ok_or_else(|| ServiceError::UnknownTransaction(crate::text::quote(name)))
@@ -116,7 +116,7 @@ impl Service {
 
     /// Declares a standing transaction (idempotent): the same declaration answers the
     /// existing one; another one under the same name is refused. Its task starts at once.
-    pub fn ensure_transaction(
+    pub(crate) fn ensure_transaction(
         self: &Arc<Self>,
         config: StandingConfig,
     ) -> Result<(Arc<Standing>, bool), ServiceError> {
@@ -167,7 +167,7 @@ impl Service {
     }
 
     /// Enables or disables a standing transaction.
-    pub fn enable_transaction(
+    pub(crate) fn enable_transaction(
         &self,
         name: &str,
         enabled: bool,
@@ -183,7 +183,7 @@ impl Service {
     }
 
     /// Sets the values a standing write sends (checked as a one-shot would be).
-    pub fn set_transaction_values(
+    pub(crate) fn set_transaction_values(
         &self,
         name: &str,
         values: Vec<serde_json::Value>,
@@ -200,7 +200,7 @@ impl Service {
     /// Removes a standing transaction declared at run time: its task stops (a run in flight
     /// is finished by the link, its answer dropped) and its link can then be removed. One
     /// from the config file stays, as configured devices do.
-    pub fn remove_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
+    pub(crate) fn remove_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         self.accepting()?;
         let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
         let at = set
@@ -223,7 +223,7 @@ impl Service {
     }
 
     /// Runs a standing transaction now; ignored while one of its runs is in flight.
-    pub fn trigger_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
+    pub(crate) fn trigger_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         let s = self.transaction(name)?;
         s.wake.notify_waiters();
         Ok(s)

@@ -15,7 +15,7 @@ use crate::cache::{Device, Diagnostics, Sample};
 
 /// A change of a field's value (or quality), or of a device's diagnostics.
 #[derive(Debug, Clone)]
-pub enum Change {
+pub(crate) enum Change {
     Value {
         device: Arc<Device>,
         idx: usize,
@@ -28,7 +28,7 @@ pub enum Change {
 }
 
 /// The stream of a subscription.
-pub type Changes = Pin<Box<dyn Stream<Item = Change> + Send>>;
+pub(crate) type Changes = Pin<Box<dyn Stream<Item = Change> + Send>>;
 
 /// Which watch a change came from: (device, field), the field `usize::MAX` for diagnostics.
 type Key = (usize, usize);
@@ -37,7 +37,7 @@ const DIAGNOSTICS: usize = usize::MAX;
 impl Service {
     /// Current values then changes of `selection`'s fields, and of its devices'
     /// diagnostics when `diagnostics` is set.
-    pub fn subscribe(
+    pub(crate) fn subscribe(
         &self,
         selection: Selection,
         diagnostics: bool,

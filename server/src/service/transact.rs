@@ -38,7 +38,7 @@ impl Service {
     /// Runs one transaction on `link`: every parameter problem at once (with the read
     /// block's messages), else the outcome (a transaction that ran and failed is an
     /// outcome, not an error).
-    pub async fn transact(
+    pub(crate) async fn transact(
         &self,
         link: &str,
         spec: &TransactionSpec,

@@ -15,7 +15,7 @@ use crate::write_log::WriteRecord;
 
 /// A field as of now. Names are borrowed from the device while a response is written.
 #[derive(Debug, Clone)]
-pub struct FieldView<'a> {
+pub(crate) struct FieldView<'a> {
     pub device: &'a Device,
     pub field: &'a Field,
     /// `None` until the field is first read.
@@ -34,11 +34,11 @@ pub struct FieldView<'a> {
 }
 
 impl FieldView<'_> {
-    pub fn unit(&self) -> Option<&str> {
+    pub(crate) fn unit(&self) -> Option<&str> {
         self.field.register.unit.as_deref()
     }
 
-    pub fn mismatch(&self) -> bool {
+    pub(crate) fn mismatch(&self) -> bool {
         self.desired.is_some()
     }
 }
@@ -46,7 +46,12 @@ impl FieldView<'_> {
 impl Service {
     /// The view of field `idx` of `device` with `sample` (its newest, or the one a change
     /// carries).
-    pub fn field_view<'a>(&self, device: &'a Device, idx: usize, sample: &Sample) -> FieldView<'a> {
+    pub(crate) fn field_view<'a>(
+        &self,
+        device: &'a Device,
+        idx: usize,
+        sample: &Sample,
+    ) -> FieldView<'a> {
         FieldView {
             device,
             field: device.field(idx),
@@ -60,7 +65,7 @@ impl Service {
     }
 
     /// The view of field `idx` of `device` with its newest sample.
-    pub fn field_view_now<'a>(&self, device: &'a Device, idx: usize) -> FieldView<'a> {
+    pub(crate) fn field_view_now<'a>(&self, device: &'a Device, idx: usize) -> FieldView<'a> {
         self.field_view(device, idx, &device.sample(idx))
     }
 }

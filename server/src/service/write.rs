@@ -13,28 +13,24 @@ use crate::write_log::{FIELD_HISTORY, Lookup, WriteRecord};
 /// one, and it carries the proof of its check (with the registers the value becomes), so
 /// nothing downstream checks or encodes it again.
 #[derive(Debug, Clone)]
-pub struct Prepared {
+pub(crate) struct Prepared {
     device: Arc<Device>,
     checked: Checked,
 }
 
 impl Prepared {
-    pub fn device(&self) -> &Arc<Device> {
-        &self.device
-    }
-
-    pub fn idx(&self) -> usize {
+    pub(crate) fn idx(&self) -> usize {
         self.checked.idx()
     }
 
-    pub fn value(&self) -> &Value {
+    pub(crate) fn value(&self) -> &Value {
         self.checked.value()
     }
 }
 
 /// A requested write: follow it by its generation.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Accepted {
+pub(crate) struct Accepted {
     pub device: String,
     pub field: String,
     pub generation: u64,
@@ -61,7 +57,7 @@ impl Service {
     /// Checks a write of field `field` of `device`: the field exists and is writable, and
     /// the value (converted by the front-end's `convert` for the field's type) fits it.
     /// Nothing is written.
-    pub fn prepare<E: Into<CodecError>>(
+    pub(crate) fn prepare<E: Into<CodecError>>(
         &self,
         device: &Arc<Device>,
         field: &str,
@@ -76,7 +72,7 @@ impl Service {
 
     /// Like [`Service::prepare`] for a device given by name, or a field given by its
     /// located address.
-    pub fn prepare_named<E: Into<CodecError>>(
+    pub(crate) fn prepare_named<E: Into<CodecError>>(
         &self,
         device: &str,
         field: &str,
@@ -88,19 +84,23 @@ impl Service {
     }
 
     /// Requests one checked write.
-    pub fn write(&self, write: Prepared) -> Result<Accepted, ServiceError> {
+    pub(crate) fn write(&self, write: Prepared) -> Result<Accepted, ServiceError> {
         self.write_as(write, None)
     }
 
     /// As [`Service::write`], by the scan-cycle stream `writer` when one asks.
-    pub fn write_as(&self, write: Prepared, writer: Option<u64>) -> Result<Accepted, ServiceError> {
+    pub(crate) fn write_as(
+        &self,
+        write: Prepared,
+        writer: Option<u64>,
+    ) -> Result<Accepted, ServiceError> {
         let mut accepted = self.request_group(vec![write], writer)?;
         accepted.pop().ok_or(ServiceError::ShuttingDown)
     }
 
     /// Requests every write, or none of them if any was refused; then every refusal is
     /// named.
-    pub fn write_all<E: Into<ServiceError>>(
+    pub(crate) fn write_all<E: Into<ServiceError>>(
         &self,
         writes: Vec<Result<Prepared, E>>,
     ) -> Result<Vec<Accepted>, ServiceError> {
@@ -167,7 +167,7 @@ impl Service {
     }
 
     /// Where the write with `generation` stands.
-    pub fn write_outcome(&self, generation: u64) -> Result<WriteRecord, ServiceError> {
+    pub(crate) fn write_outcome(&self, generation: u64) -> Result<WriteRecord, ServiceError> {
         match self.cache.writes.get(generation) {
             Lookup::Found(record) => Ok(record),
             Lookup::Expired => Err(ServiceError::WriteExpired {
@@ -179,7 +179,7 @@ impl Service {
     }
 
     /// The type of the field a write record is about, if the field still exists.
-    pub fn written_type(&self, record: &WriteRecord) -> Option<IecType> {
+    pub(crate) fn written_type(&self, record: &WriteRecord) -> Option<IecType> {
         let device = self.cache.device(&record.device).ok()?;
         let idx = device.profile.field_index(&record.field)?;
         Some(device.field(idx).ty)
@@ -188,7 +188,7 @@ impl Service {
     /// A scan-cycle stream ended: for every device with `on_client_loss`, the safe value of
     /// each such output the stream wrote last is written once `after` has passed, unless
     /// somebody wrote the output meanwhile.
-    pub fn client_lost(&self, stream: u64) {
+    pub(crate) fn client_lost(&self, stream: u64) {
         for device in self.cache.devices() {
             let Some(loss) = device.config.on_client_loss.clone() else {
                 continue;
@@ -226,7 +226,7 @@ impl Service {
     }
 
     /// The newest write to a field, if one is still in the log.
-    pub fn last_write(&self, device: &Device, idx: usize) -> Option<WriteRecord> {
+    pub(crate) fn last_write(&self, device: &Device, idx: usize) -> Option<WriteRecord> {
         match self.cache.writes.get(device.last_write(idx)?) {
             Lookup::Found(record) => Some(record),
             _ => None,
@@ -234,7 +234,7 @@ impl Service {
     }
 
     /// Sets an input of a simulated device, as if the device had read it.
-    pub fn simulate<E: Into<CodecError>>(
+    pub(crate) fn simulate<E: Into<CodecError>>(
         &self,
         device: &Arc<Device>,
         field: &str,
@@ -249,7 +249,7 @@ impl Service {
 
 /// A remote runtime's scan cycles on one stream: outputs in, inputs and diagnostics out.
 #[derive(Debug)]
-pub struct ScanCycle {
+pub(crate) struct ScanCycle {
     service: Arc<Service>,
     devices: Vec<Arc<Device>>,
     cycle: u64,
@@ -271,7 +271,7 @@ impl Drop for ScanCycle {
 /// What one cycle did: its number, the devices whose inputs go back, the writes it
 /// requested, and what it refused (as messages for the runtime).
 #[derive(Debug)]
-pub struct CycleOutcome {
+pub(crate) struct CycleOutcome {
     pub cycle: u64,
     pub devices: Vec<Arc<Device>>,
     pub acks: Vec<Accepted>,
@@ -280,7 +280,7 @@ pub struct CycleOutcome {
 
 impl CycleOutcome {
     /// The inputs (and inouts) of the cycle's devices.
-    pub fn inputs(&self) -> impl Iterator<Item = (&Arc<Device>, usize)> {
+    pub(crate) fn inputs(&self) -> impl Iterator<Item = (&Arc<Device>, usize)> {
         self.devices.iter().flat_map(|d| {
             (0..d.profile.fields.len())
                 .filter(|&i| d.field(i).direction != Direction::Output)
@@ -290,7 +290,7 @@ impl CycleOutcome {
 }
 
 impl ScanCycle {
-    pub fn new(service: Arc<Service>) -> Self {
+    pub(crate) fn new(service: Arc<Service>) -> Self {
         ScanCycle {
             service,
             devices: Vec::new(),
@@ -305,7 +305,7 @@ impl ScanCycle {
     /// become bus writes. Such an output the device holds another value in is named in the
     /// cycle's errors (a failed write, a device that changed it), and is written again by
     /// the device's `write_mode: reconcile`.
-    pub fn step(
+    pub(crate) fn step(
         &mut self,
         devices: &[String],
         outputs: Vec<Result<Prepared, ServiceError>>,

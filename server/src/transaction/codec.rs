@@ -51,7 +51,7 @@ pub(super) fn value_bytes(ty: WriteType, v: &serde_json::Value) -> Option<Vec<u8
 
 /// Why a response could not be read as the configured value.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ParseFailed;
+pub(crate) struct ParseFailed;
 
 /// A number as the device meant it: `digits × 10^exp`, with its sign. Integers and bit
 /// patterns are exact; a FLOAT is the shortest decimal that reads back as the f32 the
@@ -162,7 +162,7 @@ fn bits_value(bits: &[bool], order: ByteOrder) -> u64 {
 
 /// The read block's value: the raw number, divided by the divisor, truncated to the
 /// precision.
-pub fn read_value(plan: &ReadPlan, response: &Response) -> Result<f64, ParseFailed> {
+pub(crate) fn read_value(plan: &ReadPlan, response: &Response) -> Result<f64, ParseFailed> {
     let raw = match (response, plan.bits, plan.value_type) {
         (Response::Bits(bits), Some(n), _) => {
             let bits = bits.get(..usize::from(n)).ok_or(ParseFailed)?;

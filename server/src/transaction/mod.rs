@@ -3,15 +3,15 @@
 //! (`params`), values packed and read (`codec`), and the outcome as the blocks report it:
 //! `actual`, `state`, the value, the error in the read block's words, the frames.
 
-pub mod codec;
-pub mod params;
-pub mod spec;
+pub(crate) mod codec;
+pub(crate) mod params;
+pub(crate) mod spec;
 pub mod st;
 
 use crate::link::TxError;
 use crate::link::frame::Exception;
 
-pub use params::{Checked, Plan, TransactionSpec};
+pub(crate) use params::{Plan, TransactionSpec};
 
 /// The write block's state codes.
 pub mod state {
@@ -27,7 +27,7 @@ pub mod state {
 
 /// How a transaction ended.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Outcome {
+pub(crate) struct Outcome {
     /// The last command got a correct response.
     pub actual: bool,
     pub state: i32,
@@ -42,7 +42,7 @@ pub struct Outcome {
 }
 
 /// The read block's message and the write block's state for a failed transaction.
-pub fn failure(e: &TxError) -> (i32, &'static str) {
+pub(crate) fn failure(e: &TxError) -> (i32, &'static str) {
     match e {
         TxError::Timeout => (state::TIMEOUT, "Slave timeout"),
         TxError::Exception(x) => (state::UNKNOWN_ERROR, exception_message(*x)),
@@ -51,7 +51,7 @@ pub fn failure(e: &TxError) -> (i32, &'static str) {
     }
 }
 
-pub fn exception_message(x: Exception) -> &'static str {
+pub(crate) fn exception_message(x: Exception) -> &'static str {
     match x.0 {
         1 => "Function code not supported",
         2 => "Invalid address",
@@ -61,7 +61,7 @@ pub fn exception_message(x: Exception) -> &'static str {
 }
 
 /// Bytes in hex, space-separated, upper case.
-pub fn hex(bytes: &[u8]) -> String {
+pub(crate) fn hex(bytes: &[u8]) -> String {
     bytes
         .iter()
         .map(|b| format!("{b:02X}"))
@@ -70,7 +70,7 @@ pub fn hex(bytes: &[u8]) -> String {
 }
 
 /// Checks the config's standing transactions: their parameters, and that their links exist.
-pub fn check_standing(config: &crate::config::Config) -> Result<(), crate::yaml::Problems> {
+pub(crate) fn check_standing(config: &crate::config::Config) -> Result<(), crate::yaml::Problems> {
     let mut report = crate::yaml::Report::new(&config.source);
     for t in &config.transactions {
         let ctx = format!("transaction {}", t.name);

@@ -5,16 +5,16 @@
 use std::time::Duration;
 
 use super::codec::value_bytes;
-pub use super::spec::*;
+pub(crate) use super::spec::*;
 use crate::codec::ByteOrder;
-pub use crate::config::transactions::TransactionSpec;
+pub(crate) use crate::config::transactions::TransactionSpec;
 use crate::link::frame::{Function, Request};
 
 const DEFAULT_TIMEOUT_MS: i64 = 1000;
 
 impl TransactionSpec {
     /// The checked transaction, or every configuration message that applies.
-    pub fn check(&self) -> Result<Checked, Vec<ParamError>> {
+    pub(crate) fn check(&self) -> Result<Checked, Vec<ParamError>> {
         let mut errors: Vec<ParamError> = Vec::new();
         let function = match self.function {
             Some(1) => Some(Function::ReadCoils),

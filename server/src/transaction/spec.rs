@@ -8,7 +8,7 @@ use crate::codec::ByteOrder;
 use crate::link::frame::{Function, Request};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ValueType {
+pub(crate) enum ValueType {
     Signed16,
     Signed32,
     Unsigned16,
@@ -17,7 +17,7 @@ pub enum ValueType {
 }
 
 impl ValueType {
-    pub fn parse(name: &str) -> Option<ValueType> {
+    pub(crate) fn parse(name: &str) -> Option<ValueType> {
         Some(match name {
             "SIGNED_NUMBER16" => ValueType::Signed16,
             "SIGNED_NUMBER32" => ValueType::Signed32,
@@ -28,7 +28,7 @@ impl ValueType {
         })
     }
 
-    pub fn registers(self) -> u16 {
+    pub(crate) fn registers(self) -> u16 {
         match self {
             ValueType::Signed16 | ValueType::Unsigned16 => 1,
             _ => 2,
@@ -53,7 +53,7 @@ pub enum WriteType {
 }
 
 impl WriteType {
-    pub fn parse(name: &str) -> Option<WriteType> {
+    pub(crate) fn parse(name: &str) -> Option<WriteType> {
         Some(match name {
             "uint8" => WriteType::Uint8,
             "int8" => WriteType::Int8,
@@ -67,7 +67,7 @@ impl WriteType {
     }
 
     /// The name the write block gives it, and the values it takes.
-    pub fn describe(self) -> &'static str {
+    pub(crate) fn describe(self) -> &'static str {
         match self {
             WriteType::Uint8 => "uint8 takes whole numbers 0 to 255",
             WriteType::Int8 => "int8 takes whole numbers -128 to 127",
@@ -82,7 +82,7 @@ impl WriteType {
     }
 
     /// Bytes of one value; uint8 and int8 still take a register each (documented).
-    pub fn bytes(self) -> usize {
+    pub(crate) fn bytes(self) -> usize {
         match self {
             WriteType::Uint8 | WriteType::Int8 | WriteType::Uint16 | WriteType::Int16 => 2,
             WriteType::Int32 | WriteType::Float | WriteType::Int32OrFloat => 4,
@@ -93,7 +93,7 @@ impl WriteType {
 /// Byte orders by the names of both blocks: `LittleEndian`, `BigEndian`, `SwapBytes`,
 /// `SwapWords` (read block) and `Little-endian`, `Big-endian`, `Big-endian (2 bytes)`
 /// (write block: the last swaps the bytes of each register).
-pub fn parse_byte_order(name: &str) -> Option<ByteOrder> {
+pub(crate) fn parse_byte_order(name: &str) -> Option<ByteOrder> {
     Some(match name {
         "BigEndian" | "Big-endian" => ByteOrder::BigEndian,
         "LittleEndian" | "Little-endian" => ByteOrder::LittleEndian,
@@ -105,7 +105,7 @@ pub fn parse_byte_order(name: &str) -> Option<ByteOrder> {
 
 /// A transaction as JSON (and gRPC) give it: the keys of the interface.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ReadPlan {
+pub(crate) struct ReadPlan {
     pub function: Function,
     pub slave: u8,
     pub address: u16,
@@ -120,33 +120,33 @@ pub struct ReadPlan {
 
 /// A checked write: the request as it goes on the wire.
 #[derive(Debug, Clone, PartialEq)]
-pub struct WritePlan {
+pub(crate) struct WritePlan {
     pub slave: u8,
     pub request: Request,
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub enum Plan {
+pub(crate) enum Plan {
     Read(ReadPlan),
     Write(WritePlan),
 }
 
 /// A checked transaction.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Checked {
+pub(crate) struct Checked {
     pub plan: Plan,
     pub timeout: Duration,
 }
 
 impl Checked {
-    pub fn slave(&self) -> u8 {
+    pub(crate) fn slave(&self) -> u8 {
         match &self.plan {
             Plan::Read(r) => r.slave,
             Plan::Write(w) => w.slave,
         }
     }
 
-    pub fn request(&self) -> Request {
+    pub(crate) fn request(&self) -> Request {
         match &self.plan {
             Plan::Read(r) => {
                 let count = r
@@ -227,7 +227,7 @@ pub enum ParamError {
 }
 
 /// Every message of `errors`, in order, as one text.
-pub fn messages(errors: &[ParamError]) -> String {
+pub(crate) fn messages(errors: &[ParamError]) -> String {
     errors
         .iter()
         .map(ToString::to_string)

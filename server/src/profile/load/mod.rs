@@ -26,7 +26,7 @@ const REGISTER_KEYS: &[&str] = &[
 ];
 
 /// Names a profile field may not take: the generated function block already has them.
-pub const RESERVED_NAMES: &[&str] = &[
+pub(crate) const RESERVED_NAMES: &[&str] = &[
     "link",
     "slave_id",
     "refresh_rate",
@@ -49,7 +49,7 @@ pub fn load_dir(dir: &Path) -> Result<Vec<Profile>, Problems> {
 
 /// Loads every `*.yaml`/`*.yml` file of `dir` that has no problem; the names of the profiles
 /// in files that have one (as far as a `name:` line shows them); every problem.
-pub fn load_dir_partial(dir: &Path) -> (Vec<Profile>, Vec<String>, Problems) {
+pub(crate) fn load_dir_partial(dir: &Path) -> (Vec<Profile>, Vec<String>, Problems) {
     let shown = dir.display().to_string();
     let entries = match std::fs::read_dir(dir) {
         Ok(entries) => entries,
