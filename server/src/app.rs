@@ -152,7 +152,7 @@ pub struct Running {
     /// The Modbus TCP server's address, when one is configured.
     pub modbus_addr: Option<SocketAddr>,
     /// Whether HTTP and gRPC are served over TLS.
-    pub secure: bool,
+    pub(crate) secure: bool,
     tracker: TaskTracker,
 }
 

@@ -54,56 +54,56 @@ pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct LinkLabels {
-    pub link: String,
+    pub(crate) link: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct DroppedLabels {
-    pub link: String,
+    pub(crate) link: String,
     /// `busy` (the inbox was full), `expired` (its deadline would pass), `abandoned` (its
     /// caller had gone).
-    pub reason: String,
+    pub(crate) reason: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct DeviceLabels {
-    pub device: String,
+    pub(crate) device: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct RequestLabels {
-    pub device: String,
-    pub function: String,
-    pub outcome: String,
+    pub(crate) device: String,
+    pub(crate) function: String,
+    pub(crate) outcome: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct ExceptionLabels {
-    pub device: String,
-    pub code: String,
+    pub(crate) device: String,
+    pub(crate) code: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct ServerRequestLabels {
-    pub function: String,
-    pub outcome: String,
+    pub(crate) function: String,
+    pub(crate) outcome: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct TransactionLabels {
-    pub transaction: String,
-    pub outcome: String,
+    pub(crate) transaction: String,
+    pub(crate) outcome: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct CodeLabels {
-    pub code: String,
+    pub(crate) code: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct WriteLabels {
-    pub device: String,
-    pub outcome: String,
+    pub(crate) device: String,
+    pub(crate) outcome: String,
 }
 
 type Ratio = Gauge<f64, AtomicU64>;

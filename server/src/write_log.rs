@@ -67,17 +67,17 @@ impl Origin {
 
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct WriteRecord {
-    pub generation: u64,
-    pub device: String,
-    pub field: String,
-    pub value: Value,
-    pub status: WriteStatus,
-    pub origin: Origin,
+    pub(crate) generation: u64,
+    pub(crate) device: String,
+    pub(crate) field: String,
+    pub(crate) value: Value,
+    pub(crate) status: WriteStatus,
+    pub(crate) origin: Origin,
     /// Transactions sent for it (retries included); 0 until it reached the bus.
-    pub attempts: u32,
-    pub error: Option<String>,
-    pub requested: SystemTime,
-    pub finished: Option<SystemTime>,
+    pub(crate) attempts: u32,
+    pub(crate) error: Option<String>,
+    pub(crate) requested: SystemTime,
+    pub(crate) finished: Option<SystemTime>,
 }
 
 #[derive(Debug)]

@@ -16,8 +16,8 @@ pub struct Problem {
     pub file: String,
     pub line: u64,
     /// What the problem concerns, e.g. `field DO_0: register.bit`.
-    pub context: String,
-    pub message: String,
+    pub(crate) context: String,
+    pub(crate) message: String,
 }
 
 impl fmt::Display for Problem {
@@ -126,8 +126,8 @@ impl Report {
 /// A YAML value with the line it starts on.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Node {
-    pub line: u64,
-    pub kind: Kind,
+    pub(crate) line: u64,
+    pub(crate) kind: Kind,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -143,8 +143,8 @@ pub(crate) enum Kind {
 
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Key {
-    pub name: String,
-    pub line: u64,
+    pub(crate) name: String,
+    pub(crate) line: u64,
 }
 
 /// Parses YAML text into a [`Node`] tree; a syntax error is one problem with its line.
@@ -313,7 +313,7 @@ impl Node {
 
 /// Reads the keys of a mapping; [`MapReader::finish`] reports every key nobody asked for.
 pub(crate) struct MapReader<'a> {
-    pub line: u64,
+    pub(crate) line: u64,
     entries: &'a [(Key, Node)],
     used: Vec<bool>,
 }

@@ -122,36 +122,36 @@ impl Serialize for Timestamp {
 /// while a response or event is written.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct FieldValue<'a> {
-    pub device: &'a str,
-    pub field: &'a str,
+    pub(crate) device: &'a str,
+    pub(crate) field: &'a str,
     /// IEC 61131-3 type, e.g. `REAL`.
     #[serde(rename = "type")]
-    pub ty: &'static str,
-    pub direction: &'static str,
+    pub(crate) ty: &'static str,
+    pub(crate) direction: &'static str,
     /// The value as the JSON of its type; null until first read.
     #[schema(value_type = Object)]
-    pub value: ValueJson,
+    pub(crate) value: ValueJson,
     /// `good`, `stale`, `never_read` or `bad`.
-    pub quality: &'static str,
+    pub(crate) quality: &'static str,
     /// When the value was last refreshed (RFC 3339).
     #[schema(value_type = Option<String>)]
-    pub timestamp: Option<Timestamp>,
+    pub(crate) timestamp: Option<Timestamp>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub unit: Option<&'a str>,
+    pub(crate) unit: Option<&'a str>,
     /// Why the quality is bad.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
+    pub(crate) error: Option<String>,
     /// The latest write to this field, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub last_write: Option<WriteInfo>,
+    pub(crate) last_write: Option<WriteInfo>,
     /// True when the device holds another value than the newest one requested (`desired`),
     /// with no write of it waiting: a failed write, a device that changed its own output, a
     /// power-cycled device.
-    pub mismatch: bool,
+    pub(crate) mismatch: bool,
     /// The newest value requested for this output, when the device holds another.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Object>)]
-    pub desired: Option<ValueJson>,
+    pub(crate) desired: Option<ValueJson>,
 }
 
 /// The JSON of a field's view.
@@ -176,23 +176,23 @@ pub(crate) fn field_value<'a>(view: &FieldView<'a>) -> FieldValue<'a> {
 /// Where a write stands.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct WriteInfo {
-    pub generation: u64,
-    pub device: String,
-    pub field: String,
+    pub(crate) generation: u64,
+    pub(crate) device: String,
+    pub(crate) field: String,
     #[schema(value_type = Object)]
-    pub value: Json,
+    pub(crate) value: Json,
     /// `pending`, `written`, `superseded` or `failed`.
-    pub status: String,
+    pub(crate) status: String,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-    pub requested: String,
+    pub(crate) error: Option<String>,
+    pub(crate) requested: String,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub finished: Option<String>,
+    pub(crate) finished: Option<String>,
     /// `client`, or the gateway's own: `replay` (after a reconnect), `reconcile` (the device
     /// held another value), `safety` (the writing client was lost).
-    pub origin: String,
+    pub(crate) origin: String,
     /// Transactions sent for it, retries included (0 until it reached the bus).
-    pub attempts: u32,
+    pub(crate) attempts: u32,
 }
 
 impl From<&WriteRecord> for WriteInfo {
@@ -215,18 +215,18 @@ impl From<&WriteRecord> for WriteInfo {
 /// A device with its diagnostics.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct DeviceInfo {
-    pub name: String,
-    pub profile: String,
-    pub protocol: String,
-    pub link: Option<String>,
-    pub slave_id: Option<u8>,
-    pub refresh_rate_ms: u64,
-    pub timeout_ms: u64,
-    pub connected: bool,
+    pub(crate) name: String,
+    pub(crate) profile: String,
+    pub(crate) protocol: String,
+    pub(crate) link: Option<String>,
+    pub(crate) slave_id: Option<u8>,
+    pub(crate) refresh_rate_ms: u64,
+    pub(crate) timeout_ms: u64,
+    pub(crate) connected: bool,
     /// 0 OK, 1 no link, 2 no slave, 10 communication error.
-    pub error_code: i16,
-    pub io_cycles: u64,
-    pub last_response_ms: f64,
+    pub(crate) error_code: i16,
+    pub(crate) io_cycles: u64,
+    pub(crate) last_response_ms: f64,
 }
 
 pub(crate) fn device_info(device: &Device) -> DeviceInfo {
@@ -254,17 +254,17 @@ pub(crate) fn device_info(device: &Device) -> DeviceInfo {
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct DeviceList {
-    pub devices: Vec<DeviceInfo>,
+    pub(crate) devices: Vec<DeviceInfo>,
 }
 
 /// A device with its diagnostics and every field's value, in profile order.
 #[derive(Debug, ToSchema)]
 pub(crate) struct DeviceDetail<'a> {
     #[serde(flatten)]
-    pub device: DeviceInfo,
+    pub(crate) device: DeviceInfo,
     /// Field name to value object.
     #[schema(value_type = Object)]
-    pub fields: FieldMap<'a>,
+    pub(crate) fields: FieldMap<'a>,
 }
 
 impl Serialize for DeviceDetail<'_> {
@@ -309,46 +309,46 @@ impl Serialize for FieldMap<'_> {
 /// A device's diagnostics, as sent on the event stream.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct DiagnosticsEvent {
-    pub device: String,
-    pub connected: bool,
-    pub error_code: i16,
-    pub io_cycles: u64,
-    pub last_response_ms: f64,
+    pub(crate) device: String,
+    pub(crate) connected: bool,
+    pub(crate) error_code: i16,
+    pub(crate) io_cycles: u64,
+    pub(crate) last_response_ms: f64,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct LinkInfo {
-    pub name: String,
+    pub(crate) name: String,
     /// `serial` or `tcp`.
-    pub kind: String,
+    pub(crate) kind: String,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub port: Option<String>,
+    pub(crate) port: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub baud: Option<u32>,
+    pub(crate) baud: Option<u32>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub parity: Option<String>,
+    pub(crate) parity: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub data_bits: Option<u8>,
+    pub(crate) data_bits: Option<u8>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub stop_bits: Option<u8>,
+    pub(crate) stop_bits: Option<u8>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub host: Option<String>,
+    pub(crate) host: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub tcp_port: Option<u16>,
+    pub(crate) tcp_port: Option<u16>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub framing: Option<String>,
-    pub connected: bool,
+    pub(crate) framing: Option<String>,
+    pub(crate) connected: bool,
     /// 0 OK, 1 no port configured, 2 open failed, 3 port lost.
-    pub error_code: i16,
-    pub devices: Vec<String>,
+    pub(crate) error_code: i16,
+    pub(crate) devices: Vec<String>,
     /// The share of the line's time the devices' refresh rates demand (serial links; above
     /// 1 they cannot all be kept).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub planned_utilisation: Option<f64>,
+    pub(crate) planned_utilisation: Option<f64>,
     /// The share of time the line was busy over the last measuring window (about a
     /// second); absent before the first window ends.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub utilisation: Option<f64>,
+    pub(crate) utilisation: Option<f64>,
 }
 
 pub(crate) fn link_info(link: &Link) -> LinkInfo {
@@ -397,17 +397,17 @@ pub(crate) fn link_info(link: &Link) -> LinkInfo {
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct LinkList {
-    pub links: Vec<LinkInfo>,
+    pub(crate) links: Vec<LinkInfo>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct ProfileSummary {
-    pub name: String,
-    pub vendor: Option<String>,
-    pub protocol: String,
-    pub description: Option<String>,
-    pub field_count: usize,
-    pub source: String,
+    pub(crate) name: String,
+    pub(crate) vendor: Option<String>,
+    pub(crate) protocol: String,
+    pub(crate) description: Option<String>,
+    pub(crate) field_count: usize,
+    pub(crate) source: String,
 }
 
 pub(crate) fn profile_summary(p: &Profile) -> ProfileSummary {
@@ -423,43 +423,43 @@ pub(crate) fn profile_summary(p: &Profile) -> ProfileSummary {
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct ProfileList {
-    pub profiles: Vec<ProfileSummary>,
+    pub(crate) profiles: Vec<ProfileSummary>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct RegisterInfo {
-    pub address: u16,
-    pub kind: String,
-    pub bit: Option<u8>,
-    pub scale: f64,
-    pub offset: f64,
-    pub unit: Option<String>,
-    pub byte_order: String,
-    pub word_count: u16,
-    pub raw_type: Option<String>,
+    pub(crate) address: u16,
+    pub(crate) kind: String,
+    pub(crate) bit: Option<u8>,
+    pub(crate) scale: f64,
+    pub(crate) offset: f64,
+    pub(crate) unit: Option<String>,
+    pub(crate) byte_order: String,
+    pub(crate) word_count: u16,
+    pub(crate) raw_type: Option<String>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct FieldInfo {
-    pub name: String,
+    pub(crate) name: String,
     #[serde(rename = "type")]
-    pub ty: String,
-    pub direction: String,
-    pub register: RegisterInfo,
-    pub description: Option<String>,
+    pub(crate) ty: String,
+    pub(crate) direction: String,
+    pub(crate) register: RegisterInfo,
+    pub(crate) description: Option<String>,
 }
 
 /// One member of the generated function block.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct LayoutInfo {
-    pub name: String,
+    pub(crate) name: String,
     #[serde(rename = "type")]
-    pub ty: String,
+    pub(crate) ty: String,
     /// `VAR_INPUT` or `VAR`.
-    pub section: String,
+    pub(crate) section: String,
     /// `link`, `parameter`, `diagnostic` or `field`.
-    pub role: String,
-    pub description: String,
+    pub(crate) role: String,
+    pub(crate) description: String,
 }
 
 impl From<LayoutEntry> for LayoutInfo {
@@ -477,10 +477,10 @@ impl From<LayoutEntry> for LayoutInfo {
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct ProfileDetail {
     #[serde(flatten)]
-    pub summary: ProfileSummary,
-    pub fields: Vec<FieldInfo>,
+    pub(crate) summary: ProfileSummary,
+    pub(crate) fields: Vec<FieldInfo>,
     /// The generated function block's members, in order.
-    pub layout: Vec<LayoutInfo>,
+    pub(crate) layout: Vec<LayoutInfo>,
 }
 
 pub(crate) fn profile_detail(p: &Profile) -> ProfileDetail {
@@ -514,16 +514,16 @@ pub(crate) fn profile_detail(p: &Profile) -> ProfileDetail {
 /// The answer to an accepted write.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct WriteAccepted {
-    pub device: String,
-    pub field: String,
-    pub generation: u64,
+    pub(crate) device: String,
+    pub(crate) field: String,
+    pub(crate) generation: u64,
     /// Always `pending`: follow it at `/api/v1/writes/{generation}`.
-    pub status: String,
+    pub(crate) status: String,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct WritesAccepted {
-    pub writes: Vec<WriteAccepted>,
+    pub(crate) writes: Vec<WriteAccepted>,
 }
 
 #[cfg(test)]

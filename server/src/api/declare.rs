@@ -26,41 +26,41 @@ use crate::service::Service;
 #[serde(deny_unknown_fields)]
 pub(crate) struct SerialDeclaration {
     #[serde(default)]
-    pub port: String,
-    pub baud: u64,
+    pub(crate) port: String,
+    pub(crate) baud: u64,
     /// `N` (default), `E` or `O`.
     #[serde(default)]
-    pub parity: String,
+    pub(crate) parity: String,
     /// 7 or 8 (default).
     #[serde(default)]
-    pub data_bits: u64,
+    pub(crate) data_bits: u64,
     /// 1 (default) or 2.
     #[serde(default)]
-    pub stop_bits: u64,
+    pub(crate) stop_bits: u64,
 }
 
 /// A Modbus TCP endpoint (or RTU frames over TCP).
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct TcpDeclaration {
-    pub host: String,
+    pub(crate) host: String,
     /// Default 502.
     #[serde(default)]
-    pub port: u64,
+    pub(crate) port: u64,
     /// `mbap` (default) or `rtu`.
     #[serde(default)]
-    pub framing: String,
+    pub(crate) framing: String,
 }
 
 /// The body of `PUT /api/v1/links/{link}`: `serial` or `tcp`.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct LinkDeclarationBody {
-    pub serial: Option<SerialDeclaration>,
-    pub tcp: Option<TcpDeclaration>,
+    pub(crate) serial: Option<SerialDeclaration>,
+    pub(crate) tcp: Option<TcpDeclaration>,
     /// Extra silence between frames, 0-1000 ms.
     #[serde(default)]
-    pub guard_time_ms: u64,
+    pub(crate) guard_time_ms: u64,
 }
 
 /// The body of `PUT /api/v1/devices/{device}`. A Modbus device declared without `link` (or
@@ -68,31 +68,31 @@ pub(crate) struct LinkDeclarationBody {
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct DeviceDeclarationBody {
-    pub profile: String,
+    pub(crate) profile: String,
     /// A link name, or a serial port path as a `SerialLink`'s `port`; none for simulated
     /// devices.
     #[serde(default)]
-    pub link: String,
+    pub(crate) link: String,
     #[serde(default)]
-    pub slave_id: u32,
+    pub(crate) slave_id: u32,
     /// Default 100.
-    pub refresh_rate_ms: Option<u64>,
+    pub(crate) refresh_rate_ms: Option<u64>,
     /// Default 200.
-    pub timeout_ms: Option<u64>,
+    pub(crate) timeout_ms: Option<u64>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct LinkDeclared {
-    pub link: LinkInfo,
+    pub(crate) link: LinkInfo,
     /// Whether the declaration created the link (else it existed, or was given its port).
-    pub created: bool,
+    pub(crate) created: bool,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct DeviceDeclared {
-    pub device: DeviceInfo,
+    pub(crate) device: DeviceInfo,
     /// Whether the declaration created the device (else it existed, or was bound).
-    pub created: bool,
+    pub(crate) created: bool,
 }
 
 fn body_of<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> {

@@ -13,22 +13,22 @@ use crate::service::ServiceError;
 /// An error answer: `{"error": {"code": "...", "message": "..."}}`.
 #[derive(Debug)]
 pub(crate) struct ApiError {
-    pub status: StatusCode,
-    pub code: &'static str,
-    pub message: String,
+    pub(crate) status: StatusCode,
+    pub(crate) code: &'static str,
+    pub(crate) message: String,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct ErrorBody {
-    pub error: ErrorDetail,
+    pub(crate) error: ErrorDetail,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct ErrorDetail {
     /// A stable, machine-readable code, e.g. `unknown_device`.
-    pub code: String,
+    pub(crate) code: String,
     /// What is wrong, for people.
-    pub message: String,
+    pub(crate) message: String,
 }
 
 impl ApiError {

@@ -25,9 +25,9 @@ pub(crate) const MAX_CONNECTIONS: usize = 4096;
 pub(crate) struct Limits {
     /// For the TLS handshake or first byte, then for each request's headers (and the wait
     /// for the next request on a kept-alive connection).
-    pub header_timeout: Duration,
+    pub(crate) header_timeout: Duration,
     /// For a request's body (at most [`super::MAX_BODY`]).
-    pub body_timeout: Duration,
+    pub(crate) body_timeout: Duration,
 }
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests

@@ -21,20 +21,20 @@ use crate::service::Service;
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct BindingInfo {
     /// The IEC located address, e.g. `%QX2.6`.
-    pub at: String,
+    pub(crate) at: String,
     /// `coil`, `discrete input`, `input register` or `holding register`.
-    pub table: String,
+    pub(crate) table: String,
     /// The first Modbus data address (0-based).
-    pub address: u16,
-    pub device: String,
+    pub(crate) address: u16,
+    pub(crate) device: String,
     /// The field, or the diagnostic (`connected`, `error_code`, ...).
-    pub field: String,
+    pub(crate) field: String,
     #[serde(rename = "type")]
-    pub ty: String,
+    pub(crate) ty: String,
     /// `rw` or `r`.
-    pub access: String,
+    pub(crate) access: String,
     /// Bound by `auto: true`.
-    pub auto: bool,
+    pub(crate) auto: bool,
 }
 
 impl From<&Binding> for BindingInfo {
@@ -55,18 +55,18 @@ impl From<&Binding> for BindingInfo {
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct MapInfo {
     /// `linux`, `esp32` or `atmega`.
-    pub address_space: String,
-    pub unit_id: u8,
-    pub read_only: bool,
-    pub bindings: Vec<BindingInfo>,
+    pub(crate) address_space: String,
+    pub(crate) unit_id: u8,
+    pub(crate) read_only: bool,
+    pub(crate) bindings: Vec<BindingInfo>,
 }
 
 /// The gateway memory: set coils and non-zero registers by located address.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct MemoryInfo {
-    pub coils: BTreeMap<String, bool>,
+    pub(crate) coils: BTreeMap<String, bool>,
     /// `%QW`/`%MW` as 16-bit, `%MD` as 32-bit and `%ML` as 64-bit unsigned numbers.
-    pub registers: BTreeMap<String, u64>,
+    pub(crate) registers: BTreeMap<String, u64>,
 }
 
 fn no_server() -> ApiError {

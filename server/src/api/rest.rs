@@ -20,14 +20,14 @@ type ServiceRef = State<Arc<Service>>;
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct Health {
-    pub status: String,
+    pub(crate) status: String,
     /// Links whose task is stuck in a transaction past its bound (then 503).
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub stalled_links: Vec<String>,
+    pub(crate) stalled_links: Vec<String>,
     /// Devices that answer but whose polls get no line time (their values go stale): the
     /// gateway still serves, so this alone does not make it unready.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub starved_devices: Vec<String>,
+    pub(crate) starved_devices: Vec<String>,
 }
 
 /// The process is alive.
@@ -296,10 +296,10 @@ pub(crate) async fn patch_fields(
 /// What a simulated input was set to.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct Simulated {
-    pub device: String,
-    pub field: String,
+    pub(crate) device: String,
+    pub(crate) field: String,
     #[schema(value_type = Object)]
-    pub value: Json_,
+    pub(crate) value: Json_,
 }
 
 /// Sets an input of a simulated device, as if the device had read it; it shows on the

@@ -19,18 +19,18 @@ use crate::transaction::{Outcome, TransactionSpec};
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct TransactionResult {
     /// The command got a correct response.
-    pub actual: bool,
+    pub(crate) actual: bool,
     /// 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
-    pub state: i32,
+    pub(crate) state: i32,
     /// A read's value after divisor and precision; null for writes and failures.
-    pub value: Option<f64>,
+    pub(crate) value: Option<f64>,
     /// What went wrong, in the read block's words (`Slave timeout`, `Invalid address`, ...).
-    pub error: Option<String>,
+    pub(crate) error: Option<String>,
     /// The request frame in hex (`11 06 00 01 00 03 9A 9B`).
-    pub request: String,
+    pub(crate) request: String,
     /// The response frame in hex; null when none came.
-    pub response: Option<String>,
-    pub elapsed_ms: f64,
+    pub(crate) response: Option<String>,
+    pub(crate) elapsed_ms: f64,
 }
 
 impl From<Outcome> for TransactionResult {
@@ -70,27 +70,27 @@ pub(crate) async fn post_transaction(
 /// answer) with `name`, `enabled` and a timestamp.
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct StandingInfo {
-    pub name: String,
-    pub link: String,
+    pub(crate) name: String,
+    pub(crate) link: String,
     /// `read` or `write`.
-    pub kind: String,
-    pub enabled: bool,
+    pub(crate) kind: String,
+    pub(crate) enabled: bool,
     /// `refresh_interval` of a read (after the previous finished) or `polling_period` of a
     /// write (from the start of the previous); 0: only when triggered.
-    pub period_ms: u64,
-    pub actual: bool,
+    pub(crate) period_ms: u64,
+    pub(crate) actual: bool,
     /// 0 not run yet; 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
-    pub state: i32,
-    pub value: Option<f64>,
-    pub error: Option<String>,
-    pub request: Option<String>,
-    pub response: Option<String>,
-    pub elapsed_ms: Option<f64>,
-    pub runs: u64,
-    pub failures: u64,
+    pub(crate) state: i32,
+    pub(crate) value: Option<f64>,
+    pub(crate) error: Option<String>,
+    pub(crate) request: Option<String>,
+    pub(crate) response: Option<String>,
+    pub(crate) elapsed_ms: Option<f64>,
+    pub(crate) runs: u64,
+    pub(crate) failures: u64,
     /// When the last run ended (RFC 3339).
-    pub timestamp: Option<String>,
-    pub parameters: TransactionSpec,
+    pub(crate) timestamp: Option<String>,
+    pub(crate) parameters: TransactionSpec,
 }
 
 pub(crate) fn standing_info(s: &Standing, status: &StandingStatus) -> StandingInfo {
@@ -117,24 +117,24 @@ pub(crate) fn standing_info(s: &Standing, status: &StandingStatus) -> StandingIn
 
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct StandingList {
-    pub transactions: Vec<StandingInfo>,
+    pub(crate) transactions: Vec<StandingInfo>,
 }
 
 /// The body of `PUT /api/v1/transactions/{name}`: the one-shot's keys plus `link` and a
 /// period.
 #[derive(Debug, serde::Deserialize, ToSchema)]
 pub(crate) struct StandingDeclaration {
-    pub link: String,
+    pub(crate) link: String,
     /// Reads: milliseconds between the end of one run and the next (0: only triggered).
     #[serde(default)]
-    pub refresh_interval_ms: u64,
+    pub(crate) refresh_interval_ms: u64,
     /// Writes: milliseconds between the starts of runs (0: only triggered).
     #[serde(default)]
-    pub polling_period_ms: u64,
+    pub(crate) polling_period_ms: u64,
     #[serde(default = "enabled_by_default")]
-    pub enabled: bool,
+    pub(crate) enabled: bool,
     #[serde(flatten)]
-    pub parameters: TransactionSpec,
+    pub(crate) parameters: TransactionSpec,
 }
 
 fn enabled_by_default() -> bool {
@@ -146,7 +146,7 @@ fn enabled_by_default() -> bool {
 #[serde(deny_unknown_fields)]
 pub(crate) struct StandingValues {
     #[schema(value_type = Vec<Object>)]
-    pub values: Vec<serde_json::Value>,
+    pub(crate) values: Vec<serde_json::Value>,
 }
 
 type Answer = Result<Json<StandingInfo>, ApiError>;

@@ -21,8 +21,8 @@ pub(crate) const SIM_STRING_MAX: usize = 254;
 /// One configured device: its profile, cached samples, diagnostics and requested outputs.
 #[derive(Debug)]
 pub struct Device {
-    pub config: DeviceConfig,
-    pub profile: Arc<Profile>,
+    pub(crate) config: DeviceConfig,
+    pub(crate) profile: Arc<Profile>,
     samples: Vec<watch::Sender<Sample>>,
     diagnostics: watch::Sender<Diagnostics>,
     outputs: Outputs,
@@ -42,8 +42,8 @@ pub struct Device {
 /// Where a device is reached.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct Binding {
-    pub link: Option<String>,
-    pub slave_id: Option<u8>,
+    pub(crate) link: Option<String>,
+    pub(crate) slave_id: Option<u8>,
 }
 
 impl Binding {

@@ -106,8 +106,8 @@ impl Utilisation {
 /// were added. Published whole on each change; the link's task takes in the newest.
 #[derive(Debug, Clone)]
 pub struct LinkState {
-    pub config: LinkConfig,
-    pub members: Vec<Arc<Device>>,
+    pub(crate) config: LinkConfig,
+    pub(crate) members: Vec<Arc<Device>>,
 }
 
 /// A link, its diagnostics and the devices on it.
@@ -120,13 +120,13 @@ pub struct Link {
     diagnostics: watch::Sender<LinkDiagnostics>,
     /// Wakes the link's task when a write to one of its devices is requested or a request
     /// is queued.
-    pub wake: Arc<Notify>,
+    pub(crate) wake: Arc<Notify>,
     queue: Mutex<VecDeque<Queued>>,
     /// Stops the link's task when the link is removed.
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
     /// Whether the link's task keeps within its transactions' bounds.
     pub progress: Arc<Progress>,
-    pub utilisation: Arc<Utilisation>,
+    pub(crate) utilisation: Arc<Utilisation>,
 }
 
 impl Link {

@@ -109,8 +109,8 @@ impl Registry {
 /// come from the config and can be added at run time (`EnsureLink`, `EnsureDevice`).
 #[derive(Debug)]
 pub struct Cache {
-    pub catalog: Catalog,
-    pub writes: Arc<WriteLog>,
+    pub(crate) catalog: Catalog,
+    pub(crate) writes: Arc<WriteLog>,
     registry: RwLock<Registry>,
 }
 

@@ -84,11 +84,11 @@ impl Checked {
 /// A write taken by the device's task to put on the bus.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct TakenWrite {
-    pub field: usize,
-    pub generation: u64,
-    pub value: Value,
+    pub(crate) field: usize,
+    pub(crate) generation: u64,
+    pub(crate) value: Value,
     /// The registers the value becomes, when its check made them (a client's write).
-    pub registers: Option<Vec<u16>>,
+    pub(crate) registers: Option<Vec<u16>>,
 }
 
 #[derive(Debug, Default)]

@@ -36,15 +36,15 @@ pub(crate) enum FieldError {
 #[derive(Debug, Clone)]
 pub(crate) struct Sample {
     /// The last good value; kept (and marked) when later reads fail.
-    pub value: Option<Value>,
-    pub quality: Quality,
+    pub(crate) value: Option<Value>,
+    pub(crate) quality: Quality,
     /// Why the quality is bad.
-    pub error: Option<FieldError>,
+    pub(crate) error: Option<FieldError>,
     /// When the value was last refreshed.
-    pub updated: Option<(Instant, SystemTime)>,
+    pub(crate) updated: Option<(Instant, SystemTime)>,
     /// Subscribers were woken when this good value went stale (so that live views show it);
     /// the next refresh wakes them again.
-    pub stale_told: bool,
+    pub(crate) stale_told: bool,
 }
 
 impl Sample {
@@ -88,15 +88,15 @@ impl DeviceCode {
 /// Device diagnostics, as source document 000's device function blocks report them.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Diagnostics {
-    pub connected: bool,
-    pub error_code: DeviceCode,
-    pub io_cycles: u64,
-    pub last_response_ms: f64,
+    pub(crate) connected: bool,
+    pub(crate) error_code: DeviceCode,
+    pub(crate) io_cycles: u64,
+    pub(crate) last_response_ms: f64,
 }
 
 /// Link diagnostics, as source document 000's `SerialLink` reports them.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct LinkDiagnostics {
-    pub connected: bool,
-    pub error_code: LinkCode,
+    pub(crate) connected: bool,
+    pub(crate) error_code: LinkCode,
 }

@@ -39,11 +39,11 @@ impl Raw {
 /// rejected when it does not fit the raw type (never wrapped).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Encoding {
-    pub ty: IecType,
-    pub raw: Raw,
-    pub order: ByteOrder,
-    pub scale: f64,
-    pub offset: f64,
+    pub(crate) ty: IecType,
+    pub(crate) raw: Raw,
+    pub(crate) order: ByteOrder,
+    pub(crate) scale: f64,
+    pub(crate) offset: f64,
 }
 
 impl Encoding {

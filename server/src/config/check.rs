@@ -143,8 +143,8 @@ pub(crate) fn safe_value(
 /// What the security section gives the listeners.
 #[derive(Debug, Default)]
 pub(crate) struct Access {
-    pub tokens: crate::auth::Tokens,
-    pub tls: Option<crate::tls::Tls>,
+    pub(crate) tokens: crate::auth::Tokens,
+    pub(crate) tls: Option<crate::tls::Tls>,
 }
 
 /// The security rules of a config: its tokens and TLS files load, and without tokens the

@@ -30,9 +30,9 @@ pub struct Config {
     pub http: SocketAddr,
     pub grpc: SocketAddr,
     /// How long an HTTP client may take to send a request's headers (`listen.header_timeout`).
-    pub header_timeout: Duration,
+    pub(crate) header_timeout: Duration,
     /// How long a request body may take to arrive (`listen.body_timeout`).
-    pub body_timeout: Duration,
+    pub(crate) body_timeout: Duration,
     /// The `profiles` directory as configured, relative to the config file's directory.
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
@@ -40,43 +40,43 @@ pub struct Config {
     /// The Modbus TCP server, when configured.
     pub modbus_server: Option<modbus_server::ModbusServerConfig>,
     /// Standing raw transactions.
-    pub transactions: Vec<transactions::StandingConfig>,
+    pub(crate) transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,
     /// The file the config came from.
     pub source: String,
     /// Where keys checked after reading are written, for their problems' lines.
-    pub lines: KeyLines,
+    pub(crate) lines: KeyLines,
     /// What was written but could not be read (its problems are reported already), so the
     /// checks that follow do not report it again as missing.
-    pub unreadable: Unreadable,
+    pub(crate) unreadable: Unreadable,
 }
 
 /// The lines of keys whose problems are found after reading (0: not written).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct KeyLines {
-    pub http: u64,
-    pub grpc: u64,
-    pub profiles: u64,
+    pub(crate) http: u64,
+    pub(crate) grpc: u64,
+    pub(crate) profiles: u64,
 }
 
 /// Entries of the config file that had problems of their own.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Unreadable {
     /// Links written but not read.
-    pub links: Vec<String>,
+    pub(crate) links: Vec<String>,
     /// Devices written but not read.
-    pub devices: Vec<String>,
+    pub(crate) devices: Vec<String>,
     /// Devices whose `slave_id` was written but refused.
-    pub slave_ids: Vec<String>,
+    pub(crate) slave_ids: Vec<String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinkConfig {
-    pub name: String,
-    pub transport: Transport,
+    pub(crate) name: String,
+    pub(crate) transport: Transport,
     /// Extra silence kept between frames, on top of the 3.5 characters.
-    pub guard_time: Duration,
-    pub line: u64,
+    pub(crate) guard_time: Duration,
+    pub(crate) line: u64,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -186,21 +186,21 @@ pub struct SerialSettings {
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct DeviceConfig {
-    pub name: String,
-    pub profile: String,
-    pub link: Option<String>,
-    pub slave_id: Option<u8>,
-    pub refresh_rate: Duration,
-    pub timeout: Duration,
-    pub retries: u32,
-    pub max_batch: u16,
-    pub max_gap: u16,
+    pub(crate) name: String,
+    pub(crate) profile: String,
+    pub(crate) link: Option<String>,
+    pub(crate) slave_id: Option<u8>,
+    pub(crate) refresh_rate: Duration,
+    pub(crate) timeout: Duration,
+    pub(crate) retries: u32,
+    pub(crate) max_batch: u16,
+    pub(crate) max_gap: u16,
     /// When outputs are written: on a new request, or also whenever the device holds another
     /// value than the one requested.
-    pub write_mode: WriteMode,
+    pub(crate) write_mode: WriteMode,
     /// What happens to outputs a scan-cycle client wrote when it is gone: `None` holds them.
-    pub on_client_loss: Option<ClientLoss>,
-    pub line: u64,
+    pub(crate) on_client_loss: Option<ClientLoss>,
+    pub(crate) line: u64,
 }
 
 /// `devices[].on_client_loss: { after, safe: { FIELD: value } }`: once the `Exchange` stream
@@ -208,9 +208,9 @@ pub struct DeviceConfig {
 /// since), its safe value is written.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ClientLoss {
-    pub after: Duration,
+    pub(crate) after: Duration,
     /// Field name and value text, checked against the profile.
-    pub safe: Vec<(String, String)>,
+    pub(crate) safe: Vec<(String, String)>,
 }
 
 /// `devices[].write_mode`.

@@ -66,36 +66,36 @@ pub enum OnBadQuality {
 /// One `map` entry as written.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MapEntry {
-    pub at: Location,
+    pub(crate) at: Location,
     /// `device.field` (a field, or a diagnostic such as `connected`).
-    pub device: String,
-    pub field: String,
-    pub line: u64,
+    pub(crate) device: String,
+    pub(crate) field: String,
+    pub(crate) line: u64,
 }
 
 /// Unit ids forwarded as they are to the slaves on a link.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Forward {
-    pub first: u8,
-    pub last: u8,
-    pub link: String,
-    pub line: u64,
+    pub(crate) first: u8,
+    pub(crate) last: u8,
+    pub(crate) link: String,
+    pub(crate) line: u64,
 }
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusServerConfig {
     pub listen: SocketAddr,
-    pub address_space: AddressSpace,
-    pub unit_id: u8,
-    pub map: Vec<MapEntry>,
-    pub auto: bool,
-    pub forward: Vec<Forward>,
-    pub read_only: bool,
-    pub max_connections: usize,
-    pub idle_timeout: Duration,
-    pub memory_file: Option<PathBuf>,
-    pub on_bad_quality: OnBadQuality,
-    pub line: u64,
+    pub(crate) address_space: AddressSpace,
+    pub(crate) unit_id: u8,
+    pub(crate) map: Vec<MapEntry>,
+    pub(crate) auto: bool,
+    pub(crate) forward: Vec<Forward>,
+    pub(crate) read_only: bool,
+    pub(crate) max_connections: usize,
+    pub(crate) idle_timeout: Duration,
+    pub(crate) memory_file: Option<PathBuf>,
+    pub(crate) on_bad_quality: OnBadQuality,
+    pub(crate) line: u64,
 }
 
 fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {

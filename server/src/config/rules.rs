@@ -289,11 +289,11 @@ pub(crate) fn slave_id(id: u64) -> Result<u8, RuleError> {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Mismatch {
     /// `Baudrate`, `Parity`, `Stop bits` or `Data bits`, as source document 004 words it.
-    pub setting: &'static str,
+    pub(crate) setting: &'static str,
     /// What the port runs with.
-    pub have: String,
+    pub(crate) have: String,
     /// What the newcomer asks for.
-    pub want: String,
+    pub(crate) want: String,
 }
 
 /// Every setting of `want` that differs from `have` on the same port.

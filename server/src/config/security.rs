@@ -128,15 +128,15 @@ impl DeclarePolicy {
 
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct SecurityConfig {
-    pub tokens_file: Option<PathBuf>,
-    pub read_only: bool,
-    pub insecure: bool,
-    pub tls: Option<crate::tls::TlsFiles>,
+    pub(crate) tokens_file: Option<PathBuf>,
+    pub(crate) read_only: bool,
+    pub(crate) insecure: bool,
+    pub(crate) tls: Option<crate::tls::TlsFiles>,
     pub declare: DeclarePolicy,
     /// The lines of `tokens_file` and `tls` (0: not written), for problems found when their
     /// files are loaded.
-    pub tokens_file_line: u64,
-    pub tls_line: u64,
+    pub(crate) tokens_file_line: u64,
+    pub(crate) tls_line: u64,
 }
 
 impl SecurityConfig {

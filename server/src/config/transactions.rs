@@ -12,41 +12,41 @@ use serde::Deserialize;
 #[serde(deny_unknown_fields)]
 pub struct TransactionSpec {
     /// 1-4 read, 5, 6, 15, 16 write.
-    pub function: Option<i64>,
+    pub(crate) function: Option<i64>,
     /// deviceAddress / network number, 1-255.
-    pub slave: Option<i64>,
+    pub(crate) slave: Option<i64>,
     /// registerAddress / data address, 0-65535.
-    pub address: Option<i64>,
+    pub(crate) address: Option<i64>,
     /// FC01/02: bits to read, 1-32.
-    pub bit_count: Option<i64>,
+    pub(crate) bit_count: Option<i64>,
     /// FC03/04: SIGNED_NUMBER16, SIGNED_NUMBER32, UNSIGNED_NUMBER16, UNSIGNED_NUMBER32, FLOAT.
-    pub value_type: Option<String>,
+    pub(crate) value_type: Option<String>,
     /// Reads: 1-4294967295 (default 1); the value is divided by it, not rounded.
-    pub divisor: Option<i64>,
+    pub(crate) divisor: Option<i64>,
     /// Reads: 0-3 digits kept after the point, truncating (default 3).
-    pub precision: Option<i64>,
+    pub(crate) precision: Option<i64>,
     /// LittleEndian, BigEndian, SwapBytes, SwapWords, Little-endian, Big-endian, Big-endian (2 bytes).
-    pub byte_order: Option<String>,
+    pub(crate) byte_order: Option<String>,
     /// responseTimeout, 10-60000 ms (default 1000).
-    pub timeout_ms: Option<i64>,
+    pub(crate) timeout_ms: Option<i64>,
     /// Writes: uint8, int8, uint16, int16, int32 (an integer), float (IEEE-754), int32/float (IEEE-754 for a number written with a point, else int32).
     #[serde(rename = "type")]
-    pub write_type: Option<String>,
+    pub(crate) write_type: Option<String>,
     /// Writes: the values (numbers; for coils, numbers or booleans).
     #[schema(value_type = Vec<Object>)]
-    pub values: Option<Vec<serde_json::Value>>,
+    pub(crate) values: Option<Vec<serde_json::Value>>,
 }
 
 /// One standing transaction as configured (or declared at run time).
 #[derive(Debug, Clone, PartialEq)]
 pub struct StandingConfig {
-    pub name: String,
-    pub link: String,
-    pub spec: TransactionSpec,
+    pub(crate) name: String,
+    pub(crate) link: String,
+    pub(crate) spec: TransactionSpec,
     /// Reads: `refresh_interval`; writes: `polling_period`. Zero: only when triggered.
-    pub period: Duration,
-    pub enabled: bool,
-    pub line: u64,
+    pub(crate) period: Duration,
+    pub(crate) enabled: bool,
+    pub(crate) line: u64,
 }
 
 /// The YAML value as JSON, for the keys a transaction shares with the REST interface.

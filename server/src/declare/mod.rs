@@ -24,27 +24,27 @@ pub(crate) use error::{Conflict, DeclareError};
 pub(crate) struct LinkDeclaration {
     /// Optional: by default the name is made from the port (`/dev/ttyUSB0` → `dev_ttyUSB0`)
     /// or the endpoint (`192.0.2.10_502`).
-    pub name: Option<String>,
-    pub endpoint: Endpoint,
-    pub guard_time: Duration,
+    pub(crate) name: Option<String>,
+    pub(crate) endpoint: Endpoint,
+    pub(crate) guard_time: Duration,
 }
 
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct DeviceDeclaration {
-    pub name: String,
-    pub profile: String,
+    pub(crate) name: String,
+    pub(crate) profile: String,
     /// A link name, or a serial port path as a `SerialLink` instance's `port` gives it.
-    pub link: String,
-    pub slave_id: u32,
-    pub refresh_rate: Duration,
-    pub timeout: Option<Duration>,
+    pub(crate) link: String,
+    pub(crate) slave_id: u32,
+    pub(crate) refresh_rate: Duration,
+    pub(crate) timeout: Option<Duration>,
 }
 
 /// What a declaration resolved to, and whether it was created by it.
 #[derive(Debug, Clone)]
 pub(crate) struct Ensured<T> {
-    pub value: Arc<T>,
-    pub created: bool,
+    pub(crate) value: Arc<T>,
+    pub(crate) created: bool,
 }
 
 fn default_name(transport: &Transport) -> String {

@@ -10,10 +10,10 @@ pub(crate) const MAX_LENGTH: usize = 254;
 /// A header as read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Header {
-    pub transaction: u16,
-    pub unit: u8,
+    pub(crate) transaction: u16,
+    pub(crate) unit: u8,
     /// Bytes of the PDU that follows (the length field less the unit id).
-    pub pdu_len: usize,
+    pub(crate) pdu_len: usize,
 }
 
 /// A header whose protocol id is not 0 or whose length is out of 2-254: the stream is out of
@@ -21,8 +21,8 @@ pub(crate) struct Header {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("MBAP header with protocol {protocol} and length {length}")]
 pub(crate) struct Malformed {
-    pub protocol: u16,
-    pub length: usize,
+    pub(crate) protocol: u16,
+    pub(crate) length: usize,
 }
 
 impl Header {

@@ -73,10 +73,10 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> ByteStream for T {}
 /// Byte counts of a connection.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Counters {
-    pub bytes_sent: u64,
-    pub bytes_received: u64,
+    pub(crate) bytes_sent: u64,
+    pub(crate) bytes_received: u64,
     /// Received bytes that belonged to no transaction (late replies, noise).
-    pub bytes_discarded: u64,
+    pub(crate) bytes_discarded: u64,
 }
 
 /// Why a transaction failed. An exception is the device's answer; everything else is a

@@ -63,7 +63,7 @@ pub struct RtuTransport {
     timer: precise::Timer,
     /// A request that timed out and whose answer may still come.
     late: Option<Late>,
-    pub counters: Counters,
+    pub(crate) counters: Counters,
 }
 
 impl RtuTransport {

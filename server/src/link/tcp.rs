@@ -15,7 +15,7 @@ use super::{ByteStream, Counters, TxError};
 pub(crate) struct MbapTransport {
     io: Box<dyn ByteStream>,
     next_id: u16,
-    pub counters: Counters,
+    pub(crate) counters: Counters,
 }
 
 impl MbapTransport {

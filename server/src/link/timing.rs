@@ -9,7 +9,7 @@ pub(crate) const FAST_SILENCE: Duration = Duration::from_micros(1750);
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LineTiming {
-    pub baud: u32,
+    pub(crate) baud: u32,
     /// Start bit + data bits + parity bit + stop bits: 10 or 11 for Modbus RTU.
     pub bits_per_char: u32,
 }

@@ -62,30 +62,30 @@ pub enum Target {
 /// One binding.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Binding {
-    pub at: Location,
-    pub slot: Slot,
-    pub device: String,
-    pub target: Target,
+    pub(crate) at: Location,
+    pub(crate) slot: Slot,
+    pub(crate) device: String,
+    pub(crate) target: Target,
     /// The field's (or diagnostic's) name.
-    pub name: String,
-    pub ty: IecType,
-    pub repr: Repr,
+    pub(crate) name: String,
+    pub(crate) ty: IecType,
+    pub(crate) repr: Repr,
     /// Whether masters may write it: an output or inout field outside `%I`.
-    pub writable: bool,
+    pub(crate) writable: bool,
     /// Bound by `auto` rather than by a `map` entry.
-    pub auto: bool,
+    pub(crate) auto: bool,
 }
 
 /// Every binding of the server's map, in location order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plan {
-    pub space: Space,
-    pub bindings: Vec<Binding>,
+    pub(crate) space: Space,
+    pub(crate) bindings: Vec<Binding>,
     /// Fields `auto` could not bind (no location of their kind left, or a STRING).
-    pub unbound: Vec<String>,
+    pub(crate) unbound: Vec<String>,
     /// Bindings that work but may not show every value (a TIME at `%MD`): `check` and
     /// `serve` print them, they stop nothing.
-    pub warnings: Vec<crate::yaml::Problem>,
+    pub(crate) warnings: Vec<crate::yaml::Problem>,
 }
 
 /// How a field or diagnostic fits a location, or why it does not.

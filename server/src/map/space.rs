@@ -36,9 +36,9 @@ impl Table {
 /// Where a location sits: a table, its first address and how many bits or registers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Slot {
-    pub table: Table,
-    pub address: u16,
-    pub width: u16,
+    pub(crate) table: Table,
+    pub(crate) address: u16,
+    pub(crate) width: u16,
 }
 
 /// One memory kind (%MW, %MD, %ML) of a space: first holding register and how many.
@@ -51,7 +51,7 @@ struct Memory {
 /// A platform's address map.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Space {
-    pub kind: AddressSpace,
+    pub(crate) kind: AddressSpace,
     /// Bytes of `%QX` (coils) and `%IX` (discrete inputs).
     coil_bytes: u32,
     input_bytes: u32,

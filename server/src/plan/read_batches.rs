@@ -12,11 +12,11 @@ use crate::profile::{Field, Profile, RegisterKind};
 /// Fields of one register kind read in one transaction.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct ReadBatch {
-    pub kind: RegisterKind,
-    pub address: u16,
-    pub count: u16,
+    pub(crate) kind: RegisterKind,
+    pub(crate) address: u16,
+    pub(crate) count: u16,
     /// Indexes of the profile's fields the batch covers.
-    pub fields: Vec<usize>,
+    pub(crate) fields: Vec<usize>,
 }
 
 impl ReadBatch {

@@ -12,11 +12,11 @@ use crate::profile::{Profile, RegisterKind};
 /// written again after a reconnect (without).
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct WriteItem {
-    pub field: usize,
-    pub value: Value,
-    pub generation: Option<u64>,
+    pub(crate) field: usize,
+    pub(crate) value: Value,
+    pub(crate) generation: Option<u64>,
     /// The registers the value becomes, when its check made them; else encoded here.
-    pub registers: Option<Vec<u16>>,
+    pub(crate) registers: Option<Vec<u16>>,
 }
 
 /// One write transaction and the items it carries.

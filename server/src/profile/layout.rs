@@ -21,12 +21,12 @@ impl LayoutSection {
 
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LayoutEntry {
-    pub name: String,
-    pub ty: IecType,
-    pub section: LayoutSection,
+    pub(crate) name: String,
+    pub(crate) ty: IecType,
+    pub(crate) section: LayoutSection,
     /// `link`, `parameter`, `diagnostic` or `field`.
-    pub role: &'static str,
-    pub description: String,
+    pub(crate) role: &'static str,
+    pub(crate) description: String,
 }
 
 fn entry(

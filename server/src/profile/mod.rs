@@ -86,30 +86,30 @@ impl RegisterKind {
 /// Where a field lives on the device and how its value is stored there.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Register {
-    pub address: u16,
-    pub kind: RegisterKind,
-    pub bit: Option<u8>,
-    pub scale: f64,
-    pub offset: f64,
-    pub unit: Option<String>,
-    pub byte_order: ByteOrder,
-    pub word_count: u16,
+    pub(crate) address: u16,
+    pub(crate) kind: RegisterKind,
+    pub(crate) bit: Option<u8>,
+    pub(crate) scale: f64,
+    pub(crate) offset: f64,
+    pub(crate) unit: Option<String>,
+    pub(crate) byte_order: ByteOrder,
+    pub(crate) word_count: u16,
     /// Whether `word_count` was written in the profile (else it is the default, 1).
-    pub word_count_set: bool,
+    pub(crate) word_count_set: bool,
     /// For REAL/LREAL fields stored as integers: the integer type of the register value.
-    pub raw_type: Option<IecType>,
+    pub(crate) raw_type: Option<IecType>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Field {
-    pub name: String,
-    pub ty: IecType,
-    pub direction: Direction,
-    pub register: Register,
-    pub description: Option<String>,
-    pub encoding: Encoding,
+    pub(crate) name: String,
+    pub(crate) ty: IecType,
+    pub(crate) direction: Direction,
+    pub(crate) register: Register,
+    pub(crate) description: Option<String>,
+    pub(crate) encoding: Encoding,
     /// The line of the profile file the field starts on.
-    pub line: u64,
+    pub(crate) line: u64,
 }
 
 impl Field {
@@ -127,12 +127,12 @@ impl Field {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Profile {
     pub name: String,
-    pub vendor: Option<String>,
-    pub protocol: Protocol,
-    pub description: Option<String>,
-    pub fields: Vec<Field>,
+    pub(crate) vendor: Option<String>,
+    pub(crate) protocol: Protocol,
+    pub(crate) description: Option<String>,
+    pub(crate) fields: Vec<Field>,
     /// The file the profile was loaded from.
-    pub source: String,
+    pub(crate) source: String,
 }
 
 impl Profile {

@@ -95,7 +95,7 @@ fn join(errors: &[AccessError]) -> String {
 #[derive(Debug)]
 pub struct Service {
     pub cache: Arc<Cache>,
-    pub metrics: Arc<Metrics>,
+    pub(crate) metrics: Arc<Metrics>,
     tasks: Tasks,
     ready: AtomicBool,
     /// The Modbus TCP server's map and memory, when one is configured.
@@ -104,7 +104,7 @@ pub struct Service {
     /// What run-time declarations may reach.
     policy: crate::config::security::DeclarePolicy,
     /// Who may do what.
-    pub tokens: crate::auth::Tokens,
+    pub(crate) tokens: crate::auth::Tokens,
     /// `security.read_only`: every write is refused.
     read_only: bool,
     /// Open change streams (SSE, Subscribe, Exchange), bounded by [`MAX_STREAMS`].

@@ -28,19 +28,19 @@ pub(crate) const FORWARD_PATIENCE: Duration = Duration::from_secs(1);
 /// A binding with its device.
 #[derive(Debug)]
 pub(crate) struct Bound {
-    pub binding: Binding,
-    pub device: Arc<Device>,
+    pub(crate) binding: Binding,
+    pub(crate) device: Arc<Device>,
 }
 
 /// The server's image: bindings by table address, memory, and the routes of unit ids.
 #[derive(Debug)]
 pub(crate) struct ModbusImage {
-    pub config: ModbusServerConfig,
-    pub space: Space,
-    pub bound: Vec<Bound>,
+    pub(crate) config: ModbusServerConfig,
+    pub(crate) space: Space,
+    pub(crate) bound: Vec<Bound>,
     /// For every address of each table: the binding there and the offset in it.
     index: [Vec<Option<(u32, u16)>>; 4],
-    pub memory: Memory,
+    pub(crate) memory: Memory,
 }
 
 fn table_index(table: Table) -> usize {

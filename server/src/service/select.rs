@@ -8,15 +8,15 @@ use crate::cache::{Device, Diagnostics, Sample};
 /// One field of one device.
 #[derive(Debug, Clone)]
 pub(crate) struct FieldRef {
-    pub device: Arc<Device>,
-    pub idx: usize,
+    pub(crate) device: Arc<Device>,
+    pub(crate) idx: usize,
 }
 
 /// The chosen fields, each once, in the order asked for; and their devices, each once.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Selection {
-    pub fields: Vec<FieldRef>,
-    pub devices: Vec<Arc<Device>>,
+    pub(crate) fields: Vec<FieldRef>,
+    pub(crate) devices: Vec<Arc<Device>>,
 }
 
 impl Selection {
@@ -40,8 +40,8 @@ impl Selection {
 /// The current samples of a selection and the diagnostics of its devices.
 #[derive(Debug, Clone)]
 pub(crate) struct Snapshot {
-    pub values: Vec<(FieldRef, Sample)>,
-    pub diagnostics: Vec<(Arc<Device>, Diagnostics)>,
+    pub(crate) values: Vec<(FieldRef, Sample)>,
+    pub(crate) diagnostics: Vec<(Arc<Device>, Diagnostics)>,
 }
 
 impl Service {

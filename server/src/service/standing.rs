@@ -19,20 +19,20 @@ pub(crate) const FIRST_CYCLIC_READ: Duration = Duration::from_secs(2);
 /// The latest state of a standing transaction.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct StandingStatus {
-    pub enabled: bool,
-    pub last: Option<Outcome>,
-    pub runs: u64,
-    pub failures: u64,
-    pub updated: Option<SystemTime>,
+    pub(crate) enabled: bool,
+    pub(crate) last: Option<Outcome>,
+    pub(crate) runs: u64,
+    pub(crate) failures: u64,
+    pub(crate) updated: Option<SystemTime>,
 }
 
 /// A standing transaction.
 #[derive(Debug)]
 pub(crate) struct Standing {
-    pub name: String,
-    pub link: String,
-    pub period: Duration,
-    pub is_write: bool,
+    pub(crate) name: String,
+    pub(crate) link: String,
+    pub(crate) period: Duration,
+    pub(crate) is_write: bool,
     spec: Mutex<TransactionSpec>,
     status: watch::Sender<StandingStatus>,
     /// Wakes the task: enabled, values changed, or a trigger.

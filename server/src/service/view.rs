@@ -16,21 +16,21 @@ use crate::write_log::WriteRecord;
 /// A field as of now. Names are borrowed from the device while a response is written.
 #[derive(Debug, Clone)]
 pub(crate) struct FieldView<'a> {
-    pub device: &'a Device,
-    pub field: &'a Field,
+    pub(crate) device: &'a Device,
+    pub(crate) field: &'a Field,
     /// `None` until the field is first read.
-    pub value: Option<Value>,
+    pub(crate) value: Option<Value>,
     /// The sample's quality as of now (a good value not refreshed in time is stale).
-    pub quality: Quality,
+    pub(crate) quality: Quality,
     /// When the value was last refreshed.
-    pub timestamp: Option<SystemTime>,
+    pub(crate) timestamp: Option<SystemTime>,
     /// Why the quality is bad.
-    pub error: Option<String>,
+    pub(crate) error: Option<String>,
     /// The newest value requested for this output, when the device holds another with no
     /// write of it waiting (a mismatch).
-    pub desired: Option<Value>,
+    pub(crate) desired: Option<Value>,
     /// The latest write to the field, while the log keeps it.
-    pub last_write: Option<WriteRecord>,
+    pub(crate) last_write: Option<WriteRecord>,
 }
 
 impl FieldView<'_> {

@@ -31,9 +31,9 @@ impl Prepared {
 /// A requested write: follow it by its generation.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Accepted {
-    pub device: String,
-    pub field: String,
-    pub generation: u64,
+    pub(crate) device: String,
+    pub(crate) field: String,
+    pub(crate) generation: u64,
 }
 
 /// Field `field` of `device` and the value `convert` makes for its type.
@@ -272,10 +272,10 @@ impl Drop for ScanCycle {
 /// requested, and what it refused (as messages for the runtime).
 #[derive(Debug)]
 pub(crate) struct CycleOutcome {
-    pub cycle: u64,
-    pub devices: Vec<Arc<Device>>,
-    pub acks: Vec<Accepted>,
-    pub errors: Vec<String>,
+    pub(crate) cycle: u64,
+    pub(crate) devices: Vec<Arc<Device>>,
+    pub(crate) acks: Vec<Accepted>,
+    pub(crate) errors: Vec<String>,
 }
 
 impl CycleOutcome {

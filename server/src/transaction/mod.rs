@@ -29,16 +29,16 @@ pub mod state {
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Outcome {
     /// The last command got a correct response.
-    pub actual: bool,
-    pub state: i32,
+    pub(crate) actual: bool,
+    pub(crate) state: i32,
     /// A read's value.
-    pub value: Option<f64>,
+    pub(crate) value: Option<f64>,
     /// The read block's message for what went wrong.
-    pub error: Option<&'static str>,
+    pub(crate) error: Option<&'static str>,
     /// The frames in hex, as they go on an RTU line (`11 06 00 01 00 03 9A 9B`).
-    pub request: String,
-    pub response: Option<String>,
-    pub elapsed_ms: f64,
+    pub(crate) request: String,
+    pub(crate) response: Option<String>,
+    pub(crate) elapsed_ms: f64,
 }
 
 /// The read block's message and the write block's state for a failed transaction.

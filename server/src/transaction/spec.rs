@@ -106,23 +106,23 @@ pub(crate) fn parse_byte_order(name: &str) -> Option<ByteOrder> {
 /// A transaction as JSON (and gRPC) give it: the keys of the interface.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct ReadPlan {
-    pub function: Function,
-    pub slave: u8,
-    pub address: u16,
+    pub(crate) function: Function,
+    pub(crate) slave: u8,
+    pub(crate) address: u16,
     /// FC01/02.
-    pub bits: Option<u8>,
+    pub(crate) bits: Option<u8>,
     /// FC03/04.
-    pub value_type: Option<ValueType>,
-    pub divisor: u32,
-    pub precision: u8,
-    pub order: ByteOrder,
+    pub(crate) value_type: Option<ValueType>,
+    pub(crate) divisor: u32,
+    pub(crate) precision: u8,
+    pub(crate) order: ByteOrder,
 }
 
 /// A checked write: the request as it goes on the wire.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct WritePlan {
-    pub slave: u8,
-    pub request: Request,
+    pub(crate) slave: u8,
+    pub(crate) request: Request,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -134,8 +134,8 @@ pub(crate) enum Plan {
 /// A checked transaction.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Checked {
-    pub plan: Plan,
-    pub timeout: Duration,
+    pub(crate) plan: Plan,
+    pub(crate) timeout: Duration,
 }
 
 impl Checked {
