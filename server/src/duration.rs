@@ -5,12 +5,21 @@ use std::time::Duration;
 
 pub(crate) use iogate_types::time::parse_ms;
 
+/// Why a duration does not parse.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum DurationError {
+    #[error(transparent)]
+    Literal(#[from] iogate_types::time::TimeError),
+    #[error("`{0}` is negative")]
+    Negative(String),
+}
+
 /// Parses a non-negative duration.
-pub(crate) fn parse(text: &str) -> Result<Duration, String> {
-    let ms = parse_ms(text).map_err(|e| e.to_string())?;
+pub(crate) fn parse(text: &str) -> Result<Duration, DurationError> {
+    let ms = parse_ms(text)?;
     u64::try_from(ms)
         .map(Duration::from_millis)
-        .map_err(|_| format!("`{text}` is negative"))
+        .map_err(|_| DurationError::Negative(text.to_owned()))
 }
 
 #[cfg(test)]
@@ -31,9 +40,12 @@ mod tests {
     #[test]
     fn bad_literals_are_rejected_with_the_text() {
         for bad in ["", "50", "ms", "5 parsecs", "T#", "1.2.3s", "5x"] {
-            let err = parse(bad).expect_err(bad);
+            let err = parse(bad).expect_err(bad).to_string();
             assert!(err.contains(&format!("`{bad}`")), "{err}");
         }
-        assert!(parse("T#-1s").expect_err("negative").contains("negative"));
+        assert_eq!(
+            parse("T#-1s"),
+            Err(DurationError::Negative("T#-1s".to_owned()))
+        );
     }
 }

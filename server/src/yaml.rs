@@ -102,13 +102,13 @@ impl Report {
         &mut self,
         line: u64,
         context: impl Into<String>,
-        message: impl Into<String>,
+        message: impl std::fmt::Display,
     ) {
         self.problems.push(Problem {
             file: self.file.clone(),
             line,
             context: context.into(),
-            message: message.into(),
+            message: message.to_string(),
         });
     }
 

@@ -63,6 +63,19 @@ pub(crate) async fn serve_modbus(
     }
 }
 
+/// Why the gateway closed a master's connection.
+#[derive(Debug, thiserror::Error)]
+enum Closed {
+    #[error("idle timeout")]
+    Idle,
+    #[error("idle timeout in the middle of a frame")]
+    IdleMidFrame,
+    #[error(transparent)]
+    Io(std::io::Error),
+    #[error("malformed {0}")]
+    Malformed(#[from] mbap::Malformed),
+}
+
 /// Serves one master until it leaves, stays idle too long, sends a malformed header, or the
 /// gateway shuts down.
 async fn connection(
@@ -70,7 +83,7 @@ async fn connection(
     service: &Service,
     idle: Duration,
     token: &CancellationToken,
-) -> Result<(), String> {
+) -> Result<(), Closed> {
     // Buffered: one read usually brings a whole request (or several pipelined ones).
     let mut stream = BufReader::new(stream);
     let mut counters = Counters::default();
@@ -81,22 +94,22 @@ async fn connection(
             r = tokio::time::timeout(idle, stream.read_exact(&mut header)) => r,
         };
         match read {
-            Err(_) => return Err("idle timeout".into()),
+            Err(_) => return Err(Closed::Idle),
             Ok(Err(e)) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
-            Ok(Err(e)) => return Err(e.to_string()),
+            Ok(Err(e)) => return Err(Closed::Io(e)),
             Ok(Ok(_)) => {}
         }
-        let header = mbap::Header::parse(&header).map_err(|e| format!("malformed {e}"))?;
+        let header = mbap::Header::parse(&header)?;
         let unit = header.unit;
         let mut pdu = vec![0u8; header.pdu_len];
         match tokio::time::timeout(idle, stream.read_exact(&mut pdu)).await {
             Ok(Ok(_)) => {}
-            Ok(Err(e)) => return Err(e.to_string()),
-            Err(_) => return Err("idle timeout in the middle of a frame".into()),
+            Ok(Err(e)) => return Err(Closed::Io(e)),
+            Err(_) => return Err(Closed::IdleMidFrame),
         }
         let answer = answer(service, unit, &pdu, &mut counters).await;
         let frame = mbap::frame(header.transaction, unit, &answer);
-        stream.write_all(&frame).await.map_err(|e| e.to_string())?;
+        stream.write_all(&frame).await.map_err(Closed::Io)?;
     }
 }
 

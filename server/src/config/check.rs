@@ -113,30 +113,46 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
     }
 }
 
+/// Why an `on_client_loss.safe` entry is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum SafeValueError {
+    #[error("profile {profile} has no field `{field}`")]
+    NoField { profile: String, field: String },
+    #[error("{field} is an input: only outputs have safe values")]
+    Input { field: String },
+    #[error("`{}` is not a {ty} value: {reason}", crate::text::quote(text))]
+    Value {
+        text: String,
+        ty: crate::codec::IecType,
+        reason: crate::codec::ValueError,
+    },
+}
+
 /// The field index and value of one `on_client_loss.safe` entry: an output (or inout) of
 /// the profile, and a value of its type.
 pub(crate) fn safe_value(
     profile: &crate::profile::Profile,
     field: &str,
     text: &str,
-) -> Result<(usize, crate::codec::Value), String> {
+) -> Result<(usize, crate::codec::Value), SafeValueError> {
     let idx = profile
         .field_index(field)
-        .ok_or_else(|| format!("profile {} has no field `{field}`", profile.name))?;
+        .ok_or_else(|| SafeValueError::NoField {
+            profile: profile.name.clone(),
+            field: field.to_owned(),
+        })?;
     let f = &profile.fields[idx];
     if f.direction == crate::profile::Direction::Input {
-        return Err(format!(
-            "{field} is an input: only outputs have safe values"
-        ));
+        return Err(SafeValueError::Input {
+            field: field.to_owned(),
+        });
     }
     crate::codec::Value::parse(f.ty, text)
         .map(|v| (idx, v))
-        .map_err(|e| {
-            format!(
-                "`{}` is not a {} value: {e}",
-                crate::text::quote(text),
-                f.ty
-            )
+        .map_err(|reason| SafeValueError::Value {
+            text: text.to_owned(),
+            ty: f.ty,
+            reason,
         })
 }
 

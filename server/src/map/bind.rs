@@ -88,6 +88,28 @@ pub struct Plan {
     pub(crate) warnings: Vec<crate::yaml::Problem>,
 }
 
+/// Why a field or diagnostic does not fit a location.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum FitError {
+    #[error("a {ty} does not fit {at} ({}; see the README's map table)", holds(at.size))]
+    Type { ty: IecType, at: Location },
+    #[error(
+        "{at} is an output location that masters write: bind an output or inout field (or use %I or %M)"
+    )]
+    ReadOnly { at: Location },
+}
+
+/// What a size of location holds, for a [`FitError::Type`].
+fn holds(size: Size) -> &'static str {
+    match size {
+        Size::Bit => "bit locations hold BOOL",
+        Size::Word => "word locations hold 8/16-bit types, or a REAL on one register",
+        Size::Double => "double-word locations hold DINT, UDINT, DWORD, REAL or TIME",
+        Size::Long => "long-word locations hold LINT, ULINT, LWORD, LREAL or TIME",
+        Size::Byte => "byte locations have no Modbus address",
+    }
+}
+
 /// How a field or diagnostic fits a location, or why it does not.
 fn fit(
     at: &Location,
@@ -95,23 +117,10 @@ fn fit(
     one_register: bool,
     writable_field: bool,
     diagnostic: bool,
-) -> Result<(Repr, bool), String> {
-    let repr = Repr::of(ty, at.size, one_register).ok_or_else(|| {
-        format!(
-            "a {ty} does not fit {at} ({}; see the README's map table)",
-            match at.size {
-                Size::Bit => "bit locations hold BOOL",
-                Size::Word => "word locations hold 8/16-bit types, or a REAL on one register",
-                Size::Double => "double-word locations hold DINT, UDINT, DWORD, REAL or TIME",
-                Size::Long => "long-word locations hold LINT, ULINT, LWORD, LREAL or TIME",
-                Size::Byte => "byte locations have no Modbus address",
-            }
-        )
-    })?;
+) -> Result<(Repr, bool), FitError> {
+    let repr = Repr::of(ty, at.size, one_register).ok_or(FitError::Type { ty, at: *at })?;
     if at.area == Area::Output && (diagnostic || !writable_field) {
-        return Err(format!(
-            "{at} is an output location that masters write: bind an output or inout field (or use %I or %M)"
-        ));
+        return Err(FitError::ReadOnly { at: *at });
     }
     let writable = at.area != Area::Input && !diagnostic && writable_field;
     Ok((repr, writable))

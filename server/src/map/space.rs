@@ -41,6 +41,19 @@ pub struct Slot {
     pub(crate) width: u16,
 }
 
+/// Why a location has no Modbus address in an address space.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum SlotError {
+    #[error("{at} has no Modbus address in the {space} address space")]
+    NoAddress { at: Location, space: &'static str },
+    #[error("{at} is past the end of the {space} address space (the last is {last})")]
+    PastEnd {
+        at: Location,
+        space: &'static str,
+        last: Location,
+    },
+}
+
 /// One memory kind (%MW, %MD, %ML) of a space: first holding register and how many.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Memory {
@@ -94,22 +107,20 @@ impl Space {
     }
 
     /// The table and address of `at`, or why it has none in this space.
-    pub(crate) fn slot(&self, at: &Location) -> Result<Slot, String> {
-        let none = || {
-            format!(
-                "{at} has no Modbus address in the {} address space",
-                self.kind.name()
-            )
+    pub(crate) fn slot(&self, at: &Location) -> Result<Slot, SlotError> {
+        let none = || SlotError::NoAddress {
+            at: *at,
+            space: self.kind.name(),
         };
         let within = |index: u32, count: u32| {
             if index < count {
                 Ok(())
             } else {
-                Err(format!(
-                    "{at} is past the end of the {} address space (the last is {})",
-                    self.kind.name(),
-                    Location::new(at.area, at.size, count - 1, at.bit.map(|_| 7))
-                ))
+                Err(SlotError::PastEnd {
+                    at: *at,
+                    space: self.kind.name(),
+                    last: Location::new(at.area, at.size, count - 1, at.bit.map(|_| 7)),
+                })
             }
         };
         let bit = |bytes: u32, table| {
@@ -218,7 +229,7 @@ impl Space {
 mod tests {
     use super::*;
 
-    fn slot(space: AddressSpace, at: &str) -> Result<Slot, String> {
+    fn slot(space: AddressSpace, at: &str) -> Result<Slot, SlotError> {
         Space::of(space).slot(&Location::parse(at).expect(at))
     }
 
@@ -246,13 +257,13 @@ mod tests {
         assert_eq!(s("%ML1023").address, 8188);
         for past in ["%QX200.0", "%IW1024", "%MW1024", "%MD1024"] {
             let e = slot(AddressSpace::Linux, past).expect_err(past);
-            assert!(e.contains("past the end"), "{e}");
+            assert!(matches!(e, SlotError::PastEnd { .. }), "{e}");
         }
         for none in ["%IB0", "%ID0", "%QD0", "%MX0.0", "%IL0"] {
             let e = slot(AddressSpace::Linux, none).expect_err(none);
-            assert!(
-                e.contains("has no Modbus address in the linux address space"),
-                "{e}"
+            assert_eq!(
+                e.to_string(),
+                format!("{none} has no Modbus address in the linux address space")
             );
         }
     }

@@ -3,7 +3,7 @@
 
 use iogate_types::Size;
 
-use crate::codec::{ByteOrder, Encoding, IecType, Value};
+use crate::codec::{ByteOrder, CodecError, Encoding, IecType, Value};
 
 /// How a field's value sits in a location's bit or registers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -89,23 +89,26 @@ impl Repr {
         regs: &[u16],
         ty: IecType,
         encoding: Option<&Encoding>,
-    ) -> Result<Value, String> {
+    ) -> Result<Value, CodecError> {
         let bytes = crate::codec::register_bytes(regs);
-        let int = |n: i128| Value::from_int(ty, n).map_err(|e| e.to_string());
-        let real = |x: f64| Value::from_real(ty, x).map_err(|e| e.to_string());
-        let get = |n: usize| -> Result<&[u8], String> {
-            bytes
-                .get(..n)
-                .ok_or_else(|| "not enough registers".to_owned())
+        let int = |n: i128| Ok(Value::from_int(ty, n)?);
+        let real = |x: f64| Ok(Value::from_real(ty, x)?);
+        let get = |n: usize| -> Result<&[u8], CodecError> {
+            bytes.get(..n).ok_or(CodecError::WrongLength {
+                expected: n.div_ceil(2),
+                found: regs.len(),
+            })
         };
         match self {
             Repr::Bit => Ok(Value::Bool(regs.first().is_some_and(|&r| r != 0))),
             Repr::Int16 => int(i128::from(i16::from_be_bytes(arr(get(2)?)))),
             Repr::Uint16 => int(i128::from(u16::from_be_bytes(arr(get(2)?)))),
             Repr::Raw16 => Self::raw_encoding(encoding)
-                .ok_or_else(|| "no encoding".to_owned())?
-                .decode(&regs[..1.min(regs.len())])
-                .map_err(|e| e.to_string()),
+                .ok_or(CodecError::WrongType {
+                    ty,
+                    found: "a raw register without the field's encoding",
+                })?
+                .decode(&regs[..1.min(regs.len())]),
             Repr::Int32 => int(i128::from(i32::from_be_bytes(arr(get(4)?)))),
             Repr::Uint32 => int(i128::from(u32::from_be_bytes(arr(get(4)?)))),
             Repr::Real32 => real(f64::from(f32::from_be_bytes(arr(get(4)?)))),
