@@ -44,6 +44,9 @@ pub enum PassthroughError {
     Busy,
     #[error("the request waited past its caller's deadline; nothing was sent")]
     Expired,
+    /// The link's task gave no answer in time (it stopped, or is stalled).
+    #[error("the link's task gave no answer")]
+    NoAnswer,
 }
 
 /// A queued request with when it came.

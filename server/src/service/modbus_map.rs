@@ -7,11 +7,10 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::oneshot;
 use tokio::time::Instant;
 
 use super::Service;
-use crate::cache::{AccessError, Cache, Device, Link, Passthrough, PassthroughError};
+use crate::cache::{AccessError, Cache, Device, Link, PassthroughError};
 use crate::codec::Value;
 use crate::config::modbus_server::{ModbusServerConfig, OnBadQuality};
 use crate::config::rules::DEFAULT_TIMEOUT;
@@ -274,32 +273,22 @@ impl Service {
             Route::Local => self.modbus_local(request),
             Route::Unknown => Err(Exception::GATEWAY_PATH_UNAVAILABLE),
             Route::Forward(link, timeout) => {
-                let (reply, answer) = oneshot::channel();
                 // A master waits about a second for an answer; a request the link cannot
                 // send by then (after the slave's timeout) is dropped, never sent late.
                 let deadline = Instant::now() + timeout + FORWARD_PATIENCE;
-                link.submit(Passthrough {
-                    slave: unit,
-                    request: request.clone(),
-                    timeout,
-                    deadline,
-                    reply,
-                });
-                // A request sent before its deadline ends within its timeout and the line's
-                // waits; a task that has stopped never answers.
-                let patience = deadline + timeout + Duration::from_secs(2);
-                match tokio::time::timeout_at(patience, answer).await {
-                    Ok(Ok(Ok(response))) => Ok(response),
-                    Ok(Ok(Err(PassthroughError::Tx(TxError::Exception(x))))) => Err(x),
-                    Ok(Ok(Err(PassthroughError::LinkDown(_)))) => {
-                        Err(Exception::GATEWAY_PATH_UNAVAILABLE)
-                    }
-                    Ok(Ok(Err(PassthroughError::Busy))) => {
-                        self.metrics.inbox_dropped(link.name(), "busy");
+                match self
+                    .pass_through(&link, unit, request, timeout, deadline)
+                    .await
+                {
+                    Ok(response) => Ok(response),
+                    Err(PassthroughError::Tx(TxError::Exception(x))) => Err(x),
+                    Err(PassthroughError::LinkDown(_)) => Err(Exception::GATEWAY_PATH_UNAVAILABLE),
+                    Err(PassthroughError::Busy | PassthroughError::Expired) => {
                         Err(Exception::SERVER_DEVICE_BUSY)
                     }
-                    Ok(Ok(Err(PassthroughError::Expired))) => Err(Exception::SERVER_DEVICE_BUSY),
-                    _ => Err(Exception::GATEWAY_TARGET_FAILED),
+                    Err(PassthroughError::Tx(_) | PassthroughError::NoAnswer) => {
+                        Err(Exception::GATEWAY_TARGET_FAILED)
+                    }
                 }
             }
         }

@@ -7,24 +7,57 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 
 use super::{Service, ServiceError};
-use crate::cache::{Passthrough, PassthroughError};
+use crate::cache::{Link, Passthrough, PassthroughError};
 use crate::config::{Framing, Transport};
-use crate::link::frame::{Request, crc16};
+use crate::link::frame::{Request, Response, crc16};
 use crate::transaction::params::ParamError;
 use crate::transaction::{Outcome, Plan, TransactionSpec, codec, failure, hex, state};
 
 /// The frame as it goes on the line: RTU (slave, PDU, CRC) on serial links and RTU over
 /// TCP; unit id and PDU on Modbus TCP links.
 fn frame(rtu: bool, slave: u8, pdu: &[u8]) -> String {
+    let mut bytes = vec![slave];
+    bytes.extend_from_slice(pdu);
     if rtu {
-        let mut bytes = vec![slave];
-        bytes.extend_from_slice(pdu);
         bytes.extend_from_slice(&crc16(&bytes).to_le_bytes());
-        hex(&bytes)
-    } else {
-        let mut bytes = vec![slave];
-        bytes.extend_from_slice(pdu);
-        hex(&bytes)
+    }
+    hex(&bytes)
+}
+
+/// Beyond a request's deadline and timeout, how long its caller waits for the link's task
+/// before taking it as gone.
+const TASK_GRACE: Duration = Duration::from_secs(2);
+
+impl Service {
+    /// Queues `request` for `slave` in `link`'s inbox and waits for the answer. A request
+    /// the link cannot send before `deadline` is dropped unsent (`Expired`; `Busy` when
+    /// the inbox is full); a task that gives no answer within the deadline, the timeout
+    /// and a grace is `NoAnswer`.
+    pub(crate) async fn pass_through(
+        &self,
+        link: &Link,
+        slave: u8,
+        request: &Request,
+        timeout: Duration,
+        deadline: Instant,
+    ) -> Result<Response, PassthroughError> {
+        let (reply, answer) = oneshot::channel();
+        link.submit(Passthrough {
+            slave,
+            request: request.clone(),
+            timeout,
+            deadline,
+            reply,
+        });
+        let answered = tokio::time::timeout_at(deadline + timeout + TASK_GRACE, answer)
+            .await
+            .ok()
+            .and_then(Result::ok)
+            .unwrap_or(Err(PassthroughError::NoAnswer));
+        if let Err(PassthroughError::Busy) = answered {
+            self.metrics.inbox_dropped(link.name(), "busy");
+        }
+        answered
     }
 }
 
@@ -83,7 +116,7 @@ impl Service {
             response,
             elapsed_ms: (started.elapsed().as_secs_f64() * 1e6).round() / 1e3,
         };
-        if !link.is_configured() {
+        if !config.transport.is_configured() {
             return Ok(outcome(
                 false,
                 state::INTERFACE_UNAVAILABLE,
@@ -92,27 +125,17 @@ impl Service {
                 None,
             ));
         }
-        let (reply, answer) = oneshot::channel();
         // The request waits at most its timeout plus a second in the link's inbox; one the
         // link cannot send by then is dropped (busy), never sent late.
         let deadline = started + checked.timeout * 2 + Duration::from_secs(1);
-        link.submit(Passthrough {
-            slave,
-            request: request.clone(),
-            timeout: checked.timeout,
-            deadline,
-            reply,
-        });
-        let patience = deadline + checked.timeout + Duration::from_secs(2);
-        let answered = tokio::time::timeout_at(patience, answer).await;
-        if let Ok(Ok(Err(e @ (PassthroughError::Busy | PassthroughError::Expired)))) = &answered {
-            if matches!(e, PassthroughError::Busy) {
-                self.metrics.inbox_dropped(link.name(), "busy");
-            }
-            return Err(ServiceError::Busy(link.name().to_owned()));
-        }
+        let answered = self
+            .pass_through(&link, slave, &request, checked.timeout, deadline)
+            .await;
         Ok(match answered {
-            Ok(Ok(Ok(response))) => {
+            Err(PassthroughError::Busy | PassthroughError::Expired) => {
+                return Err(ServiceError::Busy(link.name().to_owned()));
+            }
+            Ok(response) => {
                 let response_frame = Some(frame(rtu, slave, &response.to_pdu(&request)));
                 match &checked.plan {
                     Plan::Read(read) => match codec::read_value(read, &response) {
@@ -128,7 +151,7 @@ impl Service {
                     Plan::Write(_) => outcome(true, state::DONE, None, None, response_frame),
                 }
             }
-            Ok(Ok(Err(PassthroughError::Tx(e)))) => {
+            Err(PassthroughError::Tx(e)) => {
                 let (code, message) = failure(&e);
                 let response_frame = match &e {
                     crate::link::TxError::Exception(x) => {
@@ -138,14 +161,14 @@ impl Service {
                 };
                 outcome(false, code, None, Some(message), response_frame)
             }
-            Ok(Ok(Err(PassthroughError::LinkDown(_)))) => outcome(
+            Err(PassthroughError::LinkDown(_)) => outcome(
                 false,
                 state::INTERFACE_UNAVAILABLE,
                 None,
                 Some("RS485 port missing"),
                 None,
             ),
-            _ => outcome(
+            Err(PassthroughError::NoAnswer) => outcome(
                 false,
                 state::TIMEOUT,
                 None,
