@@ -127,6 +127,13 @@ impl Setup {
             crate::transaction::check_standing(&config).err(),
         ];
         problems.extend_all(checks.into_iter().flatten());
+        if let Some(mqtt) = &config.mqtt
+            && let Err(e) = crate::api::mqtt::prepare(mqtt, base)
+        {
+            let mut report = Report::new(&config.source);
+            report.push(mqtt.line, "mqtt", e);
+            problems.extend(report.into_problems());
+        }
         let map = crate::map::plan(&config, &catalog).unwrap_or_else(|more| {
             problems.extend(more);
             None
@@ -255,6 +262,13 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         service
             .ensure_transaction(standing.clone())
             .map_err(|e| anyhow::anyhow!("transaction {}: {e}", standing.name))?;
+    }
+    if let Some(mqtt) = &config.mqtt {
+        let base = Path::new(&config.source)
+            .parent()
+            .unwrap_or_else(|| Path::new("."));
+        let prepared = api::mqtt::prepare(mqtt, base).map_err(|e| anyhow::anyhow!("{e}"))?;
+        api::mqtt::spawn(service.clone(), prepared);
     }
     let modbus_addr = match modbus_listener {
         Some(listener) => {

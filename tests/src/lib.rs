@@ -8,6 +8,7 @@ use iogate::app::{self, Running, Setup};
 
 pub mod browser;
 pub mod devices;
+pub mod mqtt;
 pub mod pki;
 
 /// How long `eventually` waits for a condition.

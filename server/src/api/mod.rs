@@ -12,6 +12,7 @@ pub(crate) mod http;
 pub(crate) mod limit;
 pub(crate) mod map;
 pub(crate) mod modbus_server;
+pub(crate) mod mqtt;
 pub(crate) mod pb;
 pub(crate) mod rest;
 pub(crate) mod transactions;

@@ -5,6 +5,7 @@
 
 mod check;
 pub(crate) mod modbus_server;
+pub(crate) mod mqtt;
 mod parse;
 pub(crate) mod rules;
 pub mod security;
@@ -39,6 +40,8 @@ pub struct Config {
     pub devices: Vec<DeviceConfig>,
     /// The Modbus TCP server, when configured.
     pub modbus_server: Option<modbus_server::ModbusServerConfig>,
+    /// The MQTT publisher, when configured.
+    pub(crate) mqtt: Option<mqtt::MqttConfig>,
     /// Standing raw transactions.
     pub(crate) transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,
@@ -252,6 +255,7 @@ impl Config {
             links: Vec::new(),
             devices: Vec::new(),
             modbus_server: None,
+            mqtt: None,
             transactions: Vec::new(),
             security: security::SecurityConfig::default(),
             source: source.to_owned(),

@@ -17,6 +17,7 @@ const TOP_KEYS: &[&str] = &[
     "links",
     "devices",
     "modbus_server",
+    "mqtt",
     "transactions",
     "security",
 ];
@@ -190,6 +191,7 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     config.modbus_server = map
         .get("modbus_server")
         .and_then(|n| super::modbus_server::read(n, report));
+    config.mqtt = map.get("mqtt").and_then(|n| super::mqtt::read(n, report));
     if let Some(n) = map.get("security") {
         config.security = super::security::read(n, report);
     }

@@ -1,0 +1,280 @@
+//! One connection to the broker: TCP or TLS, CONNECT and its CONNACK, then packets both ways.
+//! The front-end's task owns it; keep-alive pings, packet ids and acknowledgements are
+//! counted here, what to publish is decided there.
+
+use std::collections::BTreeMap;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::time::Instant;
+
+use super::packet::{self, Connect, Incoming, PacketError, Publish};
+use crate::config::mqtt::{MqttConfig, MqttVersion};
+
+/// How long connecting (TCP, TLS and the CONNACK) may take.
+pub(crate) const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
+/// QoS 1 publishes sent and not yet acknowledged, at most.
+pub(crate) const MAX_INFLIGHT: usize = 64;
+
+trait Io: AsyncRead + AsyncWrite + Send + Unpin {}
+impl<T: AsyncRead + AsyncWrite + Send + Unpin> Io for T {}
+
+/// Why the connection could not be made, or ended.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum ConnError {
+    #[error("cannot connect to {0}: {1}")]
+    Connect(String, std::io::Error),
+    #[error("TLS with {0}: {1}")]
+    Tls(String, std::io::Error),
+    #[error("no answer from {0} within {1:?}")]
+    Timeout(String, Duration),
+    #[error("the broker refused the connection: {0} (code {1})")]
+    Refused(&'static str, u8),
+    #[error("the broker sent {0}")]
+    Packet(#[from] PacketError),
+    #[error("the broker did not answer a ping within the keep-alive")]
+    KeepAlive,
+    #[error("the broker closed the connection")]
+    Closed,
+    #[error("the broker disconnected (reason {0:#04x})")]
+    Disconnected(u8),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
+/// The TLS settings a connection uses, loaded once when the front-end starts.
+#[derive(Clone)]
+pub(crate) struct TlsSetup {
+    pub(crate) connector: tokio_rustls::TlsConnector,
+}
+
+impl TlsSetup {
+    /// Loads the CA (else the compiled-in trust of the system is not available: a CA file
+    /// is then required) and the optional client certificate.
+    pub(crate) fn load(config: &MqttConfig) -> Result<TlsSetup, String> {
+        let mut roots = rustls::RootCertStore::empty();
+        let Some(ca) = &config.tls.ca else {
+            return Err(
+                "mqtts:// needs tls.ca (the CA that signed the broker's certificate)".into(),
+            );
+        };
+        let text = |e: crate::tls::TlsError| e.to_string();
+        for cert in crate::tls::read_certs(ca).map_err(text)? {
+            roots
+                .add(cert)
+                .map_err(|e| format!("{}: {e}", ca.display()))?;
+        }
+        let builder = crate::tls::client_builder()
+            .map_err(text)?
+            .with_root_certificates(roots);
+        let client = match (&config.tls.cert, &config.tls.key) {
+            (Some(cert), Some(key)) => builder
+                .with_client_auth_cert(
+                    crate::tls::read_certs(cert).map_err(text)?,
+                    crate::tls::read_key(key).map_err(text)?,
+                )
+                .map_err(|e| format!("{}: {e}", cert.display()))?,
+            _ => builder.with_no_client_auth(),
+        };
+        Ok(TlsSetup {
+            connector: tokio_rustls::TlsConnector::from(Arc::new(client)),
+        })
+    }
+}
+
+pub(crate) struct Connection {
+    io: Pin<Box<dyn Io>>,
+    version: MqttVersion,
+    buf: Vec<u8>,
+    keep_alive: Duration,
+    /// When a packet was last sent (a ping is due `keep_alive` after).
+    last_sent: Instant,
+    /// A ping waiting for its answer since.
+    ping_sent: Option<Instant>,
+    next_pkid: u16,
+    /// QoS 1 publishes in flight: packet id -> the caller's tag.
+    inflight: BTreeMap<u16, u64>,
+}
+
+impl Connection {
+    /// Connects, sends CONNECT and waits for an accepting CONNACK.
+    pub(crate) async fn open(
+        config: &MqttConfig,
+        tls: Option<&TlsSetup>,
+        connect: &Connect,
+    ) -> Result<Connection, ConnError> {
+        let url = config.url.to_string();
+        tokio::time::timeout(CONNECT_TIMEOUT, Self::open_inner(config, tls, connect))
+            .await
+            .map_err(|_| ConnError::Timeout(url, CONNECT_TIMEOUT))?
+    }
+
+    async fn open_inner(
+        config: &MqttConfig,
+        tls: Option<&TlsSetup>,
+        connect: &Connect,
+    ) -> Result<Connection, ConnError> {
+        let url = config.url.to_string();
+        let tcp = TcpStream::connect((config.url.host.as_str(), config.url.port))
+            .await
+            .map_err(|e| ConnError::Connect(url.clone(), e))?;
+        let _ = tcp.set_nodelay(true);
+        let io: Pin<Box<dyn Io>> = match tls {
+            Some(tls) => {
+                let name = rustls::pki_types::ServerName::try_from(config.url.host.clone())
+                    .map_err(|e| {
+                        ConnError::Tls(url.clone(), std::io::Error::other(e.to_string()))
+                    })?;
+                let stream = tls
+                    .connector
+                    .connect(name, tcp)
+                    .await
+                    .map_err(|e| ConnError::Tls(url.clone(), e))?;
+                Box::pin(stream)
+            }
+            None => Box::pin(tcp),
+        };
+        let mut conn = Connection {
+            io,
+            version: config.version,
+            buf: Vec::with_capacity(4096),
+            keep_alive: Duration::from_secs(u64::from(connect.keep_alive)),
+            last_sent: Instant::now(),
+            ping_sent: None,
+            next_pkid: 1,
+            inflight: BTreeMap::new(),
+        };
+        conn.send(&packet::connect(config.version, connect)).await?;
+        match conn.read().await? {
+            Incoming::ConnAck { code: 0, .. } => Ok(conn),
+            Incoming::ConnAck { code, .. } => Err(ConnError::Refused(
+                packet::connack_reason(config.version, code),
+                code,
+            )),
+            _ => Err(ConnError::Packet(PacketError::Malformed("CONNACK"))),
+        }
+    }
+
+    async fn send(&mut self, bytes: &[u8]) -> Result<(), ConnError> {
+        self.io.write_all(bytes).await?;
+        self.io.flush().await?;
+        self.last_sent = Instant::now();
+        Ok(())
+    }
+
+    /// The next packet from the broker. Cancel-safe: bytes read stay in the buffer.
+    pub(crate) async fn read(&mut self) -> Result<Incoming, ConnError> {
+        loop {
+            if let Some(packet) = packet::decode(self.version, &mut self.buf)? {
+                if let Incoming::Disconnect { code } = packet {
+                    return Err(ConnError::Disconnected(code));
+                }
+                if packet == Incoming::PingResp {
+                    self.ping_sent = None;
+                }
+                return Ok(packet);
+            }
+            let mut chunk = [0u8; 4096];
+            let n = self.io.read(&mut chunk).await?;
+            if n == 0 {
+                return Err(ConnError::Closed);
+            }
+            self.buf.extend_from_slice(&chunk[..n]);
+        }
+    }
+
+    /// When the keep-alive needs attention: a ping to send, or an answer overdue.
+    pub(crate) fn keep_alive_due(&self) -> Option<Instant> {
+        if self.keep_alive.is_zero() {
+            return None;
+        }
+        Some(match self.ping_sent {
+            Some(sent) => sent + self.keep_alive,
+            None => self.last_sent + self.keep_alive,
+        })
+    }
+
+    /// Sends a ping, or fails when the last one was not answered in time.
+    pub(crate) async fn keep_alive(&mut self) -> Result<(), ConnError> {
+        if self.ping_sent.is_some() {
+            return Err(ConnError::KeepAlive);
+        }
+        self.send(&packet::pingreq()).await?;
+        self.ping_sent = Some(Instant::now());
+        Ok(())
+    }
+
+    /// Whether another QoS 1 publish may be sent now.
+    pub(crate) fn can_publish(&self) -> bool {
+        self.inflight.len() < MAX_INFLIGHT
+    }
+
+    /// Publishes; a QoS 1 publish is remembered with `tag` until [`Self::acked`] gives it
+    /// back.
+    pub(crate) async fn publish(
+        &mut self,
+        topic: &str,
+        payload: &[u8],
+        qos: u8,
+        retain: bool,
+        tag: u64,
+    ) -> Result<(), ConnError> {
+        let pkid = if qos > 0 { self.take_pkid() } else { 0 };
+        let bytes = packet::publish(
+            self.version,
+            &Publish {
+                topic: topic.to_owned(),
+                payload: payload.to_vec(),
+                qos,
+                retain,
+                pkid,
+            },
+        );
+        if qos > 0 {
+            self.inflight.insert(pkid, tag);
+        }
+        self.send(&bytes).await
+    }
+
+    /// The tag of the publish a PUBACK acknowledges.
+    pub(crate) fn acked(&mut self, pkid: u16) -> Option<u64> {
+        self.inflight.remove(&pkid)
+    }
+
+    /// How many publishes wait for their acknowledgement.
+    pub(crate) fn inflight(&self) -> usize {
+        self.inflight.len()
+    }
+
+    fn take_pkid(&mut self) -> u16 {
+        loop {
+            let id = self.next_pkid;
+            self.next_pkid = self.next_pkid.checked_add(1).unwrap_or(1);
+            if !self.inflight.contains_key(&id) {
+                return id;
+            }
+        }
+    }
+
+    pub(crate) async fn subscribe(&mut self, filters: &[(String, u8)]) -> Result<(), ConnError> {
+        let pkid = self.take_pkid();
+        self.send(&packet::subscribe(self.version, pkid, filters))
+            .await
+    }
+
+    pub(crate) async fn puback(&mut self, pkid: u16) -> Result<(), ConnError> {
+        self.send(&packet::puback(pkid)).await
+    }
+
+    /// Ends the connection cleanly: the broker does not publish the Will.
+    pub(crate) async fn disconnect(mut self) {
+        let _ = tokio::time::timeout(Duration::from_secs(2), async {
+            let _ = self.send(&packet::disconnect()).await;
+            let _ = self.io.shutdown().await;
+        })
+        .await;
+    }
+}

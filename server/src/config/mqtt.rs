@@ -1,0 +1,840 @@
+//! The `mqtt:` section of `iogate.yaml`: one broker the gateway publishes into, as a
+//! Sparkplug B edge node and/or on plain JSON topics, with a store-and-forward buffer on
+//! disk. Read here as written; files (password, TLS) are read when the gateway starts, and
+//! checked by `iogate check`.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use crate::duration;
+use crate::yaml::{Kind, Node, Report};
+
+const KEYS: &[&str] = &[
+    "url",
+    "client_id",
+    "username",
+    "password_file",
+    "password_env",
+    "tls",
+    "version",
+    "keep_alive",
+    "clean_start",
+    "sparkplug",
+    "json",
+    "report",
+    "buffer",
+    "writes",
+];
+const TLS_KEYS: &[&str] = &["ca", "cert", "key"];
+const SPARKPLUG_KEYS: &[&str] = &["group_id", "edge_node_id", "primary_host"];
+const JSON_KEYS: &[&str] = &["prefix", "qos", "retain"];
+const REPORT_KEYS: &[&str] = &["deadband", "min_interval", "max_interval"];
+const BUFFER_KEYS: &[&str] = &["dir", "max_bytes", "max_age", "replay_rate", "fsync"];
+
+pub(crate) const DEFAULT_KEEP_ALIVE: Duration = Duration::from_secs(30);
+pub(crate) const DEFAULT_MIN_INTERVAL: Duration = Duration::ZERO;
+pub(crate) const DEFAULT_MAX_INTERVAL: Duration = Duration::ZERO;
+pub(crate) const DEFAULT_MAX_BYTES: u64 = 256 << 20;
+pub(crate) const DEFAULT_MAX_AGE: Duration = Duration::from_secs(7 * 86_400);
+pub(crate) const DEFAULT_REPLAY_RATE: u32 = 500;
+
+/// The MQTT protocol version the gateway connects with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum MqttVersion {
+    #[default]
+    V311,
+    V5,
+}
+
+/// Where the broker is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BrokerUrl {
+    pub(crate) tls: bool,
+    pub(crate) host: String,
+    pub(crate) port: u16,
+}
+
+impl std::fmt::Display for BrokerUrl {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let scheme = if self.tls { "mqtts" } else { "mqtt" };
+        if self.host.contains(':') {
+            write!(f, "{scheme}://[{}]:{}", self.host, self.port)
+        } else {
+            write!(f, "{scheme}://{}:{}", self.host, self.port)
+        }
+    }
+}
+
+/// Why a broker URL is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum UrlError {
+    #[error("`{0}` is not an MQTT URL (write mqtt://host:port or mqtts://host:port)")]
+    Scheme(String),
+    #[error("`{0}` has no host")]
+    NoHost(String),
+    #[error("`{0}` has a port that is not a number 1-65535")]
+    Port(String),
+    #[error("`{0}` has a path, query or user part; write the user in `username`")]
+    Extra(String),
+}
+
+impl BrokerUrl {
+    pub(crate) fn parse(text: &str) -> Result<BrokerUrl, UrlError> {
+        let (tls, rest) = if let Some(rest) = text.strip_prefix("mqtts://") {
+            (true, rest)
+        } else if let Some(rest) = text.strip_prefix("mqtt://") {
+            (false, rest)
+        } else {
+            return Err(UrlError::Scheme(text.to_owned()));
+        };
+        let rest = rest.strip_suffix('/').unwrap_or(rest);
+        if rest.contains(['/', '?', '#', '@']) {
+            return Err(UrlError::Extra(text.to_owned()));
+        }
+        let default_port = if tls { 8883 } else { 1883 };
+        let (host, port) = if let Some(bracketed) = rest.strip_prefix('[') {
+            let (host, after) = bracketed
+                .split_once(']')
+                .ok_or_else(|| UrlError::NoHost(text.to_owned()))?;
+            match after.strip_prefix(':') {
+                Some(p) => (host, Some(p)),
+                None if after.is_empty() => (host, None),
+                None => return Err(UrlError::Port(text.to_owned())),
+            }
+        } else {
+            match rest.rsplit_once(':') {
+                Some((h, p)) => (h, Some(p)),
+                None => (rest, None),
+            }
+        };
+        if host.is_empty() {
+            return Err(UrlError::NoHost(text.to_owned()));
+        }
+        let port = match port {
+            None => default_port,
+            Some(p) => p
+                .parse::<u16>()
+                .ok()
+                .filter(|&p| p != 0)
+                .ok_or_else(|| UrlError::Port(text.to_owned()))?,
+        };
+        Ok(BrokerUrl {
+            tls,
+            host: host.to_owned(),
+            port,
+        })
+    }
+}
+
+/// TLS files for `mqtts://`: the CA to trust (else the system's roots) and an optional
+/// client certificate and key.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MqttTls {
+    pub(crate) ca: Option<PathBuf>,
+    pub(crate) cert: Option<PathBuf>,
+    pub(crate) key: Option<PathBuf>,
+}
+
+/// The Sparkplug B identity of the gateway.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SparkplugConfig {
+    pub(crate) group_id: String,
+    pub(crate) edge_node_id: String,
+    /// Publish only while this primary host application says it is online.
+    pub(crate) primary_host: Option<String>,
+}
+
+/// The plain JSON topics.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JsonConfig {
+    pub(crate) prefix: String,
+    pub(crate) qos: u8,
+    pub(crate) retain: bool,
+}
+
+/// A change smaller than this is not reported.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Deadband {
+    #[default]
+    None,
+    Absolute(f64),
+    /// Percent of the last reported value's magnitude.
+    Percent(f64),
+}
+
+/// Report by exception.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReportConfig {
+    pub(crate) deadband: Deadband,
+    /// At most one report per field this often (0: no limit).
+    pub(crate) min_interval: Duration,
+    /// At least one report per field this often, changed or not (0: only on change).
+    pub(crate) max_interval: Duration,
+}
+
+impl Default for ReportConfig {
+    fn default() -> Self {
+        ReportConfig {
+            deadband: Deadband::None,
+            min_interval: DEFAULT_MIN_INTERVAL,
+            max_interval: DEFAULT_MAX_INTERVAL,
+        }
+    }
+}
+
+/// When the buffer forces its writes to disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Fsync {
+    /// After every message: a crash loses nothing that was buffered.
+    Always,
+    /// Once a second: a crash loses at most the last second.
+    #[default]
+    Second,
+    /// Never explicitly (the operating system's choice).
+    Never,
+}
+
+/// The store-and-forward buffer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BufferConfig {
+    pub(crate) dir: Option<PathBuf>,
+    pub(crate) max_bytes: u64,
+    pub(crate) max_age: Duration,
+    /// Messages per second replayed after a reconnect.
+    pub(crate) replay_rate: u32,
+    pub(crate) fsync: Fsync,
+}
+
+impl Default for BufferConfig {
+    fn default() -> Self {
+        BufferConfig {
+            dir: None,
+            max_bytes: DEFAULT_MAX_BYTES,
+            max_age: DEFAULT_MAX_AGE,
+            replay_rate: DEFAULT_REPLAY_RATE,
+            fsync: Fsync::default(),
+        }
+    }
+}
+
+/// Where the password comes from; it is never logged.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Password {
+    File(PathBuf),
+    Env(String),
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct MqttConfig {
+    pub(crate) url: BrokerUrl,
+    pub(crate) client_id: String,
+    pub(crate) username: Option<String>,
+    pub(crate) password: Option<Password>,
+    pub(crate) tls: MqttTls,
+    pub(crate) version: MqttVersion,
+    pub(crate) keep_alive: Duration,
+    pub(crate) clean_start: bool,
+    pub(crate) sparkplug: Option<SparkplugConfig>,
+    pub(crate) json: Option<JsonConfig>,
+    pub(crate) report: ReportConfig,
+    pub(crate) buffer: BufferConfig,
+    pub(crate) writes: bool,
+    pub(crate) line: u64,
+}
+
+/// Why an MQTT identifier or topic is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum TopicError {
+    #[error("must not be empty")]
+    Empty,
+    #[error("`{0}` must not contain `+`, `#` or `/` (it is one level of a topic)")]
+    Level(String),
+    #[error(
+        "`{0}` must not contain `+` or `#`, nor start or end with `/`, nor have an empty level"
+    )]
+    Prefix(String),
+    #[error("`{0}` must not start with `$` (topics starting with `$` belong to the broker)")]
+    Dollar(String),
+    #[error("`{0}` is longer than 65,535 bytes")]
+    TooLong(String),
+}
+
+/// One level of a topic (a Sparkplug group, edge node, device or host id).
+pub(crate) fn check_level(text: &str) -> Result<(), TopicError> {
+    if text.is_empty() {
+        return Err(TopicError::Empty);
+    }
+    if text.contains(['+', '#', '/']) || text.contains('\0') {
+        return Err(TopicError::Level(text.to_owned()));
+    }
+    Ok(())
+}
+
+/// A topic prefix of one or more levels.
+pub(crate) fn check_prefix(text: &str) -> Result<(), TopicError> {
+    if text.is_empty() {
+        return Err(TopicError::Empty);
+    }
+    if text.len() > 65_535 {
+        return Err(TopicError::TooLong(text.to_owned()));
+    }
+    if text.starts_with('$') {
+        return Err(TopicError::Dollar(text.to_owned()));
+    }
+    if text.contains(['+', '#', '\0']) || text.split('/').any(str::is_empty) {
+        return Err(TopicError::Prefix(text.to_owned()));
+    }
+    Ok(())
+}
+
+/// A size such as `256MiB`, `10MB`, `4096`.
+pub(crate) fn parse_size(text: &str) -> Option<u64> {
+    let t = text.trim();
+    let split = t.find(|c: char| !c.is_ascii_digit()).unwrap_or(t.len());
+    let (digits, unit) = t.split_at(split);
+    let n: u64 = digits.parse().ok()?;
+    let factor: u64 = match unit.trim() {
+        "" | "B" => 1,
+        "KB" | "kB" => 1_000,
+        "KiB" => 1 << 10,
+        "MB" => 1_000_000,
+        "MiB" => 1 << 20,
+        "GB" => 1_000_000_000,
+        "GiB" => 1 << 30,
+        _ => return None,
+    };
+    n.checked_mul(factor)
+}
+
+fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
+    match node.kind {
+        Kind::Bool(b) => Some(b),
+        _ => {
+            report.push(
+                node.line,
+                ctx,
+                format!("expected true or false, found {}", node.describe()),
+            );
+            None
+        }
+    }
+}
+
+fn duration_at(node: &Node, report: &mut Report, ctx: &str) -> Option<Duration> {
+    let text = node.scalar_text(report, ctx)?;
+    duration::parse(&text)
+        .map_err(|e| report.push(node.line, ctx, e))
+        .ok()
+}
+
+fn path_at(node: &Node, report: &mut Report, ctx: &str) -> Option<PathBuf> {
+    let text = node.scalar_text(report, ctx)?;
+    if text.is_empty() {
+        report.push(node.line, ctx, "must not be empty");
+        return None;
+    }
+    Some(PathBuf::from(text))
+}
+
+fn level_at(node: &Node, report: &mut Report, ctx: &str) -> Option<String> {
+    let text = node.scalar_text(report, ctx)?;
+    check_level(&text)
+        .map_err(|e| report.push(node.line, ctx, e))
+        .ok()?;
+    Some(text)
+}
+
+/// Reads the section; `None` after reporting its problems.
+pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
+    let ctx = "mqtt";
+    let mut map = node.map(report, ctx)?;
+    let at = |k: &str| format!("{ctx}.{k}");
+    let url = map.require("url", report, ctx).and_then(|n| {
+        let text = n.scalar_text(report, &at("url"))?;
+        BrokerUrl::parse(&text)
+            .map_err(|e| report.push(n.line, at("url"), e))
+            .ok()
+    });
+    let client_id = match map.get("client_id") {
+        None => Some(String::new()),
+        Some(n) => n.scalar_text(report, &at("client_id")).and_then(|t| {
+            if t.len() > 65_535 || t.contains('\0') {
+                report.push(n.line, at("client_id"), "is not a valid MQTT client id");
+                None
+            } else {
+                Some(t)
+            }
+        }),
+    };
+    let username = map
+        .get("username")
+        .and_then(|n| n.scalar_text(report, &at("username")));
+    let password_file = map
+        .get("password_file")
+        .and_then(|n| path_at(n, report, &at("password_file")));
+    let password_env = map.get("password_env").and_then(|n| {
+        let name = n.scalar_text(report, &at("password_env"))?;
+        if name.is_empty() || name.contains(['=', '\0']) {
+            report.push(
+                n.line,
+                at("password_env"),
+                "is not an environment variable name",
+            );
+            return None;
+        }
+        Some(name)
+    });
+    let password = match (password_file, password_env) {
+        (Some(_), Some(_)) => {
+            report.push(
+                node.line,
+                ctx,
+                "give the password in password_file or password_env, not both",
+            );
+            None
+        }
+        (Some(f), None) => Some(Password::File(f)),
+        (None, Some(e)) => Some(Password::Env(e)),
+        (None, None) => None,
+    };
+    let tls = match map.get("tls") {
+        None => MqttTls::default(),
+        Some(n) => read_tls(n, report).unwrap_or_default(),
+    };
+    let version = match map.get("version") {
+        None => Some(MqttVersion::V311),
+        Some(n) => {
+            let text = n.scalar_text(report, &at("version"))?;
+            match text.as_str() {
+                "3.1.1" | "4" => Some(MqttVersion::V311),
+                "5" | "5.0" => Some(MqttVersion::V5),
+                other => {
+                    report.push(
+                        n.line,
+                        at("version"),
+                        format!("unknown MQTT version `{other}` (expected 3.1.1 or 5)"),
+                    );
+                    None
+                }
+            }
+        }
+    };
+    let keep_alive = match map.get("keep_alive") {
+        None => Some(DEFAULT_KEEP_ALIVE),
+        Some(n) => duration_at(n, report, &at("keep_alive")).and_then(|d| {
+            if d.as_secs() > u64::from(u16::MAX) || (d > Duration::ZERO && d.as_secs() == 0) {
+                report.push(
+                    n.line,
+                    at("keep_alive"),
+                    "must be 0 (off) or whole seconds from 1s to 65535s",
+                );
+                None
+            } else {
+                Some(d)
+            }
+        }),
+    };
+    let clean_start = match map.get("clean_start") {
+        None => Some(true),
+        Some(n) => boolean(n, report, &at("clean_start")),
+    };
+    let sparkplug_node = map.get("sparkplug");
+    let json_node = map.get("json");
+    let sparkplug = sparkplug_node.and_then(|n| read_sparkplug(n, report));
+    let json = json_node.and_then(|n| read_json(n, report));
+    let report_config = match map.get("report") {
+        None => ReportConfig::default(),
+        Some(n) => read_report(n, report).unwrap_or_default(),
+    };
+    let buffer = match map.get("buffer") {
+        None => BufferConfig::default(),
+        Some(n) => read_buffer(n, report).unwrap_or_default(),
+    };
+    let writes = match map.get("writes") {
+        None => Some(false),
+        Some(n) => boolean(n, report, &at("writes")),
+    };
+    map.finish(report, ctx, KEYS);
+    if sparkplug_node.is_none() && json_node.is_none() {
+        report.push(
+            node.line,
+            ctx,
+            "publishes nothing: give `sparkplug:`, `json:` or both",
+        );
+    }
+    if url.as_ref().is_some_and(|u| !u.tls) && tls != MqttTls::default() {
+        report.push(
+            node.line,
+            at("tls"),
+            "TLS files are given but the URL is mqtt://; write mqtts://",
+        );
+    }
+    if tls.cert.is_some() != tls.key.is_some() {
+        report.push(
+            node.line,
+            at("tls"),
+            "a client certificate needs its key, and a key its certificate",
+        );
+    }
+    if client_id.as_deref() == Some("") && clean_start == Some(false) {
+        report.push(
+            node.line,
+            at("clean_start"),
+            "a session kept across connections (clean_start: false) needs a client_id",
+        );
+    }
+    Some(MqttConfig {
+        url: url?,
+        client_id: client_id.unwrap_or_default(),
+        username,
+        password,
+        tls,
+        version: version.unwrap_or_default(),
+        keep_alive: keep_alive.unwrap_or(DEFAULT_KEEP_ALIVE),
+        clean_start: clean_start.unwrap_or(true),
+        sparkplug,
+        json,
+        report: report_config,
+        buffer,
+        writes: writes.unwrap_or(false),
+        line: node.line,
+    })
+}
+
+fn read_tls(node: &Node, report: &mut Report) -> Option<MqttTls> {
+    let ctx = "mqtt.tls";
+    let mut map = node.map(report, ctx)?;
+    let mut file = |key: &str, report: &mut Report| {
+        map.get(key)
+            .and_then(|n| path_at(n, report, &format!("{ctx}.{key}")))
+    };
+    let ca = file("ca", report);
+    let cert = file("cert", report);
+    let key = file("key", report);
+    map.finish(report, ctx, TLS_KEYS);
+    Some(MqttTls { ca, cert, key })
+}
+
+fn read_sparkplug(node: &Node, report: &mut Report) -> Option<SparkplugConfig> {
+    let ctx = "mqtt.sparkplug";
+    let mut map = node.map(report, ctx)?;
+    let group_id = map
+        .require("group_id", report, ctx)
+        .and_then(|n| level_at(n, report, &format!("{ctx}.group_id")));
+    let edge_node_id = map
+        .require("edge_node_id", report, ctx)
+        .and_then(|n| level_at(n, report, &format!("{ctx}.edge_node_id")));
+    let primary_host = map
+        .get("primary_host")
+        .and_then(|n| level_at(n, report, &format!("{ctx}.primary_host")));
+    map.finish(report, ctx, SPARKPLUG_KEYS);
+    Some(SparkplugConfig {
+        group_id: group_id?,
+        edge_node_id: edge_node_id?,
+        primary_host,
+    })
+}
+
+fn read_json(node: &Node, report: &mut Report) -> Option<JsonConfig> {
+    let ctx = "mqtt.json";
+    let mut map = node.map(report, ctx)?;
+    let prefix = map.require("prefix", report, ctx).and_then(|n| {
+        let text = n.scalar_text(report, &format!("{ctx}.prefix"))?;
+        check_prefix(&text)
+            .map_err(|e| report.push(n.line, format!("{ctx}.prefix"), e))
+            .ok()?;
+        Some(text)
+    });
+    let qos = match map.get("qos") {
+        None => Some(1),
+        Some(n) => n
+            .int_in(report, &format!("{ctx}.qos"), 0, 1)
+            .map(|q| q as u8),
+    };
+    let retain = match map.get("retain") {
+        None => Some(true),
+        Some(n) => boolean(n, report, &format!("{ctx}.retain")),
+    };
+    map.finish(report, ctx, JSON_KEYS);
+    Some(JsonConfig {
+        prefix: prefix?,
+        qos: qos.unwrap_or(1),
+        retain: retain.unwrap_or(true),
+    })
+}
+
+/// A deadband as written: a number (absolute) or a percentage (`"5%"`).
+pub(crate) fn read_deadband(node: &Node, report: &mut Report, ctx: &str) -> Option<Deadband> {
+    let bad = |report: &mut Report, why: &str| {
+        report.push(node.line, ctx, why);
+        None
+    };
+    match &node.kind {
+        Kind::Int(_) | Kind::Float(_) => {
+            let x = node.number(report, ctx)?;
+            if x < 0.0 {
+                return bad(report, "must not be negative");
+            }
+            Some(if x == 0.0 {
+                Deadband::None
+            } else {
+                Deadband::Absolute(x)
+            })
+        }
+        _ => {
+            let text = node.scalar_text(report, ctx)?;
+            let Some(p) = text
+                .strip_suffix('%')
+                .and_then(|p| p.trim().parse::<f64>().ok())
+            else {
+                return bad(
+                    report,
+                    &format!(
+                        "`{text}` is not a deadband (write an absolute change, e.g. 0.5, or a percentage, e.g. 2%)"
+                    ),
+                );
+            };
+            if !(0.0..=100.0).contains(&p) {
+                return bad(report, "a percentage deadband must be 0% to 100%");
+            }
+            Some(if p == 0.0 {
+                Deadband::None
+            } else {
+                Deadband::Percent(p)
+            })
+        }
+    }
+}
+
+fn read_report(node: &Node, report: &mut Report) -> Option<ReportConfig> {
+    let ctx = "mqtt.report";
+    let mut map = node.map(report, ctx)?;
+    let deadband = map
+        .get("deadband")
+        .and_then(|n| read_deadband(n, report, &format!("{ctx}.deadband")));
+    let min_interval = map
+        .get("min_interval")
+        .and_then(|n| duration_at(n, report, &format!("{ctx}.min_interval")));
+    let max_interval = map
+        .get("max_interval")
+        .and_then(|n| duration_at(n, report, &format!("{ctx}.max_interval")));
+    map.finish(report, ctx, REPORT_KEYS);
+    let config = ReportConfig {
+        deadband: deadband.unwrap_or_default(),
+        min_interval: min_interval.unwrap_or(DEFAULT_MIN_INTERVAL),
+        max_interval: max_interval.unwrap_or(DEFAULT_MAX_INTERVAL),
+    };
+    if config.max_interval > Duration::ZERO && config.max_interval < config.min_interval {
+        report.push(
+            node.line,
+            format!("{ctx}.max_interval"),
+            "must not be shorter than min_interval",
+        );
+    }
+    Some(config)
+}
+
+fn read_buffer(node: &Node, report: &mut Report) -> Option<BufferConfig> {
+    let ctx = "mqtt.buffer";
+    let mut map = node.map(report, ctx)?;
+    let dir = map
+        .get("dir")
+        .and_then(|n| path_at(n, report, &format!("{ctx}.dir")));
+    let max_bytes = map.get("max_bytes").and_then(|n| {
+        let c = format!("{ctx}.max_bytes");
+        let text = n.scalar_text(report, &c)?;
+        match parse_size(&text) {
+            Some(b) if b >= 1 << 20 => Some(b),
+            Some(_) => {
+                report.push(n.line, c, "must be at least 1MiB");
+                None
+            }
+            None => {
+                report.push(
+                    n.line,
+                    c,
+                    format!("`{text}` is not a size (write e.g. 256MiB, 1GiB or 500MB)"),
+                );
+                None
+            }
+        }
+    });
+    let max_age = map
+        .get("max_age")
+        .and_then(|n| duration_at(n, report, &format!("{ctx}.max_age")));
+    let replay_rate = map.get("replay_rate").and_then(|n| {
+        let c = format!("{ctx}.replay_rate");
+        let rate = match &n.kind {
+            Kind::Int(i) => u32::try_from(*i).ok(),
+            _ => n
+                .scalar_text(report, &c)?
+                .strip_suffix("/s")
+                .and_then(|r| r.trim().parse::<u32>().ok()),
+        };
+        match rate {
+            Some(r) if (1..=1_000_000).contains(&r) => Some(r),
+            _ => {
+                report.push(
+                    n.line,
+                    c,
+                    "is not a rate (write messages per second, e.g. 500/s; 1/s to 1000000/s)",
+                );
+                None
+            }
+        }
+    });
+    let fsync = map.get("fsync").and_then(|n| {
+        let c = format!("{ctx}.fsync");
+        let text = n.scalar_text(report, &c)?;
+        match text.as_str() {
+            "always" => Some(Fsync::Always),
+            "second" => Some(Fsync::Second),
+            "never" => Some(Fsync::Never),
+            other => {
+                report.push(
+                    n.line,
+                    c,
+                    format!("unknown choice `{other}` (expected always, second or never)"),
+                );
+                None
+            }
+        }
+    });
+    map.finish(report, ctx, BUFFER_KEYS);
+    Some(BufferConfig {
+        dir,
+        max_bytes: max_bytes.unwrap_or(DEFAULT_MAX_BYTES),
+        max_age: max_age.unwrap_or(DEFAULT_MAX_AGE),
+        replay_rate: replay_rate.unwrap_or(DEFAULT_REPLAY_RATE),
+        fsync: fsync.unwrap_or_default(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read_text(text: &str) -> (Option<MqttConfig>, Vec<String>) {
+        let mut report = Report::new("iogate.yaml");
+        let node = crate::yaml::parse(text, &mut report).expect("yaml");
+        let mut map = node.map(&mut report, "config").expect("map");
+        let config = map.get("mqtt").and_then(|n| read(n, &mut report));
+        let problems = report
+            .into_problems()
+            .iter()
+            .map(|p| format!("{}: {}: {}", p.line, p.context, p.message))
+            .collect();
+        (config, problems)
+    }
+
+    #[test]
+    fn the_documented_section_reads() {
+        let (config, problems) = read_text(
+            "mqtt:
+  url: mqtts://broker.example:8883
+  client_id: iogate-line1
+  username: gw1
+  password_file: /etc/iogate/mqtt-password
+  tls: { ca: ca.pem, cert: client.pem, key: client.key }
+  sparkplug: { group_id: plant1, edge_node_id: line1, primary_host: scada }
+  json: { prefix: iogate/line1, qos: 1, retain: true }
+  report: { deadband: 0, min_interval: 100ms, max_interval: 60s }
+  buffer: { dir: /var/lib/iogate/mqtt, max_bytes: 256MiB, max_age: 7d, replay_rate: 500/s }
+  writes: true
+",
+        );
+        assert_eq!(problems, Vec::<String>::new());
+        let c = config.expect("config");
+        assert_eq!(c.url.to_string(), "mqtts://broker.example:8883");
+        assert_eq!(c.client_id, "iogate-line1");
+        assert_eq!(
+            c.password,
+            Some(Password::File("/etc/iogate/mqtt-password".into()))
+        );
+        assert_eq!(c.tls.ca, Some("ca.pem".into()));
+        let sp = c.sparkplug.expect("sparkplug");
+        assert_eq!(
+            (sp.group_id.as_str(), sp.edge_node_id.as_str()),
+            ("plant1", "line1")
+        );
+        assert_eq!(sp.primary_host.as_deref(), Some("scada"));
+        let json = c.json.expect("json");
+        assert_eq!(
+            (json.prefix.as_str(), json.qos, json.retain),
+            ("iogate/line1", 1, true)
+        );
+        assert_eq!(c.report.deadband, Deadband::None);
+        assert_eq!(c.report.min_interval, Duration::from_millis(100));
+        assert_eq!(c.report.max_interval, Duration::from_secs(60));
+        assert_eq!(c.buffer.max_bytes, 256 << 20);
+        assert_eq!(c.buffer.max_age, Duration::from_secs(7 * 86_400));
+        assert_eq!(c.buffer.replay_rate, 500);
+        assert!(c.writes);
+    }
+
+    #[test]
+    fn every_problem_is_named_at_its_line() {
+        let (_, problems) = read_text(
+            "mqtt:
+  url: http://broker
+  sparkplug: { group_id: plant/1, edge_node_id: 'line+1' }
+  json: { prefix: /iogate, qos: 2 }
+  report: { deadband: lots, min_interval: 2s, max_interval: 1s }
+  buffer: { max_bytes: 12 parsecs, replay_rate: fast, fsync: sometimes }
+  colour: blue
+",
+        );
+        let expect = [
+            "2: mqtt.url: `http://broker` is not an MQTT URL",
+            "3: mqtt.sparkplug.group_id: `plant/1` must not contain",
+            "3: mqtt.sparkplug.edge_node_id: `line+1` must not contain",
+            "4: mqtt.json.prefix: `/iogate` must not contain",
+            "4: mqtt.json.qos: 2 is outside the allowed range 0-1",
+            "5: mqtt.report.deadband: `lots` is not a deadband",
+            "5: mqtt.report.max_interval: must not be shorter than min_interval",
+            "6: mqtt.buffer.max_bytes: `12 parsecs` is not a size",
+            "6: mqtt.buffer.replay_rate: is not a rate",
+            "6: mqtt.buffer.fsync: unknown choice `sometimes`",
+            "7: mqtt: unknown key `colour`",
+        ];
+        for e in expect {
+            assert!(
+                problems.iter().any(|p| p.starts_with(e)),
+                "missing {e:?} in {problems:#?}"
+            );
+        }
+    }
+
+    #[test]
+    fn urls_parse_with_their_default_ports() {
+        let url = |t| BrokerUrl::parse(t).map(|u| (u.tls, u.host, u.port));
+        assert_eq!(
+            url("mqtt://127.0.0.1"),
+            Ok((false, "127.0.0.1".into(), 1883))
+        );
+        assert_eq!(
+            url("mqtts://b.example"),
+            Ok((true, "b.example".into(), 8883))
+        );
+        assert_eq!(url("mqtt://[::1]:1884"), Ok((false, "::1".into(), 1884)));
+        assert!(matches!(url("mqtt://h:0"), Err(UrlError::Port(_))));
+        assert!(matches!(url("mqtt://u@h"), Err(UrlError::Extra(_))));
+        assert!(matches!(url("mqtt://"), Err(UrlError::NoHost(_))));
+        assert!(matches!(url("tcp://h"), Err(UrlError::Scheme(_))));
+    }
+
+    #[test]
+    fn sizes_and_deadbands_read() {
+        assert_eq!(parse_size("256MiB"), Some(256 << 20));
+        assert_eq!(parse_size("10MB"), Some(10_000_000));
+        assert_eq!(parse_size("4096"), Some(4096));
+        assert_eq!(parse_size("1 GiB"), Some(1 << 30));
+        assert_eq!(parse_size("MiB"), None);
+        assert_eq!(parse_size("99999999999999GiB"), None);
+        let (c, p) = read_text(
+            "mqtt:\n  url: mqtt://h\n  json: { prefix: a/b }\n  report: { deadband: 2.5% }\n",
+        );
+        assert_eq!(p, Vec::<String>::new());
+        assert_eq!(c.expect("config").report.deadband, Deadband::Percent(2.5));
+    }
+}

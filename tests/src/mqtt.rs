@@ -1,0 +1,164 @@
+//! MQTT peers for the tests: a real Mosquitto broker on a free loopback port with its own
+//! config in a temp dir, and paho-mqtt (Python) as an independent subscriber and publisher.
+//! `tests/mqtt/install.sh` installs both when they are missing.
+
+use std::path::PathBuf;
+use std::process::Stdio;
+use std::time::Duration;
+
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader, Lines};
+use tokio::process::{Child, ChildStdin, ChildStdout, Command};
+
+fn repo_file(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// Runs the project's installer for the MQTT peers (idempotent).
+pub fn install() -> anyhow::Result<()> {
+    let status = std::process::Command::new("bash")
+        .arg(repo_file("mqtt/install.sh"))
+        .status()?;
+    anyhow::ensure!(status.success(), "tests/mqtt/install.sh failed: {status}");
+    Ok(())
+}
+
+fn mosquitto() -> PathBuf {
+    let sbin = PathBuf::from("/usr/sbin/mosquitto");
+    if sbin.exists() {
+        sbin
+    } else {
+        PathBuf::from("mosquitto")
+    }
+}
+
+/// A Mosquitto broker of the test's own; stopped when dropped.
+pub struct Broker {
+    pub port: u16,
+    child: Child,
+    _dir: PathBuf,
+}
+
+impl Broker {
+    pub async fn start() -> anyhow::Result<Broker> {
+        install()?;
+        let dir = crate::devices::temp_dir("mosquitto");
+        // A free port: bind, note, release (mosquitto binds it next).
+        let port = std::net::TcpListener::bind("127.0.0.1:0")?
+            .local_addr()?
+            .port();
+        let config = dir.join("mosquitto.conf");
+        std::fs::write(
+            &config,
+            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+        )?;
+        let child = Command::new(mosquitto())
+            .arg("-c")
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .kill_on_drop(true)
+            .spawn()?;
+        crate::eventually("mosquitto listening", || async move {
+            tokio::net::TcpStream::connect(("127.0.0.1", port))
+                .await
+                .is_ok()
+        })
+        .await?;
+        Ok(Broker {
+            port,
+            child,
+            _dir: dir,
+        })
+    }
+
+    pub async fn stop(mut self) {
+        let _ = self.child.kill().await;
+    }
+}
+
+/// paho-mqtt subscribed to a topic filter; messages come as JSON values.
+pub struct Peer {
+    child: Child,
+    stdin: ChildStdin,
+    lines: Lines<BufReader<ChildStdout>>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Message {
+    pub topic: String,
+    pub payload: String,
+    pub retain: bool,
+}
+
+impl Message {
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_str(&self.payload).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+impl Peer {
+    pub async fn subscribe(broker: &Broker, filter: &str) -> anyhow::Result<Peer> {
+        let mut child = Command::new("python3")
+            .arg(repo_file("mqtt/client.py"))
+            .arg(broker.port.to_string())
+            .arg(filter)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()?;
+        let stdin = child.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("stdout"))?;
+        let mut peer = Peer {
+            child,
+            stdin,
+            lines: BufReader::new(stdout).lines(),
+        };
+        let first = peer.line().await?;
+        anyhow::ensure!(first["subscribed"] == true, "paho: {first}");
+        Ok(peer)
+    }
+
+    async fn line(&mut self) -> anyhow::Result<serde_json::Value> {
+        let line = tokio::time::timeout(crate::PATIENCE, self.lines.next_line())
+            .await
+            .map_err(|_| anyhow::anyhow!("no message from paho within {:?}", crate::PATIENCE))??
+            .ok_or_else(|| anyhow::anyhow!("paho ended"))?;
+        Ok(serde_json::from_str(&line)?)
+    }
+
+    /// The next message.
+    pub async fn next(&mut self) -> anyhow::Result<Message> {
+        let v = self.line().await?;
+        Ok(Message {
+            topic: v["topic"].as_str().unwrap_or_default().to_owned(),
+            payload: v["payload"].as_str().unwrap_or_default().to_owned(),
+            retain: v["retain"] == true,
+        })
+    }
+
+    /// The first message for which `f` holds (others are skipped).
+    pub async fn until(&mut self, f: impl Fn(&Message) -> bool) -> anyhow::Result<Message> {
+        let deadline = tokio::time::Instant::now() + crate::PATIENCE;
+        loop {
+            anyhow::ensure!(tokio::time::Instant::now() < deadline, "no such message");
+            let m = self.next().await?;
+            if f(&m) {
+                return Ok(m);
+            }
+        }
+    }
+
+    pub async fn publish(&mut self, topic: &str, payload: &str) -> anyhow::Result<()> {
+        let line = serde_json::json!({"topic": topic, "payload": payload, "qos": 1}).to_string();
+        self.stdin.write_all(format!("{line}\n").as_bytes()).await?;
+        self.stdin.flush().await?;
+        Ok(())
+    }
+
+    pub async fn stop(mut self) {
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.child.kill()).await;
+    }
+}
