@@ -1,5 +1,5 @@
 //! Generates the Rust code and the descriptor set (for server reflection) from
-//! `iogate/v1/*.proto`, with protox: no `protoc` binary is needed.
+//! `iogate/v1/*.proto`, and the Sparkplug B payload from `sparkplug/`, with protox: no `protoc` binary is needed.
 
 use std::path::PathBuf;
 
@@ -18,5 +18,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_server(true)
         .codec_path("crate::codec::StrictCodec")
         .compile_fds(fds)?;
+    // The Sparkplug B payload: messages only, for the MQTT front-end.
+    let sparkplug = "sparkplug/sparkplug_b.proto";
+    println!("cargo:rerun-if-changed={sparkplug}");
+    tonic_prost_build::configure()
+        .build_client(false)
+        .build_server(false)
+        .compile_fds(protox::compile([sparkplug], ["."])?)?;
     Ok(())
 }

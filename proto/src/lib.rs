@@ -10,6 +10,12 @@ pub mod pb {
     tonic::include_proto!("iogate.v1");
 }
 
+/// The Sparkplug B payload (specification 3.0.0, package `org.eclipse.tahu.protobuf`).
+pub mod sparkplug {
+    #![allow(clippy::all, missing_docs)]
+    include!(concat!(env!("OUT_DIR"), "/org.eclipse.tahu.protobuf.rs"));
+}
+
 /// The encoded descriptor set of the API, for gRPC server reflection.
 pub const FILE_DESCRIPTOR_SET: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/iogate_descriptor.bin"));

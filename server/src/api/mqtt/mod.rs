@@ -7,6 +7,7 @@
 //! Like every front-end it only renders the service: the values and views, the write
 //! checks and outcomes are the service's; `writes: true` is this front-end's role (write).
 
+mod buffer;
 mod conn;
 mod packet;
 mod report;
