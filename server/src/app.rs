@@ -268,7 +268,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             .parent()
             .unwrap_or_else(|| Path::new("."));
         let prepared = api::mqtt::prepare(mqtt, base).map_err(|e| anyhow::anyhow!("{e}"))?;
-        api::mqtt::spawn(service.clone(), prepared);
+        api::mqtt::spawn(service.clone(), prepared).map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     let modbus_addr = match modbus_listener {
         Some(listener) => {

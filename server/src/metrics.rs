@@ -20,6 +20,7 @@ use crate::link::TxError;
 use crate::link::frame::Function;
 
 mod format;
+mod mqtt;
 pub(crate) use format::Format;
 
 // Counter names get `_total` appended by the encoder.
@@ -51,6 +52,17 @@ pub const MODBUS_SERVER_CONNECTIONS: &str = "iogate_modbus_server_connections";
 pub const MODBUS_SERVER_REFUSED: &str = "iogate_modbus_server_refused_connections";
 pub const MODBUS_SERVER_REQUESTS: &str = "iogate_modbus_server_requests";
 pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
+pub const MQTT_CONNECTED: &str = "iogate_mqtt_connected";
+pub const MQTT_RECONNECTS: &str = "iogate_mqtt_reconnects";
+pub const MQTT_MESSAGES: &str = "iogate_mqtt_messages";
+pub const MQTT_BYTES: &str = "iogate_mqtt_bytes";
+pub const MQTT_WRITES: &str = "iogate_mqtt_writes";
+pub const MQTT_PUBLISH_LATENCY: &str = "iogate_mqtt_publish_latency_seconds";
+pub const MQTT_BUFFER_MESSAGES: &str = "iogate_mqtt_buffer_messages";
+pub const MQTT_BUFFER_BYTES: &str = "iogate_mqtt_buffer_bytes";
+pub const MQTT_BUFFER_OLDEST: &str = "iogate_mqtt_buffer_oldest_seconds";
+pub const MQTT_BUFFER_DROPPED: &str = "iogate_mqtt_buffer_dropped";
+pub const MQTT_BUFFER_REPLAYED: &str = "iogate_mqtt_buffer_replayed";
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct LinkLabels {
@@ -143,6 +155,7 @@ pub struct Metrics {
     server_refused: Counter,
     server_requests: Family<ServerRequestLabels, Counter>,
     server_exceptions: Family<CodeLabels, Counter>,
+    mqtt: mqtt::MqttMetrics,
 }
 
 impl std::fmt::Debug for Metrics {
@@ -189,6 +202,7 @@ impl Metrics {
             server_refused: Counter::default(),
             server_requests: Family::default(),
             server_exceptions: Family::default(),
+            mqtt: mqtt::MqttMetrics::new(),
             registry: Registry::default(),
         };
         registry.register(
@@ -468,8 +482,19 @@ impl Metrics {
             .inc();
     }
 
-    /// The registry in the text format `format`, with states copied from the cache first.
-    pub(crate) fn render(&self, cache: &Cache, format: Format) -> String {
+    /// A message published by the MQTT front-end was confirmed `seconds` after its change.
+    pub(crate) fn mqtt_publish_latency(&self, seconds: f64) {
+        self.mqtt.observe_latency(seconds);
+    }
+
+    /// The registry in the text format `format`, with states copied from the cache (and the
+    /// MQTT front-end's status, when it runs) first.
+    pub(crate) fn render(
+        &self,
+        cache: &Cache,
+        mqtt: Option<&crate::service::MqttStatus>,
+        format: Format,
+    ) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.
         self.link_up.clear();
         self.inbox_depth.clear();
@@ -551,7 +576,16 @@ impl Metrics {
             counter.inc_by(n.saturating_sub(counter.get()));
         }
         let mut out = String::new();
-        if prometheus_client::encoding::text::encode(&mut out, &self.registry).is_err() {
+        let encoded = (|| {
+            use prometheus_client::encoding::text::{encode_eof, encode_registry};
+            encode_registry(&mut out, &self.registry)?;
+            if let Some(status) = mqtt {
+                self.mqtt.copy(status);
+                encode_registry(&mut out, &self.mqtt.registry)?;
+            }
+            encode_eof(&mut out)
+        })();
+        if encoded.is_err() {
             tracing::error!("cannot encode the metrics");
         }
         match format {

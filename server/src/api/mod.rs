@@ -89,7 +89,11 @@ async fn metrics(State(service): State<Arc<Service>>, headers: HeaderMap) -> imp
     let format = crate::metrics::Format::negotiate(accept);
     (
         [(header::CONTENT_TYPE, format.content_type())],
-        service.metrics.render(&service.cache, format),
+        service.metrics.render(
+            &service.cache,
+            service.mqtt().map(|m| m.status()).as_ref(),
+            format,
+        ),
     )
 }
 

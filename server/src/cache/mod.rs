@@ -112,6 +112,9 @@ pub struct Cache {
     pub(crate) catalog: Catalog,
     pub(crate) writes: Arc<WriteLog>,
     registry: RwLock<Registry>,
+    /// Counts changes of the set of devices (added or removed at run time), for front-ends
+    /// that publish every device.
+    device_set: tokio::sync::watch::Sender<u64>,
 }
 
 impl Cache {
@@ -121,6 +124,7 @@ impl Cache {
             catalog,
             writes: Arc::new(WriteLog::default()),
             registry: RwLock::new(Registry::default()),
+            device_set: tokio::sync::watch::Sender::new(0),
         };
         {
             let mut registry = write(&cache.registry);
@@ -159,6 +163,7 @@ impl Cache {
         let bound = config.slave_id.is_some();
         let device = Arc::new(Device::new(config, profile, self.writes.clone(), wake));
         registry.devices.push(device.clone());
+        self.device_set.send_modify(|n| *n += 1);
         if let Some(link) = link.filter(|_| bound) {
             link.add_member(device.clone());
         }
@@ -180,6 +185,7 @@ impl Cache {
     /// Takes a device out: off its link, its task stopped, its waiting writes failed.
     pub(crate) fn remove_device(&self, registry: &mut Registry, device: &Arc<Device>) {
         registry.devices.retain(|d| !Arc::ptr_eq(d, device));
+        self.device_set.send_modify(|n| *n += 1);
         if let Some(link) = device
             .binding()
             .link
@@ -199,6 +205,11 @@ impl Cache {
     /// Runs `f` with the registry locked for changes: checks and inserts happen at once.
     pub(crate) fn change<T>(&self, f: impl FnOnce(&mut Registry) -> T) -> T {
         f(&mut write(&self.registry))
+    }
+
+    /// Wakes when a device is added or removed.
+    pub(crate) fn watch_devices(&self) -> tokio::sync::watch::Receiver<u64> {
+        self.device_set.subscribe()
     }
 
     /// Every device, in the order they were added.

@@ -107,6 +107,8 @@ pub struct Field {
     pub(crate) direction: Direction,
     pub(crate) register: Register,
     pub(crate) description: Option<String>,
+    /// How much the value must change before MQTT reports it (else the section's).
+    pub(crate) deadband: Option<crate::config::mqtt::Deadband>,
     pub(crate) encoding: Encoding,
     /// The line of the profile file the field starts on.
     pub(crate) line: u64,

@@ -5,6 +5,7 @@
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
 mod modbus_map;
+mod mqtt_status;
 mod refusal;
 mod select;
 mod standing;
@@ -24,9 +25,10 @@ use crate::runtime::Tasks;
 
 pub(crate) use crate::cache::Refusal;
 pub(crate) use modbus_map::ModbusImage;
+pub(crate) use mqtt_status::{MqttState, MqttStatus, SparkplugStatus};
 pub(crate) use select::Selection;
 pub(crate) use standing::{Standing, StandingSet, StandingStatus};
-pub(crate) use subscribe::Change;
+pub(crate) use subscribe::{Change, Changes};
 pub(crate) use view::FieldView;
 pub(crate) use write::{Accepted, Prepared, ScanCycle};
 
@@ -109,6 +111,8 @@ pub struct Service {
     read_only: bool,
     /// Open change streams (SSE, Subscribe, Exchange), bounded by [`MAX_STREAMS`].
     streams: Arc<std::sync::atomic::AtomicUsize>,
+    /// The MQTT front-end's state, when it runs.
+    mqtt: std::sync::OnceLock<Arc<MqttState>>,
 }
 
 /// The most change streams (SSE, gRPC Subscribe and Exchange) open at once.
@@ -139,6 +143,7 @@ impl Service {
             tokens: crate::auth::Tokens::default(),
             read_only: false,
             streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
+            mqtt: std::sync::OnceLock::new(),
         }
     }
 
@@ -209,6 +214,21 @@ impl Service {
 
     pub(crate) fn devices(&self) -> Vec<Arc<Device>> {
         self.cache.devices()
+    }
+
+    /// The MQTT front-end's state, once it is started.
+    pub(crate) fn mqtt(&self) -> Option<&Arc<MqttState>> {
+        self.mqtt.get()
+    }
+
+    /// Gives the MQTT front-end's state to the other front-ends (once).
+    pub(crate) fn attach_mqtt(&self, state: Arc<MqttState>) {
+        let _ = self.mqtt.set(state);
+    }
+
+    /// Wakes when a device is added or removed.
+    pub(crate) fn watch_devices(&self) -> tokio::sync::watch::Receiver<u64> {
+        self.cache.watch_devices()
     }
 
     pub(crate) fn device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {

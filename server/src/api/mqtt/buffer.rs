@@ -242,12 +242,6 @@ impl Buffer {
         self.depth == 0
     }
 
-    /// Whether every record has been handed out for replay.
-    pub(crate) fn replayed_all(&self) -> bool {
-        let last = self.segments.back();
-        last.is_some_and(|s| self.read.seg == s.id && self.read.off >= s.len)
-    }
-
     /// Appends a record at the end.
     pub(crate) fn append(&mut self, record: &Record) -> Result<(), BufferError> {
         let body = encode(record);
@@ -255,7 +249,11 @@ impl Buffer {
         bytes.extend_from_slice(&(body.len() as u32).to_le_bytes());
         bytes.extend_from_slice(&crc32(&body).to_le_bytes());
         bytes.extend_from_slice(&body);
-        if self.segments.back().is_some_and(|s| s.len >= self.segment_max) {
+        if self
+            .segments
+            .back()
+            .is_some_and(|s| s.len >= self.segment_max)
+        {
             self.roll()?;
         }
         let path = self.current_path();
@@ -382,7 +380,11 @@ impl Buffer {
                 return Ok(None);
             };
             if self.read.off >= seg.len {
-                let next = self.segments.iter().find(|s| s.id > self.read.seg).map(|s| s.id);
+                let next = self
+                    .segments
+                    .iter()
+                    .find(|s| s.id > self.read.seg)
+                    .map(|s| s.id);
                 match next {
                     Some(id) => {
                         self.read = Pos { seg: id, off: 0 };
@@ -540,8 +542,8 @@ fn scan(path: &Path, id: u64) -> Result<(Segment, u64), BufferError> {
     };
     let mut off = 0usize;
     while off + HEADER <= data.len() {
-        let n = u32::from_le_bytes([data[off], data[off + 1], data[off + 2], data[off + 3]])
-            as usize;
+        let n =
+            u32::from_le_bytes([data[off], data[off + 1], data[off + 2], data[off + 3]]) as usize;
         let crc = u32::from_le_bytes([data[off + 4], data[off + 5], data[off + 6], data[off + 7]]);
         let Some(body) = data.get(off + HEADER..off + HEADER + n) else {
             break;
@@ -567,7 +569,10 @@ fn scan(path: &Path, id: u64) -> Result<(Segment, u64), BufferError> {
             bytes = data.len() - off,
             "the MQTT buffer's last record was torn (a crash while writing): cut off"
         );
-        let f = OpenOptions::new().write(true).open(path).map_err(err(path))?;
+        let f = OpenOptions::new()
+            .write(true)
+            .open(path)
+            .map_err(err(path))?;
         f.set_len(off as u64).map_err(err(path))?;
     }
     Ok((seg, torn))
@@ -620,7 +625,11 @@ fn crc32(data: &[u8]) -> u32 {
             let mut c = i as u32;
             let mut k = 0;
             while k < 8 {
-                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+                c = if c & 1 != 0 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
                 k += 1;
             }
             table[i] = c;
@@ -658,7 +667,7 @@ mod tests {
     }
 
     fn field_no(r: &Record) -> u64 {
-        u64::from_le_bytes(r.payload[..8].try_into().unwrap())
+        u64::from_le_bytes(r.payload[..8].try_into().expect("test"))
     }
 
     #[test]
@@ -668,26 +677,26 @@ mod tests {
 
     #[test]
     fn records_come_back_in_order_and_survive_a_reopen() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut b = Buffer::open(dir.path(), &config(1 << 30)).unwrap();
+        let dir = tempfile::tempdir().expect("test");
+        let mut b = Buffer::open(dir.path(), &config(1 << 30)).expect("test");
         for n in 0..1000 {
-            b.append(&record(n)).unwrap();
+            b.append(&record(n)).expect("test");
         }
         // Replay 300 and acknowledge them; the rest is still there after a reopen.
         let mut last = Pos::default();
         for n in 0..300 {
-            let (r, end) = b.next().unwrap().unwrap();
+            let (r, end) = b.next().expect("test").expect("test");
             assert_eq!(field_no(&r), n);
             last = end;
         }
         b.ack(last);
-        b.write_head(true).unwrap();
+        b.write_head(true).expect("test");
         assert_eq!(b.stats().depth, 700);
         drop(b);
-        let mut b = Buffer::open(dir.path(), &config(1 << 30)).unwrap();
+        let mut b = Buffer::open(dir.path(), &config(1 << 30)).expect("test");
         assert_eq!(b.stats().depth, 700);
         let mut n = 300;
-        while let Some((r, end)) = b.next().unwrap() {
+        while let Some((r, end)) = b.next().expect("test") {
             assert_eq!(field_no(&r), n);
             n += 1;
             b.ack(end);
@@ -698,41 +707,41 @@ mod tests {
 
     #[test]
     fn unacknowledged_records_are_replayed_again_after_a_rewind() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut b = Buffer::open(dir.path(), &config(1 << 30)).unwrap();
+        let dir = tempfile::tempdir().expect("test");
+        let mut b = Buffer::open(dir.path(), &config(1 << 30)).expect("test");
         for n in 0..10 {
-            b.append(&record(n)).unwrap();
+            b.append(&record(n)).expect("test");
         }
-        let (_, end) = b.next().unwrap().unwrap();
+        let (_, end) = b.next().expect("test").expect("test");
         b.ack(end);
-        b.next().unwrap().unwrap();
-        b.next().unwrap().unwrap();
+        b.next().expect("test").expect("test");
+        b.next().expect("test").expect("test");
         b.rewind();
-        assert_eq!(field_no(&b.next().unwrap().unwrap().0), 1);
+        assert_eq!(field_no(&b.next().expect("test").expect("test").0), 1);
     }
 
     #[test]
     fn a_torn_tail_is_cut_off_and_the_rest_kept() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut b = Buffer::open(dir.path(), &config(1 << 30)).unwrap();
+        let dir = tempfile::tempdir().expect("test");
+        let mut b = Buffer::open(dir.path(), &config(1 << 30)).expect("test");
         for n in 0..5 {
-            b.append(&record(n)).unwrap();
+            b.append(&record(n)).expect("test");
         }
         drop(b);
         let seg = std::fs::read_dir(dir.path())
-            .unwrap()
+            .expect("test")
             .filter_map(|e| e.ok())
             .find(|e| e.file_name().to_string_lossy().ends_with(".seg"))
-            .unwrap()
+            .expect("test")
             .path();
-        let mut f = OpenOptions::new().append(true).open(&seg).unwrap();
-        f.write_all(&[40, 0, 0, 0, 1, 2]).unwrap();
+        let mut f = OpenOptions::new().append(true).open(&seg).expect("test");
+        f.write_all(&[40, 0, 0, 0, 1, 2]).expect("test");
         drop(f);
-        let mut b = Buffer::open(dir.path(), &config(1 << 30)).unwrap();
+        let mut b = Buffer::open(dir.path(), &config(1 << 30)).expect("test");
         assert_eq!(b.stats().depth, 5);
-        b.append(&record(5)).unwrap();
+        b.append(&record(5)).expect("test");
         let mut seen = Vec::new();
-        while let Some((r, _)) = b.next().unwrap() {
+        while let Some((r, _)) = b.next().expect("test") {
             seen.push(field_no(&r));
         }
         assert_eq!(seen, vec![0, 1, 2, 3, 4, 5]);
@@ -740,18 +749,18 @@ mod tests {
 
     #[test]
     fn over_max_bytes_the_oldest_are_dropped_and_counted() {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = tempfile::tempdir().expect("test");
         // Segments of 64 KiB; a 256 KiB buffer keeps about four of them.
-        let mut b = Buffer::open(dir.path(), &config(256 << 10)).unwrap();
+        let mut b = Buffer::open(dir.path(), &config(256 << 10)).expect("test");
         for n in 0..20_000 {
-            b.append(&record(n)).unwrap();
+            b.append(&record(n)).expect("test");
         }
         let s = b.stats();
         assert!(s.bytes <= 256 << 10, "{s:?}");
         assert!(s.dropped > 0);
         assert_eq!(s.depth + s.dropped, 20_000);
         // What is left is the newest, in order.
-        let (first, _) = b.next().unwrap().unwrap();
+        let (first, _) = b.next().expect("test").expect("test");
         assert_eq!(field_no(&first), s.dropped);
     }
 }

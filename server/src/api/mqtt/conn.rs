@@ -97,6 +97,12 @@ pub(crate) struct Connection {
     next_pkid: u16,
     /// QoS 1 publishes in flight: packet id -> the caller's tag.
     inflight: BTreeMap<u16, u64>,
+    /// Tags of QoS 0 publishes not yet confirmed by a ping's answer.
+    unconfirmed: Vec<u64>,
+    /// The tags the ping in flight confirms when it is answered.
+    ping_covers: Vec<u64>,
+    /// Tags confirmed, for the caller to take.
+    confirmed: Vec<u64>,
 }
 
 impl Connection {
@@ -146,6 +152,9 @@ impl Connection {
             ping_sent: None,
             next_pkid: 1,
             inflight: BTreeMap::new(),
+            unconfirmed: Vec::new(),
+            ping_covers: Vec::new(),
+            confirmed: Vec::new(),
         };
         conn.send(&packet::connect(config.version, connect)).await?;
         match conn.read().await? {
@@ -174,6 +183,9 @@ impl Connection {
                 }
                 if packet == Incoming::PingResp {
                     self.ping_sent = None;
+                    // The broker answers packets in order: every publish before the ping
+                    // has been received.
+                    self.confirmed.append(&mut self.ping_covers);
                 }
                 return Ok(packet);
             }
@@ -202,9 +214,33 @@ impl Connection {
         if self.ping_sent.is_some() {
             return Err(ConnError::KeepAlive);
         }
+        self.ping().await
+    }
+
+    async fn ping(&mut self) -> Result<(), ConnError> {
         self.send(&packet::pingreq()).await?;
         self.ping_sent = Some(Instant::now());
+        self.ping_covers = std::mem::take(&mut self.unconfirmed);
         Ok(())
+    }
+
+    /// Whether QoS 0 publishes wait for a ping to confirm them and none is in flight.
+    pub(crate) fn barrier_due(&self) -> bool {
+        self.ping_sent.is_none() && !self.unconfirmed.is_empty()
+    }
+
+    /// Sends a ping whose answer confirms the QoS 0 publishes sent before it (a broker
+    /// handles a connection's packets in order). QoS 0 has no acknowledgement of its own.
+    pub(crate) async fn barrier(&mut self) -> Result<(), ConnError> {
+        if self.barrier_due() {
+            self.ping().await?;
+        }
+        Ok(())
+    }
+
+    /// The tags of QoS 0 publishes confirmed since the last call.
+    pub(crate) fn take_confirmed(&mut self) -> Vec<u64> {
+        std::mem::take(&mut self.confirmed)
     }
 
     /// Whether another QoS 1 publish may be sent now.
@@ -213,7 +249,8 @@ impl Connection {
     }
 
     /// Publishes; a QoS 1 publish is remembered with `tag` until [`Self::acked`] gives it
-    /// back.
+    /// back, a QoS 0 one (with a `tag` other than 0) until a ping confirms it
+    /// ([`Self::take_confirmed`]).
     pub(crate) async fn publish(
         &mut self,
         topic: &str,
@@ -235,6 +272,8 @@ impl Connection {
         );
         if qos > 0 {
             self.inflight.insert(pkid, tag);
+        } else if tag != 0 {
+            self.unconfirmed.push(tag);
         }
         self.send(&bytes).await
     }
@@ -242,11 +281,6 @@ impl Connection {
     /// The tag of the publish a PUBACK acknowledges.
     pub(crate) fn acked(&mut self, pkid: u16) -> Option<u64> {
         self.inflight.remove(&pkid)
-    }
-
-    /// How many publishes wait for their acknowledgement.
-    pub(crate) fn inflight(&self) -> usize {
-        self.inflight.len()
     }
 
     fn take_pkid(&mut self) -> u16 {

@@ -1,19 +1,31 @@
-//! The MQTT front-end: the gateway publishes into one broker. Plain JSON topics
-//! (`<prefix>/<device>/<field>` with the JSON of `GET .../fields/{field}`, retained;
-//! `<prefix>/<device>/$state` with the device's diagnostics; `<prefix>/$state` with the
-//! gateway's own, `{"online": false}` as its Will) and writes on `<prefix>/<device>/<field>/set`
-//! answered on `.../set/result`. Values are reported by exception (`report.rs`).
+//! The MQTT front-end: the gateway publishes into one broker, as a Sparkplug B 3.0 edge node
+//! (`sparkplug.rs`: births, deaths with `bdSeq`, aliases, `seq`, rebirth, NCMD/DCMD writes,
+//! the primary host's STATE) and/or on plain JSON topics (`<prefix>/<device>/<field>` with
+//! the JSON of `GET .../fields/{field}`, retained; `<prefix>/<device>/$state`;
+//! `<prefix>/$state` with a Will; writes on `.../set` answered on `.../set/result`). Values are
+//! reported by exception (`report.rs`). While the broker is away every data message goes to
+//! the store-and-forward buffer (`buffer.rs`) and is replayed at `replay_rate` after a
+//! reconnect, beside live data: Sparkplug replays are DDATA marked `is_historical`, JSON
+//! replays go to `<prefix>/history/<device>/<field>` (not retained, with their original
+//! timestamp), so that no replay overwrites a live value.
 //!
-//! Like every front-end it only renders the service: the values and views, the write
-//! checks and outcomes are the service's; `writes: true` is this front-end's role (write).
+//! A data message leaves the buffer (or memory) only once the broker confirmed it: a PUBACK
+//! for QoS 1, the answer to a ping sent after it for QoS 0 (Sparkplug data is QoS 0 by the
+//! specification; a broker handles a connection's packets in order). What was published and
+//! not confirmed when a connection ends is buffered and sent again (at least once).
+//!
+//! Like every front-end it only renders the service: the values, views, write checks and
+//! outcomes are the service's; `writes: true` is this front-end's role (write).
 
 mod buffer;
 mod conn;
 mod packet;
 mod report;
+mod sparkplug;
 
-use std::collections::VecDeque;
-use std::sync::{Arc, Mutex};
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::path::Path;
+use std::sync::Arc;
 use std::time::Duration;
 
 use futures_util::StreamExt;
@@ -23,55 +35,32 @@ use tokio_util::sync::CancellationToken;
 
 use super::convert::{self, DiagnosticsEvent, field_value};
 use super::error::ApiError;
-use crate::cache::Device;
+use crate::cache::{Device, Diagnostics};
 use crate::config::mqtt::{JsonConfig, MqttConfig, Password};
-use crate::service::{Change, Service};
+use crate::service::{Change, FieldView, MqttState, MqttStatus, Service, SparkplugStatus};
 use crate::write_log::WriteStatus;
+use buffer::{Buffer, Kind, Pos, Record, now_ms};
 use conn::{ConnError, Connection, TlsSetup};
 use packet::{Connect, Incoming, Will};
 use report::{Decision, Reporter};
+use sparkplug::{Aliases, Form, HostState};
 
 /// Waits between attempts to connect: doubling from the first to the last.
 const RECONNECT_MIN: Duration = Duration::from_millis(500);
 const RECONNECT_MAX: Duration = Duration::from_secs(30);
 /// Writes from `/set` whose final outcome is still to be published, at most.
 const MAX_FOLLOWED_WRITES: usize = 1024;
-/// How often followed writes are looked at.
+/// How often followed writes are looked at, the buffer synced and the status copied.
 const FOLLOW_EVERY: Duration = Duration::from_millis(50);
-
-/// What `GET /api/v1/mqtt` shows.
-#[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
-pub(crate) struct MqttStatus {
-    pub(crate) broker: String,
-    pub(crate) connected: bool,
-    /// Why the last connection failed or ended.
-    pub(crate) last_error: Option<String>,
-    pub(crate) reconnects: u64,
-    pub(crate) messages_out: u64,
-    pub(crate) bytes_out: u64,
-    pub(crate) messages_in: u64,
-    /// Writes refused (bad topic, payload or value, or writes not enabled).
-    pub(crate) writes_refused: u64,
-}
-
-/// The front-end's shared state: its status for the REST API and `/readyz`.
-#[derive(Debug, Default)]
-pub(crate) struct Mqtt {
-    status: Mutex<MqttStatus>,
-}
-
-impl Mqtt {
-    pub(crate) fn status(&self) -> MqttStatus {
-        self.status
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone()
-    }
-
-    fn update(&self, f: impl FnOnce(&mut MqttStatus)) {
-        f(&mut self.status.lock().unwrap_or_else(|e| e.into_inner()));
-    }
-}
+/// Messages waiting to be published on a connection, at most: changes wait in the service
+/// (newest value per field) while it is full.
+const MAX_OUTBOX: usize = 4096;
+/// Live data messages published and not yet confirmed, at most.
+const MAX_UNCONFIRMED: usize = 8192;
+/// Replayed messages published and not yet confirmed, at most.
+const REPLAY_WINDOW: usize = 32;
+/// How often the replay's budget is refilled.
+const REPLAY_EVERY: Duration = Duration::from_millis(10);
 
 /// What the front-end needs from the files its section names, read once at start.
 pub(crate) struct Prepared {
@@ -110,8 +99,10 @@ pub(crate) fn prepare(config: &MqttConfig, base: &std::path::Path) -> Result<Pre
     } else {
         None
     };
+    let mut config = config.clone();
+    config.buffer.dir = config.buffer.dir.map(|d| base.join(d));
     Ok(Prepared {
-        config: config.clone(),
+        config,
         password,
         tls,
     })
@@ -132,6 +123,10 @@ impl Topics<'_> {
     }
     fn set_filter(&self) -> String {
         format!("{}/+/+/set", self.0.prefix)
+    }
+    /// Where a replayed (buffered) value goes: not the live, retained topic.
+    fn history(&self, device: &str, field: &str) -> String {
+        format!("{}/history/{device}/{field}", self.0.prefix)
     }
     /// The device and field a `/set` topic names.
     fn parse_set<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
@@ -167,28 +162,91 @@ struct SetRefused<'a> {
     error: super::error::ErrorDetail,
 }
 
+/// Why the front-end could not start.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum StartError {
+    #[error(transparent)]
+    Buffer(#[from] buffer::BufferError),
+}
+
 /// Starts the front-end's task; it runs until the gateway shuts down.
-pub(crate) fn spawn(service: Arc<Service>, prepared: Prepared) -> Arc<Mqtt> {
-    tracing::info!(broker = %prepared.config.url, "publishing to MQTT");
-    let mqtt = Arc::new(Mqtt::default());
-    mqtt.update(|s| s.broker = prepared.config.url.to_string());
+pub(crate) fn spawn(service: Arc<Service>, prepared: Prepared) -> Result<(), StartError> {
+    let config = &prepared.config;
+    tracing::info!(broker = %config.url, "publishing to MQTT");
+    let buffer = match &config.buffer.dir {
+        Some(dir) => Some(Buffer::open(dir, &config.buffer)?),
+        None => None,
+    };
+    let bd_seq = config
+        .buffer
+        .dir
+        .as_deref()
+        .and_then(read_bd_seq)
+        .map_or(0, |b| b.wrapping_add(1));
+    let state = Arc::new(MqttState::default());
+    state.update(|s| {
+        s.broker = config.url.to_string();
+        s.client_id = config.client_id.clone();
+        s.json_prefix = config.json.as_ref().map(|j| j.prefix.clone());
+        s.buffer.dir = config.buffer.dir.as_ref().map(|d| d.display().to_string());
+        s.sparkplug = config.sparkplug.as_ref().map(|sp| SparkplugStatus {
+            group_id: sp.group_id.clone(),
+            edge_node_id: sp.edge_node_id.clone(),
+            bd_seq,
+            primary_host: sp.primary_host.clone(),
+            ..SparkplugStatus::default()
+        });
+    });
+    service.attach_mqtt(state.clone());
+    let status = state.status();
     let token = service.tasks().token().clone();
     let task = Task {
+        reporter: Reporter::new(config.report.clone()),
+        spark: config.sparkplug.as_ref().map(sparkplug::Topics::new),
         service: service.clone(),
-        mqtt: mqtt.clone(),
+        state,
+        buffer,
+        bd_seq,
+        started: Instant::now(),
+        aliases: Aliases::default(),
+        devices: Vec::new(),
+        by_key: HashMap::new(),
+        diag_sent: HashMap::new(),
+        next_ticket: 1,
+        status,
+        lost: 0,
         prepared,
     };
     service.tasks().spawn(task.run(token));
-    mqtt
+    Ok(())
 }
 
-struct Task {
-    service: Arc<Service>,
-    mqtt: Arc<Mqtt>,
-    prepared: Prepared,
+fn read_bd_seq(dir: &Path) -> Option<u8> {
+    std::fs::read_to_string(dir.join("bdseq"))
+        .ok()?
+        .trim()
+        .parse()
+        .ok()
 }
 
-/// A publish the session loop sends.
+/// A message waiting to be published on the connection.
+enum Item {
+    /// A data message: tracked until the broker confirms it, buffered if the connection
+    /// ends first.
+    Data(Record),
+    /// A JSON message that is not data (states, write results).
+    Plain(Out),
+    /// A Sparkplug message to a device (DBIRTH, DDATA, DDEATH); `seq` is given when sent.
+    Spark {
+        kind: &'static str,
+        device: String,
+        metrics: Vec<sparkplug::Metric>,
+    },
+    /// NBIRTH: `seq` starts again at 0.
+    NodeBirth,
+}
+
+/// A publish.
 struct Out {
     topic: String,
     payload: Vec<u8>,
@@ -196,15 +254,97 @@ struct Out {
     retain: bool,
 }
 
+/// A data message published and not yet confirmed.
+struct Unconfirmed<T> {
+    ticket: u64,
+    item: T,
+    confirmed: bool,
+}
+
+/// One connection's state.
+struct Online {
+    conn: Connection,
+    outbox: VecDeque<Item>,
+    live: VecDeque<Unconfirmed<Record>>,
+    replay: VecDeque<Unconfirmed<Pos>>,
+    replay_budget: f64,
+    /// NBIRTH sent (and the host online, when one is configured).
+    node_born: bool,
+    born: HashSet<String>,
+    seq: u8,
+    host: Option<HostState>,
+    followed: VecDeque<(u64, String, String)>,
+}
+
+/// What woke a session.
+enum Event {
+    Shutdown,
+    Packet(Result<Incoming, ConnError>),
+    KeepAlive,
+    Change(Option<Change>),
+    Due((usize, usize)),
+    Devices,
+    Replay,
+    Timer,
+}
+
+/// Why a session ended.
+enum Ended {
+    /// The gateway stops.
+    Shutdown,
+    /// The connection failed.
+    Lost(ConnError),
+    /// The primary host went offline: NDEATH sent, connect again and wait for it.
+    HostOffline,
+}
+
+struct Task {
+    service: Arc<Service>,
+    state: Arc<MqttState>,
+    prepared: Prepared,
+    spark: Option<sparkplug::Topics>,
+    reporter: Reporter,
+    buffer: Option<Buffer>,
+    bd_seq: u8,
+    started: Instant,
+    aliases: Aliases,
+    /// The devices subscribed to, and each by its reporting key.
+    devices: Vec<Arc<Device>>,
+    by_key: HashMap<usize, Arc<Device>>,
+    /// The last diagnostics published per device: (connected, error code, when).
+    diag_sent: HashMap<String, (bool, i16, Instant)>,
+    next_ticket: u64,
+    /// Counters, copied into the shared state on the timer.
+    status: MqttStatus,
+    /// Data messages lost here: no buffer, or a buffer that could not take them, or a
+    /// replayed message whose device is gone.
+    lost: u64,
+}
+
 impl Task {
+    fn json(&self) -> Option<&JsonConfig> {
+        self.prepared.config.json.as_ref()
+    }
+
     fn connect_packet(&self) -> Connect {
         let config = &self.prepared.config;
-        let will = config.json.as_ref().map(|json| Will {
-            topic: Topics(json).gateway_state(),
-            payload: state_payload(false),
-            qos: json.qos,
-            retain: true,
-        });
+        // One Will per connection: the edge node's NDEATH when Sparkplug is on, else the
+        // JSON gateway state.
+        let will = match (&self.spark, &config.json) {
+            (Some(t), _) => Some(Will {
+                topic: t.node("NDEATH"),
+                payload: sparkplug::death(self.bd_seq, now_ms()),
+                qos: 1,
+                retain: false,
+            }),
+            (None, Some(json)) => Some(Will {
+                topic: Topics(json).gateway_state(),
+                payload: state_payload(false),
+                qos: json.qos,
+                retain: true,
+            }),
+            (None, None) => None,
+        };
         Connect {
             client_id: config.client_id.clone(),
             keep_alive: config.keep_alive.as_secs().min(u64::from(u16::MAX)) as u16,
@@ -215,255 +355,1018 @@ impl Task {
         }
     }
 
-    async fn run(self, token: CancellationToken) {
+    /// Subscribes to every device's changes (again when devices come or go).
+    fn subscribe(&mut self) -> Option<crate::service::Changes> {
+        self.devices = self.service.devices();
+        self.by_key.clear();
+        for d in &self.devices {
+            let base = self.aliases.base(d.name(), d.profile.fields.len());
+            self.by_key.insert(base as usize, d.clone());
+        }
+        let names: Vec<&str> = self.devices.iter().map(|d| d.name()).collect();
+        let selection = self.service.select::<_, &str>(&names, &[]).ok()?;
+        match self.service.subscribe(selection, true) {
+            Ok(changes) => Some(changes),
+            Err(e) => {
+                tracing::warn!(error = %e, "MQTT: cannot subscribe to the devices' changes");
+                None
+            }
+        }
+    }
+
+    async fn run(mut self, token: CancellationToken) {
         let config = self.prepared.config.clone();
-        let mut wait = RECONNECT_MIN;
+        let mut devices_changed = self.service.watch_devices();
+        let mut changes = self.subscribe();
+        let mut wait = Duration::ZERO;
         let mut first = true;
+        let mut timer = tokio::time::interval(FOLLOW_EVERY);
         loop {
+            // Offline: connect (after the back-off) while changes go to the buffer.
             let connect = self.connect_packet();
-            let opened = tokio::select! {
-                _ = token.cancelled() => return,
-                r = Connection::open(&config, self.prepared.tls.as_ref(), &connect) => r,
+            let tls = self.prepared.tls.clone();
+            let delay = wait;
+            let attempt = async {
+                tokio::time::sleep(delay).await;
+                Connection::open(&config, tls.as_ref(), &connect).await
+            };
+            tokio::pin!(attempt);
+            let opened = loop {
+                tokio::select! {
+                    _ = token.cancelled() => {
+                        self.stop(None).await;
+                        return;
+                    }
+                    r = &mut attempt => break r,
+                    change = next_change(&mut changes) => match change {
+                        Some(change) => self.on_change(change, None),
+                        None => changes = None,
+                    },
+                    key = self.reporter.due() => self.heartbeat(key, None),
+                    _ = devices_changed.changed() => {
+                        changes = self.subscribe();
+                        self.devices_changed(None);
+                    }
+                    _ = timer.tick() => self.tick(None),
+                }
             };
             match opened {
                 Ok(conn) => {
                     if !first {
-                        self.mqtt.update(|s| s.reconnects += 1);
+                        self.status.reconnects += 1;
                     }
                     first = false;
                     wait = RECONNECT_MIN;
-                    tracing::info!(broker = %config.url, "MQTT connected");
-                    self.mqtt.update(|s| {
-                        s.connected = true;
-                        s.last_error = None;
-                    });
-                    let ended = self.session(conn, &token).await;
-                    self.mqtt.update(|s| s.connected = false);
+                    tracing::info!(broker = %config.url, bd_seq = self.bd_seq, "MQTT connected");
+                    self.status.connected = true;
+                    self.status.last_error = None;
+                    self.publish_status();
+                    let mut online = Online {
+                        conn,
+                        outbox: VecDeque::new(),
+                        live: VecDeque::new(),
+                        replay: VecDeque::new(),
+                        replay_budget: 0.0,
+                        node_born: false,
+                        born: HashSet::new(),
+                        seq: 0,
+                        host: None,
+                        followed: VecDeque::new(),
+                    };
+                    let ended = self
+                        .session(
+                            &mut online,
+                            &mut changes,
+                            &mut devices_changed,
+                            &mut timer,
+                            &token,
+                        )
+                        .await;
+                    self.status.connected = false;
+                    self.connection_ended(&mut online);
                     match ended {
-                        Ok(()) => return,
-                        Err(e) => {
+                        Ended::Shutdown => {
+                            self.stop(Some(online)).await;
+                            return;
+                        }
+                        Ended::Lost(e) => {
                             tracing::warn!(broker = %config.url, error = %e, "MQTT connection lost");
-                            self.mqtt.update(|s| s.last_error = Some(e.to_string()));
+                            self.status.last_error = Some(e.to_string());
+                        }
+                        Ended::HostOffline => {
+                            online.conn.disconnect().await;
+                            self.status.last_error =
+                                Some("the primary host application went offline".into());
+                            wait = Duration::ZERO;
                         }
                     }
+                    self.next_bd_seq();
                 }
                 Err(e) => {
                     tracing::warn!(broker = %config.url, error = %e, retry_in = ?wait, "cannot connect to the MQTT broker");
-                    self.mqtt.update(|s| s.last_error = Some(e.to_string()));
+                    self.status.last_error = Some(e.to_string());
+                    wait = (wait * 2).clamp(RECONNECT_MIN, RECONNECT_MAX);
                 }
             }
-            tokio::select! {
-                _ = token.cancelled() => return,
-                _ = tokio::time::sleep(wait) => {}
+            self.publish_status();
+        }
+    }
+
+    /// The next connection's `bdSeq` (0-255, wrapping), kept beside the buffer so that it
+    /// keeps counting after a restart.
+    fn next_bd_seq(&mut self) {
+        self.bd_seq = self.bd_seq.wrapping_add(1);
+        if let Some(dir) = &self.prepared.config.buffer.dir {
+            let _ = std::fs::write(dir.join("bdseq"), format!("{}\n", self.bd_seq));
+        }
+    }
+
+    /// The gateway stops: NDEATH and the offline state, what is unconfirmed kept on disk.
+    async fn stop(&mut self, online: Option<Online>) {
+        if let Some(mut online) = online {
+            if let Some(t) = &self.spark {
+                let _ = online
+                    .conn
+                    .publish(
+                        &t.node("NDEATH"),
+                        &sparkplug::death(self.bd_seq, now_ms()),
+                        1,
+                        false,
+                        0,
+                    )
+                    .await;
             }
-            wait = (wait * 2).min(RECONNECT_MAX);
+            if let Some(json) = self.json() {
+                let topic = Topics(json).gateway_state();
+                let qos = json.qos;
+                let _ = online
+                    .conn
+                    .publish(&topic, &state_payload(false), qos, true, 0)
+                    .await;
+            }
+            online.conn.disconnect().await;
+        }
+        if let Some(b) = &mut self.buffer {
+            let _ = b.sync();
+            let _ = b.write_head(true);
+        }
+        if let Some(dir) = &self.prepared.config.buffer.dir {
+            let _ = std::fs::write(dir.join("bdseq"), format!("{}\n", self.bd_seq));
+        }
+        self.status.connected = false;
+        self.publish_status();
+    }
+
+    /// What was published and not confirmed, and what waited to be, goes to the buffer;
+    /// the replay starts again from the first record not confirmed.
+    fn connection_ended(&mut self, online: &mut Online) {
+        let live: Vec<Record> = online
+            .live
+            .drain(..)
+            .filter(|u| !u.confirmed)
+            .map(|u| u.item)
+            .collect();
+        let waiting: Vec<Record> = online
+            .outbox
+            .drain(..)
+            .filter_map(|i| match i {
+                Item::Data(r) => Some(r),
+                _ => None,
+            })
+            .collect();
+        for r in live.into_iter().chain(waiting) {
+            self.keep(r);
+        }
+        online.replay.clear();
+        if let Some(b) = &mut self.buffer {
+            b.rewind();
+        }
+        if let Some(sp) = &mut self.status.sparkplug {
+            sp.born = false;
+            sp.born_devices = 0;
         }
     }
 
-    async fn send(&self, conn: &mut Connection, out: Out) -> Result<(), ConnError> {
-        let len = out.payload.len() as u64;
-        conn.publish(&out.topic, &out.payload, out.qos, out.retain, 0)
-            .await?;
-        self.mqtt.update(|s| {
-            s.messages_out += 1;
-            s.bytes_out += len;
-        });
-        Ok(())
+    /// Keeps a data message for later (or counts it lost when there is no buffer).
+    fn keep(&mut self, record: Record) {
+        match &mut self.buffer {
+            Some(b) => {
+                if let Err(e) = b.append(&record) {
+                    tracing::warn!(error = %e, "MQTT: a message could not be buffered");
+                    self.lost += 1;
+                }
+            }
+            None => self.lost += 1,
+        }
     }
 
-    /// One connection: subscribe, publish every current value, then each change, until the
-    /// connection ends (`Err`) or the gateway shuts down (`Ok`).
     async fn session(
-        &self,
-        mut conn: Connection,
+        &mut self,
+        online: &mut Online,
+        changes: &mut Option<crate::service::Changes>,
+        devices_changed: &mut tokio::sync::watch::Receiver<u64>,
+        timer: &mut tokio::time::Interval,
         token: &CancellationToken,
-    ) -> Result<(), ConnError> {
-        let config = &self.prepared.config;
-        let Some(json) = &config.json else {
-            // Sparkplug only: nothing else is published yet.
-            token.cancelled().await;
-            conn.disconnect().await;
-            return Ok(());
-        };
-        let topics = Topics(json);
-        // Commands first, so that a write sent right after the state is not missed; again
-        // after every reconnect (a clean session forgets them).
-        if config.writes {
-            conn.subscribe(&[(topics.set_filter(), 1)]).await?;
+    ) -> Ended {
+        match self.start_session(online).await {
+            Ok(()) => {}
+            Err(e) => return Ended::Lost(e),
         }
-        self.send(
-            &mut conn,
-            Out {
+        let mut replay_timer = tokio::time::interval(REPLAY_EVERY);
+        loop {
+            // Send what can be sent, then wait for the next event.
+            let sent: Result<(), ConnError> = async {
+                self.drain(online).await?;
+                online.conn.barrier().await
+            }
+            .await;
+            if let Err(e) = sent {
+                return Ended::Lost(e);
+            }
+            let keep_alive = online.conn.keep_alive_due();
+            let can_take = online.outbox.len() < MAX_OUTBOX && online.live.len() < MAX_UNCONFIRMED;
+            let replaying = self.buffer.as_ref().is_some_and(|b| !b.is_empty());
+            let event = tokio::select! {
+                biased;
+                _ = token.cancelled() => Event::Shutdown,
+                packet = online.conn.read() => Event::Packet(packet),
+                _ = sleep_until(keep_alive) => Event::KeepAlive,
+                change = next_change(changes), if can_take => Event::Change(change),
+                key = self.reporter.due(), if can_take => Event::Due(key),
+                _ = devices_changed.changed() => Event::Devices,
+                _ = replay_timer.tick(), if replaying => Event::Replay,
+                _ = timer.tick() => Event::Timer,
+            };
+            let result: Result<Option<Ended>, ConnError> = match event {
+                Event::Shutdown => Ok(Some(Ended::Shutdown)),
+                Event::Packet(Ok(p)) => self.incoming(online, p).await,
+                Event::Packet(Err(e)) => Err(e),
+                Event::KeepAlive => online.conn.keep_alive().await.map(|()| None),
+                Event::Change(Some(change)) => {
+                    self.on_change(change, Some(online));
+                    Ok(None)
+                }
+                Event::Change(None) => {
+                    *changes = None;
+                    Ok(None)
+                }
+                Event::Due(key) => {
+                    self.heartbeat(key, Some(online));
+                    Ok(None)
+                }
+                Event::Devices => {
+                    *changes = self.subscribe();
+                    self.devices_changed(Some(online));
+                    Ok(None)
+                }
+                Event::Replay => self.replay(online).await.map(|()| None),
+                Event::Timer => {
+                    self.tick(Some(online));
+                    Ok(None)
+                }
+            };
+            match result {
+                Ok(None) => {}
+                Ok(Some(ended)) => return ended,
+                Err(e) => return Ended::Lost(e),
+            }
+            self.take_confirmations(online);
+        }
+    }
+
+    /// Subscriptions (again after every reconnect: a clean session forgets them), then the
+    /// births or, while a primary host is awaited, nothing.
+    async fn start_session(&mut self, online: &mut Online) -> Result<(), ConnError> {
+        let mut filters = Vec::new();
+        if let Some(t) = &self.spark {
+            filters.push((t.node("NCMD"), 1));
+            filters.push((t.node("DCMD") + "/+", 1));
+            if let Some(state) = t.host_state() {
+                filters.push((state, 1));
+            }
+        }
+        if let Some(json) = self.json()
+            && self.prepared.config.writes
+        {
+            filters.push((Topics(json).set_filter(), 1));
+        }
+        if !filters.is_empty() {
+            online.conn.subscribe(&filters).await?;
+        }
+        if let Some(json) = self.json() {
+            // Every field's current value on the live (retained) topics: changes made while
+            // the broker was away went to the buffer, and a retained topic must not stay
+            // behind them.
+            let json = json.clone();
+            let topics = Topics(&json);
+            online.outbox.push_back(Item::Plain(Out {
                 topic: topics.gateway_state(),
                 payload: state_payload(true),
                 qos: json.qos,
                 retain: true,
-            },
-        )
-        .await?;
-        let devices: Vec<Arc<Device>> = self.service.devices();
-        let names: Vec<&str> = devices.iter().map(|d| d.name()).collect();
-        let selection = self
-            .service
-            .select::<_, &str>(&names, &[])
-            .map_err(|e| ConnError::Io(std::io::Error::other(e.to_string())))?;
-        let mut changes = self
-            .service
-            .subscribe(selection, true)
-            .map_err(|e| ConnError::Io(std::io::Error::other(e.to_string())))?;
-        let mut reporter = Reporter::new(config.report.clone());
-        let mut followed: VecDeque<(u64, String, String)> = VecDeque::new();
-        let mut follow = tokio::time::interval(FOLLOW_EVERY);
-        loop {
-            let keep_alive = conn.keep_alive_due();
-            tokio::select! {
-                _ = token.cancelled() => {
-                    let _ = self.send(&mut conn, Out {
-                        topic: topics.gateway_state(),
-                        payload: state_payload(false),
+            }));
+            for device in self.devices.clone() {
+                online.outbox.push_back(Item::Plain(self.device_state(
+                    &json,
+                    &device,
+                    &device.diagnostics(),
+                )));
+                for idx in 0..device.profile.fields.len() {
+                    let view = self.service.field_view_now(&device, idx);
+                    let key = self.key(&device, idx);
+                    self.reporter
+                        .sent(key, view.value.as_ref(), view.quality, Instant::now());
+                    online.outbox.push_back(Item::Plain(Out {
+                        topic: topics.field(device.name(), &view.field.name),
+                        payload: serde_json::to_vec(&field_value(&view)).unwrap_or_default(),
                         qos: json.qos,
-                        retain: true,
-                    }).await;
-                    conn.disconnect().await;
-                    return Ok(());
+                        retain: json.retain,
+                    }));
                 }
-                packet = conn.read() => match packet? {
-                    Incoming::PubAck { pkid, .. } => { conn.acked(pkid); }
-                    Incoming::Publish(p) => {
-                        self.mqtt.update(|s| s.messages_in += 1);
-                        if p.qos > 0 {
-                            conn.puback(p.pkid).await?;
-                        }
-                        if let Some(out) = self.set(&topics, &p.topic, &p.payload, &mut followed) {
-                            self.send(&mut conn, out).await?;
-                        }
-                    }
-                    Incoming::SubAck { codes, .. } => {
-                        if codes.iter().any(|&c| c >= 0x80) {
-                            tracing::warn!(filter = %topics.set_filter(), "the broker refused the subscription to writes");
-                        }
-                    }
-                    _ => {}
-                },
-                _ = async { match keep_alive { Some(at) => tokio::time::sleep_until(at).await, None => std::future::pending().await } } => {
-                    conn.keep_alive().await?;
-                }
-                change = changes.next(), if conn.can_publish() => {
-                    let Some(change) = change else {
-                        // The gateway is shutting down: the token ends the session.
-                        token.cancelled().await;
-                        continue;
-                    };
-                    if let Some(out) = self.on_change(&topics, json, &change, &devices, &mut reporter) {
-                        self.send(&mut conn, out).await?;
-                    }
-                }
-                key = reporter.due(), if conn.can_publish() => {
-                    if let Some(device) = devices.get(key.0) {
-                        let out = self.field_out(&topics, json, device, key.1, &mut reporter);
-                        self.send(&mut conn, out).await?;
-                    }
-                }
-                _ = follow.tick(), if !followed.is_empty() && conn.can_publish() => {
-                    for out in self.followed_outcomes(&topics, json, &mut followed) {
-                        self.send(&mut conn, out).await?;
-                    }
-                }
+            }
+        }
+        if let Some(t) = &self.spark
+            && t.host_state().is_none()
+        {
+            self.births(online);
+        }
+        Ok(())
+    }
+
+    fn key(&mut self, device: &Device, idx: usize) -> (usize, usize) {
+        let base = self
+            .aliases
+            .base(device.name(), device.profile.fields.len());
+        (base as usize, idx)
+    }
+
+    /// NBIRTH and a DBIRTH for every device that answers.
+    fn births(&mut self, online: &mut Online) {
+        online.node_born = true;
+        online.born.clear();
+        online.outbox.push_back(Item::NodeBirth);
+        for device in self.devices.clone() {
+            if device.diagnostics().connected {
+                self.device_birth(online, &device);
             }
         }
     }
 
-    fn field_out(
-        &self,
-        topics: &Topics<'_>,
-        json: &JsonConfig,
-        device: &Device,
-        idx: usize,
-        reporter: &mut Reporter,
-    ) -> Out {
-        let view = self.service.field_view_now(device, idx);
-        let key = (self.position(device), idx);
-        reporter.sent(key, view.value.as_ref(), view.quality, Instant::now());
-        Out {
-            topic: topics.field(device.name(), &view.field.name),
-            payload: serde_json::to_vec(&field_value(&view)).unwrap_or_default(),
-            qos: json.qos,
-            retain: json.retain,
+    fn device_birth(&mut self, online: &mut Online, device: &Device) {
+        let now = now_ms();
+        let n = device.profile.fields.len();
+        let base = self.aliases.base(device.name(), n);
+        let mut metrics: Vec<_> = (0..n)
+            .map(|idx| {
+                let view = self.service.field_view_now(device, idx);
+                sparkplug::field_metric(&view, base + idx as u64, Form::Birth, now)
+            })
+            .collect();
+        let d = device.diagnostics();
+        metrics.extend(sparkplug::diagnostics_metrics(
+            &d,
+            base + n as u64,
+            true,
+            now,
+        ));
+        self.diag_sent.insert(
+            device.name().to_owned(),
+            (d.connected, d.error_code.code(), Instant::now()),
+        );
+        online.born.insert(device.name().to_owned());
+        online.outbox.push_back(Item::Spark {
+            kind: "DBIRTH",
+            device: device.name().to_owned(),
+            metrics,
+        });
+    }
+
+    fn device_death(&mut self, online: &mut Online, device: &str) {
+        if online.born.remove(device) {
+            online.outbox.push_back(Item::Spark {
+                kind: "DDEATH",
+                device: device.to_owned(),
+                metrics: Vec::new(),
+            });
         }
     }
 
-    fn position(&self, device: &Device) -> usize {
-        self.service
-            .devices()
+    /// Devices came or went: a DBIRTH for a new one that answers, a DDEATH for one removed.
+    fn devices_changed(&mut self, online: Option<&mut Online>) {
+        let Some(online) = online.filter(|o| o.node_born) else {
+            return;
+        };
+        let names: HashSet<String> = self.devices.iter().map(|d| d.name().to_owned()).collect();
+        let gone: Vec<String> = online
+            .born
             .iter()
-            .position(|d| std::ptr::eq(d.as_ref(), device))
-            .unwrap_or(usize::MAX)
+            .filter(|n| !names.contains(*n))
+            .cloned()
+            .collect();
+        for name in gone {
+            self.device_death(online, &name);
+        }
+        for device in self.devices.clone() {
+            if !online.born.contains(device.name()) && device.diagnostics().connected {
+                self.device_birth(online, &device);
+            }
+        }
     }
 
-    fn on_change(
-        &self,
-        topics: &Topics<'_>,
-        json: &JsonConfig,
-        change: &Change,
-        devices: &[Arc<Device>],
-        reporter: &mut Reporter,
-    ) -> Option<Out> {
+    fn on_change(&mut self, change: Change, online: Option<&mut Online>) {
         match change {
             Change::Value {
                 device,
                 idx,
                 sample,
             } => {
-                let position = devices.iter().position(|d| Arc::ptr_eq(d, device))?;
-                let view = self.service.field_view(device, *idx, sample);
-                let deadband = None;
-                match reporter.change(
-                    (position, *idx),
-                    view.value.as_ref(),
-                    view.quality,
-                    deadband,
-                    Instant::now(),
-                ) {
+                let key = self.key(&device, idx);
+                let view = self.service.field_view(&device, idx, &sample);
+                let deadband = view.field.deadband;
+                let now = Instant::now();
+                match self
+                    .reporter
+                    .change(key, view.value.as_ref(), view.quality, deadband, now)
+                {
                     Decision::Send => {
-                        reporter.sent(
-                            (position, *idx),
-                            view.value.as_ref(),
-                            view.quality,
-                            Instant::now(),
-                        );
-                        Some(Out {
-                            topic: topics.field(device.name(), &view.field.name),
-                            payload: serde_json::to_vec(&field_value(&view)).unwrap_or_default(),
-                            qos: json.qos,
-                            retain: json.retain,
-                        })
+                        self.reporter
+                            .sent(key, view.value.as_ref(), view.quality, now);
+                        self.emit(&view, online);
                     }
-                    Decision::Skip | Decision::Hold => None,
+                    Decision::Skip | Decision::Hold => {}
                 }
             }
             Change::Diagnostics {
                 device,
-                diagnostics: d,
-            } => Some(Out {
-                topic: topics.device_state(device.name()),
-                payload: serde_json::to_vec(&DiagnosticsEvent {
-                    device: device.name().to_owned(),
-                    connected: d.connected,
-                    error_code: d.error_code.code(),
-                    io_cycles: d.io_cycles,
-                    last_response_ms: d.last_response_ms,
-                })
-                .unwrap_or_default(),
-                qos: json.qos,
-                retain: true,
-            }),
+                diagnostics,
+            } => self.on_diagnostics(&device, &diagnostics, online),
         }
+    }
+
+    /// A held change or a heartbeat is due.
+    fn heartbeat(&mut self, key: (usize, usize), online: Option<&mut Online>) {
+        let Some(device) = self.by_key.get(&key.0).cloned() else {
+            return;
+        };
+        if key.1 >= device.profile.fields.len() {
+            return;
+        }
+        let view = self.service.field_view_now(&device, key.1);
+        self.reporter
+            .sent(key, view.value.as_ref(), view.quality, Instant::now());
+        self.emit(&view, online);
+    }
+
+    /// A field's value to publish: live when it can be, else kept for the replay.
+    fn emit(&mut self, view: &FieldView<'_>, mut online: Option<&mut Online>) {
+        let device = view.device.name().to_owned();
+        let field = view.field.name.clone();
+        let at_ms = now_ms();
+        if self.json().is_some() {
+            let record = Record {
+                at_ms,
+                kind: Kind::Json,
+                device: device.clone(),
+                field: field.clone(),
+                payload: serde_json::to_vec(&field_value(view)).unwrap_or_default(),
+            };
+            match online.as_deref_mut() {
+                Some(o) => o.outbox.push_back(Item::Data(record)),
+                None => self.keep(record),
+            }
+        }
+        if self.spark.is_some() {
+            let metric = sparkplug::field_metric(view, 0, Form::Data, at_ms);
+            let record = Record {
+                at_ms,
+                kind: Kind::Sparkplug,
+                device: device.clone(),
+                field,
+                payload: sparkplug::encode_metric(&metric),
+            };
+            match online {
+                Some(o) if o.node_born => {
+                    // A device that does not answer is dead to the host; its DBIRTH brings
+                    // the values when it answers again.
+                    if o.born.contains(&device) {
+                        o.outbox.push_back(Item::Data(record));
+                    }
+                }
+                _ => self.keep(record),
+            }
+        }
+    }
+
+    fn on_diagnostics(&mut self, device: &Device, d: &Diagnostics, online: Option<&mut Online>) {
+        let name = device.name();
+        let now = Instant::now();
+        let heartbeat = self.prepared.config.report.max_interval;
+        let due = match self.diag_sent.get(name) {
+            None => true,
+            Some(&(connected, code, at)) => {
+                connected != d.connected
+                    || code != d.error_code.code()
+                    || (!heartbeat.is_zero() && now >= at + heartbeat)
+            }
+        };
+        let Some(online) = online else {
+            return;
+        };
+        if !due {
+            return;
+        }
+        self.diag_sent
+            .insert(name.to_owned(), (d.connected, d.error_code.code(), now));
+        if let Some(json) = self.json().cloned() {
+            let out = self.device_state(&json, device, d);
+            online.outbox.push_back(Item::Plain(out));
+        }
+        if self.spark.is_some() && online.node_born {
+            let born = online.born.contains(name);
+            match (d.connected, born) {
+                (true, false) => self.device_birth(online, device),
+                (false, true) => self.device_death(online, name),
+                (true, true) => {
+                    let n = device.profile.fields.len();
+                    let base = self.aliases.base(name, n);
+                    online.outbox.push_back(Item::Spark {
+                        kind: "DDATA",
+                        device: name.to_owned(),
+                        metrics: sparkplug::diagnostics_metrics(
+                            d,
+                            base + n as u64,
+                            false,
+                            now_ms(),
+                        ),
+                    });
+                }
+                (false, false) => {}
+            }
+        }
+    }
+
+    fn device_state(&self, json: &JsonConfig, device: &Device, d: &Diagnostics) -> Out {
+        Out {
+            topic: Topics(json).device_state(device.name()),
+            payload: serde_json::to_vec(&DiagnosticsEvent {
+                device: device.name().to_owned(),
+                connected: d.connected,
+                error_code: d.error_code.code(),
+                io_cycles: d.io_cycles,
+                last_response_ms: d.last_response_ms,
+            })
+            .unwrap_or_default(),
+            qos: json.qos,
+            retain: true,
+        }
+    }
+
+    fn ticket(&mut self) -> u64 {
+        let t = self.next_ticket;
+        self.next_ticket += 1;
+        t
+    }
+
+    async fn publish(&mut self, online: &mut Online, out: Out, tag: u64) -> Result<(), ConnError> {
+        online
+            .conn
+            .publish(&out.topic, &out.payload, out.qos, out.retain, tag)
+            .await?;
+        self.status.messages_out += 1;
+        self.status.bytes_out += out.payload.len() as u64;
+        Ok(())
+    }
+
+    fn next_seq(online: &mut Online) -> u8 {
+        let s = online.seq;
+        online.seq = online.seq.wrapping_add(1);
+        s
+    }
+
+    /// The alias of a device's field in this gateway's births.
+    fn alias(&mut self, device: &str, field: &str) -> Option<u64> {
+        let d = self.service.device(device).ok()?;
+        let idx = d.field_index(field).ok()?;
+        Some(self.aliases.base(device, d.profile.fields.len()) + idx as u64)
+    }
+
+    /// Publishes what waits, as far as the in-flight window allows.
+    async fn drain(&mut self, online: &mut Online) -> Result<(), ConnError> {
+        while online.conn.can_publish() {
+            let Some(item) = online.outbox.pop_front() else {
+                break;
+            };
+            match item {
+                Item::Plain(out) => self.publish(online, out, 0).await?,
+                Item::NodeBirth => {
+                    let Some(t) = &self.spark else { continue };
+                    let topic = t.node("NBIRTH");
+                    online.seq = 1;
+                    let payload = sparkplug::node_birth(
+                        self.bd_seq,
+                        self.started.elapsed().as_secs(),
+                        now_ms(),
+                    );
+                    self.publish(
+                        online,
+                        Out {
+                            topic,
+                            payload,
+                            qos: 0,
+                            retain: false,
+                        },
+                        0,
+                    )
+                    .await?;
+                }
+                Item::Spark {
+                    kind,
+                    device,
+                    metrics,
+                } => {
+                    let Some(t) = &self.spark else { continue };
+                    let topic = t.device(kind, &device);
+                    let seq = Self::next_seq(online);
+                    let payload = sparkplug::encode(now_ms(), Some(seq), metrics);
+                    self.publish(
+                        online,
+                        Out {
+                            topic,
+                            payload,
+                            qos: 0,
+                            retain: false,
+                        },
+                        0,
+                    )
+                    .await?;
+                }
+                Item::Data(record) => {
+                    let Some(out) = self.data_out(online, &record, false) else {
+                        continue;
+                    };
+                    let ticket = self.ticket();
+                    self.publish(online, out, ticket).await?;
+                    online.live.push_back(Unconfirmed {
+                        ticket,
+                        item: record,
+                        confirmed: false,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// How a data record is published: live, or replayed from the buffer (`historical`).
+    /// `None` when it cannot be any more (its device is not born, or its field gone).
+    fn data_out(&mut self, online: &mut Online, record: &Record, historical: bool) -> Option<Out> {
+        match record.kind {
+            Kind::Json => {
+                let json = self.json()?;
+                let topics = Topics(json);
+                Some(if historical {
+                    Out {
+                        topic: topics.history(&record.device, &record.field),
+                        payload: record.payload.clone(),
+                        qos: json.qos,
+                        retain: false,
+                    }
+                } else {
+                    Out {
+                        topic: topics.field(&record.device, &record.field),
+                        payload: record.payload.clone(),
+                        qos: json.qos,
+                        retain: json.retain,
+                    }
+                })
+            }
+            Kind::Sparkplug => {
+                if !online.node_born || !online.born.contains(&record.device) {
+                    return None;
+                }
+                let alias = self.alias(&record.device, &record.field)?;
+                let metric = sparkplug::decode_metric(&record.payload)?;
+                let metric = sparkplug::aliased(metric, alias, historical);
+                let topic = self.spark.as_ref()?.device("DDATA", &record.device);
+                let seq = Self::next_seq(online);
+                Some(Out {
+                    topic,
+                    payload: sparkplug::encode(now_ms(), Some(seq), vec![metric]),
+                    qos: 0,
+                    retain: false,
+                })
+            }
+        }
+    }
+
+    /// Sends buffered records, at `replay_rate` and at most [`REPLAY_WINDOW`] unconfirmed,
+    /// beside live data (which never waits for the replay).
+    async fn replay(&mut self, online: &mut Online) -> Result<(), ConnError> {
+        // Sparkplug records wait for the births (and the host).
+        if self.spark.is_some() && !online.node_born {
+            return Ok(());
+        }
+        let rate = f64::from(self.prepared.config.buffer.replay_rate.max(1));
+        let burst = (rate * REPLAY_EVERY.as_secs_f64()).max(1.0);
+        online.replay_budget = (online.replay_budget + burst).min(burst * 2.0);
+        while online.replay_budget >= 1.0
+            && online.replay.len() < REPLAY_WINDOW
+            && online.conn.can_publish()
+        {
+            let Some(buffer) = &mut self.buffer else {
+                break;
+            };
+            let next = match buffer.next() {
+                Ok(Some(next)) => next,
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::warn!(error = %e, "MQTT: the buffer cannot be read");
+                    break;
+                }
+            };
+            let (record, end) = next;
+            online.replay_budget -= 1.0;
+            let ticket = self.ticket();
+            match self.data_out(online, &record, true) {
+                Some(out) => {
+                    self.publish(online, out, ticket).await?;
+                    online.replay.push_back(Unconfirmed {
+                        ticket,
+                        item: end,
+                        confirmed: false,
+                    });
+                }
+                None => {
+                    // Its device is gone or dead: nothing a host could take it for.
+                    self.lost += 1;
+                    online.replay.push_back(Unconfirmed {
+                        ticket,
+                        item: end,
+                        confirmed: true,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Marks what the broker confirmed, lets go of live records, and acknowledges the
+    /// buffer up to the last replayed record confirmed in order.
+    fn take_confirmations(&mut self, online: &mut Online) {
+        let confirmed = online.conn.take_confirmed();
+        for ticket in confirmed {
+            self.confirm(online, ticket);
+        }
+        while online.live.front().is_some_and(|u| u.confirmed) {
+            online.live.pop_front();
+        }
+        let mut acked = None;
+        while online.replay.front().is_some_and(|u| u.confirmed) {
+            acked = online.replay.pop_front().map(|u| u.item);
+            self.status.buffer.replayed += 1;
+        }
+        if let (Some(end), Some(b)) = (acked, &mut self.buffer) {
+            b.ack(end);
+        }
+    }
+
+    fn confirm(&mut self, online: &mut Online, ticket: u64) {
+        if let Ok(i) = online.live.binary_search_by_key(&ticket, |u| u.ticket) {
+            let u = &mut online.live[i];
+            u.confirmed = true;
+            let latency = now_ms().saturating_sub(u.item.at_ms);
+            self.service
+                .metrics
+                .mqtt_publish_latency(latency as f64 / 1000.0);
+        } else if let Ok(i) = online.replay.binary_search_by_key(&ticket, |u| u.ticket) {
+            online.replay[i].confirmed = true;
+        }
+    }
+
+    /// A packet from the broker.
+    async fn incoming(
+        &mut self,
+        online: &mut Online,
+        packet: Incoming,
+    ) -> Result<Option<Ended>, ConnError> {
+        match packet {
+            Incoming::PubAck { pkid, .. } => {
+                if let Some(ticket) = online.conn.acked(pkid)
+                    && ticket != 0
+                {
+                    self.confirm(online, ticket);
+                }
+            }
+            Incoming::Publish(p) => {
+                self.status.messages_in += 1;
+                self.status.bytes_in += p.payload.len() as u64;
+                if p.qos > 0 {
+                    online.conn.puback(p.pkid).await?;
+                }
+                return Ok(self.command(online, &p.topic, &p.payload).await);
+            }
+            Incoming::SubAck { codes, .. } if codes.iter().any(|&c| c >= 0x80) => {
+                tracing::warn!("the broker refused a subscription (commands or writes)");
+            }
+            _ => {}
+        }
+        Ok(None)
+    }
+
+    /// A message on a subscribed topic: a write, a Sparkplug command, or the host's STATE.
+    async fn command(&mut self, online: &mut Online, topic: &str, payload: &[u8]) -> Option<Ended> {
+        if let Some(json) = self.json().cloned()
+            && let Some(out) = self.set(&Topics(&json), topic, payload, &mut online.followed)
+        {
+            online.outbox.push_back(Item::Plain(out));
+            return None;
+        }
+        let t = self.spark.as_ref()?;
+        if t.host_state().as_deref() == Some(topic) {
+            return self.host_state(online, payload);
+        }
+        match t.command(topic)? {
+            None => self.node_command(online, payload),
+            Some(device) => {
+                let device = device.to_owned();
+                self.device_command(&device, payload);
+            }
+        }
+        None
+    }
+
+    fn host_state(&mut self, online: &mut Online, payload: &[u8]) -> Option<Ended> {
+        let state: HostState = match serde_json::from_slice(payload) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!(error = %e, "the primary host's STATE is not its JSON: ignored");
+                return None;
+            }
+        };
+        // An older STATE (a retained one overtaken by a newer) is not news.
+        if online
+            .host
+            .as_ref()
+            .is_some_and(|h| state.timestamp < h.timestamp)
+        {
+            return None;
+        }
+        let online_now = state.online;
+        online.host = Some(state);
+        if let Some(sp) = &mut self.status.sparkplug {
+            sp.host_online = Some(online_now);
+        }
+        match (online_now, online.node_born) {
+            (true, false) => {
+                tracing::info!("the primary host application is online: births");
+                self.births(online);
+                None
+            }
+            (false, true) => {
+                tracing::warn!("the primary host application went offline: NDEATH, reconnecting");
+                Some(Ended::HostOffline)
+            }
+            _ => None,
+        }
+    }
+
+    /// NCMD: `Node Control/Rebirth` re-sends NBIRTH and every DBIRTH, same `bdSeq`, no
+    /// death before.
+    fn node_command(&mut self, online: &mut Online, payload: &[u8]) {
+        let commands = match sparkplug::commands(payload) {
+            Ok(c) => c,
+            Err(e) => {
+                self.refused("NCMD", &e.to_string());
+                return;
+            }
+        };
+        for c in commands {
+            let is_rebirth = c.name.as_deref() == Some(sparkplug::REBIRTH)
+                || (c.name.is_none() && c.alias == Some(1));
+            if is_rebirth && c.value == Some(serde_json::Value::Bool(true)) {
+                if online.node_born {
+                    tracing::info!("Sparkplug rebirth requested");
+                    if let Some(sp) = &mut self.status.sparkplug {
+                        sp.rebirths += 1;
+                    }
+                    self.births(online);
+                }
+            } else {
+                let name = c
+                    .name
+                    .unwrap_or_else(|| format!("alias {}", c.alias.unwrap_or(0)));
+                self.refused("NCMD", &format!("the node has no writable metric `{name}`"));
+            }
+        }
+    }
+
+    /// DCMD: each metric is a write through the service (the same checks as REST).
+    fn device_command(&mut self, device: &str, payload: &[u8]) {
+        let commands = match sparkplug::commands(payload) {
+            Ok(c) => c,
+            Err(e) => {
+                self.refused(device, &e.to_string());
+                return;
+            }
+        };
+        if !self.prepared.config.writes {
+            self.refused(device, "writes over MQTT are not enabled (mqtt.writes)");
+            return;
+        }
+        let Ok(d) = self.service.device(device) else {
+            self.refused(device, "unknown device");
+            return;
+        };
+        let n = d.profile.fields.len();
+        let base = self.aliases.base(device, n);
+        for c in commands {
+            let field = match (&c.name, c.alias) {
+                (Some(name), _) => name.clone(),
+                (None, Some(alias)) if alias >= base && alias < base + n as u64 => {
+                    d.field((alias - base) as usize).name.clone()
+                }
+                (None, alias) => {
+                    self.refused(
+                        device,
+                        &format!("no field has alias {}", alias.unwrap_or(0)),
+                    );
+                    continue;
+                }
+            };
+            let Some(value) = c.value else {
+                self.refused(device, &format!("{field}: the metric has no value"));
+                continue;
+            };
+            let accepted = self
+                .service
+                .prepare(&d, &field, |ty| convert::json_to_value(ty, &value))
+                .map_err(crate::service::ServiceError::from)
+                .and_then(|w| self.service.write(w));
+            match accepted {
+                Ok(a) => {
+                    self.status.writes_accepted += 1;
+                    tracing::info!(
+                        device,
+                        field,
+                        generation = a.generation,
+                        "Sparkplug DCMD write accepted"
+                    );
+                }
+                Err(e) => self.refused(device, &format!("{field}: {e}")),
+            }
+        }
+    }
+
+    fn refused(&mut self, what: &str, why: &str) {
+        self.status.writes_refused += 1;
+        tracing::warn!(target_ = what, reason = why, "MQTT command refused");
+    }
+
+    /// The timer: followed writes, the buffer's sync, the shared status.
+    fn tick(&mut self, online: Option<&mut Online>) {
+        if let Some(b) = &mut self.buffer
+            && let Err(e) = b.tick()
+        {
+            tracing::warn!(error = %e, "MQTT: the buffer cannot be synced");
+        }
+        if let (Some(online), Some(json)) = (online, self.json().cloned()) {
+            let outs = self.followed_outcomes(&Topics(&json), &json, &mut online.followed);
+            online.outbox.extend(outs.into_iter().map(Item::Plain));
+            if let Some(sp) = &mut self.status.sparkplug {
+                sp.born = online.node_born;
+                sp.born_devices = online.born.len();
+            }
+        }
+        self.publish_status();
+    }
+
+    /// Copies the counters and the buffer's state into the shared status.
+    fn publish_status(&mut self) {
+        if let Some(b) = &self.buffer {
+            let s = b.stats();
+            self.status.buffer.messages = s.depth;
+            self.status.buffer.bytes = s.bytes;
+            self.status.buffer.oldest_age_s = s.oldest_age_s;
+            self.status.buffer.dropped = s.dropped + self.lost;
+        } else {
+            self.status.buffer.dropped = self.lost;
+        }
+        let connected = self.status.connected;
+        if let Some(sp) = &mut self.status.sparkplug {
+            sp.bd_seq = self.bd_seq;
+            if !connected {
+                sp.born = false;
+                sp.born_devices = 0;
+            }
+        }
+        let status = self.status.clone();
+        self.state.update(|s| *s = status);
     }
 
     /// A write from `<prefix>/<device>/<field>/set`: the same JSON, checks and answers as
     /// `PUT /api/v1/devices/{device}/fields/{field}`; the answer goes to `.../set/result`.
     fn set(
-        &self,
+        &mut self,
         topics: &Topics<'_>,
         topic: &str,
         payload: &[u8],
@@ -473,7 +1376,6 @@ impl Task {
         let (device, field) = topics.parse_set(topic)?;
         let result_topic = format!("{topic}/result");
         let refused = |e: ApiError| {
-            self.mqtt.update(|s| s.writes_refused += 1);
             tracing::info!(device, field, error = %e.message, "MQTT write refused");
             Out {
                 topic: result_topic.clone(),
@@ -491,6 +1393,7 @@ impl Task {
             }
         };
         if !self.prepared.config.writes {
+            self.status.writes_refused += 1;
             return Some(refused(ApiError::new(
                 axum::http::StatusCode::FORBIDDEN,
                 "forbidden",
@@ -509,8 +1412,12 @@ impl Task {
             Ok(self.service.write(write)?)
         })();
         match accepted {
-            Err(e) => Some(refused(e)),
+            Err(e) => {
+                self.status.writes_refused += 1;
+                Some(refused(e))
+            }
             Ok(a) => {
+                self.status.writes_accepted += 1;
                 if followed.len() >= MAX_FOLLOWED_WRITES {
                     followed.pop_front();
                 }
@@ -563,6 +1470,22 @@ impl Task {
             false
         });
         outs
+    }
+}
+
+/// Sleeps until `at`, or for ever.
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// The next change, or never when there is no subscription.
+async fn next_change(changes: &mut Option<crate::service::Changes>) -> Option<Change> {
+    match changes {
+        Some(c) => c.next().await,
+        None => std::future::pending().await,
     }
 }
 

@@ -117,12 +117,6 @@ impl Reporter {
             }
         }
     }
-
-    /// Forgets everything sent (after a reconnect, every field is published again).
-    pub(crate) fn reset(&mut self) {
-        self.fields.clear();
-        self.timers.clear();
-    }
 }
 
 /// Whether `new` is within `band` of `old` (numbers only; other values differ when unequal).

@@ -1,4 +1,4 @@
-//! One entry of a profile's `fields`: name, type, direction, description and register,
+//! One entry of a profile's `fields`: name, type, direction, description, deadband and register,
 //! with the encoding that follows from them.
 
 use super::register::read_register;
@@ -34,6 +34,9 @@ pub(super) fn read_field(
     let description = map
         .get("description")
         .and_then(|n| n.scalar_text(report, &format!("{ctx}: description")));
+    let deadband = map
+        .get("deadband")
+        .and_then(|n| crate::config::mqtt::read_deadband(n, report, &format!("{ctx}: deadband")));
     let register = map
         .require("register", report, &ctx)
         .and_then(|n| read_register(n, &ctx, ty, direction, protocol, report));
@@ -52,6 +55,7 @@ pub(super) fn read_field(
         direction,
         register,
         description,
+        deadband,
         encoding,
         line: node.line,
     })

@@ -12,7 +12,14 @@ use crate::yaml::{self, Node, Problems, Report};
 use field::read_field;
 
 const PROFILE_KEYS: &[&str] = &["name", "vendor", "protocol", "description", "fields"];
-const FIELD_KEYS: &[&str] = &["name", "type", "direction", "register", "description"];
+const FIELD_KEYS: &[&str] = &[
+    "name",
+    "type",
+    "direction",
+    "register",
+    "description",
+    "deadband",
+];
 const REGISTER_KEYS: &[&str] = &[
     "address",
     "kind",

@@ -1,0 +1,85 @@
+//! The MQTT front-end's state as the other front-ends show it (`GET /api/v1/mqtt`, `/readyz`,
+//! the web page, the metrics). The front-end's task writes it; readers take a copy.
+
+use std::sync::Mutex;
+
+use serde::Serialize;
+
+/// What `GET /api/v1/mqtt` shows.
+#[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
+pub(crate) struct MqttStatus {
+    /// The broker's URL.
+    pub(crate) broker: String,
+    pub(crate) client_id: String,
+    pub(crate) connected: bool,
+    /// Why the last connection failed or ended.
+    pub(crate) last_error: Option<String>,
+    /// Connections made after the first.
+    pub(crate) reconnects: u64,
+    pub(crate) messages_out: u64,
+    pub(crate) bytes_out: u64,
+    pub(crate) messages_in: u64,
+    pub(crate) bytes_in: u64,
+    /// Writes refused (bad topic, payload or value, or writes not enabled).
+    pub(crate) writes_refused: u64,
+    /// Writes accepted from `/set`, DCMD.
+    pub(crate) writes_accepted: u64,
+    pub(crate) buffer: BufferStatus,
+    /// Present when the Sparkplug B edge node is configured.
+    pub(crate) sparkplug: Option<SparkplugStatus>,
+    /// Present when the plain JSON topics are configured.
+    pub(crate) json_prefix: Option<String>,
+}
+
+/// The store-and-forward buffer.
+#[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
+pub(crate) struct BufferStatus {
+    /// The directory, when messages are kept on disk while the broker is away.
+    pub(crate) dir: Option<String>,
+    /// Messages kept and not yet acknowledged by the broker.
+    pub(crate) messages: u64,
+    pub(crate) bytes: u64,
+    /// Age of the oldest message kept, in seconds.
+    pub(crate) oldest_age_s: u64,
+    /// Messages dropped: over `max_bytes` or `max_age`, torn by a crash, or with no buffer.
+    pub(crate) dropped: u64,
+    /// Messages replayed from the buffer (and acknowledged).
+    pub(crate) replayed: u64,
+}
+
+/// The Sparkplug B edge node.
+#[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
+pub(crate) struct SparkplugStatus {
+    pub(crate) group_id: String,
+    pub(crate) edge_node_id: String,
+    /// The birth/death sequence number of the current (or last) connection.
+    pub(crate) bd_seq: u8,
+    /// NBIRTH published on this connection (and not dead since).
+    pub(crate) born: bool,
+    /// Devices with a DBIRTH and no DDEATH since.
+    pub(crate) born_devices: usize,
+    pub(crate) rebirths: u64,
+    /// The primary host application, when one is configured.
+    pub(crate) primary_host: Option<String>,
+    /// Whether its STATE says online (`None` until one is seen).
+    pub(crate) host_online: Option<bool>,
+}
+
+/// The front-end's shared state.
+#[derive(Debug, Default)]
+pub(crate) struct MqttState {
+    status: Mutex<MqttStatus>,
+}
+
+impl MqttState {
+    pub(crate) fn status(&self) -> MqttStatus {
+        self.status
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    pub(crate) fn update(&self, f: impl FnOnce(&mut MqttStatus)) {
+        f(&mut self.status.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+}
