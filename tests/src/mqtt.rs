@@ -34,12 +34,23 @@ fn mosquitto() -> PathBuf {
 /// A Mosquitto broker of the test's own; stopped when dropped.
 pub struct Broker {
     pub port: u16,
-    child: Child,
-    _dir: PathBuf,
+    child: Option<Child>,
+    config: PathBuf,
 }
 
 impl Broker {
+    /// A broker without persistence.
     pub async fn start() -> anyhow::Result<Broker> {
+        Broker::start_with(false).await
+    }
+
+    /// A broker that keeps sessions and queued messages (QoS 0 too) across its restarts,
+    /// for subscribers that must not miss what is published while they reconnect.
+    pub async fn start_persistent() -> anyhow::Result<Broker> {
+        Broker::start_with(true).await
+    }
+
+    async fn start_with(persistent: bool) -> anyhow::Result<Broker> {
         install()?;
         let dir = crate::devices::temp_dir("mosquitto");
         // A free port: bind, note, release (mosquitto binds it next).
@@ -47,32 +58,66 @@ impl Broker {
             .local_addr()?
             .port();
         let config = dir.join("mosquitto.conf");
+        let persistence = if persistent {
+            format!(
+                "persistence true\npersistence_location {}/\nqueue_qos0_messages true\nmax_queued_messages 100000\n",
+                dir.display()
+            )
+        } else {
+            "persistence false\n".to_owned()
+        };
         std::fs::write(
             &config,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+            format!("listener {port} 127.0.0.1\nallow_anonymous true\n{persistence}"),
         )?;
+        let mut broker = Broker {
+            port,
+            child: None,
+            config,
+        };
+        broker.resume().await?;
+        Ok(broker)
+    }
+
+    /// Starts the broker again on its port, after [`Broker::pause`].
+    pub async fn resume(&mut self) -> anyhow::Result<()> {
         let child = Command::new(mosquitto())
             .arg("-c")
-            .arg(&config)
+            .arg(&self.config)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .kill_on_drop(true)
             .spawn()?;
+        self.child = Some(child);
+        let port = self.port;
         crate::eventually("mosquitto listening", || async move {
             tokio::net::TcpStream::connect(("127.0.0.1", port))
                 .await
                 .is_ok()
         })
-        .await?;
-        Ok(Broker {
-            port,
-            child,
-            _dir: dir,
-        })
+        .await
+    }
+
+    /// Stops the broker as an operator does (SIGTERM: it saves its sessions and closes every
+    /// connection), keeping its port and files for [`Broker::resume`].
+    pub async fn pause(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            if let Some(pid) = child.id() {
+                let _ = Command::new("kill")
+                    .arg("-TERM")
+                    .arg(pid.to_string())
+                    .status()
+                    .await;
+            }
+            let _ = tokio::time::timeout(Duration::from_secs(10), child.wait()).await;
+            let _ = child.kill().await;
+        }
     }
 
     pub async fn stop(mut self) {
-        let _ = self.child.kill().await;
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill().await;
+        }
     }
 }
 
@@ -86,8 +131,13 @@ pub struct Peer {
 #[derive(Debug, Clone)]
 pub struct Message {
     pub topic: String,
+    /// The payload as text (hex for Sparkplug messages).
     pub payload: String,
     pub retain: bool,
+    /// A Sparkplug message as pysparkplug decoded it: {type, seq, timestamp, metrics}.
+    pub sparkplug: serde_json::Value,
+    /// Why pysparkplug could not decode a Sparkplug message.
+    pub decode_error: Option<String>,
 }
 
 impl Message {
@@ -98,10 +148,25 @@ impl Message {
 
 impl Peer {
     pub async fn subscribe(broker: &Broker, filter: &str) -> anyhow::Result<Peer> {
-        let mut child = Command::new("python3")
+        Peer::start(broker, filter, None).await
+    }
+
+    /// A subscriber with a session the broker keeps (client id `id`, not clean): what is
+    /// published while it reconnects waits for it.
+    pub async fn subscribe_kept(broker: &Broker, filter: &str, id: &str) -> anyhow::Result<Peer> {
+        Peer::start(broker, filter, Some(id)).await
+    }
+
+    async fn start(broker: &Broker, filter: &str, id: Option<&str>) -> anyhow::Result<Peer> {
+        let mut command = Command::new("python3");
+        command
             .arg(repo_file("mqtt/client.py"))
             .arg(broker.port.to_string())
-            .arg(filter)
+            .arg(filter);
+        if let Some(id) = id {
+            command.arg(id);
+        }
+        let mut child = command
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .kill_on_drop(true)
@@ -136,6 +201,8 @@ impl Peer {
             topic: v["topic"].as_str().unwrap_or_default().to_owned(),
             payload: v["payload"].as_str().unwrap_or_default().to_owned(),
             retain: v["retain"] == true,
+            sparkplug: v["sparkplug"].clone(),
+            decode_error: v["decode_error"].as_str().map(str::to_owned),
         })
     }
 
@@ -152,7 +219,18 @@ impl Peer {
     }
 
     pub async fn publish(&mut self, topic: &str, payload: &str) -> anyhow::Result<()> {
-        let line = serde_json::json!({"topic": topic, "payload": payload, "qos": 1}).to_string();
+        self.send(serde_json::json!({"topic": topic, "payload": payload, "qos": 1}))
+            .await
+    }
+
+    /// Publishes a Sparkplug NCMD or DCMD encoded by pysparkplug: `metrics` are
+    /// `{"name", "datatype" (as BOOLEAN, INT16, ...), "value"}`.
+    pub async fn command(&mut self, topic: &str, metrics: serde_json::Value) -> anyhow::Result<()> {
+        self.send(serde_json::json!({"topic": topic, "command": metrics, "qos": 0}))
+            .await
+    }
+
+    async fn send(&mut self, line: serde_json::Value) -> anyhow::Result<()> {
         self.stdin.write_all(format!("{line}\n").as_bytes()).await?;
         self.stdin.flush().await?;
         Ok(())

@@ -1,7 +1,7 @@
 //! The MQTT front-end against a real Mosquitto, with paho-mqtt as the independent peer.
 
 use iogate_tests::TestGateway;
-use iogate_tests::mqtt::{Broker, Peer};
+use iogate_tests::mqtt::{Broker, Message, Peer};
 use reqwest::Method;
 
 fn config(port: u16, writes: bool) -> String {
@@ -125,6 +125,290 @@ async fn without_writes_enabled_nothing_is_written() {
         .expect("echo");
     let (status, _) = gw.get("/api/v1/writes/1").await.expect("write");
     assert_eq!(status, 404);
+    gw.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}
+
+fn sparkplug_config(port: u16, extra: &str) -> String {
+    format!(
+        "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
+mqtt:
+  url: mqtt://127.0.0.1:{port}
+  client_id: iogate-sp-{port}
+  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
+  report: {{ min_interval: 1ms, max_interval: 1h }}
+  writes: true
+{extra}"
+    )
+}
+
+fn metric<'a>(m: &'a Message, name: &str) -> Option<&'a serde_json::Value> {
+    m.sparkplug["metrics"]
+        .as_array()?
+        .iter()
+        .find(|x| x["name"] == name)
+}
+
+/// The first message for which `f` holds; every message on the way is kept in `seen`.
+async fn until(
+    peer: &mut Peer,
+    seen: &mut Vec<Message>,
+    f: impl Fn(&Message) -> bool,
+) -> anyhow::Result<Message> {
+    loop {
+        let m = peer.next().await?;
+        seen.push(m.clone());
+        if f(&m) {
+            return Ok(m);
+        }
+    }
+}
+
+/// Every Sparkplug message of the node after an NBIRTH has the next `seq`, wrapping at 256.
+fn assert_seq_follows(messages: &[Message]) {
+    let mut expected: Option<u64> = None;
+    for m in messages {
+        let kind = m.sparkplug["type"].as_str().unwrap_or_default();
+        if kind == "NDEATH" || kind.ends_with("CMD") {
+            continue;
+        }
+        let seq = m.sparkplug["seq"].as_u64().expect("seq");
+        if kind == "NBIRTH" {
+            assert_eq!(seq, 0, "NBIRTH seq");
+        } else if let Some(e) = expected {
+            assert_eq!(seq, e, "{} seq", m.topic);
+        }
+        expected = Some((seq + 1) % 256);
+    }
+}
+
+#[tokio::test]
+async fn a_sparkplug_edge_node_births_reports_by_alias_rebirths_and_takes_commands() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut peer = Peer::subscribe(&broker, "spBv1.0/#").await.expect("paho");
+    let gw = TestGateway::start(&sparkplug_config(broker.port, ""))
+        .await
+        .expect("gateway");
+    // Every message seen, in order, for the `seq` check.
+    let mut seen = Vec::new();
+    let nbirth = until(&mut peer, &mut seen, |m| {
+        m.topic == "spBv1.0/plant1/NBIRTH/line1"
+    })
+    .await
+    .expect("NBIRTH");
+    assert_eq!(nbirth.decode_error, None);
+    assert!(!nbirth.retain);
+    let bd_seq = metric(&nbirth, "bdSeq").expect("bdSeq")["value"].clone();
+    assert_eq!(
+        metric(&nbirth, "Node Control/Rebirth").expect("rebirth")["value"],
+        false
+    );
+    let dbirth = until(&mut peer, &mut seen, |m| {
+        m.topic == "spBv1.0/plant1/DBIRTH/line1/sim"
+    })
+    .await
+    .expect("DBIRTH");
+    assert_eq!(dbirth.decode_error, None);
+    let di = metric(&dbirth, "DI_0").expect("DI_0");
+    assert_eq!(di["datatype"], "BOOLEAN");
+    assert!(di["alias"].as_u64().is_some(), "{di}");
+    for d in ["connected", "error_code", "io_cycles", "last_response_ms"] {
+        assert!(
+            metric(&dbirth, &format!("Diagnostics/{d}")).is_some(),
+            "{d}"
+        );
+    }
+    assert_eq!(
+        metric(&dbirth, "Diagnostics/connected").expect("connected")["value"],
+        true
+    );
+    // A change: DDATA by alias, which pysparkplug resolves against the DBIRTH.
+    gw.send(
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DI_0/simulate",
+        r#"{"value": true}"#.to_owned(),
+    )
+    .await
+    .expect("simulate");
+    let ddata = until(&mut peer, &mut seen, |m| {
+        m.topic == "spBv1.0/plant1/DDATA/line1/sim"
+            && metric(m, "DI_0").is_some_and(|x| x["value"] == true)
+    })
+    .await
+    .expect("DDATA");
+    let di = metric(&ddata, "DI_0").expect("DI_0");
+    assert_eq!(di["is_historical"], false);
+    assert!(ddata.decode_error.is_none());
+    // A DCMD write goes through the service: the output takes the value.
+    peer.command(
+        "spBv1.0/plant1/DCMD/line1/sim",
+        serde_json::json!([{"name": "DO_0", "datatype": "BOOLEAN", "value": true}]),
+    )
+    .await
+    .expect("DCMD");
+    gw.until("/api/v1/devices/sim/fields/DO_0", "DO_0 written", |f| {
+        f["value"] == true
+    })
+    .await
+    .expect("written");
+    // A refused one (an input) is counted and changes nothing.
+    peer.command(
+        "spBv1.0/plant1/DCMD/line1/sim",
+        serde_json::json!([{"name": "DI_0", "datatype": "BOOLEAN", "value": false}]),
+    )
+    .await
+    .expect("DCMD");
+    gw.until("/api/v1/mqtt", "the refusal counted", |s| {
+        s["writes_refused"].as_u64() >= Some(1)
+    })
+    .await
+    .expect("refused");
+    let (_, di_now) = gw
+        .get("/api/v1/devices/sim/fields/DI_0")
+        .await
+        .expect("DI_0");
+    assert_eq!(di_now["value"], true);
+    // Rebirth: NBIRTH (seq 0, same bdSeq) and the DBIRTH again, no death before.
+    peer.command(
+        "spBv1.0/plant1/NCMD/line1",
+        serde_json::json!([{"name": "Node Control/Rebirth", "datatype": "BOOLEAN", "value": true}]),
+    )
+    .await
+    .expect("NCMD");
+    loop {
+        let m = peer.next().await.expect("message");
+        assert!(
+            !m.topic.contains("DEATH"),
+            "a death before the rebirth: {}",
+            m.topic
+        );
+        let done = m.topic == "spBv1.0/plant1/NBIRTH/line1";
+        if done {
+            assert_eq!(metric(&m, "bdSeq").expect("bdSeq")["value"], bd_seq);
+        }
+        seen.push(m);
+        if done {
+            break;
+        }
+    }
+    until(&mut peer, &mut seen, |m| {
+        m.topic == "spBv1.0/plant1/DBIRTH/line1/sim"
+    })
+    .await
+    .expect("DBIRTH again");
+    assert_seq_follows(&seen);
+    gw.until("/api/v1/mqtt", "one rebirth", |s| {
+        s["sparkplug"]["rebirths"] == 1 && s["connected"] == true
+    })
+    .await
+    .expect("status");
+    // Stopping: NDEATH with the connection's bdSeq.
+    gw.shutdown().await;
+    let ndeath = until(&mut peer, &mut seen, |m| {
+        m.topic == "spBv1.0/plant1/NDEATH/line1"
+    })
+    .await
+    .expect("NDEATH");
+    assert_eq!(metric(&ndeath, "bdSeq").expect("bdSeq")["value"], bd_seq);
+    peer.stop().await;
+    broker.stop().await;
+}
+
+#[tokio::test]
+async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_live_data() {
+    let mut broker = Broker::start_persistent().await.expect("mosquitto");
+    let dir = iogate_tests::devices::temp_dir("mqtt-buffer");
+    let extra = format!(
+        "  json: {{ prefix: iogate/line1, qos: 1, retain: true }}
+  buffer: {{ dir: {}, replay_rate: 20/s }}
+",
+        dir.display()
+    );
+    let mut peer = Peer::subscribe_kept(&broker, "#", &format!("peer-{}", broker.port))
+        .await
+        .expect("paho");
+    let gw = TestGateway::start(&sparkplug_config(broker.port, &extra))
+        .await
+        .expect("gateway");
+    peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/sim")
+        .await
+        .expect("DBIRTH");
+    broker.pause().await;
+    gw.until("/api/v1/mqtt", "disconnected", |s| s["connected"] == false)
+        .await
+        .expect("disconnected");
+    // Ten changes while the broker is away; each reaches the buffer (one JSON message and
+    // one Sparkplug metric per change).
+    for n in 0..10u64 {
+        let (status, body) = gw
+            .send(
+                Method::PUT,
+                "/api/v1/devices/sim/fields/DI_0/simulate",
+                format!(r#"{{"value": {}}}"#, n % 2 == 0),
+            )
+            .await
+            .expect("simulate");
+        assert!((200..300).contains(&status), "{status} {body}");
+        gw.until("/api/v1/mqtt", "buffered", |s| {
+            s["buffer"]["messages"].as_u64() >= Some(2 * (n + 1))
+        })
+        .await
+        .expect("buffered");
+    }
+    broker.resume().await.expect("mosquitto again");
+    gw.until("/api/v1/mqtt", "reconnected", |s| s["connected"] == true)
+        .await
+        .expect("reconnected");
+    // A live change right after: it must not wait behind the replay (20 messages at 20/s).
+    gw.send(
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DO_0/simulate",
+        r#"{"value": true}"#.to_owned(),
+    )
+    .await
+    .ok();
+    gw.send(
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DI_0/simulate",
+        r#"{"value": true}"#.to_owned(),
+    )
+    .await
+    .expect("simulate");
+    let mut history_json = Vec::new();
+    let mut history_sparkplug = Vec::new();
+    let mut live_at = None;
+    let mut index = 0;
+    while history_json.len() < 10 || history_sparkplug.len() < 10 {
+        let m = peer.next().await.expect("message");
+        index += 1;
+        if m.topic == "iogate/line1/history/sim/DI_0" {
+            assert!(!m.retain, "a replay must not be retained");
+            history_json.push(m.json()["value"].clone());
+        } else if m.topic == "spBv1.0/plant1/DDATA/line1/sim"
+            && let Some(di) = metric(&m, "DI_0")
+        {
+            if di["is_historical"] == true {
+                history_sparkplug.push(di["value"].clone());
+            } else if live_at.is_none() {
+                live_at = Some(index);
+            }
+        }
+    }
+    let expected: Vec<serde_json::Value> =
+        (0..10u64).map(|n| serde_json::json!(n % 2 == 0)).collect();
+    assert_eq!(history_json, expected, "JSON replay, in order");
+    assert_eq!(history_sparkplug, expected, "Sparkplug replay, in order");
+    assert!(
+        live_at.is_some_and(|at| at < index),
+        "the live value came after the whole replay ({live_at:?} of {index})"
+    );
+    gw.until("/api/v1/mqtt", "the buffer emptied", |s| {
+        s["buffer"]["messages"] == 0 && s["buffer"]["replayed"].as_u64() >= Some(20)
+    })
+    .await
+    .expect("emptied");
     gw.shutdown().await;
     peer.stop().await;
     broker.stop().await;

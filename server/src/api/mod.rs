@@ -43,7 +43,7 @@ pub(crate) const MAX_BODY: usize = 1024 * 1024;
 #[openapi(
     info(title = "iogate", description = "I/O gateway for industrial devices: cached field values, last-value-wins writes."),
     paths(
-        rest::livez, rest::readyz,
+        rest::livez, rest::readyz, rest::get_mqtt,
         rest::list_links, rest::get_link, rest::get_link_plan,
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
@@ -162,6 +162,7 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
     let api = Router::new()
         .route("/openapi.json", needs(s, Read, get(openapi_json)))
         .route("/links", needs(s, Read, get(rest::list_links)))
+        .route("/mqtt", needs(s, Read, get(rest::get_mqtt)))
         .route(
             "/links/{link}",
             needs(s, Read, get(rest::get_link))

@@ -28,6 +28,20 @@ pub(crate) struct Health {
     /// gateway still serves, so this alone does not make it unready.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub(crate) starved_devices: Vec<String>,
+    /// The MQTT front-end, when one is configured: a broker away does not make the gateway
+    /// unready (its messages wait in the buffer), so this is detail only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) mqtt: Option<MqttHealth>,
+}
+
+/// The MQTT front-end in `/readyz`.
+#[derive(Debug, Serialize, ToSchema)]
+pub(crate) struct MqttHealth {
+    pub(crate) connected: bool,
+    /// Messages waiting in the buffer for the broker.
+    pub(crate) buffered: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) last_error: Option<String>,
 }
 
 /// The process is alive.
@@ -37,6 +51,7 @@ pub(crate) async fn livez() -> Json<Health> {
         status: "ok".into(),
         stalled_links: Vec::new(),
         starved_devices: Vec::new(),
+        mqtt: None,
     })
 }
 
@@ -57,25 +72,45 @@ pub(crate) async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Heal
         .filter(|d| d.starved(now))
         .map(|d| d.name().to_owned())
         .collect();
-    if service.is_ready() && stalled_links.is_empty() {
-        (
-            StatusCode::OK,
-            Json(Health {
-                status: "ready".into(),
-                stalled_links,
-                starved_devices,
-            }),
+    let mqtt = service.mqtt().map(|m| {
+        let s = m.status();
+        MqttHealth {
+            connected: s.connected,
+            buffered: s.buffer.messages,
+            last_error: s.last_error,
+        }
+    });
+    let ready = service.is_ready() && stalled_links.is_empty();
+    (
+        if ready {
+            StatusCode::OK
+        } else {
+            StatusCode::SERVICE_UNAVAILABLE
+        },
+        Json(Health {
+            status: if ready { "ready" } else { "not ready" }.into(),
+            stalled_links,
+            starved_devices,
+            mqtt,
+        }),
+    )
+}
+
+/// The MQTT front-end: its broker and connection, the store-and-forward buffer, the
+/// Sparkplug edge node's session and the counters (404 when no `mqtt:` section is
+/// configured).
+#[utoipa::path(get, path = "/api/v1/mqtt", tag = "health",
+    responses((status = 200, description = "the MQTT front-end's state", body = crate::service::MqttStatus),
+              (status = 404, description = "no MQTT front-end is configured", body = ErrorBody)))]
+pub(crate) async fn get_mqtt(
+    State(service): ServiceRef,
+) -> Result<Json<crate::service::MqttStatus>, ApiError> {
+    service.mqtt().map(|m| Json(m.status())).ok_or_else(|| {
+        ApiError::not_found(
+            "no_mqtt",
+            "no MQTT front-end is configured (the mqtt: section)",
         )
-    } else {
-        (
-            StatusCode::SERVICE_UNAVAILABLE,
-            Json(Health {
-                status: "not ready".into(),
-                stalled_links,
-                starved_devices,
-            }),
-        )
-    }
+    })
 }
 
 /// Every link with its settings and diagnostics.
