@@ -784,14 +784,19 @@ impl Task {
                 let view = self.service.field_view(&device, idx, &sample);
                 let deadband = view.field.deadband;
                 let now = Instant::now();
-                match self
-                    .reporter
-                    .change(key, view.value.as_ref(), view.quality, deadband, now)
-                {
+                let first = !self.reporter.has_sent(key);
+                let decision =
+                    self.reporter
+                        .change(key, view.value.as_ref(), view.quality, deadband, now);
+                match decision {
                     Decision::Send => {
                         self.reporter
                             .sent(key, view.value.as_ref(), view.quality, now);
-                        self.emit(&view, online);
+                        // Offline, a field's first value is not a change: the births and
+                        // the connection's first messages carry it.
+                        if online.is_some() || !first {
+                            self.emit(&view, online);
+                        }
                     }
                     Decision::Skip | Decision::Hold => {}
                 }
@@ -812,9 +817,13 @@ impl Task {
             return;
         }
         let view = self.service.field_view_now(&device, key.1);
+        let held = self.reporter.is_held(key);
         self.reporter
             .sent(key, view.value.as_ref(), view.quality, Instant::now());
-        self.emit(&view, online);
+        // Offline, only a held change is kept: a heartbeat repeats what the buffer has.
+        if online.is_some() || held {
+            self.emit(&view, online);
+        }
     }
 
     /// A field's value to publish: live when it can be, else kept for the replay.

@@ -101,6 +101,18 @@ impl Reporter {
         }
     }
 
+    /// Whether `key` was ever published (its first value is the current state, which the
+    /// births and a connection's first messages carry, not a change to keep for later).
+    pub(crate) fn has_sent(&self, key: Key) -> bool {
+        self.fields.get(&key).is_some_and(|r| r.sent.is_some())
+    }
+
+    /// Whether `key` has a change held back by `min_interval` (else what is due for it is
+    /// a heartbeat).
+    pub(crate) fn is_held(&self, key: Key) -> bool {
+        self.fields.get(&key).is_some_and(|r| r.held)
+    }
+
     /// The next field whose held change or heartbeat is due.
     pub(crate) async fn due(&mut self) -> Key {
         loop {
