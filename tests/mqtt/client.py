@@ -12,7 +12,7 @@ so aliases resolve as a host resolves them. With CLIENT_ID the session is kept b
 (not clean) and the client reconnects within half a second. After subscribing it prints {"subscribed": true}.
 Each JSON line on standard input is published: {"topic", "payload", "qos"}, or {"topic",
 "command": [{"name", "datatype", "value"}]} encoded as a Sparkplug NCMD/DCMD by pysparkplug.
-Ends when standard input closes.
+A publish waits for the connection while the broker is away. Ends when standard input closes.
 """
 import json
 import sys
@@ -33,8 +33,16 @@ def emit(obj):
         sys.stdout.flush()
 
 
+connected = threading.Event()
+
+
 def on_connect(client, userdata, flags, rc):
     client.subscribe(filter_, qos=1)
+    connected.set()
+
+
+def on_disconnect(client, userdata, rc):
+    connected.clear()
 
 
 subscribed = False
@@ -110,6 +118,7 @@ def on_message(client, userdata, m):
 client = mqtt.Client(client_id=client_id, clean_session=not client_id)
 client.reconnect_delay_set(min_delay=0.1, max_delay=0.5)
 client.on_connect = on_connect
+client.on_disconnect = on_disconnect
 client.on_subscribe = on_subscribe
 client.on_message = on_message
 client.connect("127.0.0.1", port, keepalive=30)
@@ -129,6 +138,12 @@ for line in sys.stdin:
         cls = sp.NCmd if "/NCMD/" in msg["topic"] else sp.DCmd
         payload = cls(timestamp=int(time.time() * 1000), metrics=metrics).encode()
     retain = bool(msg.get("retain", False))
-    client.publish(msg["topic"], payload, qos=msg.get("qos", 1), retain=retain).wait_for_publish(5)
+    # While the broker is away, wait for the reconnect; a publish that still fails is
+    # reported as a line, not an end.
+    connected.wait(5)
+    try:
+        client.publish(msg["topic"], payload, qos=msg.get("qos", 1), retain=retain).wait_for_publish(5)
+    except (RuntimeError, ValueError) as e:
+        emit({"publish_error": repr(e)})
 client.loop_stop()
 client.disconnect()

@@ -39,6 +39,85 @@ pub fn test_policy() -> iogate::config::security::DeclarePolicy {
     policy
 }
 
+/// The setup of a test gateway from config text: loopback listeners on free ports, the
+/// repository's profiles unless the config names its own, the tests' declare policy.
+pub fn test_setup(config_yaml: &str) -> anyhow::Result<Setup> {
+    setup_on(config_yaml, "127.0.0.1:0".parse()?)
+}
+
+fn setup_on(config_yaml: &str, http: std::net::SocketAddr) -> anyhow::Result<Setup> {
+    let mut config =
+        iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
+    config.http = http;
+    config.grpc = "127.0.0.1:0".parse()?;
+    if let Some(server) = config.modbus_server.as_mut() {
+        server.listen = "127.0.0.1:0".parse()?;
+    }
+    if config.security == iogate::config::security::SecurityConfig::default() {
+        config.security.declare = test_policy();
+    }
+    if config.profiles.is_none() {
+        config.profiles = Some(profiles_dir());
+    }
+    Setup::from_config(config, Path::new(".")).map_err(|p| anyhow::anyhow!("{p}"))
+}
+
+/// A gateway in a process of its own (the tests crate's `gateway` binary), so that a test
+/// can kill it as the operating system would.
+pub struct GatewayProcess {
+    child: tokio::process::Child,
+    pub gateway: TestGateway,
+}
+
+impl GatewayProcess {
+    /// Starts `bin` (the `gateway` binary's path) on `config_yaml`, written to `dir`, and
+    /// waits until it is ready.
+    pub async fn start(bin: &str, dir: &Path, config_yaml: &str) -> anyhow::Result<Self> {
+        use tokio::io::AsyncBufReadExt;
+        let path = dir.join("iogate.yaml");
+        std::fs::write(&path, config_yaml)?;
+        let mut child = tokio::process::Command::new(bin)
+            .arg(&path)
+            .stdout(std::process::Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("no stdout"))?;
+        let mut lines = tokio::io::BufReader::new(stdout).lines();
+        let line = tokio::time::timeout(PATIENCE, lines.next_line())
+            .await
+            .map_err(|_| anyhow::anyhow!("the gateway process did not start"))??
+            .ok_or_else(|| anyhow::anyhow!("the gateway process ended"))?;
+        let addr = line
+            .strip_prefix("http ")
+            .ok_or_else(|| anyhow::anyhow!("unexpected first line: {line}"))?;
+        let gateway = TestGateway::remote(format!("http://{addr}"));
+        let ready = gateway.url("/readyz");
+        let client = gateway.client.clone();
+        eventually("gateway ready", || {
+            let ready = ready.clone();
+            let client = client.clone();
+            async move {
+                client
+                    .get(&ready)
+                    .send()
+                    .await
+                    .is_ok_and(|r| r.status().is_success())
+            }
+        })
+        .await?;
+        Ok(GatewayProcess { child, gateway })
+    }
+
+    /// SIGKILL: no shutdown, nothing flushed, the sockets closed by the kernel.
+    pub async fn kill(mut self) -> anyhow::Result<()> {
+        self.child.kill().await?;
+        Ok(())
+    }
+}
+
 pub struct TestGateway {
     pub base: String,
     /// The gRPC endpoint, e.g. `http://127.0.0.1:40123`.
@@ -61,22 +140,18 @@ impl TestGateway {
         config_yaml: &str,
         http: std::net::SocketAddr,
     ) -> anyhow::Result<TestGateway> {
-        let mut config =
-            iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
-        config.http = http;
-        config.grpc = "127.0.0.1:0".parse()?;
-        if let Some(server) = config.modbus_server.as_mut() {
-            server.listen = "127.0.0.1:0".parse()?;
+        TestGateway::start_setup(setup_on(config_yaml, http)?).await
+    }
+
+    /// A gateway running in another process (see [`GatewayProcess`]), asked over HTTP.
+    pub fn remote(base: String) -> TestGateway {
+        TestGateway {
+            base,
+            grpc: String::new(),
+            client: reqwest::Client::new(),
+            modbus: None,
+            running: None,
         }
-        if config.security == iogate::config::security::SecurityConfig::default() {
-            config.security.declare = test_policy();
-        }
-        if config.profiles.is_none() {
-            config.profiles = Some(profiles_dir());
-        }
-        let setup =
-            Setup::from_config(config, Path::new(".")).map_err(|p| anyhow::anyhow!("{p}"))?;
-        TestGateway::start_setup(setup).await
     }
 
     /// Starts the built-in demo.
@@ -332,6 +407,17 @@ pub async fn bus_gateway(
     profiles: &[(&str, &str)],
     devices: &str,
 ) -> OnBus {
+    bus_gateway_with(name, bus, profiles, devices, "").await
+}
+
+/// [`bus_gateway`] with more config text (`extra`, top-level sections) after the devices.
+pub async fn bus_gateway_with(
+    name: &str,
+    bus: &devices::RtuBus,
+    profiles: &[(&str, &str)],
+    devices: &str,
+    extra: &str,
+) -> OnBus {
     let dir = devices::temp_dir(name);
     let profile_dir = dir.join("profiles");
     std::fs::create_dir_all(&profile_dir).expect("dir");
@@ -346,7 +432,7 @@ pub async fn bus_gateway(
     let (device_end, holder) = devices::pty_at(&port).expect("pty");
     let task = bus.serve(device_end);
     let gw = TestGateway::start(&format!(
-        "profiles: {}\n{}devices:\n{devices}",
+        "profiles: {}\n{}devices:\n{devices}{extra}",
         profile_dir.display(),
         link_yaml(&port)
     ))

@@ -126,6 +126,8 @@ pub struct Peer {
     child: Child,
     stdin: ChildStdin,
     lines: Lines<BufReader<ChildStdout>>,
+    /// Messages read while waiting for something else, given out first.
+    pending: std::collections::VecDeque<Message>,
 }
 
 #[derive(Debug, Clone)]
@@ -180,6 +182,7 @@ impl Peer {
             child,
             stdin,
             lines: BufReader::new(stdout).lines(),
+            pending: std::collections::VecDeque::new(),
         };
         let first = peer.line().await?;
         anyhow::ensure!(first["subscribed"] == true, "paho: {first}");
@@ -196,6 +199,13 @@ impl Peer {
 
     /// The next message.
     pub async fn next(&mut self) -> anyhow::Result<Message> {
+        match self.pending.pop_front() {
+            Some(m) => Ok(m),
+            None => self.read().await,
+        }
+    }
+
+    async fn read(&mut self) -> anyhow::Result<Message> {
         let v = self.line().await?;
         Ok(Message {
             topic: v["topic"].as_str().unwrap_or_default().to_owned(),
@@ -221,6 +231,39 @@ impl Peer {
     pub async fn publish(&mut self, topic: &str, payload: &str) -> anyhow::Result<()> {
         self.send(serde_json::json!({"topic": topic, "payload": payload, "qos": 1}))
             .await
+    }
+
+    /// Waits until the peer is subscribed again (after the broker restarted): publishes a
+    /// marker to `marker` (which its filter must match) and waits for it to come back; what
+    /// comes before it is kept for [`Peer::next`].
+    pub async fn resync(&mut self, marker: &str) -> anyhow::Result<()> {
+        let token = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos())
+            .to_string();
+        let deadline = tokio::time::Instant::now() + crate::PATIENCE;
+        loop {
+            anyhow::ensure!(
+                tokio::time::Instant::now() < deadline,
+                "the peer did not subscribe again"
+            );
+            self.publish(marker, &token).await?;
+            let mut seen = Vec::new();
+            let back = tokio::time::timeout(Duration::from_millis(500), async {
+                loop {
+                    let m = self.read().await?;
+                    if m.topic == marker && m.payload == token {
+                        return anyhow::Ok(());
+                    }
+                    seen.push(m);
+                }
+            })
+            .await;
+            self.pending.extend(seen);
+            if let Ok(result) = back {
+                return result;
+            }
+        }
     }
 
     /// Publishes a Sparkplug NCMD or DCMD encoded by pysparkplug: `metrics` are

@@ -1,7 +1,8 @@
 //! The MQTT front-end against a real Mosquitto, with paho-mqtt as the independent peer.
 
-use iogate_tests::TestGateway;
+use iogate_tests::devices::{Behaviour, RtuBus};
 use iogate_tests::mqtt::{Broker, Message, Peer};
+use iogate_tests::{GatewayProcess, TestGateway, bus_gateway_with, eventually};
 use reqwest::Method;
 
 fn config(port: u16, writes: bool) -> String {
@@ -367,6 +368,7 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
         .expect("buffered");
     }
     broker.resume().await.expect("mosquitto again");
+    peer.resync("iogate-test/marker").await.expect("peer back");
     gw.until("/api/v1/mqtt", "reconnected", |s| s["connected"] == true)
         .await
         .expect("reconnected");
@@ -421,6 +423,205 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
     .await
     .expect("emptied");
     gw.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}
+
+#[tokio::test]
+async fn a_device_on_a_pty_is_written_by_dcmd_and_set_dies_and_is_born_again() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.tables.input[0] = 123);
+    let extra = format!(
+        "mqtt:
+  url: mqtt://127.0.0.1:{}
+  client_id: iogate-pty
+  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
+  json: {{ prefix: iogate/line1, qos: 1, retain: true }}
+  writes: true
+",
+        broker.port
+    );
+    let mut peer = Peer::subscribe(&broker, "#").await.expect("paho");
+    let (gw, _pty, task, _) = bus_gateway_with(
+        "mqtt-pty",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms }\n",
+        &extra,
+    )
+    .await;
+    let birth = peer
+        .until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/io")
+        .await
+        .expect("DBIRTH");
+    let ai = metric(&birth, "AI_0").expect("AI_0");
+    assert_eq!(ai["datatype"], "FLOAT", "{ai}");
+    assert!(
+        (ai["value"].as_f64().unwrap_or_default() - 12.3).abs() < 1e-4,
+        "{ai}"
+    );
+    // The device's input changes: DDATA by alias.
+    bus.slave(1, |s| s.tables.input[0] = 150);
+    let data = peer
+        .until(|m| {
+            m.topic == "spBv1.0/plant1/DDATA/line1/io"
+                && metric(m, "AI_0").is_some_and(|x| x["value"].as_f64() == Some(15.0))
+        })
+        .await
+        .expect("DDATA");
+    assert!(data.decode_error.is_none());
+    // A DCMD and a /set write reach the slave on the line.
+    peer.command(
+        "spBv1.0/plant1/DCMD/line1/io",
+        serde_json::json!([{"name": "DO_0", "datatype": "BOOLEAN", "value": true}]),
+    )
+    .await
+    .expect("DCMD");
+    peer.publish("iogate/line1/io/DO_1/set", r#"{"value": true}"#)
+        .await
+        .expect("set");
+    eventually("both coils written on the line", || async {
+        bus.read_slave(1, |s| s.tables.coils[0] && s.tables.coils[1]) == Some(true)
+    })
+    .await
+    .expect("written");
+    // The device stops answering: DDEATH (and its $state says so); back: DBIRTH.
+    bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    peer.until(|m| m.topic == "spBv1.0/plant1/DDEATH/line1/io")
+        .await
+        .expect("DDEATH");
+    let (_, state) = gw.get("/api/v1/devices/io").await.expect("device");
+    assert_eq!(state["connected"], false, "{state}");
+    bus.slave(1, |s| s.behaviour = Behaviour::Normal);
+    let again = peer
+        .until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/io")
+        .await
+        .expect("DBIRTH again");
+    assert_eq!(metric(&again, "DO_0").expect("DO_0")["value"], true);
+    gw.shutdown().await;
+    task.abort();
+    peer.stop().await;
+    broker.stop().await;
+}
+
+fn process_config(port: u16, dir: &std::path::Path) -> String {
+    sparkplug_config(
+        port,
+        &format!(
+            "  json: {{ prefix: iogate/line1, qos: 1, retain: true }}
+  buffer: {{ dir: {}, replay_rate: 100/s }}
+",
+            dir.join("buffer").display()
+        ),
+    )
+}
+
+#[tokio::test]
+async fn a_killed_gateway_dies_by_its_will_and_its_buffer_survives_a_kill() {
+    const BIN: &str = env!("CARGO_BIN_EXE_gateway");
+    let mut broker = Broker::start_persistent().await.expect("mosquitto");
+    let dir = iogate_tests::devices::temp_dir("mqtt-kill");
+    let config = process_config(broker.port, &dir);
+    let mut peer = Peer::subscribe_kept(&broker, "#", &format!("kill-{}", broker.port))
+        .await
+        .expect("paho");
+    // Killed while connected: the broker publishes the Will, NDEATH with the bdSeq of the
+    // NBIRTH before it.
+    let first = GatewayProcess::start(BIN, &dir, &config)
+        .await
+        .expect("gateway");
+    let birth = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NBIRTH/line1")
+        .await
+        .expect("NBIRTH");
+    let bd_seq = metric(&birth, "bdSeq").expect("bdSeq")["value"].clone();
+    peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/sim")
+        .await
+        .expect("DBIRTH");
+    first.kill().await.expect("kill");
+    let death = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NDEATH/line1")
+        .await
+        .expect("NDEATH by the Will");
+    assert_eq!(metric(&death, "bdSeq").expect("bdSeq")["value"], bd_seq);
+    // Started again: the next bdSeq. The broker goes away, ten changes are buffered, the
+    // gateway is killed.
+    let second = GatewayProcess::start(BIN, &dir, &config)
+        .await
+        .expect("gateway again");
+    let birth = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NBIRTH/line1")
+        .await
+        .expect("NBIRTH");
+    assert_eq!(
+        metric(&birth, "bdSeq").expect("bdSeq")["value"].as_u64(),
+        bd_seq.as_u64().map(|b| b + 1)
+    );
+    let gw = &second.gateway;
+    gw.until("/api/v1/mqtt", "nothing buffered", |s| {
+        s["buffer"]["messages"] == 0 && s["sparkplug"]["born_devices"] == 1
+    })
+    .await
+    .expect("born");
+    broker.pause().await;
+    let status = gw
+        .until("/api/v1/mqtt", "disconnected", |s| s["connected"] == false)
+        .await
+        .expect("disconnected");
+    let base = status["buffer"]["messages"].as_u64().unwrap_or_default();
+    for n in 0..10u64 {
+        let (status, body) = gw
+            .send(
+                Method::PUT,
+                "/api/v1/devices/sim/fields/DI_0/simulate",
+                format!(r#"{{"value": {}}}"#, n % 2 == 0),
+            )
+            .await
+            .expect("simulate");
+        assert!((200..300).contains(&status), "{status} {body}");
+        gw.until("/api/v1/mqtt", "buffered", |s| {
+            s["buffer"]["messages"].as_u64() == Some(base + 2 * (n + 1))
+        })
+        .await
+        .expect("buffered");
+    }
+    second.kill().await.expect("kill");
+    broker.resume().await.expect("mosquitto again");
+    peer.resync("iogate-test/marker").await.expect("peer back");
+    // A third start replays what the killed one kept, in order, as history.
+    let third = GatewayProcess::start(BIN, &dir, &config)
+        .await
+        .expect("gateway a third time");
+    let expected: Vec<serde_json::Value> =
+        (0..10u64).map(|n| serde_json::json!(n % 2 == 0)).collect();
+    let mut history_json = Vec::new();
+    let mut history_sparkplug = Vec::new();
+    while !history_json.ends_with(&expected) || !history_sparkplug.ends_with(&expected) {
+        let m = match peer.next().await {
+            Ok(m) => m,
+            Err(e) => {
+                let status = third.gateway.get("/api/v1/mqtt").await;
+                panic!("{e}: JSON {history_json:?}, Sparkplug {history_sparkplug:?}; {status:?}")
+            }
+        };
+        if m.topic == "iogate/line1/history/sim/DI_0" {
+            history_json.push(m.json()["value"].clone());
+        } else if m.topic == "spBv1.0/plant1/DDATA/line1/sim"
+            && let Some(di) = metric(&m, "DI_0")
+            && di["is_historical"] == true
+        {
+            history_sparkplug.push(di["value"].clone());
+        }
+    }
+    third
+        .gateway
+        .until("/api/v1/mqtt", "the buffer emptied", |s| {
+            s["buffer"]["messages"] == 0
+        })
+        .await
+        .expect("emptied");
+    third.kill().await.expect("kill");
     peer.stop().await;
     broker.stop().await;
 }

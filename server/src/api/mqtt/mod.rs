@@ -383,6 +383,7 @@ impl Task {
         let mut timer = tokio::time::interval(FOLLOW_EVERY);
         loop {
             // Offline: connect (after the back-off) while changes go to the buffer.
+            self.keep_bd_seq();
             let connect = self.connect_packet();
             let tls = self.prepared.tls.clone();
             let delay = wait;
@@ -472,12 +473,23 @@ impl Task {
         }
     }
 
-    /// The next connection's `bdSeq` (0-255, wrapping), kept beside the buffer so that it
-    /// keeps counting after a restart.
+    /// The next connection's `bdSeq` (0-255, wrapping).
     fn next_bd_seq(&mut self) {
         self.bd_seq = self.bd_seq.wrapping_add(1);
-        if let Some(dir) = &self.prepared.config.buffer.dir {
-            let _ = std::fs::write(dir.join("bdseq"), format!("{}\n", self.bd_seq));
+    }
+
+    /// Writes the `bdSeq` of the CONNECT about to be sent beside the buffer (replacing the
+    /// file at once), so that after a restart, even a kill, the next one differs from it:
+    /// a late NDEATH from the Will of a killed connection is never taken for the new one's.
+    fn keep_bd_seq(&mut self) {
+        let Some(dir) = &self.prepared.config.buffer.dir else {
+            return;
+        };
+        let tmp = dir.join("bdseq.tmp");
+        let written = std::fs::write(&tmp, format!("{}\n", self.bd_seq))
+            .and_then(|()| std::fs::rename(&tmp, dir.join("bdseq")));
+        if let Err(e) = written {
+            tracing::warn!(error = %e, dir = %dir.display(), "MQTT: cannot keep bdSeq");
         }
     }
 
@@ -509,9 +521,6 @@ impl Task {
         if let Some(b) = &mut self.buffer {
             let _ = b.sync();
             let _ = b.write_head(true);
-        }
-        if let Some(dir) = &self.prepared.config.buffer.dir {
-            let _ = std::fs::write(dir.join("bdseq"), format!("{}\n", self.bd_seq));
         }
         self.status.connected = false;
         self.publish_status();
