@@ -233,6 +233,12 @@ impl Peer {
             .await
     }
 
+    /// Publishes a retained message (QoS 1).
+    pub async fn publish_retained(&mut self, topic: &str, payload: &str) -> anyhow::Result<()> {
+        self.send(serde_json::json!({"topic": topic, "payload": payload, "qos": 1, "retain": true}))
+            .await
+    }
+
     /// Waits until the peer is subscribed again (after the broker restarted): publishes a
     /// marker to `marker` (which its filter must match) and waits for it to come back; what
     /// comes before it is kept for [`Peer::next`].

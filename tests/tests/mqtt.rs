@@ -625,3 +625,158 @@ async fn a_killed_gateway_dies_by_its_will_and_its_buffer_survives_a_kill() {
     peer.stop().await;
     broker.stop().await;
 }
+
+#[tokio::test]
+async fn two_gateways_are_two_edge_nodes_of_one_namespace() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut peer = Peer::subscribe(&broker, "spBv1.0/plant1/#")
+        .await
+        .expect("paho");
+    let node = |id: &str| {
+        format!(
+            "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
+mqtt:
+  url: mqtt://127.0.0.1:{}
+  client_id: iogate-{id}
+  sparkplug: {{ group_id: plant1, edge_node_id: {id} }}
+  writes: true
+",
+            broker.port
+        )
+    };
+    let line1 = TestGateway::start(&node("line1")).await.expect("line1");
+    let line2 = TestGateway::start(&node("line2")).await.expect("line2");
+    let mut births = std::collections::BTreeSet::new();
+    while births.len() < 4 {
+        let m = peer.next().await.expect("message");
+        assert!(m.decode_error.is_none(), "{m:?}");
+        if m.topic.contains("BIRTH") {
+            births.insert(m.topic.clone());
+        }
+    }
+    assert_eq!(
+        births.into_iter().collect::<Vec<_>>(),
+        [
+            "spBv1.0/plant1/DBIRTH/line1/sim",
+            "spBv1.0/plant1/DBIRTH/line2/sim",
+            "spBv1.0/plant1/NBIRTH/line1",
+            "spBv1.0/plant1/NBIRTH/line2",
+        ]
+    );
+    // A command to one node's device reaches that gateway only.
+    peer.command(
+        "spBv1.0/plant1/DCMD/line2/sim",
+        serde_json::json!([{"name": "DO_0", "datatype": "BOOLEAN", "value": true}]),
+    )
+    .await
+    .expect("DCMD");
+    line2
+        .until("/api/v1/devices/sim/fields/DO_0", "written on line2", |f| {
+            f["value"] == true
+        })
+        .await
+        .expect("line2");
+    let (_, on_line1) = line1
+        .get("/api/v1/devices/sim/fields/DO_0")
+        .await
+        .expect("line1");
+    assert_eq!(on_line1["value"], false);
+    // One node stops: its NDEATH; the other keeps publishing.
+    line1.shutdown().await;
+    peer.until(|m| m.topic == "spBv1.0/plant1/NDEATH/line1")
+        .await
+        .expect("NDEATH line1");
+    line2
+        .send(
+            Method::PUT,
+            "/api/v1/devices/sim/fields/DI_0/simulate",
+            r#"{"value": true}"#.to_owned(),
+        )
+        .await
+        .expect("simulate");
+    peer.until(|m| {
+        m.topic == "spBv1.0/plant1/DDATA/line2/sim"
+            && metric(m, "DI_0").is_some_and(|x| x["value"] == true)
+    })
+    .await
+    .expect("DDATA line2");
+    line2.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}
+
+#[tokio::test]
+async fn births_wait_for_the_primary_host_and_follow_its_state() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut peer = Peer::subscribe(&broker, "spBv1.0/#").await.expect("paho");
+    let config = format!(
+        "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
+mqtt:
+  url: mqtt://127.0.0.1:{}
+  client_id: iogate-host
+  sparkplug: {{ group_id: plant1, edge_node_id: line1, primary_host: scada }}
+",
+        broker.port
+    );
+    let gw = TestGateway::start(&config).await.expect("gateway");
+    gw.until("/api/v1/mqtt", "connected, waiting for the host", |s| {
+        s["connected"] == true
+    })
+    .await
+    .expect("connected");
+    // The host comes online (STATE is retained): NBIRTH and DBIRTH follow, nothing before.
+    let state = |online: bool, at: u64| format!(r#"{{"online": {online}, "timestamp": {at}}}"#);
+    peer.publish_retained("spBv1.0/STATE/scada", &state(true, 1000))
+        .await
+        .expect("STATE");
+    let first = peer
+        .until(|m| m.topic.starts_with("spBv1.0/plant1/"))
+        .await
+        .expect("birth");
+    assert_eq!(first.topic, "spBv1.0/plant1/NBIRTH/line1");
+    let bd_seq = metric(&first, "bdSeq").expect("bdSeq")["value"].clone();
+    peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/sim")
+        .await
+        .expect("DBIRTH");
+    gw.until("/api/v1/mqtt", "the host online", |s| {
+        s["sparkplug"]["host_online"] == true && s["sparkplug"]["born"] == true
+    })
+    .await
+    .expect("status");
+    // An older STATE is no news; the host going offline: NDEATH, then a new session that
+    // waits for it again.
+    peer.publish_retained("spBv1.0/STATE/scada", &state(false, 999))
+        .await
+        .expect("old STATE");
+    peer.publish_retained("spBv1.0/STATE/scada", &state(false, 2000))
+        .await
+        .expect("STATE offline");
+    let m = peer
+        .until(|m| m.topic.starts_with("spBv1.0/plant1/"))
+        .await
+        .expect("NDEATH");
+    assert_eq!(m.topic, "spBv1.0/plant1/NDEATH/line1");
+    assert_eq!(metric(&m, "bdSeq").expect("bdSeq")["value"], bd_seq);
+    gw.until("/api/v1/mqtt", "a new session waiting", |s| {
+        s["connected"] == true && s["sparkplug"]["born"] == false && s["reconnects"] == 1
+    })
+    .await
+    .expect("waiting again");
+    peer.publish_retained("spBv1.0/STATE/scada", &state(true, 3000))
+        .await
+        .expect("STATE online");
+    let again = peer
+        .until(|m| m.topic.starts_with("spBv1.0/plant1/"))
+        .await
+        .expect("birth again");
+    assert_eq!(again.topic, "spBv1.0/plant1/NBIRTH/line1");
+    assert_eq!(
+        metric(&again, "bdSeq").expect("bdSeq")["value"].as_u64(),
+        bd_seq.as_u64().map(|b| b + 1)
+    );
+    gw.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}

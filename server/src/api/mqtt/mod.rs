@@ -455,6 +455,7 @@ impl Task {
                             self.status.last_error = Some(e.to_string());
                         }
                         Ended::HostOffline => {
+                            self.node_death(&mut online).await;
                             online.conn.disconnect().await;
                             self.status.last_error =
                                 Some("the primary host application went offline".into());
@@ -496,18 +497,7 @@ impl Task {
     /// The gateway stops: NDEATH and the offline state, what is unconfirmed kept on disk.
     async fn stop(&mut self, online: Option<Online>) {
         if let Some(mut online) = online {
-            if let Some(t) = &self.spark {
-                let _ = online
-                    .conn
-                    .publish(
-                        &t.node("NDEATH"),
-                        &sparkplug::death(self.bd_seq, now_ms()),
-                        1,
-                        false,
-                        0,
-                    )
-                    .await;
-            }
+            self.node_death(&mut online).await;
             if let Some(json) = self.json() {
                 let topic = Topics(json).gateway_state();
                 let qos = json.qos;
@@ -524,6 +514,22 @@ impl Task {
         }
         self.status.connected = false;
         self.publish_status();
+    }
+
+    /// NDEATH with the connection's `bdSeq`, before a DISCONNECT (which drops the Will).
+    async fn node_death(&self, online: &mut Online) {
+        if let Some(t) = &self.spark {
+            let _ = online
+                .conn
+                .publish(
+                    &t.node("NDEATH"),
+                    &sparkplug::death(self.bd_seq, now_ms()),
+                    1,
+                    false,
+                    0,
+                )
+                .await;
+        }
     }
 
     /// What was published and not confirmed, and what waited to be, goes to the buffer;
@@ -801,11 +807,9 @@ impl Task {
                     Decision::Send => {
                         self.reporter
                             .sent(key, view.value.as_ref(), view.quality, now);
-                        // Offline, a field's first value is not a change: the births and
-                        // the connection's first messages carry it.
-                        if online.is_some() || !first {
-                            self.emit(&view, online);
-                        }
+                        // A field's first value is not a change to keep for later: the
+                        // births and the connection's first messages carry it.
+                        self.emit(&view, online, !first);
                     }
                     Decision::Skip | Decision::Hold => {}
                 }
@@ -829,14 +833,13 @@ impl Task {
         let held = self.reporter.is_held(key);
         self.reporter
             .sent(key, view.value.as_ref(), view.quality, Instant::now());
-        // Offline, only a held change is kept: a heartbeat repeats what the buffer has.
-        if online.is_some() || held {
-            self.emit(&view, online);
-        }
+        // Only a held change is kept for later: a heartbeat repeats what the buffer has.
+        self.emit(&view, online, held);
     }
 
-    /// A field's value to publish: live when it can be, else kept for the replay.
-    fn emit(&mut self, view: &FieldView<'_>, mut online: Option<&mut Online>) {
+    /// A field's value to publish: live when it can be, else kept for the replay when it is
+    /// a change (`change`).
+    fn emit(&mut self, view: &FieldView<'_>, mut online: Option<&mut Online>, change: bool) {
         let device = view.device.name().to_owned();
         let field = view.field.name.clone();
         let at_ms = now_ms();
@@ -850,7 +853,8 @@ impl Task {
             };
             match online.as_deref_mut() {
                 Some(o) => o.outbox.push_back(Item::Data(record)),
-                None => self.keep(record),
+                None if change => self.keep(record),
+                None => {}
             }
         }
         if self.spark.is_some() {
@@ -863,14 +867,15 @@ impl Task {
                 payload: sparkplug::encode_metric(&metric),
             };
             match online {
-                Some(o) if o.node_born => {
-                    // A device that does not answer is dead to the host; its DBIRTH brings
-                    // the values when it answers again.
-                    if o.born.contains(&device) {
-                        o.outbox.push_back(Item::Data(record));
-                    }
+                Some(o) if o.node_born && o.born.contains(&device) => {
+                    o.outbox.push_back(Item::Data(record));
                 }
-                _ => self.keep(record),
+                // A device that does not answer is dead to the host; its DBIRTH brings the
+                // values when it answers again.
+                Some(o) if o.node_born => {}
+                // Offline, or the primary host awaited.
+                _ if change => self.keep(record),
+                _ => {}
             }
         }
     }
@@ -1347,9 +1352,11 @@ impl Task {
         {
             tracing::warn!(error = %e, "MQTT: the buffer cannot be synced");
         }
-        if let (Some(online), Some(json)) = (online, self.json().cloned()) {
-            let outs = self.followed_outcomes(&Topics(&json), &json, &mut online.followed);
-            online.outbox.extend(outs.into_iter().map(Item::Plain));
+        if let Some(online) = online {
+            if let Some(json) = self.json().cloned() {
+                let outs = self.followed_outcomes(&Topics(&json), &json, &mut online.followed);
+                online.outbox.extend(outs.into_iter().map(Item::Plain));
+            }
             if let Some(sp) = &mut self.status.sparkplug {
                 sp.born = online.node_born;
                 sp.born_devices = online.born.len();
