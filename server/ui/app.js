@@ -203,9 +203,49 @@ function cell(label, ...children) {
   return h('td', { 'data-label': label }, ...children);
 }
 
+/** The MQTT front-end's state (GET /api/v1/mqtt), or null when none is configured. */
+async function mqttStatus(signal) {
+  try {
+    return await api('GET', '/mqtt', undefined, { signal });
+  } catch (e) {
+    if (e.status === 404) return null;
+    throw e;
+  }
+}
+
+function mqttRows(m) {
+  const b = m.buffer;
+  const sp = m.sparkplug;
+  const rows = [
+    ['Broker', m.broker, `client id ${m.client_id}`],
+    ['State', h('span', { class: `badge ${m.connected ? 'ok' : 'bad'}`, 'data-state': m.connected ? 'connected' : 'disconnected' },
+      m.connected ? 'connected' : 'disconnected'), m.last_error ?? `${m.reconnects} reconnect${m.reconnects === 1 ? '' : 's'}`],
+    ['Messages', `${m.messages_out} out · ${m.messages_in} in`, `${m.bytes_out} bytes out`],
+    ['Buffer', `${b.messages} waiting${b.messages ? `, oldest ${b.oldest_age_s} s` : ''}`,
+      `${b.replayed} replayed · ${b.dropped} dropped${b.dir ? '' : ' · no buffer on disk'}`],
+    ['Writes', `${m.writes_accepted} accepted · ${m.writes_refused} refused`, ''],
+  ];
+  if (m.json_prefix) rows.push(['JSON topics', `${m.json_prefix}/…`, '']);
+  if (sp) {
+    const host = sp.primary_host ? `host ${sp.primary_host} ${sp.host_online === true ? 'online' : sp.host_online === false ? 'offline' : 'not seen yet'}` : 'no primary host';
+    rows.push(['Sparkplug B', `spBv1.0/${sp.group_id}/…/${sp.edge_node_id}`,
+      `${sp.born ? `born, ${sp.born_devices} device${sp.born_devices === 1 ? '' : 's'}` : 'not born'} · bdSeq ${sp.bd_seq} · ${sp.rebirths} rebirths · ${host}`]);
+  }
+  return rows.map(([label, value, meaning]) => h('tr', { 'data-mqtt': label },
+    h('th', { scope: 'row' }, label), cell(label, value, h('div', { class: 'meaning' }, meaning))));
+}
+
 async function overview(signal) {
-  const [links, devices] = await Promise.all([api('GET', '/links', undefined, { signal }),
-    api('GET', '/devices', undefined, { signal })]);
+  const [links, devices, mqtt] = await Promise.all([api('GET', '/links', undefined, { signal }),
+    api('GET', '/devices', undefined, { signal }), mqttStatus(signal)]);
+  const mqttBody = h('tbody');
+  const mqttSection = h('section', { hidden: !mqtt, 'aria-labelledby': 'mqtt-title', id: 'mqtt' },
+    h('h2', { id: 'mqtt-title' }, 'MQTT'),
+    h('div', { class: 'scroll' }, h('table', { class: 'list' }, mqttBody)));
+  const renderMqtt = (m) => {
+    mqttSection.hidden = !m;
+    if (m) fill(mqttBody, ...mqttRows(m));
+  };
   const summary = h('p', { class: 'summary', id: 'summary' });
   const linkBody = h('tbody');
   const deviceBody = h('tbody');
@@ -277,7 +317,9 @@ async function overview(signal) {
       h('div', { class: 'scroll' }, h('table', { class: 'list', id: 'devices' },
         head('Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response'),
         deviceBody))),
+    mqttSection,
     transactionSection);
+  renderMqtt(mqtt);
   renderLinks();
   fill(deviceBody, ...devices.devices.map(deviceRow));
   renderSummary();
@@ -301,8 +343,9 @@ async function overview(signal) {
   // are refreshed every two seconds.
   const poll = setInterval(async () => {
     try {
-      const [fresh, counters] = await Promise.all([api('GET', '/links', undefined, { signal }),
-        api('GET', '/devices', undefined, { signal })]);
+      const [fresh, counters, m] = await Promise.all([api('GET', '/links', undefined, { signal }),
+        api('GET', '/devices', undefined, { signal }), mqttStatus(signal)]);
+      renderMqtt(m);
       linksByName.clear();
       for (const l of fresh.links) linksByName.set(l.name, l);
       renderLinks();

@@ -519,3 +519,70 @@ async fn with_tokens_the_page_asks_for_one_and_uses_it() -> anyhow::Result<()> {
     assert!(refused.contains("write"), "{refused}");
     Ok(())
 }
+
+#[tokio::test]
+async fn the_overview_shows_the_mqtt_connection_and_its_buffer() -> anyhow::Result<()> {
+    let mut broker = iogate_tests::mqtt::Broker::start().await?;
+    let dir = iogate_tests::devices::temp_dir("ui-mqtt");
+    let config = format!(
+        "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}
+mqtt:
+  url: mqtt://127.0.0.1:{}
+  client_id: iogate-ui
+  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
+  json: {{ prefix: iogate/line1 }}
+  buffer: {{ dir: {} }}
+",
+        broker.port,
+        dir.display()
+    );
+    let gw = TestGateway::start(&config).await?;
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/")).await?;
+    browser
+        .until_text(
+            "#mqtt tr[data-mqtt='State']",
+            Duration::from_secs(10),
+            |t| t.contains("connected") && !t.contains("disconnected"),
+        )
+        .await?;
+    browser
+        .until_text(
+            "#mqtt tr[data-mqtt='Sparkplug B']",
+            Duration::from_secs(10),
+            |t| t.contains("spBv1.0/plant1/…/line1") && t.contains("born, 1 device"),
+        )
+        .await?;
+    // The broker goes away and a change waits in the buffer: the page says both.
+    broker.pause().await;
+    gw.until("/api/v1/mqtt", "disconnected", |s| s["connected"] == false)
+        .await?;
+    gw.send(
+        Method::PUT,
+        "/api/v1/devices/sim/fields/DI_0/simulate",
+        json!({ "value": true }).to_string(),
+    )
+    .await?;
+    browser
+        .until_text(
+            "#mqtt tr[data-mqtt='State']",
+            Duration::from_secs(10),
+            |t| t.contains("disconnected") && t.contains("cannot connect"),
+        )
+        .await?;
+    browser
+        .until_text(
+            "#mqtt tr[data-mqtt='Buffer']",
+            Duration::from_secs(10),
+            |t| t.contains("2 waiting"),
+        )
+        .await?;
+    browser
+        .screenshot(&screenshots_dir().join("overview-mqtt.png"))
+        .await?;
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    gw.shutdown().await;
+    broker.stop().await;
+    Ok(())
+}
