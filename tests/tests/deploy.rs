@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use iogate_tests::devices::RtuBus;
-use iogate_tests::{TestGateway, bus_gateway, eventually};
+use iogate_tests::{TestGateway, bus_gateway_with, eventually};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -56,7 +56,7 @@ fn alert_rules_and_the_compose_prometheus_config_pass_promtool() {
         "promtool",
         &["check", "rules", "deploy/prometheus/alerts.yml"],
     );
-    assert!(rules.contains("SUCCESS: 9 rules found"), "{rules}");
+    assert!(rules.contains("SUCCESS: 12 rules found"), "{rules}");
     run(
         "promtool",
         &["check", "config", "deploy/compose/prometheus.yml"],
@@ -149,9 +149,13 @@ fn compose_parses_and_every_file_it_mounts_exists() {
     let text = std::fs::read_to_string(compose_dir.join("docker-compose.yml")).expect("compose");
     let doc: serde_json::Value = serde_saphyr::from_str(&text).expect("compose parses");
     let services = doc["services"].as_object().expect("services");
-    for name in ["iogate", "prometheus", "grafana"] {
+    for name in ["iogate", "prometheus", "grafana", "mosquitto"] {
         assert!(services.contains_key(name), "no service {name}");
     }
+    // Named volumes (the MQTT buffer) are the compose file's own; every other source is a
+    // file beside it.
+    let named = doc["volumes"].as_object().cloned().unwrap_or_default();
+    assert!(named.contains_key("mqtt-buffer"));
     let mut mounts = 0;
     for (name, service) in services {
         for volume in service["volumes"].as_array().into_iter().flatten() {
@@ -159,6 +163,9 @@ fn compose_parses_and_every_file_it_mounts_exists() {
                 .as_str()
                 .and_then(|v| v.split(':').next())
                 .expect("short volume syntax");
+            if named.contains_key(source) {
+                continue;
+            }
             let path = compose_dir.join(source);
             assert!(
                 path.exists(),
@@ -271,11 +278,17 @@ async fn busy_gateway() -> iogate_tests::OnBus {
     let bus = RtuBus::default();
     // One address refused, so exceptions are counted too.
     bus.slave(1, |s| s.refused = vec![3]);
-    let on_bus = bus_gateway(
+    // An MQTT front-end too (its broker away: its series are there all the same).
+    let nobody = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("port")
+        .port();
+    let on_bus = bus_gateway_with(
         "deploy-metrics",
         &bus,
         &[],
         "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 20ms }\n",
+        &format!("mqtt: {{ url: 'mqtt://127.0.0.1:{nobody}', json: {{ prefix: iogate }} }}\n"),
     )
     .await;
     let gw = &on_bus.0;
@@ -529,7 +542,7 @@ async fn a_real_prometheus_scrapes_the_gateway_and_evaluates_every_alert_rule() 
             .flatten()
             .flat_map(|g| g["rules"].as_array().cloned().unwrap_or_default())
             .collect();
-        let evaluated = all.len() == 9
+        let evaluated = all.len() == 12
             && all.iter().all(|r| {
                 r["lastEvaluation"]
                     .as_str()
