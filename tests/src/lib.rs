@@ -111,6 +111,11 @@ impl GatewayProcess {
         Ok(GatewayProcess { child, gateway })
     }
 
+    /// The process id (for its CPU time and resident size in `/proc`).
+    pub fn pid(&self) -> Option<u32> {
+        self.child.id()
+    }
+
     /// SIGKILL: no shutdown, nothing flushed, the sockets closed by the kernel.
     pub async fn kill(mut self) -> anyhow::Result<()> {
         self.child.kill().await?;

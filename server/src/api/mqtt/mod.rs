@@ -646,6 +646,13 @@ impl Task {
                 Err(e) => return Ended::Lost(e),
             }
             self.take_confirmations(online);
+            if replaying
+                && online.replay_budget >= 1.0
+                && online.replay.len() < REPLAY_WINDOW
+                && let Err(e) = self.replay_more(online).await
+            {
+                return Ended::Lost(e);
+            }
         }
     }
 
@@ -1092,6 +1099,15 @@ impl Task {
         let rate = f64::from(self.prepared.config.buffer.replay_rate.max(1));
         let burst = (rate * REPLAY_EVERY.as_secs_f64()).max(1.0);
         online.replay_budget = (online.replay_budget + burst).min(burst * 2.0);
+        self.replay_more(online).await
+    }
+
+    /// Sends buffered records while the rate's budget and the window allow (again as soon
+    /// as the broker confirms some, not only on the replay timer).
+    async fn replay_more(&mut self, online: &mut Online) -> Result<(), ConnError> {
+        if self.spark.is_some() && !online.node_born {
+            return Ok(());
+        }
         while online.replay_budget >= 1.0
             && online.replay.len() < REPLAY_WINDOW
             && online.conn.can_publish()

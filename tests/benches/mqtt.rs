@@ -1,0 +1,236 @@
+//! MQTT publishing under load, against a real Mosquitto on loopback: 10,000 fields (10 Modbus
+//! TCP devices x 1,000 input registers, polled every 100 ms) each changing once a second,
+//! published as JSON at QoS 1; paho-mqtt subscribes and takes each message's latency from
+//! the gateway's read of the value to its delivery. Then the broker goes away while the
+//! fields change ten times faster, until a million messages wait in the buffer, and comes
+//! back: the replay rate. The gateway runs in a process of its own (the tests crate's
+//! `gateway` binary) so that its CPU time and resident size are its own.
+//! Run with `cargo bench -p iogate-tests --bench mqtt`; it prints figures.
+
+use std::path::Path;
+use std::process::Stdio;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use iogate_tests::GatewayProcess;
+use iogate_tests::devices::{ModbusDevice, modbus_tcp_server, temp_dir};
+use iogate_tests::mqtt::Broker;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+
+const DEVICES: usize = 10;
+const FIELDS: usize = 1000;
+const BUFFERED: u64 = 1_000_000;
+
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // Fields after the command's closing parenthesis; utime and stime are the 12th and 13th.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+fn rss_mib(pid: u32) -> f64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
+        .unwrap_or(0.0)
+        / 1024.0
+}
+
+fn profile() -> String {
+    let mut text = String::from("name: Bench1000\nprotocol: modbus-tcp\nfields:\n");
+    for i in 0..FIELDS {
+        text.push_str(&format!(
+            "  - {{ name: R{i}, type: UINT, direction: input, register: {{ address: {i}, kind: input_register }} }}\n"
+        ));
+    }
+    text
+}
+
+/// Every 100 ms, `slices` tenths of every device's registers change (1: each field once a
+/// second; 10: ten times a second), until `stop`.
+fn change(
+    devices: Vec<ModbusDevice>,
+    slices: usize,
+    stop: Arc<AtomicBool>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        let mut k = 0usize;
+        while !stop.load(Ordering::Relaxed) {
+            tick.tick().await;
+            for _ in 0..slices {
+                let range = (k % 10) * (FIELDS / 10)..(k % 10 + 1) * (FIELDS / 10);
+                for d in &devices {
+                    let mut t = d.tables.lock().unwrap_or_else(|e| e.into_inner());
+                    for r in range.clone() {
+                        t.input[r] = t.input[r].wrapping_add(1);
+                    }
+                }
+                k += 1;
+            }
+        }
+    })
+}
+
+async fn buffered(gw: &iogate_tests::TestGateway) -> (u64, bool) {
+    let (_, s) = gw.get("/api/v1/mqtt").await.unwrap_or_default();
+    (
+        s["buffer"]["messages"].as_u64().unwrap_or(0),
+        s["connected"] == true,
+    )
+}
+
+async fn run() -> anyhow::Result<()> {
+    let mut broker = Broker::start().await?;
+    let dir = temp_dir("bench-mqtt");
+    let profiles = dir.join("profiles");
+    std::fs::create_dir_all(&profiles)?;
+    std::fs::write(profiles.join("bench.yaml"), profile())?;
+    let mut config = format!("profiles: {}\nlinks:\n", profiles.display());
+    let mut devices = Vec::new();
+    let mut servers = Vec::new();
+    for n in 0..DEVICES {
+        let device = ModbusDevice::default();
+        let (port, task) = modbus_tcp_server(device.clone()).await;
+        devices.push(device);
+        servers.push(task);
+        config.push_str(&format!(
+            "  - {{ name: l{n}, tcp: {{ host: 127.0.0.1, port: {port} }} }}\n"
+        ));
+    }
+    config.push_str("devices:\n");
+    for n in 0..DEVICES {
+        config.push_str(&format!(
+            "  - {{ name: d{n}, profile: Bench1000, link: l{n}, slave_id: 1, refresh_rate: 100ms }}\n"
+        ));
+    }
+    config.push_str(&format!(
+        "mqtt:
+  url: mqtt://127.0.0.1:{}
+  client_id: iogate-bench
+  json: {{ prefix: bench, qos: 1, retain: false }}
+  buffer: {{ dir: {}, max_bytes: 1GiB, replay_rate: 1000000/s, fsync: second }}
+",
+        broker.port,
+        dir.join("buffer").display()
+    ));
+    let gateway =
+        GatewayProcess::start(env!("CARGO_BIN_EXE_gateway"), Path::new(&dir), &config).await?;
+    let pid = gateway.pid().ok_or_else(|| anyhow::anyhow!("no pid"))?;
+    let gw = &gateway.gateway;
+
+    let mut sub = tokio::process::Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("mqtt/bench_sub.py"))
+        .arg(broker.port.to_string())
+        .arg("bench/+/+")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()?;
+    let mut sub_in = sub.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
+    let mut sub_out =
+        BufReader::new(sub.stdout.take().ok_or_else(|| anyhow::anyhow!("stdout"))?).lines();
+    sub_out.next_line().await?;
+
+    // Steady state: 10,000 changes a second.
+    let stop = Arc::new(AtomicBool::new(false));
+    let changer = change(devices.clone(), 1, stop.clone());
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    sub_in.write_all(b"reset\n").await?;
+    let (cpu0, t0) = (cpu_seconds(pid), Instant::now());
+    let measure = Duration::from_secs(20);
+    tokio::time::sleep(measure).await;
+    let cpu = (cpu_seconds(pid) - cpu0) / t0.elapsed().as_secs_f64();
+    sub_in.write_all(b"report\n").await?;
+    let report: serde_json::Value =
+        serde_json::from_str(&sub_out.next_line().await?.unwrap_or_default())?;
+    let rate = report["count"].as_f64().unwrap_or(0.0) / measure.as_secs_f64();
+    println!(
+        "{} fields changing once a second, JSON at QoS 1 into Mosquitto on loopback:",
+        DEVICES * FIELDS
+    );
+    println!(
+        "  delivered {rate:.0} messages/s; read-to-delivery latency p50 {} ms, p99 {} ms, max {} ms",
+        report["p50_ms"], report["p99_ms"], report["max_ms"]
+    );
+    println!(
+        "  gateway CPU {:.1} % of one core, resident {:.1} MiB",
+        cpu * 100.0,
+        rss_mib(pid)
+    );
+    stop.store(true, Ordering::Relaxed);
+    changer.await?;
+
+    // The broker goes away; the fields change ten times a second until the buffer holds a
+    // million messages.
+    broker.pause().await;
+    let stop = Arc::new(AtomicBool::new(false));
+    let changer = change(devices.clone(), 10, stop.clone());
+    let (cpu0, t0) = (cpu_seconds(pid), Instant::now());
+    let start_depth = buffered(gw).await.0;
+    let depth = loop {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let (depth, _) = buffered(gw).await;
+        if depth >= BUFFERED || t0.elapsed() > Duration::from_secs(300) {
+            break depth;
+        }
+    };
+    stop.store(true, Ordering::Relaxed);
+    changer.await?;
+    let fill = t0.elapsed().as_secs_f64();
+    let fill_cpu = (cpu_seconds(pid) - cpu0) / fill;
+    let disk: u64 = std::fs::read_dir(dir.join("buffer"))?
+        .filter_map(|e| e.ok()?.metadata().ok())
+        .map(|m| m.len())
+        .sum();
+    println!(
+        "broker away: {} messages buffered in {fill:.1} s ({:.0}/s, gateway CPU {:.1} %), {:.0} MiB on disk, resident {:.1} MiB",
+        depth - start_depth,
+        (depth - start_depth) as f64 / fill,
+        fill_cpu * 100.0,
+        disk as f64 / (1 << 20) as f64,
+        rss_mib(pid)
+    );
+    let depth = buffered(gw).await.0;
+    broker.resume().await?;
+    let (cpu0, t0) = (cpu_seconds(pid), Instant::now());
+    let mut connected_at = None;
+    loop {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let (left, connected) = buffered(gw).await;
+        if connected && connected_at.is_none() {
+            connected_at = Some(t0.elapsed());
+        }
+        if (connected && left == 0) || t0.elapsed() > Duration::from_secs(900) {
+            break;
+        }
+    }
+    let took = t0.elapsed() - connected_at.unwrap_or_default();
+    println!(
+        "broker back: {depth} messages replayed in {:.1} s ({:.0}/s, gateway CPU {:.1} %, resident {:.1} MiB)",
+        took.as_secs_f64(),
+        depth as f64 / took.as_secs_f64(),
+        (cpu_seconds(pid) - cpu0) / t0.elapsed().as_secs_f64() * 100.0,
+        rss_mib(pid)
+    );
+    gateway.kill().await?;
+    drop(sub_in);
+    let _ = sub.kill().await;
+    broker.stop().await;
+    for s in servers {
+        s.abort();
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?
+        .block_on(run())
+}
