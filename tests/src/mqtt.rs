@@ -34,6 +34,8 @@ fn mosquitto() -> PathBuf {
 /// A Mosquitto broker of the test's own; stopped when dropped.
 pub struct Broker {
     pub port: u16,
+    /// The TLS listener's port ([`Broker::start_tls`]).
+    pub tls_port: Option<u16>,
     child: Option<Child>,
     config: PathBuf,
 }
@@ -50,7 +52,20 @@ impl Broker {
         Broker::start_with(true).await
     }
 
+    /// A broker with a second listener, `tls_port`, that speaks TLS with `server`'s
+    /// certificate and requires a client certificate signed by `ca` (PEM texts).
+    pub async fn start_tls(ca: &str, server: &crate::pki::Pem) -> anyhow::Result<Broker> {
+        Broker::start_with_tls(false, Some((ca, server))).await
+    }
+
     async fn start_with(persistent: bool) -> anyhow::Result<Broker> {
+        Broker::start_with_tls(persistent, None).await
+    }
+
+    async fn start_with_tls(
+        persistent: bool,
+        tls: Option<(&str, &crate::pki::Pem)>,
+    ) -> anyhow::Result<Broker> {
         install()?;
         let dir = crate::devices::temp_dir("mosquitto");
         // A free port: bind, note, release (mosquitto binds it next).
@@ -66,12 +81,31 @@ impl Broker {
         } else {
             "persistence false\n".to_owned()
         };
+        let (tls_port, tls_listener) = match tls {
+            None => (None, String::new()),
+            Some((ca, server)) => {
+                let tls_port = std::net::TcpListener::bind("127.0.0.1:0")?
+                    .local_addr()?
+                    .port();
+                std::fs::write(dir.join("ca.pem"), ca)?;
+                std::fs::write(dir.join("server.pem"), &server.cert)?;
+                std::fs::write(dir.join("server.key"), &server.key)?;
+                (
+                    Some(tls_port),
+                    format!(
+                        "listener {tls_port} 127.0.0.1\ncafile {d}/ca.pem\ncertfile {d}/server.pem\nkeyfile {d}/server.key\nrequire_certificate true\n",
+                        d = dir.display()
+                    ),
+                )
+            }
+        };
         std::fs::write(
             &config,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\n{persistence}"),
+            format!("allow_anonymous true\n{persistence}listener {port} 127.0.0.1\n{tls_listener}"),
         )?;
         let mut broker = Broker {
             port,
+            tls_port,
             child: None,
             config,
         };

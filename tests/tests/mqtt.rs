@@ -780,3 +780,65 @@ mqtt:
     peer.stop().await;
     broker.stop().await;
 }
+
+#[tokio::test]
+async fn mqtts_with_a_client_certificate_and_mqtt_5() {
+    let ca = iogate_tests::pki::TestCa::new("mqtt-test-ca").expect("ca");
+    let broker = Broker::start_tls(&ca.pem(), &ca.server().expect("server"))
+        .await
+        .expect("mosquitto");
+    let tls_port = broker.tls_port.expect("tls port");
+    let dir = iogate_tests::devices::temp_dir("mqtt-tls");
+    let client = ca.client("iogate-line1").expect("client");
+    std::fs::write(dir.join("ca.pem"), ca.pem()).expect("ca");
+    std::fs::write(dir.join("client.pem"), &client.cert).expect("cert");
+    std::fs::write(dir.join("client.key"), &client.key).expect("key");
+    let mut peer = Peer::subscribe(&broker, "iogate/#").await.expect("paho");
+    let config = |cert: bool| {
+        let tls = if cert {
+            format!(
+                "{{ ca: {d}/ca.pem, cert: {d}/client.pem, key: {d}/client.key }}",
+                d = dir.display()
+            )
+        } else {
+            format!("{{ ca: {}/ca.pem }}", dir.display())
+        };
+        format!(
+            "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
+mqtt:
+  url: mqtts://127.0.0.1:{tls_port}
+  client_id: iogate-tls
+  version: 5
+  tls: {tls}
+  json: {{ prefix: iogate/tls, qos: 1 }}
+"
+        )
+    };
+    // With its certificate: connected over TLS with MQTT 5, and what it publishes arrives
+    // (the peer is on the broker's plain listener).
+    let gw = TestGateway::start(&config(true)).await.expect("gateway");
+    let di = peer
+        .until(|m| m.topic == "iogate/tls/sim/DI_0")
+        .await
+        .expect("DI_0 over TLS");
+    assert_eq!(di.json()["field"], "DI_0");
+    gw.until("/api/v1/mqtt", "connected", |s| {
+        s["connected"] == true && s["broker"] == format!("mqtts://127.0.0.1:{tls_port}")
+    })
+    .await
+    .expect("connected");
+    gw.shutdown().await;
+    // Without one, the broker refuses it: not connected, and the status says why.
+    let gw = TestGateway::start(&config(false)).await.expect("gateway");
+    let status = gw
+        .until("/api/v1/mqtt", "refused", |s| {
+            s["connected"] == false && s["last_error"].is_string()
+        })
+        .await
+        .expect("refused");
+    assert_eq!(status["messages_out"], 0, "{status}");
+    gw.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}
