@@ -203,14 +203,12 @@ function cell(label, ...children) {
   return h('td', { 'data-label': label }, ...children);
 }
 
-/** The MQTT front-end's state (GET /api/v1/mqtt), or null when none is configured. */
+/** The MQTT front-end's state (GET /api/v1/mqtt), or null when none is configured (then
+ * /readyz has no `mqtt` detail, and the page does not ask for what would be a 404). */
 async function mqttStatus(signal) {
-  try {
-    return await api('GET', '/mqtt', undefined, { signal });
-  } catch (e) {
-    if (e.status === 404) return null;
-    throw e;
-  }
+  const ready = await fetch('/readyz', { signal }).then((r) => r.json()).catch(() => null);
+  if (!ready?.mqtt) return null;
+  return api('GET', '/mqtt', undefined, { signal });
 }
 
 function mqttRows(m) {
