@@ -441,7 +441,7 @@ mod tests {
         );
         assert_eq!(decode(v, &mut b), Ok(Some(Incoming::PingResp)));
         // MQTT 5: a SUBACK has properties before its codes.
-        let mut b = vec![0x90, 6, 0, 9, 3, 0x1F, 0, 0, 0x80];
+        let mut b = vec![0x90, 7, 0, 9, 3, 0x1F, 0, 0, 0x80];
         assert_eq!(
             decode(MqttVersion::V5, &mut b),
             Ok(Some(Incoming::SubAck {
