@@ -492,7 +492,7 @@ impl Metrics {
     pub(crate) fn render(
         &self,
         cache: &Cache,
-        mqtt: Option<&crate::service::MqttStatus>,
+        mqtt: Option<&crate::mqtt_status::MqttStatus>,
         format: Format,
     ) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.

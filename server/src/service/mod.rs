@@ -5,7 +5,6 @@
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
 mod modbus_map;
-mod mqtt_status;
 mod refusal;
 mod select;
 mod standing;
@@ -24,8 +23,8 @@ use crate::profile::Profile;
 use crate::runtime::Tasks;
 
 pub(crate) use crate::cache::Refusal;
+pub(crate) use crate::mqtt_status::{MqttState, MqttStatus, SparkplugStatus};
 pub(crate) use modbus_map::ModbusImage;
-pub(crate) use mqtt_status::{MqttState, MqttStatus, SparkplugStatus};
 pub(crate) use select::Selection;
 pub(crate) use standing::{Standing, StandingSet, StandingStatus};
 pub(crate) use subscribe::{Change, Changes};
