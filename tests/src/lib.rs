@@ -94,20 +94,7 @@ impl GatewayProcess {
             .strip_prefix("http ")
             .ok_or_else(|| anyhow::anyhow!("unexpected first line: {line}"))?;
         let gateway = TestGateway::remote(format!("http://{addr}"));
-        let ready = gateway.url("/readyz");
-        let client = gateway.client.clone();
-        eventually("gateway ready", || {
-            let ready = ready.clone();
-            let client = client.clone();
-            async move {
-                client
-                    .get(&ready)
-                    .send()
-                    .await
-                    .is_ok_and(|r| r.status().is_success())
-            }
-        })
-        .await?;
+        gateway.until_ready().await?;
         Ok(GatewayProcess { child, gateway })
     }
 
@@ -148,6 +135,24 @@ impl TestGateway {
         TestGateway::start_setup(setup_on(config_yaml, http)?).await
     }
 
+    /// Waits until `/readyz` answers 200.
+    async fn until_ready(&self) -> anyhow::Result<()> {
+        let ready = self.url("/readyz");
+        let client = self.client.clone();
+        eventually("gateway ready", || {
+            let ready = ready.clone();
+            let client = client.clone();
+            async move {
+                client
+                    .get(&ready)
+                    .send()
+                    .await
+                    .is_ok_and(|r| r.status().is_success())
+            }
+        })
+        .await
+    }
+
     /// A gateway running in another process (see [`GatewayProcess`]), asked over HTTP.
     pub fn remote(base: String) -> TestGateway {
         TestGateway {
@@ -185,20 +190,7 @@ impl TestGateway {
             modbus: running.modbus_addr,
             running: Some(running),
         };
-        let ready = gateway.url("/readyz");
-        let client = gateway.client.clone();
-        eventually("gateway ready", || {
-            let ready = ready.clone();
-            let client = client.clone();
-            async move {
-                client
-                    .get(&ready)
-                    .send()
-                    .await
-                    .is_ok_and(|r| r.status().is_success())
-            }
-        })
-        .await?;
+        gateway.until_ready().await?;
         Ok(gateway)
     }
 

@@ -98,7 +98,8 @@ pub struct ModbusServerConfig {
     pub(crate) line: u64,
 }
 
-fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
+/// A YAML boolean (the MQTT section reads its flags with it too).
+pub(super) fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
     match node.kind {
         Kind::Bool(b) => Some(b),
         _ => {

@@ -6,6 +6,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use super::modbus_server::boolean;
 use crate::duration;
 use crate::yaml::{Kind, Node, Report};
 
@@ -304,20 +305,6 @@ pub(crate) fn parse_size(text: &str) -> Option<u64> {
         _ => return None,
     };
     n.checked_mul(factor)
-}
-
-fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
-    match node.kind {
-        Kind::Bool(b) => Some(b),
-        _ => {
-            report.push(
-                node.line,
-                ctx,
-                format!("expected true or false, found {}", node.describe()),
-            );
-            None
-        }
-    }
 }
 
 fn duration_at(node: &Node, report: &mut Report, ctx: &str) -> Option<Duration> {
