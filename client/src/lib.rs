@@ -403,6 +403,11 @@ impl Client {
                 Some(pb::update::Kind::Diagnostics(d)) => {
                     Ok(Update::Diagnostics(Diagnostics::from_pb(d)))
                 }
+                Some(pb::update::Kind::Removed(r)) => Ok(Update::Removed {
+                    device: r.device,
+                    field: (!r.field.is_empty()).then_some(r.field),
+                    reason: r.reason,
+                }),
                 Some(pb::update::Kind::Transaction(_)) | None => Err(Error::Protocol(
                     "an update this client did not ask for".into(),
                 )),

@@ -274,6 +274,16 @@ pub enum Update {
     Value(FieldValue),
     /// A device's new diagnostics.
     Diagnostics(Diagnostics),
+    /// The field (or, with no field, the whole device) was removed, by a configuration
+    /// reload or a removal: its last update.
+    Removed {
+        /// The device.
+        device: String,
+        /// The field; none when the whole device was removed.
+        field: Option<String>,
+        /// Why.
+        reason: String,
+    },
 }
 
 /// Where a write stands.

@@ -5,6 +5,7 @@
 
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::{Arc, RwLock};
 
 /// What a token allows; each role includes the ones before it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -208,6 +209,8 @@ pub(crate) enum Operation {
     Declare,
     /// Removing what was declared.
     Remove,
+    /// Loading the configuration again and applying what changed.
+    Reload,
 }
 
 impl Operation {
@@ -219,12 +222,79 @@ impl Operation {
             | Operation::Simulate
             | Operation::Transact
             | Operation::SwitchTransaction => Role::Write,
-            Operation::Declare | Operation::Remove => Role::Admin,
+            Operation::Declare | Operation::Remove | Operation::Reload => Role::Admin,
         }
     }
 }
 
+/// The tokens in force: every clone sees the same table, which a configuration reload
+/// replaces whole (a request is checked against the old table or the new, never a mix).
+#[derive(Clone, Default)]
+pub struct TokenTable(Arc<RwLock<Arc<Tokens>>>);
+
+impl std::fmt::Debug for TokenTable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.current().fmt(f)
+    }
+}
+
+impl TokenTable {
+    pub(crate) fn current(&self) -> Arc<Tokens> {
+        self.0.read().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Puts `tokens` in force for every request from now on.
+    pub(crate) fn replace(&self, tokens: Tokens) {
+        *self.0.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(tokens);
+    }
+
+    /// Whether a request with `authorization` (the header's value) may do `operation`.
+    pub(crate) fn allows(
+        &self,
+        authorization: Option<&str>,
+        operation: Operation,
+    ) -> Result<(), Denied> {
+        self.current().allows(authorization, operation)
+    }
+}
+
 impl Tokens {
+    /// What changed from `self` to `new`, never naming a token: how many were added and
+    /// removed and whose role changed, by role.
+    pub(crate) fn changes_to(&self, new: &Tokens) -> Vec<String> {
+        let mut changes = Vec::new();
+        let count = |f: &dyn Fn(&String, &Role) -> bool, map: &HashMap<String, Role>| {
+            let mut by_role: Vec<(Role, usize)> = Vec::new();
+            for (token, role) in map {
+                if f(token, role) {
+                    match by_role.iter_mut().find(|(r, _)| r == role) {
+                        Some((_, n)) => *n += 1,
+                        None => by_role.push((*role, 1)),
+                    }
+                }
+            }
+            by_role.sort();
+            by_role
+                .into_iter()
+                .map(|(r, n)| format!("{n} {}", r.name()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let added = count(&|t, _| !self.0.contains_key(t), &new.0);
+        let removed = count(&|t, _| !new.0.contains_key(t), &self.0);
+        let role = count(&|t, r| self.0.get(t).is_some_and(|old| old != r), &new.0);
+        for (what, list) in [
+            ("added", added),
+            ("removed", removed),
+            ("given another role", role),
+        ] {
+            if !list.is_empty() {
+                changes.push(format!("tokens {what}: {list}"));
+            }
+        }
+        changes
+    }
+
     /// Whether a request with `authorization` (the header's value) may do `operation`.
     pub(crate) fn allows(
         &self,

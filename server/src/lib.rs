@@ -21,6 +21,7 @@ pub(crate) mod mqtt_status;
 pub mod plan;
 pub(crate) mod poller;
 pub mod profile;
+pub(crate) mod reload;
 pub(crate) mod runtime;
 pub mod service;
 pub(crate) mod sim;

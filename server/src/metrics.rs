@@ -41,6 +41,8 @@ pub const DEVICE_ERROR_CODE: &str = "iogate_device_error_code";
 pub const DEVICE_IO_CYCLES: &str = "iogate_device_io_cycles";
 pub const DEVICE_MISMATCHED_OUTPUTS: &str = "iogate_device_mismatched_outputs";
 pub const DEVICE_SAFE_WRITES: &str = "iogate_device_safe_value_writes";
+/// Counted by result (`_total` is added by the registry).
+pub const CONFIG_RELOADS: &str = "iogate_config_reloads";
 pub const DEVICE_RESPONSE_TIME: &str = "iogate_device_response_time_seconds";
 pub const DEVICE_REQUESTS: &str = "iogate_device_requests";
 pub const DEVICE_TIMEOUTS: &str = "iogate_device_timeouts";
@@ -75,6 +77,11 @@ pub(crate) struct DroppedLabels {
     /// `busy` (the inbox was full), `expired` (its deadline would pass), `abandoned` (its
     /// caller had gone).
     pub(crate) reason: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub(crate) struct ResultLabels {
+    pub(crate) result: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
@@ -144,6 +151,7 @@ pub struct Metrics {
     device_io_cycles: Family<DeviceLabels, Counter>,
     device_mismatched: Family<DeviceLabels, Gauge>,
     safe_writes: Family<DeviceLabels, Counter>,
+    config_reloads: Family<ResultLabels, Counter>,
     response_time: Family<DeviceLabels, Histogram, fn() -> Histogram>,
     requests: Family<RequestLabels, Counter>,
     timeouts: Family<DeviceLabels, Counter>,
@@ -191,6 +199,7 @@ impl Metrics {
             device_io_cycles: Family::default(),
             device_mismatched: Family::default(),
             safe_writes: Family::default(),
+            config_reloads: Family::default(),
             response_time: Family::new_with_constructor(response_histogram),
             requests: Family::default(),
             timeouts: Family::default(),
@@ -230,6 +239,16 @@ impl Metrics {
             "Safe values written because the scan-cycle client that wrote the output was lost (on_client_loss)",
             m.safe_writes.clone(),
         );
+        registry.register(
+            CONFIG_RELOADS,
+            "Configuration reloads by result: applied, unchanged, invalid (nothing changed), failed (nothing changed)",
+            m.config_reloads.clone(),
+        );
+        for result in ["applied", "unchanged", "invalid", "failed"] {
+            let _ = m.config_reloads.get_or_create(&ResultLabels {
+                result: result.to_owned(),
+            });
+        }
         registry.register(
             LINK_RECONNECTS,
             "Times the link was reopened after it was lost",
@@ -474,6 +493,15 @@ impl Metrics {
     }
 
     /// A safe value was written for `device` after its client was lost.
+    /// A configuration reload ended with `result`.
+    pub(crate) fn config_reload(&self, result: &str) {
+        self.config_reloads
+            .get_or_create(&ResultLabels {
+                result: result.to_owned(),
+            })
+            .inc();
+    }
+
     pub(crate) fn safe_value_written(&self, device: &str) {
         self.safe_writes
             .get_or_create(&DeviceLabels {

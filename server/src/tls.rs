@@ -50,13 +50,13 @@ type Contents = Vec<Vec<u8>>;
 
 /// The listeners' TLS configuration, replaced as a whole when its files change.
 pub(crate) struct Tls {
-    files: TlsFiles,
+    files: RwLock<TlsFiles>,
     current: RwLock<(Arc<ServerConfig>, Contents)>,
 }
 
 impl std::fmt::Debug for Tls {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Tls").field("files", &self.files).finish()
+        f.debug_struct("Tls").field("files", &self.files()).finish()
     }
 }
 
@@ -66,14 +66,39 @@ impl Tls {
         let contents = read_all(&files)?;
         let config = build(&files, &contents)?;
         Ok(Tls {
-            files,
+            files: RwLock::new(files),
             current: RwLock::new((config, contents)),
         })
     }
 
+    fn files(&self) -> TlsFiles {
+        match self.files.read() {
+            Ok(files) => files.clone(),
+            Err(poisoned) => poisoned.into_inner().clone(),
+        }
+    }
+
+    /// Serves the next connections with `other`'s files and configuration (a reload
+    /// named other files); open connections keep theirs.
+    pub(crate) fn replace(&self, other: &Tls) {
+        let files = other.files();
+        let current = match other.current.read() {
+            Ok(c) => c.clone(),
+            Err(poisoned) => poisoned.into_inner().clone(),
+        };
+        match self.files.write() {
+            Ok(mut f) => *f = files,
+            Err(poisoned) => *poisoned.into_inner() = files,
+        }
+        match self.current.write() {
+            Ok(mut c) => *c = current,
+            Err(poisoned) => *poisoned.into_inner() = current,
+        }
+    }
+
     /// Whether clients must present a certificate.
     pub(crate) fn requires_client_certificates(&self) -> bool {
-        self.files.client_ca.is_some()
+        self.files().client_ca.is_some()
     }
 
     /// The configuration new connections are served with.
@@ -88,7 +113,8 @@ impl Tls {
     /// Reads the files again; when they changed and load, they serve the next connections.
     /// `Ok(true)` when the configuration was replaced.
     pub(crate) fn reload(&self) -> Result<bool, TlsError> {
-        let contents = read_all(&self.files)?;
+        let files = self.files();
+        let contents = read_all(&files)?;
         let unchanged = match self.current.read() {
             Ok(current) => current.1 == contents,
             Err(poisoned) => poisoned.into_inner().1 == contents,
@@ -96,7 +122,7 @@ impl Tls {
         if unchanged {
             return Ok(false);
         }
-        let config = build(&self.files, &contents)?;
+        let config = build(&files, &contents)?;
         let mut current = match self.current.write() {
             Ok(current) => current,
             Err(poisoned) => poisoned.into_inner(),
@@ -120,7 +146,7 @@ impl Tls {
             };
             match self.reload() {
                 Ok(true) => {
-                    tracing::info!(cert = %self.files.cert.display(), "TLS certificate reloaded");
+                    tracing::info!(cert = %self.files().cert.display(), "TLS certificate reloaded");
                     last_error = None;
                 }
                 Ok(false) if on_signal => {

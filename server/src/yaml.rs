@@ -20,6 +20,17 @@ pub struct Problem {
     pub(crate) message: String,
 }
 
+impl Problem {
+    /// What is wrong, with what it concerns (`context: message`), without file and line.
+    pub(crate) fn what(&self) -> String {
+        if self.context.is_empty() {
+            self.message.clone()
+        } else {
+            format!("{}: {}", self.context, self.message)
+        }
+    }
+}
+
 impl fmt::Display for Problem {
     /// `file:line: context: message`; a message's further lines (iogate's detail after a
     /// source document's own words) are indented under it.

@@ -204,6 +204,8 @@ pub struct Seen {
     pub count: u16,
     /// FC06: the value written.
     pub value: Option<u16>,
+    /// When the request was read.
+    pub at: std::time::Instant,
 }
 
 #[derive(Debug, Default)]
@@ -288,6 +290,7 @@ impl RtuBus {
             address,
             count,
             value: (function == 6).then(|| u16::from_be_bytes([frame[4], frame[5]])),
+            at: std::time::Instant::now(),
         });
         let slave = state.slaves.get_mut(&slave_id)?;
         let write = matches!(function, 5 | 6 | 15 | 16);

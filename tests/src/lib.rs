@@ -176,7 +176,8 @@ impl TestGateway {
         TestGateway::start_setup(setup).await
     }
 
-    async fn start_setup(setup: Setup) -> anyhow::Result<TestGateway> {
+    /// Starts the gateway from a checked setup (a config file's, say).
+    pub async fn start_setup(setup: Setup) -> anyhow::Result<TestGateway> {
         // Logs show with `RUST_LOG=iogate=debug cargo test -- --nocapture`.
         let _ = tracing_subscriber::fmt()
             .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())

@@ -462,6 +462,7 @@ fn needed_rest(method: &str, path: &str) -> Option<usize> {
         "get" => 1,
         "delete" => 3,
         "put" if declaration => 3,
+        "post" if path == "/api/v1/config/reload" => 3,
         _ => 2,
     })
 }
@@ -533,7 +534,7 @@ async fn every_rpc_of_the_service_refuses_each_role_below_its_own() {
         .expect("channel");
     for method in &methods {
         let needed = match method.as_str() {
-            m if m.starts_with("Ensure") || m.starts_with("Remove") => 3,
+            m if m.starts_with("Ensure") || m.starts_with("Remove") || m == "ReloadConfig" => 3,
             "Write" | "Exchange" | "Transact" | "SetTransaction" => 2,
             _ => 1,
         };

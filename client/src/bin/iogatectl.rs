@@ -344,6 +344,14 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                             "{}: connected={} error_code={}",
                             d.device, d.connected, d.error_code
                         ),
+                        Update::Removed {
+                            device,
+                            field,
+                            reason,
+                        } => match field {
+                            Some(f) => println!("{device}.{f} removed: {reason}"),
+                            None => println!("{device} removed: {reason}"),
+                        },
                     }
                     continue;
                 }
@@ -354,6 +362,15 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     Update::Diagnostics(d) => {
                         diagnostics.insert(d.device.clone(), d);
                     }
+                    Update::Removed { device, field, .. } => match field {
+                        Some(f) => {
+                            table.remove(&(device, f));
+                        }
+                        None => {
+                            table.retain(|(d, _), _| *d != device);
+                            diagnostics.remove(&device);
+                        }
+                    },
                 }
                 if drawn.elapsed() >= Duration::from_millis(100) {
                     drawn = Instant::now();

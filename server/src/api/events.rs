@@ -20,6 +20,17 @@ use crate::service::{Change, Service};
 pub(crate) const EVENT_VALUE: &str = "value";
 pub(crate) const EVENT_DIAGNOSTICS: &str = "diagnostics";
 pub(crate) const EVENT_TRANSACTION: &str = "transaction";
+/// A field or device the stream followed was removed (its last event).
+pub(crate) const EVENT_REMOVED: &str = "removed";
+
+/// The data of a `removed` event: the device, the field (none: the whole device), why.
+#[derive(Debug, Serialize)]
+struct RemovedEvent {
+    device: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    field: Option<String>,
+    reason: &'static str,
+}
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
 fn event(name: &str, data: &impl Serialize) -> Event {
@@ -65,7 +76,7 @@ pub(crate) async fn events(
     let devices: Vec<&String> = query.get("device").into_iter().collect();
     let mut selection = service.select::<_, &str>(&devices, &[])?;
     if !values {
-        selection.fields.clear();
+        selection = selection.without_values();
     }
     // Standing transactions with everything, not with one device.
     let transactions = if devices.is_empty() {
@@ -101,6 +112,18 @@ pub(crate) async fn events(
                     error_code: d.error_code.code(),
                     io_cycles: d.io_cycles,
                     last_response_ms: d.last_response_ms,
+                },
+            ),
+            Change::Removed {
+                device,
+                field,
+                reason,
+            } => event(
+                EVENT_REMOVED,
+                &RemovedEvent {
+                    device,
+                    field,
+                    reason,
                 },
             ),
         })

@@ -16,6 +16,7 @@ use crate::auth::Operation;
 use crate::codec::{Value, ValueError};
 use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration};
 use crate::service::Refusal;
+use crate::service::ReloadError;
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 use crate::transaction::TransactionSpec;
 
@@ -63,6 +64,7 @@ pub(crate) fn operation(path: &str) -> Option<Operation> {
         "SetTransaction" => Operation::SwitchTransaction,
         "EnsureLink" | "EnsureDevice" | "EnsureTransaction" => Operation::Declare,
         "RemoveDevice" | "RemoveLink" | "RemoveTransaction" => Operation::Remove,
+        "ReloadConfig" => Operation::Reload,
         // Not a method of the service (UNIMPLEMENTED): as a read.
         _ => Operation::Read,
     })
@@ -173,6 +175,7 @@ impl Gateway for GrpcApi {
             profiles: self
                 .service
                 .profiles()
+                .iter()
                 .map(|p| to_pb::profile(p, false))
                 .collect(),
         }))
@@ -186,7 +189,7 @@ impl Gateway for GrpcApi {
             .service
             .profile(&request.get_ref().name)
             .map_err(status)?;
-        Ok(Response::new(to_pb::profile(profile, true)))
+        Ok(Response::new(to_pb::profile(&profile, true)))
     }
 
     async fn list_links(
@@ -316,6 +319,15 @@ impl Gateway for GrpcApi {
                     device,
                     diagnostics,
                 } => pb::update::Kind::Diagnostics(to_pb::diagnostics(&device, &diagnostics)),
+                Change::Removed {
+                    device,
+                    field,
+                    reason,
+                } => pb::update::Kind::Removed(pb::Removed {
+                    device,
+                    field: field.unwrap_or_default(),
+                    reason: reason.to_owned(),
+                }),
             };
             Ok(pb::Update { kind: Some(kind) })
         });
@@ -548,6 +560,27 @@ impl Gateway for GrpcApi {
             .remove_transaction(&request.into_inner().name)
             .map_err(status)?;
         Ok(Response::new(pb::RemoveTransactionResponse {}))
+    }
+
+    async fn reload_config(
+        &self,
+        request: Request<pb::ReloadConfigRequest>,
+    ) -> Result<Response<pb::ReloadConfigResponse>, Status> {
+        let dry_run = request.into_inner().dry_run;
+        let report = self
+            .service
+            .reload(crate::service::Trigger::Grpc, dry_run)
+            .await
+            .map_err(|e| match e {
+                ReloadError::Invalid(problems) => Status::invalid_argument(format!(
+                    "invalid configuration; nothing was changed:\n{problems}"
+                )),
+                other => Status::failed_precondition(other.to_string()),
+            })?;
+        Ok(Response::new(pb::ReloadConfigResponse {
+            applied: !dry_run,
+            report: Some(to_pb::config_report(&report)),
+        }))
     }
 }
 

@@ -3,6 +3,7 @@
 //! reflection) on its own. Each handler parses, calls the service, and maps the answer.
 
 pub(crate) mod accept;
+pub(crate) mod config;
 pub(crate) mod convert;
 pub(crate) mod declare;
 pub(crate) mod error;
@@ -55,6 +56,7 @@ pub(crate) const MAX_BODY: usize = 1024 * 1024;
         transactions::enable_standing,
         transactions::disable_standing, transactions::trigger_standing,
         transactions::put_standing_values,
+        config::get_config, config::reload,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
@@ -63,6 +65,7 @@ pub(crate) const MAX_BODY: usize = 1024 * 1024;
         (name = "health", description = "liveness and readiness"),
         (name = "transactions", description = "raw Modbus transactions: one-shot and standing"),
         (name = "modbus", description = "the Modbus TCP server's map of IEC located addresses, and its memory"),
+        (name = "config", description = "the configuration in force, and reloading it without a restart"),
     )
 )]
 pub(crate) struct ApiDoc;
@@ -162,6 +165,8 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
     let api = Router::new()
         .route("/openapi.json", needs(s, Read, get(openapi_json)))
         .route("/links", needs(s, Read, get(rest::list_links)))
+        .route("/config", needs(s, Read, get(config::get_config)))
+        .route("/config/reload", needs(s, Reload, post(config::reload)))
         .route("/mqtt", needs(s, Read, get(rest::get_mqtt)))
         .route(
             "/links/{link}",
@@ -321,7 +326,7 @@ pub(crate) async fn serve_grpc(
 #[derive(Clone)]
 struct GrpcAuth<S> {
     inner: S,
-    tokens: crate::auth::Tokens,
+    tokens: crate::auth::TokenTable,
 }
 
 impl<S, B> tower::Service<axum::http::Request<B>> for GrpcAuth<S>

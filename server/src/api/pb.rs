@@ -186,3 +186,24 @@ pub(crate) fn write_status(r: &WriteRecord, ty: Option<IecType>) -> pb::WriteSta
         attempts: r.attempts,
     }
 }
+
+/// A reload's report.
+pub(crate) fn config_report(r: &crate::service::Report) -> pb::ConfigReport {
+    pb::ConfigReport {
+        changes: r
+            .changes
+            .iter()
+            .map(|c| pb::ConfigChange {
+                kind: c.kind.name().to_owned(),
+                name: c.name.clone(),
+                action: c.action.name().to_owned(),
+                details: c.details.clone(),
+            })
+            .collect(),
+        reopened: r.reopened.clone(),
+        took_ms: r.took_ms,
+        trigger: r.trigger.name().to_owned(),
+        config_hash: r.config_hash.clone(),
+        at_unix_ms: r.at_unix_ms,
+    }
+}

@@ -388,7 +388,11 @@ pub(crate) async fn get_write(
 #[utoipa::path(get, path = "/api/v1/profiles", tag = "profiles", responses((status = 200, description = "every loaded profile", body = ProfileList)))]
 pub(crate) async fn list_profiles(State(service): ServiceRef) -> Json<ProfileList> {
     Json(ProfileList {
-        profiles: service.profiles().map(|p| profile_summary(p)).collect(),
+        profiles: service
+            .profiles()
+            .iter()
+            .map(|p| profile_summary(p))
+            .collect(),
     })
 }
 
@@ -407,7 +411,7 @@ pub(crate) async fn get_profile_st(
             axum::http::header::CONTENT_TYPE,
             "text/plain; charset=utf-8",
         )],
-        crate::profile::st_declaration(profile),
+        crate::profile::st_declaration(&profile),
     ))
 }
 
@@ -419,5 +423,6 @@ pub(crate) async fn get_profile(
     State(service): ServiceRef,
     Path(name): Path<String>,
 ) -> Result<Json<ProfileDetail>, ApiError> {
-    Ok(Json(profile_detail(service.profile(&name)?)))
+    let profile = service.profile(&name)?;
+    Ok(Json(profile_detail(&profile)))
 }

@@ -23,9 +23,12 @@ pub(crate) const SIM_STRING_MAX: usize = 254;
 pub struct Device {
     pub(crate) config: DeviceConfig,
     pub(crate) profile: Arc<Profile>,
-    samples: Vec<watch::Sender<Sample>>,
-    diagnostics: watch::Sender<Diagnostics>,
+    /// Shared with the device that replaces this one on a reload, for the fields both have.
+    samples: Vec<Arc<watch::Sender<Sample>>>,
+    diagnostics: Arc<watch::Sender<Diagnostics>>,
     outputs: Outputs,
+    /// Whether the device is polled as it is, was replaced by a re-planned one, or removed.
+    fate: watch::Sender<Fate>,
     /// Values of a simulated device's fields.
     sim: Option<Mutex<Vec<Value>>>,
     /// The link and slave id the device is polled with; a device declared at run time
@@ -37,6 +40,22 @@ pub struct Device {
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
     /// When its last I/O cycle ended, answered or not.
     last_cycle: Mutex<Option<tokio::time::Instant>>,
+    /// Whether its link's task writes the newest requested outputs when it first polls it
+    /// (a new device, or one a reload moved to another link or slave id); a device
+    /// re-planned in place does not: its outputs were written already.
+    rewrite_first: bool,
+}
+
+/// What became of a device: the streams that follow it carry on with its successor's
+/// fields, or end with the reason.
+#[derive(Debug, Clone)]
+pub(crate) enum Fate {
+    Live,
+    /// Re-planned by a configuration reload: this device carries on, sharing the values and
+    /// subscribers of every field both have.
+    Replaced(Arc<Device>),
+    /// Removed, for this reason.
+    Removed(&'static str),
 }
 
 /// Where a device is reached.
@@ -76,15 +95,16 @@ impl Device {
         let error_code = binding.code(simulated);
         Device {
             samples: (0..n)
-                .map(|_| watch::Sender::new(Sample::never_read()))
+                .map(|_| Arc::new(watch::Sender::new(Sample::never_read())))
                 .collect(),
-            diagnostics: watch::Sender::new(Diagnostics {
+            diagnostics: Arc::new(watch::Sender::new(Diagnostics {
                 connected: simulated,
                 error_code,
                 io_cycles: 0,
                 last_response_ms: 0.0,
-            }),
+            })),
             outputs: Outputs::new(n, log),
+            fate: watch::Sender::new(Fate::Live),
             sim: simulated
                 .then(|| Mutex::new(profile.fields.iter().map(|f| Value::zero(f.ty)).collect())),
             config,
@@ -93,7 +113,128 @@ impl Device {
             wake: Mutex::new(wake),
             task: Mutex::new(None),
             last_cycle: Mutex::new(None),
+            rewrite_first: true,
         }
+    }
+
+    /// Whether the newest requested outputs are written when the device is first polled.
+    pub(crate) fn rewrite_first(&self) -> bool {
+        self.rewrite_first
+    }
+
+    /// Marks every good value stale (its link is being reopened): it stays, and is good
+    /// again when read again.
+    pub(crate) fn mark_stale(&self) {
+        for sample in &self.samples {
+            sample.send_if_modified(|s| {
+                let good = s.quality == Quality::Good;
+                if good {
+                    s.quality = Quality::Stale;
+                    s.stale_told = true;
+                }
+                good
+            });
+        }
+    }
+
+    /// The device that carries on from `old` with another configuration or profile: every
+    /// field of the same name and type keeps its value, quality, timestamp, subscribers and
+    /// requested outputs (a write waiting for the bus is taken over, never lost or sent
+    /// twice), the diagnostics go on; fields that are new start never read. `old` is not
+    /// changed until [`Device::replaced_by`].
+    pub(crate) fn succeed(
+        old: &Device,
+        config: DeviceConfig,
+        profile: Arc<Profile>,
+        log: Arc<WriteLog>,
+        wake: Arc<Notify>,
+    ) -> Self {
+        let mut next = Device::new(config, profile, log, wake);
+        let mut kept = Vec::new();
+        for (idx, field) in next.profile.fields.iter().enumerate() {
+            if let Some(before) = old.kept_field(field) {
+                next.samples[idx] = old.samples[before].clone();
+                let same_registers = old.field(before).encoding == field.encoding
+                    && old.field(before).register == field.register;
+                kept.push((before, idx, same_registers));
+            }
+        }
+        if next.is_simulated() == old.is_simulated() {
+            next.diagnostics = old.diagnostics.clone();
+            let code = next.binding().code(next.is_simulated());
+            if next.binding() != old.binding() {
+                next.diagnostics.send_if_modified(|d| {
+                    let changed = d.connected != next.is_simulated() || d.error_code != code;
+                    d.connected = next.is_simulated();
+                    d.error_code = code;
+                    changed
+                });
+            }
+        }
+        if let (Some(from), Some(to)) = (&old.sim, &next.sim) {
+            let from = lock(from);
+            let mut to = lock(to);
+            for &(before, idx, _) in &kept {
+                to[idx] = from[before].clone();
+            }
+        }
+        next.outputs.take_over(&old.outputs, &kept);
+        next.rewrite_first = next.binding() != old.binding();
+        *lock(&next.last_cycle) = *lock(&old.last_cycle);
+        next
+    }
+
+    /// The index of the field of this device that `field` of a successor keeps: the same
+    /// name (ignoring case) and type.
+    fn kept_field(&self, field: &Field) -> Option<usize> {
+        self.profile
+            .field_index(&field.name)
+            .filter(|&i| self.field(i).ty == field.ty)
+    }
+
+    /// This device was replaced by `next` (a reload re-planned it): its own task stops, the
+    /// writes it still held for removed fields fail, and whoever follows it moves to `next`.
+    pub(crate) fn replaced_by(&self, next: Arc<Device>) {
+        if let Some(token) = self.task.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            token.cancel();
+        }
+        for w in self.take_writes() {
+            self.finish_write(w.generation, Err(WriteError::Removed));
+        }
+        self.fate.send_replace(Fate::Replaced(next));
+    }
+
+    /// Whether the device is live, replaced or removed; each change is seen by the receiver.
+    pub(crate) fn watch_fate(&self) -> watch::Receiver<Fate> {
+        self.fate.subscribe()
+    }
+
+    /// The device that is polled in this one's place now: itself, or the newest of the
+    /// devices that replaced it.
+    pub(crate) fn current(self: &Arc<Self>) -> Arc<Device> {
+        let mut device = self.clone();
+        loop {
+            let next = match &*device.fate.borrow() {
+                Fate::Replaced(next) => Some(next.clone()),
+                Fate::Live | Fate::Removed(_) => None,
+            };
+            match next {
+                Some(next) => device = next,
+                None => return device,
+            }
+        }
+    }
+
+    /// Whether the device was removed (not replaced).
+    pub(crate) fn is_removed(&self) -> bool {
+        matches!(*self.fate.borrow(), Fate::Removed(_))
+    }
+
+    /// Field `idx` of this device in `next` (which replaced it), when `next` kept it.
+    pub(crate) fn kept_in(&self, idx: usize, next: &Device) -> Option<usize> {
+        next.samples
+            .iter()
+            .position(|s| Arc::ptr_eq(s, &self.samples[idx]))
     }
 
     /// Remembers the token that stops the device's own task (a simulated device's).
@@ -101,8 +242,9 @@ impl Device {
         *self.task.lock().unwrap_or_else(|e| e.into_inner()) = Some(token);
     }
 
-    /// The device was removed: its own task stops, and the writes still waiting fail.
-    pub(crate) fn retire(&self) {
+    /// The device was removed (`why`): its own task stops, the writes still waiting fail,
+    /// and the streams that follow it end with the reason.
+    pub(crate) fn retire(&self, why: &'static str) {
         if let Some(token) = self.task.lock().unwrap_or_else(|e| e.into_inner()).take() {
             token.cancel();
         }
@@ -110,6 +252,7 @@ impl Device {
             self.finish_write(w.generation, Err(WriteError::Removed));
         }
         self.set_unreachable();
+        self.fate.send_replace(Fate::Removed(why));
     }
 
     /// The link and slave id the device is polled with now.
@@ -302,7 +445,7 @@ impl Device {
     #[cfg(test)]
     pub(crate) fn request_write(&self, idx: usize, value: Value) -> Result<u64, AccessError> {
         let checked = self.check_write(idx, value)?;
-        Ok(self.request_writes(vec![checked], None)[0])
+        Ok(self.request_writes(vec![checked], None).map_or(0, |g| g[0]))
     }
 
     /// Requests several checked writes of this device as one: the device's task takes them
@@ -310,34 +453,53 @@ impl Device {
     /// woken once. A [`Checked`] is the proof of its check: nothing is checked or encoded
     /// again; its registers go on the bus as they are. `writer` is the scan-cycle stream
     /// that asked (its loss may write the fields' safe values).
-    pub(crate) fn request_writes(&self, writes: Vec<Checked>, writer: Option<u64>) -> Vec<u64> {
+    pub(crate) fn request_writes(
+        &self,
+        writes: Vec<Checked>,
+        writer: Option<u64>,
+    ) -> Result<Vec<u64>, Vec<Checked>> {
         let named = writes
             .into_iter()
             .map(|c| (self.field(c.idx()).name.as_str(), c))
             .collect();
         let generations = self
             .outputs
-            .request_all(self.name(), named, Origin::Client, writer);
+            .request_all(self.name(), named, Origin::Client, writer)
+            .map_err(|back| back.into_iter().map(|(_, c)| c).collect::<Vec<_>>())?;
         lock(&self.wake).notify_one();
-        generations
+        Ok(generations)
     }
 
-    /// Requests a write the gateway asks for itself (`origin`).
-    pub(crate) fn request_own(&self, idx: usize, value: Value, origin: Origin) -> u64 {
-        self.request(idx, value, origin, None)
-    }
-
-    fn request(&self, idx: usize, value: Value, origin: Origin, writer: Option<u64>) -> u64 {
-        let generation = self.outputs.request_from(
-            self.name(),
-            &self.field(idx).name,
-            idx,
-            value,
-            origin,
-            writer,
-        );
-        lock(&self.wake).notify_one();
-        generation
+    /// Requests a write the gateway asks for itself (`origin`); a device replaced by a
+    /// reload passes it on to its successor (when the field is kept there).
+    pub(crate) fn request_own(
+        self: &Arc<Self>,
+        idx: usize,
+        value: Value,
+        origin: Origin,
+    ) -> Option<u64> {
+        let mut device = self.clone();
+        let mut idx = idx;
+        loop {
+            let requested = device.outputs.request_from(
+                device.name(),
+                &device.field(idx).name,
+                idx,
+                value.clone(),
+                origin,
+                None,
+            );
+            if let Some(generation) = requested {
+                lock(&device.wake).notify_one();
+                return Some(generation);
+            }
+            let next = device.current();
+            if Arc::ptr_eq(&next, &device) {
+                return None;
+            }
+            idx = device.kept_in(idx, &next)?;
+            device = next;
+        }
     }
 
     /// The device's requested outputs: pending writes, newest values, generations.

@@ -192,6 +192,12 @@ impl Link {
         receiver
     }
 
+    /// Gives the link other settings (a reload changed them): its task closes the port or
+    /// socket and opens it again with them, its devices staying members.
+    pub(crate) fn reconfigure(&self, config: LinkConfig) {
+        self.state.send_modify(|s| s.config = config);
+    }
+
     /// Gives an unconfigured link its transport; its task opens it at once.
     pub(crate) fn configure(&self, transport: Transport, guard_time: Duration) {
         self.state.send_modify(|s| {
@@ -247,13 +253,23 @@ impl Link {
     }
 
     /// Takes a removed device off the link; its task stops polling it.
-    pub(super) fn remove_member(&self, device: &Arc<Device>) {
+    pub(crate) fn remove_member(&self, device: &Arc<Device>) {
         self.state
             .send_modify(|s| s.members.retain(|m| !Arc::ptr_eq(m, device)));
     }
 
+    /// Puts `next` in `old`'s place among the members (one change for the link's task).
+    pub(crate) fn replace_member(&self, old: &Arc<Device>, next: Arc<Device>) {
+        self.state.send_modify(
+            |s| match s.members.iter_mut().find(|m| Arc::ptr_eq(m, old)) {
+                Some(slot) => *slot = next,
+                None => s.members.push(next),
+            },
+        );
+    }
+
     /// Puts a device on the link, once.
-    pub(super) fn add_member(&self, device: Arc<Device>) {
+    pub(crate) fn add_member(&self, device: Arc<Device>) {
         self.state.send_if_modified(|s| {
             let new = !s.members.iter().any(|m| Arc::ptr_eq(m, &device));
             if new {

@@ -20,7 +20,7 @@ use crate::profile::{Catalog, Profile};
 use crate::text::quote;
 use crate::write_log::WriteLog;
 
-pub(crate) use device::{Binding, Device};
+pub(crate) use device::{Binding, Device, Fate};
 pub use link::{
     INBOX_CAPACITY, Link, LinkState, Passthrough, PassthroughError, Progress, Utilisation,
 };
@@ -109,7 +109,8 @@ impl Registry {
 /// come from the config and can be added at run time (`EnsureLink`, `EnsureDevice`).
 #[derive(Debug)]
 pub struct Cache {
-    pub(crate) catalog: Catalog,
+    /// The profiles in force; a configuration reload replaces them.
+    catalog: RwLock<Arc<Catalog>>,
     pub(crate) writes: Arc<WriteLog>,
     registry: RwLock<Registry>,
     /// Counts changes of the set of devices (added or removed at run time), for front-ends
@@ -121,7 +122,7 @@ impl Cache {
     /// Builds the cache for a config whose devices were checked against `catalog`.
     pub(crate) fn new(config: &Config, catalog: Catalog) -> Self {
         let cache = Cache {
-            catalog,
+            catalog: RwLock::new(Arc::new(catalog)),
             writes: Arc::new(WriteLog::default()),
             registry: RwLock::new(Registry::default()),
             device_set: tokio::sync::watch::Sender::new(0),
@@ -132,7 +133,7 @@ impl Cache {
                 cache.insert_link(&mut registry, l.clone());
             }
             for d in &config.devices {
-                if let Some(profile) = cache.catalog.get(&d.profile).cloned() {
+                if let Some(profile) = cache.catalog().get(&d.profile).cloned() {
                     cache.insert_device(&mut registry, d.clone(), profile);
                 }
             }
@@ -182,8 +183,14 @@ impl Cache {
         }
     }
 
-    /// Takes a device out: off its link, its task stopped, its waiting writes failed.
-    pub(crate) fn remove_device(&self, registry: &mut Registry, device: &Arc<Device>) {
+    /// Takes a device out (`why`): off its link, its task stopped, its waiting writes
+    /// failed, its streams ended with the reason.
+    pub(crate) fn remove_device(
+        &self,
+        registry: &mut Registry,
+        device: &Arc<Device>,
+        why: &'static str,
+    ) {
         registry.devices.retain(|d| !Arc::ptr_eq(d, device));
         self.device_set.send_modify(|n| *n += 1);
         if let Some(link) = device
@@ -193,7 +200,57 @@ impl Cache {
         {
             link.remove_member(device);
         }
-        device.retire();
+        device.retire(why);
+    }
+
+    /// Puts a successor of `old` with `config` and `profile` in its place (a reload
+    /// re-planned it): the registry, the link's members (in one change when the link stays),
+    /// and whoever follows `old` move to it. Answers the successor.
+    pub(crate) fn replace_device(
+        &self,
+        registry: &mut Registry,
+        old: &Arc<Device>,
+        config: DeviceConfig,
+        profile: Arc<Profile>,
+    ) -> Arc<Device> {
+        let link = config
+            .link
+            .as_ref()
+            .and_then(|name| registry.link(name))
+            .cloned();
+        let wake = link
+            .as_ref()
+            .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let next = Arc::new(Device::succeed(
+            old,
+            config,
+            profile,
+            self.writes.clone(),
+            wake,
+        ));
+        if let Some(slot) = registry.devices.iter_mut().find(|d| Arc::ptr_eq(d, old)) {
+            *slot = next.clone();
+        }
+        let old_link = old
+            .binding()
+            .link
+            .and_then(|l| registry.link(&l).cloned())
+            .filter(|_| old.slave_id().is_some());
+        let new_link = link.filter(|_| next.slave_id().is_some());
+        match (old_link, new_link) {
+            (Some(a), Some(b)) if Arc::ptr_eq(&a, &b) => a.replace_member(old, next.clone()),
+            (a, b) => {
+                if let Some(a) = a {
+                    a.remove_member(old);
+                }
+                if let Some(b) = b {
+                    b.add_member(next.clone());
+                }
+            }
+        }
+        old.replaced_by(next.clone());
+        self.device_set.send_modify(|n| *n += 1);
+        next
     }
 
     /// Takes a link out and stops its task (which closes its port or socket).
@@ -236,10 +293,22 @@ impl Cache {
             .ok_or_else(|| AccessError::UnknownLink(quote(name)))
     }
 
-    pub(crate) fn profile(&self, name: &str) -> Result<&Arc<Profile>, AccessError> {
-        self.catalog
+    pub(crate) fn profile(&self, name: &str) -> Result<Arc<Profile>, AccessError> {
+        self.catalog()
             .get(name)
+            .cloned()
             .ok_or_else(|| AccessError::UnknownProfile(quote(name)))
+    }
+
+    /// The profiles in force.
+    pub(crate) fn catalog(&self) -> Arc<Catalog> {
+        read(&self.catalog).clone()
+    }
+
+    /// Puts a reloaded set of profiles in force (devices keep the profile they run with
+    /// until they are re-planned).
+    pub(crate) fn set_catalog(&self, catalog: Catalog) {
+        *write(&self.catalog) = Arc::new(catalog);
     }
 }
 

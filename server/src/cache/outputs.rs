@@ -112,6 +112,9 @@ struct WriteSlot {
 pub(crate) struct Outputs {
     slots: Mutex<Vec<WriteSlot>>,
     log: Arc<WriteLog>,
+    /// Set (under the slots' lock) when a re-planned device took the slots over: a request
+    /// that comes later is for the successor.
+    moved: std::sync::atomic::AtomicBool,
 }
 
 impl Outputs {
@@ -119,7 +122,31 @@ impl Outputs {
         Outputs {
             slots: Mutex::new((0..fields).map(|_| WriteSlot::default()).collect()),
             log,
+            moved: std::sync::atomic::AtomicBool::new(false),
         }
+    }
+
+    fn is_moved(&self) -> bool {
+        self.moved.load(std::sync::atomic::Ordering::Acquire)
+    }
+
+    /// Takes over the slots of `old`'s fields that a re-planned device keeps (`(old index,
+    /// new index, same registers)`): the pending write (its registers only when the field
+    /// is stored the same way), the newest requested value, the newest generation and its
+    /// writer. A write on the bus stays `old`'s to finish. Requests to `old` are refused
+    /// from now on (they go to the successor).
+    pub(crate) fn take_over(&self, old: &Outputs, kept: &[(usize, usize, bool)]) {
+        let mut from = lock(&old.slots);
+        let mut to = lock(&self.slots);
+        for &(before, idx, same_registers) in kept {
+            let (s, t) = (&mut from[before], &mut to[idx]);
+            t.pending = s.pending.take();
+            t.encoded = s.encoded.take().filter(|_| same_registers);
+            t.latest = s.latest.clone();
+            t.last_generation = s.last_generation;
+            t.writer = s.writer;
+        }
+        old.moved.store(true, std::sync::atomic::Ordering::Release);
     }
 
     /// The scan-cycle stream that requested field `idx`'s newest value, if one did.
@@ -137,8 +164,11 @@ impl Outputs {
         value: Value,
         origin: Origin,
         writer: Option<u64>,
-    ) -> u64 {
+    ) -> Option<u64> {
         let mut slots = lock(&self.slots);
+        if self.is_moved() {
+            return None;
+        }
         let slot = &mut slots[idx];
         let generation = self.log.begin_from(device, field, value.clone(), origin);
         if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
@@ -149,20 +179,24 @@ impl Outputs {
         slot.latest = Some(value);
         slot.last_generation = Some(generation);
         slot.writer = writer;
-        generation
+        Some(generation)
     }
 
     /// Requests several checked writes at once (`(field name, proof)`), under one lock: the
     /// device's task takes all of them or none, so one client request is one write group.
-    pub(crate) fn request_all(
+    /// The writes come back when the slots were taken over by a successor.
+    pub(crate) fn request_all<'a>(
         &self,
         device: &str,
-        writes: Vec<(&str, Checked)>,
+        writes: Vec<(&'a str, Checked)>,
         origin: Origin,
         writer: Option<u64>,
-    ) -> Vec<u64> {
+    ) -> Result<Vec<u64>, Vec<(&'a str, Checked)>> {
         let mut slots = lock(&self.slots);
-        writes
+        if self.is_moved() {
+            return Err(writes);
+        }
+        Ok(writes
             .into_iter()
             .map(|(field, checked)| {
                 let (idx, value, registers) = checked.into_parts();
@@ -177,7 +211,7 @@ impl Outputs {
                 slot.writer = writer;
                 generation
             })
-            .collect()
+            .collect())
     }
 
     /// Records a write of field `idx`'s requested value that the device's task sends now

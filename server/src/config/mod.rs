@@ -45,6 +45,8 @@ pub struct Config {
     /// Standing raw transactions.
     pub(crate) transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,
+    /// `reload:`: whether changed files are applied by themselves.
+    pub(crate) reload: ReloadConfig,
     /// The file the config came from.
     pub source: String,
     /// Where keys checked after reading are written, for their problems' lines.
@@ -52,6 +54,27 @@ pub struct Config {
     /// What was written but could not be read (its problems are reported already), so the
     /// checks that follow do not report it again as missing.
     pub(crate) unreadable: Unreadable,
+}
+
+/// The longest `reload.debounce`.
+pub(crate) const MAX_DEBOUNCE: Duration = Duration::from_secs(60);
+
+/// `reload: { watch, debounce }`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ReloadConfig {
+    /// Watch the config file and the profiles directory, and reload when they change.
+    pub(crate) watch: bool,
+    /// How long the files must be quiet before a change is loaded.
+    pub(crate) debounce: Duration,
+}
+
+impl Default for ReloadConfig {
+    fn default() -> Self {
+        ReloadConfig {
+            watch: false,
+            debounce: Duration::from_millis(500),
+        }
+    }
 }
 
 /// The lines of keys whose problems are found after reading (0: not written).
@@ -258,6 +281,7 @@ impl Config {
             mqtt: None,
             transactions: Vec::new(),
             security: security::SecurityConfig::default(),
+            reload: ReloadConfig::default(),
             source: source.to_owned(),
             lines: KeyLines::default(),
             unreadable: Unreadable::default(),

@@ -20,7 +20,9 @@ const TOP_KEYS: &[&str] = &[
     "mqtt",
     "transactions",
     "security",
+    "reload",
 ];
+const RELOAD_KEYS: &[&str] = &["watch", "debounce"];
 const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout", "body_timeout"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
@@ -199,6 +201,30 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         .get("transactions")
         .map(|n| super::transactions::read(n, report))
         .unwrap_or_default();
+    if let Some(mut reload) = map.get("reload").and_then(|n| n.map(report, "reload")) {
+        if let Some(node) = reload.get("watch")
+            && let Some(watch) = super::modbus_server::boolean(node, report, "reload.watch")
+        {
+            config.reload.watch = watch;
+        }
+        if let Some(node) = reload.get("debounce")
+            && let Some(d) = duration_value(node, report, "reload.debounce", Duration::ZERO)
+        {
+            if d > super::MAX_DEBOUNCE {
+                report.push(
+                    node.line,
+                    "reload.debounce",
+                    format!(
+                        "{d:?} is longer than {} s: changes would wait too long",
+                        super::MAX_DEBOUNCE.as_secs()
+                    ),
+                );
+            } else {
+                config.reload.debounce = d;
+            }
+        }
+        reload.finish(report, "reload", RELOAD_KEYS);
+    }
     map.finish(report, "config", TOP_KEYS);
     super::check::check_ports(&config.links, report);
     Some(config)

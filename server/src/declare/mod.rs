@@ -249,7 +249,7 @@ pub(crate) fn remove_device(cache: &Cache, name: &str) -> Result<Arc<Device>, De
                 name: device.name().to_owned(),
             });
         }
-        cache.remove_device(registry, &device);
+        cache.remove_device(registry, &device, "the device was removed");
         Ok(device)
     })?;
     tracing::info!(device = %device.name(), "device removed");

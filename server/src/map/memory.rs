@@ -74,6 +74,30 @@ impl Memory {
         })
     }
 
+    /// Memory for a reloaded configuration (`coils`, `registers`, `file`), holding what this
+    /// one holds: loaded from `file` when that exists (it is saved on every write), else a
+    /// copy of this image, cut or padded with zeros to the new size.
+    pub(crate) fn carried(
+        &self,
+        coils: usize,
+        registers: usize,
+        file: Option<PathBuf>,
+    ) -> Result<Memory, MemoryError> {
+        let from_file = file.as_deref().is_some_and(|p| p.exists());
+        let next = Memory::new(coils, registers, file)?;
+        if !from_file {
+            let old = self.lock().clone();
+            let mut image = next.lock();
+            for (slot, v) in image.coils.iter_mut().zip(old.coils) {
+                *slot = v;
+            }
+            for (slot, v) in image.registers.iter_mut().zip(old.registers) {
+                *slot = v;
+            }
+        }
+        Ok(next)
+    }
+
     fn lock(&self) -> std::sync::MutexGuard<'_, Image> {
         // Updates are whole assignments; a poisoned lock still holds a consistent image.
         self.inner.lock().unwrap_or_else(|e| e.into_inner())

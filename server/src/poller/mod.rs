@@ -83,6 +83,8 @@ impl Polled {
 enum Ended {
     Shutdown,
     Lost(LinkFault),
+    /// The link's settings changed (a configuration reload): open it again with them.
+    Reconfigured,
 }
 
 /// Whether a transaction's failure ends the connection.
@@ -143,6 +145,7 @@ impl LinkTask {
             .collect();
         for device in new {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
+            let rewrite = device.rewrite_first();
             self.devices.push(Polled {
                 slave: device.slave_id().unwrap_or(0),
                 reads: plan::read_batches(
@@ -153,7 +156,7 @@ impl LinkTask {
                 device,
                 next_due: now,
                 backoff: None,
-                rewrite: true,
+                rewrite,
                 single_writes: false,
                 reconciled: std::collections::HashMap::new(),
             });
@@ -229,8 +232,17 @@ impl LinkTask {
                         self.link.progress.clone(),
                         self.link.utilisation.clone(),
                     );
-                    match self.serve(bus, &token).await {
+                    match self.serve(bus, &token, &tried).await {
                         Ended::Shutdown => break,
+                        Ended::Reconfigured => {
+                            tracing::info!(link = %name, "link settings changed: reopening");
+                            self.set_state(false, LinkCode::Ok);
+                            for p in &self.devices {
+                                p.device.mark_stale();
+                            }
+                            reopen = REOPEN_MIN;
+                            continue 'reopen;
+                        }
                         Ended::Lost(fault) => {
                             tracing::warn!(link = %name, error = %fault, "link lost, reopening");
                             lost = true;
@@ -316,7 +328,12 @@ impl LinkTask {
         }
     }
 
-    async fn serve(&mut self, mut bus: Bus, token: &CancellationToken) -> Ended {
+    async fn serve(
+        &mut self,
+        mut bus: Bus,
+        token: &CancellationToken,
+        opened: &LinkConfig,
+    ) -> Ended {
         // Requests and polling share the line: while a poll is due, at most one request
         // goes between two poll cycles, so a device keeps its refresh rate as far as the
         // line carries it, however many requests wait.
@@ -326,6 +343,9 @@ impl LinkTask {
                 return Ended::Shutdown;
             }
             self.sync_members();
+            if self.config != *opened {
+                return Ended::Reconfigured;
+            }
             let due = self.next_due(Instant::now());
             let request = if after_request && due.is_some() {
                 None
@@ -493,7 +513,8 @@ mod tests {
         );
         let token = CancellationToken::new();
         let stop = token.clone();
-        let serving = tokio::spawn(async move { task.serve(bus, &stop).await });
+        let opened = task.config.clone();
+        let serving = tokio::spawn(async move { task.serve(bus, &stop, &opened).await });
         tokio::time::sleep(Duration::from_secs(10)).await;
         token.cancel();
         assert!(matches!(serving.await, Ok(Ended::Shutdown)));

@@ -6,6 +6,7 @@
 
 mod modbus_map;
 mod refusal;
+mod reload;
 mod select;
 mod standing;
 mod subscribe;
@@ -25,6 +26,9 @@ use crate::runtime::Tasks;
 pub(crate) use crate::cache::Refusal;
 pub(crate) use crate::mqtt_status::{MqttState, MqttStatus, SparkplugStatus};
 pub(crate) use modbus_map::ModbusImage;
+pub(crate) use reload::{
+    Action, ConfigStatus, Item, Kind, ReloadError, Reloading, Report, Trigger,
+};
 pub(crate) use select::Selection;
 pub(crate) use standing::{Standing, StandingSet, StandingStatus};
 pub(crate) use subscribe::{Change, Changes};
@@ -99,19 +103,21 @@ pub struct Service {
     pub(crate) metrics: Arc<Metrics>,
     tasks: Tasks,
     ready: AtomicBool,
-    /// The Modbus TCP server's map and memory, when one is configured.
-    modbus: Option<ModbusImage>,
+    /// The Modbus TCP server's map and memory, when one is configured; a reload replaces it.
+    modbus: std::sync::RwLock<Option<Arc<ModbusImage>>>,
     standing: StandingSet,
     /// What run-time declarations may reach.
-    policy: crate::config::security::DeclarePolicy,
+    policy: std::sync::RwLock<crate::config::security::DeclarePolicy>,
     /// Who may do what.
-    pub(crate) tokens: crate::auth::Tokens,
+    pub(crate) tokens: crate::auth::TokenTable,
     /// `security.read_only`: every write is refused.
-    read_only: bool,
+    read_only: AtomicBool,
     /// Open change streams (SSE, Subscribe, Exchange), bounded by [`MAX_STREAMS`].
     streams: Arc<std::sync::atomic::AtomicUsize>,
     /// The MQTT front-end's state, when it runs.
     mqtt: std::sync::OnceLock<Arc<MqttState>>,
+    /// What reloads the configuration, when it came from a file.
+    reloader: std::sync::OnceLock<Arc<dyn Reloading>>,
 }
 
 /// The most change streams (SSE, gRPC Subscribe and Exchange) open at once.
@@ -136,13 +142,14 @@ impl Service {
             cache,
             tasks,
             ready: AtomicBool::new(false),
-            modbus: None,
+            modbus: std::sync::RwLock::new(None),
             standing: StandingSet::default(),
-            policy: crate::config::security::DeclarePolicy::default(),
-            tokens: crate::auth::Tokens::default(),
-            read_only: false,
+            policy: std::sync::RwLock::new(crate::config::security::DeclarePolicy::default()),
+            tokens: crate::auth::TokenTable::default(),
+            read_only: AtomicBool::new(false),
             streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
             mqtt: std::sync::OnceLock::new(),
+            reloader: std::sync::OnceLock::new(),
         }
     }
 
@@ -157,16 +164,30 @@ impl Service {
     }
 
     /// The service with the tokens and the read-only switch of `security:`.
-    pub(crate) fn with_access(mut self, tokens: crate::auth::Tokens, read_only: bool) -> Self {
-        self.tokens = tokens;
-        self.read_only = read_only;
+    pub(crate) fn with_access(self, tokens: crate::auth::Tokens, read_only: bool) -> Self {
+        self.set_access(tokens, read_only);
         self
+    }
+
+    /// Puts the tokens and the read-only switch of `security:` in force.
+    pub(crate) fn set_access(&self, tokens: crate::auth::Tokens, read_only: bool) {
+        self.tokens.replace(tokens);
+        self.read_only.store(read_only, Ordering::Release);
+    }
+
+    /// Puts a declaration policy in force.
+    pub(crate) fn set_policy(&self, policy: crate::config::security::DeclarePolicy) {
+        *self.policy.write().unwrap_or_else(|e| e.into_inner()) = policy;
+    }
+
+    pub(crate) fn is_read_only(&self) -> bool {
+        self.read_only.load(Ordering::Acquire)
     }
 
     /// Refuses writes when the gateway is read-only (or shutting down).
     pub(crate) fn accepting_writes(&self) -> Result<(), ServiceError> {
         self.accepting()?;
-        if self.read_only {
+        if self.is_read_only() {
             Err(ServiceError::ReadOnly)
         } else {
             Ok(())
@@ -174,15 +195,20 @@ impl Service {
     }
 
     /// The service with a declaration policy other than the default.
-    pub(crate) fn with_policy(mut self, policy: crate::config::security::DeclarePolicy) -> Self {
-        self.policy = policy;
+    pub(crate) fn with_policy(self, policy: crate::config::security::DeclarePolicy) -> Self {
+        self.set_policy(policy);
         self
     }
 
     /// The service with a Modbus TCP server's image.
-    pub(crate) fn with_modbus(mut self, image: ModbusImage) -> Self {
-        self.modbus = Some(image);
+    pub(crate) fn with_modbus(self, image: ModbusImage) -> Self {
+        self.set_modbus(Some(image));
         self
+    }
+
+    /// Puts a Modbus TCP server's image in force (or none).
+    pub(crate) fn set_modbus(&self, image: Option<ModbusImage>) {
+        *self.modbus.write().unwrap_or_else(|e| e.into_inner()) = image.map(Arc::new);
     }
 
     pub(crate) fn tasks(&self) -> &Tasks {
@@ -279,11 +305,11 @@ impl Service {
         Ok(self.cache.link(name)?)
     }
 
-    pub(crate) fn profiles(&self) -> impl Iterator<Item = &Arc<Profile>> {
-        self.cache.catalog.iter()
+    pub(crate) fn profiles(&self) -> Vec<Arc<Profile>> {
+        self.cache.catalog().iter().cloned().collect()
     }
 
-    pub(crate) fn profile(&self, name: &str) -> Result<&Arc<Profile>, ServiceError> {
+    pub(crate) fn profile(&self, name: &str) -> Result<Arc<Profile>, ServiceError> {
         Ok(self.cache.profile(name)?)
     }
 
@@ -293,7 +319,7 @@ impl Service {
         Ok(declare::ensure_link(
             &self.cache,
             &self.tasks,
-            &self.policy,
+            &self.policy.read().unwrap_or_else(|e| e.into_inner()),
             decl,
         )?)
     }

@@ -99,6 +99,23 @@ impl ModbusImage {
         })
     }
 
+    /// The image of a reloaded map over the devices now in the cache, keeping this one's
+    /// memory (see [`Memory::carried`]).
+    pub(crate) fn reloaded(
+        &self,
+        config: &ModbusServerConfig,
+        plan: &Plan,
+        cache: &Cache,
+    ) -> Result<Self, MemoryError> {
+        let mut next = ModbusImage::new(config, plan, cache)?;
+        next.memory = self.memory.carried(
+            plan.space.table_len(Table::Coils) as usize,
+            plan.space.table_len(Table::HoldingRegisters) as usize,
+            config.memory_file.clone(),
+        )?;
+        Ok(next)
+    }
+
     fn at(&self, table: Table, address: u16) -> Option<(&Bound, u16)> {
         let (n, k) = (*self.index[table_index(table)].get(usize::from(address))?)?;
         Some((&self.bound[n as usize], k))
@@ -227,14 +244,17 @@ fn refusal(e: &AccessError) -> Exception {
 
 impl Service {
     /// The Modbus server's image, when one is configured.
-    pub(crate) fn modbus(&self) -> Option<&ModbusImage> {
-        self.modbus.as_ref()
+    pub(crate) fn modbus(&self) -> Option<Arc<ModbusImage>> {
+        self.modbus
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
     }
 
     /// Where requests for `unit` go: the server's own unit id (and 0 and 255, as Modbus
     /// TCP devices answer them) from the map; a unit listed under `forward` to its link.
     pub(crate) fn modbus_route(&self, unit: u8) -> Route {
-        let Some(image) = &self.modbus else {
+        let Some(image) = self.modbus() else {
             return Route::Unknown;
         };
         if unit == image.config.unit_id || unit == 0 || unit == 255 {
@@ -266,7 +286,7 @@ impl Service {
         unit: u8,
         request: &Request,
     ) -> Result<Response, Exception> {
-        if request.is_write() && self.read_only {
+        if request.is_write() && self.is_read_only() {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
         match self.modbus_route(unit) {
@@ -295,10 +315,7 @@ impl Service {
     }
 
     fn modbus_local(&self, request: &Request) -> Result<Response, Exception> {
-        let image = self
-            .modbus
-            .as_ref()
-            .ok_or(Exception::GATEWAY_PATH_UNAVAILABLE)?;
+        let image = self.modbus().ok_or(Exception::GATEWAY_PATH_UNAVAILABLE)?;
         match request {
             Request::ReadCoils { address, count } => image
                 .read_bits(Table::Coils, *address, *count)
@@ -313,16 +330,16 @@ impl Service {
                 .read_registers(Table::InputRegisters, *address, *count)
                 .map(Response::Registers),
             Request::WriteSingleCoil { address, value } => {
-                self.write_coils(image, *address, &[*value])
+                self.write_coils(&image, *address, &[*value])
             }
             Request::WriteMultipleCoils { address, values } => {
-                self.write_coils(image, *address, values)
+                self.write_coils(&image, *address, values)
             }
             Request::WriteSingleRegister { address, value } => {
-                self.write_registers(image, *address, &[*value])
+                self.write_registers(&image, *address, &[*value])
             }
             Request::WriteMultipleRegisters { address, values } => {
-                self.write_registers(image, *address, values)
+                self.write_registers(&image, *address, values)
             }
         }
         .map(|r| {
@@ -340,7 +357,7 @@ impl Service {
         address: u16,
         values: &[bool],
     ) -> Result<Response, Exception> {
-        if image.config.read_only || self.read_only {
+        if image.config.read_only || self.is_read_only() {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
         image.check_range(Table::Coils, address, values.len() as u16)?;
@@ -361,7 +378,7 @@ impl Service {
         address: u16,
         values: &[u16],
     ) -> Result<Response, Exception> {
-        if image.config.read_only || self.read_only {
+        if image.config.read_only || self.is_read_only() {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
         let end = address as usize + values.len();

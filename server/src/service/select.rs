@@ -17,9 +17,20 @@ pub(crate) struct FieldRef {
 pub(crate) struct Selection {
     pub(crate) fields: Vec<FieldRef>,
     pub(crate) devices: Vec<Arc<Device>>,
+    /// Nothing was named: every device, and (in a subscription) the devices added later.
+    pub(crate) everything: bool,
+    /// The devices' diagnostics only, not their fields' values.
+    pub(crate) no_values: bool,
 }
 
 impl Selection {
+    /// The same devices without their fields' values (diagnostics only).
+    pub(crate) fn without_values(mut self) -> Self {
+        self.fields.clear();
+        self.no_values = true;
+        self
+    }
+
     fn push(&mut self, device: &Arc<Device>, idx: usize) {
         if !self.devices.iter().any(|d| Arc::ptr_eq(d, device)) {
             self.devices.push(device.clone());
@@ -56,8 +67,11 @@ impl Service {
         D: AsRef<str>,
         F: AsRef<str>,
     {
-        let mut chosen = Selection::default();
-        let named = if devices.is_empty() && fields.is_empty() {
+        let mut chosen = Selection {
+            everything: devices.is_empty() && fields.is_empty(),
+            ..Selection::default()
+        };
+        let named = if chosen.everything {
             self.cache.devices()
         } else {
             devices

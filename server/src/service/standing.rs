@@ -222,6 +222,17 @@ impl Service {
         Ok(removed)
     }
 
+    /// Stops and removes a standing transaction, whether declared or configured (a reload
+    /// took it out of the config file, or changed it).
+    pub(crate) fn drop_transaction(&self, name: &str) -> Option<Arc<Standing>> {
+        let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
+        let at = set.iter().position(|s| s.name == name)?;
+        let removed = set.remove(at);
+        drop(set);
+        removed.stop.cancel();
+        Some(removed)
+    }
+
     /// Runs a standing transaction now; ignored while one of its runs is in flight.
     pub(crate) fn trigger_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         let s = self.transaction(name)?;

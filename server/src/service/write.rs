@@ -145,18 +145,18 @@ impl Service {
         }
         let mut accepted: Vec<(usize, Accepted)> = Vec::new();
         for (device, items) in groups {
-            let positions: Vec<(usize, usize)> =
-                items.iter().map(|(at, c)| (*at, c.idx())).collect();
-            let generations = device.request_writes(
-                items.into_iter().map(|(_, checked)| checked).collect(),
-                writer,
-            );
-            for ((at, idx), generation) in positions.into_iter().zip(generations) {
+            let positions: Vec<(usize, String)> = items
+                .iter()
+                .map(|(at, c)| (*at, device.field(c.idx()).name.clone()))
+                .collect();
+            let checked = items.into_iter().map(|(_, checked)| checked).collect();
+            let generations = Self::request_on_current(device.clone(), checked, writer)?;
+            for ((at, field), generation) in positions.into_iter().zip(generations) {
                 accepted.push((
                     at,
                     Accepted {
                         device: device.name().to_owned(),
-                        field: device.field(idx).name.clone(),
+                        field,
                         generation,
                     },
                 ));
@@ -164,6 +164,36 @@ impl Service {
         }
         accepted.sort_by_key(|(at, _)| *at);
         Ok(accepted.into_iter().map(|(_, a)| a).collect())
+    }
+
+    /// Requests checked writes of `device`; when a reload replaced the device meanwhile,
+    /// each value is checked again against its successor's field of the same name and
+    /// requested there (a removed device or field refuses the write).
+    fn request_on_current(
+        mut device: Arc<Device>,
+        mut checked: Vec<Checked>,
+        writer: Option<u64>,
+    ) -> Result<Vec<u64>, ServiceError> {
+        loop {
+            if device.is_removed() {
+                return Err(AccessError::UnknownDevice(device.name().to_owned()).into());
+            }
+            match device.request_writes(checked, writer) {
+                Ok(generations) => return Ok(generations),
+                Err(back) => {
+                    let next = device.current();
+                    checked = back
+                        .into_iter()
+                        .map(|c| {
+                            let name = device.field(c.idx()).name.clone();
+                            let idx = next.field_index(&name)?;
+                            next.check_write(idx, c.value().clone())
+                        })
+                        .collect::<Result<_, AccessError>>()?;
+                    device = next;
+                }
+            }
+        }
     }
 
     /// Where the write with `generation` stands.

@@ -825,6 +825,8 @@ impl Task {
                 device,
                 diagnostics,
             } => self.on_diagnostics(&device, &diagnostics, online),
+            // A removed device dies when the device set changes.
+            Change::Removed { .. } => {}
         }
     }
 

@@ -1,0 +1,537 @@
+//! Comparing the configuration in force with a new one: what was added, removed and
+//! changed, by link, device, field, profile, map entry, standing transaction, security
+//! setting and listener. Pure: the same comparison makes a reload's report, what the reload
+//! applies, and `iogate check --diff`. Lines in the files are not compared (a comment added
+//! above a device changes nothing).
+
+use std::fmt::Debug;
+
+use crate::app::Setup;
+use crate::auth::Tokens;
+use crate::config::{DeviceConfig, LinkConfig, Transport};
+use crate::profile::{Field, Profile};
+use crate::service::{Action, Item, Kind};
+
+/// Names added, removed and changed, in the new file's order (removed: the old one's).
+#[derive(Debug, Default, Clone, PartialEq)]
+pub(crate) struct Names {
+    pub(crate) added: Vec<String>,
+    pub(crate) removed: Vec<String>,
+    pub(crate) changed: Vec<String>,
+}
+
+impl Names {
+    fn is_empty(&self) -> bool {
+        self.added.is_empty() && self.removed.is_empty() && self.changed.is_empty()
+    }
+}
+
+/// Everything that differs, as report items and as what to apply.
+#[derive(Debug, Default)]
+pub(crate) struct Diff {
+    pub(crate) items: Vec<Item>,
+    /// Links whose settings changed (reopened).
+    pub(crate) links: Names,
+    /// Devices re-planned (config or profile changed).
+    pub(crate) devices: Names,
+    pub(crate) transactions: Names,
+    /// Any profile file changed (the catalog is replaced).
+    pub(crate) profiles: bool,
+    /// Tokens, `read_only` or the declaration policy.
+    pub(crate) access: bool,
+    /// The TLS files or their contents.
+    pub(crate) tls: bool,
+    /// The Modbus server's section (other than its listener) or its map.
+    pub(crate) modbus: bool,
+    pub(crate) modbus_listen: bool,
+    pub(crate) http_listen: bool,
+    pub(crate) grpc_listen: bool,
+    /// `listen.header_timeout` or `body_timeout`: HTTP and gRPC are served again.
+    pub(crate) limits: bool,
+    pub(crate) mqtt: bool,
+    pub(crate) watch: bool,
+}
+
+impl Diff {
+    pub(crate) fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    fn push(&mut self, kind: Kind, name: impl Into<String>, action: Action, details: Vec<String>) {
+        self.items.push(Item {
+            kind,
+            name: name.into(),
+            action,
+            details,
+        });
+    }
+}
+
+/// `key: before -> after` when they differ.
+fn changed<T: PartialEq + Debug>(key: &str, before: &T, after: &T) -> Option<String> {
+    (before != after).then(|| format!("{key}: {before:?} -> {after:?}"))
+}
+
+fn changed_text(key: &str, before: impl ToString, after: impl ToString) -> Option<String> {
+    let (b, a) = (before.to_string(), after.to_string());
+    (b != a).then(|| format!("{key}: {b} -> {a}"))
+}
+
+fn duration(d: std::time::Duration) -> String {
+    format!("{d:?}")
+}
+
+fn option<T: ToString>(v: &Option<T>) -> String {
+    v.as_ref()
+        .map_or_else(|| "none".to_owned(), ToString::to_string)
+}
+
+/// A link's settings, line apart.
+fn link_details(old: &LinkConfig, new: &LinkConfig) -> Vec<String> {
+    let mut details = Vec::new();
+    match (&old.transport, &new.transport) {
+        (Transport::Serial(a), Transport::Serial(b)) => details.extend(
+            [
+                changed_text("serial.port", &a.port, &b.port),
+                changed_text("serial.baud", a.baud, b.baud),
+                changed_text("serial.parity", a.parity.letter(), b.parity.letter()),
+                changed_text("serial.data_bits", a.data_bits, b.data_bits),
+                changed_text("serial.stop_bits", a.stop_bits, b.stop_bits),
+            ]
+            .into_iter()
+            .flatten(),
+        ),
+        (a, b) if a != b => details.push(format!("transport: {a} -> {b}")),
+        _ => {}
+    }
+    details.extend(changed_text(
+        "guard_time",
+        duration(old.guard_time),
+        duration(new.guard_time),
+    ));
+    details
+}
+
+/// A device's settings, line apart (the profile's contents are compared apart).
+fn device_details(old: &DeviceConfig, new: &DeviceConfig) -> Vec<String> {
+    [
+        changed_text("profile", &old.profile, &new.profile),
+        changed_text("link", option(&old.link), option(&new.link)),
+        changed_text("slave_id", option(&old.slave_id), option(&new.slave_id)),
+        changed_text(
+            "refresh_rate",
+            duration(old.refresh_rate),
+            duration(new.refresh_rate),
+        ),
+        changed_text("timeout", duration(old.timeout), duration(new.timeout)),
+        changed_text("retries", old.retries, new.retries),
+        changed_text("max_batch", old.max_batch, new.max_batch),
+        changed_text("max_gap", old.max_gap, new.max_gap),
+        changed("write_mode", &old.write_mode, &new.write_mode),
+        changed("on_client_loss", &old.on_client_loss, &new.on_client_loss),
+    ]
+    .into_iter()
+    .flatten()
+    .collect()
+}
+
+/// A field as compared: everything but the line it is written on.
+fn same_field(a: &Field, b: &Field) -> bool {
+    let mut b = b.clone();
+    b.line = a.line;
+    *a == b
+}
+
+/// What differs between two versions of a field.
+fn field_details(a: &Field, b: &Field) -> Vec<String> {
+    let (ra, rb) = (&a.register, &b.register);
+    let mut details: Vec<String> = [
+        changed_text("type", a.ty, b.ty),
+        changed_text("direction", a.direction.name(), b.direction.name()),
+        changed_text("register.kind", ra.kind.name(), rb.kind.name()),
+        changed_text("register.address", ra.address, rb.address),
+        changed_text("register.bit", option(&ra.bit), option(&rb.bit)),
+        changed_text("register.scale", ra.scale, rb.scale),
+        changed_text("register.offset", ra.offset, rb.offset),
+        changed_text("register.unit", option(&ra.unit), option(&rb.unit)),
+        changed("register.byte_order", &ra.byte_order, &rb.byte_order),
+        changed_text("register.word_count", ra.word_count, rb.word_count),
+        changed("register.raw_type", &ra.raw_type, &rb.raw_type),
+        changed("description", &a.description, &b.description),
+        changed("deadband", &a.deadband, &b.deadband),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    if details.is_empty() {
+        details.push("its encoding".to_owned());
+    }
+    details
+}
+
+/// Two versions of a profile as compared: everything but lines and the file's name.
+pub(crate) fn same_profile(a: &Profile, b: &Profile) -> bool {
+    a.name == b.name
+        && a.vendor == b.vendor
+        && a.protocol == b.protocol
+        && a.description == b.description
+        && a.fields.len() == b.fields.len()
+        && a.fields
+            .iter()
+            .zip(&b.fields)
+            .all(|(x, y)| same_field(x, y))
+}
+
+/// The fields added, removed and changed from profile `a` to `b` (named `prefix.field`).
+fn field_items(prefix: &str, a: &Profile, b: &Profile) -> Vec<Item> {
+    let mut items = Vec::new();
+    let item = |name: &str, action, details| Item {
+        kind: Kind::Field,
+        name: format!("{prefix}.{name}"),
+        action,
+        details,
+    };
+    for f in &b.fields {
+        match a.field_index(&f.name).map(|i| &a.fields[i]) {
+            None => items.push(item(&f.name, Action::Added, Vec::new())),
+            Some(old) if !same_field(old, f) => {
+                let mut details = field_details(old, f);
+                if old.ty != f.ty {
+                    details.push("a new field: its old value and subscribers end".to_owned());
+                }
+                items.push(item(&f.name, Action::Changed, details));
+            }
+            Some(_) => {}
+        }
+    }
+    for f in &a.fields {
+        if b.field_index(&f.name).is_none() {
+            items.push(item(&f.name, Action::Removed, Vec::new()));
+        }
+    }
+    items
+}
+
+/// Compares the configuration in force (`old`, with its tokens) with `new`.
+pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &Tokens) -> Diff {
+    let mut d = Diff::default();
+    let (a, b) = (&old.config, &new.config);
+
+    // Listeners.
+    for (key, before, after, flag) in [
+        ("listen.http", a.http, b.http, &mut d.http_listen),
+        ("listen.grpc", a.grpc, b.grpc, &mut d.grpc_listen),
+    ] {
+        if before != after {
+            *flag = true;
+            d.items.push(Item {
+                kind: Kind::Listener,
+                name: key.to_owned(),
+                action: Action::Changed,
+                details: vec![format!("{before} -> {after}: rebound")],
+            });
+        }
+    }
+    let limits: Vec<String> = [
+        changed_text(
+            "header_timeout",
+            duration(a.header_timeout),
+            duration(b.header_timeout),
+        ),
+        changed_text(
+            "body_timeout",
+            duration(a.body_timeout),
+            duration(b.body_timeout),
+        ),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    if !limits.is_empty() {
+        d.limits = true;
+        d.push(Kind::Listener, "listen", Action::Changed, limits);
+    }
+
+    // Security.
+    let mut security = old_tokens.changes_to(new_tokens);
+    security.extend(changed_text(
+        "read_only",
+        a.security.read_only,
+        b.security.read_only,
+    ));
+    security.extend(changed("declare", &a.security.declare, &b.security.declare));
+    if !security.is_empty() {
+        d.access = true;
+        d.push(Kind::Security, "security", Action::Changed, security);
+    }
+    if a.security.tls != b.security.tls {
+        d.tls = true;
+        let what = match (&a.security.tls, &b.security.tls) {
+            (None, Some(_)) => "TLS turned on: HTTP and gRPC listeners rebound",
+            (Some(_), None) => "TLS turned off: HTTP and gRPC listeners rebound",
+            _ => "TLS files changed: new connections get the new ones",
+        };
+        d.push(
+            Kind::Security,
+            "tls",
+            Action::Changed,
+            vec![what.to_owned()],
+        );
+    }
+
+    // Profiles.
+    for p in new.catalog.iter() {
+        match old.catalog.get(&p.name) {
+            None => d.push(Kind::Profile, &p.name, Action::Added, Vec::new()),
+            Some(o) if !same_profile(o, p) => {
+                d.profiles = true;
+                let details = field_items("", o, p)
+                    .into_iter()
+                    .map(|i| format!("field {} {}", &i.name[1..], i.action.name()))
+                    .collect();
+                d.push(Kind::Profile, &p.name, Action::Changed, details);
+            }
+            Some(_) => {}
+        }
+    }
+    for p in old.catalog.iter() {
+        if new.catalog.get(&p.name).is_none() {
+            d.push(Kind::Profile, &p.name, Action::Removed, Vec::new());
+        }
+    }
+    if old.catalog.len() != new.catalog.len() {
+        d.profiles = true;
+    }
+
+    // Links.
+    for l in &b.links {
+        match a.links.iter().find(|o| o.name == l.name) {
+            None => {
+                d.links.added.push(l.name.clone());
+                d.push(
+                    Kind::Link,
+                    &l.name,
+                    Action::Added,
+                    vec![l.transport.to_string()],
+                );
+            }
+            Some(o) => {
+                let details = link_details(o, l);
+                if !details.is_empty() {
+                    d.links.changed.push(l.name.clone());
+                    let mut details = details;
+                    details.push("reopened".to_owned());
+                    d.push(Kind::Link, &l.name, Action::Changed, details);
+                }
+            }
+        }
+    }
+    for o in &a.links {
+        if !b.links.iter().any(|l| l.name == o.name) {
+            d.links.removed.push(o.name.clone());
+            d.push(
+                Kind::Link,
+                &o.name,
+                Action::Removed,
+                vec!["port closed".to_owned()],
+            );
+        }
+    }
+
+    // Devices and their fields.
+    for n in &b.devices {
+        let Some(new_profile) = new.catalog.get(&n.profile) else {
+            continue;
+        };
+        match a.devices.iter().find(|o| o.name == n.name) {
+            None => {
+                d.devices.added.push(n.name.clone());
+                d.push(
+                    Kind::Device,
+                    &n.name,
+                    Action::Added,
+                    vec![format!("profile {}", n.profile)],
+                );
+            }
+            Some(o) => {
+                let Some(old_profile) = old.catalog.get(&o.profile) else {
+                    continue;
+                };
+                let mut details = device_details(o, n);
+                let fields = field_items(&n.name, old_profile, new_profile);
+                if o.profile == n.profile && !same_profile(old_profile, new_profile) {
+                    details.push(format!("profile {} changed", n.profile));
+                }
+                if !details.is_empty() || !fields.is_empty() {
+                    details.push("re-planned".to_owned());
+                    d.devices.changed.push(n.name.clone());
+                    d.push(Kind::Device, &n.name, Action::Changed, details);
+                    d.items.extend(fields);
+                }
+            }
+        }
+    }
+    for o in &a.devices {
+        if !b.devices.iter().any(|n| n.name == o.name) {
+            d.devices.removed.push(o.name.clone());
+            d.push(Kind::Device, &o.name, Action::Removed, Vec::new());
+        }
+    }
+
+    // The Modbus server.
+    match (&a.modbus_server, &b.modbus_server) {
+        (None, None) => {}
+        (None, Some(s)) => {
+            d.modbus = true;
+            d.modbus_listen = true;
+            d.push(
+                Kind::Listener,
+                "modbus_server",
+                Action::Added,
+                vec![s.listen.to_string()],
+            );
+        }
+        (Some(_), None) => {
+            d.modbus = true;
+            d.modbus_listen = true;
+            d.push(Kind::Listener, "modbus_server", Action::Removed, Vec::new());
+        }
+        (Some(x), Some(y)) => {
+            if x.listen != y.listen {
+                d.modbus_listen = true;
+                d.push(
+                    Kind::Listener,
+                    "modbus_server.listen",
+                    Action::Changed,
+                    vec![format!("{} -> {}: rebound", x.listen, y.listen)],
+                );
+            }
+            let mut x = x.clone();
+            x.listen = y.listen;
+            x.line = y.line;
+            x.map.iter_mut().for_each(|e| e.line = 0);
+            x.forward.iter_mut().for_each(|f| f.line = 0);
+            let mut y = y.clone();
+            y.map.iter_mut().for_each(|e| e.line = 0);
+            y.forward.iter_mut().for_each(|f| f.line = 0);
+            if x != y {
+                d.modbus = true;
+            }
+        }
+    }
+    if let (Some(pa), Some(pb)) = (&old.map, &new.map) {
+        if pa.space != pb.space {
+            d.modbus = true;
+            d.push(
+                Kind::Map,
+                "memory",
+                Action::Changed,
+                vec![format!("{:?} -> {:?}", pa.space, pb.space)],
+            );
+        }
+        for binding in &pb.bindings {
+            let at = binding.at.to_string();
+            let what = format!("{}.{}", binding.device, binding.name);
+            match pa.bindings.iter().find(|o| o.at == binding.at) {
+                None => d.push(Kind::Map, at, Action::Added, vec![what]),
+                Some(o) if o != binding => {
+                    let before = format!("{}.{}", o.device, o.name);
+                    let mut details: Vec<String> = changed_text("bound to", &before, &what)
+                        .into_iter()
+                        .collect();
+                    details.extend(changed_text("type", o.ty, binding.ty));
+                    details.extend(changed_text("writable", o.writable, binding.writable));
+                    if details.is_empty() {
+                        details.push(format!("{what}: its registers"));
+                    }
+                    d.push(Kind::Map, at, Action::Changed, details);
+                }
+                Some(_) => {}
+            }
+        }
+        for o in &pa.bindings {
+            if !pb.bindings.iter().any(|b| b.at == o.at) {
+                d.push(
+                    Kind::Map,
+                    o.at.to_string(),
+                    Action::Removed,
+                    vec![format!("{}.{}", o.device, o.name)],
+                );
+            }
+        }
+    }
+    if d.items.iter().any(|i| i.kind == Kind::Map) || !d.devices.is_empty() {
+        d.modbus |= b.modbus_server.is_some();
+    }
+
+    // Standing transactions.
+    for t in &b.transactions {
+        match a.transactions.iter().find(|o| o.name == t.name) {
+            None => {
+                d.transactions.added.push(t.name.clone());
+                d.push(Kind::Transaction, &t.name, Action::Added, Vec::new());
+            }
+            Some(o) => {
+                let mut o = o.clone();
+                o.line = t.line;
+                if o != *t {
+                    let details = [
+                        changed_text("link", &o.link, &t.link),
+                        changed_text("period", duration(o.period), duration(t.period)),
+                        changed_text("enabled", o.enabled, t.enabled),
+                        changed("spec", &o.spec, &t.spec),
+                    ]
+                    .into_iter()
+                    .flatten()
+                    .collect();
+                    d.transactions.changed.push(t.name.clone());
+                    d.push(Kind::Transaction, &t.name, Action::Changed, details);
+                }
+            }
+        }
+    }
+    for o in &a.transactions {
+        if !b.transactions.iter().any(|t| t.name == o.name) {
+            d.transactions.removed.push(o.name.clone());
+            d.push(Kind::Transaction, &o.name, Action::Removed, Vec::new());
+        }
+    }
+
+    // MQTT and the reload section.
+    let mqtt = |c: &crate::config::Config| {
+        c.mqtt.clone().map(|mut m| {
+            m.line = 0;
+            m
+        })
+    };
+    if mqtt(a) != mqtt(b) {
+        d.mqtt = true;
+        let action = match (&a.mqtt, &b.mqtt) {
+            (None, _) => Action::Added,
+            (_, None) => Action::Removed,
+            _ => Action::Changed,
+        };
+        d.push(
+            Kind::Mqtt,
+            "mqtt",
+            action,
+            vec!["needs a restart".to_owned()],
+        );
+    }
+    if a.reload != b.reload {
+        d.watch = true;
+        let details = [
+            changed_text("watch", a.reload.watch, b.reload.watch),
+            changed_text(
+                "debounce",
+                duration(a.reload.debounce),
+                duration(b.reload.debounce),
+            ),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        d.push(Kind::Reload, "reload", Action::Changed, details);
+    }
+    d
+}

@@ -1,0 +1,448 @@
+//! Configuration reload: the config file and profiles are loaded and checked exactly as
+//! `iogate check` does (any problem and nothing changes), compared with what runs
+//! (`diff`), and only what changed is applied, while everything else keeps running: an
+//! unchanged link keeps its port open and its devices their poll grid; a re-planned device
+//! hands its kept fields' values, subscribers and waiting writes to its successor.
+//! Reloads come one at a time (SIGHUP, `POST /api/v1/config/reload`, gRPC `ReloadConfig`,
+//! the file watch in `watch.rs`).
+
+pub(crate) mod diff;
+mod watch;
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::SystemTime;
+
+use futures_util::future::BoxFuture;
+
+use crate::app::{Servers, Setup};
+use crate::auth::Tokens;
+use crate::config;
+use crate::service::{ConfigStatus, ModbusImage, ReloadError, Reloading, Report, Service, Trigger};
+use crate::yaml::{Problems, Report as Problem};
+use diff::Diff;
+
+/// A configuration loaded and checked, with what identifies its files' contents.
+pub(crate) struct Loaded {
+    pub(crate) setup: Setup,
+    pub(crate) tokens: Tokens,
+    pub(crate) hash: String,
+}
+
+/// Loads and checks the config file and its profiles as `iogate check` does, and hashes
+/// their contents.
+pub(crate) fn load(path: &Path) -> Result<Loaded, Problems> {
+    let setup = Setup::from_file(path)?;
+    let access = config::check_security(&setup.config)?;
+    let hash = hash_files(path, setup.profiles_dir.as_deref());
+    Ok(Loaded {
+        setup,
+        tokens: access.tokens,
+        hash,
+    })
+}
+
+/// SHA-256 over the config file and every file of the profiles directory (by name), in
+/// hex: equal exactly when the contents are, whatever the timestamps.
+pub(crate) fn hash_files(config: &Path, profiles: Option<&Path>) -> String {
+    let mut ctx = ring::digest::Context::new(&ring::digest::SHA256);
+    let mut add = |name: &[u8], path: &Path| {
+        let bytes = std::fs::read(path).unwrap_or_default();
+        ctx.update(&(name.len() as u64).to_le_bytes());
+        ctx.update(name);
+        ctx.update(&(bytes.len() as u64).to_le_bytes());
+        ctx.update(&bytes);
+    };
+    add(b"", config);
+    if let Some(dir) = profiles {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map(|entries| {
+                entries
+                    .filter_map(|e| e.ok().map(|e| e.path()))
+                    .filter(|p| p.is_file())
+                    .collect()
+            })
+            .unwrap_or_default();
+        files.sort();
+        for file in files {
+            let name = file.file_name().map(|n| n.to_string_lossy().into_owned());
+            add(name.unwrap_or_default().as_bytes(), &file);
+        }
+    }
+    ctx.finish()
+        .as_ref()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+fn unix_ms(at: SystemTime) -> i64 {
+    at.duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as i64)
+}
+
+/// The configuration in force.
+struct InForce {
+    setup: Setup,
+    tokens: Tokens,
+    hash: String,
+}
+
+/// Reloads the configuration of a gateway started from a file.
+pub(crate) struct Reloader {
+    path: PathBuf,
+    in_force: tokio::sync::Mutex<InForce>,
+    status: Mutex<ConfigStatus>,
+    servers: Arc<Servers>,
+}
+
+impl std::fmt::Debug for Reloader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reloader")
+            .field("path", &self.path)
+            .finish()
+    }
+}
+
+impl Reloader {
+    /// The reloader of a gateway started with `setup` from `path`; with `reload.watch`,
+    /// its watch is started as a task of the gateway.
+    pub(crate) fn start(
+        service: &Arc<Service>,
+        path: PathBuf,
+        setup: Setup,
+        tokens: Tokens,
+        servers: Arc<Servers>,
+    ) -> Arc<Reloader> {
+        let hash = hash_files(&path, setup.profiles_dir.as_deref());
+        let status = ConfigStatus {
+            file: path.display().to_string(),
+            profiles: setup.profiles_dir.as_ref().map(|d| d.display().to_string()),
+            hash: hash.clone(),
+            loaded_at_unix_ms: unix_ms(SystemTime::now()),
+            watch: setup.config.reload.watch,
+            last_report: None,
+            last_problems: Vec::new(),
+        };
+        let reloader = Arc::new(Reloader {
+            path,
+            in_force: tokio::sync::Mutex::new(InForce {
+                setup,
+                tokens,
+                hash,
+            }),
+            status: Mutex::new(status),
+            servers,
+        });
+        service.attach_reloader(reloader.clone());
+        watch::spawn(service, &reloader);
+        reloader
+    }
+
+    fn set_status(&self, f: impl FnOnce(&mut ConfigStatus)) {
+        f(&mut self.status.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+
+    /// The files the watch looks at: the config file and the profiles directory in force.
+    pub(crate) async fn watched(&self) -> (PathBuf, Option<PathBuf>, config::ReloadConfig) {
+        let in_force = self.in_force.lock().await;
+        (
+            self.path.clone(),
+            in_force.setup.profiles_dir.clone(),
+            in_force.setup.config.reload,
+        )
+    }
+
+    /// The hash of the files in force.
+    pub(crate) async fn hash(&self) -> String {
+        self.in_force.lock().await.hash.clone()
+    }
+
+    async fn run(
+        self: Arc<Self>,
+        service: Arc<Service>,
+        trigger: Trigger,
+        dry_run: bool,
+    ) -> Result<Report, ReloadError> {
+        let started = std::time::Instant::now();
+        let mut in_force = self.in_force.lock().await;
+        let path = self.path.clone();
+        let loaded = tokio::task::spawn_blocking(move || load(&path))
+            .await
+            .map_err(|e| ReloadError::Failed(format!("loading the configuration failed: {e}")))?;
+        let result = match loaded {
+            Ok(loaded) => match clashes(&service, &in_force.setup, &loaded.setup) {
+                Some(problems) => Err(ReloadError::Invalid(problems)),
+                None => Ok(loaded),
+            },
+            Err(problems) => Err(ReloadError::Invalid(problems)),
+        };
+        let loaded = match result {
+            Ok(loaded) => loaded,
+            Err(e) => {
+                if !dry_run {
+                    service.metrics.config_reload("invalid");
+                    tracing::error!(trigger = trigger.name(), problems = %e, "configuration not reloaded; the gateway runs on what it had");
+                    if let ReloadError::Invalid(problems) = &e {
+                        let lines = problems.0.iter().map(ToString::to_string).collect();
+                        self.set_status(|s| s.last_problems = lines);
+                    }
+                }
+                return Err(e);
+            }
+        };
+        let diff = diff::diff(
+            &in_force.setup,
+            &in_force.tokens,
+            &loaded.setup,
+            &loaded.tokens,
+        );
+        let mut report = Report {
+            trigger,
+            dry_run,
+            changes: diff.items.clone(),
+            reopened: diff.links.changed.clone(),
+            took_ms: 0.0,
+            config_hash: loaded.hash.clone(),
+            at_unix_ms: unix_ms(SystemTime::now()),
+        };
+        if dry_run {
+            report.took_ms = started.elapsed().as_secs_f64() * 1000.0;
+            return Ok(report);
+        }
+        if let Err(e) = self.apply(&service, &in_force, &loaded, &diff).await {
+            service.metrics.config_reload("failed");
+            tracing::error!(trigger = trigger.name(), error = %e, "configuration not reloaded; the gateway runs on what it had");
+            self.set_status(|s| s.last_problems = vec![e.clone()]);
+            return Err(ReloadError::Failed(e));
+        }
+        report.took_ms = (started.elapsed().as_secs_f64() * 1e6).round() / 1000.0;
+        let watch = loaded.setup.config.reload.watch;
+        *in_force = InForce {
+            setup: loaded.setup,
+            tokens: loaded.tokens,
+            hash: loaded.hash.clone(),
+        };
+        drop(in_force);
+        let result = if diff.is_empty() {
+            "unchanged"
+        } else {
+            "applied"
+        };
+        service.metrics.config_reload(result);
+        tracing::info!(
+            trigger = trigger.name(),
+            changes = report.changes.len(),
+            reopened = ?report.reopened,
+            took_ms = report.took_ms,
+            "configuration reloaded"
+        );
+        for line in report.lines() {
+            tracing::info!(change = %line, "reload");
+        }
+        let kept = report.clone();
+        self.set_status(move |s| {
+            s.hash = loaded.hash;
+            s.loaded_at_unix_ms = kept.at_unix_ms;
+            s.watch = watch;
+            s.last_report = Some(kept);
+            s.last_problems.clear();
+        });
+        Ok(report)
+    }
+
+    /// Applies `diff` (from `in_force` to `loaded`). Listeners that move are bound first,
+    /// so a reload that cannot bind one changes nothing.
+    async fn apply(
+        &self,
+        service: &Arc<Service>,
+        in_force: &InForce,
+        loaded: &Loaded,
+        diff: &Diff,
+    ) -> Result<(), String> {
+        let new = &loaded.setup;
+        let old = &in_force.setup;
+        if diff.mqtt {
+            return Err(
+                "the mqtt section changed: it takes effect at the next restart, so nothing was reloaded"
+                    .to_owned(),
+            );
+        }
+        let bound = self.servers.bind(&new.config, diff).await?;
+        let tls = match (&new.config.security.tls, diff.tls) {
+            (Some(files), true) => Some(
+                crate::tls::Tls::load(files.clone())
+                    .map(Arc::new)
+                    .map_err(|e| e.to_string())?,
+            ),
+            _ => None,
+        };
+        let modbus = match (&new.config.modbus_server, &new.map) {
+            (Some(server), Some(plan)) if diff.modbus || diff.modbus_listen => {
+                Some((server.clone(), plan.clone()))
+            }
+            _ => None,
+        };
+        let cache = &service.cache;
+        let tasks = service.tasks();
+        if diff.profiles {
+            cache.set_catalog(new.catalog.clone());
+        }
+        // Links first (a device may move to a new link), devices, then links let go.
+        for name in &diff.links.added {
+            if let Some(config) = new.config.links.iter().find(|l| &l.name == name) {
+                let link = cache.change(|r| cache.insert_link(r, config.clone()));
+                tasks.spawn_link(link);
+            }
+        }
+        for name in &diff.links.changed {
+            if let (Ok(link), Some(config)) = (
+                cache.link(name),
+                new.config.links.iter().find(|l| &l.name == name),
+            ) {
+                link.reconfigure(config.clone());
+            }
+        }
+        for name in &diff.devices.removed {
+            cache.change(|r| {
+                if let Some(device) = r.device(name).cloned() {
+                    cache.remove_device(
+                        r,
+                        &device,
+                        "the device was removed from the configuration",
+                    );
+                }
+            });
+        }
+        for name in &diff.devices.changed {
+            let (Some(config), Ok(old_device)) = (
+                new.config.devices.iter().find(|d| &d.name == name),
+                cache.device(name),
+            ) else {
+                continue;
+            };
+            let Some(profile) = new.catalog.get(&config.profile).cloned() else {
+                continue;
+            };
+            let next =
+                cache.change(|r| cache.replace_device(r, &old_device, config.clone(), profile));
+            if next.is_simulated() {
+                tasks.spawn_sim(next);
+            }
+        }
+        for name in &diff.devices.added {
+            let Some(config) = new.config.devices.iter().find(|d| &d.name == name) else {
+                continue;
+            };
+            let Some(profile) = new.catalog.get(&config.profile).cloned() else {
+                continue;
+            };
+            let device = cache.change(|r| cache.insert_device(r, config.clone(), profile));
+            if device.is_simulated() {
+                tasks.spawn_sim(device);
+            }
+        }
+        for name in &diff.links.removed {
+            cache.change(|r| {
+                if let Some(link) = r.link(name).cloned() {
+                    cache.remove_link(r, &link);
+                }
+            });
+        }
+        // Standing transactions.
+        for name in diff
+            .transactions
+            .removed
+            .iter()
+            .chain(&diff.transactions.changed)
+        {
+            service.drop_transaction(name);
+        }
+        for name in diff
+            .transactions
+            .changed
+            .iter()
+            .chain(&diff.transactions.added)
+        {
+            if let Some(config) = new.config.transactions.iter().find(|t| &t.name == name)
+                && let Err(e) = service.ensure_transaction(config.clone())
+            {
+                tracing::error!(transaction = %name, error = %e, "standing transaction not started");
+            }
+        }
+        // Access.
+        if diff.access {
+            service.set_access(loaded.tokens.clone(), new.config.security.read_only);
+            service.set_policy(new.config.security.declare.clone());
+        }
+        // The Modbus server's image: rebuilt over the devices now in the cache.
+        if let Some((server, plan)) = modbus {
+            let image = match service.modbus() {
+                Some(image) => image.reloaded(&server, &plan, cache),
+                None => ModbusImage::new(&server, &plan, cache),
+            };
+            match image {
+                Ok(image) => service.set_modbus(Some(image)),
+                Err(e) => tracing::error!(error = %e, "Modbus server memory not carried over"),
+            }
+        } else if new.config.modbus_server.is_none() && old.config.modbus_server.is_some() {
+            service.set_modbus(None);
+        }
+        self.servers
+            .apply(service, &new.config, diff, bound, tls)
+            .await;
+        Ok(())
+    }
+}
+
+/// A config entry whose name is taken by a link or device declared at run time: a reload
+/// never removes what was declared, so the entry is a problem.
+fn clashes(service: &Service, old: &Setup, new: &Setup) -> Option<Problems> {
+    let mut report = Problem::new(&new.config.source);
+    for link in &new.config.links {
+        let declared = service
+            .cache
+            .link(&link.name)
+            .is_ok_and(|_| !old.config.links.iter().any(|l| l.name == link.name));
+        if declared {
+            report.push(
+                link.line,
+                format!("link {}", link.name),
+                "a link of this name was declared at run time (EnsureLink or PUT); remove the declaration or rename the entry".to_owned(),
+            );
+        }
+    }
+    for device in &new.config.devices {
+        let declared = service
+            .cache
+            .device(&device.name)
+            .is_ok_and(|_| !old.config.devices.iter().any(|d| d.name == device.name));
+        if declared {
+            report.push(
+                device.line,
+                format!("device {}", device.name),
+                "a device of this name was declared at run time (EnsureDevice or PUT); remove the declaration or rename the entry".to_owned(),
+            );
+        }
+    }
+    let problems = report.into_problems();
+    (!problems.is_empty()).then_some(problems)
+}
+
+impl Reloading for Reloader {
+    fn reload(
+        self: Arc<Self>,
+        service: Arc<Service>,
+        trigger: Trigger,
+        dry_run: bool,
+    ) -> BoxFuture<'static, Result<Report, ReloadError>> {
+        Box::pin(self.run(service, trigger, dry_run))
+    }
+
+    fn status(&self) -> ConfigStatus {
+        self.status
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+}

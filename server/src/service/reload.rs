@@ -1,0 +1,206 @@
+//! Configuration reloads as the front-ends see them: a reload is asked for (by SIGHUP, the
+//! REST call, gRPC `ReloadConfig` or the file watch), and answers with a [`Report`] of what
+//! changed or with every problem found. The loading, checking, comparing and applying is
+//! done by the gateway's composition root (`crate::reload`), installed here as a
+//! [`Reloading`]; the front-ends only call [`Service::reload`] and render the answer.
+
+use std::sync::Arc;
+
+use futures_util::future::BoxFuture;
+use serde::Serialize;
+
+use super::Service;
+use crate::yaml::Problems;
+
+/// What asked for a reload.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Trigger {
+    Sighup,
+    Api,
+    Grpc,
+    Watch,
+}
+
+impl Trigger {
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Trigger::Sighup => "sighup",
+            Trigger::Api => "api",
+            Trigger::Grpc => "grpc",
+            Trigger::Watch => "watch",
+        }
+    }
+}
+
+/// What kind of thing a reload changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    Listener,
+    Security,
+    Profile,
+    Link,
+    Device,
+    Field,
+    Map,
+    Transaction,
+    Mqtt,
+    Reload,
+}
+
+impl Kind {
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Kind::Listener => "listener",
+            Kind::Security => "security",
+            Kind::Profile => "profile",
+            Kind::Link => "link",
+            Kind::Device => "device",
+            Kind::Field => "field",
+            Kind::Map => "map",
+            Kind::Transaction => "transaction",
+            Kind::Mqtt => "mqtt",
+            Kind::Reload => "reload",
+        }
+    }
+}
+
+/// What happened to it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Action {
+    Added,
+    Removed,
+    Changed,
+}
+
+impl Action {
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Action::Added => "added",
+            Action::Removed => "removed",
+            Action::Changed => "changed",
+        }
+    }
+}
+
+/// One change: a link, device, field (`device.field`), profile, map entry (its located
+/// address), standing transaction, security setting, listener or section.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Item {
+    pub kind: Kind,
+    pub name: String,
+    pub action: Action,
+    /// What changed, `key: before -> after`, and what was done about it.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub details: Vec<String>,
+}
+
+/// What a reload changed (or would change, in a dry run).
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Report {
+    pub trigger: Trigger,
+    /// Whether it was only compared (`iogate check --diff`, `dry_run`).
+    pub dry_run: bool,
+    pub changes: Vec<Item>,
+    /// Links whose settings changed: their port or socket was closed and opened again.
+    pub reopened: Vec<String>,
+    /// How long loading, checking and applying took.
+    pub took_ms: f64,
+    /// The hash of the configuration now in force (or, in a dry run, of the one compared).
+    pub config_hash: String,
+    /// When, in milliseconds since the Unix epoch.
+    pub at_unix_ms: i64,
+}
+
+impl Report {
+    /// One line per change, for the log and the terminal.
+    pub fn lines(&self) -> Vec<String> {
+        self.changes
+            .iter()
+            .map(|c| {
+                let mut line = format!("{} {} {}", c.kind.name(), c.name, c.action.name());
+                if !c.details.is_empty() {
+                    line.push_str(": ");
+                    line.push_str(&c.details.join("; "));
+                }
+                line
+            })
+            .collect()
+    }
+}
+
+/// The configuration in force, for `GET /api/v1/config`.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct ConfigStatus {
+    /// The config file, or `built-in demo`.
+    pub file: String,
+    /// The profiles directory, if one is used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub profiles: Option<String>,
+    /// SHA-256 of the config file and of every profile file, in hex.
+    pub hash: String,
+    /// When the configuration in force was loaded, in milliseconds since the Unix epoch.
+    pub loaded_at_unix_ms: i64,
+    /// Whether changed files are applied by themselves (`reload.watch`).
+    pub watch: bool,
+    /// The report of the last reload that was applied, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_report: Option<Report>,
+    /// The problems of the last reload that was refused, if it came after the last applied.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub last_problems: Vec<String>,
+}
+
+/// Why a reload changed nothing.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum ReloadError {
+    /// The new configuration or a profile has problems: every one, with file and line.
+    #[error("{0}")]
+    Invalid(Problems),
+    /// The gateway runs its built-in demo: there is no file to load again.
+    #[error("the gateway runs its built-in demo: there is no configuration file to reload")]
+    NoFile,
+    /// Checked and valid, but applying it failed (a listener could not be bound): nothing
+    /// was changed.
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// Loads, checks, compares and applies a configuration (`crate::reload::Reloader`).
+pub(crate) trait Reloading: Send + Sync + std::fmt::Debug {
+    fn reload(
+        self: Arc<Self>,
+        service: Arc<Service>,
+        trigger: Trigger,
+        dry_run: bool,
+    ) -> BoxFuture<'static, Result<Report, ReloadError>>;
+
+    fn status(&self) -> ConfigStatus;
+}
+
+impl Service {
+    /// Installs what reloads the configuration (once, at start).
+    pub(crate) fn attach_reloader(&self, reloader: Arc<dyn Reloading>) {
+        let _ = self.reloader.set(reloader);
+    }
+
+    /// Loads the configuration and profiles again and applies what changed (or, with
+    /// `dry_run`, only reports it).
+    pub(crate) async fn reload(
+        self: &Arc<Self>,
+        trigger: Trigger,
+        dry_run: bool,
+    ) -> Result<Report, ReloadError> {
+        let Some(reloader) = self.reloader.get().cloned() else {
+            return Err(ReloadError::NoFile);
+        };
+        reloader.reload(self.clone(), trigger, dry_run).await
+    }
+
+    /// The configuration in force and the last reload's report.
+    pub(crate) fn config_status(&self) -> Option<ConfigStatus> {
+        self.reloader.get().map(|r| r.status())
+    }
+}
