@@ -89,6 +89,20 @@ fn write<T>(l: &RwLock<T>) -> RwLockWriteGuard<'_, T> {
     l.write().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The link a device's config names (if it exists) and the `Notify` that wakes the
+/// device's task: the link's, or one of its own.
+fn link_of(registry: &Registry, config: &DeviceConfig) -> (Option<Arc<Link>>, Arc<Notify>) {
+    let link = config
+        .link
+        .as_ref()
+        .and_then(|name| registry.link(name))
+        .cloned();
+    let wake = link
+        .as_ref()
+        .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+    (link, wake)
+}
+
 #[derive(Debug, Default)]
 pub(crate) struct Registry {
     pub(crate) links: Vec<Arc<Link>>,
@@ -153,14 +167,7 @@ impl Cache {
         config: DeviceConfig,
         profile: Arc<Profile>,
     ) -> Arc<Device> {
-        let link = config
-            .link
-            .as_ref()
-            .and_then(|name| registry.link(name))
-            .cloned();
-        let wake = link
-            .as_ref()
-            .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let (link, wake) = link_of(registry, &config);
         let bound = config.slave_id.is_some();
         let device = Arc::new(Device::new(config, profile, self.writes.clone(), wake));
         registry.devices.push(device.clone());
@@ -213,14 +220,7 @@ impl Cache {
         config: DeviceConfig,
         profile: Arc<Profile>,
     ) -> Arc<Device> {
-        let link = config
-            .link
-            .as_ref()
-            .and_then(|name| registry.link(name))
-            .cloned();
-        let wake = link
-            .as_ref()
-            .map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
+        let (link, wake) = link_of(registry, &config);
         let next = Arc::new(Device::succeed(
             old,
             config,

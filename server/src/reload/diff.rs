@@ -6,11 +6,11 @@
 
 use std::fmt::Debug;
 
-use crate::app::Setup;
 use crate::auth::Tokens;
 use crate::config::{DeviceConfig, LinkConfig, Transport};
 use crate::profile::{Field, Profile};
 use crate::service::{Action, Item, Kind};
+use crate::setup::Setup;
 
 /// Names added, removed and changed, in the new file's order (removed: the old one's).
 #[derive(Debug, Default, Clone, PartialEq)]
@@ -49,7 +49,6 @@ pub(crate) struct Diff {
     /// `listen.header_timeout` or `body_timeout`: HTTP and gRPC are served again.
     pub(crate) limits: bool,
     pub(crate) mqtt: bool,
-    pub(crate) watch: bool,
 }
 
 impl Diff {
@@ -519,7 +518,6 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
         );
     }
     if a.reload != b.reload {
-        d.watch = true;
         let details = [
             changed_text("watch", a.reload.watch, b.reload.watch),
             changed_text(

@@ -15,10 +15,11 @@ use std::time::SystemTime;
 
 use futures_util::future::BoxFuture;
 
-use crate::app::{Servers, Setup};
 use crate::auth::Tokens;
 use crate::config;
+use crate::servers::Servers;
 use crate::service::{ConfigStatus, ModbusImage, ReloadError, Reloading, Report, Service, Trigger};
+use crate::setup::Setup;
 use crate::yaml::{Problems, Report as Problem};
 use diff::Diff;
 

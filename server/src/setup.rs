@@ -1,0 +1,138 @@
+//! `Setup`: a config file (or the built-in demo) with its profiles, checked: what `check`
+//! validates, `serve` runs and a reload compares with what runs.
+
+use std::path::{Path, PathBuf};
+
+use crate::config::{self, Config};
+use crate::profile::{self, Catalog};
+use crate::yaml::{Problems, Report};
+
+/// The config file looked for in the working directory when none is given.
+pub(crate) const DEFAULT_CONFIG: &str = "iogate.yaml";
+
+/// A checked configuration with its profiles: what `check` validates and `serve` runs.
+#[derive(Debug, Clone)]
+pub struct Setup {
+    pub config: Config,
+    pub catalog: Catalog,
+    /// The profiles directory used, if any.
+    pub profiles_dir: Option<PathBuf>,
+    /// Whether this is the built-in demo.
+    pub demo: bool,
+    /// The Modbus TCP server's bindings, when it is configured.
+    pub map: Option<crate::map::Plan>,
+}
+
+impl Setup {
+    /// `path` if given; else `iogate.yaml` in the working directory; else the built-in demo.
+    pub fn load(path: Option<&Path>) -> Result<Setup, Problems> {
+        match path {
+            Some(p) => Setup::from_file(p),
+            None if Path::new(DEFAULT_CONFIG).is_file() => {
+                Setup::from_file(Path::new(DEFAULT_CONFIG))
+            }
+            None => Setup::demo(),
+        }
+    }
+
+    pub fn demo() -> Result<Setup, Problems> {
+        let (config, catalog) = crate::demo::load()?;
+        let map = crate::map::plan(&config, &catalog)?;
+        Ok(Setup {
+            config,
+            catalog,
+            profiles_dir: None,
+            demo: true,
+            map,
+        })
+    }
+
+    /// Loads a config file, then its profiles, then checks the devices against both.
+    /// Every problem of every file is reported: what could not be read is left out of the
+    /// checks that follow, and the rest is still checked.
+    pub fn from_file(path: &Path) -> Result<Setup, Problems> {
+        let (config, mut problems) = Config::load_partial(path);
+        let Some(config) = config else {
+            return Err(problems);
+        };
+        let base = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        match Setup::from_config(config, base) {
+            Ok(setup) if problems.is_empty() => return Ok(setup),
+            Ok(_) => {}
+            Err(more) => problems.extend(more),
+        }
+        // File by file, in line order, as an editor shows them.
+        problems
+            .0
+            .sort_by(|a, b| (&a.file, a.line).cmp(&(&b.file, b.line)));
+        Err(problems)
+    }
+
+    /// What `check` and `serve` print without stopping anything: every profile field that
+    /// relies on the default `word_count` of 1 although its type is wider, and every map
+    /// binding that cannot show every value of its field (a TIME at `%MD`).
+    pub fn warnings(&self) -> Vec<crate::yaml::Problem> {
+        let profiles = self.catalog.iter().flat_map(|p| p.width_warnings());
+        let map = self.map.iter().flat_map(|m| m.warnings.iter().cloned());
+        profiles.chain(map).collect()
+    }
+
+    /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in
+    /// `base` or up to six parents) and checks its devices, security, standing transactions
+    /// and Modbus map: every problem of every stage at once.
+    pub fn from_config(config: Config, base: &Path) -> Result<Setup, Problems> {
+        let mut problems = Problems::default();
+        let dir = profile::find_dir(config.profiles.as_deref(), base);
+        let catalog = match &dir {
+            Some(dir) => {
+                let (catalog, more) = profile::load_catalog_partial(dir);
+                problems.extend(more);
+                catalog
+            }
+            None if config.devices.is_empty() => Catalog::default(),
+            None => {
+                let mut report = Report::new(&config.source);
+                report.push(
+                    config.lines.profiles.max(1),
+                    "profiles",
+                    format!(
+                        "no profiles directory found in {} or its {} parents; set `profiles:`",
+                        base.display(),
+                        profile::PARENT_SEARCH_DEPTH
+                    ),
+                );
+                return Err(report.into_problems());
+            }
+        };
+        let checks = [
+            config::check_devices(&config, &catalog).err(),
+            config::check_security(&config).err(),
+            crate::transaction::check_standing(&config).err(),
+        ];
+        problems.extend_all(checks.into_iter().flatten());
+        if let Some(mqtt) = &config.mqtt
+            && let Err(e) = crate::api::mqtt::prepare(mqtt, base)
+        {
+            let mut report = Report::new(&config.source);
+            report.push(mqtt.line, "mqtt", e);
+            problems.extend(report.into_problems());
+        }
+        let map = crate::map::plan(&config, &catalog).unwrap_or_else(|more| {
+            problems.extend(more);
+            None
+        });
+        if !problems.is_empty() {
+            return Err(problems);
+        }
+        Ok(Setup {
+            config,
+            catalog,
+            profiles_dir: dir,
+            demo: false,
+            map,
+        })
+    }
+}
