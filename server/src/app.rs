@@ -138,13 +138,19 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             .ensure_transaction(standing.clone())
             .map_err(|e| anyhow::anyhow!("transaction {}: {e}", standing.name))?;
     }
-    if let Some(mqtt) = &config.mqtt {
-        let base = Path::new(&config.source)
-            .parent()
-            .unwrap_or_else(|| Path::new("."));
-        let prepared = api::mqtt::prepare(mqtt, base).map_err(|e| anyhow::anyhow!("{e}"))?;
-        api::mqtt::spawn(service.clone(), prepared).map_err(|e| anyhow::anyhow!("{e}"))?;
-    }
+    let mqtt = match &config.mqtt {
+        Some(mqtt) => {
+            let base = Path::new(&config.source)
+                .parent()
+                .unwrap_or_else(|| Path::new("."));
+            let prepared = api::mqtt::prepare(mqtt, base).map_err(|e| anyhow::anyhow!("{e}"))?;
+            Some(
+                api::mqtt::spawn(service.clone(), prepared, 0)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?,
+            )
+        }
+        None => None,
+    };
     let servers = Arc::new(Servers::new(token.clone(), tracker.clone(), tls.clone()));
     let limits = api::http::Limits {
         header_timeout: config.header_timeout,
@@ -170,6 +176,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             },
             reload_tokens,
             servers.clone(),
+            mqtt,
         );
     }
     service.set_ready(true);

@@ -7,6 +7,7 @@ use std::time::Duration;
 use futures_util::StreamExt;
 use iogate::app::Setup;
 use iogate_tests::devices::{RtuBus, pty_at, temp_dir};
+use iogate_tests::mqtt::{Broker, Message, Peer};
 use iogate_tests::{SseReader, TestGateway, eventually};
 use reqwest::Method;
 
@@ -339,4 +340,76 @@ async fn an_editor_write_then_rename_is_seen_once() {
         "{metrics}"
     );
     gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_changed_mqtt_section_restarts_the_edge_node_with_the_next_bd_seq() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut peer = Peer::subscribe(&broker, "spBv1.0/#").await.expect("paho");
+    let config = |node: &str| {
+        format!(
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: profiles\ndevices:\n  - {{ name: sim, profile: SimOne, refresh_rate: 50ms }}\nmqtt:\n  url: mqtt://127.0.0.1:{}\n  client_id: iogate-reload-{}\n  sparkplug: {{ group_id: plant1, edge_node_id: {node} }}\n",
+            broker.port, broker.port
+        )
+    };
+    let (_, path) = files("reload-mqtt", &[("sim.yaml", SIM)], &config("line1"));
+    let gw = start(&path).await;
+    let birth = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NBIRTH/line1")
+        .await
+        .expect("NBIRTH");
+    let bd_seq = bd_seq_of(&birth);
+    std::fs::write(&path, config("line2")).expect("write");
+    let (status, body) = gw
+        .send(Method::POST, "/api/v1/config/reload", "")
+        .await
+        .expect("reload");
+    assert_eq!(status, 200, "{body}");
+    assert!(
+        has_change(&body["report"], "mqtt", "mqtt", "changed"),
+        "{body}"
+    );
+    // The old edge node dies with its session's bdSeq; the new one is born with the next.
+    let death = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NDEATH/line1")
+        .await
+        .expect("NDEATH");
+    assert_eq!(bd_seq_of(&death), bd_seq, "NDEATH of the old session");
+    let birth = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NBIRTH/line2")
+        .await
+        .expect("NBIRTH of the new node");
+    assert_eq!(bd_seq_of(&birth), (bd_seq + 1) % 256, "the next session");
+    peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line2/sim")
+        .await
+        .expect("DBIRTH");
+    let (_, mqtt) = gw.get("/api/v1/mqtt").await.expect("mqtt status");
+    assert_eq!(mqtt["sparkplug"]["edge_node_id"], "line2", "{mqtt}");
+    // The section removed: the node dies and the front-end is gone.
+    std::fs::write(
+        &path,
+        config("line2").split("mqtt:").next().expect("config"),
+    )
+    .expect("write");
+    let (status, body) = gw
+        .send(Method::POST, "/api/v1/config/reload", "")
+        .await
+        .expect("reload");
+    assert_eq!(status, 200, "{body}");
+    peer.until(|m| m.topic == "spBv1.0/plant1/NDEATH/line2")
+        .await
+        .expect("NDEATH of the removed node");
+    let (status, _) = gw.get("/api/v1/mqtt").await.expect("mqtt status");
+    assert_eq!(status, 404);
+    gw.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}
+
+fn bd_seq_of(m: &Message) -> u64 {
+    m.sparkplug["metrics"]
+        .as_array()
+        .and_then(|metrics| metrics.iter().find(|x| x["name"] == "bdSeq"))
+        .and_then(|x| x["value"].as_u64())
+        .expect("bdSeq")
 }

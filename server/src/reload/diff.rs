@@ -505,17 +505,41 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     };
     if mqtt(a) != mqtt(b) {
         d.mqtt = true;
-        let action = match (&a.mqtt, &b.mqtt) {
-            (None, _) => Action::Added,
-            (_, None) => Action::Removed,
-            _ => Action::Changed,
+        let (action, details) = match (&a.mqtt, &b.mqtt) {
+            (None, _) => (
+                Action::Added,
+                vec!["the MQTT front-end is started".to_owned()],
+            ),
+            (_, None) => (
+                Action::Removed,
+                vec!["the MQTT front-end is stopped (NDEATH, offline state)".to_owned()],
+            ),
+            (Some(x), Some(y)) => {
+                let mut details: Vec<String> = [
+                    changed_text("url", &x.url, &y.url),
+                    changed_text("client_id", &x.client_id, &y.client_id),
+                    changed("username", &x.username, &y.username),
+                    (x.password != y.password).then(|| "password changed".to_owned()),
+                    (x.tls != y.tls).then(|| "tls changed".to_owned()),
+                    changed("version", &x.version, &y.version),
+                    changed_text("keep_alive", duration(x.keep_alive), duration(y.keep_alive)),
+                    changed_text("clean_start", x.clean_start, y.clean_start),
+                    (x.sparkplug != y.sparkplug).then(|| "sparkplug changed".to_owned()),
+                    (x.json != y.json).then(|| "json changed".to_owned()),
+                    (x.report != y.report).then(|| "report changed".to_owned()),
+                    (x.buffer != y.buffer).then(|| "buffer changed".to_owned()),
+                    changed_text("writes", x.writes, y.writes),
+                ]
+                .into_iter()
+                .flatten()
+                .collect();
+                details.push(
+                    "the MQTT connection is closed (NDEATH) and opened again (NBIRTH, next bdSeq); the buffer on disk is kept".to_owned(),
+                );
+                (Action::Changed, details)
+            }
         };
-        d.push(
-            Kind::Mqtt,
-            "mqtt",
-            action,
-            vec!["needs a restart".to_owned()],
-        );
+        d.push(Kind::Mqtt, "mqtt", action, details);
     }
     if a.reload != b.reload {
         let details = [

@@ -87,6 +87,8 @@ struct InForce {
     setup: Setup,
     tokens: Tokens,
     hash: String,
+    /// The MQTT front-end, when its section is configured.
+    mqtt: Option<crate::api::mqtt::Running>,
 }
 
 /// Reloads the configuration of a gateway started from a file.
@@ -114,6 +116,7 @@ impl Reloader {
         setup: Setup,
         tokens: Tokens,
         servers: Arc<Servers>,
+        mqtt: Option<crate::api::mqtt::Running>,
     ) -> Arc<Reloader> {
         let hash = hash_files(&path, setup.profiles_dir.as_deref());
         let status = ConfigStatus {
@@ -131,6 +134,7 @@ impl Reloader {
                 setup,
                 tokens,
                 hash,
+                mqtt,
             }),
             status: Mutex::new(status),
             servers,
@@ -211,7 +215,7 @@ impl Reloader {
             report.took_ms = started.elapsed().as_secs_f64() * 1000.0;
             return Ok(report);
         }
-        if let Err(e) = self.apply(&service, &in_force, &loaded, &diff).await {
+        if let Err(e) = self.apply(&service, &mut in_force, &loaded, &diff).await {
             service.metrics.config_reload("failed");
             tracing::error!(trigger = trigger.name(), error = %e, "configuration not reloaded; the gateway runs on what it had");
             self.set_status(|s| s.last_problems = vec![e.clone()]);
@@ -219,11 +223,9 @@ impl Reloader {
         }
         report.took_ms = (started.elapsed().as_secs_f64() * 1e6).round() / 1000.0;
         let watch = loaded.setup.config.reload.watch;
-        *in_force = InForce {
-            setup: loaded.setup,
-            tokens: loaded.tokens,
-            hash: loaded.hash.clone(),
-        };
+        in_force.setup = loaded.setup;
+        in_force.tokens = loaded.tokens;
+        in_force.hash = loaded.hash.clone();
         drop(in_force);
         let result = if diff.is_empty() {
             "unchanged"
@@ -257,18 +259,21 @@ impl Reloader {
     async fn apply(
         &self,
         service: &Arc<Service>,
-        in_force: &InForce,
+        in_force: &mut InForce,
         loaded: &Loaded,
         diff: &Diff,
     ) -> Result<(), String> {
         let new = &loaded.setup;
-        let old = &in_force.setup;
-        if diff.mqtt {
-            return Err(
-                "the mqtt section changed: it takes effect at the next restart, so nothing was reloaded"
-                    .to_owned(),
-            );
-        }
+        // The MQTT section's files (password, TLS) are read before anything changes.
+        let mqtt = match (&new.config.mqtt, diff.mqtt) {
+            (Some(section), true) => {
+                let base = Path::new(&new.config.source)
+                    .parent()
+                    .unwrap_or_else(|| Path::new("."));
+                Some(crate::api::mqtt::prepare(section, base)?)
+            }
+            _ => None,
+        };
         let bound = self.servers.bind(&new.config, diff).await?;
         let tls = match (&new.config.security.tls, diff.tls) {
             (Some(files), true) => Some(
@@ -386,13 +391,44 @@ impl Reloader {
                 Ok(image) => service.set_modbus(Some(image)),
                 Err(e) => tracing::error!(error = %e, "Modbus server memory not carried over"),
             }
-        } else if new.config.modbus_server.is_none() && old.config.modbus_server.is_some() {
+        } else if new.config.modbus_server.is_none()
+            && in_force.setup.config.modbus_server.is_some()
+        {
             service.set_modbus(None);
         }
         self.servers
             .apply(service, &new.config, diff, bound, tls)
             .await;
+        if diff.mqtt {
+            restart_mqtt(service, &mut in_force.mqtt, mqtt).await;
+        }
         Ok(())
+    }
+}
+
+/// Stops the MQTT front-end (NDEATH, offline state, its buffer kept on disk) and starts it
+/// again with its new section, its Sparkplug `bdSeq` going on from the old session's.
+async fn restart_mqtt(
+    service: &Arc<Service>,
+    running: &mut Option<crate::api::mqtt::Running>,
+    prepared: Option<crate::api::mqtt::Prepared>,
+) {
+    let mut bd_seq = 0;
+    if let Some(old) = running.take() {
+        match old.stop(service).await {
+            Ok(next) => bd_seq = next,
+            Err(e) => {
+                tracing::warn!(error = %e, "MQTT front-end restarted before the old one ended")
+            }
+        }
+    }
+    if let Some(prepared) = prepared {
+        match crate::api::mqtt::spawn(service.clone(), prepared, bd_seq) {
+            Ok(started) => *running = Some(started),
+            Err(e) => {
+                tracing::error!(error = %e, "the MQTT front-end could not start with the reloaded section")
+            }
+        }
     }
 }
 

@@ -114,8 +114,8 @@ pub struct Service {
     read_only: AtomicBool,
     /// Open change streams (SSE, Subscribe, Exchange), bounded by [`MAX_STREAMS`].
     streams: Arc<std::sync::atomic::AtomicUsize>,
-    /// The MQTT front-end's state, when it runs.
-    mqtt: std::sync::OnceLock<Arc<MqttState>>,
+    /// The MQTT front-end's state, when it runs (replaced when a reload restarts it).
+    mqtt: std::sync::RwLock<Option<Arc<MqttState>>>,
     /// What reloads the configuration, when it came from a file.
     reloader: std::sync::OnceLock<Arc<dyn Reloading>>,
 }
@@ -148,7 +148,7 @@ impl Service {
             tokens: crate::auth::TokenTable::default(),
             read_only: AtomicBool::new(false),
             streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
-            mqtt: std::sync::OnceLock::new(),
+            mqtt: std::sync::RwLock::new(None),
             reloader: std::sync::OnceLock::new(),
         }
     }
@@ -241,14 +241,14 @@ impl Service {
         self.cache.devices()
     }
 
-    /// The MQTT front-end's state, once it is started.
-    pub(crate) fn mqtt(&self) -> Option<&Arc<MqttState>> {
-        self.mqtt.get()
+    /// The MQTT front-end's state, while it runs.
+    pub(crate) fn mqtt(&self) -> Option<Arc<MqttState>> {
+        self.mqtt.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
-    /// Gives the MQTT front-end's state to the other front-ends (once).
-    pub(crate) fn attach_mqtt(&self, state: Arc<MqttState>) {
-        let _ = self.mqtt.set(state);
+    /// Gives the MQTT front-end's state to the other front-ends (`None`: it no longer runs).
+    pub(crate) fn attach_mqtt(&self, state: Option<Arc<MqttState>>) {
+        *self.mqtt.write().unwrap_or_else(|e| e.into_inner()) = state;
     }
 
     /// Wakes when a device is added or removed.

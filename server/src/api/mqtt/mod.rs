@@ -169,8 +169,47 @@ pub(crate) enum StartError {
     Buffer(#[from] buffer::BufferError),
 }
 
-/// Starts the front-end's task; it runs until the gateway shuts down.
-pub(crate) fn spawn(service: Arc<Service>, prepared: Prepared) -> Result<(), StartError> {
+/// The front-end's running task, to stop it (a reload that changes the `mqtt:` section).
+/// Dropping it leaves the task running until the gateway shuts down.
+pub(crate) struct Running {
+    stop: CancellationToken,
+    stopped: tokio::sync::oneshot::Receiver<()>,
+    state: Arc<MqttState>,
+}
+
+/// How long a stopping front-end may take to say goodbye to its broker.
+const STOP_WAIT: Duration = Duration::from_secs(10);
+
+impl Running {
+    /// Stops the task: NDEATH and the offline state when connected, what is waiting kept in
+    /// the buffer directory (when there is one), the connection closed. Answers the
+    /// `bdSeq` the next session starts from, or an error when it did not stop in time.
+    pub(crate) async fn stop(self, service: &Service) -> Result<u8, String> {
+        self.stop.cancel();
+        let stopped = tokio::time::timeout(STOP_WAIT, self.stopped).await;
+        service.attach_mqtt(None);
+        let next = self
+            .state
+            .status()
+            .sparkplug
+            .map_or(0, |sp| sp.bd_seq.wrapping_add(1));
+        match stopped {
+            Ok(_) => Ok(next),
+            Err(_) => Err(format!(
+                "the MQTT front-end did not stop within {}s",
+                STOP_WAIT.as_secs()
+            )),
+        }
+    }
+}
+
+/// Starts the front-end's task; it runs until the gateway shuts down or [`Running::stop`].
+/// The Sparkplug `bdSeq` goes on from the buffer directory's, else from `bd_seq`.
+pub(crate) fn spawn(
+    service: Arc<Service>,
+    prepared: Prepared,
+    bd_seq: u8,
+) -> Result<Running, StartError> {
     let config = &prepared.config;
     tracing::info!(broker = %config.url, "publishing to MQTT");
     let buffer = match &config.buffer.dir {
@@ -182,7 +221,7 @@ pub(crate) fn spawn(service: Arc<Service>, prepared: Prepared) -> Result<(), Sta
         .dir
         .as_deref()
         .and_then(read_bd_seq)
-        .map_or(0, |b| b.wrapping_add(1));
+        .map_or(bd_seq, |b| b.wrapping_add(1));
     let state = Arc::new(MqttState::default());
     state.update(|s| {
         s.broker = config.url.to_string();
@@ -197,9 +236,15 @@ pub(crate) fn spawn(service: Arc<Service>, prepared: Prepared) -> Result<(), Sta
             ..SparkplugStatus::default()
         });
     });
-    service.attach_mqtt(state.clone());
+    service.attach_mqtt(Some(state.clone()));
     let status = state.status();
-    let token = service.tasks().token().clone();
+    let token = service.tasks().token().child_token();
+    let (done, stopped) = tokio::sync::oneshot::channel();
+    let running = Running {
+        stop: token.clone(),
+        stopped,
+        state: state.clone(),
+    };
     let task = Task {
         reporter: Reporter::new(config.report.clone()),
         spark: config.sparkplug.as_ref().map(sparkplug::Topics::new),
@@ -217,8 +262,11 @@ pub(crate) fn spawn(service: Arc<Service>, prepared: Prepared) -> Result<(), Sta
         lost: 0,
         prepared,
     };
-    service.tasks().spawn(task.run(token));
-    Ok(())
+    service.tasks().spawn(async move {
+        task.run(token).await;
+        let _ = done.send(());
+    });
+    Ok(running)
 }
 
 fn read_bd_seq(dir: &Path) -> Option<u8> {
