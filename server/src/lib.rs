@@ -21,7 +21,7 @@ pub(crate) mod mqtt_status;
 pub mod plan;
 pub(crate) mod poller;
 pub mod profile;
-pub(crate) mod reload;
+pub mod reload;
 pub(crate) mod runtime;
 pub(crate) mod servers;
 pub mod service;

@@ -39,10 +39,27 @@ enum Command {
         config: Option<PathBuf>,
     },
     /// Check the config and profiles; print every problem and exit 64 if there is any.
+    /// With --diff, also print what a reload would change, applying nothing.
     Check {
         /// The config file; default: ./iogate.yaml, else the built-in demo.
         #[arg(long, short)]
         config: Option<PathBuf>,
+        /// Print the report a reload of the config would give: the running gateway's dry
+        /// run (at the config's listen.http, or --server), or a comparison with --against.
+        #[arg(long)]
+        diff: bool,
+        /// Compare with this file (as if it were running) instead of asking the gateway.
+        #[arg(long, requires = "diff")]
+        against: Option<PathBuf>,
+        /// The running gateway's URL; default: from the config's listen.http.
+        #[arg(long, requires = "diff", conflicts_with = "against")]
+        server: Option<String>,
+        /// A bearer token with the admin role, for a gateway that asks for one.
+        #[arg(long, env = "IOGATE_TOKEN", hide_env_values = true, requires = "diff")]
+        token: Option<String>,
+        /// Print the report as JSON (the reload call's `report`).
+        #[arg(long, requires = "diff")]
+        json: bool,
     },
     /// Print each link's poll plan: transactions per cycle, wire time, bus utilisation.
     Plan {
@@ -90,9 +107,18 @@ enum ProfileCommand {
     },
 }
 
+/// `iogate check --diff`'s options.
+struct DiffOptions {
+    against: Option<PathBuf>,
+    server: Option<String>,
+    token: Option<String>,
+    json: bool,
+}
+
 enum Action {
     Serve,
     Check,
+    Diff(DiffOptions),
     Plan,
     Map { st: bool },
     St(String),
@@ -131,7 +157,23 @@ fn main() -> ExitCode {
     let (config, action) = match cli.command {
         None => (None, Action::Serve),
         Some(Command::Serve { config }) => (config, Action::Serve),
-        Some(Command::Check { config }) => (config, Action::Check),
+        Some(Command::Check {
+            config,
+            diff: true,
+            against,
+            server,
+            token,
+            json,
+        }) => (
+            config,
+            Action::Diff(DiffOptions {
+                against,
+                server,
+                token,
+                json,
+            }),
+        ),
+        Some(Command::Check { config, .. }) => (config, Action::Check),
         Some(Command::Plan { config }) => (config, Action::Plan),
         Some(Command::Map { config, st }) => (config, Action::Map { st }),
         Some(Command::Profile {
@@ -151,7 +193,7 @@ fn main() -> ExitCode {
             return ExitCode::from(iogate::EXIT_CONFIG as u8);
         }
     };
-    if matches!(action, Action::Check | Action::Serve) {
+    if matches!(action, Action::Check | Action::Serve | Action::Diff(_)) {
         for warning in setup.warnings() {
             eprintln!("warning: {warning}");
         }
@@ -187,6 +229,9 @@ fn main() -> ExitCode {
             }
         };
     }
+    if let Action::Diff(options) = &action {
+        return diff(&setup, options);
+    }
     if let Action::Plan = action {
         print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
         return ExitCode::SUCCESS;
@@ -221,6 +266,97 @@ fn main() -> ExitCode {
         Err(e) => {
             // A log line, so a log collector reading JSON lines sees why.
             tracing::error!(error = %format!("{e:#}"), "the gateway could not start");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// `iogate check --diff`: prints the report a reload would give; exits 64 when the files
+/// have problems, 1 when the gateway could not be asked.
+fn diff(setup: &Setup, options: &DiffOptions) -> ExitCode {
+    use iogate::reload::compare::{self, DiffError};
+    if setup.demo {
+        eprintln!(
+            "check --diff compares a config file: none was given and ./iogate.yaml does not exist"
+        );
+        return ExitCode::from(iogate::EXIT_CONFIG as u8);
+    }
+    let config = PathBuf::from(&setup.config.source);
+    let (answer, against) = match &options.against {
+        Some(running) => (
+            compare::against_file(running, &config),
+            running.display().to_string(),
+        ),
+        None => {
+            let url = options
+                .server
+                .clone()
+                .unwrap_or_else(|| compare::gateway_url(setup));
+            let runtime = match tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            {
+                Ok(rt) => rt,
+                Err(e) => {
+                    eprintln!("cannot start the runtime: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            let answer = runtime.block_on(compare::against_gateway(
+                setup,
+                &config,
+                &url,
+                options.token.as_deref(),
+            ));
+            (answer, format!("the gateway at {url}"))
+        }
+    };
+    match answer {
+        Ok(report) if options.json => match serde_json::to_string_pretty(&report) {
+            Ok(text) => {
+                println!("{text}");
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("{e}");
+                ExitCode::FAILURE
+            }
+        },
+        Ok(report) => {
+            let count = report.changes.len();
+            if count == 0 {
+                println!(
+                    "{} against {against}: no changes; a reload would change nothing",
+                    config.display()
+                );
+            } else {
+                println!(
+                    "{} against {against}: {count} change{}; nothing was applied",
+                    config.display(),
+                    if count == 1 { "" } else { "s" }
+                );
+                for line in report.lines() {
+                    println!("  {line}");
+                }
+                if !report.reopened.is_empty() {
+                    println!("  reopened: {}", report.reopened.join(", "));
+                }
+            }
+            ExitCode::SUCCESS
+        }
+        Err(DiffError::Invalid(problems)) => {
+            for problem in &problems {
+                eprintln!("{problem}");
+            }
+            eprintln!(
+                "{} problem{} found; a reload would change nothing",
+                problems.len(),
+                if problems.len() == 1 { "" } else { "s" }
+            );
+            ExitCode::from(iogate::EXIT_CONFIG as u8)
+        }
+        Err(e) => {
+            eprintln!("{e}");
             ExitCode::FAILURE
         }
     }

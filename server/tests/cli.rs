@@ -549,3 +549,132 @@ fn version_and_json_logs_for_log_collectors() {
     assert!(!refused.status.success());
     assert!(String::from_utf8_lossy(&refused.stderr).contains("possible values: text, json"));
 }
+
+/// A gateway process, killed when dropped.
+struct Serving(std::process::Child);
+
+impl Drop for Serving {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `iogate serve --config config` and answers its HTTP base URL.
+fn serve(config: &Path) -> (Serving, String) {
+    let mut child = iogate()
+        .args(["serve", "--config"])
+        .arg(config)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starts");
+    let stdout = child.stdout.take().expect("stdout");
+    let serving = Serving(child);
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let line = rx
+        .recv_timeout(Duration::from_secs(20))
+        .expect("prints its URLs");
+    let url = line
+        .strip_prefix("Web page:  ")
+        .and_then(|l| l.strip_suffix("/ui"))
+        .expect("the web page's URL")
+        .to_owned();
+    (serving, url)
+}
+
+fn check_diff(args: &[&str], config: &Path) -> (Option<i32>, String, String) {
+    let out = iogate()
+        .args(["check", "--diff", "--config"])
+        .arg(config)
+        .args(args)
+        .output()
+        .expect("runs");
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn check_diff_prints_what_a_reload_would_change_and_applies_nothing() {
+    let dir = temp_dir("diff");
+    let config = dir.join("iogate.yaml");
+    let text = |rate: &str, extra: &str| {
+        format!(
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: {rate} }}\n{extra}",
+            repo().join("profiles").display()
+        )
+    };
+    std::fs::write(&config, text("50ms", "")).expect("write config");
+    let (_gateway, url) = serve(&config);
+    let edited = text(
+        "20ms",
+        "  - { name: sim2, profile: SimIo, refresh_rate: 100ms }\n",
+    );
+    std::fs::write(&config, &edited).expect("edit");
+    // Asked twice: the first dry run applied nothing, so the second sees the same changes.
+    for _ in 0..2 {
+        let (code, stdout, stderr) = check_diff(&["--server", &url], &config);
+        assert_eq!(code, Some(0), "{stdout}{stderr}");
+        assert!(
+            stdout.contains("2 changes; nothing was applied"),
+            "{stdout}"
+        );
+        assert!(
+            stdout.contains("device sim changed: refresh_rate: 50ms -> 20ms"),
+            "{stdout}"
+        );
+        assert!(stdout.contains("device sim2 added"), "{stdout}");
+    }
+    let (code, stdout, _) = check_diff(&["--server", &url, "--json"], &config);
+    assert_eq!(code, Some(0));
+    let report: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    assert_eq!(report["dry_run"], true, "{report}");
+    assert_eq!(
+        report["changes"].as_array().map(Vec::len),
+        Some(2),
+        "{report}"
+    );
+
+    // A file with a problem: checked first, as `check` does, with file and line; exit 64.
+    std::fs::write(
+        &config,
+        edited.replace("sim2, profile: SimIo", "sim2, profile: Nope"),
+    )
+    .expect("break");
+    let (code, _, stderr) = check_diff(&["--server", &url], &config);
+    assert_eq!(code, Some(64), "{stderr}");
+    assert!(
+        stderr.contains("iogate.yaml:5: device sim2: unknown profile `Nope`"),
+        "{stderr}"
+    );
+
+    // Another file than the one the gateway runs is not what its reload would load.
+    let other = dir.join("other.yaml");
+    std::fs::write(&other, &edited).expect("other");
+    let (code, _, stderr) = check_diff(&["--server", &url], &other);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("runs `"), "{stderr}");
+    assert!(stderr.contains("--against"), "{stderr}");
+
+    // Two files compared, nothing asked.
+    let running = dir.join("running.yaml");
+    std::fs::write(&running, text("50ms", "")).expect("running");
+    let (code, stdout, stderr) =
+        check_diff(&["--against", running.to_str().expect("path")], &other);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(
+        stdout.contains("device sim changed: refresh_rate: 50ms -> 20ms"),
+        "{stdout}"
+    );
+    let (code, stdout, _) = check_diff(&["--against", running.to_str().expect("path")], &running);
+    assert_eq!(code, Some(0));
+    assert!(stdout.contains("no changes"), "{stdout}");
+}

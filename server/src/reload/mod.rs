@@ -6,6 +6,7 @@
 //! Reloads come one at a time (SIGHUP, `POST /api/v1/config/reload`, gRPC `ReloadConfig`,
 //! the file watch in `watch.rs`).
 
+pub mod compare;
 pub(crate) mod diff;
 mod watch;
 

@@ -7,19 +7,21 @@
 use std::sync::Arc;
 
 use futures_util::future::BoxFuture;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::Service;
 use crate::yaml::Problems;
 
 /// What asked for a reload.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Trigger {
     Sighup,
     Api,
     Grpc,
     Watch,
+    /// `iogate check --diff --against`: two files compared, nothing running.
+    Check,
 }
 
 impl Trigger {
@@ -29,12 +31,15 @@ impl Trigger {
             Trigger::Api => "api",
             Trigger::Grpc => "grpc",
             Trigger::Watch => "watch",
+            Trigger::Check => "check",
         }
     }
 }
 
 /// What kind of thing a reload changed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, utoipa::ToSchema)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, utoipa::ToSchema,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Kind {
     Listener,
@@ -67,7 +72,7 @@ impl Kind {
 }
 
 /// What happened to it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Action {
     Added,
@@ -87,18 +92,18 @@ impl Action {
 
 /// One change: a link, device, field (`device.field`), profile, map entry (its located
 /// address), standing transaction, security setting, listener or section.
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Item {
     pub kind: Kind,
     pub name: String,
     pub action: Action,
     /// What changed, `key: before -> after`, and what was done about it.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub details: Vec<String>,
 }
 
 /// What a reload changed (or would change, in a dry run).
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Report {
     pub trigger: Trigger,
     /// Whether it was only compared (`iogate check --diff`, `dry_run`).
