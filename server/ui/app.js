@@ -233,9 +233,60 @@ function mqttRows(m) {
     h('th', { scope: 'row' }, label), cell(label, value, h('div', { class: 'meaning' }, meaning))));
 }
 
+/** The configuration in force and the last reload (GET /api/v1/config). */
+async function configStatus(signal) {
+  return api('GET', '/config', undefined, { signal }).catch(() => null);
+}
+
+function plural(n, word) {
+  return `${n} ${word}${n === 1 ? '' : 's'}`;
+}
+
+/** The configuration's file, hash, load time and watch, and the last reload's report. */
+function configRows(c) {
+  const loaded = c.loaded_at_unix_ms ? new Date(c.loaded_at_unix_ms).toISOString() : null;
+  const rows = [
+    h('tr', { 'data-config': 'File' }, h('th', { scope: 'row' }, 'File'),
+      cell('File', c.file, h('div', { class: 'meaning' }, c.profiles ? `profiles in ${c.profiles}` : ''))),
+  ];
+  if (!c.hash) return rows;
+  rows.push(h('tr', { 'data-config': 'Loaded' }, h('th', { scope: 'row' }, 'Loaded'),
+    cell('Loaded', ago(loaded), h('div', { class: 'meaning' },
+      `sha256 ${c.hash.slice(0, 12)} · ${c.watch ? 'files watched' : 'reloaded on SIGHUP or request'}`))));
+  const r = c.last_report;
+  const problems = c.last_problems ?? [];
+  if (problems.length) {
+    rows.push(h('tr', { class: 'problem', 'data-config': 'Refused' }, h('th', { scope: 'row' }, 'Refused'),
+      cell('Refused', h('span', { class: 'badge bad' }, 'last reload refused: nothing changed'),
+        h('ul', { class: 'problems' }, ...problems.map((p) => h('li', {}, p))))));
+  }
+  if (r) {
+    const when = new Date(r.at_unix_ms).toISOString();
+    const changes = r.changes ?? [];
+    const reopened = r.reopened ?? [];
+    rows.push(h('tr', { 'data-config': 'Last reload' }, h('th', { scope: 'row' }, 'Last reload'),
+      cell('Last reload',
+        `${plural(changes.length, 'change')} (${r.trigger}), ${ago(when)}`,
+        h('div', { class: 'meaning' }, `took ${r.took_ms} ms${reopened.length ? ` · reopened ${reopened.join(', ')}` : ''}`),
+        h('ul', { class: 'changes' }, ...changes.map((x) => h('li', { 'data-change': `${x.kind} ${x.name}` },
+          h('span', { class: `badge ${x.action === 'removed' ? 'bad' : 'ok'}` }, x.action), ' ',
+          `${x.kind} `, h('strong', {}, x.name),
+          x.details?.length ? h('div', { class: 'meaning' }, x.details.join('; ')) : null))))));
+  }
+  return rows;
+}
+
 async function overview(signal) {
-  const [links, devices, mqtt] = await Promise.all([api('GET', '/links', undefined, { signal }),
-    api('GET', '/devices', undefined, { signal }), mqttStatus(signal)]);
+  const [links, devices, mqtt, config] = await Promise.all([api('GET', '/links', undefined, { signal }),
+    api('GET', '/devices', undefined, { signal }), mqttStatus(signal), configStatus(signal)]);
+  const configBody = h('tbody');
+  const configSection = h('section', { 'aria-labelledby': 'config-title', id: 'config', hidden: !config },
+    h('h2', { id: 'config-title' }, 'Configuration'),
+    h('div', { class: 'scroll' }, h('table', { class: 'list' }, configBody)));
+  const renderConfig = (c) => {
+    configSection.hidden = !c;
+    if (c) fill(configBody, ...configRows(c));
+  };
   const mqttBody = h('tbody');
   const mqttSection = h('section', { hidden: !mqtt, 'aria-labelledby': 'mqtt-title', id: 'mqtt' },
     h('h2', { id: 'mqtt-title' }, 'MQTT'),
@@ -316,8 +367,10 @@ async function overview(signal) {
         head('Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response'),
         deviceBody))),
     mqttSection,
-    transactionSection);
+    transactionSection,
+    configSection);
   renderMqtt(mqtt);
+  renderConfig(config);
   renderLinks();
   fill(deviceBody, ...devices.devices.map(deviceRow));
   renderSummary();
@@ -341,9 +394,10 @@ async function overview(signal) {
   // are refreshed every two seconds.
   const poll = setInterval(async () => {
     try {
-      const [fresh, counters, m] = await Promise.all([api('GET', '/links', undefined, { signal }),
-        api('GET', '/devices', undefined, { signal }), mqttStatus(signal)]);
+      const [fresh, counters, m, c] = await Promise.all([api('GET', '/links', undefined, { signal }),
+        api('GET', '/devices', undefined, { signal }), mqttStatus(signal), configStatus(signal)]);
       renderMqtt(m);
+      renderConfig(c);
       linksByName.clear();
       for (const l of fresh.links) linksByName.set(l.name, l);
       renderLinks();

@@ -586,3 +586,60 @@ mqtt:
     broker.stop().await;
     Ok(())
 }
+
+#[tokio::test]
+async fn the_overview_shows_the_last_reload_and_a_refused_one() -> anyhow::Result<()> {
+    let dir = iogate_tests::devices::temp_dir("ui-reload");
+    let path = dir.join("iogate.yaml");
+    let config = |rate: &str| {
+        format!(
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: {rate} }}\n",
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../profiles")
+                .display()
+        )
+    };
+    std::fs::write(&path, config("100ms"))?;
+    let setup = iogate::app::Setup::from_file(&path).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let gw = TestGateway::start_setup(setup).await?;
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    browser.goto(&gw.url("/")).await?;
+    browser
+        .until_text(
+            "#config tr[data-config='File']",
+            Duration::from_secs(10),
+            |t| t.contains("iogate.yaml"),
+        )
+        .await?;
+    std::fs::write(&path, config("40ms"))?;
+    let (status, body) = gw.send(Method::POST, "/api/v1/config/reload", "").await?;
+    assert_eq!(status, 200, "{body}");
+    let shown = browser
+        .until_text(
+            "#config tr[data-config='Last reload']",
+            Duration::from_secs(10),
+            |t| t.contains("1 change (api)"),
+        )
+        .await?;
+    assert!(
+        shown.contains("device sim") && shown.contains("refresh_rate: 100ms -> 40ms"),
+        "{shown}"
+    );
+    // A refused reload: the page names the problem with its file and line.
+    std::fs::write(&path, config("40ms").replace("SimIo", "NoSuchProfile"))?;
+    let (status, _) = gw.send(Method::POST, "/api/v1/config/reload", "").await?;
+    assert_eq!(status, 400);
+    browser
+        .until_text(
+            "#config tr[data-config='Refused']",
+            Duration::from_secs(10),
+            |t| t.contains("iogate.yaml:4") && t.contains("unknown profile `NoSuchProfile`"),
+        )
+        .await?;
+    browser
+        .screenshot(&screenshots_dir().join("overview-reload.png"))
+        .await?;
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    gw.shutdown().await;
+    Ok(())
+}
