@@ -29,6 +29,8 @@ pub struct Running {
     pub grpc_addr: SocketAddr,
     /// The Modbus TCP server's address, when one is configured.
     pub modbus_addr: Option<SocketAddr>,
+    /// The OPC UA server's address, when one is configured.
+    pub opcua_addr: Option<SocketAddr>,
     /// Whether HTTP and gRPC are served over TLS.
     pub(crate) secure: bool,
     tracker: TaskTracker,
@@ -161,6 +163,19 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         Some(listener) => Some(servers.serve_modbus(&service, listener).await?),
         None => None,
     };
+    let opcua_addr = match &config.opcua {
+        Some(opcua) => {
+            let base = Path::new(&config.source)
+                .parent()
+                .unwrap_or_else(|| Path::new("."));
+            Some(
+                api::opcua::start(&service, opcua, base)
+                    .await
+                    .map_err(|e| anyhow::anyhow!("{e}"))?,
+            )
+        }
+        None => None,
+    };
     servers.serve_grpc(&service, grpc_listener, limits).await?;
     servers.serve_http(&service, listener, limits).await?;
     if let Some(path) = source {
@@ -185,6 +200,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         http_addr,
         grpc_addr,
         modbus_addr,
+        opcua_addr,
         secure,
         tracker,
     })
@@ -208,6 +224,12 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     );
     if let Some(addr) = running.modbus_addr {
         println!("Modbus TCP: {addr} (iogate map prints the located addresses)");
+    }
+    if let Some(addr) = running.opcua_addr {
+        println!(
+            "OPC UA:    opc.tcp://{addr}/ (namespace {})",
+            api::opcua::NAMESPACE
+        );
     }
     println!("Events:    {base}/api/v1/events");
     println!("OpenAPI:   {base}/api/v1/openapi.json");

@@ -156,6 +156,16 @@ impl Tokens {
 
     /// Whether a request with `authorization` (the header's value) may do what `needed`
     /// allows. Without tokens configured everything is allowed.
+    /// The role of `token` (a password given by an OPC UA client), compared in full
+    /// against every known token.
+    pub(crate) fn role_of(&self, token: &str) -> Option<Role> {
+        self.0
+            .iter()
+            .filter(|(t, _)| constant_eq(t.as_bytes(), token.as_bytes()))
+            .map(|(_, r)| *r)
+            .max()
+    }
+
     pub(crate) fn check(&self, authorization: Option<&str>, needed: Role) -> Result<(), Denied> {
         if self.0.is_empty() {
             return Ok(());
@@ -168,13 +178,7 @@ impl Tokens {
             .map(str::trim)
             .ok_or(Denied::Unauthenticated)?;
         // Compare every known token in full (no early exit on the first byte).
-        let role = self
-            .0
-            .iter()
-            .filter(|(t, _)| constant_eq(t.as_bytes(), token.as_bytes()))
-            .map(|(_, r)| *r)
-            .max()
-            .ok_or(Denied::Unauthenticated)?;
+        let role = self.role_of(token).ok_or(Denied::Unauthenticated)?;
         if role >= needed {
             Ok(())
         } else {

@@ -14,6 +14,7 @@ pub(crate) mod limit;
 pub(crate) mod map;
 pub(crate) mod modbus_server;
 pub(crate) mod mqtt;
+pub(crate) mod opcua;
 pub(crate) mod pb;
 pub(crate) mod rest;
 pub(crate) mod transactions;

@@ -226,10 +226,51 @@ pub(crate) fn check_security(config: &Config) -> Result<Access, Problems> {
             }
         }
     }
+    if let Some(opcua) = &config.opcua {
+        check_opcua(opcua, &tokens, security.insecure, &mut report);
+    }
     problems.extend(report.into_problems());
     if problems.is_empty() {
         Ok(Access { tokens, tls })
     } else {
         Err(problems)
+    }
+}
+
+/// The OPC UA server's rules, as for HTTP: off loopback, neither the `none` endpoint nor
+/// sessions nobody signs in to, unless `security.insecure: true`.
+fn check_opcua(
+    opcua: &super::opcua::OpcUaConfig,
+    tokens: &crate::auth::Tokens,
+    insecure: bool,
+    report: &mut Report,
+) {
+    use super::opcua::{Anonymous, Endpoint};
+    let addr = opcua.listen;
+    if addr.ip().is_loopback() || insecure {
+        return;
+    }
+    if opcua.security.contains(&Endpoint::None) {
+        report.push(
+            opcua.line,
+            "opcua.security",
+            format!(
+                "{addr} is not a loopback address: the `none` endpoint would send everything unsigned and in clear; remove it, or set security.insecure: true"
+            ),
+        );
+    }
+    let anonymous_allowed = match opcua.anonymous {
+        Some(Anonymous::Refused) => false,
+        Some(Anonymous::Role(_)) => true,
+        None => tokens.is_empty(),
+    };
+    if tokens.is_empty() && anonymous_allowed {
+        report.push(
+            opcua.line,
+            "opcua.listen",
+            format!(
+                "{addr} is not a loopback address and no tokens are configured: set security.tokens_file (or IOGATE_TOKENS), or security.insecure: true to serve it unauthenticated"
+            ),
+        );
     }
 }

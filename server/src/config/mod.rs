@@ -6,6 +6,7 @@
 mod check;
 pub(crate) mod modbus_server;
 pub(crate) mod mqtt;
+pub(crate) mod opcua;
 mod parse;
 pub(crate) mod rules;
 pub mod security;
@@ -42,6 +43,8 @@ pub struct Config {
     pub modbus_server: Option<modbus_server::ModbusServerConfig>,
     /// The MQTT publisher, when configured.
     pub(crate) mqtt: Option<mqtt::MqttConfig>,
+    /// The OPC UA server, when configured.
+    pub(crate) opcua: Option<opcua::OpcUaConfig>,
     /// Standing raw transactions.
     pub(crate) transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,
@@ -279,6 +282,7 @@ impl Config {
             devices: Vec::new(),
             modbus_server: None,
             mqtt: None,
+            opcua: None,
             transactions: Vec::new(),
             security: security::SecurityConfig::default(),
             reload: ReloadConfig::default(),

@@ -18,6 +18,7 @@ const TOP_KEYS: &[&str] = &[
     "devices",
     "modbus_server",
     "mqtt",
+    "opcua",
     "transactions",
     "security",
     "reload",
@@ -194,6 +195,7 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         .get("modbus_server")
         .and_then(|n| super::modbus_server::read(n, report));
     config.mqtt = map.get("mqtt").and_then(|n| super::mqtt::read(n, report));
+    config.opcua = map.get("opcua").and_then(|n| super::opcua::read(n, report));
     if let Some(n) = map.get("security") {
         config.security = super::security::read(n, report);
     }

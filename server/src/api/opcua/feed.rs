@@ -1,0 +1,219 @@
+//! The address space follows the gateway: devices and links added, removed or re-planned
+//! (declarations, reloads) appear and disappear, and every value and diagnostics change
+//! from the service's change stream is set on its variable, which notifies the monitored
+//! items (their sampling, queue and deadband filter are the OPC UA library's). Writes to
+//! output variables go to the service, as REST's do.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use futures_util::{FutureExt, StreamExt};
+use opcua::server::SubscriptionCache;
+use opcua::types::{DataValue, DateTime, NodeId, StatusCode};
+use tokio_util::sync::CancellationToken;
+
+use super::space::{self, Ids};
+use crate::cache::{AccessError, Device, Link};
+use crate::codec::CodecError;
+use crate::service::{Change, Changes, Service, ServiceError};
+use iogate_types::ValueError;
+
+use super::nodes::Manager;
+
+/// How often the links' diagnostics are looked at (links have no change stream).
+const LINKS_EVERY: Duration = Duration::from_millis(500);
+/// Changes set on the address space under one lock, at most.
+const BATCH: usize = 1024;
+
+/// What is in the address space.
+struct Shown {
+    devices: HashMap<String, (Arc<Device>, Vec<String>)>,
+    links: HashMap<String, Arc<Link>>,
+}
+
+pub(crate) struct Feed {
+    pub(crate) service: Arc<Service>,
+    pub(crate) manager: Arc<Manager>,
+    pub(crate) subscriptions: Arc<SubscriptionCache>,
+    pub(crate) ids: Ids,
+}
+
+impl Feed {
+    pub(crate) async fn run(self, token: CancellationToken) {
+        let mut shown = Shown {
+            devices: HashMap::new(),
+            links: HashMap::new(),
+        };
+        let mut devices_changed = self.service.watch_devices();
+        self.sync(&mut shown);
+        let mut changes = self.subscribe();
+        let mut links = tokio::time::interval(LINKS_EVERY);
+        links.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                _ = token.cancelled() => return,
+                _ = devices_changed.changed() => {
+                    self.sync(&mut shown);
+                    changes = self.subscribe();
+                }
+                change = next(&mut changes) => match change {
+                    Some(change) => {
+                        let mut batch = vec![change];
+                        while batch.len() < BATCH {
+                            match changes.as_mut().and_then(|c| c.next().now_or_never()) {
+                                Some(Some(change)) => batch.push(change),
+                                _ => break,
+                            }
+                        }
+                        self.apply(&batch);
+                    }
+                    None => changes = None,
+                },
+                _ = links.tick() => self.link_values(&mut shown),
+            }
+        }
+    }
+
+    fn subscribe(&self) -> Option<Changes> {
+        let devices = self.service.devices();
+        let names: Vec<&str> = devices.iter().map(|d| d.name()).collect();
+        let selection = self.service.select::<_, &str>(&names, &[]).ok()?;
+        match self.service.subscribe(selection, true) {
+            Ok(changes) => Some(changes),
+            Err(e) => {
+                tracing::warn!(error = %e, "OPC UA: cannot follow the devices' changes");
+                None
+            }
+        }
+    }
+
+    /// Brings the address space's devices and links to the service's.
+    fn sync(&self, shown: &mut Shown) {
+        let now = DateTime::now();
+        let devices = self.service.devices();
+        let links = self.service.links();
+        let mut space = self.manager.address_space().write();
+        let ids = self.ids;
+        shown.devices.retain(|name, (old, fields)| {
+            let kept = devices.iter().any(|d| Arc::ptr_eq(d, old));
+            if !kept {
+                space::remove_device(&mut space, ids, name, fields);
+            }
+            kept
+        });
+        for device in &devices {
+            if shown.devices.contains_key(device.name()) {
+                continue;
+            }
+            space::add_device(&mut space, ids, device, now);
+            let fields = device
+                .profile
+                .fields
+                .iter()
+                .map(|f| f.name.clone())
+                .collect();
+            shown
+                .devices
+                .insert(device.name().to_owned(), (device.clone(), fields));
+        }
+        shown.links.retain(|name, old| {
+            let kept = links.iter().any(|l| Arc::ptr_eq(l, old));
+            if !kept {
+                space::remove_link(&mut space, ids, name);
+            }
+            kept
+        });
+        for link in &links {
+            if !shown.links.contains_key(link.name()) {
+                space::add_link(&mut space, ids, link, now);
+                shown.links.insert(link.name().to_owned(), link.clone());
+            }
+        }
+        drop(space);
+    }
+
+    fn apply(&self, batch: &[Change]) {
+        let now = DateTime::now();
+        let mut values: Vec<(NodeId, DataValue)> = Vec::with_capacity(batch.len());
+        for change in batch {
+            match change {
+                Change::Value {
+                    device,
+                    idx,
+                    sample,
+                } => {
+                    let field = device.field(*idx);
+                    values.push((
+                        self.ids.field(device.name(), &field.name),
+                        space::data_value(field.ty, sample, now),
+                    ));
+                }
+                Change::Diagnostics {
+                    device,
+                    diagnostics,
+                } => {
+                    for (name, value) in space::device_diagnostics(diagnostics, now) {
+                        values.push((self.ids.device_diagnostic(device.name(), name), value));
+                    }
+                }
+                Change::Removed { .. } => {}
+            }
+        }
+        self.set(values);
+    }
+
+    fn link_values(&self, shown: &mut Shown) {
+        let now = DateTime::now();
+        let mut values = Vec::new();
+        for (name, link) in &shown.links {
+            for (var, value) in space::link_diagnostics(&link.diagnostics(), now) {
+                values.push((self.ids.link_diagnostic(name, var), value));
+            }
+        }
+        self.set(values);
+    }
+
+    /// Sets values and notifies their monitored items; a node removed meanwhile is skipped.
+    fn set(&self, values: Vec<(NodeId, DataValue)>) {
+        if values.is_empty() {
+            return;
+        }
+        let all = values.iter().map(|(id, v)| (id, None, v.clone()));
+        if self.manager.set_values(&self.subscriptions, all).is_err() {
+            for (id, value) in values {
+                let _ = self
+                    .manager
+                    .set_value(&self.subscriptions, &id, None, value);
+            }
+        }
+    }
+}
+
+async fn next(changes: &mut Option<Changes>) -> Option<Change> {
+    match changes {
+        Some(c) => c.next().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// The status code of a refused write.
+pub(crate) fn refused(e: &ServiceError) -> StatusCode {
+    match e {
+        ServiceError::Access(AccessError::InvalidValue { reason, .. }) => match reason.as_ref() {
+            CodecError::Value(ValueError::OutOfRange { .. } | ValueError::NotFinite { .. })
+            | CodecError::RawOutOfRange { .. }
+            | CodecError::NotFinite { .. }
+            | CodecError::TooLong { .. } => StatusCode::BadOutOfRange,
+            _ => StatusCode::BadTypeMismatch,
+        },
+        ServiceError::Access(AccessError::NotWritable { .. }) => StatusCode::BadNotWritable,
+        ServiceError::Access(AccessError::UnknownDevice(_) | AccessError::UnknownField { .. }) => {
+            StatusCode::BadNodeIdUnknown
+        }
+        ServiceError::ReadOnly => StatusCode::BadUserAccessDenied,
+        ServiceError::Busy(_) => StatusCode::BadTooManyOperations,
+        ServiceError::ShuttingDown => StatusCode::BadShutdown,
+        _ => StatusCode::BadInternalError,
+    }
+}

@@ -1,0 +1,180 @@
+//! The OPC UA front-end: an OPC UA server (the `async-opcua` library) whose address space
+//! is the running devices and links (`space.rs`), fed from the service's change streams
+//! (`feed.rs`, `nodes.rs`): values with status codes from their quality and the time the device was
+//! read, subscriptions and monitored items with the library's sampling, queues and
+//! deadband filters, writes checked and requested by the service as REST's are, and
+//! sessions signed in with the gateway's bearer tokens (`auth.rs`).
+//!
+//! Like every front-end it only renders the service.
+
+mod auth;
+mod feed;
+mod nodes;
+mod space;
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::Arc;
+
+use opcua::crypto::SecurityPolicy;
+use opcua::server::ServerBuilder;
+use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId};
+
+use crate::config::opcua::{Endpoint, OpcUaConfig};
+use crate::service::Service;
+use space::Ids;
+
+/// The namespace of the devices' and links' nodes.
+pub(crate) const NAMESPACE: &str = "urn:iogate:devices";
+
+fn security(e: Endpoint) -> (SecurityPolicy, MessageSecurityMode) {
+    match e {
+        Endpoint::None => (SecurityPolicy::None, MessageSecurityMode::None),
+        Endpoint::Basic256Sha256Sign => (SecurityPolicy::Basic256Sha256, MessageSecurityMode::Sign),
+        Endpoint::Basic256Sha256SignEncrypt => (
+            SecurityPolicy::Basic256Sha256,
+            MessageSecurityMode::SignAndEncrypt,
+        ),
+        Endpoint::Aes256Sha256RsaPssSign => (
+            SecurityPolicy::Aes256Sha256RsaPss,
+            MessageSecurityMode::Sign,
+        ),
+        Endpoint::Aes256Sha256RsaPssSignEncrypt => (
+            SecurityPolicy::Aes256Sha256RsaPss,
+            MessageSecurityMode::SignAndEncrypt,
+        ),
+    }
+}
+
+/// The host name endpoint URLs carry: the listener's address, or for a wildcard listener
+/// the machine's name.
+fn endpoint_host(addr: SocketAddr) -> String {
+    if !addr.ip().is_unspecified() {
+        return match addr {
+            SocketAddr::V6(v6) => format!("[{}]", v6.ip()),
+            SocketAddr::V4(v4) => v4.ip().to_string(),
+        };
+    }
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .map(|h| h.trim().to_owned())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "localhost".to_owned())
+}
+
+/// Starts the server on `config.listen` (bound here: a listener that cannot be bound stops
+/// the start) and the task that keeps its address space; both end with the gateway.
+/// Answers the bound address.
+pub(crate) async fn start(
+    service: &Arc<Service>,
+    config: &OpcUaConfig,
+    base: &Path,
+) -> Result<SocketAddr, String> {
+    let pki = base.join(&config.pki_dir);
+    std::fs::create_dir_all(&pki).map_err(|e| format!("opcua.pki_dir {}: {e}", pki.display()))?;
+    let listener = tokio::net::TcpListener::bind(config.listen)
+        .await
+        .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
+    let addr = listener
+        .local_addr()
+        .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
+    let host = endpoint_host(addr);
+    let token = service.tasks().token().child_token();
+    let mut builder = ServerBuilder::new()
+        .application_name("iogate")
+        .application_uri(config.application_uri.clone())
+        .product_uri("urn:iogate")
+        .build_info(BuildInfo {
+            product_uri: "urn:iogate".into(),
+            manufacturer_name: "iogate".into(),
+            product_name: "iogate I/O gateway".into(),
+            software_version: env!("CARGO_PKG_VERSION").into(),
+            build_number: env!("CARGO_PKG_VERSION").into(),
+            build_date: DateTime::now(),
+        })
+        .host(host.clone())
+        .port(addr.port())
+        .discovery_urls(vec![format!("opc.tcp://{host}:{}/", addr.port())])
+        .pki_dir(&pki)
+        .create_sample_keypair(config.certificate.is_none())
+        .trust_client_certs(config.trust_client_certs)
+        .with_authenticator(Arc::new(auth::Authenticator::new(
+            service.clone(),
+            config.anonymous,
+        )))
+        .with_node_manager(nodes::builder(NAMESPACE, Arc::downgrade(service)))
+        .max_sessions(config.max_sessions)
+        .diagnostics_enabled(false)
+        .token(token.clone());
+    if let (Some(cert), Some(key)) = (&config.certificate, &config.private_key) {
+        let (cert, key) = (base.join(cert), base.join(key));
+        for (what, file) in [("opcua.certificate", &cert), ("opcua.private_key", &key)] {
+            if !file.is_file() {
+                return Err(format!("{what} {}: no such file", file.display()));
+            }
+        }
+        builder = builder.certificate_path(cert).private_key_path(key);
+    }
+    {
+        let limits = builder.limits_mut();
+        limits.subscriptions.max_subscriptions_per_session = config.max_subscriptions_per_session;
+        limits.subscriptions.max_monitored_items_per_sub =
+            config.max_monitored_items_per_subscription;
+    }
+    for endpoint in &config.security {
+        let (policy, mode) = security(*endpoint);
+        let none: &[&str] = &[];
+        builder = builder.add_endpoint(endpoint.name(), ("/", policy, mode, none));
+    }
+    let (server, handle) = builder.build().map_err(|e| format!("OPC UA server: {e}"))?;
+    let secure = config.security.iter().any(|e| *e != Endpoint::None);
+    if secure && handle.info().server_certificate.is_none() {
+        return Err(format!(
+            "OPC UA server: no application certificate (looked for it and could not make one in {})",
+            pki.display()
+        ));
+    }
+    let manager = handle
+        .node_managers()
+        .get_of_type::<nodes::Manager>()
+        .ok_or("OPC UA server: its node manager is missing")?;
+    let ns = handle
+        .get_namespace_index(NAMESPACE)
+        .ok_or("OPC UA server: its namespace is missing")?;
+    let ids = Ids { ns };
+    {
+        let mut space = manager.address_space().write();
+        space.add_folder(
+            &ids.folder(space::ROOT),
+            "iogate",
+            "iogate",
+            &NodeId::objects_folder_id(),
+        );
+        space.add_folder(
+            &ids.folder(space::DEVICES),
+            "Devices",
+            "Devices",
+            &ids.folder(space::ROOT),
+        );
+        space.add_folder(
+            &ids.folder(space::LINKS),
+            "Links",
+            "Links",
+            &ids.folder(space::ROOT),
+        );
+    }
+    let feed = feed::Feed {
+        service: service.clone(),
+        manager,
+        subscriptions: handle.subscriptions().clone(),
+        ids,
+    };
+    service.tasks().spawn(feed.run(token.clone()));
+    service.tasks().spawn(async move {
+        if let Err(e) = server.run_with(listener).await {
+            tracing::error!(error = %e, "the OPC UA server stopped");
+        }
+    });
+    tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
+    Ok(addr)
+}

@@ -1,0 +1,389 @@
+//! The address space's shape and its values: node ids, IEC types as OPC UA built-in types,
+//! qualities as status codes, and the nodes of a device (its fields, with their unit and
+//! description, and its diagnostics) and of a link.
+//!
+//! ```text
+//! Objects/iogate                  s=/iogate
+//!   Devices                       s=/iogate/Devices
+//!     <device>                    s=<device>             (object)
+//!       <field>                   s=<device>.<field>     (variable)
+//!         EngineeringUnits        s=<device>.<field>.EngineeringUnits (property)
+//!       Diagnostics               s=<device>/Diagnostics (object)
+//!         connected ...           s=<device>.diagnostics.<name>
+//!   Links                         s=/iogate/Links
+//!     <link>                      s=/Links/<link>
+//!       connected, error_code     s=/Links/<link>.diagnostics.<name>
+//! ```
+//!
+//! Device and link names hold `[A-Za-z0-9_.-]`, field names `[A-Za-z0-9_]`: no id made here
+//! can be another's. TIME is a `Duration` (a Double of milliseconds, OPC UA's own type for
+//! spans of time).
+
+use std::time::SystemTime;
+
+use opcua::server::address_space::{AccessLevel, AddressSpace, ObjectBuilder, VariableBuilder};
+use opcua::types::{
+    DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId,
+    ObjectTypeId, StatusCode, UAString, VariableTypeId, Variant,
+};
+
+use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics, Sample};
+use crate::codec::{IecType, Value};
+use crate::profile::{Direction, Field};
+use iogate_types::Quality;
+
+pub(crate) const ROOT: &str = "/iogate";
+pub(crate) const DEVICES: &str = "/iogate/Devices";
+pub(crate) const LINKS: &str = "/iogate/Links";
+
+/// The device diagnostics' variable names.
+pub(crate) const DEVICE_DIAGNOSTICS: [&str; 4] =
+    ["connected", "error_code", "io_cycles", "last_response_ms"];
+/// The link diagnostics' variable names.
+pub(crate) const LINK_DIAGNOSTICS: [&str; 2] = ["connected", "error_code"];
+
+/// The ids of the gateway's namespace `ns`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Ids {
+    pub(crate) ns: u16,
+}
+
+impl Ids {
+    pub(crate) fn folder(self, id: &str) -> NodeId {
+        NodeId::new(self.ns, id)
+    }
+    pub(crate) fn device(self, device: &str) -> NodeId {
+        NodeId::new(self.ns, device)
+    }
+    pub(crate) fn field(self, device: &str, field: &str) -> NodeId {
+        NodeId::new(self.ns, format!("{device}.{field}"))
+    }
+    fn units(self, device: &str, field: &str) -> NodeId {
+        NodeId::new(self.ns, format!("{device}.{field}.EngineeringUnits"))
+    }
+    pub(crate) fn device_diagnostics(self, device: &str) -> NodeId {
+        NodeId::new(self.ns, format!("{device}/Diagnostics"))
+    }
+    pub(crate) fn device_diagnostic(self, device: &str, name: &str) -> NodeId {
+        NodeId::new(self.ns, format!("{device}.diagnostics.{name}"))
+    }
+    pub(crate) fn link(self, link: &str) -> NodeId {
+        NodeId::new(self.ns, format!("/Links/{link}"))
+    }
+    pub(crate) fn link_diagnostic(self, link: &str, name: &str) -> NodeId {
+        NodeId::new(self.ns, format!("/Links/{link}.diagnostics.{name}"))
+    }
+
+    /// The device and field a field variable's id names (`<device>.<field>`: field names
+    /// hold no dot).
+    pub(crate) fn field_of(self, id: &NodeId) -> Option<(String, String)> {
+        if id.namespace != self.ns {
+            return None;
+        }
+        let opcua::types::Identifier::String(s) = &id.identifier else {
+            return None;
+        };
+        let text = s.as_ref();
+        if text.starts_with('/') || text.contains(".diagnostics.") || text.contains('/') {
+            return None;
+        }
+        let (device, field) = text.rsplit_once('.')?;
+        Some((device.to_owned(), field.to_owned()))
+    }
+}
+
+/// The OPC UA built-in type of an IEC type.
+pub(crate) fn data_type(ty: IecType) -> DataTypeId {
+    match ty {
+        IecType::Bool => DataTypeId::Boolean,
+        IecType::Sint => DataTypeId::SByte,
+        IecType::Int => DataTypeId::Int16,
+        IecType::Dint => DataTypeId::Int32,
+        IecType::Lint => DataTypeId::Int64,
+        IecType::Usint | IecType::Byte => DataTypeId::Byte,
+        IecType::Uint | IecType::Word => DataTypeId::UInt16,
+        IecType::Udint | IecType::Dword => DataTypeId::UInt32,
+        IecType::Ulint | IecType::Lword => DataTypeId::UInt64,
+        IecType::Real => DataTypeId::Float,
+        IecType::Lreal => DataTypeId::Double,
+        IecType::String => DataTypeId::String,
+        IecType::Time => DataTypeId::Duration,
+    }
+}
+
+/// A value as the variant of its field's type.
+pub(crate) fn variant(ty: IecType, value: &Value) -> Variant {
+    match (ty, value) {
+        (_, Value::Bool(b)) => Variant::Boolean(*b),
+        (IecType::Sint, Value::Int(n)) => Variant::SByte(*n as i8),
+        (IecType::Int, Value::Int(n)) => Variant::Int16(*n as i16),
+        (IecType::Dint, Value::Int(n)) => Variant::Int32(*n as i32),
+        (_, Value::Int(n)) => Variant::Int64(*n),
+        (IecType::Usint | IecType::Byte, Value::UInt(n)) => Variant::Byte(*n as u8),
+        (IecType::Uint | IecType::Word, Value::UInt(n)) => Variant::UInt16(*n as u16),
+        (IecType::Udint | IecType::Dword, Value::UInt(n)) => Variant::UInt32(*n as u32),
+        (_, Value::UInt(n)) => Variant::UInt64(*n),
+        (_, Value::Real(x)) => Variant::Float(*x),
+        (_, Value::LReal(x)) => Variant::Double(*x),
+        (_, Value::String(s)) => Variant::String(UAString::from(s.as_str())),
+        (_, Value::Time(ms)) => Variant::Double(*ms as f64),
+    }
+}
+
+/// A client's variant as a value of `ty`: numbers of any numeric variant (checked against
+/// the type's range by the service), booleans for BOOL, strings for STRING.
+pub(crate) fn value_of(ty: IecType, v: &Variant) -> Result<Value, iogate_types::ValueError> {
+    use iogate_types::ValueError;
+    let wrong = |found| ValueError::WrongType { ty, found };
+    match v {
+        Variant::Boolean(b) if ty == IecType::Bool => Ok(Value::Bool(*b)),
+        Variant::Boolean(_) => Err(wrong("a Boolean")),
+        Variant::String(s) if ty == IecType::String => Ok(Value::String(s.as_ref().to_owned())),
+        Variant::String(_) => Err(wrong("a String")),
+        _ if ty == IecType::Bool || ty == IecType::String => Err(wrong("a number")),
+        Variant::SByte(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::Byte(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::Int16(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::UInt16(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::Int32(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::UInt32(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::Int64(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::UInt64(n) => Value::from_int(ty, i128::from(*n)),
+        Variant::Float(x) => Value::from_real(ty, f64::from(*x)),
+        Variant::Double(x) => Value::from_real(ty, *x),
+        Variant::Empty => Err(ValueError::Missing { ty }),
+        _ => Err(wrong("this kind of value")),
+    }
+}
+
+/// The status code of a sample's quality.
+pub(crate) fn status(sample: &Sample) -> StatusCode {
+    match sample.quality {
+        Quality::Good => StatusCode::Good,
+        Quality::Stale => StatusCode::UncertainLastUsableValue,
+        Quality::NeverRead => match &sample.error {
+            Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
+            Some(FieldError::NoResponse(_)) => StatusCode::BadCommunicationError,
+            _ => StatusCode::BadWaitingForInitialData,
+        },
+        Quality::Bad => match &sample.error {
+            Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
+            Some(FieldError::Decode(_)) => StatusCode::BadDecodingError,
+            Some(FieldError::Exception(_)) => StatusCode::BadDeviceFailure,
+            _ => StatusCode::BadCommunicationError,
+        },
+    }
+}
+
+fn date_time(at: SystemTime) -> DateTime {
+    DateTime::from(opcua::types::DateTimeUtc::from(at))
+}
+
+/// A field's sample as a data value: the value (the last good one while stale or bad),
+/// the status from the quality, the source timestamp when the device was read.
+pub(crate) fn data_value(ty: IecType, sample: &Sample, now: DateTime) -> DataValue {
+    let value = sample
+        .value
+        .as_ref()
+        .map_or(Variant::Empty, |v| variant(ty, v));
+    DataValue {
+        value: Some(value),
+        status: Some(status(sample)),
+        source_timestamp: sample.updated.map(|(_, at)| date_time(at)),
+        source_picoseconds: None,
+        server_timestamp: Some(now),
+        server_picoseconds: None,
+    }
+}
+
+fn good(value: Variant, now: DateTime) -> DataValue {
+    DataValue {
+        value: Some(value),
+        status: Some(StatusCode::Good),
+        source_timestamp: Some(now),
+        source_picoseconds: None,
+        server_timestamp: Some(now),
+        server_picoseconds: None,
+    }
+}
+
+/// A device's diagnostics as data values, by variable name.
+pub(crate) fn device_diagnostics(d: &Diagnostics, now: DateTime) -> [(&'static str, DataValue); 4] {
+    [
+        ("connected", good(Variant::Boolean(d.connected), now)),
+        ("error_code", good(Variant::Int16(d.error_code.code()), now)),
+        ("io_cycles", good(Variant::UInt64(d.io_cycles), now)),
+        (
+            "last_response_ms",
+            good(Variant::Double(d.last_response_ms), now),
+        ),
+    ]
+}
+
+/// A link's diagnostics as data values, by variable name.
+pub(crate) fn link_diagnostics(
+    d: &LinkDiagnostics,
+    now: DateTime,
+) -> [(&'static str, DataValue); 2] {
+    [
+        ("connected", good(Variant::Boolean(d.connected), now)),
+        ("error_code", good(Variant::Int16(d.error_code.code()), now)),
+    ]
+}
+
+fn access(direction: Direction) -> AccessLevel {
+    match direction {
+        Direction::Input => AccessLevel::CURRENT_READ,
+        Direction::Output | Direction::Inout => {
+            AccessLevel::CURRENT_READ | AccessLevel::CURRENT_WRITE
+        }
+    }
+}
+
+fn units(unit: &str) -> ExtensionObject {
+    ExtensionObject::from_message(EUInformation {
+        namespace_uri: UAString::from("http://www.opcfoundation.org/UA/units/un/cefact"),
+        unit_id: -1,
+        display_name: LocalizedText::new("", unit),
+        description: LocalizedText::new("", unit),
+    })
+}
+
+fn diagnostic_type(name: &str) -> DataTypeId {
+    match name {
+        "connected" => DataTypeId::Boolean,
+        "io_cycles" => DataTypeId::UInt64,
+        "last_response_ms" => DataTypeId::Double,
+        _ => DataTypeId::Int16,
+    }
+}
+
+/// Adds a device: its object, a variable per field and its diagnostics.
+pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, now: DateTime) {
+    let name = device.name();
+    let object = ids.device(name);
+    let description = device
+        .profile
+        .description
+        .clone()
+        .unwrap_or_else(|| format!("profile {}", device.profile.name));
+    ObjectBuilder::new(&object, name, name)
+        .description(description)
+        .has_type_definition(ObjectTypeId::BaseObjectType)
+        .organized_by(ids.folder(DEVICES))
+        .insert(space);
+    for (idx, field) in device.profile.fields.iter().enumerate() {
+        add_field(space, ids, device, idx, field, now);
+    }
+    let diag = ids.device_diagnostics(name);
+    ObjectBuilder::new(&diag, "Diagnostics", "Diagnostics")
+        .description(
+            "connected, error_code (source document 000's codes), io_cycles, last_response_ms",
+        )
+        .has_type_definition(ObjectTypeId::BaseObjectType)
+        .component_of(object.clone())
+        .insert(space);
+    for (var, value) in device_diagnostics(&device.diagnostics(), now) {
+        VariableBuilder::new(&ids.device_diagnostic(name, var), var, var)
+            .data_type(diagnostic_type(var))
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+            .value_rank(-1)
+            .has_type_definition(VariableTypeId::BaseDataVariableType)
+            .component_of(diag.clone())
+            .insert(space);
+        if let Some(opcua::server::address_space::NodeType::Variable(v)) =
+            space.find_mut(&ids.device_diagnostic(name, var))
+        {
+            v.set_data_value(value);
+        }
+    }
+}
+
+fn add_field(
+    space: &mut AddressSpace,
+    ids: Ids,
+    device: &Device,
+    idx: usize,
+    field: &Field,
+    now: DateTime,
+) {
+    let id = ids.field(device.name(), &field.name);
+    let level = access(field.direction);
+    let mut builder = VariableBuilder::new(&id, field.name.as_str(), field.name.as_str())
+        .data_type(data_type(field.ty))
+        .access_level(level)
+        .user_access_level(level)
+        .value_rank(-1)
+        .minimum_sampling_interval(0.0)
+        .has_type_definition(VariableTypeId::BaseDataVariableType)
+        .component_of(ids.device(device.name()));
+    if let Some(description) = &field.description {
+        builder = builder.description(description.as_str());
+    }
+    builder.insert(space);
+    if let Some(opcua::server::address_space::NodeType::Variable(v)) = space.find_mut(&id) {
+        v.set_data_value(data_value(field.ty, &device.sample(idx), now));
+    }
+    if let Some(unit) = field.register.unit.as_deref() {
+        VariableBuilder::new(
+            &ids.units(device.name(), &field.name),
+            "EngineeringUnits",
+            "EngineeringUnits",
+        )
+        .data_type(DataTypeId::EUInformation)
+        .value(units(unit))
+        .access_level(AccessLevel::CURRENT_READ)
+        .user_access_level(AccessLevel::CURRENT_READ)
+        .value_rank(-1)
+        .has_type_definition(VariableTypeId::PropertyType)
+        .property_of(id.clone())
+        .insert(space);
+    }
+}
+
+/// Removes a device's nodes (its fields, units, diagnostics and object).
+pub(crate) fn remove_device(space: &mut AddressSpace, ids: Ids, name: &str, fields: &[String]) {
+    for field in fields {
+        space.delete(&ids.units(name, field), true);
+        space.delete(&ids.field(name, field), true);
+    }
+    for var in DEVICE_DIAGNOSTICS {
+        space.delete(&ids.device_diagnostic(name, var), true);
+    }
+    space.delete(&ids.device_diagnostics(name), true);
+    space.delete(&ids.device(name), true);
+}
+
+/// Adds a link: its object and diagnostics.
+pub(crate) fn add_link(space: &mut AddressSpace, ids: Ids, link: &Link, now: DateTime) {
+    let name = link.name();
+    let object = ids.link(name);
+    ObjectBuilder::new(&object, name, name)
+        .description(link.config().transport.to_string())
+        .has_type_definition(ObjectTypeId::BaseObjectType)
+        .organized_by(ids.folder(LINKS))
+        .insert(space);
+    for (var, value) in link_diagnostics(&link.diagnostics(), now) {
+        let id = ids.link_diagnostic(name, var);
+        VariableBuilder::new(&id, var, var)
+            .data_type(diagnostic_type(var))
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+            .value_rank(-1)
+            .has_type_definition(VariableTypeId::BaseDataVariableType)
+            .component_of(object.clone())
+            .insert(space);
+        if let Some(opcua::server::address_space::NodeType::Variable(v)) = space.find_mut(&id) {
+            v.set_data_value(value);
+        }
+    }
+}
+
+/// Removes a link's nodes.
+pub(crate) fn remove_link(space: &mut AddressSpace, ids: Ids, name: &str) {
+    for var in LINK_DIAGNOSTICS {
+        space.delete(&ids.link_diagnostic(name, var), true);
+    }
+    space.delete(&ids.link(name), true);
+}

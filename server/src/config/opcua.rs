@@ -1,0 +1,308 @@
+//! The `opcua:` section of `iogate.yaml`: the OPC UA server, its endpoints' security, its
+//! certificates and who may connect. Read here as written; the certificate files and the
+//! PKI directory are made or read when the gateway starts.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use super::modbus_server::boolean;
+use crate::yaml::{Kind, Node, Report};
+
+const KEYS: &[&str] = &[
+    "listen",
+    "application_uri",
+    "security",
+    "pki_dir",
+    "certificate",
+    "private_key",
+    "trust_client_certs",
+    "users",
+    "anonymous",
+    "max_sessions",
+    "max_subscriptions_per_session",
+    "max_monitored_items_per_subscription",
+];
+
+pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:4840";
+pub(crate) const DEFAULT_APPLICATION_URI: &str = "urn:iogate";
+pub(crate) const DEFAULT_PKI_DIR: &str = "pki";
+pub(crate) const DEFAULT_MAX_SESSIONS: usize = 100;
+pub(crate) const DEFAULT_MAX_SUBSCRIPTIONS: usize = 10;
+pub(crate) const DEFAULT_MAX_MONITORED_ITEMS: usize = 20_000;
+/// The most sessions, subscriptions per session and items per subscription configurable.
+const MAX_SESSIONS: usize = 10_000;
+const MAX_SUBSCRIPTIONS: usize = 1_000;
+const MAX_MONITORED_ITEMS: usize = 1_000_000;
+
+/// One endpoint's security: a policy and a message security mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub(crate) enum Endpoint {
+    None,
+    Basic256Sha256Sign,
+    Basic256Sha256SignEncrypt,
+    Aes256Sha256RsaPssSign,
+    Aes256Sha256RsaPssSignEncrypt,
+}
+
+impl Endpoint {
+    pub(crate) const ALL: [Endpoint; 5] = [
+        Endpoint::None,
+        Endpoint::Basic256Sha256Sign,
+        Endpoint::Basic256Sha256SignEncrypt,
+        Endpoint::Aes256Sha256RsaPssSign,
+        Endpoint::Aes256Sha256RsaPssSignEncrypt,
+    ];
+
+    /// The name in `opcua.security`.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Endpoint::None => "none",
+            Endpoint::Basic256Sha256Sign => "basic256sha256_sign",
+            Endpoint::Basic256Sha256SignEncrypt => "basic256sha256_sign_encrypt",
+            Endpoint::Aes256Sha256RsaPssSign => "aes256_sha256_rsapss_sign",
+            Endpoint::Aes256Sha256RsaPssSignEncrypt => "aes256_sha256_rsapss_sign_encrypt",
+        }
+    }
+
+    fn parse(text: &str) -> Option<Endpoint> {
+        Endpoint::ALL.into_iter().find(|e| e.name() == text)
+    }
+}
+
+/// Who a client is, beyond its certificate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(crate) enum Users {
+    /// User name `token` with one of the gateway's bearer tokens as password: its role.
+    #[default]
+    Tokens,
+}
+
+/// What an anonymous session may do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Anonymous {
+    /// Refused.
+    Refused,
+    /// The role given.
+    Role(crate::auth::Role),
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpcUaConfig {
+    pub(crate) listen: SocketAddr,
+    pub(crate) application_uri: String,
+    /// The endpoints offered, in order.
+    pub(crate) security: Vec<Endpoint>,
+    /// Trusted, rejected and own certificates (relative to the config's directory).
+    pub(crate) pki_dir: PathBuf,
+    /// The application certificate (DER) and key (PEM) when given; else made on first
+    /// start in the PKI directory.
+    pub(crate) certificate: Option<PathBuf>,
+    pub(crate) private_key: Option<PathBuf>,
+    /// Trust every client certificate (tests and commissioning only).
+    pub(crate) trust_client_certs: bool,
+    pub(crate) users: Users,
+    /// `None`: as the tokens decide (no tokens configured: anonymous may do everything, as
+    /// REST; tokens configured: refused).
+    pub(crate) anonymous: Option<Anonymous>,
+    pub(crate) max_sessions: usize,
+    pub(crate) max_subscriptions_per_session: usize,
+    pub(crate) max_monitored_items_per_subscription: usize,
+    pub(crate) line: u64,
+}
+
+fn count(node: &Node, report: &mut Report, ctx: &str, max: usize) -> Option<usize> {
+    node.int_in(report, ctx, 1, max as i128).map(|n| n as usize)
+}
+
+fn path(node: &Node, report: &mut Report, ctx: &str) -> Option<PathBuf> {
+    let text = node.scalar_text(report, ctx)?;
+    if text.is_empty() || text.contains('\0') {
+        report.push(node.line, ctx, "is not a path");
+        return None;
+    }
+    Some(PathBuf::from(text))
+}
+
+/// Reads the section; `None` after reporting its problems.
+pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
+    let ctx = "opcua";
+    let mut map = node.map(report, ctx)?;
+    let at = |k: &str| format!("{ctx}.{k}");
+    let listen = match map.get("listen") {
+        None => DEFAULT_LISTEN.parse().ok(),
+        Some(n) => {
+            let text = n.scalar_text(report, &at("listen"))?;
+            text.parse::<SocketAddr>()
+                .map_err(|_| {
+                    report.push(
+                        n.line,
+                        at("listen"),
+                        format!("`{text}` is not an address (host:port, e.g. 0.0.0.0:4840)"),
+                    )
+                })
+                .ok()
+        }
+    };
+    let application_uri = match map.get("application_uri") {
+        None => Some(DEFAULT_APPLICATION_URI.to_owned()),
+        Some(n) => n.scalar_text(report, &at("application_uri")).and_then(|t| {
+            let scheme = t.split_once(':').map(|(s, _)| s);
+            let valid = scheme.is_some_and(|s| {
+                !s.is_empty()
+                    && s.chars()
+                        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '+' | '-' | '.'))
+            }) && !t.chars().any(|c| c.is_whitespace() || c.is_control());
+            if valid {
+                Some(t)
+            } else {
+                report.push(
+                    n.line,
+                    at("application_uri"),
+                    format!("`{t}` is not a URI (e.g. urn:iogate:line1)"),
+                );
+                None
+            }
+        }),
+    };
+    let security = match map.get("security") {
+        None => None,
+        Some(n) => read_security(n, report),
+    };
+    let pki_dir = match map.get("pki_dir") {
+        None => Some(PathBuf::from(DEFAULT_PKI_DIR)),
+        Some(n) => path(n, report, &at("pki_dir")),
+    };
+    let certificate = map
+        .get("certificate")
+        .and_then(|n| path(n, report, &at("certificate")));
+    let private_key = map
+        .get("private_key")
+        .and_then(|n| path(n, report, &at("private_key")));
+    let trust_client_certs = match map.get("trust_client_certs") {
+        None => Some(false),
+        Some(n) => boolean(n, report, &at("trust_client_certs")),
+    };
+    let users = match map.get("users") {
+        None => Some(Users::Tokens),
+        Some(n) => {
+            let text = n.scalar_text(report, &at("users"))?;
+            match text.as_str() {
+                "tokens" => Some(Users::Tokens),
+                other => {
+                    report.push(
+                        n.line,
+                        at("users"),
+                        format!("unknown user source `{other}` (expected tokens)"),
+                    );
+                    None
+                }
+            }
+        }
+    };
+    let anonymous = match map.get("anonymous") {
+        None => Some(None),
+        Some(n) => match n.kind {
+            Kind::Bool(false) => Some(Some(Anonymous::Refused)),
+            _ => {
+                let text = n.scalar_text(report, &at("anonymous"))?;
+                match crate::auth::Role::parse(&text) {
+                    Some(role) => Some(Some(Anonymous::Role(role))),
+                    None => {
+                        report.push(
+                            n.line,
+                            at("anonymous"),
+                            format!(
+                                "`{text}` is not a role (read, write or admin; false refuses anonymous sessions)"
+                            ),
+                        );
+                        None
+                    }
+                }
+            }
+        },
+    };
+    let mut limit = |key: &str, default: usize, max: usize| match map.get(key) {
+        None => Some(default),
+        Some(n) => count(n, report, &at(key), max),
+    };
+    let max_sessions = limit("max_sessions", DEFAULT_MAX_SESSIONS, MAX_SESSIONS);
+    let max_subscriptions = limit(
+        "max_subscriptions_per_session",
+        DEFAULT_MAX_SUBSCRIPTIONS,
+        MAX_SUBSCRIPTIONS,
+    );
+    let max_items = limit(
+        "max_monitored_items_per_subscription",
+        DEFAULT_MAX_MONITORED_ITEMS,
+        MAX_MONITORED_ITEMS,
+    );
+    map.finish(report, ctx, KEYS);
+    if certificate.is_some() != private_key.is_some() {
+        report.push(
+            node.line,
+            ctx,
+            "an application certificate needs its private_key, and a key its certificate",
+        );
+    }
+    let listen = listen?;
+    let security = security.unwrap_or_else(|| default_security(listen));
+    Some(OpcUaConfig {
+        listen,
+        application_uri: application_uri?,
+        security,
+        pki_dir: pki_dir?,
+        certificate,
+        private_key,
+        trust_client_certs: trust_client_certs?,
+        users: users?,
+        anonymous: anonymous?,
+        max_sessions: max_sessions?,
+        max_subscriptions_per_session: max_subscriptions?,
+        max_monitored_items_per_subscription: max_items?,
+        line: node.line,
+    })
+}
+
+/// Every secure endpoint, and `none` on a loopback listener.
+fn default_security(listen: SocketAddr) -> Vec<Endpoint> {
+    Endpoint::ALL
+        .into_iter()
+        .filter(|e| *e != Endpoint::None || listen.ip().is_loopback())
+        .collect()
+}
+
+fn read_security(node: &Node, report: &mut Report) -> Option<Vec<Endpoint>> {
+    let ctx = "opcua.security";
+    let items = node.seq(report, ctx)?;
+    let mut out = Vec::new();
+    let mut ok = true;
+    for item in items {
+        let Some(text) = item.scalar_text(report, ctx) else {
+            ok = false;
+            continue;
+        };
+        match Endpoint::parse(&text) {
+            Some(e) if out.contains(&e) => {
+                report.push(item.line, ctx, format!("`{text}` is listed twice"));
+                ok = false;
+            }
+            Some(e) => out.push(e),
+            None => {
+                report.push(
+                    item.line,
+                    ctx,
+                    format!(
+                        "unknown endpoint `{text}` (expected {})",
+                        Endpoint::ALL.map(Endpoint::name).join(", ")
+                    ),
+                );
+                ok = false;
+            }
+        }
+    }
+    if ok && out.is_empty() {
+        report.push(node.line, ctx, "lists no endpoint");
+        ok = false;
+    }
+    ok.then_some(out)
+}
