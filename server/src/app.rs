@@ -163,7 +163,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         Some(listener) => Some(servers.serve_modbus(&service, listener).await?),
         None => None,
     };
-    let opcua_addr = match &config.opcua {
+    let opcua = match &config.opcua {
         Some(opcua) => {
             let base = Path::new(&config.source)
                 .parent()
@@ -176,6 +176,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         }
         None => None,
     };
+    let opcua_addr = opcua.as_ref().map(|o| o.addr);
     servers.serve_grpc(&service, grpc_listener, limits).await?;
     servers.serve_http(&service, listener, limits).await?;
     if let Some(path) = source {
@@ -192,6 +193,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             reload_tokens,
             servers.clone(),
             mqtt,
+            opcua,
         );
     }
     service.set_ready(true);

@@ -9,6 +9,7 @@ use iogate::app::{self, Running, Setup};
 pub mod browser;
 pub mod devices;
 pub mod mqtt;
+pub mod opcua;
 pub mod pki;
 
 /// How long `eventually` waits for a condition.
@@ -117,6 +118,8 @@ pub struct TestGateway {
     pub client: reqwest::Client,
     /// The Modbus TCP server's address, when the config has one.
     pub modbus: Option<std::net::SocketAddr>,
+    /// The OPC UA server's address, when the config has one.
+    pub opcua: Option<std::net::SocketAddr>,
     running: Option<Running>,
 }
 
@@ -160,6 +163,7 @@ impl TestGateway {
             grpc: String::new(),
             client: reqwest::Client::new(),
             modbus: None,
+            opcua: None,
             running: None,
         }
     }
@@ -189,6 +193,7 @@ impl TestGateway {
             grpc: format!("http://{}", running.grpc_addr),
             client: reqwest::Client::new(),
             modbus: running.modbus_addr,
+            opcua: running.opcua_addr,
             running: Some(running),
         };
         gateway.until_ready().await?;

@@ -49,6 +49,7 @@ pub(crate) struct Diff {
     /// `listen.header_timeout` or `body_timeout`: HTTP and gRPC are served again.
     pub(crate) limits: bool,
     pub(crate) mqtt: bool,
+    pub(crate) opcua: bool,
 }
 
 impl Diff {
@@ -540,6 +541,61 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             }
         };
         d.push(Kind::Mqtt, "mqtt", action, details);
+    }
+    let opcua = |c: &crate::config::Config| {
+        c.opcua.clone().map(|mut o| {
+            o.line = 0;
+            o
+        })
+    };
+    if opcua(a) != opcua(b) {
+        d.opcua = true;
+        let (action, details) = match (&a.opcua, &b.opcua) {
+            (None, _) => (
+                Action::Added,
+                vec!["the OPC UA server is started".to_owned()],
+            ),
+            (_, None) => (
+                Action::Removed,
+                vec!["the OPC UA server is stopped".to_owned()],
+            ),
+            (Some(x), Some(y)) => {
+                let mut details: Vec<String> = [
+                    changed_text("listen", x.listen, y.listen),
+                    changed_text("application_uri", &x.application_uri, &y.application_uri),
+                    (x.security != y.security).then(|| "security changed".to_owned()),
+                    changed("pki_dir", &x.pki_dir, &y.pki_dir),
+                    (x.certificate != y.certificate || x.private_key != y.private_key)
+                        .then(|| "certificate changed".to_owned()),
+                    changed_text(
+                        "trust_client_certs",
+                        x.trust_client_certs,
+                        y.trust_client_certs,
+                    ),
+                    changed("anonymous", &x.anonymous, &y.anonymous),
+                    changed_text("max_sessions", x.max_sessions, y.max_sessions),
+                    changed_text(
+                        "max_subscriptions_per_session",
+                        x.max_subscriptions_per_session,
+                        y.max_subscriptions_per_session,
+                    ),
+                    changed_text(
+                        "max_monitored_items_per_subscription",
+                        x.max_monitored_items_per_subscription,
+                        y.max_monitored_items_per_subscription,
+                    ),
+                ]
+                .into_iter()
+                .flatten()
+                .collect();
+                details.push(
+                    "the OPC UA server is restarted: its sessions end and clients reconnect"
+                        .to_owned(),
+                );
+                (Action::Changed, details)
+            }
+        };
+        d.push(Kind::Opcua, "opcua", action, details);
     }
     if a.reload != b.reload {
         let details = [

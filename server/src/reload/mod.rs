@@ -90,6 +90,8 @@ struct InForce {
     hash: String,
     /// The MQTT front-end, when its section is configured.
     mqtt: Option<crate::api::mqtt::Running>,
+    /// The OPC UA server, when its section is configured.
+    opcua: Option<crate::api::opcua::Running>,
 }
 
 /// Reloads the configuration of a gateway started from a file.
@@ -118,6 +120,7 @@ impl Reloader {
         tokens: Tokens,
         servers: Arc<Servers>,
         mqtt: Option<crate::api::mqtt::Running>,
+        opcua: Option<crate::api::opcua::Running>,
     ) -> Arc<Reloader> {
         let hash = hash_files(&path, setup.profiles_dir.as_deref());
         let status = ConfigStatus {
@@ -136,6 +139,7 @@ impl Reloader {
                 tokens,
                 hash,
                 mqtt,
+                opcua,
             }),
             status: Mutex::new(status),
             servers,
@@ -403,6 +407,9 @@ impl Reloader {
         if diff.mqtt {
             restart_mqtt(service, &mut in_force.mqtt, mqtt).await;
         }
+        if diff.opcua {
+            restart_opcua(service, &mut in_force.opcua, new).await;
+        }
         Ok(())
     }
 }
@@ -428,6 +435,31 @@ async fn restart_mqtt(
             Ok(started) => *running = Some(started),
             Err(e) => {
                 tracing::error!(error = %e, "the MQTT front-end could not start with the reloaded section")
+            }
+        }
+    }
+}
+
+/// Stops the OPC UA server (its sessions end; clients reconnect) and starts it again with
+/// its new section, on its new address.
+async fn restart_opcua(
+    service: &Arc<Service>,
+    running: &mut Option<crate::api::opcua::Running>,
+    new: &Setup,
+) {
+    if let Some(old) = running.take()
+        && let Err(e) = old.stop().await
+    {
+        tracing::warn!(error = %e, "OPC UA server restarted before the old one ended");
+    }
+    if let Some(section) = &new.config.opcua {
+        let base = Path::new(&new.config.source)
+            .parent()
+            .unwrap_or_else(|| Path::new("."));
+        match crate::api::opcua::start(service, section, base).await {
+            Ok(started) => *running = Some(started),
+            Err(e) => {
+                tracing::error!(error = %e, "the OPC UA server could not start with the reloaded section")
             }
         }
     }

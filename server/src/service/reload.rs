@@ -51,6 +51,7 @@ pub enum Kind {
     Map,
     Transaction,
     Mqtt,
+    Opcua,
     Reload,
 }
 
@@ -66,6 +67,7 @@ impl Kind {
             Kind::Map => "map",
             Kind::Transaction => "transaction",
             Kind::Mqtt => "mqtt",
+            Kind::Opcua => "opcua",
             Kind::Reload => "reload",
         }
     }

@@ -62,14 +62,41 @@ fn endpoint_host(addr: SocketAddr) -> String {
         .unwrap_or_else(|| "localhost".to_owned())
 }
 
+/// The running server, to stop it (a reload that changes the `opcua:` section). Dropping
+/// it leaves the server running until the gateway shuts down.
+pub(crate) struct Running {
+    pub(crate) addr: SocketAddr,
+    stop: tokio_util::sync::CancellationToken,
+    stopped: tokio::sync::oneshot::Receiver<()>,
+}
+
+/// How long a stopping server may take to close its sessions.
+const STOP_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+impl Running {
+    /// Stops the server (its sessions are closed, its port released) and its feed.
+    pub(crate) async fn stop(self) -> Result<(), String> {
+        self.stop.cancel();
+        tokio::time::timeout(STOP_WAIT, self.stopped)
+            .await
+            .map(|_| ())
+            .map_err(|_| {
+                format!(
+                    "the OPC UA server did not stop within {}s",
+                    STOP_WAIT.as_secs()
+                )
+            })
+    }
+}
+
 /// Starts the server on `config.listen` (bound here: a listener that cannot be bound stops
-/// the start) and the task that keeps its address space; both end with the gateway.
-/// Answers the bound address.
+/// the start) and the task that keeps its address space; both end with the gateway or
+/// [`Running::stop`].
 pub(crate) async fn start(
     service: &Arc<Service>,
     config: &OpcUaConfig,
     base: &Path,
-) -> Result<SocketAddr, String> {
+) -> Result<Running, String> {
     let pki = base.join(&config.pki_dir);
     std::fs::create_dir_all(&pki).map_err(|e| format!("opcua.pki_dir {}: {e}", pki.display()))?;
     let listener = tokio::net::TcpListener::bind(config.listen)
@@ -170,11 +197,17 @@ pub(crate) async fn start(
         ids,
     };
     service.tasks().spawn(feed.run(token.clone()));
+    let (done, stopped) = tokio::sync::oneshot::channel();
     service.tasks().spawn(async move {
         if let Err(e) = server.run_with(listener).await {
             tracing::error!(error = %e, "the OPC UA server stopped");
         }
+        let _ = done.send(());
     });
     tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
-    Ok(addr)
+    Ok(Running {
+        addr,
+        stop: token,
+        stopped,
+    })
 }

@@ -179,16 +179,18 @@ fn date_time(at: SystemTime) -> DateTime {
     DateTime::from(opcua::types::DateTimeUtc::from(at))
 }
 
-/// A field's sample as a data value: the value (the last good one while stale or bad),
-/// the status from the quality, the source timestamp when the device was read.
+/// A field's sample as a data value: the value (the last good one while stale; none with
+/// a Bad status, as OPC UA Part 4, 7.7.1 asks), the status from the quality, the source
+/// timestamp when the device was read.
 pub(crate) fn data_value(ty: IecType, sample: &Sample, now: DateTime) -> DataValue {
-    let value = sample
-        .value
-        .as_ref()
-        .map_or(Variant::Empty, |v| variant(ty, v));
+    let status = status(sample);
+    let value = match &sample.value {
+        Some(v) if !status.is_bad() => variant(ty, v),
+        _ => Variant::Empty,
+    };
     DataValue {
         value: Some(value),
-        status: Some(status(sample)),
+        status: Some(status),
         source_timestamp: sample.updated.map(|(_, at)| date_time(at)),
         source_picoseconds: None,
         server_timestamp: Some(now),
@@ -310,7 +312,7 @@ fn add_field(
 ) {
     let id = ids.field(device.name(), &field.name);
     let level = access(field.direction);
-    let mut builder = VariableBuilder::new(&id, field.name.as_str(), field.name.as_str())
+    let builder = VariableBuilder::new(&id, field.name.as_str(), field.name.as_str())
         .data_type(data_type(field.ty))
         .access_level(level)
         .user_access_level(level)
@@ -318,10 +320,12 @@ fn add_field(
         .minimum_sampling_interval(0.0)
         .has_type_definition(VariableTypeId::BaseDataVariableType)
         .component_of(ids.device(device.name()));
-    if let Some(description) = &field.description {
-        builder = builder.description(description.as_str());
-    }
-    builder.insert(space);
+    let description = match (&field.description, field.register.unit.as_deref()) {
+        (Some(d), _) => d.clone(),
+        (None, Some(unit)) => format!("{} {}, {unit}", field.ty, field.direction.name()),
+        (None, None) => format!("{} {}", field.ty, field.direction.name()),
+    };
+    builder.description(description).insert(space);
     if let Some(opcua::server::address_space::NodeType::Variable(v)) = space.find_mut(&id) {
         v.set_data_value(data_value(field.ty, &device.sample(idx), now));
     }

@@ -1,0 +1,167 @@
+#!/usr/bin/env python3
+"""An independent OPC UA client for the tests (asyncua, not the gateway's code).
+
+    client.py URL [SECURITY CERT KEY] [USER PASSWORD]
+
+Connects to URL, anonymously or as USER with PASSWORD, and with SECURITY (an asyncua
+security string such as `Basic256Sha256,SignAndEncrypt`) signing with the client
+certificate CERT (DER) and key KEY (PEM), made (self-signed) when CERT does not exist; prints {"connected": true, "ns": N} (N: the
+index of urn:iogate:devices) or {"error": "..."} and ends. Then each JSON line on standard
+input is a command, answered by one JSON line:
+
+    {"cmd": "browse", "node": ID}           -> {"children": [{"id", "name", "class"}]}
+    {"cmd": "read", "node": ID}             -> {"value", "type", "status", "source", "server"}
+    {"cmd": "attrs", "node": ID}            -> {"data_type", "access", "user_access", "description"}
+    {"cmd": "write", "node": ID, "value": V, "type": VARIANT_TYPE}
+                                            -> {"status": "Good"} or {"status": NAME}
+    {"cmd": "subscribe", "nodes": [ID], "interval": MS}
+                                            -> {"subscribed": K}
+    {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}]}
+
+IDs are string node ids in the iogate namespace. Changes are collected from the moment of
+subscribing; `changes` answers those seen so far (waiting up to S seconds for one).
+"""
+import asyncio
+import json
+import socket
+import sys
+from pathlib import Path
+
+from asyncua import Client, ua
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+APP_URI = "urn:iogate:test-client"
+
+
+def ts(t):
+    return t.isoformat() if t is not None else None
+
+
+def plain(v):
+    if isinstance(v, (bool, int, float, str)) or v is None:
+        return v
+    return str(v)
+
+
+class Handler:
+    def __init__(self):
+        self.seen = []
+        self.event = asyncio.Event()
+
+    def datachange_notification(self, node, val, data):
+        dv = data.monitored_item.Value
+        self.seen.append({
+            "node": node.nodeid.Identifier,
+            "value": plain(val),
+            "status": dv.StatusCode_.name,
+            "source": ts(dv.SourceTimestamp),
+        })
+        self.event.set()
+
+
+async def main():
+    args = sys.argv[1:]
+    url = args.pop(0)
+    client = Client(url, timeout=10)
+    if len(args) >= 3 and "," in args[0]:
+        security, cert, key = args[0], args[1], args[2]
+        args = args[3:]
+        if not Path(cert).exists():
+            # A client certificate of its own, made once (asyncua's generator).
+            await setup_self_signed_certificate(
+                Path(key), Path(cert), APP_URI, socket.gethostname(),
+                [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "iogate test client"})
+        client.application_uri = APP_URI
+        await client.set_security_string(f"{security},{cert},{key}")
+    if len(args) >= 2:
+        client.set_user(args[0])
+        client.set_password(args[1])
+    loop = asyncio.get_running_loop()
+    out = lambda o: (sys.stdout.write(json.dumps(o) + "\n"), sys.stdout.flush())
+    try:
+        await client.connect()
+    except Exception as e:  # every failure is the answer
+        out({"error": f"{type(e).__name__}: {e}"})
+        return
+    ns = await client.get_namespace_index("urn:iogate:devices")
+    out({"connected": True, "ns": ns})
+    handler = Handler()
+    sub = None
+    reader = asyncio.StreamReader()
+    await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    try:
+        while True:
+            line = await reader.readline()
+            if not line:
+                break
+            c = json.loads(line)
+            node = lambda i: client.get_node(ua.NodeId(i, ns))
+            try:
+                if c["cmd"] == "browse":
+                    kids = []
+                    for k in await node(c["node"]).get_children():
+                        kids.append({
+                            "id": k.nodeid.Identifier,
+                            "name": (await k.read_browse_name()).Name,
+                            "class": (await k.read_node_class()).name,
+                        })
+                    out({"children": kids})
+                elif c["cmd"] == "read":
+                    rv = ua.ReadValueId()
+                    rv.NodeId = ua.NodeId(c["node"], ns)
+                    rv.AttributeId = ua.AttributeIds.Value
+                    params = ua.ReadParameters()
+                    params.NodesToRead = [rv]
+                    params.TimestampsToReturn = ua.TimestampsToReturn.Both
+                    dv = (await client.uaclient.read(params))[0]
+                    out({
+                        "value": plain(dv.Value.Value) if dv.Value else None,
+                        "type": dv.Value.VariantType.name if dv.Value else None,
+                        "status": dv.StatusCode_.name,
+                        "source": ts(dv.SourceTimestamp),
+                        "server": ts(dv.ServerTimestamp),
+                    })
+                elif c["cmd"] == "attrs":
+                    n = node(c["node"])
+                    dt = await n.read_data_type()
+                    desc = await n.read_description()
+                    out({
+                        "data_type": dt.Identifier,
+                        "access": sorted(x.name for x in await n.get_access_level()),
+                        "user_access": sorted(x.name for x in await n.get_user_access_level()),
+                        "description": desc.Text,
+                    })
+                elif c["cmd"] == "write":
+                    vt = getattr(ua.VariantType, c["type"])
+                    try:
+                        await node(c["node"]).write_value(ua.DataValue(ua.Variant(c["value"], vt)))
+                        out({"status": "Good"})
+                    except ua.UaStatusCodeError as e:
+                        out({"status": ua.StatusCode(e.code).name})
+                elif c["cmd"] == "subscribe":
+                    if sub is None:
+                        sub = await client.create_subscription(c.get("interval", 50), handler)
+                    handles = await sub.subscribe_data_change([node(i) for i in c["nodes"]])
+                    out({"subscribed": len(handles)})
+                elif c["cmd"] == "changes":
+                    if not handler.seen:
+                        handler.event.clear()
+                        try:
+                            await asyncio.wait_for(handler.event.wait(), c.get("wait", 5))
+                        except asyncio.TimeoutError:
+                            pass
+                    seen, handler.seen = handler.seen, []
+                    out({"changes": seen})
+                else:
+                    out({"error": f"unknown command {c['cmd']}"})
+            except Exception as e:
+                out({"error": f"{type(e).__name__}: {e}"})
+    finally:
+        try:
+            await client.disconnect()
+        except Exception:
+            pass
+
+
+asyncio.run(main())

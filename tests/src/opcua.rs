@@ -1,0 +1,114 @@
+//! An independent OPC UA client for the tests: asyncua (Python), driven one JSON command
+//! per line (`tests/opcua/client.py`); `tests/opcua/install.sh` installs it when missing.
+
+use std::path::PathBuf;
+use std::process::Stdio;
+
+use serde_json::{Value, json};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader, Lines};
+use tokio::process::{Child, ChildStdin, ChildStdout, Command};
+
+fn repo_file(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// Runs the project's installer for the OPC UA client (idempotent).
+pub fn install() -> anyhow::Result<()> {
+    let status = std::process::Command::new("bash")
+        .arg(repo_file("opcua/install.sh"))
+        .status()?;
+    anyhow::ensure!(status.success(), "tests/opcua/install.sh failed: {status}");
+    Ok(())
+}
+
+/// How a session is opened.
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// `Basic256Sha256,SignAndEncrypt` and the client's certificate and key files.
+    pub security: Option<(String, PathBuf, PathBuf)>,
+    /// User name and password.
+    pub user: Option<(String, String)>,
+}
+
+/// A session of asyncua with the gateway.
+pub struct UaClient {
+    _child: Child,
+    stdin: ChildStdin,
+    lines: Lines<BufReader<ChildStdout>>,
+    /// The index of the iogate namespace.
+    pub ns: u64,
+}
+
+impl UaClient {
+    /// Connects; a refused connection is an error with asyncua's words.
+    pub async fn connect(url: &str, options: &Options) -> anyhow::Result<UaClient> {
+        install()?;
+        let mut command = Command::new("python3");
+        command.arg(repo_file("opcua/client.py")).arg(url);
+        if let Some((security, cert, key)) = &options.security {
+            command.arg(security).arg(cert).arg(key);
+        }
+        if let Some((user, password)) = &options.user {
+            command.arg(user).arg(password);
+        }
+        let mut child = command
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()?;
+        let stdin = child.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("stdout"))?;
+        let mut lines = BufReader::new(stdout).lines();
+        let first = read(&mut lines).await?;
+        anyhow::ensure!(first["connected"] == true, "asyncua: {first}");
+        Ok(UaClient {
+            ns: first["ns"].as_u64().unwrap_or_default(),
+            _child: child,
+            stdin,
+            lines,
+        })
+    }
+
+    /// Sends one command and answers its JSON answer.
+    pub async fn cmd(&mut self, command: Value) -> anyhow::Result<Value> {
+        self.stdin
+            .write_all(format!("{command}\n").as_bytes())
+            .await?;
+        self.stdin.flush().await?;
+        let answer = read(&mut self.lines).await?;
+        anyhow::ensure!(answer.get("error").is_none(), "asyncua: {answer}");
+        Ok(answer)
+    }
+
+    pub async fn read(&mut self, node: &str) -> anyhow::Result<Value> {
+        self.cmd(json!({"cmd": "read", "node": node})).await
+    }
+
+    /// Writes `value` as a variant of `ty` (asyncua's VariantType name); answers the
+    /// status code's name.
+    pub async fn write(&mut self, node: &str, value: Value, ty: &str) -> anyhow::Result<String> {
+        let answer = self
+            .cmd(json!({"cmd": "write", "node": node, "value": value, "type": ty}))
+            .await?;
+        Ok(answer["status"].as_str().unwrap_or_default().to_owned())
+    }
+}
+
+/// Whether a connection could be opened, and asyncua's words when not.
+pub async fn refused(url: &str, options: &Options) -> anyhow::Result<String> {
+    match UaClient::connect(url, options).await {
+        Ok(_) => anyhow::bail!("the connection was accepted"),
+        Err(e) => Ok(e.to_string()),
+    }
+}
+
+async fn read(lines: &mut Lines<BufReader<ChildStdout>>) -> anyhow::Result<Value> {
+    let line = tokio::time::timeout(crate::PATIENCE, lines.next_line())
+        .await
+        .map_err(|_| anyhow::anyhow!("no answer from asyncua within {:?}", crate::PATIENCE))??
+        .ok_or_else(|| anyhow::anyhow!("asyncua ended"))?;
+    Ok(serde_json::from_str(&line)?)
+}

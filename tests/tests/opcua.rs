@@ -1,0 +1,401 @@
+//! The OPC UA server against an independent client (asyncua, Python): browse, read every
+//! IEC type with its status and timestamps, subscribe to a device on a pty, write through
+//! the service, refusals in OPC UA's words, tokens as users, and Basic256Sha256
+//! SignAndEncrypt with a trusted and an untrusted client certificate.
+
+use iogate_tests::devices::{Behaviour, RtuBus, temp_dir};
+use iogate_tests::opcua::{Options, UaClient, refused};
+use iogate_tests::{TestGateway, bus_gateway_with, eventually};
+use reqwest::Method;
+use serde_json::json;
+
+fn opcua(dir: &std::path::Path, extra: &str) -> String {
+    format!(
+        "opcua:\n  listen: 127.0.0.1:0\n  pki_dir: {}\n{extra}",
+        dir.join("pki").display()
+    )
+}
+
+fn url(gw: &TestGateway) -> String {
+    format!("opc.tcp://{}/", gw.opcua.expect("an OPC UA server"))
+}
+
+const PLANT: &str = "devices:\n  - { name: plant, profile: SimPlant, refresh_rate: 100ms }\n";
+
+#[tokio::test]
+async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
+    let dir = temp_dir("opcua-types");
+    let gw = TestGateway::start(&format!("{PLANT}{}", opcua(&dir, "")))
+        .await
+        .expect("gateway");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    let devices = ua
+        .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
+        .await
+        .expect("browse");
+    assert_eq!(devices["children"][0]["id"], "plant", "{devices}");
+    let fields = ua
+        .cmd(json!({"cmd": "browse", "node": "plant"}))
+        .await
+        .expect("browse plant");
+    let names: Vec<&str> = fields["children"]
+        .as_array()
+        .expect("children")
+        .iter()
+        .filter_map(|c| c["name"].as_str())
+        .collect();
+    assert_eq!(names.len(), 20, "19 fields and Diagnostics: {names:?}");
+    assert!(names.contains(&"Diagnostics"), "{names:?}");
+    // Each IEC type as its OPC UA built-in type (numeric DataType ids of Part 6), with
+    // write access only for outputs.
+    for (field, data_type, writable) in [
+        ("PumpRunning", 1, false),
+        ("PumpStart", 1, true),
+        ("TrimOffset", 2, true),
+        ("Recipe", 3, true),
+        ("Pressure", 4, false),
+        ("SpeedRpm", 5, false),
+        ("BatchCount", 6, false),
+        ("RunSeconds", 7, false),
+        ("TotalCycles", 8, false),
+        ("SerialNumber", 9, false),
+        ("Level", 10, false),
+        ("FlowTotal", 11, false),
+        ("BatchName", 12, true),
+        ("AlarmBits", 3, false),
+        ("StatusWord", 5, false),
+        ("ErrorMask", 7, true),
+        ("Signature", 9, false),
+        ("MixTime", 290, true),
+    ] {
+        let attrs = ua
+            .cmd(json!({"cmd": "attrs", "node": format!("plant.{field}")}))
+            .await
+            .expect("attributes");
+        assert_eq!(attrs["data_type"], data_type, "{field}: {attrs}");
+        assert!(attrs["description"].is_string(), "{field}: {attrs}");
+        let can_write = attrs["access"]
+            .as_array()
+            .is_some_and(|a| a.iter().any(|x| x == "CurrentWrite"));
+        assert_eq!(can_write, writable, "{field}: {attrs}");
+    }
+    // A value set on the simulated device is read with Good, its source timestamp the time
+    // it was read and a server timestamp.
+    let (status, _) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant/fields/Pressure/simulate",
+            json!({"value": -1234}).to_string(),
+        )
+        .await
+        .expect("simulate");
+    assert!((200..300).contains(&status), "simulate: {status}");
+    eventually("the new value read over OPC UA", || async {
+        gw.get("/api/v1/devices/plant/fields/Pressure")
+            .await
+            .is_ok_and(|(_, v)| v["value"] == -1234)
+    })
+    .await
+    .expect("simulated");
+    let read = ua.read("plant.Pressure").await.expect("read");
+    assert_eq!(read["value"], -1234, "{read}");
+    assert_eq!(read["type"], "Int16", "{read}");
+    assert_eq!(read["status"], "Good", "{read}");
+    let (_, rest) = gw
+        .get("/api/v1/devices/plant/fields/Pressure")
+        .await
+        .expect("rest");
+    let source = read["source"].as_str().expect("a source timestamp");
+    let rest_ts = rest["timestamp"].as_str().expect("REST timestamp");
+    assert_eq!(
+        &source[..19],
+        &rest_ts[..19],
+        "source timestamp is when the device was read: {read} / {rest}"
+    );
+    assert!(read["server"].is_string(), "{read}");
+    let units = ua
+        .read("plant.Level.EngineeringUnits")
+        .await
+        .expect("units");
+    assert!(
+        units["value"].as_str().is_some_and(|u| u.contains('%')),
+        "{units}"
+    );
+    let connected = ua
+        .read("plant.diagnostics.connected")
+        .await
+        .expect("diagnostics");
+    assert_eq!(connected["value"], true, "{connected}");
+    let mix = ua.read("plant.MixTime").await.expect("TIME");
+    assert_eq!(mix["type"], "Double", "TIME is a Duration (ms): {mix}");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn writes_go_through_the_service_and_refusals_are_opc_ua_status_codes() {
+    let dir = temp_dir("opcua-writes");
+    let tokens = dir.join("tokens");
+    std::fs::write(
+        &tokens,
+        "read reader-0123456789abcdef\nwrite writer-0123456789abcdef\n",
+    )
+    .expect("tokens");
+    let config = format!(
+        "{PLANT}security: {{ tokens_file: {} }}\n{}",
+        tokens.display(),
+        opcua(&dir, "")
+    );
+    let gw = TestGateway::start(&config).await.expect("gateway");
+    let url = url(&gw);
+    // Tokens configured: anonymous sessions and unknown tokens are refused.
+    let anonymous = refused(&url, &Options::default()).await.expect("refused");
+    assert!(anonymous.contains("Bad"), "{anonymous}");
+    let wrong = Options {
+        user: Some(("token".into(), "not-a-token-at-all".into())),
+        ..Options::default()
+    };
+    refused(&url, &wrong).await.expect("unknown token refused");
+    // A writer: an accepted write answers Good and is the field's latest write.
+    let writer = Options {
+        user: Some(("token".into(), "writer-0123456789abcdef".into())),
+        ..Options::default()
+    };
+    let mut ua = UaClient::connect(&url, &writer).await.expect("writer");
+    assert_eq!(
+        ua.write("plant.PumpStart", json!(true), "Boolean")
+            .await
+            .expect("write"),
+        "Good"
+    );
+    eventually("the write reaches the device", || async {
+        rest(&gw, "/api/v1/devices/plant/fields/PumpStart")
+            .await
+            .is_ok_and(|v| v["value"] == true)
+    })
+    .await
+    .expect("written");
+    for (node, value, ty, expected) in [
+        (
+            "plant.PumpRunning",
+            json!(true),
+            "Boolean",
+            "BadNotWritable",
+        ),
+        (
+            "plant.TrimOffset",
+            json!("fast"),
+            "String",
+            "BadTypeMismatch",
+        ),
+        ("plant.TrimOffset", json!(300), "Int16", "BadOutOfRange"),
+        ("plant.Recipe", json!(2.5), "Double", "BadTypeMismatch"),
+        (
+            "plant.diagnostics.io_cycles",
+            json!(1),
+            "UInt64",
+            "BadNotWritable",
+        ),
+    ] {
+        let status = ua.write(node, value.clone(), ty).await.expect("write");
+        assert_eq!(status, expected, "{node} <- {value} ({ty})");
+    }
+    assert_eq!(
+        ua.write("plant.TrimOffset", json!(-7), "SByte")
+            .await
+            .expect("write"),
+        "Good"
+    );
+    // A reader: may read, not write.
+    let reader = Options {
+        user: Some(("token".into(), "reader-0123456789abcdef".into())),
+        ..Options::default()
+    };
+    let mut ro = UaClient::connect(&url, &reader).await.expect("reader");
+    assert_eq!(
+        ro.read("plant.PumpStart").await.expect("read")["status"],
+        "Good"
+    );
+    assert_eq!(
+        ro.write("plant.PumpStart", json!(false), "Boolean")
+            .await
+            .expect("write"),
+        "BadUserAccessDenied"
+    );
+    let field = rest(&gw, "/api/v1/devices/plant/fields/PumpStart")
+        .await
+        .expect("rest");
+    assert_eq!(
+        field["value"], true,
+        "the reader's write changed nothing: {field}"
+    );
+    assert_eq!(field["last_write"]["status"], "written", "{field}");
+    gw.shutdown().await;
+}
+
+/// A REST read with the reader's token.
+async fn rest(gw: &TestGateway, path: &str) -> anyhow::Result<serde_json::Value> {
+    Ok(gw
+        .client
+        .get(gw.url(path))
+        .bearer_auth("reader-0123456789abcdef")
+        .send()
+        .await?
+        .json()
+        .await?)
+}
+
+#[tokio::test]
+async fn a_device_on_a_pty_is_subscribed_written_and_turns_bad_and_back() {
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.tables.input[0] = 100);
+    let dir = temp_dir("opcua-pty");
+    let (gw, _pty, task, _) = bus_gateway_with(
+        "opcua-pty",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, timeout: 50ms, retries: 0 }\n",
+        &opcua(&dir, ""),
+    )
+    .await;
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua");
+    let subscribed = ua
+        .cmd(json!({"cmd": "subscribe", "nodes": ["io.AI_0"], "interval": 50}))
+        .await
+        .expect("subscribe");
+    assert_eq!(subscribed["subscribed"], 1);
+    // The initial value, then each change once, with the time the device was read.
+    let mut seen = Vec::new();
+    for raw in [150u16, 200, 250] {
+        bus.slave(1, |s| s.tables.input[0] = raw);
+        let expected = f64::from(raw) / 10.0;
+        loop {
+            let changes = ua
+                .cmd(json!({"cmd": "changes", "wait": 5}))
+                .await
+                .expect("changes");
+            let batch = changes["changes"].as_array().cloned().unwrap_or_default();
+            assert!(!batch.is_empty(), "no change for {expected}");
+            seen.extend(batch);
+            if seen
+                .last()
+                .is_some_and(|c| (c["value"].as_f64().unwrap_or(f64::NAN) - expected).abs() < 1e-3)
+            {
+                break;
+            }
+        }
+    }
+    let values: Vec<f64> = seen.iter().filter_map(|c| c["value"].as_f64()).collect();
+    let mut deduped = values.clone();
+    deduped.dedup();
+    assert_eq!(values, deduped, "each change once: {seen:?}");
+    assert!(
+        seen.iter()
+            .all(|c| c["source"].is_string() && c["status"] == "Good")
+    );
+    // A write of an output reaches the slave.
+    assert_eq!(
+        ua.write("io.DO_0", json!(true), "Boolean")
+            .await
+            .expect("write"),
+        "Good"
+    );
+    eventually("the coil written on the line", || async {
+        bus.read_slave(1, |s| s.tables.coils[0]) == Some(true)
+    })
+    .await
+    .expect("coil");
+    // The device stops answering: the value turns Bad_CommunicationError (with no value, as
+    // Part 4 asks of a Bad status), then Good again.
+    bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    let bad = wait_status(&mut ua, |s| s.starts_with("Bad")).await;
+    assert_eq!(bad, "BadCommunicationError");
+    bus.slave(1, |s| s.behaviour = Behaviour::Normal);
+    let good = wait_status(&mut ua, |s| s == "Good").await;
+    assert_eq!(good, "Good");
+    gw.shutdown().await;
+    task.abort();
+}
+
+/// The status of the first change whose status satisfies `f`.
+async fn wait_status(ua: &mut UaClient, f: impl Fn(&str) -> bool) -> String {
+    let mut all = Vec::new();
+    for _ in 0..10 {
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 5}))
+            .await
+            .expect("changes");
+        for c in changes["changes"].as_array().cloned().unwrap_or_default() {
+            let status = c["status"].as_str().unwrap_or_default().to_owned();
+            all.push(c.clone());
+            if f(&status) {
+                return status;
+            }
+        }
+    }
+    panic!("no such status among {all:?}");
+}
+
+#[tokio::test]
+async fn sign_and_encrypt_with_a_trusted_certificate_and_an_untrusted_one_rejected() {
+    let dir = temp_dir("opcua-security");
+    let gw = TestGateway::start(&format!(
+        "{PLANT}{}",
+        opcua(
+            &dir,
+            "  security: [basic256sha256_sign_encrypt, aes256_sha256_rsapss_sign_encrypt]\n"
+        )
+    ))
+    .await
+    .expect("gateway");
+    let url = url(&gw);
+    // The server's certificate was made on first start.
+    assert!(dir.join("pki/own/cert.der").is_file());
+    // No unsecured endpoint is offered.
+    let plain = refused(&url, &Options::default())
+        .await
+        .expect("no None endpoint");
+    assert!(!plain.is_empty());
+    // An unknown client certificate is rejected and kept for review.
+    let options = |name: &str| Options {
+        security: Some((
+            "Basic256Sha256,SignAndEncrypt".into(),
+            dir.join(format!("{name}.der")),
+            dir.join(format!("{name}.pem")),
+        )),
+        user: None,
+    };
+    let rejected = refused(&url, &options("client"))
+        .await
+        .expect("untrusted refused");
+    assert!(rejected.contains("Bad"), "{rejected}");
+    let saved: Vec<_> = std::fs::read_dir(dir.join("pki/rejected"))
+        .expect("rejected dir")
+        .filter_map(Result::ok)
+        .collect();
+    assert_eq!(
+        saved.len(),
+        1,
+        "the rejected certificate is kept: {saved:?}"
+    );
+    // Trusted (moved into trusted/ as an operator does), it connects and reads.
+    let cert = saved[0].path();
+    std::fs::create_dir_all(dir.join("pki/trusted")).expect("trusted dir");
+    std::fs::rename(
+        &cert,
+        dir.join("pki/trusted")
+            .join(cert.file_name().expect("name")),
+    )
+    .expect("trust");
+    let mut ua = UaClient::connect(&url, &options("client"))
+        .await
+        .expect("a trusted client connects");
+    assert_eq!(
+        ua.read("plant.PumpStart").await.expect("read")["status"],
+        "Good"
+    );
+    gw.shutdown().await;
+}
