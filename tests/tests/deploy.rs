@@ -226,8 +226,8 @@ fn the_shipped_configs_pass_the_gateways_own_check() {
             .lines()
             .filter(|l| l.contains("deploy.yaml"))
             .count(),
-        2,
-        "{refused}"
+        3,
+        "HTTP, gRPC and OPC UA: {refused}"
     );
     let with_tokens = format!("{image}security:\n  insecure: true\n");
     check(&with_tokens).expect("otherwise valid");

@@ -274,3 +274,39 @@ fn check_opcua(
         );
     }
 }
+
+#[cfg(test)]
+mod opcua_tests {
+    use super::*;
+
+    fn problems(text: &str) -> String {
+        let config = crate::config::parse("iogate.yaml", text).expect("parses");
+        match check_security(&config) {
+            Ok(_) => String::new(),
+            Err(p) => p.to_string(),
+        }
+    }
+
+    #[test]
+    fn off_loopback_opc_ua_needs_tokens_and_no_clear_endpoint() {
+        assert_eq!(problems("opcua: { listen: 127.0.0.1:4840 }\n"), "");
+        let wide = problems("opcua: { listen: 0.0.0.0:4840, security: [none] }\n");
+        assert!(
+            wide.contains("the `none` endpoint would send everything"),
+            "{wide}"
+        );
+        assert!(wide.contains("no tokens are configured"), "{wide}");
+        // Anonymous refused: nobody signs in without a token, so no tokens means no
+        // sessions, which is allowed.
+        assert_eq!(
+            problems("opcua: { listen: 0.0.0.0:4840, anonymous: false }\n"),
+            ""
+        );
+        assert_eq!(
+            problems(
+                "opcua: { listen: 0.0.0.0:4840, security: [none] }\nsecurity: { insecure: true }\n"
+            ),
+            ""
+        );
+    }
+}

@@ -306,3 +306,82 @@ fn read_security(node: &Node, report: &mut Report) -> Option<Vec<Endpoint>> {
     }
     ok.then_some(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read_text(text: &str) -> (Option<OpcUaConfig>, Vec<String>) {
+        let mut report = Report::new("iogate.yaml");
+        let node = crate::yaml::parse(text, &mut report).expect("yaml");
+        let mut map = node.map(&mut report, "config").expect("map");
+        let config = map.get("opcua").and_then(|n| read(n, &mut report));
+        let problems = report
+            .into_problems()
+            .iter()
+            .map(|p| format!("{}: {}: {}", p.line, p.context, p.message))
+            .collect();
+        (config, problems)
+    }
+
+    #[test]
+    fn the_interface_section_reads_and_defaults_are_documented_ones() {
+        let (config, problems) = read_text(
+            "opcua:
+  listen: 127.0.0.1:4840
+  application_uri: urn:iogate:line1
+  security: [none, basic256sha256_sign_encrypt]
+  pki_dir: /var/lib/iogate/pki
+  users: tokens
+  max_sessions: 100
+",
+        );
+        assert_eq!(problems, Vec::<String>::new());
+        let config = config.expect("read");
+        assert_eq!(
+            config.security,
+            vec![Endpoint::None, Endpoint::Basic256Sha256SignEncrypt]
+        );
+        assert_eq!(config.application_uri, "urn:iogate:line1");
+        assert_eq!(config.max_sessions, 100);
+        // Defaults: every secure endpoint, `none` only on loopback.
+        let (loopback, _) = read_text("opcua: {}\n");
+        let loopback = loopback.expect("read");
+        assert_eq!(loopback.listen.to_string(), DEFAULT_LISTEN);
+        assert_eq!(loopback.security, Endpoint::ALL.to_vec());
+        assert_eq!(loopback.max_monitored_items_per_subscription, 20_000);
+        let (wide, _) = read_text("opcua: { listen: 0.0.0.0:4840 }\n");
+        assert!(!wide.expect("read").security.contains(&Endpoint::None));
+    }
+
+    #[test]
+    fn every_bad_key_is_named_with_its_line() {
+        let (config, problems) = read_text(
+            "opcua:
+  listen: somewhere
+  application_uri: not a uri
+  security: [none, none, basic128]
+  users: ldap
+  anonymous: root
+  max_sessions: 0
+  certificate: own.der
+  colour: red
+",
+        );
+        assert!(config.is_none());
+        let text = problems.join("\n");
+        for expected in [
+            "2: opcua.listen: `somewhere` is not an address",
+            "3: opcua.application_uri: `not a uri` is not a URI",
+            "4: opcua.security: `none` is listed twice",
+            "4: opcua.security: unknown endpoint `basic128`",
+            "5: opcua.users: unknown user source `ldap`",
+            "6: opcua.anonymous: `root` is not a role",
+            "7: opcua.max_sessions: 0 is outside the allowed range 1-10000",
+            "opcua: an application certificate needs its private_key",
+            "opcua: unknown key `colour`",
+        ] {
+            assert!(text.contains(expected), "{expected}\n{text}");
+        }
+    }
+}
