@@ -21,7 +21,12 @@ use crate::link::frame::Function;
 
 mod format;
 mod mqtt;
+mod opcua;
 pub(crate) use format::Format;
+pub use opcua::{
+    OPCUA_MONITORED_ITEMS, OPCUA_REJECTED_CERTIFICATES, OPCUA_SECURITY_REJECTED, OPCUA_SESSIONS,
+    OPCUA_SESSIONS_CREATED, OPCUA_SUBSCRIPTIONS, OPCUA_VALUE_UPDATES, OPCUA_WRITES,
+};
 
 // Counter names get `_total` appended by the encoder.
 pub const LINK_UP: &str = "iogate_link_up";
@@ -164,6 +169,7 @@ pub struct Metrics {
     server_requests: Family<ServerRequestLabels, Counter>,
     server_exceptions: Family<CodeLabels, Counter>,
     mqtt: mqtt::MqttMetrics,
+    opcua: opcua::OpcUaMetrics,
 }
 
 impl std::fmt::Debug for Metrics {
@@ -212,6 +218,7 @@ impl Metrics {
             server_requests: Family::default(),
             server_exceptions: Family::default(),
             mqtt: mqtt::MqttMetrics::new(),
+            opcua: opcua::OpcUaMetrics::new(),
             registry: Registry::default(),
         };
         registry.register(
@@ -521,6 +528,7 @@ impl Metrics {
         &self,
         cache: &Cache,
         mqtt: Option<&crate::mqtt_status::MqttStatus>,
+        opcua: Option<&crate::opcua_status::OpcUaStatus>,
         format: Format,
     ) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.
@@ -610,6 +618,10 @@ impl Metrics {
             if let Some(status) = mqtt {
                 self.mqtt.copy(status);
                 encode_registry(&mut out, &self.mqtt.registry)?;
+            }
+            if let Some(status) = opcua {
+                self.opcua.copy(status);
+                encode_registry(&mut out, &self.opcua.registry)?;
             }
             encode_eof(&mut out)
         })();

@@ -311,6 +311,19 @@ async fn a_device_on_a_pty_is_subscribed_written_and_turns_bad_and_back() {
     // The device stops answering: the value turns Bad_CommunicationError (with no value, as
     // Part 4 asks of a Bad status), then Good again.
     bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    let metrics = gw.metrics().await.expect("metrics");
+    for line in [
+        "iogate_opcua_sessions 1\n",
+        "iogate_opcua_subscriptions 1\n",
+        "iogate_opcua_monitored_items 1\n",
+        "iogate_opcua_writes_total{outcome=\"accepted\"} 1\n",
+    ] {
+        assert!(metrics.contains(line), "{line}{metrics}");
+    }
+    assert!(
+        !metrics.contains("iogate_opcua_value_updates_total 0\n"),
+        "{metrics}"
+    );
     let bad = wait_status(&mut ua, |s| s.starts_with("Bad")).await;
     assert_eq!(bad, "BadCommunicationError");
     bus.slave(1, |s| s.behaviour = Behaviour::Normal);
@@ -380,6 +393,11 @@ async fn sign_and_encrypt_with_a_trusted_certificate_and_an_untrusted_one_reject
         saved.len(),
         1,
         "the rejected certificate is kept: {saved:?}"
+    );
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains("iogate_opcua_rejected_certificates 1\n"),
+        "{metrics}"
     );
     // Trusted (moved into trusted/ as an operator does), it connects and reads.
     let cert = saved[0].path();

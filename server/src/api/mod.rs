@@ -96,6 +96,7 @@ async fn metrics(State(service): State<Arc<Service>>, headers: HeaderMap) -> imp
         service.metrics.render(
             &service.cache,
             service.mqtt().map(|m| m.status()).as_ref(),
+            service.opcua().map(|o| o.status()).as_ref(),
             format,
         ),
     )

@@ -25,6 +25,7 @@ use crate::runtime::Tasks;
 
 pub(crate) use crate::cache::Refusal;
 pub(crate) use crate::mqtt_status::{MqttState, MqttStatus, SparkplugStatus};
+pub(crate) use crate::opcua_status::OpcUaState;
 pub(crate) use modbus_map::ModbusImage;
 pub(crate) use reload::{
     Action, ConfigStatus, Item, Kind, ReloadError, Reloading, Report, Trigger,
@@ -116,6 +117,8 @@ pub struct Service {
     streams: Arc<std::sync::atomic::AtomicUsize>,
     /// The MQTT front-end's state, when it runs (replaced when a reload restarts it).
     mqtt: std::sync::RwLock<Option<Arc<MqttState>>>,
+    /// The OPC UA server's counts, when it runs.
+    opcua: std::sync::RwLock<Option<Arc<OpcUaState>>>,
     /// What reloads the configuration, when it came from a file.
     reloader: std::sync::OnceLock<Arc<dyn Reloading>>,
 }
@@ -149,6 +152,7 @@ impl Service {
             read_only: AtomicBool::new(false),
             streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
             mqtt: std::sync::RwLock::new(None),
+            opcua: std::sync::RwLock::new(None),
             reloader: std::sync::OnceLock::new(),
         }
     }
@@ -249,6 +253,16 @@ impl Service {
     /// Gives the MQTT front-end's state to the other front-ends (`None`: it no longer runs).
     pub(crate) fn attach_mqtt(&self, state: Option<Arc<MqttState>>) {
         *self.mqtt.write().unwrap_or_else(|e| e.into_inner()) = state;
+    }
+
+    /// The OPC UA server's counts, while it runs.
+    pub(crate) fn opcua(&self) -> Option<Arc<OpcUaState>> {
+        self.opcua.read().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Gives the OPC UA server's counts to the metrics (`None`: it no longer runs).
+    pub(crate) fn attach_opcua(&self, state: Option<Arc<OpcUaState>>) {
+        *self.opcua.write().unwrap_or_else(|e| e.into_inner()) = state;
     }
 
     /// Wakes when a device is added or removed.

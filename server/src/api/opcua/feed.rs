@@ -37,6 +37,7 @@ pub(crate) struct Feed {
     pub(crate) manager: Arc<Manager>,
     pub(crate) subscriptions: Arc<SubscriptionCache>,
     pub(crate) ids: Ids,
+    pub(crate) counts: Arc<crate::service::OpcUaState>,
 }
 
 impl Feed {
@@ -179,6 +180,7 @@ impl Feed {
         if values.is_empty() {
             return;
         }
+        self.counts.values_set(values.len());
         let all = values.iter().map(|(id, v)| (id, None, v.clone()));
         if self.manager.set_values(&self.subscriptions, all).is_err() {
             for (id, value) in values {

@@ -17,11 +17,12 @@ use std::path::Path;
 use std::sync::Arc;
 
 use opcua::crypto::SecurityPolicy;
-use opcua::server::ServerBuilder;
-use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId};
+use opcua::server::{ServerBuilder, ServerHandle};
+use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId, VariableId, Variant};
 
 use crate::config::opcua::{Endpoint, OpcUaConfig};
-use crate::service::Service;
+use crate::opcua_status::{OpcUaStatus, Probe};
+use crate::service::{OpcUaState, Service};
 use space::Ids;
 
 /// The namespace of the devices' and links' nodes.
@@ -68,6 +69,7 @@ pub(crate) struct Running {
     pub(crate) addr: SocketAddr,
     stop: tokio_util::sync::CancellationToken,
     stopped: tokio::sync::oneshot::Receiver<()>,
+    service: std::sync::Weak<Service>,
 }
 
 /// How long a stopping server may take to close its sessions.
@@ -77,6 +79,9 @@ impl Running {
     /// Stops the server (its sessions are closed, its port released) and its feed.
     pub(crate) async fn stop(self) -> Result<(), String> {
         self.stop.cancel();
+        if let Some(service) = self.service.upgrade() {
+            service.attach_opcua(None);
+        }
         tokio::time::timeout(STOP_WAIT, self.stopped)
             .await
             .map(|_| ())
@@ -87,6 +92,37 @@ impl Running {
                 )
             })
     }
+}
+
+/// Reads what only the library knows (its diagnostics summary) and counts the client
+/// certificates waiting in `rejected`.
+fn probe(handle: Arc<std::sync::OnceLock<ServerHandle>>, rejected: std::path::PathBuf) -> Probe {
+    Box::new(move |s: &mut OpcUaStatus| {
+        if let Some(handle) = handle.get() {
+            let diagnostics = &handle.info().diagnostics;
+            let count = |id| match diagnostics.get(id).and_then(|v| v.value) {
+                Some(Variant::UInt32(n)) => u64::from(n),
+                _ => 0,
+            };
+            s.sessions = count(
+                VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_CurrentSessionCount,
+            );
+            s.sessions_created = count(
+                VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_CumulatedSessionCount,
+            );
+            s.subscriptions = count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_CurrentSubscriptionCount);
+            s.security_rejected = count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedSessionCount)
+                + count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedRequestsCount);
+        }
+        s.rejected_certificates = std::fs::read_dir(&rejected)
+            .map(|entries| {
+                entries
+                    .filter_map(Result::ok)
+                    .filter(|e| e.path().is_file())
+                    .count() as u64
+            })
+            .unwrap_or(0);
+    })
 }
 
 /// Starts the server on `config.listen` (bound here: a listener that cannot be bound stops
@@ -107,6 +143,11 @@ pub(crate) async fn start(
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
     let host = endpoint_host(addr);
     let token = service.tasks().token().child_token();
+    let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
+    let counts = Arc::new(OpcUaState::new(probe(
+        server_handle.clone(),
+        pki.join("rejected"),
+    )));
     let mut builder = ServerBuilder::new()
         .application_name("iogate")
         .application_uri(config.application_uri.clone())
@@ -129,9 +170,15 @@ pub(crate) async fn start(
             service.clone(),
             config.anonymous,
         )))
-        .with_node_manager(nodes::builder(NAMESPACE, Arc::downgrade(service)))
+        .with_node_manager(nodes::builder(
+            NAMESPACE,
+            Arc::downgrade(service),
+            counts.clone(),
+        ))
         .max_sessions(config.max_sessions)
-        .diagnostics_enabled(false)
+        // The library's counts (sessions, subscriptions, rejections) for the metrics; the
+        // Server's diagnostics nodes stay unreadable to sessions (no diagnostics role).
+        .diagnostics_enabled(true)
         .token(token.clone());
     if let (Some(cert), Some(key)) = (&config.certificate, &config.private_key) {
         let (cert, key) = (base.join(cert), base.join(key));
@@ -154,6 +201,7 @@ pub(crate) async fn start(
         builder = builder.add_endpoint(endpoint.name(), ("/", policy, mode, none));
     }
     let (server, handle) = builder.build().map_err(|e| format!("OPC UA server: {e}"))?;
+    let _ = server_handle.set(handle.clone());
     let secure = config.security.iter().any(|e| *e != Endpoint::None);
     if secure && handle.info().server_certificate.is_none() {
         return Err(format!(
@@ -195,6 +243,7 @@ pub(crate) async fn start(
         manager,
         subscriptions: handle.subscriptions().clone(),
         ids,
+        counts: counts.clone(),
     };
     service.tasks().spawn(feed.run(token.clone()));
     let (done, stopped) = tokio::sync::oneshot::channel();
@@ -205,9 +254,11 @@ pub(crate) async fn start(
         let _ = done.send(());
     });
     tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
+    service.attach_opcua(Some(counts));
     Ok(Running {
         addr,
         stop: token,
         stopped,
+        service: Arc::downgrade(service),
     })
 }

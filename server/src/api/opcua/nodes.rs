@@ -4,7 +4,7 @@
 //! of the wrong kind `Bad_TypeMismatch`, one outside the field's range `Bad_OutOfRange`;
 //! an accepted write answers Good (its outcome follows in the REST API and the variable).
 
-use std::sync::Weak;
+use std::sync::{Arc, Weak};
 
 use opcua::server::CreateMonitoredItem;
 use opcua::server::address_space::{AccessLevel, AddressSpace, NodeType, read_node_value};
@@ -13,28 +13,35 @@ use opcua::server::node_manager::memory::{
     InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl, InMemoryNodeManagerImplBuilder,
 };
 use opcua::server::node_manager::{
-    NodeManagerBuilder, ParsedReadValueId, RequestContext, ServerContext, WriteNode,
+    MonitoredItemRef, NodeManagerBuilder, ParsedReadValueId, RequestContext, ServerContext,
+    WriteNode,
 };
 use opcua::sync::RwLock;
 use opcua::types::{AttributeId, DataValue, NumericRange, StatusCode, TimestampsToReturn};
 
 use super::space::{self, Ids};
-use crate::service::Service;
+use crate::service::{OpcUaState, Service};
 
 /// Builds the node manager of namespace `namespace`.
-pub(crate) fn builder(namespace: &str, service: Weak<Service>) -> impl NodeManagerBuilder {
+pub(crate) fn builder(
+    namespace: &str,
+    service: Weak<Service>,
+    counts: Arc<OpcUaState>,
+) -> impl NodeManagerBuilder {
     InMemoryNodeManagerBuilder::new(Builder {
         namespace: NamespaceMetadata {
             namespace_uri: namespace.to_owned(),
             ..Default::default()
         },
         service,
+        counts,
     })
 }
 
 struct Builder {
     namespace: NamespaceMetadata,
     service: Weak<Service>,
+    counts: Arc<OpcUaState>,
 }
 
 impl InMemoryNodeManagerImplBuilder for Builder {
@@ -56,6 +63,7 @@ impl InMemoryNodeManagerImplBuilder for Builder {
             },
             namespace: self.namespace,
             service: self.service,
+            counts: self.counts,
         }
     }
 }
@@ -64,6 +72,7 @@ pub(crate) struct GatewayNodes {
     namespace: NamespaceMetadata,
     ids: Ids,
     service: Weak<Service>,
+    counts: Arc<OpcUaState>,
 }
 
 #[async_trait::async_trait]
@@ -121,6 +130,11 @@ impl InMemoryNodeManagerImpl for GatewayNodes {
             }
             item.set_status(StatusCode::Good);
         }
+        self.counts.items_created(items.len());
+    }
+
+    async fn delete_monitored_items(&self, _context: &RequestContext, items: &[&MonitoredItemRef]) {
+        self.counts.items_deleted(items.len());
     }
 
     async fn write(
@@ -131,6 +145,7 @@ impl InMemoryNodeManagerImpl for GatewayNodes {
     ) -> Result<(), StatusCode> {
         for write in nodes_to_write {
             let status = self.write_one(context, address_space, write);
+            self.counts.write(status.is_good());
             write.set_status(status);
         }
         Ok(())
