@@ -16,7 +16,9 @@ input is a command, answered by one JSON line:
                                             -> {"status": "Good"} or {"status": NAME}
     {"cmd": "subscribe", "nodes": [ID], "interval": MS}
                                             -> {"subscribed": K}
-    {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}]}
+    {"cmd": "subscribe_events"}             -> {"subscribed": 1} (every event of the Server object)
+    {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}
+                                                            or {"event", "message", "source"}]}
 
 IDs are string node ids in the iogate namespace. Changes are collected from the moment of
 subscribing; `changes` answers those seen so far (waiting up to S seconds for one).
@@ -56,6 +58,14 @@ class Handler:
             "value": plain(val),
             "status": dv.StatusCode_.name,
             "source": ts(dv.SourceTimestamp),
+        })
+        self.event.set()
+
+    def event_notification(self, event):
+        self.seen.append({
+            "event": event.EventType.Identifier,
+            "message": event.Message.Text if event.Message else None,
+            "source": event.SourceNode.Identifier if event.SourceNode else None,
         })
         self.event.set()
 
@@ -144,6 +154,11 @@ async def main():
                         sub = await client.create_subscription(c.get("interval", 50), handler)
                     handles = await sub.subscribe_data_change([node(i) for i in c["nodes"]])
                     out({"subscribed": len(handles)})
+                elif c["cmd"] == "subscribe_events":
+                    if sub is None:
+                        sub = await client.create_subscription(c.get("interval", 50), handler)
+                    await sub.subscribe_events()  # BaseEventType on the Server object
+                    out({"subscribed": 1})
                 elif c["cmd"] == "changes":
                     if not handler.seen:
                         handler.event.clear()

@@ -130,6 +130,42 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
     assert_eq!(connected["value"], true, "{connected}");
     let mix = ua.read("plant.MixTime").await.expect("TIME");
     assert_eq!(mix["type"], "Double", "TIME is a Duration (ms): {mix}");
+
+    // A device declared at run time appears with a model change event, and goes with one.
+    ua.cmd(json!({"cmd": "subscribe_events"}))
+        .await
+        .expect("events");
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/extra",
+            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 201, "{body}");
+    let event = next_event(&mut ua).await;
+    assert_eq!(event["event"], 2132, "BaseModelChangeEventType: {event}");
+    let devices = ua
+        .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
+        .await
+        .expect("browse");
+    assert!(devices.to_string().contains("\"extra\""), "{devices}");
+    assert_eq!(
+        ua.read("extra.DI_0").await.expect("read")["type"],
+        "Boolean"
+    );
+    let (status, _) = gw
+        .send(Method::DELETE, "/api/v1/devices/extra", "")
+        .await
+        .expect("remove");
+    assert!((200..300).contains(&status));
+    next_event(&mut ua).await;
+    let devices = ua
+        .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
+        .await
+        .expect("browse");
+    assert!(!devices.to_string().contains("\"extra\""), "{devices}");
     gw.shutdown().await;
 }
 
@@ -333,6 +369,23 @@ async fn a_device_on_a_pty_is_subscribed_written_and_turns_bad_and_back() {
     task.abort();
 }
 
+/// The next model change event (value changes on the way are skipped).
+async fn next_event(ua: &mut UaClient) -> serde_json::Value {
+    for _ in 0..5 {
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 5}))
+            .await
+            .expect("changes");
+        if let Some(e) = changes["changes"]
+            .as_array()
+            .and_then(|c| c.iter().find(|c| c.get("event").is_some()))
+        {
+            return e.clone();
+        }
+    }
+    panic!("no model change event");
+}
+
 /// The status of the first change whose status satisfies `f`.
 async fn wait_status(ua: &mut UaClient, f: impl Fn(&str) -> bool) -> String {
     let mut all = Vec::new();
@@ -411,6 +464,22 @@ async fn sign_and_encrypt_with_a_trusted_certificate_and_an_untrusted_one_reject
     let mut ua = UaClient::connect(&url, &options("client"))
         .await
         .expect("a trusted client connects");
+    assert_eq!(
+        ua.read("plant.PumpStart").await.expect("read")["status"],
+        "Good"
+    );
+    // The same certificate on the other policy offered.
+    let pss = Options {
+        security: Some((
+            "Aes256Sha256RsaPss,SignAndEncrypt".into(),
+            dir.join("client.der"),
+            dir.join("client.pem"),
+        )),
+        user: None,
+    };
+    let mut ua = UaClient::connect(&url, &pss)
+        .await
+        .expect("Aes256_Sha256_RsaPss SignAndEncrypt");
     assert_eq!(
         ua.read("plant.PumpStart").await.expect("read")["status"],
         "Good"

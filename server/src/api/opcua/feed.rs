@@ -89,8 +89,56 @@ impl Feed {
         }
     }
 
-    /// Brings the address space's devices and links to the service's.
+    /// Brings the address space's devices and links to the service's; when anything came
+    /// or went, a `BaseModelChangeEvent` from the Server object tells clients to browse again.
     fn sync(&self, shown: &mut Shown) {
+        let before: Vec<*const Device> = shown
+            .devices
+            .values()
+            .map(|(d, _)| Arc::as_ptr(d))
+            .collect();
+        let links_before = shown.links.len();
+        let first = before.is_empty() && links_before == 0;
+        self.sync_nodes(shown);
+        let after: Vec<*const Device> = shown
+            .devices
+            .values()
+            .map(|(d, _)| Arc::as_ptr(d))
+            .collect();
+        let same = before.len() == after.len()
+            && before.iter().all(|d| after.contains(d))
+            && links_before == shown.links.len();
+        if !same && !first {
+            self.model_changed();
+        }
+    }
+
+    fn model_changed(&self) {
+        use opcua::core_namespace::events::BaseModelChangeEventType;
+        use opcua::nodes::BaseEventType;
+        use opcua::types::{ByteString, ObjectId, ObjectTypeId};
+        let id: [u8; 16] = {
+            let nanos = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos());
+            nanos.to_le_bytes()
+        };
+        let event = BaseModelChangeEventType {
+            base: BaseEventType::new_now(
+                ObjectTypeId::BaseModelChangeEventType,
+                ByteString::from(id.to_vec()),
+                "devices or links were added or removed: browse Objects/iogate again",
+            )
+            .set_source_node(self.ids.folder(space::ROOT))
+            .set_source_name("iogate".into())
+            .set_severity(100),
+        };
+        let server: NodeId = ObjectId::Server.into();
+        self.subscriptions
+            .notify_events([(&event as &dyn opcua::nodes::Event, &server)].into_iter());
+    }
+
+    fn sync_nodes(&self, shown: &mut Shown) {
         let now = DateTime::now();
         let devices = self.service.devices();
         let links = self.service.links();
