@@ -10,14 +10,12 @@ use std::time::Duration;
 
 use futures_util::{FutureExt, StreamExt};
 use opcua::server::SubscriptionCache;
-use opcua::types::{DataValue, DateTime, NodeId, StatusCode};
+use opcua::types::{DataValue, DateTime, NodeId};
 use tokio_util::sync::CancellationToken;
 
 use super::space::{self, Ids};
-use crate::cache::{AccessError, Device, Link};
-use crate::codec::CodecError;
-use crate::service::{Change, Changes, Service, ServiceError};
-use iogate_types::ValueError;
+use crate::cache::{Device, Link};
+use crate::service::{Change, Changes, Service};
 
 use super::nodes::Manager;
 
@@ -244,26 +242,5 @@ async fn next(changes: &mut Option<Changes>) -> Option<Change> {
     match changes {
         Some(c) => c.next().await,
         None => std::future::pending().await,
-    }
-}
-
-/// The status code of a refused write.
-pub(crate) fn refused(e: &ServiceError) -> StatusCode {
-    match e {
-        ServiceError::Access(AccessError::InvalidValue { reason, .. }) => match reason.as_ref() {
-            CodecError::Value(ValueError::OutOfRange { .. } | ValueError::NotFinite { .. })
-            | CodecError::RawOutOfRange { .. }
-            | CodecError::NotFinite { .. }
-            | CodecError::TooLong { .. } => StatusCode::BadOutOfRange,
-            _ => StatusCode::BadTypeMismatch,
-        },
-        ServiceError::Access(AccessError::NotWritable { .. }) => StatusCode::BadNotWritable,
-        ServiceError::Access(AccessError::UnknownDevice(_) | AccessError::UnknownField { .. }) => {
-            StatusCode::BadNodeIdUnknown
-        }
-        ServiceError::ReadOnly => StatusCode::BadUserAccessDenied,
-        ServiceError::Busy(_) => StatusCode::BadTooManyOperations,
-        ServiceError::ShuttingDown => StatusCode::BadShutdown,
-        _ => StatusCode::BadInternalError,
     }
 }

@@ -20,7 +20,10 @@ use opcua::sync::RwLock;
 use opcua::types::{AttributeId, DataValue, NumericRange, StatusCode, TimestampsToReturn};
 
 use super::space::{self, Ids};
-use crate::service::{OpcUaState, Service};
+use crate::cache::AccessError;
+use crate::codec::CodecError;
+use crate::service::{OpcUaState, Service, ServiceError};
+use iogate_types::ValueError;
 
 /// Builds the node manager of namespace `namespace`.
 pub(crate) fn builder(
@@ -207,10 +210,31 @@ impl GatewayNodes {
         let prepared = service.prepare_named(&device, &field, |ty| space::value_of(ty, variant));
         match prepared.and_then(|p| service.write(p)) {
             Ok(_) => StatusCode::Good,
-            Err(e) => super::feed::refused(&e),
+            Err(e) => refused(&e),
         }
     }
 }
 
 /// The node manager as the server holds it.
 pub(crate) type Manager = opcua::server::node_manager::memory::InMemoryNodeManager<GatewayNodes>;
+
+/// The status code of a refused write.
+pub(crate) fn refused(e: &ServiceError) -> StatusCode {
+    match e {
+        ServiceError::Access(AccessError::InvalidValue { reason, .. }) => match reason.as_ref() {
+            CodecError::Value(ValueError::OutOfRange { .. } | ValueError::NotFinite { .. })
+            | CodecError::RawOutOfRange { .. }
+            | CodecError::NotFinite { .. }
+            | CodecError::TooLong { .. } => StatusCode::BadOutOfRange,
+            _ => StatusCode::BadTypeMismatch,
+        },
+        ServiceError::Access(AccessError::NotWritable { .. }) => StatusCode::BadNotWritable,
+        ServiceError::Access(AccessError::UnknownDevice(_) | AccessError::UnknownField { .. }) => {
+            StatusCode::BadNodeIdUnknown
+        }
+        ServiceError::ReadOnly => StatusCode::BadUserAccessDenied,
+        ServiceError::Busy(_) => StatusCode::BadTooManyOperations,
+        ServiceError::ShuttingDown => StatusCode::BadShutdown,
+        _ => StatusCode::BadInternalError,
+    }
+}
