@@ -155,12 +155,37 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
         ua.read("extra.DI_0").await.expect("read")["type"],
         "Boolean"
     );
+    ua.cmd(json!({"cmd": "subscribe", "nodes": ["extra.DI_0"]}))
+        .await
+        .expect("monitor a field of it");
     let (status, _) = gw
         .send(Method::DELETE, "/api/v1/devices/extra", "")
         .await
         .expect("remove");
     assert!((200..300).contains(&status));
-    next_event(&mut ua).await;
+    // Its monitored item is told the node is gone, and a model change event follows.
+    let mut seen = Vec::new();
+    for _ in 0..5 {
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 5}))
+            .await
+            .expect("changes");
+        seen.extend(changes["changes"].as_array().cloned().unwrap_or_default());
+        let gone = seen.iter().any(|c| {
+            c["node"] == "extra.DI_0" && c["status"].as_str().is_some_and(|s| s.starts_with("Bad"))
+        });
+        let event = seen.iter().any(|c| c["event"] == 2132);
+        if gone && event {
+            break;
+        }
+    }
+    assert!(
+        seen.iter().any(|c| c["node"] == "extra.DI_0"
+            && c["value"].is_null()
+            && c["status"].as_str().is_some_and(|s| s.starts_with("Bad"))),
+        "{seen:?}"
+    );
+    assert!(seen.iter().any(|c| c["event"] == 2132), "{seen:?}");
     let devices = ua
         .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
         .await

@@ -140,6 +140,30 @@ impl Feed {
         let now = DateTime::now();
         let devices = self.service.devices();
         let links = self.service.links();
+        // Items monitoring a field that goes are told so (Bad_NodeIdUnknown) before its
+        // node is deleted; a re-planned device's kept fields are not.
+        let mut gone = Vec::new();
+        for (name, (old, fields)) in &shown.devices {
+            if devices.iter().any(|d| Arc::ptr_eq(d, old)) {
+                continue;
+            }
+            let next = devices.iter().find(|d| d.name() == name.as_str());
+            for field in fields {
+                if next.is_none_or(|d| d.field_index(field).is_err()) {
+                    gone.push((
+                        self.ids.field(name, field),
+                        DataValue {
+                            value: Some(opcua::types::Variant::Empty),
+                            status: Some(opcua::types::StatusCode::BadNodeIdUnknown),
+                            server_timestamp: Some(now),
+                            ..DataValue::default()
+                        },
+                    ));
+                }
+            }
+        }
+        self.set(gone);
+        let mut added = Vec::new();
         let mut space = self.manager.address_space().write();
         let ids = self.ids;
         shown.devices.retain(|name, (old, fields)| {
@@ -154,6 +178,7 @@ impl Feed {
                 continue;
             }
             space::add_device(&mut space, ids, device, now);
+            added.push(device.clone());
             let fields = device
                 .profile
                 .fields
@@ -178,6 +203,19 @@ impl Feed {
             }
         }
         drop(space);
+        // Items that monitored a re-planned device's fields see its values now.
+        let values = added
+            .iter()
+            .flat_map(|d| {
+                d.profile.fields.iter().enumerate().map(|(idx, f)| {
+                    (
+                        self.ids.field(d.name(), &f.name),
+                        space::data_value(f.ty, &d.sample(idx), now),
+                    )
+                })
+            })
+            .collect();
+        self.set(values);
     }
 
     fn apply(&self, batch: &[Change]) {
