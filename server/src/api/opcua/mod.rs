@@ -25,6 +25,9 @@ use crate::opcua_status::{OpcUaStatus, Probe};
 use crate::service::{OpcUaState, Service};
 use space::Ids;
 
+/// Notifications in one publish answer, at most.
+const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1000;
+
 /// The namespace of the devices' and links' nodes.
 pub(crate) const NAMESPACE: &str = "urn:iogate:devices";
 
@@ -194,6 +197,10 @@ pub(crate) async fn start(
         limits.subscriptions.max_subscriptions_per_session = config.max_subscriptions_per_session;
         limits.subscriptions.max_monitored_items_per_sub =
             config.max_monitored_items_per_subscription;
+        // A publish answer carries at most this many notifications (about 30 KB), so that
+        // thousands of changes at once go in several answers within the message size
+        // instead of one the client cannot take.
+        limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
     }
     for endpoint in &config.security {
         let (policy, mode) = security(*endpoint);
