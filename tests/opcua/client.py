@@ -16,6 +16,8 @@ input is a command, answered by one JSON line:
                                             -> {"status": "Good"} or {"status": NAME}
     {"cmd": "subscribe", "nodes": [ID], "interval": MS}
                                             -> {"subscribed": K}
+    {"cmd": "deadband", "node": ID, "value": V, "type": 1 (absolute) or 2 (percent)}
+                                            -> {"subscribed": 1}
     {"cmd": "subscribe_events"}             -> {"subscribed": 1} (every event of the Server object)
     {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}
                                                             or {"event", "message", "source"}]}
@@ -154,6 +156,11 @@ async def main():
                         sub = await client.create_subscription(c.get("interval", 50), handler)
                     handles = await sub.subscribe_data_change([node(i) for i in c["nodes"]])
                     out({"subscribed": len(handles)})
+                elif c["cmd"] == "deadband":
+                    if sub is None:
+                        sub = await client.create_subscription(c.get("interval", 50), handler)
+                    await sub.deadband_monitor(node(c["node"]), c["value"], c["type"])
+                    out({"subscribed": 1})
                 elif c["cmd"] == "subscribe_events":
                     if sub is None:
                         sub = await client.create_subscription(c.get("interval", 50), handler)

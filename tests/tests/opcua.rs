@@ -511,3 +511,88 @@ async fn sign_and_encrypt_with_a_trusted_certificate_and_an_untrusted_one_reject
     );
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn absolute_and_percent_deadbands_filter_changes() {
+    let dir = temp_dir("opcua-deadband");
+    let gw = TestGateway::start(&format!("{PLANT}{}", opcua(&dir, "")))
+        .await
+        .expect("gateway");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua");
+    // Pressure is an INT: its EURange is -32768..32767, so 10 % is 6553.5.
+    let range = ua.read("plant.Pressure.EURange").await.expect("EURange");
+    assert!(range["value"].is_string(), "{range}");
+    ua.cmd(json!({"cmd": "deadband", "node": "plant.Pressure", "value": 10.0, "type": 2}))
+        .await
+        .expect("percent deadband");
+    ua.cmd(json!({"cmd": "deadband", "node": "plant.SpeedRpm", "value": 50.0, "type": 1}))
+        .await
+        .expect("absolute deadband");
+    let simulate = |field: &'static str, value: i64| {
+        let gw = &gw;
+        async move {
+            let (status, body) = gw
+                .send(
+                    Method::PUT,
+                    &format!("/api/v1/devices/plant/fields/{field}/simulate"),
+                    json!({ "value": value }).to_string(),
+                )
+                .await
+                .expect("simulate");
+            assert!((200..300).contains(&status), "{body}");
+            eventually("the simulated value read", || async {
+                gw.get(&format!("/api/v1/devices/plant/fields/{field}"))
+                    .await
+                    .is_ok_and(|(_, v)| v["value"] == value)
+            })
+            .await
+            .expect("read");
+        }
+    };
+    for (field, value) in [
+        ("Pressure", 100),
+        ("SpeedRpm", 20),
+        ("Pressure", 9000),
+        ("SpeedRpm", 100),
+    ] {
+        simulate(field, value).await;
+    }
+    let mut seen = Vec::new();
+    for _ in 0..5 {
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 2}))
+            .await
+            .expect("changes");
+        seen.extend(changes["changes"].as_array().cloned().unwrap_or_default());
+        let values = |node: &str| -> Vec<serde_json::Value> {
+            seen.iter()
+                .filter(|c| c["node"] == node)
+                .map(|c| c["value"].clone())
+                .collect()
+        };
+        if values("plant.Pressure").contains(&json!(9000))
+            && values("plant.SpeedRpm").contains(&json!(100))
+        {
+            break;
+        }
+    }
+    let values = |node: &str| -> Vec<serde_json::Value> {
+        seen.iter()
+            .filter(|c| c["node"] == node)
+            .map(|c| c["value"].clone())
+            .collect()
+    };
+    assert_eq!(
+        values("plant.Pressure"),
+        vec![json!(0), json!(9000)],
+        "100 is within 10 % of the range, 9000 is not: {seen:?}"
+    );
+    assert_eq!(
+        values("plant.SpeedRpm"),
+        vec![json!(0), json!(100)],
+        "20 is within 50 of 0, 100 is not: {seen:?}"
+    );
+    gw.shutdown().await;
+}

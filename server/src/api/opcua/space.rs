@@ -8,6 +8,7 @@
 //!     <device>                    s=<device>             (object)
 //!       <field>                   s=<device>.<field>     (variable)
 //!         EngineeringUnits        s=<device>.<field>.EngineeringUnits (property)
+//!         EURange                 s=<device>.<field>.EURange (property, numeric fields)
 //!       Diagnostics               s=<device>/Diagnostics (object)
 //!         connected ...           s=<device>.diagnostics.<name>
 //!   Links                         s=/iogate/Links
@@ -24,7 +25,7 @@ use std::time::SystemTime;
 use opcua::server::address_space::{AccessLevel, AddressSpace, ObjectBuilder, VariableBuilder};
 use opcua::types::{
     DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId,
-    ObjectTypeId, StatusCode, UAString, VariableTypeId, Variant,
+    ObjectTypeId, Range, StatusCode, UAString, VariableTypeId, Variant,
 };
 
 use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics, Sample};
@@ -60,6 +61,9 @@ impl Ids {
     }
     fn units(self, device: &str, field: &str) -> NodeId {
         NodeId::new(self.ns, format!("{device}.{field}.EngineeringUnits"))
+    }
+    fn range(self, device: &str, field: &str) -> NodeId {
+        NodeId::new(self.ns, format!("{device}.{field}.EURange"))
     }
     pub(crate) fn device_diagnostics(self, device: &str) -> NodeId {
         NodeId::new(self.ns, format!("{device}/Diagnostics"))
@@ -329,6 +333,17 @@ fn add_field(
     if let Some(opcua::server::address_space::NodeType::Variable(v)) = space.find_mut(&id) {
         v.set_data_value(data_value(field.ty, &device.sample(idx), now));
     }
+    if let Some((low, high)) = eu_range(field) {
+        VariableBuilder::new(&ids.range(device.name(), &field.name), "EURange", "EURange")
+            .data_type(DataTypeId::Range)
+            .value(ExtensionObject::from_message(Range { low, high }))
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+            .value_rank(-1)
+            .has_type_definition(VariableTypeId::PropertyType)
+            .property_of(id.clone())
+            .insert(space);
+    }
     if let Some(unit) = field.register.unit.as_deref() {
         VariableBuilder::new(
             &ids.units(device.name(), &field.name),
@@ -346,9 +361,28 @@ fn add_field(
     }
 }
 
+/// The range a numeric field's values take, for percent deadbands: an integer type's own
+/// range, or for a REAL stored as an integer register the register's range scaled.
+fn eu_range(field: &Field) -> Option<(f64, f64)> {
+    if field.ty == IecType::Time {
+        return None;
+    }
+    if let Some((min, max)) = field.ty.int_range() {
+        return Some((min as f64, max as f64));
+    }
+    let raw = field.register.raw_type?;
+    let (min, max) = raw.int_range()?;
+    let (a, b) = (
+        min as f64 * field.register.scale + field.register.offset,
+        max as f64 * field.register.scale + field.register.offset,
+    );
+    Some((a.min(b), a.max(b)))
+}
+
 /// Removes a device's nodes (its fields, units, diagnostics and object).
 pub(crate) fn remove_device(space: &mut AddressSpace, ids: Ids, name: &str, fields: &[String]) {
     for field in fields {
+        space.delete(&ids.range(name, field), true);
         space.delete(&ids.units(name, field), true);
         space.delete(&ids.field(name, field), true);
     }
