@@ -83,6 +83,16 @@ impl UaClient {
         Ok(answer)
     }
 
+    /// Ends the session as a client should (CloseSession), and waits for the client.
+    pub async fn close(self) -> anyhow::Result<()> {
+        let UaClient {
+            mut _child, stdin, ..
+        } = self;
+        drop(stdin);
+        tokio::time::timeout(crate::PATIENCE, _child.wait()).await??;
+        Ok(())
+    }
+
     pub async fn read(&mut self, node: &str) -> anyhow::Result<Value> {
         self.cmd(json!({"cmd": "read", "node": node})).await
     }

@@ -596,3 +596,47 @@ async fn absolute_and_percent_deadbands_filter_changes() {
     );
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn sessions_over_the_limit_are_refused_and_the_others_go_on() {
+    let dir = temp_dir("opcua-limit");
+    let gw = TestGateway::start(&format!("{PLANT}{}", opcua(&dir, "  max_sessions: 2\n")))
+        .await
+        .expect("gateway");
+    let url = url(&gw);
+    let mut first = UaClient::connect(&url, &Options::default())
+        .await
+        .expect("first session");
+    let mut second = UaClient::connect(&url, &Options::default())
+        .await
+        .expect("second session");
+    let third = refused(&url, &Options::default())
+        .await
+        .expect("third refused");
+    assert!(third.contains("BadTooManySessions"), "{third}");
+    for ua in [&mut first, &mut second] {
+        assert_eq!(
+            ua.read("plant.PumpStart").await.expect("read")["status"],
+            "Good"
+        );
+    }
+    // One leaves (CloseSession): a new session takes its place. A client that vanishes
+    // without closing holds its place until the session timeout (at most 60 s).
+    second.close().await.expect("closed");
+    let mut again = None;
+    for _ in 0..50 {
+        if let Ok(ua) = UaClient::connect(&url, &Options::default()).await {
+            again = Some(ua);
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+    let mut again = again.expect("a session after one left");
+    assert_eq!(
+        again.read("plant.PumpStart").await.expect("read")["status"],
+        "Good"
+    );
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(metrics.contains("iogate_opcua_sessions 2\n"), "{metrics}");
+    gw.shutdown().await;
+}
