@@ -25,13 +25,7 @@ pub struct Browser {
 pub struct Element(String);
 
 fn install() -> anyhow::Result<()> {
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("browser/install.sh");
-    let status = Command::new("bash")
-        .arg(&script)
-        .status()
-        .with_context(|| format!("running {}", script.display()))?;
-    anyhow::ensure!(status.success(), "{} failed", script.display());
-    Ok(())
+    crate::run_installer("browser/install.sh")
 }
 
 fn free_port() -> anyhow::Result<u16> {

@@ -15,6 +15,22 @@ pub mod pki;
 /// How long `eventually` waits for a condition.
 pub const PATIENCE: Duration = Duration::from_secs(10);
 
+/// A file of the tests crate (`tests/` in the repository): a peer's script, an installer.
+pub fn repo_file(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// Runs one of the tests crate's installers (`mqtt/install.sh`, ...), which install a
+/// peer when it is missing and do nothing otherwise.
+pub fn run_installer(script: &str) -> anyhow::Result<()> {
+    let status = std::process::Command::new("bash")
+        .arg(repo_file(script))
+        .status()
+        .map_err(|e| anyhow::anyhow!("running tests/{script}: {e}"))?;
+    anyhow::ensure!(status.success(), "tests/{script} failed: {status}");
+    Ok(())
+}
+
 /// The repository's `profiles/` directory.
 pub fn profiles_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles")

@@ -9,17 +9,11 @@ use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader, Lines};
 use tokio::process::{Child, ChildStdin, ChildStdout, Command};
 
-fn repo_file(path: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
-}
+use crate::repo_file;
 
 /// Runs the project's installer for the MQTT peers (idempotent).
 pub fn install() -> anyhow::Result<()> {
-    let status = std::process::Command::new("bash")
-        .arg(repo_file("mqtt/install.sh"))
-        .status()?;
-    anyhow::ensure!(status.success(), "tests/mqtt/install.sh failed: {status}");
-    Ok(())
+    crate::run_installer("mqtt/install.sh")
 }
 
 fn mosquitto() -> PathBuf {

@@ -8,17 +8,11 @@ use serde_json::{Value, json};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader, Lines};
 use tokio::process::{Child, ChildStdin, ChildStdout, Command};
 
-fn repo_file(path: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
-}
+use crate::repo_file;
 
 /// Runs the project's installer for the OPC UA client (idempotent).
 pub fn install() -> anyhow::Result<()> {
-    let status = std::process::Command::new("bash")
-        .arg(repo_file("opcua/install.sh"))
-        .status()?;
-    anyhow::ensure!(status.success(), "tests/opcua/install.sh failed: {status}");
-    Ok(())
+    crate::run_installer("opcua/install.sh")
 }
 
 /// How a session is opened.

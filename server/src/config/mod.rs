@@ -59,6 +59,26 @@ pub struct Config {
     pub(crate) unreadable: Unreadable,
 }
 
+/// Reads the section `key` of `text` with `read`: what it made and every problem, as
+/// `line: context: message` (the sections' unit tests).
+#[cfg(test)]
+pub(crate) fn read_section<T>(
+    text: &str,
+    key: &str,
+    read: fn(&yaml::Node, &mut Report) -> Option<T>,
+) -> (Option<T>, Vec<String>) {
+    let mut report = Report::new("iogate.yaml");
+    let node = yaml::parse(text, &mut report).expect("yaml");
+    let mut map = node.map(&mut report, "config").expect("map");
+    let section = map.get(key).and_then(|n| read(n, &mut report));
+    let problems = report
+        .into_problems()
+        .iter()
+        .map(|p| format!("{}: {}: {}", p.line, p.context, p.message))
+        .collect();
+    (section, problems)
+}
+
 /// The longest `reload.debounce`.
 pub(crate) const MAX_DEBOUNCE: Duration = Duration::from_secs(60);
 

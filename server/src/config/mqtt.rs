@@ -702,16 +702,7 @@ mod tests {
     use super::*;
 
     fn read_text(text: &str) -> (Option<MqttConfig>, Vec<String>) {
-        let mut report = Report::new("iogate.yaml");
-        let node = crate::yaml::parse(text, &mut report).expect("yaml");
-        let mut map = node.map(&mut report, "config").expect("map");
-        let config = map.get("mqtt").and_then(|n| read(n, &mut report));
-        let problems = report
-            .into_problems()
-            .iter()
-            .map(|p| format!("{}: {}: {}", p.line, p.context, p.message))
-            .collect();
-        (config, problems)
+        crate::config::read_section(text, "mqtt", read)
     }
 
     #[test]

@@ -212,6 +212,30 @@ fn field_items(prefix: &str, a: &Profile, b: &Profile) -> Vec<Item> {
     items
 }
 
+/// A front-end's section that differs (its front-end is started, stopped or restarted):
+/// the action, and the keys that changed followed by what the restart does.
+fn restarted_section<T>(
+    old: &Option<T>,
+    new: &Option<T>,
+    what: &str,
+    keys: impl Fn(&T, &T) -> Vec<Option<String>>,
+    stopped: &str,
+    restart: &str,
+) -> (Action, Vec<String>) {
+    match (old, new) {
+        (Some(x), Some(y)) => {
+            let mut details: Vec<String> = keys(x, y).into_iter().flatten().collect();
+            details.push(restart.to_owned());
+            (Action::Changed, details)
+        }
+        (Some(_), None) => (
+            Action::Removed,
+            vec![format!("{what} is stopped {stopped}")],
+        ),
+        (None, _) => (Action::Added, vec![format!("{what} is started")]),
+    }
+}
+
 /// Compares the configuration in force (`old`, with its tokens) with `new`.
 pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &Tokens) -> Diff {
     let mut d = Diff::default();
@@ -497,7 +521,7 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
         }
     }
 
-    // MQTT and the reload section.
+    // The front-ends restarted when their section changes, and the reload section.
     let mqtt = |c: &crate::config::Config| {
         c.mqtt.clone().map(|mut m| {
             m.line = 0;
@@ -506,17 +530,12 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     };
     if mqtt(a) != mqtt(b) {
         d.mqtt = true;
-        let (action, details) = match (&a.mqtt, &b.mqtt) {
-            (None, _) => (
-                Action::Added,
-                vec!["the MQTT front-end is started".to_owned()],
-            ),
-            (_, None) => (
-                Action::Removed,
-                vec!["the MQTT front-end is stopped (NDEATH, offline state)".to_owned()],
-            ),
-            (Some(x), Some(y)) => {
-                let mut details: Vec<String> = [
+        let (action, details) = restarted_section(
+            &a.mqtt,
+            &b.mqtt,
+            "the MQTT front-end",
+            |x, y| {
+                vec![
                     changed_text("url", &x.url, &y.url),
                     changed_text("client_id", &x.client_id, &y.client_id),
                     changed("username", &x.username, &y.username),
@@ -531,15 +550,10 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
                     (x.buffer != y.buffer).then(|| "buffer changed".to_owned()),
                     changed_text("writes", x.writes, y.writes),
                 ]
-                .into_iter()
-                .flatten()
-                .collect();
-                details.push(
-                    "the MQTT connection is closed (NDEATH) and opened again (NBIRTH, next bdSeq); the buffer on disk is kept".to_owned(),
-                );
-                (Action::Changed, details)
-            }
-        };
+            },
+            "(NDEATH, offline state)",
+            "the MQTT connection is closed (NDEATH) and opened again (NBIRTH, next bdSeq); the buffer on disk is kept",
+        );
         d.push(Kind::Mqtt, "mqtt", action, details);
     }
     let opcua = |c: &crate::config::Config| {
@@ -550,17 +564,12 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     };
     if opcua(a) != opcua(b) {
         d.opcua = true;
-        let (action, details) = match (&a.opcua, &b.opcua) {
-            (None, _) => (
-                Action::Added,
-                vec!["the OPC UA server is started".to_owned()],
-            ),
-            (_, None) => (
-                Action::Removed,
-                vec!["the OPC UA server is stopped".to_owned()],
-            ),
-            (Some(x), Some(y)) => {
-                let mut details: Vec<String> = [
+        let (action, details) = restarted_section(
+            &a.opcua,
+            &b.opcua,
+            "the OPC UA server",
+            |x, y| {
+                vec![
                     changed_text("listen", x.listen, y.listen),
                     changed_text("application_uri", &x.application_uri, &y.application_uri),
                     (x.security != y.security).then(|| "security changed".to_owned()),
@@ -585,16 +594,10 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
                         y.max_monitored_items_per_subscription,
                     ),
                 ]
-                .into_iter()
-                .flatten()
-                .collect();
-                details.push(
-                    "the OPC UA server is restarted: its sessions end and clients reconnect"
-                        .to_owned(),
-                );
-                (Action::Changed, details)
-            }
-        };
+            },
+            "(its sessions end)",
+            "the OPC UA server is restarted: its sessions end and clients reconnect",
+        );
         d.push(Kind::Opcua, "opcua", action, details);
     }
     if a.reload != b.reload {

@@ -28,6 +28,8 @@ const BATCH: usize = 1024;
 struct Shown {
     devices: HashMap<String, (Arc<Device>, Vec<String>)>,
     links: HashMap<String, Arc<Link>>,
+    /// Filled once: later changes are model changes.
+    synced: bool,
 }
 
 pub(crate) struct Feed {
@@ -43,6 +45,7 @@ impl Feed {
         let mut shown = Shown {
             devices: HashMap::new(),
             links: HashMap::new(),
+            synced: false,
         };
         let mut devices_changed = self.service.watch_devices();
         self.sync(&mut shown);
@@ -90,25 +93,11 @@ impl Feed {
     /// Brings the address space's devices and links to the service's; when anything came
     /// or went, a `BaseModelChangeEvent` from the Server object tells clients to browse again.
     fn sync(&self, shown: &mut Shown) {
-        let before: Vec<*const Device> = shown
-            .devices
-            .values()
-            .map(|(d, _)| Arc::as_ptr(d))
-            .collect();
-        let links_before = shown.links.len();
-        let first = before.is_empty() && links_before == 0;
-        self.sync_nodes(shown);
-        let after: Vec<*const Device> = shown
-            .devices
-            .values()
-            .map(|(d, _)| Arc::as_ptr(d))
-            .collect();
-        let same = before.len() == after.len()
-            && before.iter().all(|d| after.contains(d))
-            && links_before == shown.links.len();
-        if !same && !first {
+        let changed = self.sync_nodes(shown);
+        if changed && shown.synced {
             self.model_changed();
         }
+        shown.synced = true;
     }
 
     fn model_changed(&self) {
@@ -136,7 +125,8 @@ impl Feed {
             .notify_events([(&event as &dyn opcua::nodes::Event, &server)].into_iter());
     }
 
-    fn sync_nodes(&self, shown: &mut Shown) {
+    /// Whether any device or link was added or removed.
+    fn sync_nodes(&self, shown: &mut Shown) -> bool {
         let now = DateTime::now();
         let devices = self.service.devices();
         let links = self.service.links();
@@ -164,12 +154,14 @@ impl Feed {
         }
         self.set(gone);
         let mut added = Vec::new();
+        let mut changed = false;
         let mut space = self.manager.address_space().write();
         let ids = self.ids;
         shown.devices.retain(|name, (old, fields)| {
             let kept = devices.iter().any(|d| Arc::ptr_eq(d, old));
             if !kept {
                 space::remove_device(&mut space, ids, name, fields);
+                changed = true;
             }
             kept
         });
@@ -193,6 +185,7 @@ impl Feed {
             let kept = links.iter().any(|l| Arc::ptr_eq(l, old));
             if !kept {
                 space::remove_link(&mut space, ids, name);
+                changed = true;
             }
             kept
         });
@@ -200,6 +193,7 @@ impl Feed {
             if !shown.links.contains_key(link.name()) {
                 space::add_link(&mut space, ids, link, now);
                 shown.links.insert(link.name().to_owned(), link.clone());
+                changed = true;
             }
         }
         drop(space);
@@ -216,6 +210,7 @@ impl Feed {
             })
             .collect();
         self.set(values);
+        changed || !added.is_empty()
     }
 
     fn apply(&self, batch: &[Change]) {

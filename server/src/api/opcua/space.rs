@@ -22,7 +22,9 @@
 
 use std::time::SystemTime;
 
-use opcua::server::address_space::{AccessLevel, AddressSpace, ObjectBuilder, VariableBuilder};
+use opcua::server::address_space::{
+    AccessLevel, AddressSpace, NodeType, ObjectBuilder, VariableBuilder,
+};
 use opcua::types::{
     DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId,
     ObjectTypeId, Range, StatusCode, UAString, VariableTypeId, Variant,
@@ -264,6 +266,22 @@ fn diagnostic_type(name: &str) -> DataTypeId {
     }
 }
 
+/// A read-only scalar variable of `data_type` (a diagnostic or a property).
+fn read_only(id: &NodeId, name: &str, data_type: DataTypeId) -> VariableBuilder {
+    VariableBuilder::new(id, name, name)
+        .data_type(data_type)
+        .access_level(AccessLevel::CURRENT_READ)
+        .user_access_level(AccessLevel::CURRENT_READ)
+        .value_rank(-1)
+}
+
+/// Sets the value, status and timestamps of a variable just inserted.
+fn set_initial(space: &mut AddressSpace, id: &NodeId, value: DataValue) {
+    if let Some(NodeType::Variable(v)) = space.find_mut(id) {
+        v.set_data_value(value);
+    }
+}
+
 /// Adds a device: its object, a variable per field and its diagnostics.
 pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, now: DateTime) {
     let name = device.name();
@@ -284,25 +302,18 @@ pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, no
     let diag = ids.device_diagnostics(name);
     ObjectBuilder::new(&diag, "Diagnostics", "Diagnostics")
         .description(
-            "connected, error_code (source document 000's codes), io_cycles, last_response_ms",
+            "connected, error_code (0 OK, 1 no link, 2 no slave, 10 communication error), io_cycles, last_response_ms",
         )
         .has_type_definition(ObjectTypeId::BaseObjectType)
         .component_of(object.clone())
         .insert(space);
     for (var, value) in device_diagnostics(&device.diagnostics(), now) {
-        VariableBuilder::new(&ids.device_diagnostic(name, var), var, var)
-            .data_type(diagnostic_type(var))
-            .access_level(AccessLevel::CURRENT_READ)
-            .user_access_level(AccessLevel::CURRENT_READ)
-            .value_rank(-1)
+        let id = ids.device_diagnostic(name, var);
+        read_only(&id, var, diagnostic_type(var))
             .has_type_definition(VariableTypeId::BaseDataVariableType)
             .component_of(diag.clone())
             .insert(space);
-        if let Some(opcua::server::address_space::NodeType::Variable(v)) =
-            space.find_mut(&ids.device_diagnostic(name, var))
-        {
-            v.set_data_value(value);
-        }
+        set_initial(space, &id, value);
     }
 }
 
@@ -330,34 +341,31 @@ fn add_field(
         (None, None) => format!("{} {}", field.ty, field.direction.name()),
     };
     builder.description(description).insert(space);
-    if let Some(opcua::server::address_space::NodeType::Variable(v)) = space.find_mut(&id) {
-        v.set_data_value(data_value(field.ty, &device.sample(idx), now));
-    }
-    if let Some((low, high)) = eu_range(field) {
-        VariableBuilder::new(&ids.range(device.name(), &field.name), "EURange", "EURange")
-            .data_type(DataTypeId::Range)
-            .value(ExtensionObject::from_message(Range { low, high }))
-            .access_level(AccessLevel::CURRENT_READ)
-            .user_access_level(AccessLevel::CURRENT_READ)
-            .value_rank(-1)
+    set_initial(space, &id, data_value(field.ty, &device.sample(idx), now));
+    let properties = [
+        eu_range(field).map(|(low, high)| {
+            (
+                ids.range(device.name(), &field.name),
+                "EURange",
+                DataTypeId::Range,
+                ExtensionObject::from_message(Range { low, high }),
+            )
+        }),
+        field.register.unit.as_deref().map(|unit| {
+            (
+                ids.units(device.name(), &field.name),
+                "EngineeringUnits",
+                DataTypeId::EUInformation,
+                units(unit),
+            )
+        }),
+    ];
+    for (property, name, data_type, value) in properties.into_iter().flatten() {
+        read_only(&property, name, data_type)
+            .value(value)
             .has_type_definition(VariableTypeId::PropertyType)
             .property_of(id.clone())
             .insert(space);
-    }
-    if let Some(unit) = field.register.unit.as_deref() {
-        VariableBuilder::new(
-            &ids.units(device.name(), &field.name),
-            "EngineeringUnits",
-            "EngineeringUnits",
-        )
-        .data_type(DataTypeId::EUInformation)
-        .value(units(unit))
-        .access_level(AccessLevel::CURRENT_READ)
-        .user_access_level(AccessLevel::CURRENT_READ)
-        .value_rank(-1)
-        .has_type_definition(VariableTypeId::PropertyType)
-        .property_of(id.clone())
-        .insert(space);
     }
 }
 
@@ -404,17 +412,11 @@ pub(crate) fn add_link(space: &mut AddressSpace, ids: Ids, link: &Link, now: Dat
         .insert(space);
     for (var, value) in link_diagnostics(&link.diagnostics(), now) {
         let id = ids.link_diagnostic(name, var);
-        VariableBuilder::new(&id, var, var)
-            .data_type(diagnostic_type(var))
-            .access_level(AccessLevel::CURRENT_READ)
-            .user_access_level(AccessLevel::CURRENT_READ)
-            .value_rank(-1)
+        read_only(&id, var, diagnostic_type(var))
             .has_type_definition(VariableTypeId::BaseDataVariableType)
             .component_of(object.clone())
             .insert(space);
-        if let Some(opcua::server::address_space::NodeType::Variable(v)) = space.find_mut(&id) {
-            v.set_data_value(value);
-        }
+        set_initial(space, &id, value);
     }
 }
 
