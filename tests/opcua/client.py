@@ -18,9 +18,12 @@ input is a command, answered by one JSON line:
                                             -> {"subscribed": K}
     {"cmd": "deadband", "node": ID, "value": V, "type": 1 (absolute) or 2 (percent)}
                                             -> {"subscribed": 1}
-    {"cmd": "subscribe_events"}             -> {"subscribed": 1} (every event of the Server object)
+    {"cmd": "subscribe_events", "type": T}  -> {"subscribed": 1} (the Server object's events of
+                                               type T, a name in ua.ObjectIds, and its subtypes;
+                                               every event without T)
     {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}
-                                                            or {"event", "message", "source"}]}
+                                                            or {"event", "message", "source",
+                                                            "changes": [{"affected", "verb"}]}]}
 
 IDs are string node ids in the iogate namespace. Changes are collected from the moment of
 subscribing; `changes` answers those seen so far (waiting up to S seconds for one).
@@ -59,6 +62,7 @@ class Handler:
             "node": node.nodeid.Identifier,
             "value": plain(val),
             "status": dv.StatusCode_.name,
+            "code": dv.StatusCode_.value,
             "source": ts(dv.SourceTimestamp),
         })
         self.event.set()
@@ -68,6 +72,10 @@ class Handler:
             "event": event.EventType.Identifier,
             "message": event.Message.Text if event.Message else None,
             "source": event.SourceNode.Identifier if event.SourceNode else None,
+            "changes": [
+                {"affected": plain(c.Affected.Identifier), "verb": c.Verb}
+                for c in (getattr(event, "Changes", None) or [])
+            ],
         })
         self.event.set()
 
@@ -131,6 +139,7 @@ async def main():
                         "value": plain(dv.Value.Value) if dv.Value else None,
                         "type": dv.Value.VariantType.name if dv.Value else None,
                         "status": dv.StatusCode_.name,
+            "code": dv.StatusCode_.value,
                         "source": ts(dv.SourceTimestamp),
                         "server": ts(dv.ServerTimestamp),
                     })
@@ -164,7 +173,11 @@ async def main():
                 elif c["cmd"] == "subscribe_events":
                     if sub is None:
                         sub = await client.create_subscription(c.get("interval", 50), handler)
-                    await sub.subscribe_events()  # BaseEventType on the Server object
+                    if "type" in c:
+                        evtype = getattr(ua.ObjectIds, c["type"])
+                        await sub.subscribe_events(client.nodes.server, evtype)
+                    else:
+                        await sub.subscribe_events()  # BaseEventType on the Server object
                     out({"subscribed": 1})
                 elif c["cmd"] == "changes":
                     if not handler.seen:

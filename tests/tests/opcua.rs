@@ -132,7 +132,9 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
     assert_eq!(mix["type"], "Double", "TIME is a Duration (ms): {mix}");
 
     // A device declared at run time appears with a model change event, and goes with one.
-    ua.cmd(json!({"cmd": "subscribe_events"}))
+    // A client that asks for model change events only (an event filter on the event
+    // type, as asyncua and UaExpert write it) is told which nodes came and went.
+    ua.cmd(json!({"cmd": "subscribe_events", "type": "GeneralModelChangeEventType"}))
         .await
         .expect("events");
     let (status, body) = gw
@@ -145,7 +147,12 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
         .expect("declare");
     assert_eq!(status, 201, "{body}");
     let event = next_event(&mut ua).await;
-    assert_eq!(event["event"], 2132, "BaseModelChangeEventType: {event}");
+    assert_eq!(event["event"], 2133, "GeneralModelChangeEventType: {event}");
+    assert_eq!(
+        event["changes"],
+        json!([{"affected": "extra", "verb": 1}, {"affected": "/iogate/Devices", "verb": 4}]),
+        "NodeAdded, and ReferenceAdded on its folder: {event}"
+    );
     let devices = ua
         .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
         .await
@@ -171,10 +178,10 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
             .await
             .expect("changes");
         seen.extend(changes["changes"].as_array().cloned().unwrap_or_default());
-        let gone = seen.iter().any(|c| {
-            c["node"] == "extra.DI_0" && c["status"].as_str().is_some_and(|s| s.starts_with("Bad"))
-        });
-        let event = seen.iter().any(|c| c["event"] == 2132);
+        let gone = seen
+            .iter()
+            .any(|c| c["node"] == "extra.DI_0" && c["status"] == "BadNodeIdUnknown");
+        let event = seen.iter().any(|c| c["event"] == 2133);
         if gone && event {
             break;
         }
@@ -182,10 +189,15 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
     assert!(
         seen.iter().any(|c| c["node"] == "extra.DI_0"
             && c["value"].is_null()
-            && c["status"].as_str().is_some_and(|s| s.starts_with("Bad"))),
+            && c["status"] == "BadNodeIdUnknown"),
         "{seen:?}"
     );
-    assert!(seen.iter().any(|c| c["event"] == 2132), "{seen:?}");
+    assert!(
+        seen.iter().any(|c| c["event"] == 2133
+            && c["changes"]
+                == json!([{"affected": "extra", "verb": 2}, {"affected": "/iogate/Devices", "verb": 8}])),
+        "NodeDeleted, ReferenceDeleted: {seen:?}"
+    );
     let devices = ua
         .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
         .await
@@ -390,6 +402,37 @@ async fn a_device_on_a_pty_is_subscribed_written_and_turns_bad_and_back() {
     bus.slave(1, |s| s.behaviour = Behaviour::Normal);
     let good = wait_status(&mut ua, |s| s == "Good").await;
     assert_eq!(good, "Good");
+    gw.shutdown().await;
+    task.abort();
+}
+
+#[tokio::test]
+async fn a_change_of_status_alone_is_told() {
+    // A device that never answers, with a long timeout: its fields wait for their first
+    // value (Bad_WaitingForInitialData), then the poll times out (Bad_CommunicationError).
+    // Neither has a value: only the status changes, and an item without a filter (whose
+    // trigger is StatusValue) is told.
+    let bus = RtuBus::default();
+    bus.slave(1, |s| s.behaviour = Behaviour::Silent);
+    let dir = temp_dir("opcua-status");
+    let (gw, _pty, task, _) = bus_gateway_with(
+        "opcua-status",
+        &bus,
+        &[],
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 100ms, timeout: 10s, retries: 0 }\n",
+        &opcua(&dir, ""),
+    )
+    .await;
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua");
+    ua.cmd(json!({"cmd": "subscribe", "nodes": ["io.AI_0"], "interval": 50}))
+        .await
+        .expect("subscribe");
+    let first = wait_status(&mut ua, |_| true).await;
+    assert_eq!(first, "BadWaitingForInitialData");
+    let next = wait_status(&mut ua, |_| true).await;
+    assert_eq!(next, "BadCommunicationError");
     gw.shutdown().await;
     task.abort();
 }

@@ -9,8 +9,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use futures_util::{FutureExt, StreamExt};
+use opcua::core_namespace::events::BaseModelChangeEventType;
 use opcua::server::SubscriptionCache;
-use opcua::types::{DataValue, DateTime, NodeId};
+use opcua::types::{DataValue, DateTime, ModelChangeStructureDataType, NodeId, ObjectTypeId};
 use tokio_util::sync::CancellationToken;
 
 use super::space::{self, Ids};
@@ -91,42 +92,45 @@ impl Feed {
     }
 
     /// Brings the address space's devices and links to the service's; when anything came
-    /// or went, a `BaseModelChangeEvent` from the Server object tells clients to browse again.
+    /// or went, a `GeneralModelChangeEvent` from the Server object names the nodes added
+    /// and removed, so that clients browse again.
     fn sync(&self, shown: &mut Shown) {
-        let changed = self.sync_nodes(shown);
-        if changed && shown.synced {
-            self.model_changed();
+        let changes = self.sync_nodes(shown);
+        if !changes.is_empty() && shown.synced {
+            self.model_changed(changes);
         }
         shown.synced = true;
     }
 
-    fn model_changed(&self) {
-        use opcua::core_namespace::events::BaseModelChangeEventType;
+    fn model_changed(&self, changes: Vec<ModelChangeStructureDataType>) {
         use opcua::nodes::BaseEventType;
-        use opcua::types::{ByteString, ObjectId, ObjectTypeId};
+        use opcua::types::{ByteString, ObjectId};
         let id: [u8; 16] = {
             let nanos = std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| d.as_nanos());
             nanos.to_le_bytes()
         };
-        let event = BaseModelChangeEventType {
-            base: BaseEventType::new_now(
-                ObjectTypeId::BaseModelChangeEventType,
-                ByteString::from(id.to_vec()),
-                "devices or links were added or removed: browse Objects/iogate again",
-            )
-            .set_source_node(self.ids.folder(space::ROOT))
-            .set_source_name("iogate".into())
-            .set_severity(100),
+        let event = GeneralModelChangeEvent {
+            base: BaseModelChangeEventType {
+                base: BaseEventType::new_now(
+                    ObjectTypeId::GeneralModelChangeEventType,
+                    ByteString::from(id.to_vec()),
+                    "devices or links were added or removed: browse Objects/iogate again",
+                )
+                .set_source_node(self.ids.folder(space::ROOT))
+                .set_source_name("iogate".into())
+                .set_severity(100),
+            },
+            changes,
         };
         let server: NodeId = ObjectId::Server.into();
         self.subscriptions
             .notify_events([(&event as &dyn opcua::nodes::Event, &server)].into_iter());
     }
 
-    /// Whether any device or link was added or removed.
-    fn sync_nodes(&self, shown: &mut Shown) -> bool {
+    /// The nodes added and removed: each device or link object, and its folder's reference.
+    fn sync_nodes(&self, shown: &mut Shown) -> Vec<ModelChangeStructureDataType> {
         let now = DateTime::now();
         let devices = self.service.devices();
         let links = self.service.links();
@@ -154,14 +158,14 @@ impl Feed {
         }
         self.set(gone);
         let mut added = Vec::new();
-        let mut changed = false;
+        let mut model = Vec::new();
         let mut space = self.manager.address_space().write();
         let ids = self.ids;
         shown.devices.retain(|name, (old, fields)| {
             let kept = devices.iter().any(|d| Arc::ptr_eq(d, old));
             if !kept {
                 space::remove_device(&mut space, ids, name, fields);
-                changed = true;
+                model.extend(node_changes(ids, ids.device(name), space::DEVICES, false));
             }
             kept
         });
@@ -170,6 +174,12 @@ impl Feed {
                 continue;
             }
             space::add_device(&mut space, ids, device, now);
+            model.extend(node_changes(
+                ids,
+                ids.device(device.name()),
+                space::DEVICES,
+                true,
+            ));
             added.push(device.clone());
             let fields = device
                 .profile
@@ -185,7 +195,7 @@ impl Feed {
             let kept = links.iter().any(|l| Arc::ptr_eq(l, old));
             if !kept {
                 space::remove_link(&mut space, ids, name);
-                changed = true;
+                model.extend(node_changes(ids, ids.link(name), space::LINKS, false));
             }
             kept
         });
@@ -193,7 +203,7 @@ impl Feed {
             if !shown.links.contains_key(link.name()) {
                 space::add_link(&mut space, ids, link, now);
                 shown.links.insert(link.name().to_owned(), link.clone());
-                changed = true;
+                model.extend(node_changes(ids, ids.link(link.name()), space::LINKS, true));
             }
         }
         drop(space);
@@ -210,7 +220,7 @@ impl Feed {
             })
             .collect();
         self.set(values);
-        changed || !added.is_empty()
+        model
     }
 
     fn apply(&self, batch: &[Change]) {
@@ -269,6 +279,38 @@ impl Feed {
             }
         }
     }
+}
+
+/// A `GeneralModelChangeEventType` whose `Changes` is the array the type declares (the
+/// library's generated struct has room for one change only).
+#[derive(Debug, opcua::Event)]
+#[opcua(identifier = "i=2133")]
+struct GeneralModelChangeEvent {
+    base: BaseModelChangeEventType,
+    changes: Vec<ModelChangeStructureDataType>,
+}
+
+/// A device's or link's object added or removed, and the reference to it from its folder.
+fn node_changes(
+    ids: Ids,
+    node: NodeId,
+    folder: &str,
+    added: bool,
+) -> [ModelChangeStructureDataType; 2] {
+    // Part 5, 6.4.32: NodeAdded 1, NodeDeleted 2, ReferenceAdded 4, ReferenceDeleted 8.
+    let (node_verb, reference_verb) = if added { (1, 4) } else { (2, 8) };
+    [
+        ModelChangeStructureDataType {
+            affected: node,
+            affected_type: ObjectTypeId::BaseObjectType.into(),
+            verb: node_verb,
+        },
+        ModelChangeStructureDataType {
+            affected: ids.folder(folder),
+            affected_type: ObjectTypeId::FolderType.into(),
+            verb: reference_verb,
+        },
+    ]
 }
 
 async fn next(changes: &mut Option<Changes>) -> Option<Change> {

@@ -349,6 +349,10 @@ impl ParsedContentFilter {
             (Variant::Double(lhs), Variant::Double(rhs)) => Some(lhs.total_cmp(&rhs)),
             (Variant::Float(lhs), Variant::Float(rhs)) => Some(lhs.total_cmp(&rhs)),
             (Variant::Boolean(lhs), Variant::Boolean(rhs)) => Some(lhs.cmp(&rhs)),
+            // Values without an order (node ids, strings, qualified names...) are equal or
+            // not: Equals and InList compare them (an event filter on `EventType` lists
+            // node ids), the ordering operators find nothing.
+            (lhs, rhs) if lhs.type_id() == rhs.type_id() && lhs == rhs => Some(Ordering::Equal),
             _ => None,
         }
     }
@@ -1013,6 +1017,30 @@ mod tests {
         );
         assert!(f.evaluate(&evt as &dyn Event, &type_tree));
         let evt = event(4);
+        assert!(!f.evaluate(&evt as &dyn Event, &type_tree));
+    }
+
+    #[test]
+    fn test_in_list_of_event_types() {
+        // As clients filter on an event's type: its EventType among a list of node ids.
+        let type_tree = type_tree();
+        let event_type = |ids: &[NodeId]| {
+            let mut operands = vec![Operand::simple_attribute(
+                ObjectTypeId::BaseEventType,
+                "EventType",
+                AttributeId::Value,
+                NumericRange::None,
+            )];
+            operands.extend(ids.iter().map(|id| Operand::literal(id.clone())));
+            filter(
+                vec![filter_elem(&operands, FilterOperator::InList)],
+                &type_tree,
+            )
+        };
+        let evt = event(2);
+        let f = event_type(&[NodeId::new(1, 456), NodeId::new(1, 123)]);
+        assert!(f.evaluate(&evt as &dyn Event, &type_tree));
+        let f = event_type(&[NodeId::new(1, 456)]);
         assert!(!f.evaluate(&evt as &dyn Event, &type_tree));
     }
 

@@ -10,7 +10,7 @@ use opcua_types::{
     match_extension_object_owned, DataChangeFilter, DataValue, DateTime, EventFieldList,
     EventFilter, EventFilterResult, ExtensionObject, MonitoredItemCreateRequest,
     MonitoredItemModifyRequest, MonitoredItemNotification, MonitoringMode, NumericRange,
-    ParsedDataChangeFilter, StatusCode, TimestampsToReturn, Variant,
+    ParsedDataChangeFilter, StatusCode, StatusCodeInfoType, TimestampsToReturn, Variant,
 };
 
 #[derive(Debug, Clone, PartialEq)]
@@ -511,8 +511,10 @@ impl MonitoredItem {
                     filter.is_changed(&value, last_dv),
                     self.filter_by_sampling_interval(last_dv, &value, from_subscription_tick),
                 ),
+                // Without a filter, the default trigger is StatusValue (OPC UA Part 4,
+                // 7.22.2): a change of the status alone is reported too.
                 (Some(last_dv), FilterType::None) => (
-                    value.value != last_dv.value,
+                    value.value != last_dv.value || value.status() != last_dv.status(),
                     self.filter_by_sampling_interval(last_dv, &value, from_subscription_tick),
                 ),
                 (None, _) => (true, true),
@@ -602,11 +604,27 @@ impl MonitoredItem {
         }
 
         let mut notification = notification.into();
+        // OPC UA Part 4, 5.12.1.5 and 7.39: a queue of one is a buffer of the newest value,
+        // never overflowing; a larger one flags the value next to the discarded one (the
+        // oldest one left when the oldest went, else the new one) with the Overflow bit,
+        // an info bit of InfoType DataValue.
         if overflow {
-            if let Notification::MonitoredItemNotification(n) = &mut notification {
-                n.value.status = Some(n.value.status().set_overflow(true));
-            }
             self.queue_overflow = true;
+        }
+        if overflow && self.queue_size > 1 {
+            let flagged = if self.discard_oldest {
+                self.notification_queue.front_mut()
+            } else {
+                Some(&mut notification)
+            };
+            if let Some(Notification::MonitoredItemNotification(n)) = flagged {
+                n.value.status = Some(
+                    n.value
+                        .status()
+                        .set_info_type(StatusCodeInfoType::DataValue)
+                        .set_overflow(true),
+                );
+            }
         }
 
         self.notification_queue.push_back(notification);
@@ -757,7 +775,7 @@ pub(super) mod tests {
     use opcua_types::{
         AttributeId, DataChangeFilter, DataChangeTrigger, DataValue, DateTime, Deadband,
         DeadbandType, MonitoringMode, NodeId, ParsedDataChangeFilter, ReadValueId, StatusCode,
-        Variant,
+        StatusCodeInfoType, Variant,
     };
 
     use super::{FilterType, MonitoredItem};
@@ -916,6 +934,30 @@ pub(super) mod tests {
     }
 
     #[test]
+    fn status_change_without_filter() {
+        // No filter: the default trigger StatusValue reports a status change alone.
+        let start = Utc::now();
+        let mut item = new_monitored_item(
+            1,
+            ReadValueId {
+                node_id: NodeId::null(),
+                attribute_id: AttributeId::Value as u32,
+                ..Default::default()
+            },
+            MonitoringMode::Reporting,
+            FilterType::None,
+            SamplingInterval::Zero,
+            true,
+            Some(DataValue::new_at(1.0, start.into())),
+        );
+        let mut stale = DataValue::new_at(1.0, start.into());
+        stale.status = Some(StatusCode::UncertainLastUsableValue);
+        assert!(item.notify_data_value(stale.clone(), &start.into(), false));
+        assert!(!item.notify_data_value(stale, &start.into(), false));
+        assert!(item.notify_data_value(DataValue::new_at(1.0, start.into()), &start.into(), false));
+    }
+
+    #[test]
     fn monitored_item_filter() {
         let start = Utc::now();
         let mut item = new_monitored_item(
@@ -1044,9 +1086,16 @@ pub(super) mod tests {
             };
             // Values should be 1, 2, 3, 4, 5, since the first value 0 was dropped.
             assert_eq!(*v, idx as i32 + 1);
-            // Last status code should have the overflow flag set.
-            if idx == 4 {
-                assert_eq!(n.value.status, Some(StatusCode::Good.set_overflow(true)));
+            // The oldest value left has the overflow flag set.
+            if idx == 0 {
+                assert_eq!(
+                    n.value.status,
+                    Some(
+                        StatusCode::Good
+                            .set_info_type(StatusCodeInfoType::DataValue)
+                            .set_overflow(true)
+                    )
+                );
             } else {
                 assert_eq!(n.value.status, Some(StatusCode::Good));
             }
