@@ -124,15 +124,20 @@ enum Action {
     St(String),
 }
 
-/// The log filter from `RUST_LOG` (`info` when unset). A filter that does not parse is a
-/// configuration error, not a silent fallback.
+/// What is logged when `RUST_LOG` is unset: the gateway's information, and only warnings
+/// and errors of the OPC UA library (its information is a start-up inventory).
+const DEFAULT_LOG: &str =
+    "info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_nodes=warn,opcua_types=warn";
+
+/// The log filter from `RUST_LOG` ([`DEFAULT_LOG`] when unset). A filter that does not
+/// parse is a configuration error, not a silent fallback.
 fn log_filter() -> Result<tracing_subscriber::EnvFilter, String> {
     use tracing_subscriber::EnvFilter;
     match std::env::var("RUST_LOG") {
         Ok(text) if !text.trim().is_empty() => EnvFilter::builder()
             .parse(&text)
             .map_err(|e| format!("RUST_LOG `{text}` is not a log filter: {e}")),
-        Ok(_) | Err(std::env::VarError::NotPresent) => Ok(EnvFilter::new("info")),
+        Ok(_) | Err(std::env::VarError::NotPresent) => Ok(EnvFilter::new(DEFAULT_LOG)),
         Err(std::env::VarError::NotUnicode(_)) => Err("RUST_LOG is not valid UTF-8".to_owned()),
     }
 }

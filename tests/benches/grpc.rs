@@ -48,6 +48,9 @@ fn main() -> anyhow::Result<()> {
         if let Some(server) = setup.config.modbus_server.as_mut() {
             server.listen = "127.0.0.1:0".parse()?;
         }
+        if let Some(opcua) = setup.config.opcua.as_mut() {
+            opcua.listen = "127.0.0.1:0".parse()?;
+        }
         let running = iogate::app::start(setup).await?;
         let url = format!("http://{}", running.grpc_addr);
         println!("gateway and clients share one process and 2 cores");

@@ -192,6 +192,9 @@ impl TestGateway {
         if let Some(server) = setup.config.modbus_server.as_mut() {
             server.listen = "127.0.0.1:0".parse()?;
         }
+        if let Some(opcua) = setup.config.opcua.as_mut() {
+            opcua.listen = "127.0.0.1:0".parse()?;
+        }
         setup.config.security.declare = test_policy();
         TestGateway::start_setup(setup).await
     }

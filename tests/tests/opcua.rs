@@ -437,6 +437,34 @@ async fn a_change_of_status_alone_is_told() {
     task.abort();
 }
 
+#[tokio::test]
+async fn the_demo_serves_its_devices_as_the_readme_shows() {
+    let gw = TestGateway::demo().await.expect("demo");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua, anonymous, no security");
+    let read = ua.read("sim.DI_0").await.expect("read");
+    assert_eq!(
+        (read["type"].as_str(), read["status"].as_str()),
+        (Some("Boolean"), Some("Good")),
+        "{read}"
+    );
+    assert_eq!(
+        ua.write("sim.DO_0", json!(true), "Boolean")
+            .await
+            .expect("write"),
+        "Good"
+    );
+    eventually("the write on the simulated device", || async {
+        rest(&gw, "/api/v1/devices/sim/fields/DO_0")
+            .await
+            .is_ok_and(|f| f["value"] == true)
+    })
+    .await
+    .expect("written");
+    gw.shutdown().await;
+}
+
 /// The next model change event (value changes on the way are skipped).
 async fn next_event(ua: &mut UaClient) -> serde_json::Value {
     for _ in 0..5 {

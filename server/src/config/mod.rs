@@ -44,7 +44,7 @@ pub struct Config {
     /// The MQTT publisher, when configured.
     pub(crate) mqtt: Option<mqtt::MqttConfig>,
     /// The OPC UA server, when configured.
-    pub(crate) opcua: Option<opcua::OpcUaConfig>,
+    pub opcua: Option<opcua::OpcUaConfig>,
     /// Standing raw transactions.
     pub(crate) transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,

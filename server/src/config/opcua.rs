@@ -88,7 +88,7 @@ pub(crate) enum Anonymous {
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct OpcUaConfig {
-    pub(crate) listen: SocketAddr,
+    pub listen: SocketAddr,
     pub(crate) application_uri: String,
     /// The endpoints offered, in order.
     pub(crate) security: Vec<Endpoint>,

@@ -22,7 +22,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, error, info, warn};
 
 use opcua_core::{config::Config, handle::AtomicHandle};
-use opcua_crypto::CertificateStore;
+use opcua_crypto::{CertificateStore, SecurityPolicy};
 
 use crate::{
     diagnostics::ServerDiagnostics,
@@ -122,16 +122,25 @@ impl Server {
             None
         };
 
-        let (mut certificate_store, server_certificate, server_pkey) =
+        // A server whose endpoints are all without security uses no certificate of its
+        // own: its PKI directory is neither made nor read.
+        let secure = config
+            .endpoints
+            .values()
+            .any(|e| e.security_policy() != SecurityPolicy::None);
+        let (mut certificate_store, server_certificate, server_pkey) = if secure {
             CertificateStore::new_with_x509_data(
                 &config.pki_dir,
                 false,
                 config.certificate_path.as_deref(),
                 config.private_key_path.as_deref(),
                 application_description,
-            );
+            )
+        } else {
+            (CertificateStore::new(&config.pki_dir), None, None)
+        };
 
-        if server_certificate.is_none() || server_pkey.is_none() {
+        if secure && (server_certificate.is_none() || server_pkey.is_none()) {
             warn!("Server is missing its application instance certificate and/or its private key. Encrypted endpoints will not function correctly.");
         }
 

@@ -137,7 +137,12 @@ pub(crate) async fn start(
     base: &Path,
 ) -> Result<Running, String> {
     let pki = base.join(&config.pki_dir);
-    std::fs::create_dir_all(&pki).map_err(|e| format!("opcua.pki_dir {}: {e}", pki.display()))?;
+    // Without a secure endpoint no certificate is used: nothing is made or written.
+    let secure = config.security.iter().any(|e| *e != Endpoint::None);
+    if secure {
+        std::fs::create_dir_all(&pki)
+            .map_err(|e| format!("opcua.pki_dir {}: {e}", pki.display()))?;
+    }
     let listener = tokio::net::TcpListener::bind(config.listen)
         .await
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
@@ -167,7 +172,7 @@ pub(crate) async fn start(
         .port(addr.port())
         .discovery_urls(vec![format!("opc.tcp://{host}:{}/", addr.port())])
         .pki_dir(&pki)
-        .create_sample_keypair(config.certificate.is_none())
+        .create_sample_keypair(secure && config.certificate.is_none())
         .trust_client_certs(config.trust_client_certs)
         .with_authenticator(Arc::new(auth::Authenticator::new(
             service.clone(),
@@ -209,7 +214,6 @@ pub(crate) async fn start(
     }
     let (server, handle) = builder.build().map_err(|e| format!("OPC UA server: {e}"))?;
     let _ = server_handle.set(handle.clone());
-    let secure = config.security.iter().any(|e| *e != Endpoint::None);
     if secure && handle.info().server_certificate.is_none() {
         return Err(format!(
             "OPC UA server: no application certificate (looked for it and could not make one in {})",
