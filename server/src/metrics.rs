@@ -57,6 +57,7 @@ pub const DEVICE_WRITES: &str = "iogate_device_writes";
 pub const TRANSACTION_RUNS: &str = "iogate_transaction_runs";
 pub const MODBUS_SERVER_CONNECTIONS: &str = "iogate_modbus_server_connections";
 pub const MODBUS_SERVER_REFUSED: &str = "iogate_modbus_server_refused_connections";
+pub const MODBUS_SERVER_EVICTED: &str = "iogate_modbus_server_evicted_connections";
 pub const MODBUS_SERVER_REQUESTS: &str = "iogate_modbus_server_requests";
 pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
 pub const MQTT_CONNECTED: &str = "iogate_mqtt_connected";
@@ -166,6 +167,7 @@ pub struct Metrics {
     transaction_runs: Family<TransactionLabels, Counter>,
     server_connections: Gauge,
     server_refused: Counter,
+    server_evicted: Counter,
     server_requests: Family<ServerRequestLabels, Counter>,
     server_exceptions: Family<CodeLabels, Counter>,
     mqtt: mqtt::MqttMetrics,
@@ -215,6 +217,7 @@ impl Metrics {
             transaction_runs: Family::default(),
             server_connections: Gauge::default(),
             server_refused: Counter::default(),
+            server_evicted: Counter::default(),
             server_requests: Family::default(),
             server_exceptions: Family::default(),
             mqtt: mqtt::MqttMetrics::new(),
@@ -358,8 +361,13 @@ impl Metrics {
         );
         registry.register(
             MODBUS_SERVER_REFUSED,
-            "Modbus TCP connections refused (max_connections reached)",
+            "Modbus TCP connections refused (max_connections reached, every connection being answered)",
             m.server_refused.clone(),
+        );
+        registry.register(
+            MODBUS_SERVER_EVICTED,
+            "Modbus TCP connections closed for a new master (max_connections reached; the one waiting longest on its master)",
+            m.server_evicted.clone(),
         );
         registry.register(
             MODBUS_SERVER_REQUESTS,
@@ -395,6 +403,10 @@ impl Metrics {
 
     pub(crate) fn server_refused(&self) {
         self.server_refused.inc();
+    }
+
+    pub(crate) fn server_evicted(&self) {
+        self.server_evicted.inc();
     }
 
     /// The counter of requests the Modbus TCP server answered with `function` (as `fc03`)

@@ -421,7 +421,7 @@ async fn raw(stream: &mut TcpStream, bytes: &[u8]) -> Vec<u8> {
 }
 
 #[tokio::test]
-async fn malformed_frames_and_too_many_masters_close_only_their_connection() {
+async fn malformed_frames_close_only_their_connection() {
     let gw = TestGateway::start(
         "devices:\n  - { name: sim, profile: SimIo }\nmodbus_server:\n  listen: 127.0.0.1:0\n  max_connections: 2\n  auto: true\n",
     )
@@ -459,6 +459,16 @@ async fn malformed_frames_and_too_many_masters_close_only_their_connection() {
     );
     let mut bad = TcpStream::connect(addr).await.expect("connect");
     assert!(raw(&mut bad, &[0, 6, 0, 0, 1, 44, 1, 3]).await.is_empty());
+    // Function codes no request has: 0x83 (an exception answer's) and 0.
+    for code in [0x83, 0x80, 0xFF, 0] {
+        let mut bad = TcpStream::connect(addr).await.expect("connect");
+        assert!(
+            raw(&mut bad, &[0, 6, 0, 0, 0, 6, 1, code, 0, 0, 0, 1])
+                .await
+                .is_empty(),
+            "{code:#04x}"
+        );
+    }
     // The good one goes on.
     assert_eq!(
         raw(&mut good, &[0, 7, 0, 0, 0, 6, 1, 1, 0, 0, 0, 1])
@@ -467,21 +477,95 @@ async fn malformed_frames_and_too_many_masters_close_only_their_connection() {
         10
     );
 
-    // Two masters are allowed: a third is closed at once.
-    let second = master(addr, 1).await;
-    let mut third = TcpStream::connect(addr).await.expect("connect");
-    assert!(
-        raw(&mut third, &[0, 8, 0, 0, 0, 6, 1, 1, 0, 0, 0, 1])
-            .await
-            .is_empty()
-    );
-    drop(second);
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_new_master_closes_the_connection_idle_longest_and_is_served_at_once() {
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo }\nmodbus_server:\n  listen: 127.0.0.1:0\n  max_connections: 3\n  auto: true\n",
+    )
+    .await
+    .expect("gateway");
+    let addr = gw.modbus.expect("server");
+    let request = |id: u8| [0, id, 0, 0, 0, 6, 1, 1, 0, 0, 0, 1];
+    // Three slots: a master that polls, one that was served once and went quiet, and a
+    // socket that never sent a byte (a slow loris), all within the idle timeout (60 s).
+    let mut active = TcpStream::connect(addr).await.expect("connect");
+    assert_eq!(raw(&mut active, &request(1)).await.len(), 10);
+    let mut quiet = TcpStream::connect(addr).await.expect("connect");
+    assert_eq!(raw(&mut quiet, &request(2)).await.len(), 10);
+    let mut loris = TcpStream::connect(addr).await.expect("connect");
+    loris.write_all(&[0, 3, 0]).await.expect("half a header");
+    assert_eq!(raw(&mut active, &request(4)).await.len(), 10);
+    // A fresh master is served at once: the socket that never sent a request goes first.
+    let mut fresh = TcpStream::connect(addr).await.expect("connect");
+    assert_eq!(raw(&mut fresh, &request(5)).await.len(), 10);
+    assert!(closed(&mut loris).await, "the slow loris is closed");
+    // The next one closes the quiet master, never the one that polls.
+    assert_eq!(raw(&mut active, &request(6)).await.len(), 10);
+    assert_eq!(raw(&mut fresh, &request(7)).await.len(), 10);
+    let mut next = TcpStream::connect(addr).await.expect("connect");
+    assert_eq!(raw(&mut next, &request(8)).await.len(), 10);
+    assert!(closed(&mut quiet).await, "the quiet master is closed");
+    assert_eq!(raw(&mut active, &request(9)).await.len(), 10);
     let metrics = gw.metrics().await.expect("metrics");
     assert!(
-        metrics.contains("iogate_modbus_server_refused_connections_total 1"),
+        metrics.contains("iogate_modbus_server_evicted_connections_total 2"),
+        "{metrics}"
+    );
+    assert!(
+        metrics.contains("iogate_modbus_server_refused_connections_total 0"),
         "{metrics}"
     );
     gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_master_that_never_reads_its_answers_loses_its_connection() {
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo }\nmodbus_server:\n  listen: 127.0.0.1:0\n  idle_timeout: 1s\n  auto: true\n",
+    )
+    .await
+    .expect("gateway");
+    let addr = gw.modbus.expect("server");
+    let mut greedy = TcpStream::connect(addr).await.expect("connect");
+    // FC03 x125 pipelined without reading an answer (each answer 259 bytes), until the
+    // socket buffers are full both ways and the gateway's write waits for this master.
+    let mut requests = Vec::new();
+    for id in 0..1000u16 {
+        let [hi, lo] = id.to_be_bytes();
+        requests.extend_from_slice(&[hi, lo, 0, 0, 0, 6, 1, 3, 0, 0, 0, 125]);
+    }
+    let sent = async {
+        loop {
+            if greedy.write_all(&requests).await.is_err() {
+                return;
+            }
+        }
+    };
+    // Its writes fail once the gateway has closed the connection (the answer it could not
+    // hand over within the write timeout); before, the connection stayed for ever.
+    tokio::time::timeout(Duration::from_secs(30), sent)
+        .await
+        .expect("the gateway closed the connection of a master that does not read");
+    eventually("the connection gone", || async {
+        gw.metrics()
+            .await
+            .is_ok_and(|m| m.contains("iogate_modbus_server_connections 0\n"))
+    })
+    .await
+    .expect("no connection left");
+    gw.shutdown().await;
+}
+
+/// Whether the server has closed the connection (end of stream or reset), within 5 s.
+async fn closed(stream: &mut TcpStream) -> bool {
+    let mut buf = [0u8; 64];
+    matches!(
+        tokio::time::timeout(Duration::from_secs(5), stream.read(&mut buf)).await,
+        Ok(Ok(0) | Err(_))
+    )
 }
 
 #[test]

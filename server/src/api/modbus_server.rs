@@ -1,23 +1,31 @@
 //! The Modbus TCP server front-end: MBAP framing on TCP connections from masters (SCADA,
 //! HMIs, PLCs), each request answered by the service. Requests on one connection are
 //! answered in order (pipelined requests too); a malformed MBAP header (protocol id not 0,
-//! length out of bounds) closes that connection and nothing else; extra connections beyond
-//! `max_connections` are closed at once; an idle connection is closed after `idle_timeout`.
-
-use std::sync::Arc;
-use std::time::Duration;
+//! length out of bounds) or a function code no request has (0, 128-255) closes that
+//! connection and nothing else. At most
+//! `max_connections` are open: a new master then closes the connection that has waited
+//! longest on its master (for a request, or for it to take an answer), those that never
+//! sent a request first; only when every connection is being answered is the new one
+//! closed. A connection is closed after `idle_timeout` without a request, and when its
+//! master does not take an answer within the write timeout.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use prometheus_client::metrics::counter::Counter;
 use tokio::io::{AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 
 use crate::link::frame::{Exception, Request};
 use crate::link::mbap;
 use crate::service::Service;
+
+/// The longest an answer may wait for its master to take it (the idle timeout when that
+/// is shorter): a master that stops reading loses its connection, not the gateway's memory.
+pub(crate) const MAX_WRITE_WAIT: Duration = Duration::from_secs(10);
 
 /// Accepts masters until `shutdown`; each connection runs as a task of the gateway.
 pub(crate) async fn serve_modbus(
@@ -28,7 +36,7 @@ pub(crate) async fn serve_modbus(
     let Some(image) = service.modbus() else {
         return;
     };
-    let slots = Arc::new(Semaphore::new(image.config.max_connections));
+    let slots = Arc::new(Slots::new(image.config.max_connections));
     let idle = image.config.idle_timeout;
     loop {
         let accepted = tokio::select! {
@@ -44,22 +52,135 @@ pub(crate) async fn serve_modbus(
                 continue;
             }
         };
-        let Ok(permit) = slots.clone().try_acquire_owned() else {
-            tracing::debug!(%peer, "Modbus connection refused: max_connections reached");
-            service.metrics.server_refused();
-            drop(stream);
-            continue;
+        let slot = match slots.take() {
+            Taken::Free(slot) => slot,
+            Taken::Evicted { slot, evicted } => {
+                tracing::info!(%peer, closed = %evicted, "Modbus connection closed to make room for a new master (max_connections reached)");
+                service.metrics.server_evicted();
+                slot
+            }
+            Taken::Full => {
+                tracing::info!(%peer, "Modbus connection refused: max_connections reached, every connection being answered");
+                service.metrics.server_refused();
+                drop(stream);
+                continue;
+            }
         };
+        slot.peer.set(peer).ok();
         let _ = stream.set_nodelay(true);
-        let (service, token) = (service.clone(), shutdown.clone());
+        let (service, token, slots) = (service.clone(), shutdown.clone(), slots.clone());
         service.clone().tasks().spawn(async move {
             service.metrics.server_connection(true);
-            if let Err(reason) = connection(stream, &service, idle, &token).await {
+            if let Err(reason) = connection(stream, &service, idle, &token, &slot).await {
                 tracing::debug!(%peer, %reason, "Modbus connection closed");
             }
             service.metrics.server_connection(false);
-            drop(permit);
+            slots.release(slot.id);
         });
+    }
+}
+
+/// The open connections, and which one a new master closes when they are all taken.
+struct Slots {
+    max: usize,
+    start: Instant,
+    open: Mutex<(u64, HashMap<u64, Arc<Slot>>)>,
+}
+
+/// One connection as the listener sees it.
+struct Slot {
+    id: u64,
+    peer: std::sync::OnceLock<std::net::SocketAddr>,
+    /// Waiting for its master: for a request, or for it to take an answer.
+    on_master: AtomicBool,
+    /// Whether it has sent a whole request yet.
+    served: AtomicBool,
+    /// When it last began to wait for its master (ms since `epoch`, the listener's start).
+    since_ms: AtomicU64,
+    epoch: Instant,
+    /// Cancelled to close it for a new master.
+    evict: CancellationToken,
+}
+
+enum Taken {
+    Free(Arc<Slot>),
+    Evicted { slot: Arc<Slot>, evicted: String },
+    Full,
+}
+
+impl Slots {
+    fn new(max: usize) -> Self {
+        Slots {
+            max,
+            start: Instant::now(),
+            open: Mutex::new((0, HashMap::new())),
+        }
+    }
+
+    fn now_ms(&self) -> u64 {
+        u64::try_from(self.start.elapsed().as_millis()).unwrap_or(u64::MAX)
+    }
+
+    /// A slot for a new connection: a free one, or the one of the connection that has
+    /// waited longest on its master (never served first), which is closed.
+    fn take(&self) -> Taken {
+        let Ok(mut open) = self.open.lock() else {
+            return Taken::Full;
+        };
+        let mut evicted = None;
+        if open.1.len() >= self.max {
+            let victim = open
+                .1
+                .values()
+                .filter(|s| s.on_master.load(Ordering::Acquire))
+                .min_by_key(|s| {
+                    (
+                        s.served.load(Ordering::Relaxed),
+                        s.since_ms.load(Ordering::Relaxed),
+                    )
+                })
+                .map(|s| s.id);
+            let Some(victim) = victim.and_then(|id| open.1.remove(&id)) else {
+                return Taken::Full;
+            };
+            victim.evict.cancel();
+            evicted = Some(
+                victim
+                    .peer
+                    .get()
+                    .map_or_else(|| "a master".to_owned(), ToString::to_string),
+            );
+        }
+        open.0 += 1;
+        let slot = Arc::new(Slot {
+            id: open.0,
+            peer: std::sync::OnceLock::new(),
+            on_master: AtomicBool::new(true),
+            served: AtomicBool::new(false),
+            since_ms: AtomicU64::new(self.now_ms()),
+            epoch: self.start,
+            evict: CancellationToken::new(),
+        });
+        open.1.insert(slot.id, slot.clone());
+        match evicted {
+            None => Taken::Free(slot),
+            Some(evicted) => Taken::Evicted { slot, evicted },
+        }
+    }
+
+    fn release(&self, id: u64) {
+        if let Ok(mut open) = self.open.lock() {
+            open.1.remove(&id);
+        }
+    }
+}
+
+impl Slot {
+    /// From now on it waits for its master.
+    fn wait_on_master(&self) {
+        let now = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.since_ms.store(now, Ordering::Relaxed);
+        self.on_master.store(true, Ordering::Release);
     }
 }
 
@@ -70,27 +191,36 @@ enum Closed {
     Idle,
     #[error("idle timeout in the middle of a frame")]
     IdleMidFrame,
+    #[error("the master did not take its answer within {0:?}")]
+    WriteTimeout(Duration),
+    #[error("closed for a new master")]
+    Evicted,
+    #[error("function code {0:#04x} is no request's (1-127; 128-255 are exception answers)")]
+    NotARequest(u8),
     #[error(transparent)]
     Io(std::io::Error),
     #[error("malformed {0}")]
     Malformed(#[from] mbap::Malformed),
 }
 
-/// Serves one master until it leaves, stays idle too long, sends a malformed header, or the
-/// gateway shuts down.
+/// Serves one master until it leaves, stays idle too long, does not take its answers,
+/// sends a malformed header, is closed for a new master, or the gateway shuts down.
 async fn connection(
     stream: TcpStream,
     service: &Service,
     idle: Duration,
     token: &CancellationToken,
+    slot: &Slot,
 ) -> Result<(), Closed> {
     // Buffered: one read usually brings a whole request (or several pipelined ones).
     let mut stream = BufReader::new(stream);
     let mut counters = Counters::default();
     let mut header = [0u8; mbap::HEADER_LEN];
+    let write_wait = idle.min(MAX_WRITE_WAIT);
     loop {
         let read = tokio::select! {
             _ = token.cancelled() => return Ok(()),
+            _ = slot.evict.cancelled() => return Err(Closed::Evicted),
             r = tokio::time::timeout(idle, stream.read_exact(&mut header)) => r,
         };
         match read {
@@ -102,14 +232,39 @@ async fn connection(
         let header = mbap::Header::parse(&header)?;
         let unit = header.unit;
         let mut pdu = vec![0u8; header.pdu_len];
-        match tokio::time::timeout(idle, stream.read_exact(&mut pdu)).await {
+        let read = tokio::select! {
+            _ = token.cancelled() => return Ok(()),
+            _ = slot.evict.cancelled() => return Err(Closed::Evicted),
+            r = tokio::time::timeout(idle, stream.read_exact(&mut pdu)) => r,
+        };
+        match read {
             Ok(Ok(_)) => {}
             Ok(Err(e)) => return Err(Closed::Io(e)),
             Err(_) => return Err(Closed::IdleMidFrame),
         }
+        // 0 and 128-255 are no function code a master may send: answering 0x80 | code
+        // would read as an exception to another function, so the stream is out of step.
+        match pdu.first() {
+            Some(&code) if code == 0 || code >= 0x80 => return Err(Closed::NotARequest(code)),
+            _ => {}
+        }
+        slot.on_master.store(false, Ordering::Release);
+        slot.served.store(true, Ordering::Relaxed);
         let answer = answer(service, unit, &pdu, &mut counters).await;
         let frame = mbap::frame(header.transaction, unit, &answer);
-        stream.write_all(&frame).await.map_err(Closed::Io)?;
+        slot.wait_on_master();
+        let written = tokio::select! {
+            _ = slot.evict.cancelled() => return Err(Closed::Evicted),
+            w = tokio::time::timeout(write_wait, stream.write_all(&frame)) => w,
+        };
+        match written {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(Closed::Io(e)),
+            Err(_) => return Err(Closed::WriteTimeout(write_wait)),
+        }
+        // Waiting for the next request from now (so an active master is not taken for an
+        // idle one).
+        slot.wait_on_master();
     }
 }
 
