@@ -73,6 +73,7 @@ impl Tokens {
     /// every bad line (1-based) with what is wrong, never the token itself.
     pub(crate) fn parse(text: &str) -> Result<Tokens, Vec<(u64, String)>> {
         let mut tokens = HashMap::new();
+        let mut lines: HashMap<&str, (u64, Role)> = HashMap::new();
         let mut bad = Vec::new();
         for (n, line) in text.lines().enumerate() {
             let n = n as u64 + 1;
@@ -105,7 +106,19 @@ impl Tokens {
                 ));
                 continue;
             }
-            tokens.insert(token.to_owned(), role);
+            match lines.get(token) {
+                Some(&(first, first_role)) => bad.push((
+                    n,
+                    format!(
+                        "this token is given on line {first} already (as {}): a token has one role",
+                        first_role.name()
+                    ),
+                )),
+                None => {
+                    lines.insert(token, (n, role));
+                    tokens.insert(token.to_owned(), role);
+                }
+            }
         }
         if bad.is_empty() {
             Ok(Tokens(tokens))
@@ -136,7 +149,25 @@ impl Tokens {
         }
         if let Ok(env) = std::env::var("IOGATE_TOKENS") {
             match Tokens::parse(&env.replace(';', "\n")) {
-                Ok(t) => all.0.extend(t.0),
+                Ok(t) => {
+                    // Entries are numbered as `parse` numbers its lines.
+                    let text = env.replace(';', "\n");
+                    for (entry, line) in text.lines().enumerate() {
+                        let token = line.split_whitespace().nth(1).unwrap_or_default();
+                        if let Some(first) = all.0.get(token) {
+                            problems.push(TokensProblem::Env {
+                                entry: entry as u64 + 1,
+                                message: format!(
+                                    "this token is in the tokens file already (as {}): a token has one role",
+                                    first.name()
+                                ),
+                            });
+                        }
+                    }
+                    for (token, role) in t.0 {
+                        all.0.entry(token).or_insert(role);
+                    }
+                }
                 Err(bad) => problems.extend(
                     bad.into_iter()
                         .map(|(entry, message)| TokensProblem::Env { entry, message }),
@@ -343,6 +374,20 @@ mod tests {
         assert_eq!(t.check(Some(&bearer(WRITE)), Role::Write), Ok(()));
         assert_eq!(t.check(Some(&bearer(ADMIN)), Role::Admin), Ok(()));
         assert_eq!(Tokens::default().check(None, Role::Admin), Ok(()));
+    }
+
+    #[test]
+    fn a_token_given_twice_is_refused_naming_both_lines() {
+        let e = Tokens::parse(
+            "read s3cret-s3cret-s3cret\nwrite other-token-0000000\nadmin s3cret-s3cret-s3cret\n",
+        )
+        .expect_err("the same token twice");
+        assert_eq!(e.len(), 1, "{e:?}");
+        assert_eq!(e[0].0, 3);
+        assert_eq!(
+            e[0].1,
+            "this token is given on line 1 already (as read): a token has one role"
+        );
     }
 
     #[test]

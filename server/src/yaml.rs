@@ -170,11 +170,16 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<Node> {
         })),
         Err(e) => {
             let line = e.location().map(|l| l.line()).unwrap_or(1).max(1);
-            report.push(
-                line,
-                "",
-                format!("invalid YAML: {}", strip_location(&e.to_string())),
-            );
+            let message = match &e {
+                serde_saphyr::Error::DuplicateMappingKey { key: Some(key), .. } => {
+                    format!("duplicate key `{key}`: a key may appear once in a mapping (keep one)")
+                }
+                serde_saphyr::Error::DuplicateMappingKey { key: None, .. } => {
+                    "duplicate key: a key may appear once in a mapping (keep one)".to_owned()
+                }
+                _ => format!("invalid YAML: {}", strip_location(&e.to_string())),
+            };
+            report.push(line, "", message);
             None
         }
     }
@@ -505,7 +510,10 @@ mod tests {
         assert!(parse("a: 1\na: 2\n", &mut report).is_none());
         let problems = report.into_problems();
         assert_eq!(problems.0[0].line, 2);
-        assert!(problems.0[0].message.contains("duplicate"), "{problems}");
+        assert_eq!(
+            problems.0[0].message,
+            "duplicate key `a`: a key may appear once in a mapping (keep one)"
+        );
     }
 
     #[test]

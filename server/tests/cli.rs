@@ -41,6 +41,74 @@ fn check_lists_every_problem_and_exits_64() {
 }
 
 #[test]
+fn check_refuses_what_the_gateway_would_trip_over_later_naming_the_line() {
+    let dir = temp_dir("trip");
+    std::fs::create_dir_all(dir.join("profiles")).expect("profiles dir");
+    std::fs::copy(
+        repo().join("profiles/generic_io_module.yaml"),
+        dir.join("profiles/io.yaml"),
+    )
+    .expect("profile");
+    std::fs::write(
+        dir.join("tokens"),
+        "read same-token-0123456789\nadmin same-token-0123456789\n",
+    )
+    .expect("tokens");
+    let link = "links:\n  - { name: a, tcp: { host: 127.0.0.1, port: 1502 } }\n  - { name: b, tcp: { host: 127.0.0.1, port: 1503 } }\n";
+    let cases: [(&str, String, &str); 6] = [
+        (
+            "forward",
+            format!(
+                "{link}modbus_server:\n  listen: 127.0.0.1:0\n  forward:\n    - {{ unit_ids: \"2-9\", link: a }}\n    - {{ unit_ids: \"5-12\", link: b }}\n"
+            ),
+            "forward.yaml:8: modbus_server.forward[1].unit_ids: 5-12 overlaps modbus_server.forward[0] (2-9 to link a, line 7)",
+        ),
+        (
+            "tokens",
+            "security:\n  tokens_file: tokens\n".to_owned(),
+            "tokens:2: security.tokens_file: this token is given on line 1 already (as read): a token has one role",
+        ),
+        (
+            "safe",
+            format!(
+                "{link}devices:\n  - {{ name: io, profile: MyIoModule, link: a, slave_id: 1, on_client_loss: {{ after: 1s, safe: {{ AO_0: 99999 }} }} }}\n"
+            ),
+            "safe.yaml:5: device io: on_client_loss.safe.AO_0: `99999` would be refused by a write: 99999000 after scaling does not fit the raw register value (0 to 65535)",
+        ),
+        (
+            "ports",
+            "security:\n  declare:\n    serial_ports:\n      - 42\n      - /etc/passwd\n"
+                .to_owned(),
+            "ports.yaml:5: security.declare.serial_ports: `/etc/passwd` is not a pattern of serial device paths",
+        ),
+        (
+            "memory",
+            "modbus_server:\n  listen: 127.0.0.1:0\n  memory_file: no/such/dir/memory.bin\n"
+                .to_owned(),
+            "memory.yaml:3: modbus_server.memory_file:",
+        ),
+        (
+            "duplicate",
+            "devices:\n  - { name: sim, profile: SimIo }\ndevices: []\n".to_owned(),
+            "duplicate.yaml:3: duplicate key `devices`: a key may appear once in a mapping (keep one)",
+        ),
+    ];
+    for (name, text, expected) in cases {
+        let config = dir.join(format!("{name}.yaml"));
+        std::fs::write(&config, text).expect("config");
+        let out = iogate()
+            .args(["check", "--config"])
+            .arg(&config)
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(64), "{name}: {stderr}");
+        assert!(stderr.contains(expected), "{name}: {stderr}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn an_invalid_log_filter_is_a_configuration_error_naming_it() {
     let out = iogate()
         .arg("check")

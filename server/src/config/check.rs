@@ -126,6 +126,11 @@ pub(crate) enum SafeValueError {
         ty: crate::codec::IecType,
         reason: crate::codec::ValueError,
     },
+    #[error("`{}` would be refused by a write: {reason}", crate::text::quote(text))]
+    Register {
+        text: String,
+        reason: crate::codec::CodecError,
+    },
 }
 
 /// The field index and value of one `on_client_loss.safe` entry: an output (or inout) of
@@ -147,13 +152,21 @@ pub(crate) fn safe_value(
             field: field.to_owned(),
         });
     }
-    crate::codec::Value::parse(f.ty, text)
-        .map(|v| (idx, v))
-        .map_err(|reason| SafeValueError::Value {
+    let value = crate::codec::Value::parse(f.ty, text).map_err(|reason| SafeValueError::Value {
+        text: text.to_owned(),
+        ty: f.ty,
+        reason,
+    })?;
+    // The same check as a write's: the value must fit the register once scaled.
+    let on_the_bus = profile.protocol != crate::profile::Protocol::Simulated
+        && f.register.kind != crate::profile::RegisterKind::Virtual;
+    if on_the_bus && let Err(reason) = f.encoding.encode(&value) {
+        return Err(SafeValueError::Register {
             text: text.to_owned(),
-            ty: f.ty,
             reason,
-        })
+        });
+    }
+    Ok((idx, value))
 }
 
 /// What the security section gives the listeners.

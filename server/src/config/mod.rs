@@ -346,6 +346,29 @@ impl Config {
         {
             *file = path.parent().unwrap_or(Path::new(".")).join(&*file);
         }
+        let mut problems = problems;
+        if let Some(server) = &config.modbus_server
+            && let Some(file) = &server.memory_file
+        {
+            // The file is made when the memory is first saved: its directory must be there.
+            let dir = file
+                .parent()
+                .filter(|d| !d.as_os_str().is_empty())
+                .unwrap_or(Path::new("."));
+            if !dir.is_dir() {
+                let mut report = Report::new(&config.source);
+                report.push(
+                    server.memory_file_line,
+                    "modbus_server.memory_file",
+                    format!(
+                        "{}: the directory {} does not exist",
+                        file.display(),
+                        dir.display()
+                    ),
+                );
+                problems.extend(report.into_problems());
+            }
+        }
         (Some(config), problems)
     }
 }

@@ -94,6 +94,8 @@ pub struct ModbusServerConfig {
     pub(crate) max_connections: usize,
     pub(crate) idle_timeout: Duration,
     pub(crate) memory_file: Option<PathBuf>,
+    /// Where `memory_file` is written (0 when it is not).
+    pub(crate) memory_file_line: u64,
     pub(crate) on_bad_quality: OnBadQuality,
     pub(crate) line: u64,
 }
@@ -174,6 +176,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
                 .ok()
         }),
     };
+    let memory_file_line = map.get("memory_file").map_or(0, |n| n.line);
     let memory_file = map
         .get("memory_file")
         .and_then(|n| n.scalar_text(report, &at("memory_file")))
@@ -206,7 +209,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
                 .collect()
         })
         .unwrap_or_default();
-    let forward = map
+    let forward: Vec<Forward> = map
         .get("forward")
         .and_then(|n| n.seq(report, &at("forward")))
         .map(|items| {
@@ -217,6 +220,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
                 .collect()
         })
         .unwrap_or_default();
+    forward_overlaps(&forward, report);
     map.finish(report, ctx, KEYS);
     // A setting that was refused (and reported) takes its default, so that the map is
     // still checked against the devices.
@@ -231,6 +235,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         max_connections: max_connections.unwrap_or(DEFAULT_MAX_CONNECTIONS),
         idle_timeout: idle_timeout.unwrap_or(DEFAULT_IDLE_TIMEOUT),
         memory_file,
+        memory_file_line,
         on_bad_quality: on_bad_quality.unwrap_or_default(),
         line: node.line,
     })
@@ -267,6 +272,37 @@ fn read_entry(node: &Node, index: usize, report: &mut Report) -> Option<MapEntry
         field,
         line: node.line,
     })
+}
+
+/// Each unit id goes one way: a forwarded range may not take ids of an earlier range (to
+/// any link); the first would silently win.
+fn forward_overlaps(forward: &[Forward], report: &mut Report) {
+    let shown = |f: &Forward| {
+        if f.first == f.last {
+            format!("{}", f.first)
+        } else {
+            format!("{}-{}", f.first, f.last)
+        }
+    };
+    for (i, f) in forward.iter().enumerate() {
+        if let Some((j, earlier)) = forward[..i]
+            .iter()
+            .enumerate()
+            .find(|(_, e)| e.first <= f.last && f.first <= e.last)
+        {
+            report.push(
+                f.line,
+                format!("modbus_server.forward[{i}].unit_ids"),
+                format!(
+                    "{} overlaps modbus_server.forward[{j}] ({} to link {}, line {}): a unit id is forwarded to one link",
+                    shown(f),
+                    shown(earlier),
+                    crate::text::quote(&earlier.link),
+                    earlier.line
+                ),
+            );
+        }
+    }
 }
 
 fn read_forward(node: &Node, index: usize, report: &mut Report) -> Option<Forward> {

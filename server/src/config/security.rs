@@ -194,6 +194,23 @@ fn strings(node: &Node, report: &mut Report, ctx: &str) -> Vec<(String, u64)> {
         .unwrap_or_default()
 }
 
+/// Why a `declare.serial_ports` entry is no pattern of serial device paths, if it is not:
+/// serial ports are device files, so a pattern is an absolute path under `/dev/`.
+fn serial_pattern_problem(pattern: &str) -> Option<String> {
+    let shown = crate::text::quote(pattern);
+    if !pattern.starts_with("/dev/") || pattern.len() == "/dev/".len() {
+        return Some(format!(
+            "`{shown}` is not a pattern of serial device paths: write an absolute path under /dev/, `*` for any characters (e.g. /dev/ttyUSB*)"
+        ));
+    }
+    if pattern.split('/').any(|part| part == "..") {
+        return Some(format!(
+            "`{shown}`: `..` may not appear in a serial port pattern"
+        ));
+    }
+    None
+}
+
 fn flag(node: &Node, report: &mut Report, ctx: &str) -> bool {
     match node.kind {
         Kind::Bool(b) => b,
@@ -231,6 +248,13 @@ pub(super) fn read(node: &Node, report: &mut Report) -> SecurityConfig {
         if let Some(n) = d.get("serial_ports") {
             out.declare.serial_ports = strings(n, report, "security.declare.serial_ports")
                 .into_iter()
+                .filter(|(text, line)| {
+                    let problem = serial_pattern_problem(text);
+                    if let Some(problem) = &problem {
+                        report.push(*line, "security.declare.serial_ports", problem.clone());
+                    }
+                    problem.is_none()
+                })
                 .map(|(s, _)| s)
                 .collect();
         }

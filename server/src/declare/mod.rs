@@ -86,6 +86,13 @@ fn allowed(policy: &DeclarePolicy, transport: &Transport) -> Result<(), DeclareE
     match transport {
         Transport::Serial(s) if !s.is_configured_port() => Ok(()),
         Transport::Serial(s) => {
+            // A `..` could lead a pattern such as /dev/serial/by-id/* anywhere in /dev.
+            if s.port.split('/').any(|part| part == "..") {
+                return Err(DeclareError::NotAllowed(format!(
+                    "serial port `{}`: a path with `..` is not allowed",
+                    crate::text::quote(&s.port)
+                )));
+            }
             if !policy.allows_serial(&s.port) {
                 return Err(DeclareError::NotAllowed(format!(
                     "serial port `{}` does not match security.declare.serial_ports",
