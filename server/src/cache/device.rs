@@ -40,6 +40,8 @@ pub struct Device {
     task: Mutex<Option<tokio_util::sync::CancellationToken>>,
     /// When its last I/O cycle ended, answered or not.
     last_cycle: Mutex<Option<tokio::time::Instant>>,
+    /// Its link's progress, while it is a member of one.
+    line: Mutex<Option<Arc<super::Progress>>>,
     /// Whether its link's task writes the newest requested outputs when it first polls it
     /// (a new device, or one a reload moved to another link or slave id); a device
     /// re-planned in place does not: its outputs were written already.
@@ -113,6 +115,7 @@ impl Device {
             wake: Mutex::new(wake),
             task: Mutex::new(None),
             last_cycle: Mutex::new(None),
+            line: Mutex::new(None),
             rewrite_first: true,
         }
     }
@@ -290,9 +293,34 @@ impl Device {
         self.sim.is_some()
     }
 
-    /// How long a value stays good without a refresh.
+    /// How long a value stays good without a refresh while its line is idle.
     pub(crate) fn stale_after(&self) -> Duration {
         (self.config.refresh_rate * 3 + self.config.timeout).max(Duration::from_secs(1))
+    }
+
+    pub(crate) fn set_line(&self, line: Option<Arc<super::Progress>>) {
+        *lock(&self.line) = line;
+    }
+
+    /// A sample's quality as of `now`. A good value not refreshed within `stale_after` is
+    /// stale when nothing is being done about it: its link has done no transaction within
+    /// that time either (down, reopening, stalled), or it has no link (a simulator). While
+    /// the link works, the device's poll is queued behind others: the value is late, not
+    /// stale (`starved` in the diagnostics says so), so a busy line does not turn its
+    /// values stale and good again with every cycle.
+    pub(crate) fn quality(&self, sample: &Sample, now: Instant) -> Quality {
+        let stale_after = self.stale_after();
+        match sample.quality_at(now, stale_after) {
+            Quality::Stale
+                if sample.quality == Quality::Good
+                    && lock(&self.line)
+                        .as_ref()
+                        .is_some_and(|line| line.working(now, stale_after)) =>
+            {
+                Quality::Good
+            }
+            q => q,
+        }
     }
 
     /// Whether the device answers but gets no line time: connected, and its last I/O cycle
@@ -360,9 +388,7 @@ impl Device {
     /// Wakes the subscribers of every field whose good value went stale as of `now` (once
     /// per stale spell), so that streams show `stale` without waiting for another change.
     pub(crate) fn tell_stale(&self, now: Instant) {
-        let stale_after = self.stale_after();
-        let went_stale =
-            |s: &Sample| !s.stale_told && s.quality_at(now, stale_after) == Quality::Stale;
+        let went_stale = |s: &Sample| !s.stale_told && self.quality(s, now) == Quality::Stale;
         for sample in &self.samples {
             // A read lock first: most fields are fresh, or stale and told.
             if !went_stale(&sample.borrow()) {
@@ -539,7 +565,7 @@ impl Device {
         let failed = result.is_err();
         let field = self.outputs.finish(generation, result, attempts);
         if let (true, Some(idx)) = (failed, field) {
-            self.samples[idx].send_modify(|_| {});
+            self.samples[idx].send_modify(|s| s.retold = s.retold.wrapping_add(1));
         }
     }
 
@@ -552,7 +578,7 @@ impl Device {
             return None;
         }
         let sample = self.sample(idx);
-        if sample.quality_at(tokio::time::Instant::now(), self.stale_after()) != Quality::Good {
+        if self.quality(&sample, tokio::time::Instant::now()) != Quality::Good {
             return None;
         }
         let actual = sample.value?;

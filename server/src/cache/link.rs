@@ -61,6 +61,8 @@ struct Queued {
 #[derive(Debug, Default)]
 pub struct Progress {
     deadline: Mutex<Option<tokio::time::Instant>>,
+    /// When the last transaction ended.
+    last_end: Mutex<Option<tokio::time::Instant>>,
 }
 
 impl Progress {
@@ -76,6 +78,17 @@ impl Progress {
     /// The transaction ended.
     pub fn ended(&self) {
         *super::lock(&self.deadline) = None;
+        *super::lock(&self.last_end) = Some(tokio::time::Instant::now());
+    }
+
+    /// Whether the task is working the line: in a transaction within its bound, or one
+    /// ended within `window` of `now`. A device whose value is old while its line works is
+    /// waiting for its turn (late), not cut off (stale).
+    pub(crate) fn working(&self, now: tokio::time::Instant, window: Duration) -> bool {
+        let in_transaction = (*super::lock(&self.deadline)).is_some_and(|d| now <= d + Self::GRACE);
+        in_transaction
+            || (*super::lock(&self.last_end))
+                .is_some_and(|at| now.saturating_duration_since(at) <= window)
     }
 
     /// How long the task is past its transaction's deadline and grace, if it is.
@@ -260,6 +273,7 @@ impl Link {
 
     /// Puts `next` in `old`'s place among the members (one change for the link's task).
     pub(crate) fn replace_member(&self, old: &Arc<Device>, next: Arc<Device>) {
+        next.set_line(Some(self.progress.clone()));
         self.state.send_modify(
             |s| match s.members.iter_mut().find(|m| Arc::ptr_eq(m, old)) {
                 Some(slot) => *slot = next,
@@ -270,6 +284,7 @@ impl Link {
 
     /// Puts a device on the link, once.
     pub(crate) fn add_member(&self, device: Arc<Device>) {
+        device.set_line(Some(self.progress.clone()));
         self.state.send_if_modified(|s| {
             let new = !s.members.iter().any(|m| Arc::ptr_eq(m, &device));
             if new {

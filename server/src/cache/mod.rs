@@ -352,6 +352,38 @@ mod tests {
         );
     }
 
+    #[tokio::test(start_paused = true)]
+    async fn a_value_waiting_for_a_busy_line_is_late_not_stale() {
+        let cache = cache();
+        let io = cache.device("io").expect("device");
+        let bus = cache.link("bus").expect("link");
+        let di = io.field_index("DI").expect("field");
+        io.publish(di, Ok(Value::Bool(true)));
+        let mut rx = io.subscribe(di);
+        rx.borrow_and_update();
+        // The line works for others (a transaction ends every 100 ms) while this device's
+        // poll waits: three times its stale time pass, and its value stays good, untold.
+        let steps = (io.stale_after() * 3).as_millis() / 100;
+        for _ in 0..steps {
+            bus.progress
+                .started(Instant::now() + Duration::from_millis(100));
+            tokio::time::advance(Duration::from_millis(100)).await;
+            bus.progress.ended();
+            io.tell_stale(Instant::now());
+            assert_eq!(io.quality(&io.sample(di), Instant::now()), Quality::Good);
+        }
+        assert!(!rx.has_changed().expect("open"), "late is not told");
+        // The line goes quiet (down, reopening): once the stale time has passed with no
+        // transaction on it, the value is stale, and told.
+        tokio::time::advance(io.stale_after() / 2).await;
+        io.tell_stale(Instant::now());
+        assert_eq!(io.quality(&io.sample(di), Instant::now()), Quality::Good);
+        tokio::time::advance(io.stale_after() / 2 + Duration::from_millis(1)).await;
+        io.tell_stale(Instant::now());
+        assert_eq!(io.quality(&io.sample(di), Instant::now()), Quality::Stale);
+        assert!(rx.has_changed().expect("open"), "gone stale: told");
+    }
+
     #[test]
     fn before_its_first_answer_a_device_is_not_connected_and_says_why() {
         let cache = cache();

@@ -45,6 +45,9 @@ pub(crate) struct Sample {
     /// Subscribers were woken when this good value went stale (so that live views show it);
     /// the next refresh wakes them again.
     pub(crate) stale_told: bool,
+    /// Counts the times subscribers were woken for something beside the sample (a failed
+    /// write: the field's mismatch), so that such a wake is never taken for a repeat.
+    pub(crate) retold: u64,
 }
 
 impl Sample {
@@ -55,7 +58,17 @@ impl Sample {
             error: None,
             updated: None,
             stale_told: false,
+            retold: 0,
         }
+    }
+
+    /// Whether `other` tells a subscriber nothing new: the same value, quality and stale
+    /// spell (what a change of the sample is woken for; a refresh alone is not).
+    pub(crate) fn same_state(&self, other: &Sample) -> bool {
+        self.value == other.value
+            && self.quality == other.quality
+            && self.stale_told == other.stale_told
+            && self.retold == other.retold
     }
 
     /// The quality as of `now`: a good value not refreshed within `stale_after` is stale.

@@ -371,8 +371,7 @@ impl Service {
 mod tests {
     use super::*;
 
-    #[test]
-    fn change_streams_are_bounded_and_their_places_come_back() {
+    fn demo_service() -> Service {
         let setup = crate::app::Setup::demo().expect("demo");
         let cache = Arc::new(Cache::new(&setup.config, setup.catalog));
         let tasks = Tasks::new(
@@ -380,7 +379,42 @@ mod tests {
             tokio_util::sync::CancellationToken::new(),
             Arc::new(Metrics::new()),
         );
-        let service = Service::new(cache, tasks);
+        Service::new(cache, tasks)
+    }
+
+    #[tokio::test]
+    async fn a_subscriber_is_not_told_what_came_and_went_before_it_looked() {
+        use futures_util::{FutureExt, StreamExt};
+        let service = demo_service();
+        let sim = service.cache.device("sim").expect("sim");
+        let idx = sim.field_index("DI_0").expect("field");
+        sim.publish(idx, Ok(crate::codec::Value::Bool(false)));
+        let selection = service
+            .select::<&str, &str>(&[], &[("sim", "DI_0")])
+            .expect("selection");
+        let mut changes = service.subscribe(selection, false).expect("stream");
+        let value = |c: Option<Change>| match c {
+            Some(Change::Value { sample, .. }) => sample.value,
+            other => panic!("expected a value, got {other:?}"),
+        };
+        assert_eq!(
+            value(changes.next().await),
+            Some(crate::codec::Value::Bool(false))
+        );
+        // True and back to false before the subscriber looks: nothing to tell.
+        sim.publish(idx, Ok(crate::codec::Value::Bool(true)));
+        sim.publish(idx, Ok(crate::codec::Value::Bool(false)));
+        assert!(changes.next().now_or_never().is_none(), "nothing new");
+        sim.publish(idx, Ok(crate::codec::Value::Bool(true)));
+        assert_eq!(
+            value(changes.next().await),
+            Some(crate::codec::Value::Bool(true))
+        );
+    }
+
+    #[test]
+    fn change_streams_are_bounded_and_their_places_come_back() {
+        let service = demo_service();
         let held: Vec<StreamSlot> = (0..MAX_STREAMS)
             .map(|_| service.stream_slot().expect("a place"))
             .collect();

@@ -145,7 +145,7 @@ impl ModbusImage {
             }
             Target::Field(idx) => {
                 let sample = d.sample(idx);
-                let quality = sample.quality_at(Instant::now(), d.stale_after());
+                let quality = d.quality(&sample, Instant::now());
                 if quality != Quality::Good && self.config.on_bad_quality == OnBadQuality::Exception
                 {
                     return Err(Exception::GATEWAY_TARGET_FAILED);

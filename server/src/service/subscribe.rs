@@ -63,6 +63,9 @@ struct Followed {
     watched: Watched,
     fate: watch::Receiver<Fate>,
     ended: bool,
+    /// The field's sample this subscriber was last given: changes that come and go before
+    /// it takes the next one (stale and good again, a value and back) are not repeated.
+    given: Option<Sample>,
 }
 
 impl Followed {
@@ -87,6 +90,7 @@ impl Followed {
             watched,
             fate,
             ended: false,
+            given: None,
         }
     }
 
@@ -142,11 +146,18 @@ impl Followed {
                         return None;
                     }
                     return Some(match &mut self.watched {
-                        Watched::Field(idx, rx) => Change::Value {
-                            device,
-                            idx: *idx,
-                            sample: rx.borrow_and_update().clone(),
-                        },
+                        Watched::Field(idx, rx) => {
+                            let sample = rx.borrow_and_update().clone();
+                            if self.given.as_ref().is_some_and(|g| g.same_state(&sample)) {
+                                continue;
+                            }
+                            self.given = Some(sample.clone());
+                            Change::Value {
+                                device,
+                                idx: *idx,
+                                sample,
+                            }
+                        }
                         Watched::Diagnostics(rx) => Change::Diagnostics {
                             device,
                             diagnostics: rx.borrow_and_update().clone(),

@@ -56,7 +56,7 @@ impl Service {
             device,
             field: device.field(idx),
             value: sample.value.clone(),
-            quality: sample.quality_at(tokio::time::Instant::now(), device.stale_after()),
+            quality: device.quality(sample, tokio::time::Instant::now()),
             timestamp: sample.updated.map(|(_, wall)| wall),
             error: sample.error.as_ref().map(ToString::to_string),
             desired: device.mismatch(idx),

@@ -165,6 +165,8 @@ pub(crate) fn value_of(ty: IecType, v: &Variant) -> Result<Value, iogate_types::
 /// The status code of a sample's quality.
 pub(crate) fn status(sample: &Sample) -> StatusCode {
     match sample.quality {
+        // Gone stale since its last refresh (the watchdog told the feed so).
+        Quality::Good if sample.stale_told => StatusCode::UncertainLastUsableValue,
         Quality::Good => StatusCode::Good,
         Quality::Stale => StatusCode::UncertainLastUsableValue,
         Quality::NeverRead => match &sample.error {
