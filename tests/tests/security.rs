@@ -448,6 +448,59 @@ async fn a_request_body_that_does_not_arrive_in_time_is_answered_and_dropped() {
     gw.shutdown().await;
 }
 
+#[tokio::test]
+async fn a_body_over_the_limit_is_refused_at_once_and_a_refusal_reaches_http2_clients() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let gw = gateway("").await;
+    // Content-Length over 1 MiB: 413 before the body, the connection closed (the body
+    // timeout is 30 s: an answer now is not that).
+    let addr = gw.base.trim_start_matches("http://").to_owned();
+    let mut big = tokio::net::TcpStream::connect(&addr)
+        .await
+        .expect("connect");
+    big.write_all(
+        format!("PUT /api/v1/devices/sim/fields/DO_0 HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {ADMIN}\r\nContent-Type: application/json\r\nContent-Length: 2000000\r\n\r\n").as_bytes(),
+    )
+    .await
+    .expect("headers");
+    let mut answer = Vec::new();
+    tokio::time::timeout(
+        std::time::Duration::from_secs(10),
+        big.read_to_end(&mut answer),
+    )
+    .await
+    .expect("answered before the body timeout")
+    .expect("read");
+    let text = String::from_utf8_lossy(&answer);
+    assert!(text.starts_with("HTTP/1.1 413"), "{text}");
+    assert!(text.contains("\"payload_too_large\""), "{text}");
+    // A refusal of a PUT with a body: read first, then answered, over HTTP/1.1 and HTTP/2.
+    let body = format!("{{\"value\": \"{}\"}}", "a".repeat(500_000));
+    for client in [
+        reqwest::Client::builder().http1_only().build(),
+        reqwest::Client::builder().http2_prior_knowledge().build(),
+    ] {
+        let client = client.expect("client");
+        for (token, status, code) in [
+            (None, 401, "unauthenticated"),
+            (Some(READ), 403, "forbidden"),
+        ] {
+            let mut request = client
+                .put(gw.url("/api/v1/devices/sim/fields/DO_0"))
+                .header("content-type", "application/json")
+                .body(body.clone());
+            if let Some(t) = token {
+                request = request.bearer_auth(t);
+            }
+            let response = request.send().await.expect("an answer, not a reset stream");
+            assert_eq!(response.status().as_u16(), status);
+            let json: serde_json::Value = response.json().await.expect("the refusal's body");
+            assert_eq!(json["error"]["code"], code, "{json}");
+        }
+    }
+    gw.shutdown().await;
+}
+
 /// The role a REST route needs, as the README's Security section states it.
 fn needed_rest(method: &str, path: &str) -> Option<usize> {
     // 0 open, 1 read, 2 write, 3 admin.

@@ -123,9 +123,16 @@ async fn authorize(
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok());
-    match service.tokens.allows(header, operation) {
-        Ok(()) => next.run(request).await,
-        Err(crate::auth::Denied::Unauthenticated) => {
+    let denied = match service.tokens.allows(header, operation) {
+        Ok(()) => return next.run(request).await,
+        Err(denied) => denied,
+    };
+    // The body the client is sending is read (at most MAX_BODY, within the body timeout)
+    // before the refusal: answered while it still sends, an HTTP/2 client such as curl
+    // sees its stream reset and loses the answer.
+    let _ = axum::body::to_bytes(request.into_body(), MAX_BODY).await;
+    match denied {
+        crate::auth::Denied::Unauthenticated => {
             let mut response = ApiError::new(
                 axum::http::StatusCode::UNAUTHORIZED,
                 "unauthenticated",
@@ -138,7 +145,7 @@ async fn authorize(
             );
             response
         }
-        Err(crate::auth::Denied::Forbidden { needed }) => ApiError::new(
+        crate::auth::Denied::Forbidden { needed } => ApiError::new(
             axum::http::StatusCode::FORBIDDEN,
             "forbidden",
             format!("this needs a token with the {} role", needed.name()),
@@ -151,6 +158,37 @@ type Method = axum::routing::MethodRouter<Arc<Service>>;
 
 /// `method`, refused to a client without the role `operation` needs: every route names the
 /// operation it is, and the role comes from that ([`Operation::role`]).
+/// A request whose `Content-Length` is over [`MAX_BODY`] is answered 413 at once, before
+/// its body is read (and, over HTTP/1, the connection closed: the body is not wanted).
+async fn refuse_large_bodies(
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    let declared = request
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    match declared {
+        Some(length) if length > MAX_BODY as u64 => {
+            let mut response = ApiError::new(
+                axum::http::StatusCode::PAYLOAD_TOO_LARGE,
+                "payload_too_large",
+                format!("the body is {length} bytes; at most {MAX_BODY} are taken"),
+            )
+            .into_response();
+            if request.version() < axum::http::Version::HTTP_2 {
+                response.headers_mut().insert(
+                    header::CONNECTION,
+                    axum::http::HeaderValue::from_static("close"),
+                );
+            }
+            response
+        }
+        _ => next.run(request).await,
+    }
+}
+
 fn needs(service: &Arc<Service>, operation: Operation, method: Method) -> Method {
     method.layer(axum::middleware::from_fn_with_state(
         (service.clone(), operation),
@@ -265,6 +303,7 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
         .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
             body_timeout,
         ))
+        .layer(axum::middleware::from_fn(refuse_large_bodies))
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(TraceLayer::new_for_http())
         .with_state(service)
