@@ -54,6 +54,14 @@ impl Running {
                 tasks = self.tracker.len(),
                 "tasks did not finish within the shutdown grace period"
             );
+            for link in self.service.links() {
+                if link.progress.in_transaction() {
+                    tracing::warn!(
+                        link = %link.name(),
+                        "shutdown abandons the link in the middle of a transaction: what it was sending may or may not have reached the device"
+                    );
+                }
+            }
         }
     }
 }

@@ -91,6 +91,11 @@ impl Progress {
                 .is_some_and(|at| now.saturating_duration_since(at) <= window)
     }
 
+    /// Whether the task is inside a transaction now.
+    pub(crate) fn in_transaction(&self) -> bool {
+        super::lock(&self.deadline).is_some()
+    }
+
     /// How long the task is past its transaction's deadline and grace, if it is.
     pub(crate) fn stalled_for(&self, now: tokio::time::Instant) -> Option<Duration> {
         let deadline = (*super::lock(&self.deadline))?;
