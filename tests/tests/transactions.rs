@@ -256,7 +256,8 @@ async fn parameters_are_refused_with_every_message_before_anything_is_sent() {
         )
         .await
         .expect("post");
-    assert_eq!(status, 400);
+    assert_eq!(status, 404, "the link is what is missing: {answer}");
+    assert_eq!(answer["error"]["code"], "unknown_link");
     assert_eq!(answer["error"]["message"], "Missing RS485 configuration.");
     assert!(bus.seen().is_empty(), "nothing was sent: {:?}", bus.seen());
     on.gw.shutdown().await;

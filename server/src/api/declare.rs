@@ -96,9 +96,27 @@ pub(crate) struct DeviceDeclared {
 }
 
 fn body_of<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> {
-    serde_json::from_slice(body).map_err(|e| {
+    let invalid = |e: serde_json::Error| {
         ApiError::bad_request("invalid_body", format!("the declaration is not valid: {e}"))
-    })
+    };
+    let mut value: serde_json::Value = serde_json::from_slice(body).map_err(invalid)?;
+    whole_numbers(&mut value);
+    serde_json::from_value(value).map_err(invalid)
+}
+
+/// `9600.0` is the integer 9600, as JSON Schema counts integers (a declaration's numbers
+/// are all counts, milliseconds and ids); a fraction stays a fraction and is refused.
+fn whole_numbers(value: &mut serde_json::Value) {
+    match value {
+        serde_json::Value::Number(n) if n.is_f64() => {
+            if let Some(x) = n.as_f64().filter(|x| x.fract() == 0.0 && x.abs() < 9.0e15) {
+                *value = serde_json::Value::from(x as i64);
+            }
+        }
+        serde_json::Value::Array(items) => items.iter_mut().for_each(whole_numbers),
+        serde_json::Value::Object(map) => map.values_mut().for_each(whole_numbers),
+        _ => {}
+    }
 }
 
 fn status(created: bool) -> StatusCode {
@@ -117,6 +135,7 @@ fn status(created: bool) -> StatusCode {
     responses((status = 200, description = "the link existed with these settings", body = LinkDeclared),
               (status = 201, description = "the link was created and is being opened", body = LinkDeclared),
               (status = 400, description = "a setting breaks a rule", body = ErrorBody),
+              (status = 403, description = "the port or endpoint is not allowed by `security.declare`", body = ErrorBody),
               (status = 409, description = "the port or name is in use with other settings", body = ErrorBody)))]
 pub(crate) async fn put_link(
     State(service): State<Arc<Service>>,
@@ -166,6 +185,7 @@ pub(crate) async fn put_link(
     responses((status = 200, description = "the device existed with these settings (or was bound)", body = DeviceDeclared),
               (status = 201, description = "the device was created", body = DeviceDeclared),
               (status = 400, description = "a setting breaks a rule", body = ErrorBody),
+              (status = 403, description = "its serial port or endpoint is not allowed by `security.declare`", body = ErrorBody),
               (status = 404, description = "unknown profile or link", body = ErrorBody),
               (status = 409, description = "the device exists with other settings", body = ErrorBody)))]
 pub(crate) async fn put_device(

@@ -15,6 +15,7 @@ pub(crate) mod map;
 pub(crate) mod modbus_server;
 pub(crate) mod mqtt;
 pub(crate) mod opcua;
+pub(crate) mod openapi;
 pub(crate) mod pb;
 pub(crate) mod rest;
 pub(crate) mod transactions;
@@ -71,16 +72,12 @@ pub(crate) const MAX_BODY: usize = 1024 * 1024;
 )]
 pub(crate) struct ApiDoc;
 
-/// The OpenAPI document of the REST API.
-pub(crate) fn openapi() -> utoipa::openapi::OpenApi {
-    ApiDoc::openapi()
-}
-
-/// This document: the REST API in OpenAPI 3.1.
+/// This document: the REST API in OpenAPI 3.1, with the bearer tokens it needs when the
+/// gateway has tokens.
 #[utoipa::path(get, path = "/api/v1/openapi.json", tag = "health",
     responses((status = 200, description = "the OpenAPI document", content_type = "application/json")))]
-async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
-    Json(openapi())
+async fn openapi_json(State(service): State<Arc<Service>>) -> Json<serde_json::Value> {
+    Json(openapi::document(!service.tokens.current().is_empty()))
 }
 
 /// Prometheus metrics: the Prometheus text format 0.0.4, or OpenMetrics 1.0 when the

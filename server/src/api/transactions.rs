@@ -54,7 +54,9 @@ impl From<Outcome> for TransactionResult {
     params(("link" = String, Path, description = "link name")),
     request_body = TransactionSpec,
     responses((status = 200, description = "the transaction ran (check `actual`)", body = TransactionResult),
-              (status = 400, description = "every parameter problem, in the read block's messages", body = ErrorBody)))]
+              (status = 400, description = "every parameter problem, in the read block's messages", body = ErrorBody),
+              (status = 404, description = "no such link (`unknown_link`, the read block's `Missing RS485 configuration.`)", body = ErrorBody),
+              (status = 503, description = "the link's queue is full, or the gateway is stopping", body = ErrorBody)))]
 pub(crate) async fn post_transaction(
     State(service): State<Arc<Service>>,
     Path(link): Path<String>,
@@ -126,15 +128,30 @@ pub(crate) struct StandingList {
 pub(crate) struct StandingDeclaration {
     pub(crate) link: String,
     /// Reads: milliseconds between the end of one run and the next (0: only triggered).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "whole_ms")]
     pub(crate) refresh_interval_ms: u64,
     /// Writes: milliseconds between the starts of runs (0: only triggered).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "whole_ms")]
     pub(crate) polling_period_ms: u64,
     #[serde(default = "enabled_by_default")]
     pub(crate) enabled: bool,
     #[serde(flatten)]
     pub(crate) parameters: TransactionSpec,
+}
+
+/// Milliseconds as a JSON number: `1000` or `1000.0` (as JSON Schema's integers), never a
+/// fraction or a negative number.
+fn whole_ms<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    let n = <serde_json::Number as serde::Deserialize>::deserialize(d)?;
+    n.as_u64()
+        .or_else(|| {
+            n.as_f64()
+                .filter(|x| x.fract() == 0.0 && (0.0..=1e15).contains(x))
+                .map(|x| x as u64)
+        })
+        .ok_or_else(|| {
+            serde::de::Error::custom(format!("{n} is not a whole number of milliseconds"))
+        })
 }
 
 fn enabled_by_default() -> bool {
@@ -187,6 +204,7 @@ pub(crate) async fn get_standing(
     request_body = StandingDeclaration,
     responses((status = 200, description = "declared (or existed with these settings)", body = StandingInfo),
               (status = 400, description = "every parameter problem", body = ErrorBody),
+              (status = 404, description = "no such link (`unknown_link`)", body = ErrorBody),
               (status = 409, description = "exists with other settings", body = ErrorBody)))]
 pub(crate) async fn put_standing(
     State(service): State<Arc<Service>>,

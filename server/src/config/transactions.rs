@@ -12,22 +12,29 @@ use serde::Deserialize;
 #[serde(deny_unknown_fields)]
 pub struct TransactionSpec {
     /// 1-4 read, 5, 6, 15, 16 write.
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) function: Option<i64>,
     /// deviceAddress / network number, 1-255.
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) slave: Option<i64>,
     /// registerAddress / data address, 0-65535.
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) address: Option<i64>,
     /// FC01/02: bits to read, 1-32.
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) bit_count: Option<i64>,
     /// FC03/04: SIGNED_NUMBER16, SIGNED_NUMBER32, UNSIGNED_NUMBER16, UNSIGNED_NUMBER32, FLOAT.
     pub(crate) value_type: Option<String>,
     /// Reads: 1-4294967295 (default 1); the value is divided by it, not rounded.
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) divisor: Option<i64>,
     /// Reads: 0-3 digits kept after the point, truncating (default 3).
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) precision: Option<i64>,
     /// LittleEndian, BigEndian, SwapBytes, SwapWords, Little-endian, Big-endian, Big-endian (2 bytes).
     pub(crate) byte_order: Option<String>,
     /// responseTimeout, 10-60000 ms (default 1000).
+    #[serde(default, deserialize_with = "whole")]
     pub(crate) timeout_ms: Option<i64>,
     /// Writes: uint8, int8, uint16, int16, int32 (an integer), float (IEEE-754), int32/float (IEEE-754 for a number written with a point, else int32).
     #[serde(rename = "type")]
@@ -35,6 +42,23 @@ pub struct TransactionSpec {
     /// Writes: the values (numbers; for coils, numbers or booleans).
     #[schema(value_type = Vec<Object>)]
     pub(crate) values: Option<Vec<serde_json::Value>>,
+}
+
+/// An integer key: `7` or `7.0` (JSON Schema's integers both), or null. A fraction or a
+/// number beyond 64 bits is no integer (the key's check then names it).
+fn whole<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<i64>, D::Error> {
+    let n = <Option<serde_json::Number> as Deserialize>::deserialize(d)?;
+    let Some(n) = n else {
+        return Ok(None);
+    };
+    match n.as_i64().or_else(|| {
+        n.as_f64()
+            .filter(|x| x.fract() == 0.0 && x.abs() < 9.0e15)
+            .map(|x| x as i64)
+    }) {
+        Some(i) => Ok(Some(i)),
+        None => Err(serde::de::Error::custom(format!("{n} is not an integer"))),
+    }
 }
 
 /// One standing transaction as configured (or declared at run time).

@@ -54,6 +54,16 @@ impl ServiceError {
             ServiceError::TooManyStreams(_) => (Refusal::TooMany, "too_many_streams"),
             ServiceError::Busy(_) => (Refusal::Busy, "busy"),
             ServiceError::Location(_) => (Refusal::Invalid, "invalid_location"),
+            // A well-formed transaction for a link that is not there: the link is what
+            // is missing (with the read block's message).
+            ServiceError::Transaction(errors)
+                if matches!(
+                    errors.as_slice(),
+                    [crate::transaction::params::ParamError::MissingRs485]
+                ) =>
+            {
+                (Refusal::NotFound, "unknown_link")
+            }
             ServiceError::Transaction(_) => (Refusal::Invalid, "invalid_transaction"),
             ServiceError::UnknownTransaction(_) => (Refusal::NotFound, "unknown_transaction"),
             ServiceError::TransactionConflict(_) => (Refusal::Conflict, "declaration_conflict"),

@@ -95,6 +95,33 @@ pub(crate) fn check_standing(config: &crate::config::Config) -> Result<(), crate
 mod tests {
     use super::*;
 
+    fn spec(json: serde_json::Value) -> Result<(), Vec<params::ParamError>> {
+        let spec: TransactionSpec = serde_json::from_value(json).expect("a spec");
+        spec.check().map(|_| ())
+    }
+
+    #[test]
+    fn a_read_takes_no_values_and_unused_keys_must_still_be_valid() {
+        let read = serde_json::json!({"function": 3, "slave": 1.0, "address": 0,
+            "value_type": "FLOAT", "byte_order": "BigEndian"});
+        assert_eq!(spec(read.clone()), Ok(()), "1.0 is an integer");
+        let mut with_values = read.clone();
+        with_values["values"] = serde_json::json!([[null, null]]);
+        assert_eq!(spec(with_values), Err(vec![params::ParamError::Values]));
+        let mut null_values = read;
+        null_values["values"] = serde_json::Value::Null;
+        assert_eq!(spec(null_values), Ok(()));
+        let coil = serde_json::json!({"function": 5, "slave": 1, "address": 0, "values": [true],
+            "value_type": "AAA", "precision": -1});
+        assert_eq!(
+            spec(coil),
+            Err(vec![
+                params::ParamError::ValueType,
+                params::ParamError::Precision
+            ])
+        );
+    }
+
     #[test]
     fn failures_get_the_read_blocks_messages_and_the_write_blocks_states() {
         assert_eq!(

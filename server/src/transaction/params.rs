@@ -43,6 +43,50 @@ impl TransactionSpec {
             .map(Duration::from_millis);
         let timeout = reported(timeout, &mut errors, ParamError::Timeout);
         let order = self.byte_order.as_deref().map(parse_byte_order);
+        // A read sends no values: any given would be kept and shown with its answers.
+        let reads = matches!(self.function, Some(1..=4));
+        if reads && self.values.is_some() {
+            errors.push(ParamError::Values);
+        }
+        // A key the function does not use is still a mistake when its value is no value
+        // of that key (the functions that use it report it themselves).
+        let registers_read = matches!(self.function, Some(3 | 4));
+        let register_write = matches!(self.function, Some(6 | 16));
+        if !registers_read
+            && self
+                .value_type
+                .as_deref()
+                .is_some_and(|v| ValueType::parse(v).is_none())
+        {
+            errors.push(ParamError::ValueType);
+        }
+        if !register_write
+            && self
+                .write_type
+                .as_deref()
+                .is_some_and(|t| WriteType::parse(t).is_none())
+        {
+            errors.push(ParamError::WriteType);
+        }
+        if matches!(self.function, Some(5 | 15)) && matches!(order, Some(None)) {
+            errors.push(ParamError::Endianess);
+        }
+        if !reads {
+            if self
+                .divisor
+                .is_some_and(|d| !(1..=4_294_967_295).contains(&d))
+            {
+                errors.push(ParamError::Divisor);
+            }
+            if self.precision.is_some_and(|p| !(0..=3).contains(&p)) {
+                errors.push(ParamError::Precision);
+            }
+        }
+        if !matches!(self.function, Some(1 | 2))
+            && self.bit_count.is_some_and(|b| !(1..=32).contains(&b))
+        {
+            errors.push(ParamError::BitCount);
+        }
         let plan = match function {
             Some(f @ (Function::ReadCoils | Function::ReadDiscreteInputs)) => {
                 let bits = match self.bit_count {
