@@ -12,7 +12,7 @@
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use prometheus_client::metrics::counter::Counter;
 use tokio::io::{AsyncReadExt, AsyncWriteExt, BufReader};
@@ -80,10 +80,12 @@ pub(crate) async fn serve_modbus(
     }
 }
 
+/// Orders the moments connections begin to wait for their masters.
+static WAITS: AtomicU64 = AtomicU64::new(0);
+
 /// The open connections, and which one a new master closes when they are all taken.
 struct Slots {
     max: usize,
-    start: Instant,
     open: Mutex<(u64, HashMap<u64, Arc<Slot>>)>,
 }
 
@@ -95,9 +97,9 @@ struct Slot {
     on_master: AtomicBool,
     /// Whether it has sent a whole request yet.
     served: AtomicBool,
-    /// When it last began to wait for its master (ms since `epoch`, the listener's start).
-    since_ms: AtomicU64,
-    epoch: Instant,
+    /// When it last began to wait for its master, as a tick of [`WAITS`] (strictly
+    /// ordered, unlike a clock's readings that may be equal).
+    since: AtomicU64,
     /// Cancelled to close it for a new master.
     evict: CancellationToken,
 }
@@ -112,13 +114,8 @@ impl Slots {
     fn new(max: usize) -> Self {
         Slots {
             max,
-            start: Instant::now(),
             open: Mutex::new((0, HashMap::new())),
         }
-    }
-
-    fn now_ms(&self) -> u64 {
-        u64::try_from(self.start.elapsed().as_millis()).unwrap_or(u64::MAX)
     }
 
     /// A slot for a new connection: a free one, or the one of the connection that has
@@ -136,7 +133,7 @@ impl Slots {
                 .min_by_key(|s| {
                     (
                         s.served.load(Ordering::Relaxed),
-                        s.since_ms.load(Ordering::Relaxed),
+                        s.since.load(Ordering::Relaxed),
                     )
                 })
                 .map(|s| s.id);
@@ -157,8 +154,7 @@ impl Slots {
             peer: std::sync::OnceLock::new(),
             on_master: AtomicBool::new(true),
             served: AtomicBool::new(false),
-            since_ms: AtomicU64::new(self.now_ms()),
-            epoch: self.start,
+            since: AtomicU64::new(WAITS.fetch_add(1, Ordering::Relaxed)),
             evict: CancellationToken::new(),
         });
         open.1.insert(slot.id, slot.clone());
@@ -178,8 +174,8 @@ impl Slots {
 impl Slot {
     /// From now on it waits for its master.
     fn wait_on_master(&self) {
-        let now = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
-        self.since_ms.store(now, Ordering::Relaxed);
+        self.since
+            .store(WAITS.fetch_add(1, Ordering::Relaxed), Ordering::Relaxed);
         self.on_master.store(true, Ordering::Release);
     }
 }
