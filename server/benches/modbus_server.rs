@@ -54,7 +54,7 @@ async fn load(addr: SocketAddr, masters: usize, address: u16) -> anyhow::Result<
 /// Builds and starts the libmodbus server, if the compiler and library are there.
 fn libmodbus_server() -> Option<(Child, SocketAddr)> {
     let program = common::build_peer("modbus_server")?;
-    let port = free_port().ok()?;
+    let port = common::free_port().ok()?;
     let mut child = Command::new(&program)
         .arg(port.to_string())
         .stdout(Stdio::piped())
@@ -66,15 +66,9 @@ fn libmodbus_server() -> Option<(Child, SocketAddr)> {
     Some((child, SocketAddr::from(([127, 0, 0, 1], port))))
 }
 
-fn free_port() -> anyhow::Result<u16> {
-    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
-        .local_addr()?
-        .port())
-}
-
 /// `iogate serve` on the demo's simulated devices, every field bound (`auto: true`).
 fn iogate_server() -> anyhow::Result<(common::Gateway, SocketAddr)> {
-    let port = free_port()?;
+    let port = common::free_port()?;
     let dir = common::temp_dir("mbs")?;
     let gateway = common::start(
         &dir,

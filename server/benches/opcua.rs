@@ -32,25 +32,6 @@ const DEVICES: usize = 100;
 const FIELDS: usize = 100;
 const RUN: Duration = Duration::from_secs(10);
 
-fn free_port() -> anyhow::Result<u16> {
-    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
-        .local_addr()?
-        .port())
-}
-
-fn cpu_seconds(pid: u32) -> f64 {
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|stat| {
-            let rest = stat.rsplit_once(')')?.1;
-            let fields: Vec<&str> = rest.split_whitespace().collect();
-            let ticks: f64 =
-                fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-            Some(ticks / 100.0)
-        })
-        .unwrap_or(0.0)
-}
-
 /// One kept-alive HTTP connection sending PATCHes.
 struct Patcher {
     stream: TcpStream,
@@ -200,7 +181,7 @@ async fn scenario(
         patchers.push(Patcher::connect(gw.http).await?);
     }
     let pid = gw.child.id();
-    let cpu0 = cpu_seconds(pid);
+    let cpu0 = common::cpu_seconds(pid);
     let started = Instant::now();
     let mut rounds = 0;
     let mut tick = tokio::time::interval(Duration::from_secs(1));
@@ -234,7 +215,7 @@ async fn scenario(
     }
     let elapsed = started.elapsed().as_secs_f64();
     tokio::time::sleep(Duration::from_secs(1)).await;
-    let cpu = (cpu_seconds(pid) - cpu0) / elapsed;
+    let cpu = (common::cpu_seconds(pid) - cpu0) / elapsed;
     let rss_mib = common::rss_kib(pid) as f64 / 1024.0;
     let mut latencies = seen.lock().map_err(|_| anyhow::anyhow!("lock"))?.clone();
     latencies.sort_by(f64::total_cmp);
@@ -264,7 +245,7 @@ async fn main() -> anyhow::Result<()> {
         ));
     }
     std::fs::write(profiles.join("wide.yaml"), profile)?;
-    let port = free_port()?;
+    let port = common::free_port()?;
     let mut config = format!(
         "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\nopcua: {{ listen: 127.0.0.1:{port}, security: [none], pki_dir: {} }}\ndevices:\n",
         profiles.display(),

@@ -478,13 +478,13 @@ async fn fan_out(rows: &mut Vec<Row>) -> anyhow::Result<()> {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let idle = cpu_seconds(gateway.child.id());
+    let idle = common::cpu_seconds(gateway.child.id());
     tokio::time::sleep(Duration::from_secs(1)).await;
-    let idle = cpu_seconds(gateway.child.id()) - idle;
+    let idle = common::cpu_seconds(gateway.child.id()) - idle;
     let mut latencies = Vec::with_capacity(CHANGES);
     let mut next_change = Instant::now();
-    let gateway_cpu = cpu_seconds(gateway.child.id());
-    let clients_cpu = cpu_seconds(std::process::id());
+    let gateway_cpu = common::cpu_seconds(gateway.child.id());
+    let clients_cpu = common::cpu_seconds(std::process::id());
     for (i, seen) in received.iter().enumerate() {
         tokio::time::sleep_until(next_change.into()).await;
         next_change += Duration::from_millis(100);
@@ -506,8 +506,8 @@ async fn fan_out(rows: &mut Vec<Row>) -> anyhow::Result<()> {
     // Less what the gateway spends without changes (the simulated device's 1 ms cycles, the
     // subscribers' keep-alives) over the same time.
     let gateway_cpu =
-        cpu_seconds(gateway.child.id()) - gateway_cpu - idle * (CHANGES as f64 / 10.0);
-    let clients_cpu = cpu_seconds(std::process::id()) - clients_cpu;
+        common::cpu_seconds(gateway.child.id()) - gateway_cpu - idle * (CHANGES as f64 / 10.0);
+    let clients_cpu = common::cpu_seconds(std::process::id()) - clients_cpu;
     for t in tasks {
         t.await??;
     }
@@ -533,21 +533,6 @@ async fn fan_out(rows: &mut Vec<Row>) -> anyhow::Result<()> {
         goal: "< 1.00".into(),
     });
     Ok(())
-}
-
-/// CPU time (user + system) process `pid` has used, in seconds (10 ms steps).
-fn cpu_seconds(pid: u32) -> f64 {
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|stat| {
-            // After the command's name in parentheses: state is field 3, utime 14, stime 15.
-            let rest = stat.rsplit_once(')')?.1;
-            let fields: Vec<&str> = rest.split_whitespace().collect();
-            let ticks: f64 =
-                fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-            Some(ticks / 100.0)
-        })
-        .unwrap_or(0.0)
 }
 
 /// Resident memory with `fields` fields: simulated devices of 100 fields each.

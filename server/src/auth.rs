@@ -57,6 +57,9 @@ pub(crate) enum TokensProblem {
     Env { entry: u64, message: String },
 }
 
+/// Tokens as read, each with its (1-based) line and its role.
+type Entries = HashMap<String, (u64, Role)>;
+
 /// The known tokens.
 #[derive(Clone, Default)]
 pub struct Tokens(HashMap<String, Role>);
@@ -72,8 +75,18 @@ impl Tokens {
     /// Parses `ROLE TOKEN` lines (blank lines and `#` comments skipped): the tokens, or
     /// every bad line (1-based) with what is wrong, never the token itself.
     pub(crate) fn parse(text: &str) -> Result<Tokens, Vec<(u64, String)>> {
-        let mut tokens = HashMap::new();
-        let mut lines: HashMap<&str, (u64, Role)> = HashMap::new();
+        let entries = Tokens::entries(text)?;
+        Ok(Tokens(
+            entries
+                .into_iter()
+                .map(|(token, (_, role))| (token, role))
+                .collect(),
+        ))
+    }
+
+    /// [`Tokens::parse`]'s work: each token with its line and role.
+    fn entries(text: &str) -> Result<Entries, Vec<(u64, String)>> {
+        let mut lines = Entries::new();
         let mut bad = Vec::new();
         for (n, line) in text.lines().enumerate() {
             let n = n as u64 + 1;
@@ -115,16 +128,11 @@ impl Tokens {
                     ),
                 )),
                 None => {
-                    lines.insert(token, (n, role));
-                    tokens.insert(token.to_owned(), role);
+                    lines.insert(token.to_owned(), (n, role));
                 }
             }
         }
-        if bad.is_empty() {
-            Ok(Tokens(tokens))
-        } else {
-            Err(bad)
-        }
+        if bad.is_empty() { Ok(lines) } else { Err(bad) }
     }
 
     /// The tokens of `file` and of the `IOGATE_TOKENS` environment variable (lines, or
@@ -148,25 +156,24 @@ impl Tokens {
             }
         }
         if let Ok(env) = std::env::var("IOGATE_TOKENS") {
-            match Tokens::parse(&env.replace(';', "\n")) {
-                Ok(t) => {
-                    // Entries are numbered as `parse` numbers its lines.
-                    let text = env.replace(';', "\n");
-                    for (entry, line) in text.lines().enumerate() {
-                        let token = line.split_whitespace().nth(1).unwrap_or_default();
-                        if let Some(first) = all.0.get(token) {
-                            problems.push(TokensProblem::Env {
-                                entry: entry as u64 + 1,
-                                message: format!(
-                                    "this token is in the tokens file already (as {}): a token has one role",
-                                    first.name()
-                                ),
-                            });
+            match Tokens::entries(&env.replace(';', "\n")) {
+                Ok(entries) => {
+                    let mut twice = Vec::new();
+                    for (token, (entry, role)) in entries {
+                        match all.0.get(&token) {
+                            Some(first) => twice.push((entry, first.name())),
+                            None => {
+                                all.0.insert(token, role);
+                            }
                         }
                     }
-                    for (token, role) in t.0 {
-                        all.0.entry(token).or_insert(role);
-                    }
+                    twice.sort_unstable();
+                    problems.extend(twice.into_iter().map(|(entry, first)| TokensProblem::Env {
+                        entry,
+                        message: format!(
+                            "this token is in the tokens file already (as {first}): a token has one role"
+                        ),
+                    }));
                 }
                 Err(bad) => problems.extend(
                     bad.into_iter()
@@ -185,8 +192,6 @@ impl Tokens {
         self.0.is_empty()
     }
 
-    /// Whether a request with `authorization` (the header's value) may do what `needed`
-    /// allows. Without tokens configured everything is allowed.
     /// The role of `token` (a password given by an OPC UA client), compared in full
     /// against every known token.
     pub(crate) fn role_of(&self, token: &str) -> Option<Role> {
@@ -197,6 +202,8 @@ impl Tokens {
             .max()
     }
 
+    /// Whether a request with `authorization` (the header's value) may do what `needed`
+    /// allows. Without tokens configured everything is allowed.
     pub(crate) fn check(&self, authorization: Option<&str>, needed: Role) -> Result<(), Denied> {
         if self.0.is_empty() {
             return Ok(());

@@ -31,6 +31,34 @@ pub fn run_installer(script: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A helper process (one of the tests' Python peers) talking one line at a time: its
+/// handle (killed when dropped), its standard input, and its standard output's lines.
+pub struct Piped {
+    pub child: tokio::process::Child,
+    pub stdin: tokio::process::ChildStdin,
+    pub lines: tokio::io::Lines<tokio::io::BufReader<tokio::process::ChildStdout>>,
+}
+
+/// Starts `command` with piped standard input and output.
+pub fn spawn_piped(mut command: tokio::process::Command) -> anyhow::Result<Piped> {
+    use tokio::io::AsyncBufReadExt;
+    let mut child = command
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()?;
+    let stdin = child.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
+    let stdout = child
+        .stdout
+        .take()
+        .ok_or_else(|| anyhow::anyhow!("stdout"))?;
+    Ok(Piped {
+        child,
+        stdin,
+        lines: tokio::io::BufReader::new(stdout).lines(),
+    })
+}
+
 /// The repository's `profiles/` directory.
 pub fn profiles_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles")

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::Stdio;
 use std::time::Duration;
 
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader, Lines};
+use tokio::io::{AsyncWriteExt, BufReader, Lines};
 use tokio::process::{Child, ChildStdin, ChildStdout, Command};
 
 use crate::repo_file;
@@ -196,20 +196,15 @@ impl Peer {
         if let Some(id) = id {
             command.arg(id);
         }
-        let mut child = command
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .kill_on_drop(true)
-            .spawn()?;
-        let stdin = child.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
-        let stdout = child
-            .stdout
-            .take()
-            .ok_or_else(|| anyhow::anyhow!("stdout"))?;
+        let crate::Piped {
+            child,
+            stdin,
+            lines,
+        } = crate::spawn_piped(command)?;
         let mut peer = Peer {
             child,
             stdin,
-            lines: BufReader::new(stdout).lines(),
+            lines,
             pending: std::collections::VecDeque::new(),
         };
         let first = peer.line().await?;

@@ -2,10 +2,9 @@
 //! per line (`tests/opcua/client.py`); `tests/opcua/install.sh` installs it when missing.
 
 use std::path::PathBuf;
-use std::process::Stdio;
 
 use serde_json::{Value, json};
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader, Lines};
+use tokio::io::{AsyncWriteExt, BufReader, Lines};
 use tokio::process::{Child, ChildStdin, ChildStdout, Command};
 
 use crate::repo_file;
@@ -45,17 +44,11 @@ impl UaClient {
         if let Some((user, password)) = &options.user {
             command.arg(user).arg(password);
         }
-        let mut child = command
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .kill_on_drop(true)
-            .spawn()?;
-        let stdin = child.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
-        let stdout = child
-            .stdout
-            .take()
-            .ok_or_else(|| anyhow::anyhow!("stdout"))?;
-        let mut lines = BufReader::new(stdout).lines();
+        let crate::Piped {
+            child,
+            stdin,
+            mut lines,
+        } = crate::spawn_piped(command)?;
         let first = read(&mut lines).await?;
         anyhow::ensure!(first["connected"] == true, "asyncua: {first}");
         Ok(UaClient {

@@ -109,8 +109,8 @@ fn body_of<T: serde::de::DeserializeOwned>(body: &Bytes) -> Result<T, ApiError> 
 fn whole_numbers(value: &mut serde_json::Value) {
     match value {
         serde_json::Value::Number(n) if n.is_f64() => {
-            if let Some(x) = n.as_f64().filter(|x| x.fract() == 0.0 && x.abs() < 9.0e15) {
-                *value = serde_json::Value::from(x as i64);
+            if let Some(whole) = crate::config::transactions::whole_number(n) {
+                *value = serde_json::Value::from(whole);
             }
         }
         serde_json::Value::Array(items) => items.iter_mut().for_each(whole_numbers),

@@ -76,7 +76,7 @@ pub(crate) struct ApiDoc;
 /// gateway has tokens.
 #[utoipa::path(get, path = "/api/v1/openapi.json", tag = "health",
     responses((status = 200, description = "the OpenAPI document", content_type = "application/json")))]
-async fn openapi_json(State(service): State<Arc<Service>>) -> Json<serde_json::Value> {
+async fn openapi_json(State(service): State<Arc<Service>>) -> Json<&'static serde_json::Value> {
     Json(openapi::document(!service.tokens.current().is_empty()))
 }
 
@@ -153,8 +153,6 @@ async fn authorize(
 
 type Method = axum::routing::MethodRouter<Arc<Service>>;
 
-/// `method`, refused to a client without the role `operation` needs: every route names the
-/// operation it is, and the role comes from that ([`Operation::role`]).
 /// A request whose `Content-Length` is over [`MAX_BODY`] is answered 413 at once, before
 /// its body is read (and, over HTTP/1, the connection closed: the body is not wanted).
 async fn refuse_large_bodies(
@@ -186,6 +184,8 @@ async fn refuse_large_bodies(
     }
 }
 
+/// `method`, refused to a client without the role `operation` needs: every route names the
+/// operation it is, and the role comes from that ([`Operation::role`]).
 fn needs(service: &Arc<Service>, operation: Operation, method: Method) -> Method {
     method.layer(axum::middleware::from_fn_with_state(
         (service.clone(), operation),

@@ -10,6 +10,7 @@
 //! master does not take an answer within the write timeout.
 
 use std::collections::HashMap;
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -52,7 +53,7 @@ pub(crate) async fn serve_modbus(
                 continue;
             }
         };
-        let slot = match slots.take() {
+        let slot = match slots.take(peer) {
             Taken::Free(slot) => slot,
             Taken::Evicted { slot, evicted } => {
                 tracing::info!(%peer, closed = %evicted, "Modbus connection closed to make room for a new master (max_connections reached)");
@@ -66,7 +67,6 @@ pub(crate) async fn serve_modbus(
                 continue;
             }
         };
-        slot.peer.set(peer).ok();
         let _ = stream.set_nodelay(true);
         let (service, token, slots) = (service.clone(), shutdown.clone(), slots.clone());
         service.clone().tasks().spawn(async move {
@@ -75,7 +75,7 @@ pub(crate) async fn serve_modbus(
                 tracing::debug!(%peer, %reason, "Modbus connection closed");
             }
             service.metrics.server_connection(false);
-            slots.release(slot.id);
+            slots.release(&slot);
         });
     }
 }
@@ -86,13 +86,12 @@ static WAITS: AtomicU64 = AtomicU64::new(0);
 /// The open connections, and which one a new master closes when they are all taken.
 struct Slots {
     max: usize,
-    open: Mutex<(u64, HashMap<u64, Arc<Slot>>)>,
+    open: Mutex<Vec<Arc<Slot>>>,
 }
 
 /// One connection as the listener sees it.
 struct Slot {
-    id: u64,
-    peer: std::sync::OnceLock<std::net::SocketAddr>,
+    peer: SocketAddr,
     /// Waiting for its master: for a request, or for it to take an answer.
     on_master: AtomicBool,
     /// Whether it has sent a whole request yet.
@@ -106,7 +105,10 @@ struct Slot {
 
 enum Taken {
     Free(Arc<Slot>),
-    Evicted { slot: Arc<Slot>, evicted: String },
+    Evicted {
+        slot: Arc<Slot>,
+        evicted: SocketAddr,
+    },
     Full,
 }
 
@@ -114,60 +116,50 @@ impl Slots {
     fn new(max: usize) -> Self {
         Slots {
             max,
-            open: Mutex::new((0, HashMap::new())),
+            open: Mutex::new(Vec::new()),
         }
     }
 
-    /// A slot for a new connection: a free one, or the one of the connection that has
+    /// A slot for `peer`'s connection: a free one, or the one of the connection that has
     /// waited longest on its master (never served first), which is closed.
-    fn take(&self) -> Taken {
-        let Ok(mut open) = self.open.lock() else {
-            return Taken::Full;
-        };
+    fn take(&self, peer: SocketAddr) -> Taken {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
         let mut evicted = None;
-        if open.1.len() >= self.max {
+        if open.len() >= self.max {
             let victim = open
-                .1
-                .values()
-                .filter(|s| s.on_master.load(Ordering::Acquire))
-                .min_by_key(|s| {
+                .iter()
+                .enumerate()
+                .filter(|(_, s)| s.on_master.load(Ordering::Acquire))
+                .min_by_key(|(_, s)| {
                     (
                         s.served.load(Ordering::Relaxed),
                         s.since.load(Ordering::Relaxed),
                     )
                 })
-                .map(|s| s.id);
-            let Some(victim) = victim.and_then(|id| open.1.remove(&id)) else {
+                .map(|(i, _)| i);
+            let Some(victim) = victim.map(|i| open.swap_remove(i)) else {
                 return Taken::Full;
             };
             victim.evict.cancel();
-            evicted = Some(
-                victim
-                    .peer
-                    .get()
-                    .map_or_else(|| "a master".to_owned(), ToString::to_string),
-            );
+            evicted = Some(victim.peer);
         }
-        open.0 += 1;
         let slot = Arc::new(Slot {
-            id: open.0,
-            peer: std::sync::OnceLock::new(),
+            peer,
             on_master: AtomicBool::new(true),
             served: AtomicBool::new(false),
             since: AtomicU64::new(WAITS.fetch_add(1, Ordering::Relaxed)),
             evict: CancellationToken::new(),
         });
-        open.1.insert(slot.id, slot.clone());
+        open.push(slot.clone());
         match evicted {
             None => Taken::Free(slot),
             Some(evicted) => Taken::Evicted { slot, evicted },
         }
     }
 
-    fn release(&self, id: u64) {
-        if let Ok(mut open) = self.open.lock() {
-            open.1.remove(&id);
-        }
+    fn release(&self, slot: &Arc<Slot>) {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        open.retain(|s| !Arc::ptr_eq(s, slot));
     }
 }
 

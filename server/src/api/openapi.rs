@@ -4,6 +4,8 @@
 //! have ranges, a transaction's keys depend on its function) and with the bearer tokens
 //! that guard it when this gateway has tokens configured.
 
+use std::sync::OnceLock;
+
 use serde_json::{Value, json};
 use utoipa::OpenApi;
 
@@ -24,11 +26,15 @@ fn scalar(description: &str, nullable: bool) -> Value {
     json!({"type": types, "description": description})
 }
 
-/// The document for a gateway with (`secured`) or without bearer tokens.
-pub(crate) fn document(secured: bool) -> Value {
-    let mut doc = serde_json::to_value(super::ApiDoc::openapi()).unwrap_or(Value::Null);
-    refine(&mut doc, secured);
-    doc
+/// The document for a gateway with (`secured`) or without bearer tokens; each is made
+/// once.
+pub(crate) fn document(secured: bool) -> &'static Value {
+    static DOCUMENTS: [OnceLock<Value>; 2] = [OnceLock::new(), OnceLock::new()];
+    DOCUMENTS[usize::from(secured)].get_or_init(|| {
+        let mut doc = serde_json::to_value(super::ApiDoc::openapi()).unwrap_or(Value::Null);
+        refine(&mut doc, secured);
+        doc
+    })
 }
 
 fn set(doc: &mut Value, pointer: &str, value: Value) {
@@ -104,71 +110,67 @@ fn refine(doc: &mut Value, secured: bool) {
             write.clone(),
         );
     }
-    // Declarations: names, ranges and integers as the checks have them.
-    merge(
-        doc,
-        &format!("{schemas}/DeviceDeclarationBody/properties/slave_id"),
-        json!({"type": "integer", "minimum": 0, "maximum": 247,
-               "description": "1-247; 0 (or none): declared without one, error 2 until it has one."}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/DeviceDeclarationBody/properties/refresh_rate_ms"),
-        json!({"minimum": 1, "maximum": 3_600_000}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/DeviceDeclarationBody/properties/timeout_ms"),
-        json!({"minimum": 1, "maximum": 60_000}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/TcpDeclaration/properties/host"),
-        json!({"minLength": 1, "maxLength": 253}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/TcpDeclaration/properties/port"),
-        json!({"minimum": 1, "maximum": 65535}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/TcpDeclaration/properties/framing"),
-        json!({"enum": ["mbap", "rtu"]}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/LinkDeclarationBody/properties/guard_time_ms"),
-        json!({"maximum": 1000}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/LinkDeclarationBody"),
-        json!({"oneOf": [
-            {"required": ["serial"], "properties": {"serial": {"type": "object"}, "tcp": {"type": "null"}}},
-            {"required": ["tcp"], "properties": {"tcp": {"type": "object"}, "serial": {"type": "null"}}}
-        ]}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/SerialDeclaration/properties/data_bits"),
-        json!({"enum": [7, 8]}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/SerialDeclaration/properties/stop_bits"),
-        json!({"enum": [1, 2]}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/SerialDeclaration/properties/parity"),
-        json!({"enum": ["N", "E", "O"]}),
-    );
-    merge(
-        doc,
-        &format!("{schemas}/SerialDeclaration/properties/baud"),
-        json!({"minimum": 300, "maximum": 4_000_000}),
-    );
+    // Declarations: ranges and integers as the checks have them.
+    use crate::config::rules;
+    let ms = |d: std::time::Duration| u64::try_from(d.as_millis()).unwrap_or(u64::MAX);
+    let timeouts = crate::declare::TIMEOUTS;
+    let refresh = crate::declare::REFRESH_RATES;
+    for (pointer, extra) in [
+        (
+            "DeviceDeclarationBody/properties/slave_id",
+            json!({"type": "integer", "minimum": 0, "maximum": rules::SLAVE_IDS.end(),
+                   "description": "1-247; 0 (or none): declared without one, error 2 until it has one."}),
+        ),
+        (
+            "DeviceDeclarationBody/properties/refresh_rate_ms",
+            json!({"minimum": ms(*refresh.start()), "maximum": ms(*refresh.end())}),
+        ),
+        (
+            "DeviceDeclarationBody/properties/timeout_ms",
+            json!({"minimum": ms(*timeouts.start()), "maximum": ms(*timeouts.end())}),
+        ),
+        (
+            "TcpDeclaration/properties/host",
+            json!({"minLength": 1, "maxLength": 253}),
+        ),
+        (
+            "TcpDeclaration/properties/port",
+            json!({"minimum": rules::TCP_PORTS.start(), "maximum": rules::TCP_PORTS.end()}),
+        ),
+        (
+            "TcpDeclaration/properties/framing",
+            json!({"enum": ["mbap", "rtu"]}),
+        ),
+        (
+            "LinkDeclarationBody/properties/guard_time_ms",
+            json!({"maximum": ms(rules::MAX_GUARD_TIME)}),
+        ),
+        (
+            "LinkDeclarationBody",
+            json!({"oneOf": [
+                {"required": ["serial"], "properties": {"serial": {"type": "object"}, "tcp": {"type": "null"}}},
+                {"required": ["tcp"], "properties": {"tcp": {"type": "object"}, "serial": {"type": "null"}}}
+            ]}),
+        ),
+        (
+            "SerialDeclaration/properties/data_bits",
+            json!({"enum": rules::DATA_BITS}),
+        ),
+        (
+            "SerialDeclaration/properties/stop_bits",
+            json!({"enum": rules::STOP_BITS}),
+        ),
+        (
+            "SerialDeclaration/properties/parity",
+            json!({"enum": ["N", "E", "O"]}),
+        ),
+        (
+            "SerialDeclaration/properties/baud",
+            json!({"minimum": rules::BAUD_RATES.start(), "maximum": rules::BAUD_RATES.end()}),
+        ),
+    ] {
+        merge(doc, &format!("{schemas}/{pointer}"), extra);
+    }
     transactions(doc);
     // Path parameters: names and located addresses have a grammar.
     if let Some(Value::Object(paths)) = doc.get_mut("paths") {
@@ -408,5 +410,52 @@ fn security(doc: &mut Value, secured: bool) {
                 });
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every refinement finds its place in utoipa's document: a renamed schema or path
+    /// would leave it out silently.
+    #[test]
+    fn every_refinement_lands() {
+        let doc = document(true);
+        let has = |pointer: &str| doc.pointer(pointer).is_some();
+        for pointer in [
+            "/components/schemas/FieldValue/properties/value/type/4",
+            "/components/schemas/WriteInfo/properties/value/type/3",
+            "/components/schemas/StandingValues/properties/values/items/type",
+            "/components/schemas/DeviceDetail/allOf/1/properties/fields/additionalProperties",
+            "/paths/~1api~1v1~1devices~1{device}~1fields/patch/requestBody/content/application~1json/schema/minProperties",
+            "/paths/~1api~1v1~1devices~1{device}~1fields~1{field}/put/requestBody/content/application~1json/schema/oneOf",
+            "/paths/~1api~1v1~1map~1{at}/put/requestBody/content/application~1json/schema/oneOf",
+            "/paths/~1api~1v1~1map~1{at}/get/parameters/0/schema/pattern",
+            "/components/schemas/DeviceDeclarationBody/properties/timeout_ms/maximum",
+            "/components/schemas/TcpDeclaration/properties/port/maximum",
+            "/components/schemas/SerialDeclaration/properties/baud/minimum",
+            "/components/schemas/LinkDeclarationBody/oneOf",
+            "/components/schemas/TransactionSpec/anyOf",
+            "/components/schemas/StandingDeclaration/properties/link/pattern",
+            "/components/schemas/StandingDeclaration/anyOf",
+            "/paths/~1api~1v1~1config~1reload/post/responses/400/content/application~1json/schema/anyOf",
+            "/components/securitySchemes/bearer",
+            "/paths/~1api~1v1~1devices/get/security",
+            "/paths/~1api~1v1~1devices/get/responses/401",
+        ] {
+            assert!(has(pointer), "{pointer} is not in the document");
+        }
+        assert_eq!(
+            doc.pointer("/components/schemas/DeviceDeclarationBody/properties/timeout_ms/minimum"),
+            Some(&json!(10))
+        );
+        // Without tokens, no operation asks for one; health endpoints never do.
+        let open = document(false);
+        assert!(
+            open.pointer("/paths/~1api~1v1~1devices/get/security")
+                .is_none()
+        );
+        assert!(doc.pointer("/paths/~1livez/get/security").is_none());
     }
 }

@@ -143,12 +143,8 @@ pub(crate) struct StandingDeclaration {
 /// fraction or a negative number.
 fn whole_ms<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
     let n = <serde_json::Number as serde::Deserialize>::deserialize(d)?;
-    n.as_u64()
-        .or_else(|| {
-            n.as_f64()
-                .filter(|x| x.fract() == 0.0 && (0.0..=1e15).contains(x))
-                .map(|x| x as u64)
-        })
+    crate::config::transactions::whole_number(&n)
+        .and_then(|ms| u64::try_from(ms).ok())
         .ok_or_else(|| {
             serde::de::Error::custom(format!("{n} is not a whole number of milliseconds"))
         })

@@ -298,8 +298,8 @@ impl Device {
         (self.config.refresh_rate * 3 + self.config.timeout).max(Duration::from_secs(1))
     }
 
-    pub(crate) fn set_line(&self, line: Option<Arc<super::Progress>>) {
-        *lock(&self.line) = line;
+    pub(crate) fn set_line(&self, line: Arc<super::Progress>) {
+        *lock(&self.line) = Some(line);
     }
 
     /// A sample's quality as of `now`. A good value not refreshed within `stale_after` is
@@ -307,15 +307,20 @@ impl Device {
     /// that time either (down, reopening, stalled), or it has no link (a simulator). While
     /// the link works, the device's poll is queued behind others: the value is late, not
     /// stale (`starved` in the diagnostics says so), so a busy line does not turn its
-    /// values stale and good again with every cycle.
+    /// values stale and good again with every cycle. A stale spell that was told lasts
+    /// until the next refresh, whatever the line does meanwhile.
     pub(crate) fn quality(&self, sample: &Sample, now: Instant) -> Quality {
+        match sample.quality {
+            Quality::Good if sample.stale_told => return Quality::Stale,
+            Quality::Good => {}
+            other => return other,
+        }
         let stale_after = self.stale_after();
         match sample.quality_at(now, stale_after) {
             Quality::Stale
-                if sample.quality == Quality::Good
-                    && lock(&self.line)
-                        .as_ref()
-                        .is_some_and(|line| line.working(now, stale_after)) =>
+                if lock(&self.line)
+                    .as_ref()
+                    .is_some_and(|line| line.working(now, stale_after)) =>
             {
                 Quality::Good
             }

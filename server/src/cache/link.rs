@@ -278,7 +278,7 @@ impl Link {
 
     /// Puts `next` in `old`'s place among the members (one change for the link's task).
     pub(crate) fn replace_member(&self, old: &Arc<Device>, next: Arc<Device>) {
-        next.set_line(Some(self.progress.clone()));
+        next.set_line(self.progress.clone());
         self.state.send_modify(
             |s| match s.members.iter_mut().find(|m| Arc::ptr_eq(m, old)) {
                 Some(slot) => *slot = next,
@@ -289,7 +289,7 @@ impl Link {
 
     /// Puts a device on the link, once.
     pub(crate) fn add_member(&self, device: Arc<Device>) {
-        device.set_line(Some(self.progress.clone()));
+        device.set_line(self.progress.clone());
         self.state.send_if_modified(|s| {
             let new = !s.members.iter().any(|m| Arc::ptr_eq(m, &device));
             if new {

@@ -382,6 +382,12 @@ mod tests {
         io.tell_stale(Instant::now());
         assert_eq!(io.quality(&io.sample(di), Instant::now()), Quality::Stale);
         assert!(rx.has_changed().expect("open"), "gone stale: told");
+        // The line works again (for others first): the stale spell lasts until this
+        // device's next refresh, no flip back to good before it.
+        bus.progress.ended();
+        assert_eq!(io.quality(&io.sample(di), Instant::now()), Quality::Stale);
+        io.publish(di, Ok(Value::Bool(true)));
+        assert_eq!(io.quality(&io.sample(di), Instant::now()), Quality::Good);
     }
 
     #[test]

@@ -44,21 +44,23 @@ pub struct TransactionSpec {
     pub(crate) values: Option<Vec<serde_json::Value>>,
 }
 
-/// An integer key: `7` or `7.0` (JSON Schema's integers both), or null. A fraction or a
-/// number beyond 64 bits is no integer (the key's check then names it).
-fn whole<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<i64>, D::Error> {
-    let n = <Option<serde_json::Number> as Deserialize>::deserialize(d)?;
-    let Some(n) = n else {
-        return Ok(None);
-    };
-    match n.as_i64().or_else(|| {
+/// A JSON number as an integer: `7` or `7.0` (JSON Schema counts both as integers); `None`
+/// for a fraction or a number an `i64` cannot hold exactly.
+pub(crate) fn whole_number(n: &serde_json::Number) -> Option<i64> {
+    n.as_i64().or_else(|| {
         n.as_f64()
             .filter(|x| x.fract() == 0.0 && x.abs() < 9.0e15)
             .map(|x| x as i64)
-    }) {
-        Some(i) => Ok(Some(i)),
-        None => Err(serde::de::Error::custom(format!("{n} is not an integer"))),
-    }
+    })
+}
+
+/// An integer key ([`whole_number`]), or null.
+fn whole<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<i64>, D::Error> {
+    let n = <Option<serde_json::Number> as Deserialize>::deserialize(d)?;
+    n.map(|n| {
+        whole_number(&n).ok_or_else(|| serde::de::Error::custom(format!("{n} is not an integer")))
+    })
+    .transpose()
 }
 
 /// One standing transaction as configured (or declared at run time).

@@ -289,6 +289,17 @@ impl Stream for Subscription {
 }
 
 impl Service {
+    /// Values and diagnostics of exactly `devices`: for a front-end that keeps its own
+    /// picture of the device set and follows it again when the set changes.
+    pub(crate) fn subscribe_devices(
+        &self,
+        devices: &[Arc<Device>],
+    ) -> Result<Changes, ServiceError> {
+        let names: Vec<&str> = devices.iter().map(|d| d.name()).collect();
+        let selection = self.select::<_, &str>(&names, &[])?;
+        self.subscribe(selection, true)
+    }
+
     /// Current values then changes of `selection`'s fields, and of its devices'
     /// diagnostics when `diagnostics` is set; a selection of everything also follows the
     /// devices added later.

@@ -48,18 +48,13 @@ impl TransactionSpec {
         if reads && self.values.is_some() {
             errors.push(ParamError::Values);
         }
-        // A key the function does not use is still a mistake when its value is no value
-        // of that key (the functions that use it report it themselves).
-        let registers_read = matches!(self.function, Some(3 | 4));
-        let register_write = matches!(self.function, Some(6 | 16));
-        if !registers_read
-            && self
-                .value_type
-                .as_deref()
-                .is_some_and(|v| ValueType::parse(v).is_none())
-        {
+        // Keys checked whenever they are given, whether the function uses them or not: a
+        // value no function could take is a mistake either way.
+        let value_type = self.value_type.as_deref().map(ValueType::parse);
+        if matches!(value_type, Some(None)) {
             errors.push(ParamError::ValueType);
         }
+        let register_write = matches!(self.function, Some(6 | 16));
         if !register_write
             && self
                 .write_type
@@ -71,31 +66,27 @@ impl TransactionSpec {
         if matches!(self.function, Some(5 | 15)) && matches!(order, Some(None)) {
             errors.push(ParamError::Endianess);
         }
-        if !reads {
-            if self
-                .divisor
-                .is_some_and(|d| !(1..=4_294_967_295).contains(&d))
-            {
-                errors.push(ParamError::Divisor);
-            }
-            if self.precision.is_some_and(|p| !(0..=3).contains(&p)) {
-                errors.push(ParamError::Precision);
-            }
-        }
-        if !matches!(self.function, Some(1 | 2))
-            && self.bit_count.is_some_and(|b| !(1..=32).contains(&b))
-        {
+        let divisor = u32::try_from(self.divisor.unwrap_or(1))
+            .ok()
+            .filter(|&d| d >= 1);
+        let divisor = reported(divisor, &mut errors, ParamError::Divisor);
+        let precision = u8::try_from(self.precision.unwrap_or(3))
+            .ok()
+            .filter(|&p| p <= 3);
+        let precision = reported(precision, &mut errors, ParamError::Precision);
+        let bits = self
+            .bit_count
+            .map(|b| u8::try_from(b).ok().filter(|b| (1..=32).contains(b)));
+        if matches!(bits, Some(None)) {
             errors.push(ParamError::BitCount);
         }
         let plan = match function {
             Some(f @ (Function::ReadCoils | Function::ReadDiscreteInputs)) => {
-                let bits = match self.bit_count {
-                    Some(b @ 1..=32) => Some(b as u8),
-                    _ => {
-                        errors.push(ParamError::BitCount);
-                        None
-                    }
-                };
+                // Out of range was reported above; missing is reported here.
+                let bits = bits.unwrap_or_else(|| {
+                    errors.push(ParamError::BitCount);
+                    None
+                });
                 let order = match (bits, order) {
                     (Some(b), None) if b > 8 => {
                         errors.push(ParamError::Endianess);
@@ -108,37 +99,38 @@ impl TransactionSpec {
                     (_, Some(Some(o))) => Some(o),
                     (_, None) => Some(ByteOrder::LittleEndian),
                 };
-                self.read_rest(&mut errors)
-                    .and_then(|(divisor, precision)| {
-                        Some(Plan::Read(ReadPlan {
-                            function: f,
-                            slave: slave?,
-                            address: address?,
-                            bits: Some(bits?),
-                            value_type: None,
-                            divisor,
-                            precision,
-                            order: order?,
-                        }))
-                    })
+                (|| {
+                    Some(Plan::Read(ReadPlan {
+                        function: f,
+                        slave: slave?,
+                        address: address?,
+                        bits: Some(bits?),
+                        value_type: None,
+                        divisor: divisor?,
+                        precision: precision?,
+                        order: order?,
+                    }))
+                })()
             }
             Some(f @ (Function::ReadHoldingRegisters | Function::ReadInputRegisters)) => {
-                let value_type = self.value_type.as_deref().and_then(ValueType::parse);
-                let value_type = reported(value_type, &mut errors, ParamError::ValueType);
+                // An unknown type was reported above; a missing one is reported here.
+                let value_type = value_type.unwrap_or_else(|| {
+                    errors.push(ParamError::ValueType);
+                    None
+                });
                 let order = reported(order.flatten(), &mut errors, ParamError::Endianess);
-                self.read_rest(&mut errors)
-                    .and_then(|(divisor, precision)| {
-                        Some(Plan::Read(ReadPlan {
-                            function: f,
-                            slave: slave?,
-                            address: address?,
-                            bits: None,
-                            value_type: Some(value_type?),
-                            divisor,
-                            precision,
-                            order: order?,
-                        }))
-                    })
+                (|| {
+                    Some(Plan::Read(ReadPlan {
+                        function: f,
+                        slave: slave?,
+                        address: address?,
+                        bits: None,
+                        value_type: Some(value_type?),
+                        divisor: divisor?,
+                        precision: precision?,
+                        order: order?,
+                    }))
+                })()
             }
             Some(f) => write_request(self, f, address, order, &mut errors).and_then(|request| {
                 Some(Plan::Write(WritePlan {
@@ -152,25 +144,6 @@ impl TransactionSpec {
             (Some(plan), Some(timeout)) if errors.is_empty() => Ok(Checked { plan, timeout }),
             _ => Err(errors),
         }
-    }
-
-    /// Divisor and precision of a read.
-    fn read_rest(&self, errors: &mut Vec<ParamError>) -> Option<(u32, u8)> {
-        let divisor = match self.divisor.unwrap_or(1) {
-            d @ 1..=4_294_967_295 => Some(d as u32),
-            _ => {
-                errors.push(ParamError::Divisor);
-                None
-            }
-        };
-        let precision = match self.precision.unwrap_or(3) {
-            p @ 0..=3 => Some(p as u8),
-            _ => {
-                errors.push(ParamError::Precision);
-                None
-            }
-        };
-        Some((divisor?, precision?))
     }
 }
 

@@ -411,9 +411,7 @@ impl Task {
             let base = self.aliases.base(d.name(), d.profile.fields.len());
             self.by_key.insert(base as usize, d.clone());
         }
-        let names: Vec<&str> = self.devices.iter().map(|d| d.name()).collect();
-        let selection = self.service.select::<_, &str>(&names, &[]).ok()?;
-        match self.service.subscribe(selection, true) {
+        match self.service.subscribe_devices(&self.devices) {
             Ok(changes) => Some(changes),
             Err(e) => {
                 tracing::warn!(error = %e, "MQTT: cannot subscribe to the devices' changes");

@@ -79,10 +79,7 @@ impl Feed {
     }
 
     fn subscribe(&self) -> Option<Changes> {
-        let devices = self.service.devices();
-        let names: Vec<&str> = devices.iter().map(|d| d.name()).collect();
-        let selection = self.service.select::<_, &str>(&names, &[]).ok()?;
-        match self.service.subscribe(selection, true) {
+        match self.service.subscribe_devices(&self.service.devices()) {
             Ok(changes) => Some(changes),
             Err(e) => {
                 tracing::warn!(error = %e, "OPC UA: cannot follow the devices' changes");
