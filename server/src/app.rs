@@ -83,12 +83,9 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let config::Access { tokens, tls } =
         config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
     let reload_tokens = tokens.clone();
-    let modbus_listener = match &config.modbus_server {
-        Some(server) => Some(TcpListener::bind(server.listen).await.map_err(|e| {
-            anyhow::anyhow!(
-                "cannot listen on {} (modbus_server.listen): {e}",
-                server.listen
-            )
+    let modbus_listener = match config.modbus_server.as_ref().and_then(|s| s.listen) {
+        Some(listen) => Some(TcpListener::bind(listen).await.map_err(|e| {
+            anyhow::anyhow!("cannot listen on {listen} (modbus_server.listen): {e}")
         })?),
         None => None,
     };

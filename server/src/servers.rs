@@ -144,12 +144,12 @@ impl Servers {
         if diff.grpc_listen && moved(running.grpc.as_ref().map(|g| g.0), config.grpc) {
             bound.grpc = Some(bind(config.grpc, "listen.grpc").await?);
         }
-        if let Some(server) = &config.modbus_server
+        if let Some(listen) = config.modbus_server.as_ref().and_then(|s| s.listen)
             && diff.modbus_listen
         {
             let now = running.modbus.as_ref().map(|m| m.0);
-            if now.is_none() || moved(now, server.listen) {
-                bound.modbus = Some(bind(server.listen, "modbus_server.listen").await?);
+            if now.is_none() || moved(now, listen) {
+                bound.modbus = Some(bind(listen, "modbus_server.listen").await?);
             }
         }
         Ok(bound)
@@ -241,7 +241,14 @@ impl Servers {
                     tracing::error!(error = %e, "Modbus TCP server not started");
                 }
             }
-            (None, Some((_, stop))) if config.modbus_server.is_none() => stop.cancel(),
+            (None, Some((_, stop)))
+                if config
+                    .modbus_server
+                    .as_ref()
+                    .is_none_or(|s| s.listen.is_none()) =>
+            {
+                stop.cancel()
+            }
             (None, old) => self.running.lock().await.modbus = old,
         }
     }

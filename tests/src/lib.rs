@@ -96,7 +96,9 @@ fn setup_on(config_yaml: &str, http: std::net::SocketAddr) -> anyhow::Result<Set
     config.http = http;
     config.grpc = "127.0.0.1:0".parse()?;
     if let Some(server) = config.modbus_server.as_mut() {
-        server.listen = "127.0.0.1:0".parse()?;
+        if server.listen.is_some() {
+            server.listen = Some("127.0.0.1:0".parse()?);
+        }
     }
     if config.security == iogate::config::security::SecurityConfig::default() {
         config.security.declare = test_policy();
@@ -218,7 +220,9 @@ impl TestGateway {
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
         if let Some(server) = setup.config.modbus_server.as_mut() {
-            server.listen = "127.0.0.1:0".parse()?;
+            if server.listen.is_some() {
+            server.listen = Some("127.0.0.1:0".parse()?);
+        }
         }
         if let Some(opcua) = setup.config.opcua.as_mut() {
             opcua.listen = "127.0.0.1:0".parse()?;

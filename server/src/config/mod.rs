@@ -179,7 +179,8 @@ impl Transport {
 impl std::fmt::Display for Transport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Transport::Serial(s) => write!(f, "serial {}", s.port),
+            Transport::Serial(s) if s.framing == Framing::Rtu => write!(f, "serial {}", s.port),
+            Transport::Serial(s) => write!(f, "serial {} ({})", s.port, s.framing.name()),
             Transport::Tcp {
                 host,
                 port,
@@ -189,13 +190,17 @@ impl std::fmt::Display for Transport {
     }
 }
 
-/// How Modbus frames travel over a TCP link.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How Modbus frames travel: over a TCP link MBAP (the default), RTU or ASCII frames (to a
+/// serial device server); over a serial line RTU (the default) or ASCII.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Framing {
     /// Modbus TCP (MBAP header).
     Mbap,
-    /// RTU frames with CRC over a raw socket (serial device servers).
+    /// RTU frames: binary, with a CRC, delimited by 3.5-character silences.
+    #[default]
     Rtu,
+    /// ASCII frames: `:`, hexadecimal characters with an LRC, CR LF.
+    Ascii,
 }
 
 impl Framing {
@@ -203,6 +208,7 @@ impl Framing {
         match self {
             Framing::Mbap => "mbap",
             Framing::Rtu => "rtu",
+            Framing::Ascii => "ascii",
         }
     }
 }
@@ -231,6 +237,8 @@ pub struct SerialSettings {
     pub parity: Parity,
     pub data_bits: u8,
     pub stop_bits: u8,
+    /// RTU or ASCII (never MBAP on a line).
+    pub framing: Framing,
 }
 
 #[derive(Debug, Clone, PartialEq)]

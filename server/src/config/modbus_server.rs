@@ -1,6 +1,7 @@
-//! The `modbus_server:` section of `iogate.yaml`: the Modbus TCP server that serves cached
-//! fields at IEC located addresses (source documents 001 and 003). Read here as written;
-//! the bindings are resolved against the devices and profiles in `crate::map`.
+//! The `modbus_server:` section of `iogate.yaml`: the Modbus server that serves cached
+//! fields at IEC located addresses (source documents 001 and 003), over TCP (`listen`) and
+//! as a slave on serial lines (`serial`, RTU or ASCII). Read here as written; the bindings
+//! are resolved against the devices and profiles in `crate::map`.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -23,7 +24,20 @@ const KEYS: &[&str] = &[
     "idle_timeout",
     "memory_file",
     "on_bad_quality",
+    "serial",
 ];
+const SERIAL_KEYS: &[&str] = &[
+    "port",
+    "baud",
+    "parity",
+    "data_bits",
+    "stop_bits",
+    "framing",
+    "unit_id",
+    "turnaround_delay",
+];
+/// The longest turnaround delay: a master waits about a second for an answer.
+pub(crate) const MAX_TURNAROUND: Duration = Duration::from_millis(500);
 const MAP_KEYS: &[&str] = &["at", "field"];
 const FORWARD_KEYS: &[&str] = &["unit_ids", "link"];
 
@@ -82,9 +96,23 @@ pub struct Forward {
     pub(crate) line: u64,
 }
 
+/// One `serial` entry: a port on which the server is a slave.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SerialServer {
+    pub(crate) line: crate::config::SerialSettings,
+    /// The unit id this port answers (broadcasts, 0, are applied without an answer).
+    pub(crate) unit_id: u8,
+    /// Waited after a request's end (its 3.5-character silence) before the answer, for
+    /// masters and RS-485 adapters slow to turn the line around.
+    pub(crate) turnaround_delay: Duration,
+    pub(crate) at: u64,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusServerConfig {
-    pub listen: SocketAddr,
+    /// The Modbus TCP listener; `None` when the server is on serial ports only.
+    pub listen: Option<SocketAddr>,
+    pub(crate) serial: Vec<SerialServer>,
     pub(crate) address_space: AddressSpace,
     pub(crate) unit_id: u8,
     pub(crate) map: Vec<MapEntry>,
@@ -120,7 +148,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
     let ctx = "modbus_server";
     let mut map = node.map(report, ctx)?;
     let at = |k: &str| format!("{ctx}.{k}");
-    let listen = map.require("listen", report, ctx).and_then(|n| {
+    let listen = map.get("listen").and_then(|n| {
         let text = n.scalar_text(report, &at("listen"))?;
         text.parse::<SocketAddr>()
             .map_err(|_| {
@@ -221,11 +249,43 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         })
         .unwrap_or_default();
     forward_overlaps(&forward, report);
+    let serial: Vec<SerialServer> = map
+        .get("serial")
+        .and_then(|n| n.seq(report, &at("serial")))
+        .map(|items| {
+            items
+                .iter()
+                .enumerate()
+                .filter_map(|(i, n)| read_serial(n, i, report))
+                .collect()
+        })
+        .unwrap_or_default();
+    if map.get("listen").is_none() && map.get("serial").is_none() {
+        report.push(
+            node.line,
+            ctx,
+            "missing `listen` (the Modbus TCP address) or `serial` (ports to serve as a slave): give one or both",
+        );
+    }
+    for (i, s) in serial.iter().enumerate() {
+        if let Some(j) = serial[..i].iter().position(|e| e.line.port == s.line.port) {
+            report.push(
+                s.at,
+                format!("modbus_server.serial[{i}].port"),
+                format!(
+                    "{} is already served by modbus_server.serial[{j}] (line {}): one server a port",
+                    crate::text::quote(&s.line.port),
+                    serial[j].at
+                ),
+            );
+        }
+    }
     map.finish(report, ctx, KEYS);
     // A setting that was refused (and reported) takes its default, so that the map is
     // still checked against the devices.
     Some(ModbusServerConfig {
-        listen: listen.unwrap_or(SocketAddr::from(([127, 0, 0, 1], 5020))),
+        listen,
+        serial,
         address_space: address_space.unwrap_or(AddressSpace::Linux),
         unit_id: unit_id.unwrap_or(1),
         map: entries,
@@ -238,6 +298,46 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         memory_file_line,
         on_bad_quality: on_bad_quality.unwrap_or_default(),
         line: node.line,
+    })
+}
+
+fn read_serial(node: &Node, index: usize, report: &mut Report) -> Option<SerialServer> {
+    let ctx = format!("modbus_server.serial[{index}]");
+    let mut map = node.map(report, &ctx)?;
+    let line = super::parse::read_line(&mut map, &ctx, report);
+    let unit_id = match map.get("unit_id") {
+        None => Some(1),
+        Some(n) => n
+            .int_in(report, &format!("{ctx}.unit_id"), 1, 247)
+            .map(|u| u as u8),
+    };
+    let turnaround_delay = match map.get("turnaround_delay") {
+        None => Some(Duration::ZERO),
+        Some(n) => n
+            .scalar_text(report, &format!("{ctx}.turnaround_delay"))
+            .and_then(|t| {
+                let checked = duration::parse(&t).map_err(|e| e.to_string()).and_then(|d| {
+                    if d > MAX_TURNAROUND {
+                        Err(format!(
+                            "{} ms is longer than the {} ms allowed (a master waits about a second for its answer)",
+                            d.as_millis(),
+                            MAX_TURNAROUND.as_millis()
+                        ))
+                    } else {
+                        Ok(d)
+                    }
+                });
+                checked
+                    .map_err(|e| report.push(n.line, format!("{ctx}.turnaround_delay"), e))
+                    .ok()
+            }),
+    };
+    map.finish(report, &ctx, SERIAL_KEYS);
+    Some(SerialServer {
+        line: line?,
+        unit_id: unit_id?,
+        turnaround_delay: turnaround_delay?,
+        at: node.line,
     })
 }
 

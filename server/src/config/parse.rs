@@ -9,7 +9,7 @@ use std::time::Duration;
 use super::rules::{self, RuleError};
 use super::{Config, DeviceConfig, Framing, LinkConfig, Parity, SerialSettings, Transport};
 use crate::duration;
-use crate::yaml::{self, Node, Report};
+use crate::yaml::{self, MapReader, Node, Report};
 
 const TOP_KEYS: &[&str] = &[
     "listen",
@@ -26,7 +26,7 @@ const TOP_KEYS: &[&str] = &[
 const RELOAD_KEYS: &[&str] = &["watch", "debounce"];
 const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout", "body_timeout"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
-const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits"];
+const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits", "framing"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 const DEVICE_KEYS: &[&str] = &[
     "name",
@@ -291,16 +291,25 @@ fn ruled<T>(checked: Result<T, RuleError>, line: u64, ctx: &str, report: &mut Re
 fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSettings> {
     let ctx = format!("{link}: serial");
     let mut map = node.map(report, &ctx)?;
+    let settings = read_line(&mut map, &ctx, report);
+    map.finish(report, &ctx, SERIAL_KEYS);
+    settings
+}
+
+/// A serial line's settings (`port`, `baud`, `parity`, `data_bits`, `stop_bits`,
+/// `framing`) from a mapping that may hold other keys (a serial server's `unit_id`): the
+/// caller reads those and finishes the mapping.
+pub(super) fn read_line(map: &mut MapReader, ctx: &str, report: &mut Report) -> Option<SerialSettings> {
     let at = |k: &str| format!("{ctx}.{k}");
     let lines: Vec<(&str, u64)> = ["port", "baud", "parity", "data_bits", "stop_bits"]
         .into_iter()
         .filter_map(|k| map.get(k).map(|n| (k, n.line)))
         .collect();
     let port = map
-        .require("port", report, &ctx)
+        .require("port", report, ctx)
         .and_then(|n| n.scalar_text(report, &at("port")));
     let baud = map
-        .require("baud", report, &ctx)
+        .require("baud", report, ctx)
         .and_then(|n| n.int_in(report, &at("baud"), 0, i128::from(u32::MAX)));
     let parity = match map.get("parity") {
         None => Some(Parity::None),
@@ -314,7 +323,12 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
     };
     let data_bits = bits("data_bits", rules::DEFAULT_DATA_BITS);
     let stop_bits = bits("stop_bits", rules::DEFAULT_STOP_BITS);
-    map.finish(report, &ctx, SERIAL_KEYS);
+    let framing = match map.get("framing") {
+        None => Some(Framing::Rtu),
+        Some(n) => n.scalar_text(report, &at("framing")).and_then(|text| {
+            ruled(rules::parse_serial_framing(&text), n.line, &at("framing"), report)
+        }),
+    };
     // Every rule is checked even when a key was missing or unreadable (that is reported
     // already), so that all problems show at once.
     let complete = port.is_some() && baud.is_some() && parity.is_some();
@@ -332,12 +346,15 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
                 let line = lines
                     .iter()
                     .find(|(k, _)| *k == e.key())
-                    .map_or(node.line, |(_, l)| *l);
+                    .map_or(map.line, |(_, l)| *l);
                 report.push(line, at(e.key()), e.to_string());
             }
         })
         .ok()?;
-    complete.then_some(settings)
+    complete.then_some(SerialSettings {
+        framing: framing?,
+        ..settings
+    })
 }
 
 fn read_tcp(node: &Node, link: &str, report: &mut Report) -> Option<Transport> {

@@ -57,8 +57,11 @@ pub enum RuleError {
     NoHost,
     #[error("{0} is outside the allowed range 1-65535")]
     TcpPort(u64),
-    #[error("unknown framing `{0}` (expected mbap or rtu)")]
+    #[error("unknown framing `{0}` (expected mbap, rtu or ascii)")]
     Framing(String),
+    #[error("`{0}` is no framing of a serial line (expected rtu or ascii; mbap is Modbus TCP's)")]
+    SerialFraming(String),
+
     #[error("{} ms is longer than the {} ms allowed", .0.as_millis(), MAX_GUARD_TIME.as_millis())]
     GuardTime(Duration),
     #[error("must be at least 1ms")]
@@ -93,7 +96,7 @@ impl RuleError {
             RuleError::StopBits(_) | RuleError::ParityStopBits { .. } => "stop_bits",
             RuleError::NoHost => "host",
             RuleError::TcpPort(_) => "port",
-            RuleError::Framing(_) => "framing",
+            RuleError::Framing(_) | RuleError::SerialFraming(_) => "framing",
             RuleError::GuardTime(_) => "guard_time",
             RuleError::TooShort(key) => key,
             RuleError::SimulatedWithLink(_) | RuleError::NoLink { .. } => "link",
@@ -134,14 +137,26 @@ pub(crate) fn parse_parity(text: &str) -> Result<Parity, RuleError> {
     }
 }
 
-/// `mbap` (Modbus TCP) or `rtu` (RTU frames over a raw socket).
+/// A TCP link's framing: `mbap` (Modbus TCP), `rtu` or `ascii` (serial frames over a raw
+/// socket).
 pub(crate) fn parse_framing(text: &str) -> Result<Framing, RuleError> {
     match text {
         "mbap" => Ok(Framing::Mbap),
         "rtu" => Ok(Framing::Rtu),
+        "ascii" => Ok(Framing::Ascii),
         other => Err(RuleError::Framing(other.to_owned())),
     }
 }
+
+/// A serial line's framing: `rtu` or `ascii`.
+pub(crate) fn parse_serial_framing(text: &str) -> Result<Framing, RuleError> {
+    match text {
+        "rtu" => Ok(Framing::Rtu),
+        "ascii" => Ok(Framing::Ascii),
+        other => Err(RuleError::SerialFraming(other.to_owned())),
+    }
+}
+
 
 /// The most bits a character of a Modbus serial line has: a start bit, 8 data bits, a
 /// parity bit and a stop bit, or no parity and 2 stop bits (the Modbus serial line
@@ -196,6 +211,7 @@ pub(crate) fn serial(
                 parity,
                 data_bits,
                 stop_bits,
+                framing: Framing::Rtu,
             })
         }
         (baud, _, data_bits, stop_bits) => {

@@ -158,6 +158,8 @@ pub enum Malformed {
         function: Function,
         response: Response,
     },
+    #[error("ASCII frame: {0}")]
+    Ascii(super::ascii::AsciiError),
 }
 
 /// Why a response was not accepted.

@@ -1,6 +1,7 @@
 //! Links: the connection to a field bus (a serial port, a TCP socket) and the Modbus
 //! transactions on it. Bytes belong here; values belong to `codec`.
 
+pub(crate) mod ascii;
 pub mod frame;
 pub(crate) mod mbap;
 pub mod precise;
@@ -183,11 +184,12 @@ pub(crate) async fn open(config: &LinkConfig, guard: Duration) -> Result<Connect
                     port: s.port.clone(),
                     reason: e.to_string(),
                 })?;
-            Ok(Connection::Rtu(RtuTransport::new(
-                Box::new(stream),
-                Some(LineTiming::new(s)),
-                guard,
-            )))
+            let transport = RtuTransport::new(Box::new(stream), Some(LineTiming::new(s)), guard);
+            Ok(Connection::Rtu(if s.framing == Framing::Ascii {
+                transport.ascii()
+            } else {
+                transport
+            }))
         }
         Transport::Tcp {
             host,
@@ -204,6 +206,9 @@ pub(crate) async fn open(config: &LinkConfig, guard: Duration) -> Result<Connect
             Ok(match framing {
                 Framing::Mbap => Connection::Mbap(MbapTransport::new(Box::new(stream))),
                 Framing::Rtu => Connection::Rtu(RtuTransport::new(Box::new(stream), None, guard)),
+                Framing::Ascii => {
+                    Connection::Rtu(RtuTransport::new(Box::new(stream), None, guard).ascii())
+                }
             })
         }
     }

@@ -1,5 +1,7 @@
-//! Modbus RTU transactions over a byte stream (a serial port, or a TCP socket to a serial
-//! device server).
+//! Modbus RTU and ASCII transactions over a byte stream (a serial port, or a TCP socket to a
+//! serial device server). ASCII frames (`ascii`) differ only in their form: a request is
+//! sent as `:`, hexadecimal characters with an LRC, CR LF, and an answer is taken from its
+//! `:` to its CR LF; every guarantee below holds for both.
 //!
 //! This layer exists because a client that only wraps calls in a timeout cannot be made safe
 //! on a shared RS-485 line: it keeps no inter-frame silence, and after a timeout it reads a
@@ -30,6 +32,7 @@ use tokio::time::{Instant, timeout_at};
 
 use super::precise;
 
+use super::ascii;
 use super::frame::{Malformed, Request, Response, crc16, rtu_frame};
 use super::timing::LineTiming;
 use super::{ByteStream, Counters, TxError};
@@ -55,6 +58,8 @@ struct Late {
 
 pub struct RtuTransport {
     io: Box<dyn ByteStream>,
+    /// Frames in ASCII, not RTU.
+    ascii: bool,
     /// Wire timing of a serial line; `None` over TCP, where there is no line to keep quiet.
     timing: Option<LineTiming>,
     guard: Duration,
@@ -70,6 +75,7 @@ impl RtuTransport {
     pub fn new(io: Box<dyn ByteStream>, timing: Option<LineTiming>, guard: Duration) -> Self {
         RtuTransport {
             io,
+            ascii: false,
             timing,
             guard,
             last_activity: Instant::now(),
@@ -79,12 +85,28 @@ impl RtuTransport {
         }
     }
 
+    /// The same transport with ASCII frames.
+    pub fn ascii(self) -> Self {
+        RtuTransport {
+            ascii: true,
+            ..self
+        }
+    }
+
+    /// The characters of the frame whose RTU form has `bytes` bytes.
+    fn frame_chars(&self, bytes: usize) -> usize {
+        if self.ascii { 2 * bytes + 1 } else { bytes }
+    }
+
     fn silence(&self) -> Duration {
         self.timing.map_or(Duration::ZERO, |t| t.silence()) + self.guard
     }
 
+    /// The wire time of the frame whose RTU form has `bytes` bytes.
     fn frame_time(&self, bytes: usize) -> Duration {
-        self.timing.map_or(Duration::ZERO, |t| t.frame_time(bytes))
+        self.timing.map_or(Duration::ZERO, |t| {
+            t.char_time() * self.frame_chars(bytes) as u32
+        })
     }
 
     /// One request and its response. `timeout` runs from the end of the request on the wire.
@@ -94,15 +116,21 @@ impl RtuTransport {
         request: &Request,
         timeout: Duration,
     ) -> Result<Response, TxError> {
-        let answer_len = request.response_len() + 3;
+        let answer_len = self.frame_chars(request.response_len() + 3);
         self.wait_out_late(slave, request.function().code(), answer_len)
             .await?;
         self.quiet_line(self.silence()).await?;
-        let frame = rtu_frame(slave, request);
+        let rtu = rtu_frame(slave, request);
+        let rtu_len = rtu.len();
+        let frame = if self.ascii {
+            ascii::encode(&rtu[..rtu_len - 2])
+        } else {
+            rtu
+        };
         self.io.write_all(&frame).await?;
         self.io.flush().await?;
         self.counters.bytes_sent += frame.len() as u64;
-        let sent = Instant::now() + self.frame_time(frame.len());
+        let sent = Instant::now() + self.frame_time(rtu_len);
         self.last_activity = sent;
         let result = self.read_response(slave, request, sent + timeout).await;
         match &result {
@@ -172,6 +200,9 @@ impl RtuTransport {
         request: &Request,
         deadline: Instant,
     ) -> Result<Response, TxError> {
+        if self.ascii {
+            return self.read_ascii_response(slave, request, deadline).await;
+        }
         let mut buf = [0u8; MAX_FRAME];
         self.read_into(&mut buf[..3], deadline).await?;
         let fc = request.function().code();
@@ -210,6 +241,52 @@ impl RtuTransport {
         }
         request
             .parse_response(&frame[1..total - 2])
+            .map_err(TxError::from)
+    }
+
+    /// An ASCII answer: characters before its `:` are discarded, a frame is taken at its
+    /// CR LF, and then checked as an RTU one is (LRC for CRC).
+    async fn read_ascii_response(
+        &mut self,
+        slave: u8,
+        request: &Request,
+        deadline: Instant,
+    ) -> Result<Response, TxError> {
+        let mut assembler = ascii::Assembler::default();
+        let mut chunk = [0u8; MAX_FRAME];
+        let body = loop {
+            let n = match timeout_at(deadline, self.io.read(&mut chunk)).await {
+                Err(_) => return Err(TxError::Timeout),
+                Ok(Err(e)) => return Err(e.into()),
+                Ok(Ok(0)) => {
+                    return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into());
+                }
+                Ok(Ok(n)) => n,
+            };
+            self.counters.bytes_received += n as u64;
+            let ended = chunk[..n]
+                .iter()
+                .enumerate()
+                .find_map(|(i, &c)| assembler.push(c).map(|frame| (i, frame)));
+            if let Some((i, frame)) = ended {
+                // Whatever came after the frame belongs to no transaction.
+                let after = n - i - 1;
+                self.counters.bytes_discarded += (assembler.dropped + after) as u64;
+                self.last_activity = Instant::now();
+                break frame.map_err(|e| match e {
+                    ascii::AsciiError::Lrc { .. } => TxError::Crc,
+                    other => TxError::Invalid(Malformed::Ascii(other)),
+                })?;
+            }
+        };
+        if body[0] != slave {
+            return Err(TxError::Invalid(Malformed::Slave {
+                found: body[0],
+                expected: slave,
+            }));
+        }
+        request
+            .parse_response(&body[1..])
             .map_err(TxError::from)
     }
 
@@ -283,6 +360,7 @@ mod tests {
             parity: Parity::None,
             data_bits: 8,
             stop_bits: 1,
+            framing: Default::default(),
         })
     }
 

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use crate::config::{Parity, SerialSettings};
+use crate::config::{Framing, Parity, SerialSettings};
 
 /// The fixed inter-frame silence above 19200 baud (Modbus over serial line, 2.5.1.1).
 pub(crate) const FAST_SILENCE: Duration = Duration::from_micros(1750);
@@ -12,6 +12,8 @@ pub struct LineTiming {
     pub(crate) baud: u32,
     /// Start bit + data bits + parity bit + stop bits: 10 or 11 for Modbus RTU.
     pub bits_per_char: u32,
+    /// Whether frames are ASCII: two characters a byte and three more a frame.
+    pub(crate) ascii: bool,
 }
 
 impl LineTiming {
@@ -23,6 +25,7 @@ impl LineTiming {
                 + u32::from(settings.data_bits)
                 + parity
                 + u32::from(settings.stop_bits),
+            ascii: settings.framing == Framing::Ascii,
         }
     }
 
@@ -39,9 +42,16 @@ impl LineTiming {
         }
     }
 
-    /// How long `bytes` take on the wire.
+    /// How long the frame whose RTU form has `bytes` bytes (address, PDU, CRC) takes on
+    /// the wire: as many characters in RTU; in ASCII `:`, two per byte of address, PDU and
+    /// LRC, and CR LF, 2 x `bytes` + 1.
     pub fn frame_time(&self, bytes: usize) -> Duration {
-        self.char_time() * bytes as u32
+        self.char_time() * self.frame_chars(bytes) as u32
+    }
+
+    /// The characters of the frame whose RTU form has `bytes` bytes.
+    pub(crate) fn frame_chars(&self, bytes: usize) -> usize {
+        if self.ascii { 2 * bytes + 1 } else { bytes }
     }
 
     /// Request and response on the wire, each preceded by the inter-frame silence.

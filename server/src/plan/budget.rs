@@ -62,6 +62,7 @@ mod tests {
             parity: crate::config::Parity::None,
             data_bits: 8,
             stop_bits: 1,
+            framing: Default::default(),
         };
         let u = utilisation(
             std::iter::empty::<(&DeviceConfig, &[ReadBatch])>(),

@@ -498,6 +498,7 @@ mod tests {
             parity: Parity::None,
             data_bits: 8,
             stop_bits: 1,
+            framing: Default::default(),
         });
         let conn = Connection::Rtu(RtuTransport::new(
             Box::new(gateway),

@@ -77,6 +77,12 @@ fn changed_text(key: &str, before: impl ToString, after: impl ToString) -> Optio
     (b != a).then(|| format!("{key}: {b} -> {a}"))
 }
 
+/// The Modbus server's TCP address, or that it has none.
+fn listened(s: &crate::config::modbus_server::ModbusServerConfig) -> String {
+    s.listen
+        .map_or_else(|| "no TCP listener".to_owned(), |l| l.to_string())
+}
+
 fn duration(d: std::time::Duration) -> String {
     format!("{d:?}")
 }
@@ -412,7 +418,7 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
                 Kind::Listener,
                 "modbus_server",
                 Action::Added,
-                vec![s.listen.to_string()],
+                vec![listened(s)],
             );
         }
         (Some(_), None) => {
@@ -427,7 +433,7 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
                     Kind::Listener,
                     "modbus_server.listen",
                     Action::Changed,
-                    vec![format!("{} -> {}: rebound", x.listen, y.listen)],
+                    vec![format!("{} -> {}: rebound", listened(x), listened(y))],
                 );
             }
             let mut x = x.clone();
