@@ -164,6 +164,11 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         body_timeout: config.body_timeout,
     };
     let secure = tls.is_some();
+    // The serial ports of the Modbus server (none until a config names them).
+    tracker.spawn(api::modbus_serial::serve_serial(
+        service.clone(),
+        token.clone(),
+    ));
     let modbus_addr = match modbus_listener {
         Some(listener) => Some(servers.serve_modbus(&service, listener).await?),
         None => None,

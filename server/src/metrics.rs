@@ -60,6 +60,9 @@ pub const MODBUS_SERVER_REFUSED: &str = "iogate_modbus_server_refused_connection
 pub const MODBUS_SERVER_EVICTED: &str = "iogate_modbus_server_evicted_connections";
 pub const MODBUS_SERVER_REQUESTS: &str = "iogate_modbus_server_requests";
 pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
+pub const MODBUS_SERIAL_PORT_UP: &str = "iogate_modbus_serial_port_up";
+pub const MODBUS_SERIAL_REOPENS: &str = "iogate_modbus_serial_port_reopens";
+pub const MODBUS_SERIAL_FRAMES: &str = "iogate_modbus_serial_frames";
 pub const MQTT_CONNECTED: &str = "iogate_mqtt_connected";
 pub const MQTT_RECONNECTS: &str = "iogate_mqtt_reconnects";
 pub const MQTT_MESSAGES: &str = "iogate_mqtt_messages";
@@ -111,6 +114,28 @@ pub(crate) struct ExceptionLabels {
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct ServerRequestLabels {
     pub(crate) function: String,
+    pub(crate) outcome: String,
+}
+
+/// The outcomes of a frame on a serial port of the Modbus server.
+pub(crate) const SERIAL_OUTCOMES: [&str; 6] = [
+    "answered",
+    "exception",
+    "broadcast",
+    "other_unit",
+    "crc_error",
+    "malformed",
+];
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub(crate) struct PortLabels {
+    pub(crate) port: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub(crate) struct FrameLabels {
+    pub(crate) port: String,
+    /// `answered`, `exception`, `broadcast`, `other_unit`, `crc_error`, `malformed`.
     pub(crate) outcome: String,
 }
 
@@ -170,6 +195,9 @@ pub struct Metrics {
     server_evicted: Counter,
     server_requests: Family<ServerRequestLabels, Counter>,
     server_exceptions: Family<CodeLabels, Counter>,
+    serial_up: Family<PortLabels, Gauge>,
+    serial_reopens: Family<PortLabels, Counter>,
+    serial_frames: Family<FrameLabels, Counter>,
     mqtt: mqtt::MqttMetrics,
     opcua: opcua::OpcUaMetrics,
 }
@@ -220,6 +248,9 @@ impl Metrics {
             server_evicted: Counter::default(),
             server_requests: Family::default(),
             server_exceptions: Family::default(),
+            serial_up: Family::default(),
+            serial_reopens: Family::default(),
+            serial_frames: Family::default(),
             mqtt: mqtt::MqttMetrics::new(),
             opcua: opcua::OpcUaMetrics::new(),
             registry: Registry::default(),
@@ -371,13 +402,28 @@ impl Metrics {
         );
         registry.register(
             MODBUS_SERVER_REQUESTS,
-            "Requests the Modbus TCP server answered, by function and outcome (ok, exception, forwarded)",
+            "Requests the Modbus server answered (over TCP and its serial ports), by function and outcome (ok, exception)",
             m.server_requests.clone(),
         );
         registry.register(
             MODBUS_SERVER_EXCEPTIONS,
-            "Exception responses of the Modbus TCP server, by code",
+            "Exception responses of the Modbus server (TCP and serial), by code",
             m.server_exceptions.clone(),
+        );
+        registry.register(
+            MODBUS_SERIAL_PORT_UP,
+            "Whether a serial port of the Modbus server is open (1) or lost and being reopened (0)",
+            m.serial_up.clone(),
+        );
+        registry.register(
+            MODBUS_SERIAL_REOPENS,
+            "Times a serial port of the Modbus server was opened again after it was lost",
+            m.serial_reopens.clone(),
+        );
+        registry.register(
+            MODBUS_SERIAL_FRAMES,
+            "Frames a serial port of the Modbus server received, by outcome: answered, exception, broadcast (applied, not answered), other_unit (ignored), crc_error (CRC or LRC, ignored), malformed (ignored)",
+            m.serial_frames.clone(),
         );
         Metrics { registry, ..m }
     }
@@ -415,6 +461,45 @@ impl Metrics {
         self.server_requests
             .get_or_create(&ServerRequestLabels {
                 function: function.to_owned(),
+                outcome: outcome.to_owned(),
+            })
+            .clone()
+    }
+
+    /// Whether the Modbus server's serial `port` is open; `reopened` counts an opening
+    /// after the port was lost.
+    pub(crate) fn serial_port(&self, port: &str, open: bool, reopened: bool) {
+        let labels = PortLabels {
+            port: port.to_owned(),
+        };
+        self.serial_up.get_or_create(&labels).set(i64::from(open));
+        let reopens = self.serial_reopens.get_or_create(&labels);
+        if reopened {
+            reopens.inc();
+        }
+    }
+
+    /// The Modbus server's serial `port` is no longer served (a reload removed it).
+    pub(crate) fn serial_port_removed(&self, port: &str) {
+        let labels = PortLabels {
+            port: port.to_owned(),
+        };
+        self.serial_up.remove(&labels);
+        self.serial_reopens.remove(&labels);
+        for outcome in SERIAL_OUTCOMES {
+            self.serial_frames.remove(&FrameLabels {
+                port: port.to_owned(),
+                outcome: outcome.to_owned(),
+            });
+        }
+    }
+
+    /// The counter of frames on the serial `port` with `outcome` (one of
+    /// [`SERIAL_OUTCOMES`]); a handle to keep.
+    pub(crate) fn serial_frames(&self, port: &str, outcome: &str) -> Counter {
+        self.serial_frames
+            .get_or_create(&FrameLabels {
+                port: port.to_owned(),
                 outcome: outcome.to_owned(),
             })
             .clone()

@@ -14,6 +14,6 @@ if ! command -v mbpoll >/dev/null 2>&1; then
   $sudo apt-get update -qq
   $sudo apt-get install -y -qq --no-install-recommends mbpoll >/dev/null
 fi
-if ! python3 -c 'import pymodbus, serial' >/dev/null 2>&1; then
-  python3 -m pip install --quiet --root-user-action=ignore --disable-pip-version-check 'pymodbus[serial]>=3.8,<4'
+if ! python3 -c 'import sys, pymodbus, serial; sys.exit(not pymodbus.__version__.startswith("3.16."))' >/dev/null 2>&1; then
+  python3 -m pip install --quiet --root-user-action=ignore --disable-pip-version-check 'pymodbus[serial]==3.16.*'
 fi

@@ -221,8 +221,8 @@ impl TestGateway {
         setup.config.grpc = "127.0.0.1:0".parse()?;
         if let Some(server) = setup.config.modbus_server.as_mut() {
             if server.listen.is_some() {
-            server.listen = Some("127.0.0.1:0".parse()?);
-        }
+                server.listen = Some("127.0.0.1:0".parse()?);
+            }
         }
         if let Some(opcua) = setup.config.opcua.as_mut() {
             opcua.listen = "127.0.0.1:0".parse()?;

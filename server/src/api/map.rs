@@ -56,9 +56,36 @@ impl From<&Binding> for BindingInfo {
 pub(crate) struct MapInfo {
     /// `linux`, `esp32` or `atmega`.
     pub(crate) address_space: String,
+    /// The unit id of the TCP server.
     pub(crate) unit_id: u8,
     pub(crate) read_only: bool,
+    /// The TCP address, when the server listens on one.
+    #[schema(nullable = true)]
+    pub(crate) listen: Option<String>,
+    /// The serial ports it answers on as a slave.
+    pub(crate) serial: Vec<SerialPortInfo>,
     pub(crate) bindings: Vec<BindingInfo>,
+}
+
+/// A serial port the Modbus server answers on as a slave.
+#[derive(Debug, Serialize, ToSchema)]
+pub(crate) struct SerialPortInfo {
+    pub(crate) port: String,
+    /// `rtu` or `ascii`.
+    pub(crate) framing: String,
+    /// Baud rate and character, e.g. `19200 8E1`.
+    pub(crate) line: String,
+    pub(crate) unit_id: u8,
+    /// `opening` (not open yet, or it cannot be: see `error`), `open`, or `lost` (it
+    /// failed and is being reopened).
+    pub(crate) state: String,
+    #[schema(nullable = true)]
+    pub(crate) error: Option<String>,
+    /// Openings after the port was lost.
+    pub(crate) reopens: u64,
+    /// Frames received, by outcome: `answered`, `exception`, `broadcast` (applied, not
+    /// answered), `other_unit`, `crc_error`, `malformed` (the last three ignored).
+    pub(crate) frames: BTreeMap<String, u64>,
 }
 
 /// The gateway memory: set coils and non-zero registers by located address.
@@ -88,6 +115,25 @@ pub(crate) async fn get_map(
         address_space: image.space.kind.name().to_owned(),
         unit_id: image.config.unit_id,
         read_only: image.config.read_only,
+        listen: image.config.listen.map(|l| l.to_string()),
+        serial: service
+            .serial_ports()
+            .into_iter()
+            .map(|p| SerialPortInfo {
+                port: p.port,
+                framing: p.framing.to_owned(),
+                line: p.line,
+                unit_id: p.unit_id,
+                state: p.state.name().to_owned(),
+                error: p.error,
+                reopens: p.reopens,
+                frames: crate::metrics::SERIAL_OUTCOMES
+                    .iter()
+                    .zip(p.frames)
+                    .map(|(o, n)| ((*o).to_owned(), n))
+                    .collect(),
+            })
+            .collect(),
         bindings: image
             .bound
             .iter()

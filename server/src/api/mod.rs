@@ -12,6 +12,7 @@ pub(crate) mod grpc;
 pub(crate) mod http;
 pub(crate) mod limit;
 pub(crate) mod map;
+pub(crate) mod modbus_serial;
 pub(crate) mod modbus_server;
 pub(crate) mod mqtt;
 pub(crate) mod opcua;

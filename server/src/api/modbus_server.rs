@@ -238,7 +238,7 @@ async fn connection(
         }
         slot.on_master.store(false, Ordering::Release);
         slot.served.store(true, Ordering::Relaxed);
-        let answer = answer(service, unit, &pdu, &mut counters).await;
+        let answer = answer(service, Some(unit), &pdu, &mut counters).await;
         let frame = mbap::frame(header.transaction, unit, &answer);
         slot.wait_on_master();
         let written = tokio::select! {
@@ -256,10 +256,10 @@ async fn connection(
     }
 }
 
-/// A connection's handles on the request counters, so that counting a request costs no
-/// label lookup.
+/// A connection's (or serial port's) handles on the request counters, so that counting a
+/// request costs no label lookup.
 #[derive(Default)]
-struct Counters(HashMap<(u8, Option<u8>), (Counter, Option<Counter>)>);
+pub(crate) struct Counters(HashMap<(u8, Option<u8>), (Counter, Option<Counter>)>);
 
 impl Counters {
     fn count(&mut self, service: &Service, code: u8, exception: Option<u8>) {
@@ -283,15 +283,25 @@ impl Counters {
     }
 }
 
-/// The response PDU to a request PDU for `unit`.
-async fn answer(service: &Service, unit: u8, pdu: &[u8], counters: &mut Counters) -> Vec<u8> {
+/// The response PDU to a request PDU for `unit`, routed as the TCP server routes unit ids;
+/// for `None` (a serial port's own unit id) from the server's own map. The one place a
+/// request is answered, whatever its framing.
+pub(crate) async fn answer(
+    service: &Service,
+    unit: Option<u8>,
+    pdu: &[u8],
+    counters: &mut Counters,
+) -> Vec<u8> {
     let code = pdu.first().copied().unwrap_or(0);
-    let result = match Request::parse(pdu) {
-        Ok(request) => service
+    let result = match (Request::parse(pdu), unit) {
+        (Ok(request), Some(unit)) => service
             .modbus_request(unit, &request)
             .await
             .map(|r| r.to_pdu(&request)),
-        Err(x) => Err(x),
+        (Ok(request), None) => service
+            .modbus_request_local(&request)
+            .map(|r| r.to_pdu(&request)),
+        (Err(x), _) => Err(x),
     };
     match result {
         Ok(response) => {

@@ -45,6 +45,29 @@ pub(super) fn check_ports(links: &[LinkConfig], report: &mut Report) {
     }
 }
 
+/// A port the Modbus server answers on as a slave is no link's: one owner a port.
+pub(super) fn check_server_ports(config: &Config, report: &mut Report) {
+    let Some(server) = &config.modbus_server else {
+        return;
+    };
+    for (i, s) in server.serial.iter().enumerate() {
+        let link = config
+            .links
+            .iter()
+            .find(|l| matches!(&l.transport, Transport::Serial(line) if line.port == s.line.port));
+        if let Some(link) = link {
+            report.push(
+                s.at,
+                format!("modbus_server.serial[{i}].port"),
+                format!(
+                    "{} is link {}'s port (line {}): a port is either polled by iogate as a master or served as a slave, not both",
+                    s.line.port, link.name, link.line
+                ),
+            );
+        }
+    }
+}
+
 /// Checks devices against the profiles and links: profile exists, simulated devices have no
 /// link and slave id, Modbus devices have both.
 pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Problems> {

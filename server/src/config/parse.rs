@@ -26,7 +26,14 @@ const TOP_KEYS: &[&str] = &[
 const RELOAD_KEYS: &[&str] = &["watch", "debounce"];
 const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout", "body_timeout"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
-const SERIAL_KEYS: &[&str] = &["port", "baud", "parity", "data_bits", "stop_bits", "framing"];
+const SERIAL_KEYS: &[&str] = &[
+    "port",
+    "baud",
+    "parity",
+    "data_bits",
+    "stop_bits",
+    "framing",
+];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 const DEVICE_KEYS: &[&str] = &[
     "name",
@@ -229,6 +236,7 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     }
     map.finish(report, "config", TOP_KEYS);
     super::check::check_ports(&config.links, report);
+    super::check::check_server_ports(&config, report);
     Some(config)
 }
 
@@ -299,7 +307,11 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
 /// A serial line's settings (`port`, `baud`, `parity`, `data_bits`, `stop_bits`,
 /// `framing`) from a mapping that may hold other keys (a serial server's `unit_id`): the
 /// caller reads those and finishes the mapping.
-pub(super) fn read_line(map: &mut MapReader, ctx: &str, report: &mut Report) -> Option<SerialSettings> {
+pub(super) fn read_line(
+    map: &mut MapReader,
+    ctx: &str,
+    report: &mut Report,
+) -> Option<SerialSettings> {
     let at = |k: &str| format!("{ctx}.{k}");
     let lines: Vec<(&str, u64)> = ["port", "baud", "parity", "data_bits", "stop_bits"]
         .into_iter()
@@ -326,7 +338,12 @@ pub(super) fn read_line(map: &mut MapReader, ctx: &str, report: &mut Report) -> 
     let framing = match map.get("framing") {
         None => Some(Framing::Rtu),
         Some(n) => n.scalar_text(report, &at("framing")).and_then(|text| {
-            ruled(rules::parse_serial_framing(&text), n.line, &at("framing"), report)
+            ruled(
+                rules::parse_serial_framing(&text),
+                n.line,
+                &at("framing"),
+                report,
+            )
         }),
     };
     // Every rule is checked even when a key was missing or unreadable (that is reported

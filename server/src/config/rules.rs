@@ -157,7 +157,6 @@ pub(crate) fn parse_serial_framing(text: &str) -> Result<Framing, RuleError> {
     }
 }
 
-
 /// The most bits a character of a Modbus serial line has: a start bit, 8 data bits, a
 /// parity bit and a stop bit, or no parity and 2 stop bits (the Modbus serial line
 /// specification's 11-bit character).
@@ -304,7 +303,8 @@ pub(crate) fn slave_id(id: u64) -> Result<u8, RuleError> {
 /// One setting on which two users of one serial port disagree.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Mismatch {
-    /// `Baudrate`, `Parity`, `Stop bits` or `Data bits`, as source document 004 words it.
+    /// `Baudrate`, `Parity`, `Stop bits` or `Data bits`, as source document 004 words it,
+    /// or `Framing` (RTU or ASCII).
     pub(crate) setting: &'static str,
     /// What the port runs with.
     pub(crate) have: String,
@@ -330,6 +330,11 @@ pub(crate) fn serial_mismatches(have: &SerialSettings, want: &SerialSettings) ->
             "Data bits",
             have.data_bits.to_string(),
             want.data_bits.to_string(),
+        ),
+        (
+            "Framing",
+            have.framing.name().to_owned(),
+            want.framing.name().to_owned(),
         ),
     ]
     .into_iter()

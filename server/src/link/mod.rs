@@ -16,7 +16,7 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::TcpStream;
 
-use crate::config::{Framing, LinkConfig, Parity, Transport};
+use crate::config::{Framing, LinkConfig, Parity, SerialSettings, Transport};
 use frame::{Exception, Request, Response};
 use rtu::RtuTransport;
 use tcp::MbapTransport;
@@ -156,34 +156,7 @@ impl Connection {
 pub(crate) async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, LinkFault> {
     match &config.transport {
         Transport::Serial(s) => {
-            if s.port.trim().is_empty() {
-                return Err(LinkFault::NoPort);
-            }
-            let parity = match s.parity {
-                Parity::None => tokio_serial::Parity::None,
-                Parity::Even => tokio_serial::Parity::Even,
-                Parity::Odd => tokio_serial::Parity::Odd,
-            };
-            let data_bits = if s.data_bits == 7 {
-                tokio_serial::DataBits::Seven
-            } else {
-                tokio_serial::DataBits::Eight
-            };
-            let stop_bits = if s.stop_bits == 2 {
-                tokio_serial::StopBits::Two
-            } else {
-                tokio_serial::StopBits::One
-            };
-            let builder = tokio_serial::new(&s.port, s.baud)
-                .parity(parity)
-                .data_bits(data_bits)
-                .stop_bits(stop_bits)
-                .flow_control(tokio_serial::FlowControl::None);
-            let stream =
-                tokio_serial::SerialStream::open(&builder).map_err(|e| LinkFault::OpenFailed {
-                    port: s.port.clone(),
-                    reason: e.to_string(),
-                })?;
+            let stream = open_serial(s)?;
             let transport = RtuTransport::new(Box::new(stream), Some(LineTiming::new(s)), guard);
             Ok(Connection::Rtu(if s.framing == Framing::Ascii {
                 transport.ascii()
@@ -212,4 +185,36 @@ pub(crate) async fn open(config: &LinkConfig, guard: Duration) -> Result<Connect
             })
         }
     }
+}
+
+/// Opens a serial port with its line settings (no flow control): a link's, or one the
+/// Modbus server answers on.
+pub(crate) fn open_serial(s: &SerialSettings) -> Result<tokio_serial::SerialStream, LinkFault> {
+    if s.port.trim().is_empty() {
+        return Err(LinkFault::NoPort);
+    }
+    let parity = match s.parity {
+        Parity::None => tokio_serial::Parity::None,
+        Parity::Even => tokio_serial::Parity::Even,
+        Parity::Odd => tokio_serial::Parity::Odd,
+    };
+    let data_bits = if s.data_bits == 7 {
+        tokio_serial::DataBits::Seven
+    } else {
+        tokio_serial::DataBits::Eight
+    };
+    let stop_bits = if s.stop_bits == 2 {
+        tokio_serial::StopBits::Two
+    } else {
+        tokio_serial::StopBits::One
+    };
+    let builder = tokio_serial::new(&s.port, s.baud)
+        .parity(parity)
+        .data_bits(data_bits)
+        .stop_bits(stop_bits)
+        .flow_control(tokio_serial::FlowControl::None);
+    tokio_serial::SerialStream::open(&builder).map_err(|e| LinkFault::OpenFailed {
+        port: s.port.clone(),
+        reason: e.to_string(),
+    })
 }

@@ -285,9 +285,7 @@ impl RtuTransport {
                 expected: slave,
             }));
         }
-        request
-            .parse_response(&body[1..])
-            .map_err(TxError::from)
+        request.parse_response(&body[1..]).map_err(TxError::from)
     }
 
     async fn read_into(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), TxError> {

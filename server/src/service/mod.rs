@@ -8,6 +8,7 @@ mod modbus_map;
 mod refusal;
 mod reload;
 mod select;
+pub(crate) mod serial_ports;
 mod standing;
 mod subscribe;
 mod transact;
@@ -121,6 +122,8 @@ pub struct Service {
     opcua: std::sync::RwLock<Option<Arc<OpcUaState>>>,
     /// What reloads the configuration, when it came from a file.
     reloader: std::sync::OnceLock<Arc<dyn Reloading>>,
+    /// The Modbus server's serial ports.
+    serial_ports: serial_ports::SerialPorts,
 }
 
 /// The most change streams (SSE, gRPC Subscribe and Exchange) open at once.
@@ -154,6 +157,7 @@ impl Service {
             mqtt: std::sync::RwLock::new(None),
             opcua: std::sync::RwLock::new(None),
             reloader: std::sync::OnceLock::new(),
+            serial_ports: serial_ports::SerialPorts::default(),
         }
     }
 

@@ -314,6 +314,15 @@ impl Service {
         }
     }
 
+    /// Answers one request from the server's own map and memory (a serial port's unit id,
+    /// whatever the TCP server's): the same rules as [`Service::modbus_request`].
+    pub(crate) fn modbus_request_local(&self, request: &Request) -> Result<Response, Exception> {
+        if request.is_write() && self.is_read_only() {
+            return Err(Exception::ILLEGAL_FUNCTION);
+        }
+        self.modbus_local(request)
+    }
+
     fn modbus_local(&self, request: &Request) -> Result<Response, Exception> {
         let image = self.modbus().ok_or(Exception::GATEWAY_PATH_UNAVAILABLE)?;
         match request {

@@ -1,0 +1,468 @@
+//! Modbus over serial lines against independent implementations on pseudo-terminals: the
+//! gateway's Modbus server as an RTU and an ASCII slave read and written by pymodbus and
+//! libmodbus's mbpoll, and an ASCII link polling a pymodbus ASCII slave. Every byte between
+//! master and slave passes a sniffer that checks the frames on the line.
+//!
+//! A pseudo-terminal carries bytes whatever the character: the gateway's ends are set up
+//! as configured (8E1, 7E1), the peers' as 8N1, since Linux refuses parity on a pty to
+//! pyserial and libmodbus.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use serde_json::{Value, json};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::time::Instant;
+use tokio_serial::{SerialPort, SerialStream};
+
+use iogate_tests::devices::{pty_at, temp_dir};
+use iogate_tests::{TestGateway, eventually, repo_file, run_installer};
+
+/// Which way bytes went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Way {
+    /// From the master(s) to the slave.
+    Request,
+    /// From the slave to the master(s).
+    Answer,
+}
+
+/// Bytes as they crossed the line, with when.
+type Seen = Arc<Mutex<Vec<(Way, Vec<u8>, Instant)>>>;
+
+/// Joins two pty pairs' master ends, recording every chunk: the masters' side and the
+/// slave's side of one line.
+fn sniffer(masters: SerialStream, slave: SerialStream) -> Seen {
+    let seen: Seen = Arc::default();
+    let (mut m_read, mut m_write) = tokio::io::split(masters);
+    let (mut s_read, mut s_write) = tokio::io::split(slave);
+    let log = seen.clone();
+    tokio::spawn(async move {
+        let mut buf = [0u8; 1024];
+        while let Ok(n) = m_read.read(&mut buf).await {
+            if n == 0 {
+                break;
+            }
+            record(&log, Way::Request, &buf[..n]);
+            if s_write.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+    });
+    let log = seen.clone();
+    tokio::spawn(async move {
+        let mut buf = [0u8; 1024];
+        while let Ok(n) = s_read.read(&mut buf).await {
+            if n == 0 {
+                break;
+            }
+            record(&log, Way::Answer, &buf[..n]);
+            if m_write.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+    });
+    seen
+}
+
+fn record(seen: &Seen, way: Way, bytes: &[u8]) {
+    seen.lock()
+        .expect("sniffer")
+        .push((way, bytes.to_vec(), Instant::now()));
+}
+
+fn crc16(data: &[u8]) -> u16 {
+    iogate_tests::devices::crc16(data)
+}
+
+/// The RTU answers in `bytes`, split by their own lengths, each checked: unit, CRC.
+fn rtu_answers(bytes: &[u8], unit: u8) -> Vec<Vec<u8>> {
+    let mut frames = Vec::new();
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        assert!(rest.len() >= 5, "a cut answer: {rest:02x?}");
+        let len = match rest[1] {
+            1..=4 => 5 + usize::from(rest[2]),
+            5 | 6 | 15 | 16 => 8,
+            f if f & 0x80 != 0 => 5,
+            f => panic!("an answer of function {f:#04x}: {rest:02x?}"),
+        };
+        let frame = &rest[..len];
+        assert_eq!(frame[0], unit, "an answer from another unit: {frame:02x?}");
+        assert_eq!(
+            crc16(&frame[..len - 2]).to_le_bytes(),
+            [frame[len - 2], frame[len - 1]],
+            "bad CRC in {frame:02x?}"
+        );
+        frames.push(frame.to_vec());
+        rest = &rest[len..];
+    }
+    frames
+}
+
+/// The ASCII frames in `bytes`, each checked: `:`, hex, LRC, CR LF; their address and PDU.
+fn ascii_frames(bytes: &[u8]) -> Vec<Vec<u8>> {
+    let text = std::str::from_utf8(bytes).expect("ASCII frames are text");
+    text.split_terminator("\r\n")
+        .map(|f| {
+            let hex = f.strip_prefix(':').expect("a frame starts with `:`");
+            let raw: Vec<u8> = (0..hex.len())
+                .step_by(2)
+                .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).expect("hex"))
+                .collect();
+            let (lrc, body) = raw.split_last().expect("LRC");
+            let sum = body.iter().fold(0u8, |s, b| s.wrapping_add(*b));
+            assert_eq!(sum.wrapping_add(*lrc), 0, "bad LRC in {f}");
+            body.to_vec()
+        })
+        .collect()
+}
+
+fn way_bytes(seen: &Seen, way: Way) -> Vec<u8> {
+    seen.lock()
+        .expect("sniffer")
+        .iter()
+        .filter(|(w, _, _)| *w == way)
+        .flat_map(|(_, b, _)| b.clone())
+        .collect()
+}
+
+/// A line: the masters' end (its path, and the pty held open), and the gateway's end at
+/// `dir/name`, joined by a sniffer.
+struct Line {
+    masters_path: String,
+    /// Held so that the masters' end stays while masters come and go.
+    _masters_end: SerialStream,
+    seen: Seen,
+}
+
+fn line(dir: &std::path::Path, name: &str) -> (Line, SerialStream) {
+    let (masters_master, masters_end) = SerialStream::pair().expect("pty");
+    let masters_path = masters_end.name().expect("pty name");
+    let (slave_master, gateway_holder) = pty_at(&dir.join(name)).expect("pty");
+    let seen = sniffer(masters_master, slave_master);
+    (
+        Line {
+            masters_path,
+            _masters_end: masters_end,
+            seen,
+        },
+        gateway_holder,
+    )
+}
+
+async fn serial_state(gw: &TestGateway) -> Value {
+    let (_, map) = gw.get("/api/v1/map").await.expect("map");
+    map["serial"][0].clone()
+}
+
+async fn python(script: &str, args: &[&str]) -> Value {
+    let out = tokio::process::Command::new("python3")
+        .arg(repo_file(script))
+        .args(args)
+        .output()
+        .await
+        .expect("python3");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{script}: {}\n{stdout}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+fn gateway_config(port: &std::path::Path, serial_extra: &str) -> String {
+    format!(
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\n\
+         modbus_server:\n  auto: true\n  map:\n    - {{ at: \"%IX100.0\", field: sim.connected }}\n  \
+         serial:\n    - {{ port: {}, unit_id: 7{serial_extra} }}\n",
+        port.display()
+    )
+}
+
+/// What a master got for each request, as `master.py` reports it; the same over RTU and
+/// ASCII.
+fn assert_master_results(got: &Value) {
+    assert_eq!(got["fc16"], json!("ok"), "{got}");
+    assert_eq!(got["fc03"], json!([11, 22, 33]), "{got}");
+    assert_eq!(got["fc06"], json!("ok"), "{got}");
+    assert_eq!(got["fc03_single"], json!([44]), "{got}");
+    assert_eq!(got["fc15"], json!("ok"), "{got}");
+    assert_eq!(got["fc01"], json!([true, false, true]), "{got}");
+    assert_eq!(got["fc05"], json!("ok"), "{got}");
+    // %IX100.0 is sim.connected.
+    assert_eq!(got["fc02"], json!([true]), "{got}");
+    assert!(got["fc04"].is_array(), "{got}");
+    assert_eq!(got["illegal_address"], json!({"exception": 2}), "{got}");
+    assert_eq!(got["illegal_function"], json!({"exception": 1}), "{got}");
+    assert_eq!(got["broadcast"], json!("sent"), "{got}");
+    assert!(got["other_unit"]["no_answer"].is_string(), "{got}");
+    // The broadcast was applied.
+    assert_eq!(got["after_broadcast"], json!([555]), "{got}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
+    run_installer("serial/install.sh").expect("serial peers");
+    let dir = temp_dir("serial-rtu");
+    let (line, _holder) = line(&dir, "ttyGW");
+    let gw = TestGateway::start(&gateway_config(
+        &dir.join("ttyGW"),
+        ", baud: 19200, parity: E",
+    ))
+    .await
+    .expect("gateway");
+    eventually("the port open", || async {
+        serial_state(&gw).await["state"] == "open"
+    })
+    .await
+    .expect("open");
+
+    let got = python(
+        "serial/master.py",
+        &[&line.masters_path, "rtu", "7", "19200", "N", "8"],
+    )
+    .await;
+    assert_master_results(&got);
+    // The write of coil 0 reached the simulated device's output.
+    let (_, field) = gw
+        .get("/api/v1/devices/sim/fields/DO_0")
+        .await
+        .expect("DO_0");
+    assert_eq!(field["value"], json!(true), "{field}");
+
+    // libmodbus's mbpoll: reads what pymodbus wrote, writes a register.
+    let mbpoll = |args: &[&str]| {
+        let mut command = std::process::Command::new("mbpoll");
+        command.args([
+            "-m", "rtu", "-a", "7", "-b", "19200", "-P", "none", "-0", "-1",
+        ]);
+        command.args(args).arg(&line.masters_path);
+        command
+    };
+    let out = mbpoll(&["-t", "4", "-r", "1024", "-c", "3"])
+        .output()
+        .expect("mbpoll");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    for (address, value) in [(1024, 11), (1025, 22), (1026, 33)] {
+        assert!(
+            text.lines()
+                .any(|l| l.trim_start().starts_with(&format!("[{address}]:"))
+                    && l.split_whitespace().last() == Some(&value.to_string())),
+            "[{address}] {value} in\n{text}"
+        );
+    }
+    let out = mbpoll(&["-t", "4", "-r", "1031"])
+        .arg("4242")
+        .output()
+        .expect("mbpoll");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let (_, memory) = gw.get("/api/v1/memory").await.expect("memory");
+    assert_eq!(memory["registers"]["%MW7"], json!(4242), "{memory}");
+    assert_eq!(memory["registers"]["%MW6"], json!(555), "{memory}");
+
+    // A frame with a bad CRC is ignored; the next good one answered (the test as a third
+    // master, on a port opened as a serial port: raw, whatever the last master left).
+    let mut raw = tokio_serial::SerialStream::open(&tokio_serial::new(&line.masters_path, 19200))
+        .expect("the masters' end");
+    let answers_before = way_bytes(&line.seen, Way::Answer).len();
+    let mut bad = vec![7u8, 0x03, 0x04, 0x00, 0x00, 0x01];
+    let crc = crc16(&bad) ^ 0x5555;
+    bad.extend_from_slice(&crc.to_le_bytes());
+    raw.write_all(&bad).await.expect("write");
+    let mut answer = [0u8; 7];
+    assert!(
+        tokio::time::timeout(Duration::from_millis(300), raw.read_exact(&mut answer))
+            .await
+            .is_err(),
+        "a frame with a bad CRC was answered"
+    );
+    let mut good = vec![7u8, 0x03, 0x04, 0x00, 0x00, 0x01];
+    let crc = crc16(&good);
+    good.extend_from_slice(&crc.to_le_bytes());
+    raw.write_all(&good).await.expect("write");
+    tokio::time::timeout(Duration::from_secs(2), raw.read_exact(&mut answer))
+        .await
+        .expect("answered in time")
+        .expect("read");
+    assert_eq!(&answer[..5], &[7, 0x03, 2, 0, 11], "{answer:02x?}");
+
+    // On the line: every answer a whole frame of unit 7 with its CRC, one for each request
+    // to unit 7 with a good CRC (none for the broadcast, the other unit, the bad CRC).
+    let answers = rtu_answers(&way_bytes(&line.seen, Way::Answer), 7);
+    assert_eq!(way_bytes(&line.seen, Way::Answer).len(), answers_before + 7);
+    // pymodbus: 12 answered (2 of them exceptions); mbpoll: 2; the raw good frame: 1.
+    assert_eq!(answers.len(), 12 + 2 + 1, "{answers:02x?}");
+    // Each answer came at least 3.5 characters (2.005 ms at 19200 8E1) after its request.
+    let seen = line.seen.lock().expect("sniffer").clone();
+    let mut last_request = None;
+    for (way, _, at) in &seen {
+        match way {
+            Way::Request => last_request = Some(*at),
+            Way::Answer => {
+                if let Some(request) = last_request.take() {
+                    let gap = at.duration_since(request);
+                    assert!(gap >= Duration::from_micros(2000), "answered after {gap:?}");
+                }
+            }
+        }
+    }
+
+    let state = serial_state(&gw).await;
+    assert_eq!(state["framing"], "rtu", "{state}");
+    assert_eq!(state["line"], "19200 8E1", "{state}");
+    assert_eq!(state["frames"]["answered"], json!(13), "{state}");
+    assert_eq!(state["frames"]["exception"], json!(2), "{state}");
+    assert_eq!(state["frames"]["broadcast"], json!(1), "{state}");
+    assert_eq!(state["frames"]["other_unit"], json!(1), "{state}");
+    assert_eq!(state["frames"]["crc_error"], json!(1), "{state}");
+    let metrics = gw.metrics().await.expect("metrics");
+    let port = dir.join("ttyGW");
+    for (outcome, n) in [("answered", 13), ("crc_error", 1), ("broadcast", 1)] {
+        let line = format!(
+            "iogate_modbus_serial_frames_total{{port=\"{}\",outcome=\"{outcome}\"}} {n}",
+            port.display()
+        );
+        assert!(metrics.contains(&line), "{line} in\n{metrics}");
+    }
+    assert!(metrics.contains(&format!(
+        "iogate_modbus_serial_port_up{{port=\"{}\"}} 1",
+        port.display()
+    )));
+    gw.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_ascii_master_reads_and_writes_the_map_through_the_serial_slave() {
+    run_installer("serial/install.sh").expect("serial peers");
+    let dir = temp_dir("serial-ascii-server");
+    let (line, _holder) = line(&dir, "ttyGW");
+    let gw = TestGateway::start(&gateway_config(
+        &dir.join("ttyGW"),
+        ", baud: 9600, parity: E, data_bits: 7, framing: ascii",
+    ))
+    .await
+    .expect("gateway");
+    eventually("the port open", || async {
+        serial_state(&gw).await["state"] == "open"
+    })
+    .await
+    .expect("open");
+    let got = python(
+        "serial/master.py",
+        &[&line.masters_path, "ascii", "7", "9600", "N", "8"],
+    )
+    .await;
+    assert_master_results(&got);
+    // On the line: answers are ASCII frames from unit 7 with their LRC, one for each
+    // request to unit 7.
+    let answers = ascii_frames(&way_bytes(&line.seen, Way::Answer));
+    assert_eq!(answers.len(), 12, "{answers:02x?}");
+    assert!(answers.iter().all(|a| a[0] == 7), "{answers:02x?}");
+    let requests = ascii_frames(&way_bytes(&line.seen, Way::Request));
+    assert_eq!(requests.len(), 14, "{requests:02x?}");
+    let state = serial_state(&gw).await;
+    assert_eq!(state["framing"], "ascii", "{state}");
+    assert_eq!(state["line"], "9600 7E1", "{state}");
+    gw.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_ascii_link_polls_an_independent_ascii_slave() {
+    run_installer("serial/install.sh").expect("serial peers");
+    let dir = temp_dir("serial-ascii-link");
+    let (line, _holder) = line(&dir, "ttyLINK");
+    // The slave (pymodbus) on the masters' end of the sniffed line; the gateway, the
+    // master here, on the other.
+    let mut slave = tokio::process::Command::new("python3")
+        .arg(repo_file("serial/slave.py"))
+        .args([&line.masters_path, "ascii", "5", "9600", "N", "8"])
+        .kill_on_drop(true)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("slave");
+    let profiles = dir.join("profiles");
+    std::fs::create_dir_all(&profiles).expect("dir");
+    std::fs::write(
+        profiles.join("ascii_meter.yaml"),
+        "name: AsciiMeter\nprotocol: modbus-rtu\nfields:\n  \
+         - { name: R0, type: UINT, direction: input, register: { address: 0, kind: holding_register } }\n  \
+         - { name: R1, type: UINT, direction: input, register: { address: 1, kind: holding_register } }\n  \
+         - { name: SET5, type: UINT, direction: output, register: { address: 5, kind: holding_register } }\n",
+    )
+    .expect("profile");
+    let gw = TestGateway::start(&format!(
+        "profiles: {}\nlinks:\n  - {{ name: ascii, serial: {{ port: {}, baud: 9600, parity: E, data_bits: 7, framing: ascii }} }}\n\
+         devices:\n  - {{ name: meter, profile: AsciiMeter, link: ascii, slave_id: 5, refresh_rate: 100ms, timeout: 500ms }}\n",
+        profiles.display(),
+        dir.join("ttyLINK").display()
+    ))
+    .await
+    .expect("gateway");
+    eventually("the meter read", || async {
+        let (_, device) = gw.get("/api/v1/devices/meter").await.expect("meter");
+        device["connected"] == json!(true)
+    })
+    .await
+    .unwrap_or_else(|e| {
+        panic!(
+            "{e}: on the line {:?}",
+            line.seen
+                .lock()
+                .expect("sniffer")
+                .iter()
+                .map(|(w, b, _)| (*w, String::from_utf8_lossy(b).into_owned()))
+                .collect::<Vec<_>>()
+        )
+    });
+    let (_, r0) = gw.get("/api/v1/devices/meter/fields/R0").await.expect("R0");
+    let (_, r1) = gw.get("/api/v1/devices/meter/fields/R1").await.expect("R1");
+    assert_eq!(
+        (r0["value"].clone(), r1["value"].clone()),
+        (json!(1000), json!(1001))
+    );
+    let (status, accepted) = gw
+        .send(
+            reqwest::Method::PUT,
+            "/api/v1/devices/meter/fields/SET5",
+            json!({"value": 77}).to_string(),
+        )
+        .await
+        .expect("write");
+    assert_eq!(status, 202, "{accepted}");
+    let generation = accepted["generation"].clone();
+    gw.until(
+        &format!("/api/v1/writes/{generation}"),
+        "the write confirmed by the slave",
+        |w| w["status"] == "written",
+    )
+    .await
+    .expect("written");
+    // On the line: the gateway's requests are ASCII frames to unit 5 with their LRC; the
+    // slave's answers too.
+    let requests = ascii_frames(&way_bytes(&line.seen, Way::Answer));
+    assert!(requests.len() >= 3, "{requests:02x?}");
+    assert!(requests.iter().all(|r| r[0] == 5), "{requests:02x?}");
+    // The write: register 5 = 77, by FC06 or FC16, echoed by the slave.
+    let write = |f: &Vec<u8>| {
+        f.get(1..4) == Some(&[0x06, 0, 5][..]) && f.get(4..6) == Some(&[0, 77][..])
+            || f.get(1..6) == Some(&[0x10, 0, 5, 0, 1][..]) && f.get(7..9) == Some(&[0, 77][..])
+    };
+    assert!(requests.iter().any(write), "the write: {requests:02x?}");
+    let answers = ascii_frames(&way_bytes(&line.seen, Way::Request));
+    assert!(answers.iter().all(|a| a[0] == 5), "{answers:02x?}");
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        !metrics.contains("iogate_device_crc_errors_total{device=\"meter\"} 1"),
+        "{metrics}"
+    );
+    let _ = slave.kill().await;
+    gw.shutdown().await;
+}
