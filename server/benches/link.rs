@@ -71,6 +71,7 @@ fn line(baud: u32, parity: Parity) -> LineTiming {
         parity,
         data_bits: 8,
         stop_bits: 1,
+        framing: Default::default(),
     })
 }
 

@@ -41,6 +41,7 @@ fn timing(baud: u32) -> LineTiming {
         parity: Parity::None,
         data_bits: 8,
         stop_bits: 1,
+        framing: Default::default(),
     })
 }
 

@@ -109,6 +109,86 @@ fn check_refuses_what_the_gateway_would_trip_over_later_naming_the_line() {
 }
 
 #[test]
+fn check_refuses_serial_framings_and_server_ports_that_cannot_work() {
+    let dir = temp_dir("serial-check");
+    let cases: [(&str, &str, &str); 6] = [
+        (
+            "mbap",
+            "links:\n  - name: a\n    serial: { port: /dev/ttyUSB0, baud: 9600, framing: mbap }\n",
+            "mbap.yaml:3: link a: serial.framing: `mbap` is no framing of a serial line (expected rtu or ascii; mbap is Modbus TCP's)",
+        ),
+        (
+            "tcp",
+            "links:\n  - name: a\n    tcp: { host: 127.0.0.1, framing: binary }\n",
+            "tcp.yaml:3: link a: tcp.framing: unknown framing `binary` (expected mbap, rtu or ascii)",
+        ),
+        (
+            "neither",
+            "modbus_server:\n  auto: true\n",
+            "neither.yaml:2: modbus_server: missing `listen` (the Modbus TCP address) or `serial` (ports to serve as a slave): give one or both",
+        ),
+        (
+            "twice",
+            "modbus_server:\n  serial:\n    - { port: /dev/ttyS1, baud: 9600 }\n    - { port: /dev/ttyS1, baud: 19200, unit_id: 2 }\n",
+            "twice.yaml:4: modbus_server.serial[1].port: /dev/ttyS1 is served by modbus_server.serial[0] already (line 3): a port is served once",
+        ),
+        (
+            "link",
+            "links:\n  - { name: bus, serial: { port: /dev/ttyS1, baud: 9600 } }\nmodbus_server:\n  serial:\n    - { port: /dev/ttyS1, baud: 9600 }\n",
+            "link.yaml:5: modbus_server.serial[0].port: /dev/ttyS1 is link bus's port (line 2): a port is either polled by iogate as a master or served as a slave, not both",
+        ),
+        (
+            "turnaround",
+            "modbus_server:\n  serial:\n    - { port: /dev/ttyS1, baud: 9600, unit_id: 248, turnaround_delay: 2s, parity: X }\n",
+            "turnaround.yaml:3: modbus_server.serial[0].turnaround_delay: 2000 ms is longer than the 500 ms allowed",
+        ),
+    ];
+    for (name, text, expected) in cases {
+        let config = dir.join(format!("{name}.yaml"));
+        std::fs::write(&config, text).expect("config");
+        let out = iogate()
+            .args(["check", "--config"])
+            .arg(&config)
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(64), "{name}: {stderr}");
+        assert!(stderr.contains(expected), "{name}: {stderr}");
+        if name == "turnaround" {
+            // Every problem of the entry at once.
+            assert!(
+                stderr.contains("modbus_server.serial[0].unit_id"),
+                "{stderr}"
+            );
+            assert!(
+                stderr.contains("modbus_server.serial[0].parity"),
+                "{stderr}"
+            );
+        }
+    }
+    // A server on serial ports alone, ASCII at 7E1, and an ASCII link pass.
+    let config = dir.join("good.yaml");
+    std::fs::write(
+        &config,
+        "links:\n  - { name: old, serial: { port: /dev/ttyS2, baud: 9600, parity: E, data_bits: 7, framing: ascii } }\n\
+         modbus_server:\n  serial:\n    - { port: /dev/ttyS1, baud: 19200, parity: E, unit_id: 3, turnaround_delay: 5ms }\n    \
+         - { port: /dev/ttyS3, baud: 9600, data_bits: 7, parity: E, framing: ascii }\n",
+    )
+    .expect("config");
+    let out = iogate()
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn an_invalid_log_filter_is_a_configuration_error_naming_it() {
     let out = iogate()
         .arg("check")

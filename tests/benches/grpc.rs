@@ -45,10 +45,10 @@ fn main() -> anyhow::Result<()> {
         let mut setup = iogate::app::Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
-        if let Some(server) = setup.config.modbus_server.as_mut() {
-            if server.listen.is_some() {
-                server.listen = Some("127.0.0.1:0".parse()?);
-            }
+        if let Some(server) = setup.config.modbus_server.as_mut()
+            && server.listen.is_some()
+        {
+            server.listen = Some("127.0.0.1:0".parse()?);
         }
         if let Some(opcua) = setup.config.opcua.as_mut() {
             opcua.listen = "127.0.0.1:0".parse()?;

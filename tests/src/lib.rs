@@ -95,10 +95,10 @@ fn setup_on(config_yaml: &str, http: std::net::SocketAddr) -> anyhow::Result<Set
         iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
     config.http = http;
     config.grpc = "127.0.0.1:0".parse()?;
-    if let Some(server) = config.modbus_server.as_mut() {
-        if server.listen.is_some() {
-            server.listen = Some("127.0.0.1:0".parse()?);
-        }
+    if let Some(server) = config.modbus_server.as_mut()
+        && server.listen.is_some()
+    {
+        server.listen = Some("127.0.0.1:0".parse()?);
     }
     if config.security == iogate::config::security::SecurityConfig::default() {
         config.security.declare = test_policy();
@@ -219,10 +219,10 @@ impl TestGateway {
         let mut setup = Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
-        if let Some(server) = setup.config.modbus_server.as_mut() {
-            if server.listen.is_some() {
-                server.listen = Some("127.0.0.1:0".parse()?);
-            }
+        if let Some(server) = setup.config.modbus_server.as_mut()
+            && server.listen.is_some()
+        {
+            server.listen = Some("127.0.0.1:0".parse()?);
         }
         if let Some(opcua) = setup.config.opcua.as_mut() {
             opcua.listen = "127.0.0.1:0".parse()?;

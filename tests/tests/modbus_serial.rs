@@ -466,3 +466,86 @@ async fn an_ascii_link_polls_an_independent_ascii_slave() {
     let _ = slave.kill().await;
     gw.shutdown().await;
 }
+
+/// An RTU frame: `body` and its CRC.
+fn rtu(body: &[u8]) -> Vec<u8> {
+    let mut frame = body.to_vec();
+    frame.extend_from_slice(&crc16(body).to_le_bytes());
+    frame
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frame_ends_at_a_silence_and_a_lost_port_is_reopened() {
+    let dir = temp_dir("serial-reopen");
+    let path = dir.join("ttyGW");
+    let (mut master, holder) = pty_at(&path).expect("pty");
+    let gw = TestGateway::start(&gateway_config(&path, ", baud: 19200"))
+        .await
+        .expect("gateway");
+    eventually("the port open", || async {
+        serial_state(&gw).await["state"] == "open"
+    })
+    .await
+    .expect("open");
+    drop(holder);
+    let read = rtu(&[7, 0x03, 0x04, 0x00, 0x00, 0x01]);
+    let mut answer = [0u8; 7];
+    // A request cut by 20 ms of silence (3.5 characters at 19200 baud are 1.8 ms) is two
+    // frames, neither with a good CRC: no answer.
+    master.write_all(&read[..4]).await.expect("write");
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    master.write_all(&read[4..]).await.expect("write");
+    assert!(
+        tokio::time::timeout(Duration::from_millis(300), master.read_exact(&mut answer))
+            .await
+            .is_err(),
+        "a frame cut by a silence was answered"
+    );
+    let state = serial_state(&gw).await;
+    assert_eq!(state["frames"]["crc_error"], json!(2), "{state}");
+    // Whole, it is answered.
+    master.write_all(&read).await.expect("write");
+    tokio::time::timeout(Duration::from_secs(2), master.read_exact(&mut answer))
+        .await
+        .expect("answered")
+        .expect("read");
+    assert_eq!(&answer[..3], &[7, 0x03, 2]);
+
+    // Unplugged: the port is lost; plugged in again at the same path: reopened.
+    drop(master);
+    gw.until("/api/v1/map", "the port lost", |m| {
+        m["serial"][0]["state"] == "lost"
+    })
+    .await
+    .expect("lost");
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains(&format!(
+            "iogate_modbus_serial_port_up{{port=\"{}\"}} 0",
+            path.display()
+        )),
+        "{metrics}"
+    );
+    let (mut master, _holder) = pty_at(&path).expect("pty");
+    let state = gw
+        .until("/api/v1/map", "the port reopened", |m| {
+            m["serial"][0]["state"] == "open"
+        })
+        .await
+        .expect("reopened");
+    assert_eq!(state["serial"][0]["reopens"], json!(1), "{state}");
+    master.write_all(&read).await.expect("write");
+    tokio::time::timeout(Duration::from_secs(2), master.read_exact(&mut answer))
+        .await
+        .expect("answered after the reopening")
+        .expect("read");
+    let metrics = gw.metrics().await.expect("metrics");
+    assert!(
+        metrics.contains(&format!(
+            "iogate_modbus_serial_port_reopens_total{{port=\"{}\"}} 1",
+            path.display()
+        )),
+        "{metrics}"
+    );
+    gw.shutdown().await;
+}

@@ -273,7 +273,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
                 s.at,
                 format!("modbus_server.serial[{i}].port"),
                 format!(
-                    "{} is already served by modbus_server.serial[{j}] (line {}): one server a port",
+                    "{} is served by modbus_server.serial[{j}] already (line {}): a port is served once",
                     crate::text::quote(&s.line.port),
                     serial[j].at
                 ),

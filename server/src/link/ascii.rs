@@ -56,7 +56,7 @@ fn nibble(c: u8) -> Result<u8, AsciiError> {
 
 /// The address and PDU of a frame's characters between `:` and CR LF, its LRC checked.
 pub(crate) fn decode(chars: &[u8]) -> Result<Vec<u8>, AsciiError> {
-    if chars.len() % 2 != 0 {
+    if !chars.len().is_multiple_of(2) {
         return Err(AsciiError::Odd(chars.len()));
     }
     let bytes = chars

@@ -95,7 +95,7 @@ impl RtuTransport {
 
     /// The characters of the frame whose RTU form has `bytes` bytes.
     fn frame_chars(&self, bytes: usize) -> usize {
-        if self.ascii { 2 * bytes + 1 } else { bytes }
+        super::timing::frame_chars(self.ascii, bytes)
     }
 
     fn silence(&self) -> Duration {
@@ -664,6 +664,148 @@ mod tests {
             corrupted[i] ^= flip;
             proptest::prop_assert!(transact_against(&request, corrupted).is_err());
         }
+    }
+
+    /// An ASCII frame of `body` (address and PDU).
+    fn ascii_answer(body: &[u8]) -> Vec<u8> {
+        crate::link::ascii::encode(body)
+    }
+
+    /// Reads one ASCII request (through its LF).
+    async fn ascii_request(device: &mut DuplexStream) -> Vec<u8> {
+        let mut frame = Vec::new();
+        let mut byte = [0u8; 1];
+        while frame.last() != Some(&b'\n') {
+            device.read_exact(&mut byte).await.expect("request");
+            frame.push(byte[0]);
+        }
+        frame
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn ascii_frames_go_out_and_come_back_checked_like_rtu_ones() {
+        let (gateway, mut device) = tokio::io::duplex(1024);
+        let mut t = transport(gateway, Duration::ZERO).ascii();
+        tokio::spawn(async move {
+            // The request as the specification writes it.
+            let req = ascii_request(&mut device).await;
+            assert_eq!(req, b":010300000002FA\r\n".to_vec());
+            // Noise before the answer's `:` is dropped; the answer taken.
+            let mut answer = b"\x00zz".to_vec();
+            answer.extend(ascii_answer(&[1, 0x03, 4, 0, 1, 0, 2]));
+            device.write_all(&answer).await.expect("write");
+            // A bad LRC.
+            ascii_request(&mut device).await;
+            let mut bad = ascii_answer(&[1, 0x03, 4, 0, 1, 0, 2]);
+            let at = bad.len() - 3;
+            bad[at] = if bad[at] == b'0' { b'1' } else { b'0' };
+            device.write_all(&bad).await.expect("write");
+            // Another slave's answer.
+            ascii_request(&mut device).await;
+            device
+                .write_all(&ascii_answer(&[9, 0x03, 4, 0, 1, 0, 2]))
+                .await
+                .expect("write");
+            // Not hexadecimal.
+            ascii_request(&mut device).await;
+            device.write_all(b":01030G\r\n").await.expect("write");
+            // An exception, then a good answer in lower case.
+            ascii_request(&mut device).await;
+            device
+                .write_all(&ascii_answer(&[1, 0x83, 0x02]))
+                .await
+                .expect("write");
+            ascii_request(&mut device).await;
+            let good = String::from_utf8(ascii_answer(&[1, 0x03, 4, 0, 5, 0, 6]))
+                .expect("text")
+                .to_lowercase();
+            device.write_all(good.as_bytes()).await.expect("write");
+        });
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("first"),
+            Response::Registers(vec![1, 2])
+        );
+        assert_eq!(t.counters.bytes_discarded, 3, "the noise");
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Crc)
+        ));
+        assert!(
+            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.to_string().contains("slave 9"))
+        );
+        assert!(
+            matches!(t.transact(1, &read2(), TIMEOUT).await, Err(TxError::Invalid(m)) if m.to_string().contains("hexadecimal"))
+        );
+        assert!(matches!(
+            t.transact(1, &read2(), TIMEOUT).await,
+            Err(TxError::Exception(Exception::ILLEGAL_DATA_ADDRESS))
+        ));
+        assert_eq!(
+            t.transact(1, &read2(), TIMEOUT).await.expect("good"),
+            Response::Registers(vec![5, 6])
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_late_ascii_answer_to_one_read_is_never_taken_for_another() {
+        // As for RTU: a slave answering 1.5 timeouts late, with the address it was asked
+        // for as the data.
+        let (gateway, mut device) = tokio::io::duplex(4096);
+        let mut t = transport(gateway, Duration::ZERO).ascii();
+        tokio::spawn(async move {
+            loop {
+                let req = ascii_request(&mut device).await;
+                let hex = std::str::from_utf8(&req[5..9]).expect("text");
+                let address = u16::from_str_radix(hex, 16).expect("address");
+                let [hi, lo] = address.to_be_bytes();
+                tokio::time::sleep(TIMEOUT * 3 / 2).await;
+                let answer = ascii_answer(&[1, 0x03, 4, hi, lo, hi, lo]);
+                if device.write_all(&answer).await.is_err() {
+                    return;
+                }
+            }
+        });
+        let read = |address| Request::ReadHoldingRegisters { address, count: 2 };
+        for k in 0..10u16 {
+            let address = if k % 2 == 0 { 0 } else { 500 };
+            match t.transact(1, &read(address), TIMEOUT).await {
+                Ok(Response::Registers(values)) => {
+                    assert_eq!(values, vec![address, address], "another read's answer")
+                }
+                Ok(other) => panic!("{other:?}"),
+                Err(TxError::Timeout) => {}
+                Err(e) => panic!("{e}"),
+            }
+        }
+        assert!(
+            t.counters.bytes_discarded > 0,
+            "late answers were discarded"
+        );
+        assert_eq!(
+            t.transact(1, &read(7), TIMEOUT * 2).await.expect("in time"),
+            Response::Registers(vec![7, 7])
+        );
+    }
+
+    #[test]
+    fn an_ascii_frame_takes_twice_the_characters_and_three_more() {
+        let t = LineTiming::new(&SerialSettings {
+            framing: crate::config::Framing::Ascii,
+            data_bits: 7,
+            parity: Parity::Even,
+            ..SerialSettings {
+                port: "test".into(),
+                baud: 9600,
+                parity: Parity::None,
+                data_bits: 8,
+                stop_bits: 1,
+                framing: Default::default(),
+            }
+        });
+        // 8-byte RTU request: `:` + 2 x 7 + CR LF = 17 characters of 10 bits (7E1).
+        assert_eq!(t.bits_per_char, 10);
+        assert_eq!(t.frame_chars(8), 17);
+        assert_eq!(t.frame_time(8), t.char_time() * 17);
     }
 
     #[tokio::test(start_paused = true)]

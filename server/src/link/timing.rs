@@ -7,6 +7,12 @@ use crate::config::{Framing, Parity, SerialSettings};
 /// The fixed inter-frame silence above 19200 baud (Modbus over serial line, 2.5.1.1).
 pub(crate) const FAST_SILENCE: Duration = Duration::from_micros(1750);
 
+/// The characters of the frame whose RTU form (address, PDU, CRC) has `bytes` bytes: as
+/// many in RTU; in ASCII `:`, two per byte of address, PDU and LRC, CR LF.
+pub(crate) fn frame_chars(ascii: bool, bytes: usize) -> usize {
+    if ascii { 2 * bytes + 1 } else { bytes }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LineTiming {
     pub(crate) baud: u32,
@@ -51,7 +57,7 @@ impl LineTiming {
 
     /// The characters of the frame whose RTU form has `bytes` bytes.
     pub(crate) fn frame_chars(&self, bytes: usize) -> usize {
-        if self.ascii { 2 * bytes + 1 } else { bytes }
+        frame_chars(self.ascii, bytes)
     }
 
     /// Request and response on the wire, each preceded by the inter-frame silence.
@@ -71,6 +77,7 @@ mod tests {
             parity,
             data_bits: 8,
             stop_bits,
+            framing: Default::default(),
         })
     }
 
