@@ -471,6 +471,7 @@ impl Client {
                         parity: link.parity.to_string(),
                         data_bits: link.data_bits.into(),
                         stop_bits: link.stop_bits.into(),
+                        framing: String::new(),
                     },
                 )),
                 guard_time_ms: 0,

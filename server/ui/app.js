@@ -233,6 +233,34 @@ function mqttRows(m) {
     h('th', { scope: 'row' }, label), cell(label, value, h('div', { class: 'meaning' }, meaning))));
 }
 
+/** The Modbus server's serial ports (GET /api/v1/map), or null when it has none (then
+ * /readyz has no `modbus_serial` detail, and the page does not ask). */
+async function serialStatus(signal) {
+  const ready = await fetch('/readyz', { signal }).then((r) => r.json()).catch(() => null);
+  if (!ready?.modbus_serial) return null;
+  return api('GET', '/map', undefined, { signal }).then((m) => m.serial).catch(() => null);
+}
+
+const SERIAL_MEANING = {
+  open: 'answering masters',
+  opening: 'not open yet',
+  lost: 'failed; reopened every second',
+};
+
+function serialRows(ports) {
+  return ports.map((p) => {
+    const f = p.frames;
+    const ignored = f.other_unit + f.crc_error + f.malformed;
+    return h('tr', { class: p.state === 'open' ? '' : 'problem', 'data-serial': p.port },
+      cell('Port', h('strong', {}, p.port), h('div', { class: 'meaning' }, `${p.framing.toUpperCase()} ${p.line}`)),
+      cell('Unit id', String(p.unit_id)),
+      cell('State', h('span', { class: `badge ${p.state === 'open' ? 'ok' : 'bad'}`, 'data-state': p.state }, p.state),
+        h('div', { class: 'meaning' }, p.error ?? `${SERIAL_MEANING[p.state] ?? ''}${p.reopens ? ` · reopened ${plural(p.reopens, 'time')}` : ''}`)),
+      cell('Frames', `${f.answered} answered · ${f.exception} exceptions · ${f.broadcast} broadcasts`,
+        h('div', { class: 'meaning' }, `${ignored} ignored (${f.other_unit} other units, ${f.crc_error} bad checksums, ${f.malformed} malformed)`)));
+  });
+}
+
 /** The configuration in force and the last reload (GET /api/v1/config). */
 async function configStatus(signal) {
   return api('GET', '/config', undefined, { signal }).catch(() => null);
@@ -277,8 +305,17 @@ function configRows(c) {
 }
 
 async function overview(signal) {
-  const [links, devices, mqtt, config] = await Promise.all([api('GET', '/links', undefined, { signal }),
-    api('GET', '/devices', undefined, { signal }), mqttStatus(signal), configStatus(signal)]);
+  const [links, devices, mqtt, config, serial] = await Promise.all([api('GET', '/links', undefined, { signal }),
+    api('GET', '/devices', undefined, { signal }), mqttStatus(signal), configStatus(signal), serialStatus(signal)]);
+  const serialBody = h('tbody');
+  const serialSection = h('section', { hidden: !serial, 'aria-labelledby': 'serial-title', id: 'serial' },
+    h('h2', { id: 'serial-title' }, 'Modbus server on serial lines'),
+    h('div', { class: 'scroll' }, h('table', { class: 'list' },
+      head('Port', 'Unit id', 'State', 'Frames'), serialBody)));
+  const renderSerial = (ports) => {
+    serialSection.hidden = !ports;
+    if (ports) fill(serialBody, ...serialRows(ports));
+  };
   const configBody = h('tbody');
   const configSection = h('section', { 'aria-labelledby': 'config-title', id: 'config', hidden: !config },
     h('h2', { id: 'config-title' }, 'Configuration'),
@@ -366,9 +403,11 @@ async function overview(signal) {
       h('div', { class: 'scroll' }, h('table', { class: 'list', id: 'devices' },
         head('Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response'),
         deviceBody))),
+    serialSection,
     mqttSection,
     transactionSection,
     configSection);
+  renderSerial(serial);
   renderMqtt(mqtt);
   renderConfig(config);
   renderLinks();
@@ -394,8 +433,9 @@ async function overview(signal) {
   // are refreshed every two seconds.
   const poll = setInterval(async () => {
     try {
-      const [fresh, counters, m, c] = await Promise.all([api('GET', '/links', undefined, { signal }),
-        api('GET', '/devices', undefined, { signal }), mqttStatus(signal), configStatus(signal)]);
+      const [fresh, counters, m, c, s] = await Promise.all([api('GET', '/links', undefined, { signal }),
+        api('GET', '/devices', undefined, { signal }), mqttStatus(signal), configStatus(signal), serialStatus(signal)]);
+      renderSerial(s);
       renderMqtt(m);
       renderConfig(c);
       linksByName.clear();
@@ -655,7 +695,7 @@ async function deviceView(name, signal) {
 
 function endpointOf(l) {
   return l.kind === 'serial'
-    ? `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}`
+    ? `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}${l.framing === 'ascii' ? ' · ASCII' : ''}`
     : `${l.host}:${l.tcp_port} (${l.framing})`;
 }
 

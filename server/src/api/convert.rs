@@ -380,6 +380,7 @@ pub(crate) fn link_info(link: &Link) -> LinkInfo {
             info.parity = Some(s.parity.letter().to_string());
             info.data_bits = Some(s.data_bits);
             info.stop_bits = Some(s.stop_bits);
+            info.framing = Some(s.framing.name().into());
         }
         Transport::Tcp {
             host,

@@ -37,6 +37,9 @@ pub(crate) struct SerialDeclaration {
     /// 1 (default) or 2.
     #[serde(default)]
     pub(crate) stop_bits: u64,
+    /// `rtu` (default) or `ascii`.
+    #[serde(default)]
+    pub(crate) framing: String,
 }
 
 /// A Modbus TCP endpoint (or RTU frames over TCP).
@@ -150,6 +153,7 @@ pub(crate) async fn put_link(
             parity: s.parity,
             data_bits: s.data_bits,
             stop_bits: s.stop_bits,
+            framing: s.framing,
         },
         (None, Some(t)) => Endpoint::Tcp {
             host: t.host,

@@ -414,6 +414,7 @@ impl Gateway for GrpcApi {
                 parity: s.parity,
                 data_bits: s.data_bits.into(),
                 stop_bits: s.stop_bits.into(),
+                framing: s.framing,
             },
             Some(pb::ensure_link_request::Transport::Tcp(t)) => Endpoint::Tcp {
                 host: t.host,

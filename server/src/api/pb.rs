@@ -86,6 +86,7 @@ pub(crate) fn serial(s: &SerialSettings) -> pb::SerialSettings {
         parity: s.parity.letter().to_string(),
         data_bits: s.data_bits.into(),
         stop_bits: s.stop_bits.into(),
+        framing: s.framing.name().to_owned(),
     }
 }
 

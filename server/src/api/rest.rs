@@ -32,6 +32,11 @@ pub(crate) struct Health {
     /// unready (its messages wait in the buffer), so this is detail only.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(crate) mqtt: Option<MqttHealth>,
+    /// The Modbus server's serial ports by state (`open`, `opening`, `lost`), when it has
+    /// any: a port away does not make the gateway unready, so this is detail only (the
+    /// ports' counters are in `GET /api/v1/map`).
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub(crate) modbus_serial: std::collections::BTreeMap<String, String>,
 }
 
 /// The MQTT front-end in `/readyz`.
@@ -52,6 +57,7 @@ pub(crate) async fn livez() -> Json<Health> {
         stalled_links: Vec::new(),
         starved_devices: Vec::new(),
         mqtt: None,
+        modbus_serial: Default::default(),
     })
 }
 
@@ -92,6 +98,11 @@ pub(crate) async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Heal
             stalled_links,
             starved_devices,
             mqtt,
+            modbus_serial: service
+                .serial_ports()
+                .into_iter()
+                .map(|p| (p.port, p.state.name().to_owned()))
+                .collect(),
         }),
     )
 }

@@ -3,10 +3,11 @@
 
 use super::DeclareError;
 use crate::config::rules;
-use crate::config::{Framing, Parity, Transport};
+use crate::config::{Framing, Parity, SerialSettings, Transport};
 
 /// A link's endpoint as a declaration gives it: numbers unchecked, zero or empty for "the
-/// default" (8 data bits, 1 stop bit, no parity, port 502, MBAP framing).
+/// default" (8 data bits, 1 stop bit, no parity, RTU framing on a line; port 502, MBAP
+/// framing over TCP).
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) enum Endpoint {
     Serial {
@@ -15,6 +16,7 @@ pub(crate) enum Endpoint {
         parity: String,
         data_bits: u64,
         stop_bits: u64,
+        framing: String,
     },
     Tcp {
         host: String,
@@ -34,6 +36,7 @@ impl Endpoint {
                 parity,
                 data_bits,
                 stop_bits,
+                framing,
             } => {
                 let parity = match parity.as_str() {
                     "" => Ok(Parity::None),
@@ -49,7 +52,21 @@ impl Endpoint {
                     or(*data_bits, rules::DEFAULT_DATA_BITS),
                     or(*stop_bits, rules::DEFAULT_STOP_BITS),
                 );
-                let mut settings = checked.map_err(DeclareError::Rules)?;
+                let framing = match framing.as_str() {
+                    "" => Ok(Framing::Rtu),
+                    text => rules::parse_serial_framing(text),
+                };
+                let mut settings = match (checked, framing) {
+                    (Ok(settings), Ok(framing)) => SerialSettings {
+                        framing,
+                        ..settings
+                    },
+                    (Err(mut errors), framing) => {
+                        errors.extend(framing.err());
+                        return Err(DeclareError::Rules(errors));
+                    }
+                    (Ok(_), Err(e)) => return Err(DeclareError::Rules(vec![e])),
+                };
                 if unset {
                     settings.port = String::new();
                 }

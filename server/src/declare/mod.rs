@@ -488,6 +488,7 @@ mod tests {
             parity: parity.into(),
             data_bits: 0,
             stop_bits: 0,
+            framing: String::new(),
         }
     }
 
