@@ -327,6 +327,21 @@ impl Node {
     }
 }
 
+/// A YAML boolean, or the problem reported.
+pub(crate) fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
+    match node.kind {
+        Kind::Bool(b) => Some(b),
+        _ => {
+            report.push(
+                node.line,
+                ctx,
+                format!("expected true or false, found {}", node.describe()),
+            );
+            None
+        }
+    }
+}
+
 /// Reads the keys of a mapping; [`MapReader::finish`] reports every key nobody asked for.
 pub(crate) struct MapReader<'a> {
     pub(crate) line: u64,

@@ -4,6 +4,7 @@
 //! other and devices against the loaded profiles.
 
 mod check;
+mod line;
 pub(crate) mod modbus_server;
 pub(crate) mod mqtt;
 pub(crate) mod opcua;

@@ -10,7 +10,7 @@ use std::time::Duration;
 use iogate_types::Location;
 
 use crate::duration;
-use crate::yaml::{Kind, Node, Report};
+use crate::yaml::{Kind, Node, Report, boolean};
 
 const KEYS: &[&str] = &[
     "listen",
@@ -126,21 +126,6 @@ pub struct ModbusServerConfig {
     pub(crate) memory_file_line: u64,
     pub(crate) on_bad_quality: OnBadQuality,
     pub(crate) line: u64,
-}
-
-/// A YAML boolean (the MQTT section reads its flags with it too).
-pub(super) fn boolean(node: &Node, report: &mut Report, ctx: &str) -> Option<bool> {
-    match node.kind {
-        Kind::Bool(b) => Some(b),
-        _ => {
-            report.push(
-                node.line,
-                ctx,
-                format!("expected true or false, found {}", node.describe()),
-            );
-            None
-        }
-    }
 }
 
 /// Reads the section; `None` after reporting its problems.
@@ -304,7 +289,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
 fn read_serial(node: &Node, index: usize, report: &mut Report) -> Option<SerialServer> {
     let ctx = format!("modbus_server.serial[{index}]");
     let mut map = node.map(report, &ctx)?;
-    let line = super::parse::read_line(&mut map, &ctx, report);
+    let line = super::line::read_line(&mut map, &ctx, report);
     let unit_id = match map.get("unit_id") {
         None => Some(1),
         Some(n) => n

@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use super::modbus_server::boolean;
 use crate::duration;
+use crate::yaml::boolean;
 use crate::yaml::{Kind, Node, Report};
 
 const KEYS: &[&str] = &[

@@ -5,7 +5,7 @@
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
-use super::modbus_server::boolean;
+use crate::yaml::boolean;
 use crate::yaml::{Kind, Node, Report};
 
 const KEYS: &[&str] = &[

@@ -6,10 +6,11 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use super::rules::{self, RuleError};
-use super::{Config, DeviceConfig, Framing, LinkConfig, Parity, SerialSettings, Transport};
+use super::line::ruled;
+use super::rules;
+use super::{Config, DeviceConfig, Framing, LinkConfig, SerialSettings, Transport};
 use crate::duration;
-use crate::yaml::{self, MapReader, Node, Report};
+use crate::yaml::{self, Node, Report};
 
 const TOP_KEYS: &[&str] = &[
     "listen",
@@ -212,7 +213,7 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         .unwrap_or_default();
     if let Some(mut reload) = map.get("reload").and_then(|n| n.map(report, "reload")) {
         if let Some(node) = reload.get("watch")
-            && let Some(watch) = super::modbus_server::boolean(node, report, "reload.watch")
+            && let Some(watch) = yaml::boolean(node, report, "reload.watch")
         {
             config.reload.watch = watch;
         }
@@ -289,89 +290,12 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     })
 }
 
-/// The value of a rule's check, or the broken rule reported at `line`.
-fn ruled<T>(checked: Result<T, RuleError>, line: u64, ctx: &str, report: &mut Report) -> Option<T> {
-    checked
-        .map_err(|e| report.push(line, ctx, e.to_string()))
-        .ok()
-}
-
 fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSettings> {
     let ctx = format!("{link}: serial");
     let mut map = node.map(report, &ctx)?;
-    let settings = read_line(&mut map, &ctx, report);
+    let settings = super::line::read_line(&mut map, &ctx, report);
     map.finish(report, &ctx, SERIAL_KEYS);
     settings
-}
-
-/// A serial line's settings (`port`, `baud`, `parity`, `data_bits`, `stop_bits`,
-/// `framing`) from a mapping that may hold other keys (a serial server's `unit_id`): the
-/// caller reads those and finishes the mapping.
-pub(super) fn read_line(
-    map: &mut MapReader,
-    ctx: &str,
-    report: &mut Report,
-) -> Option<SerialSettings> {
-    let at = |k: &str| format!("{ctx}.{k}");
-    let lines: Vec<(&str, u64)> = ["port", "baud", "parity", "data_bits", "stop_bits"]
-        .into_iter()
-        .filter_map(|k| map.get(k).map(|n| (k, n.line)))
-        .collect();
-    let port = map
-        .require("port", report, ctx)
-        .and_then(|n| n.scalar_text(report, &at("port")));
-    let baud = map
-        .require("baud", report, ctx)
-        .and_then(|n| n.int_in(report, &at("baud"), 0, i128::from(u32::MAX)));
-    let parity = match map.get("parity") {
-        None => Some(Parity::None),
-        Some(n) => n
-            .scalar_text(report, &at("parity"))
-            .and_then(|text| ruled(rules::parse_parity(&text), n.line, &at("parity"), report)),
-    };
-    let mut bits = |key: &str, default: u8| match map.get(key) {
-        None => Some(i128::from(default)),
-        Some(n) => n.int_in(report, &at(key), 0, 255),
-    };
-    let data_bits = bits("data_bits", rules::DEFAULT_DATA_BITS);
-    let stop_bits = bits("stop_bits", rules::DEFAULT_STOP_BITS);
-    let framing = match map.get("framing") {
-        None => Some(Framing::Rtu),
-        Some(n) => n.scalar_text(report, &at("framing")).and_then(|text| {
-            ruled(
-                rules::parse_serial_framing(&text),
-                n.line,
-                &at("framing"),
-                report,
-            )
-        }),
-    };
-    // Every rule is checked even when a key was missing or unreadable (that is reported
-    // already), so that all problems show at once.
-    let complete = port.is_some() && baud.is_some() && parity.is_some();
-    let checked = rules::serial(
-        port.unwrap_or_else(|| "-".to_owned()),
-        baud.map_or(9600, |b| b as u64),
-        Ok(parity.unwrap_or(Parity::None)),
-        data_bits.map_or(u64::from(rules::DEFAULT_DATA_BITS), |b| b as u64),
-        stop_bits.map_or(u64::from(rules::DEFAULT_STOP_BITS), |b| b as u64),
-    );
-    let settings = checked
-        .map_err(|errors| {
-            for e in errors {
-                // At the key's own line when it is written, else the mapping's.
-                let line = lines
-                    .iter()
-                    .find(|(k, _)| *k == e.key())
-                    .map_or(map.line, |(_, l)| *l);
-                report.push(line, at(e.key()), e.to_string());
-            }
-        })
-        .ok()?;
-    complete.then_some(SerialSettings {
-        framing: framing?,
-        ..settings
-    })
 }
 
 fn read_tcp(node: &Node, link: &str, report: &mut Report) -> Option<Transport> {
