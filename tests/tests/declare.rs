@@ -248,6 +248,20 @@ async fn rest_declarations_report_the_same_states_and_recover() {
     })
     .await
     .expect("error 1");
+    // An ASCII line, listed with its framing.
+    let (status, answer) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/links/line2",
+            json!({"serial": {"baud": 9600, "data_bits": 7, "parity": "E", "framing": "ascii"}})
+                .to_string(),
+        )
+        .await
+        .expect("put link");
+    assert_eq!(status, 201, "{answer}");
+    let (_, listed) = gw.get("/api/v1/links/line2").await.expect("link");
+    assert_eq!(listed["framing"], "ascii", "{listed}");
+    assert_eq!(listed["data_bits"], 7, "{listed}");
 
     // Refusals in the API's words.
     for (path, body, expected, code) in [
@@ -278,6 +292,12 @@ async fn rest_declarations_report_the_same_states_and_recover() {
         (
             "/api/v1/links/bad",
             json!({"serial": {"port": "/dev/ttyS9", "baud": 5}}),
+            400,
+            "invalid_declaration",
+        ),
+        (
+            "/api/v1/links/bad",
+            json!({"serial": {"port": "/dev/ttyS9", "baud": 9600, "framing": "mbap"}}),
             400,
             "invalid_declaration",
         ),

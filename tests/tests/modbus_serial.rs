@@ -346,7 +346,7 @@ async fn an_ascii_master_reads_and_writes_the_map_through_the_serial_slave() {
     let (line, _holder) = line(&dir, "ttyGW");
     let gw = TestGateway::start(&gateway_config(
         &dir.join("ttyGW"),
-        ", baud: 9600, parity: E, data_bits: 7, framing: ascii",
+        ", baud: 9600, parity: E, data_bits: 7, framing: ascii, turnaround_delay: 30ms",
     ))
     .await
     .expect("gateway");
@@ -368,6 +368,21 @@ async fn an_ascii_master_reads_and_writes_the_map_through_the_serial_slave() {
     assert!(answers.iter().all(|a| a[0] == 7), "{answers:02x?}");
     let requests = ascii_frames(&way_bytes(&line.seen, Way::Request));
     assert_eq!(requests.len(), 14, "{requests:02x?}");
+    // Each answer waited the turnaround delay after its request's LF.
+    let seen = line.seen.lock().expect("sniffer").clone();
+    let mut request_end = None;
+    for (way, bytes, at) in &seen {
+        match way {
+            Way::Request if bytes.ends_with(b"\n") => request_end = Some(*at),
+            Way::Request => {}
+            Way::Answer => {
+                if let Some(end) = request_end.take() {
+                    let gap = at.duration_since(end);
+                    assert!(gap >= Duration::from_millis(30), "answered after {gap:?}");
+                }
+            }
+        }
+    }
     let state = serial_state(&gw).await;
     assert_eq!(state["framing"], "ascii", "{state}");
     assert_eq!(state["line"], "9600 7E1", "{state}");

@@ -10,6 +10,7 @@ use iogate_tests::devices::{RtuBus, pty_at, temp_dir};
 use iogate_tests::mqtt::{Broker, Message, Peer};
 use iogate_tests::{SseReader, TestGateway, eventually};
 use reqwest::Method;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 const REG: &str = "name: Reg\nfields:\n  - { name: N, type: UINT, direction: input, register: { address: 0, kind: input_register } }\n";
 const SIM: &str = "name: SimOne\nprotocol: simulated\nfields:\n  - { name: X, type: INT, direction: inout, register: { address: 0, kind: virtual } }\n";
@@ -412,4 +413,73 @@ fn bd_seq_of(m: &Message) -> u64 {
         .and_then(|metrics| metrics.iter().find(|x| x["name"] == "bdSeq"))
         .and_then(|x| x["value"].as_u64())
         .expect("bdSeq")
+}
+
+#[tokio::test]
+async fn a_reload_moves_the_modbus_servers_serial_ports() {
+    let dir = temp_dir("reload-serial");
+    let (_a_end, _a_holder) = pty_at(&dir.join("ttyA")).expect("pty");
+    let (mut b_end, _b_holder) = pty_at(&dir.join("ttyB")).expect("pty");
+    let config = |serial: &str| {
+        format!(
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: profiles\ndevices:\n  - {{ name: one, profile: SimOne }}\nmodbus_server:\n  serial:\n{serial}"
+        )
+    };
+    let a = format!(
+        "    - {{ port: {}, baud: 19200, unit_id: 7 }}\n",
+        dir.join("ttyA").display()
+    );
+    let (_, path) = files("reload-serial-files", &[("sim.yaml", SIM)], &config(&a));
+    let gw = start(&path).await;
+    gw.until("/api/v1/map", "port A open", |m| {
+        m["serial"][0]["state"] == "open" && m["serial"][0]["unit_id"] == 7
+    })
+    .await
+    .expect("A");
+    // Port A goes, port B comes with unit id 9.
+    let b = format!(
+        "    - {{ port: {}, baud: 19200, unit_id: 9 }}\n",
+        dir.join("ttyB").display()
+    );
+    std::fs::write(&path, config(&b)).expect("config");
+    let (status, report) = gw
+        .send(Method::POST, "/api/v1/config/reload", "")
+        .await
+        .expect("reload");
+    assert_eq!(status, 200, "{report}");
+    assert!(
+        has_change(
+            &report["report"],
+            "listener",
+            "modbus_server.serial",
+            "changed"
+        ),
+        "{report}"
+    );
+    let map = gw
+        .until("/api/v1/map", "port B open alone", |m| {
+            m["serial"].as_array().is_some_and(|s| s.len() == 1)
+                && m["serial"][0]["state"] == "open"
+                && m["serial"][0]["unit_id"] == 9
+        })
+        .await
+        .expect("B");
+    assert!(
+        map["serial"][0]["port"]
+            .as_str()
+            .is_some_and(|p| p.ends_with("ttyB")),
+        "{map}"
+    );
+    // B answers unit 9.
+    let mut request = vec![9u8, 0x03, 0x04, 0x00, 0x00, 0x01];
+    let crc = iogate_tests::devices::crc16(&request);
+    request.extend_from_slice(&crc.to_le_bytes());
+    b_end.write_all(&request).await.expect("write");
+    let mut answer = [0u8; 7];
+    tokio::time::timeout(Duration::from_secs(2), b_end.read_exact(&mut answer))
+        .await
+        .expect("answered")
+        .expect("read");
+    assert_eq!(&answer[..3], &[9, 0x03, 2]);
+    gw.shutdown().await;
 }

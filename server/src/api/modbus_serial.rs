@@ -62,7 +62,7 @@ pub(crate) async fn serve_serial(service: Arc<Service>, shutdown: CancellationTo
             .map(|image| image.config.serial.clone())
             .unwrap_or_default();
         running.retain(|port, (entry, stop)| {
-            let keep = wanted.iter().any(|w| same(w, entry));
+            let keep = wanted.iter().any(|w| w.same_as(entry));
             if !keep {
                 stop.cancel();
                 service.serial_port_removed(port);
@@ -85,11 +85,6 @@ pub(crate) async fn serve_serial(service: Arc<Service>, shutdown: CancellationTo
             _ = tokio::time::sleep(RETRY) => {}
         }
     }
-}
-
-/// The same port served the same way (the config line where it is written aside).
-fn same(a: &SerialServer, b: &SerialServer) -> bool {
-    (&a.line, a.unit_id, a.turnaround_delay) == (&b.line, b.unit_id, b.turnaround_delay)
 }
 
 /// Opens the port, serves it, and opens it again when it fails, until `stop`.

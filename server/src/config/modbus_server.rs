@@ -108,6 +108,14 @@ pub struct SerialServer {
     pub(crate) at: u64,
 }
 
+impl SerialServer {
+    /// Whether both serve the same port the same way (where they are written aside).
+    pub(crate) fn same_as(&self, other: &SerialServer) -> bool {
+        (&self.line, self.unit_id, self.turnaround_delay)
+            == (&other.line, other.unit_id, other.turnaround_delay)
+    }
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModbusServerConfig {
     /// The Modbus TCP listener; `None` when the server is on serial ports only.

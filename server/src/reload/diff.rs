@@ -436,14 +436,47 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
                     vec![format!("{} -> {}: rebound", listened(x), listened(y))],
                 );
             }
+            let ports = |s: &crate::config::modbus_server::ModbusServerConfig| -> Vec<String> {
+                s.serial
+                    .iter()
+                    .map(|e| {
+                        format!(
+                            "{} {} {}{}{} {} unit {}",
+                            e.line.port,
+                            e.line.baud,
+                            e.line.data_bits,
+                            e.line.parity.letter(),
+                            e.line.stop_bits,
+                            e.line.framing.name(),
+                            e.unit_id
+                        )
+                    })
+                    .collect()
+            };
+            let same_serial = x.serial.len() == y.serial.len()
+                && x.serial.iter().zip(&y.serial).all(|(a, b)| a.same_as(b));
+            if !same_serial {
+                d.push(
+                    Kind::Listener,
+                    "modbus_server.serial",
+                    Action::Changed,
+                    vec![format!(
+                        "[{}] -> [{}]: changed ports restarted",
+                        ports(x).join(", "),
+                        ports(y).join(", ")
+                    )],
+                );
+            }
             let mut x = x.clone();
             x.listen = y.listen;
+            x.serial.iter_mut().for_each(|e| e.at = 0);
             x.line = y.line;
             x.map.iter_mut().for_each(|e| e.line = 0);
             x.forward.iter_mut().for_each(|f| f.line = 0);
             let mut y = y.clone();
             y.map.iter_mut().for_each(|e| e.line = 0);
             y.forward.iter_mut().for_each(|f| f.line = 0);
+            y.serial.iter_mut().for_each(|e| e.at = 0);
             if x != y {
                 d.modbus = true;
             }
