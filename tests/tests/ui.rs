@@ -643,3 +643,51 @@ async fn the_overview_shows_the_last_reload_and_a_refused_one() -> anyhow::Resul
     gw.shutdown().await;
     Ok(())
 }
+
+#[tokio::test]
+async fn the_overview_shows_the_modbus_servers_serial_ports_and_their_frames() -> anyhow::Result<()>
+{
+    // The browser first: its processes must not inherit the pty (a pty's end held by
+    // Chromium would never hang up).
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    let dir = iogate_tests::devices::temp_dir("ui-serial");
+    let path = dir.join("ttySLAVE");
+    let (mut master, holder) = iogate_tests::devices::pty_at(&path)?;
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\nmodbus_server:\n  auto: true\n  serial:\n    - {{ port: {}, baud: 19200, parity: E, unit_id: 4 }}\n",
+        path.display()
+    ))
+    .await?;
+    gw.until("/api/v1/map", "the port open", |m| {
+        m["serial"][0]["state"] == "open"
+    })
+    .await?;
+    drop(holder);
+    // A master reads a coil through the port.
+    let mut request = vec![4u8, 0x01, 0x00, 0x00, 0x00, 0x01];
+    let crc = iogate_tests::devices::crc16(&request);
+    request.extend_from_slice(&crc.to_le_bytes());
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    master.write_all(&request).await?;
+    let mut answer = [0u8; 6];
+    tokio::time::timeout(Duration::from_secs(2), master.read_exact(&mut answer)).await??;
+    browser.goto(&gw.url("/")).await?;
+    let row = format!("#serial tr[data-serial='{}']", path.display());
+    browser
+        .until_text(&row, Duration::from_secs(10), |t| {
+            t.contains("open") && t.contains("RTU 19200 8E1") && t.contains("1 answered")
+        })
+        .await?;
+    // Unplugged: the page says the port is lost.
+    drop(master);
+    gw.until("/api/v1/map", "the port lost", |m| {
+        m["serial"][0]["state"] == "lost"
+    })
+    .await?;
+    browser
+        .until_text(&row, Duration::from_secs(10), |t| t.contains("lost"))
+        .await?;
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    gw.shutdown().await;
+    Ok(())
+}
