@@ -56,7 +56,7 @@ fn alert_rules_and_the_compose_prometheus_config_pass_promtool() {
         "promtool",
         &["check", "rules", "deploy/prometheus/alerts.yml"],
     );
-    assert!(rules.contains("SUCCESS: 12 rules found"), "{rules}");
+    assert!(rules.contains("SUCCESS: 13 rules found"), "{rules}");
     run(
         "promtool",
         &["check", "config", "deploy/compose/prometheus.yml"],
@@ -278,7 +278,8 @@ async fn busy_gateway() -> iogate_tests::OnBus {
     let bus = RtuBus::default();
     // One address refused, so exceptions are counted too.
     bus.slave(1, |s| s.refused = vec![3]);
-    // An MQTT front-end too (its broker away: its series are there all the same).
+    // An MQTT front-end too (its broker away: its series are there all the same), and a
+    // Modbus server on a serial port that is not there (its port's series likewise).
     let nobody = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .expect("port")
@@ -288,7 +289,10 @@ async fn busy_gateway() -> iogate_tests::OnBus {
         &bus,
         &[],
         "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 20ms }\n",
-        &format!("mqtt: {{ url: 'mqtt://127.0.0.1:{nobody}', json: {{ prefix: iogate }} }}\n"),
+        &format!(
+            "mqtt: {{ url: 'mqtt://127.0.0.1:{nobody}', json: {{ prefix: iogate }} }}\n\
+             modbus_server:\n  serial:\n    - {{ port: /nonexistent/ttyIOGATE-deploy, baud: 9600 }}\n"
+        ),
     )
     .await;
     let gw = &on_bus.0;
@@ -298,6 +302,7 @@ async fn busy_gateway() -> iogate_tests::OnBus {
             "iogate_device_exceptions_total",
             "iogate_device_requests_total",
             "iogate_device_response_time_seconds_bucket",
+            "iogate_modbus_serial_port_up",
         ]
         .iter()
         .all(|n| names.contains(*n))
@@ -542,7 +547,7 @@ async fn a_real_prometheus_scrapes_the_gateway_and_evaluates_every_alert_rule() 
             .flatten()
             .flat_map(|g| g["rules"].as_array().cloned().unwrap_or_default())
             .collect();
-        let evaluated = all.len() == 12
+        let evaluated = all.len() == 13
             && all.iter().all(|r| {
                 r["lastEvaluation"]
                     .as_str()
