@@ -1,8 +1,10 @@
-//! The Modbus TCP server under load: FC03 × 10 registers from 1 and from 16 masters at once
-//! (tokio-modbus clients in this process), requests per second and latency percentiles,
-//! against `iogate serve` on the demo's devices in its own process, and the same clients
-//! against a libmodbus server (a C program built here with `cc` and Debian's
-//! libmodbus-dev, when both are installed) in the same run.
+//! The Modbus TCP server under load: FC03 × 10 and × 125 registers from 1 and from 16
+//! masters at once (tokio-modbus clients in this process), requests per second and latency
+//! percentiles, against `iogate serve` on the demo's devices in its own process, and the
+//! same clients in the same run against two peers, each in its own process: a libmodbus
+//! server (a C program built here with `cc` and Debian's libmodbus-dev, when both are
+//! installed) and a rodbus server (`benches/peer/rodbus`, built here by cargo from the
+//! published crate; never a dependency of iogate).
 //!
 //! `cargo bench -p iogate --bench modbus_server`
 
@@ -14,7 +16,9 @@ use tokio_modbus::prelude::*;
 
 mod common;
 
-const RUN: Duration = Duration::from_secs(3);
+const RUN: Duration = Duration::from_secs(2);
+/// Rounds per row: the servers take turns, and each figure is the median of its rounds.
+const ROUNDS: usize = 3;
 
 struct Figures {
     rps: f64,
@@ -22,7 +26,12 @@ struct Figures {
     p99: Duration,
 }
 
-async fn load(addr: SocketAddr, masters: usize, address: u16) -> anyhow::Result<Figures> {
+async fn load(
+    addr: SocketAddr,
+    masters: usize,
+    address: u16,
+    count: u16,
+) -> anyhow::Result<Figures> {
     let mut tasks = Vec::new();
     let start = Instant::now();
     for _ in 0..masters {
@@ -31,7 +40,7 @@ async fn load(addr: SocketAddr, masters: usize, address: u16) -> anyhow::Result<
             let mut latencies = Vec::new();
             while start.elapsed() < RUN {
                 let t = Instant::now();
-                ctx.read_holding_registers(address, 10).await??;
+                ctx.read_holding_registers(address, count).await??;
                 latencies.push(t.elapsed());
             }
             anyhow::Ok(latencies)
@@ -66,6 +75,32 @@ fn libmodbus_server() -> Option<(Child, SocketAddr)> {
     Some((child, SocketAddr::from(([127, 0, 0, 1], port))))
 }
 
+/// Builds and starts the rodbus server, if cargo can build it (it fetches the crate).
+fn rodbus_server() -> Option<(Child, SocketAddr)> {
+    let peer = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/peer/rodbus");
+    let target = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/peer-rodbus");
+    let built = Command::new(env!("CARGO"))
+        .args(["build", "--release", "--quiet", "--manifest-path"])
+        .arg(peer.join("Cargo.toml"))
+        .arg("--target-dir")
+        .arg(&target)
+        .status()
+        .ok()?;
+    if !built.success() {
+        return None;
+    }
+    let port = common::free_port().ok()?;
+    let mut child = Command::new(target.join("release/rodbus-peer"))
+        .arg(port.to_string())
+        .stdout(Stdio::piped())
+        .spawn()
+        .ok()?;
+    let mut line = String::new();
+    let stdout = child.stdout.take()?;
+    std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line).ok()?;
+    Some((child, SocketAddr::from(([127, 0, 0, 1], port))))
+}
+
 /// `iogate serve` on the demo's simulated devices, every field bound (`auto: true`).
 fn iogate_server() -> anyhow::Result<(common::Gateway, SocketAddr)> {
     let port = common::free_port()?;
@@ -80,13 +115,43 @@ fn iogate_server() -> anyhow::Result<(common::Gateway, SocketAddr)> {
     Ok((gateway, SocketAddr::from(([127, 0, 0, 1], port))))
 }
 
-fn row(name: &str, masters: usize, f: &Figures) {
-    println!(
-        "{name:<10} {masters:>3} masters  {:>9.0} req/s  p50 {:>7.1} µs  p99 {:>7.1} µs",
-        f.rps,
-        f.p50.as_secs_f64() * 1e6,
-        f.p99.as_secs_f64() * 1e6
-    );
+/// A server under test: its name, address and process.
+struct Server {
+    name: &'static str,
+    addr: SocketAddr,
+    pid: u32,
+}
+
+/// One round of a row on `server`: its figures and its process's CPU seconds per request.
+async fn measure(server: &Server, masters: usize, count: u16) -> anyhow::Result<(Figures, f64)> {
+    let before = common::cpu_seconds(server.pid);
+    let f = load(server.addr, masters, 2048, count).await?;
+    let cpu = common::cpu_seconds(server.pid) - before;
+    let requests = f.rps * RUN.as_secs_f64();
+    Ok((f, cpu / requests))
+}
+
+/// The medians of a server's rounds: requests per second, p50, p99, CPU per request.
+fn medians(rounds: &[(Figures, f64)]) -> (f64, Duration, Duration, f64) {
+    fn median<T: Copy + PartialOrd>(mut v: Vec<T>) -> T {
+        v.sort_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal));
+        v[v.len() / 2]
+    }
+    (
+        median(rounds.iter().map(|(f, _)| f.rps).collect()),
+        median(rounds.iter().map(|(f, _)| f.p50).collect()),
+        median(rounds.iter().map(|(f, _)| f.p99).collect()),
+        median(rounds.iter().map(|(_, c)| *c).collect()),
+    )
+}
+
+fn cell(name: &str, (rps, p50, p99, cpu): (f64, Duration, Duration, f64)) -> String {
+    format!(
+        "{name} {rps:.0} req/s, p50 {:.0} µs, p99 {:.0} µs, {:.1} µs CPU/req",
+        p50.as_secs_f64() * 1e6,
+        p99.as_secs_f64() * 1e6,
+        cpu * 1e6
+    )
 }
 
 fn main() -> anyhow::Result<()> {
@@ -95,28 +160,67 @@ fn main() -> anyhow::Result<()> {
         .build()?;
     runtime.block_on(async {
         let (gateway, iogate) = iogate_server()?;
-        println!(
-            "FC03 x 10 registers for {RUN:?} per row; each server in its own process, the masters in this one, 2 cores"
-        );
-        let peer = libmodbus_server();
-        if peer.is_none() {
+        let libmodbus = libmodbus_server();
+        if libmodbus.is_none() {
             println!("(libmodbus not built: install gcc, pkg-config and libmodbus-dev to compare)");
         }
-        for masters in [1, 16] {
-            // %MD0-%MD4 of the demo: five bound 32-bit fields.
-            let ours = load(iogate, masters, 2048).await?;
-            row("iogate", masters, &ours);
-            if let Some((_, addr)) = &peer {
-                let theirs = load(*addr, masters, 2048).await?;
-                row("libmodbus", masters, &theirs);
+        let rodbus = rodbus_server();
+        if rodbus.is_none() {
+            println!("(rodbus not built: cargo could not build benches/peer/rodbus)");
+        }
+        let ours = Server {
+            name: "iogate",
+            addr: iogate,
+            pid: gateway.child.id(),
+        };
+        let peers: Vec<Server> = [("libmodbus", &libmodbus), ("rodbus", &rodbus)]
+            .into_iter()
+            .filter_map(|(name, p)| {
+                p.as_ref().map(|(child, addr)| Server {
+                    name,
+                    addr: *addr,
+                    pid: child.id(),
+                })
+            })
+            .collect();
+        println!(
+            "FC03, {ROUNDS} rounds of {RUN:?} per server and row (medians; the servers take turns); each server in its own process, the tokio-modbus masters in this one"
+        );
+        println!();
+        println!("| request | masters | iogate | peers | iogate / best peer (req/s) |");
+        println!("| --- | ---: | --- | --- | ---: |");
+        for count in [10u16, 125] {
+            for masters in [1, 16] {
+                // From %MD0 of the demo: its bound 32-bit fields, then gateway memory.
+                let servers: Vec<&Server> = std::iter::once(&ours).chain(&peers).collect();
+                let mut rounds: Vec<Vec<(Figures, f64)>> = servers.iter().map(|_| Vec::new()).collect();
+                for round in 0..ROUNDS {
+                    // Each round in another order, so that no server always goes first.
+                    for k in 0..servers.len() {
+                        let i = (k + round) % servers.len();
+                        rounds[i].push(measure(servers[i], masters, count).await?);
+                    }
+                }
+                let figures: Vec<_> = rounds.iter().map(|r| medians(r)).collect();
+                let best = figures[1..].iter().map(|f| f.0).fold(0.0f64, f64::max);
                 println!(
-                    "           ratio iogate/libmodbus: throughput {:.2}, p99 {:.2}",
-                    ours.rps / theirs.rps,
-                    ours.p99.as_secs_f64() / theirs.p99.as_secs_f64()
+                    "| FC03 x {count} | {masters} | {} | {} | {} |",
+                    cell("", figures[0]).trim(),
+                    servers[1..]
+                        .iter()
+                        .zip(&figures[1..])
+                        .map(|(s, f)| cell(s.name, *f))
+                        .collect::<Vec<_>>()
+                        .join("; "),
+                    if best > 0.0 {
+                        format!("{:.2}", figures[0].0 / best)
+                    } else {
+                        "-".to_owned()
+                    }
                 );
             }
         }
-        if let Some((mut child, _)) = peer {
+        for (mut child, _) in [libmodbus, rodbus].into_iter().flatten() {
             let _ = child.kill();
         }
         drop(gateway);

@@ -204,31 +204,58 @@ async fn connection(
     let mut stream = BufReader::new(stream);
     let mut counters = Counters::default();
     let mut header = [0u8; mbap::HEADER_LEN];
+    let mut pdu = Vec::with_capacity(256);
+    let mut frame = Vec::with_capacity(mbap::HEADER_LEN + 256);
     let write_wait = idle.min(MAX_WRITE_WAIT);
+    // Made once for the connection, not once a request: waiting on a token registers with
+    // its tree, shared by every connection, and a timer with the runtime's wheel. The idle
+    // timer is moved on only when it fires early (`last` is when the master last sent).
+    let stopped = token.cancelled();
+    let evicted = slot.evict.cancelled();
+    let idle_timer = tokio::time::sleep(idle);
+    tokio::pin!(stopped, evicted, idle_timer);
+    let mut last = tokio::time::Instant::now();
     loop {
-        let read = tokio::select! {
-            _ = token.cancelled() => return Ok(()),
-            _ = slot.evict.cancelled() => return Err(Closed::Evicted),
-            r = tokio::time::timeout(idle, stream.read_exact(&mut header)) => r,
+        let read = loop {
+            let read = tokio::select! {
+                biased;
+                r = stream.read_exact(&mut header) => Some(r),
+                _ = &mut stopped => return Ok(()),
+                _ = &mut evicted => return Err(Closed::Evicted),
+                _ = &mut idle_timer => None,
+            };
+            match read {
+                Some(r) => break r,
+                None if last.elapsed() >= idle => return Err(Closed::Idle),
+                None => idle_timer.as_mut().reset(last + idle),
+            }
         };
         match read {
-            Err(_) => return Err(Closed::Idle),
-            Ok(Err(e)) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
-            Ok(Err(e)) => return Err(Closed::Io(e)),
-            Ok(Ok(_)) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
+            Err(e) => return Err(Closed::Io(e)),
+            Ok(_) => {}
         }
+        last = tokio::time::Instant::now();
         let header = mbap::Header::parse(&header)?;
         let unit = header.unit;
-        let mut pdu = vec![0u8; header.pdu_len];
-        let read = tokio::select! {
-            _ = token.cancelled() => return Ok(()),
-            _ = slot.evict.cancelled() => return Err(Closed::Evicted),
-            r = tokio::time::timeout(idle, stream.read_exact(&mut pdu)) => r,
+        pdu.clear();
+        pdu.resize(header.pdu_len, 0);
+        let read = loop {
+            let read = tokio::select! {
+                biased;
+                r = stream.read_exact(&mut pdu) => Some(r),
+                _ = &mut stopped => return Ok(()),
+                _ = &mut evicted => return Err(Closed::Evicted),
+                _ = &mut idle_timer => None,
+            };
+            match read {
+                Some(r) => break r,
+                None if last.elapsed() >= idle => return Err(Closed::IdleMidFrame),
+                None => idle_timer.as_mut().reset(last + idle),
+            }
         };
-        match read {
-            Ok(Ok(_)) => {}
-            Ok(Err(e)) => return Err(Closed::Io(e)),
-            Err(_) => return Err(Closed::IdleMidFrame),
+        if let Err(e) = read {
+            return Err(Closed::Io(e));
         }
         // 0 and 128-255 are no function code a master may send: answering 0x80 | code
         // would read as an exception to another function, so the stream is out of step.
@@ -238,12 +265,14 @@ async fn connection(
         }
         slot.on_master.store(false, Ordering::Release);
         slot.served.store(true, Ordering::Relaxed);
-        let answer = answer(service, Some(unit), &pdu, &mut counters).await;
-        let frame = mbap::frame(header.transaction, unit, &answer);
+        mbap::start_frame(&mut frame);
+        answer_into(service, Some(unit), &pdu, &mut counters, &mut frame).await;
+        mbap::finish_frame(&mut frame, header.transaction, unit);
         slot.wait_on_master();
         let written = tokio::select! {
-            _ = slot.evict.cancelled() => return Err(Closed::Evicted),
+            biased;
             w = tokio::time::timeout(write_wait, stream.write_all(&frame)) => w,
+            _ = &mut evicted => return Err(Closed::Evicted),
         };
         match written {
             Ok(Ok(())) => {}
@@ -292,25 +321,35 @@ pub(crate) async fn answer(
     pdu: &[u8],
     counters: &mut Counters,
 ) -> Vec<u8> {
+    let mut out = Vec::new();
+    answer_into(service, unit, pdu, counters, &mut out).await;
+    out
+}
+
+/// [`answer`], appending the response PDU to `out` (a frame being built).
+pub(crate) async fn answer_into(
+    service: &Service,
+    unit: Option<u8>,
+    pdu: &[u8],
+    counters: &mut Counters,
+    out: &mut Vec<u8>,
+) {
     let code = pdu.first().copied().unwrap_or(0);
     let result = match (Request::parse(pdu), unit) {
         (Ok(request), Some(unit)) => service
             .modbus_request(unit, &request)
             .await
-            .map(|r| r.to_pdu(&request)),
+            .map(|r| r.write_pdu(&request, out)),
         (Ok(request), None) => service
             .modbus_request_local(&request)
-            .map(|r| r.to_pdu(&request)),
+            .map(|r| r.write_pdu(&request, out)),
         (Err(x), _) => Err(x),
     };
     match result {
-        Ok(response) => {
-            counters.count(service, code, None);
-            response
-        }
+        Ok(()) => counters.count(service, code, None),
         Err(x @ Exception(code_x)) => {
             counters.count(service, code, Some(code_x));
-            x.to_pdu(code)
+            out.extend_from_slice(&x.to_pdu(code));
         }
     }
 }

@@ -436,27 +436,36 @@ impl Request {
 impl Response {
     /// The response PDU answering `request` (the server side).
     pub(crate) fn to_pdu(&self, request: &Request) -> Vec<u8> {
-        let mut out = vec![request.function().code()];
+        let mut out = Vec::new();
+        self.write_pdu(request, &mut out);
+        out
+    }
+
+    /// Appends the response PDU answering `request` to `out` (a frame being built).
+    pub(crate) fn write_pdu(&self, request: &Request, out: &mut Vec<u8>) {
         match self {
             Response::Bits(bits) => {
                 let packed = pack_bits(bits);
+                out.reserve(2 + packed.len());
+                out.push(request.function().code());
                 out.push(packed.len() as u8);
                 out.extend_from_slice(&packed);
             }
             Response::Registers(regs) => {
+                out.reserve(2 + 2 * regs.len());
+                out.push(request.function().code());
                 out.push((regs.len() * 2) as u8);
                 for r in regs {
                     out.extend_from_slice(&r.to_be_bytes());
                 }
             }
             Response::Written => {
-                let mut echo = Vec::with_capacity(5);
-                request.encode(&mut echo);
-                out = echo;
-                out.truncate(5);
+                // The echo: function, address and quantity or value.
+                let start = out.len();
+                request.encode(out);
+                out.truncate(start + 5);
             }
         }
-        out
     }
 }
 

@@ -40,6 +40,20 @@ impl Header {
     }
 }
 
+/// Starts a frame in `out` (cleared): room for the header, filled by [`finish_frame`] once
+/// the PDU is appended.
+pub(crate) fn start_frame(out: &mut Vec<u8>) {
+    out.clear();
+    out.extend_from_slice(&[0; HEADER_LEN]);
+}
+
+/// Writes the header of the frame begun by [`start_frame`], for the PDU appended since.
+pub(crate) fn finish_frame(out: &mut [u8], transaction: u16, unit: u8) {
+    let length = ((out.len() - HEADER_LEN + 1) as u16).to_be_bytes();
+    let [t0, t1] = transaction.to_be_bytes();
+    out[..HEADER_LEN].copy_from_slice(&[t0, t1, 0, 0, length[0], length[1], unit]);
+}
+
 /// A whole frame: the header for `pdu`, then `pdu`.
 pub(crate) fn frame(transaction: u16, unit: u8, pdu: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER_LEN + pdu.len());

@@ -103,12 +103,26 @@ impl Memory {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    pub(crate) fn coil(&self, address: u16) -> bool {
-        self.lock()
-            .coils
-            .get(usize::from(address))
-            .copied()
-            .unwrap_or(false)
+    /// Appends the `count` registers from `address` to `out` (0 past the end), under one
+    /// lock.
+    pub(crate) fn registers_into(&self, address: u16, count: u16, out: &mut Vec<u16>) {
+        let image = self.lock();
+        let start = usize::from(address);
+        out.extend(
+            (start..start + usize::from(count))
+                .map(|a| image.registers.get(a).copied().unwrap_or(0)),
+        );
+    }
+
+    /// Appends the `count` coils from `address` to `out` (false past the end), under one
+    /// lock.
+    pub(crate) fn coils_into(&self, address: u16, count: u16, out: &mut Vec<bool>) {
+        let image = self.lock();
+        let start = usize::from(address);
+        out.extend(
+            (start..start + usize::from(count))
+                .map(|a| image.coils.get(a).copied().unwrap_or(false)),
+        );
     }
 
     pub(crate) fn register(&self, address: u16) -> u16 {
@@ -204,8 +218,9 @@ mod tests {
         m.set(&[(3, true)], &[(42, 0xBEEF), (7, 1)]).expect("set");
         drop(m);
         let again = Memory::new(16, 100, Some(file.clone())).expect("load");
-        assert!(again.coil(3));
-        assert!(!again.coil(4));
+        let mut coils = Vec::new();
+        again.coils_into(3, 2, &mut coils);
+        assert_eq!(coils, vec![true, false]);
         assert_eq!(again.register(42), 0xBEEF);
         assert_eq!(again.contents().1, vec![(7, 1), (42, 0xBEEF)]);
         std::fs::write(&file, "not json").expect("corrupt");

@@ -169,13 +169,32 @@ impl ModbusImage {
         count: u16,
     ) -> Result<Vec<bool>, Exception> {
         self.check_range(table, address, count)?;
-        (address..address + count)
-            .map(|a| match self.at(table, a) {
-                Some((b, _)) => Ok(matches!(self.current(b)?, Some(Value::Bool(true)))),
-                None if table == Table::Coils => Ok(self.memory.coil(a)),
-                None => Ok(false),
-            })
-            .collect()
+        let end = address + count;
+        let mut out = Vec::with_capacity(usize::from(count));
+        let mut a = address;
+        while a < end {
+            if let Some((b, _)) = self.at(table, a) {
+                out.push(matches!(self.current(b)?, Some(Value::Bool(true))));
+                a += 1;
+                continue;
+            }
+            // A run of unbound bits: gateway memory (coils) under one lock, or false.
+            let run = self.unbound_run(table, a, end);
+            if table == Table::Coils {
+                self.memory.coils_into(a, run, &mut out);
+            } else {
+                out.extend(std::iter::repeat_n(false, usize::from(run)));
+            }
+            a += run;
+        }
+        Ok(out)
+    }
+
+    /// How many addresses from `a` (before `end`) are bound to nothing.
+    fn unbound_run(&self, table: Table, a: u16, end: u16) -> u16 {
+        (a..end)
+            .take_while(|&x| self.at(table, x).is_none())
+            .count() as u16
     }
 
     pub(crate) fn read_registers(
@@ -202,12 +221,15 @@ impl ModbusImage {
                     a += take;
                 }
                 None => {
-                    out.push(if table == Table::HoldingRegisters {
-                        self.memory.register(a)
+                    // A run of unbound registers: gateway memory (holding registers) under
+                    // one lock, or 0.
+                    let run = self.unbound_run(table, a, address + count);
+                    if table == Table::HoldingRegisters {
+                        self.memory.registers_into(a, run, &mut out);
                     } else {
-                        0
-                    });
-                    a += 1;
+                        out.extend(std::iter::repeat_n(0, usize::from(run)));
+                    }
+                    a += run;
                 }
             }
         }
@@ -218,8 +240,8 @@ impl ModbusImage {
 /// Where a unit id's requests go.
 #[derive(Debug)]
 pub(crate) enum Route {
-    /// Answered from the map.
-    Local,
+    /// Answered from the map (this image).
+    Local(Arc<ModbusImage>),
     /// Forwarded to this slave on this link, with this timeout.
     Forward(Arc<Link>, Duration),
     /// No route: exception 0x0A.
@@ -258,7 +280,7 @@ impl Service {
             return Route::Unknown;
         };
         if unit == image.config.unit_id || unit == 0 || unit == 255 {
-            return Route::Local;
+            return Route::Local(image);
         }
         let Some(forward) = image
             .config
@@ -290,7 +312,7 @@ impl Service {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
         match self.modbus_route(unit) {
-            Route::Local => self.modbus_local(request),
+            Route::Local(image) => self.modbus_local(&image, request),
             Route::Unknown => Err(Exception::GATEWAY_PATH_UNAVAILABLE),
             Route::Forward(link, timeout) => {
                 // A master waits about a second for an answer; a request the link cannot
@@ -320,11 +342,11 @@ impl Service {
         if request.is_write() && self.is_read_only() {
             return Err(Exception::ILLEGAL_FUNCTION);
         }
-        self.modbus_local(request)
+        let image = self.modbus().ok_or(Exception::GATEWAY_PATH_UNAVAILABLE)?;
+        self.modbus_local(&image, request)
     }
 
-    fn modbus_local(&self, request: &Request) -> Result<Response, Exception> {
-        let image = self.modbus().ok_or(Exception::GATEWAY_PATH_UNAVAILABLE)?;
+    fn modbus_local(&self, image: &ModbusImage, request: &Request) -> Result<Response, Exception> {
         match request {
             Request::ReadCoils { address, count } => image
                 .read_bits(Table::Coils, *address, *count)
@@ -339,16 +361,16 @@ impl Service {
                 .read_registers(Table::InputRegisters, *address, *count)
                 .map(Response::Registers),
             Request::WriteSingleCoil { address, value } => {
-                self.write_coils(&image, *address, &[*value])
+                self.write_coils(image, *address, &[*value])
             }
             Request::WriteMultipleCoils { address, values } => {
-                self.write_coils(&image, *address, values)
+                self.write_coils(image, *address, values)
             }
             Request::WriteSingleRegister { address, value } => {
-                self.write_registers(&image, *address, &[*value])
+                self.write_registers(image, *address, &[*value])
             }
             Request::WriteMultipleRegisters { address, values } => {
-                self.write_registers(&image, *address, values)
+                self.write_registers(image, *address, values)
             }
         }
         .map(|r| {
