@@ -9,7 +9,6 @@
 //! closed. A connection is closed after `idle_timeout` without a request, and when its
 //! master does not take an answer within the write timeout.
 
-use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -268,16 +267,25 @@ async fn connection(
         mbap::start_frame(&mut frame);
         answer_into(service, Some(unit), &pdu, &mut counters, &mut frame).await;
         mbap::finish_frame(&mut frame, header.transaction, unit);
-        slot.wait_on_master();
-        let written = tokio::select! {
-            biased;
-            w = tokio::time::timeout(write_wait, stream.write_all(&frame)) => w,
-            _ = &mut evicted => return Err(Closed::Evicted),
+        // Usually the socket takes the whole answer at once; otherwise the connection waits
+        // on its master to take the rest.
+        let sent = match stream.get_ref().try_write(&frame) {
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => 0,
+            Err(e) => return Err(Closed::Io(e)),
         };
-        match written {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(Closed::Io(e)),
-            Err(_) => return Err(Closed::WriteTimeout(write_wait)),
+        if sent < frame.len() {
+            slot.wait_on_master();
+            let written = tokio::select! {
+                biased;
+                w = tokio::time::timeout(write_wait, stream.write_all(&frame[sent..])) => w,
+                _ = &mut evicted => return Err(Closed::Evicted),
+            };
+            match written {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => return Err(Closed::Io(e)),
+                Err(_) => return Err(Closed::WriteTimeout(write_wait)),
+            }
         }
         // Waiting for the next request from now (so an active master is not taken for an
         // idle one).
@@ -287,28 +295,42 @@ async fn connection(
 
 /// A connection's (or serial port's) handles on the request counters, so that counting a
 /// request costs no label lookup.
+/// A few entries, looked up in order (cheaper than hashing for the handful a master uses).
 #[derive(Default)]
-pub(crate) struct Counters(HashMap<(u8, Option<u8>), (Counter, Option<Counter>)>);
+pub(crate) struct Counters(Vec<CounterEntry>);
+
+type CounterEntry = ((u8, Option<u8>), (Counter, Option<Counter>));
 
 impl Counters {
     fn count(&mut self, service: &Service, code: u8, exception: Option<u8>) {
-        let (requests, exceptions) = self.0.entry((code, exception)).or_insert_with(|| {
-            let outcome = if exception.is_some() {
-                "exception"
-            } else {
-                "ok"
-            };
-            (
-                service
-                    .metrics
-                    .server_requests(&format!("fc{code:02}"), outcome),
-                exception.map(|x| service.metrics.server_exceptions(x)),
-            )
-        });
+        let key = (code, exception);
+        let at = match self.0.iter().position(|(k, _)| *k == key) {
+            Some(at) => at,
+            None => {
+                self.0.push((key, Self::handles(service, code, exception)));
+                self.0.len() - 1
+            }
+        };
+        let (requests, exceptions) = &self.0[at].1;
         requests.inc();
         if let Some(e) = exceptions {
             e.inc();
         }
+    }
+
+    /// The counters of requests with `code` and `exception`.
+    fn handles(service: &Service, code: u8, exception: Option<u8>) -> (Counter, Option<Counter>) {
+        let outcome = if exception.is_some() {
+            "exception"
+        } else {
+            "ok"
+        };
+        (
+            service
+                .metrics
+                .server_requests(&format!("fc{code:02}"), outcome),
+            exception.map(|x| service.metrics.server_exceptions(x)),
+        )
     }
 }
 
