@@ -564,3 +564,99 @@ async fn a_frame_ends_at_a_silence_and_a_lost_port_is_reopened() {
     );
     gw.shutdown().await;
 }
+
+/// A deterministic stream of pseudo-random bytes (xorshift).
+fn noise(seed: u64, len: usize) -> Vec<u8> {
+    let mut x = seed.max(1);
+    (0..len)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 24) as u8
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn noise_on_the_line_is_never_answered_and_the_ports_keep_serving() {
+    let dir = temp_dir("serial-noise");
+    let (mut rtu_end, _rtu_holder) = pty_at(&dir.join("ttyRTU")).expect("pty");
+    let (mut ascii, _ascii_holder) = pty_at(&dir.join("ttyASCII")).expect("pty");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\n\
+         modbus_server:\n  serial:\n    - {{ port: {}, baud: 115200, unit_id: 7 }}\n    \
+         - {{ port: {}, baud: 115200, unit_id: 7, framing: ascii }}\n",
+        dir.join("ttyRTU").display(),
+        dir.join("ttyASCII").display()
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/map", "both ports open", |m| {
+        m["serial"]
+            .as_array()
+            .is_some_and(|s| s.len() == 2 && s.iter().all(|p| p["state"] == "open"))
+    })
+    .await
+    .expect("open");
+    // 40 bursts of noise on each line, each followed by more than a frame's silence
+    // (3.5 characters at 115200 baud are 1.75 ms), some with `:` and CR LF in them.
+    for k in 0..40u64 {
+        let mut burst = noise(k + 1, 1 + (k as usize * 37) % 300);
+        rtu_end.write_all(&burst).await.expect("write");
+        if k % 3 == 0 {
+            burst.insert(0, b':');
+            burst.extend_from_slice(b"\r\n");
+        }
+        ascii.write_all(&burst).await.expect("write");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // Nothing was answered.
+    let mut byte = [0u8; 1];
+    for end in [&mut rtu_end, &mut ascii] {
+        assert!(
+            tokio::time::timeout(Duration::from_millis(200), end.read(&mut byte))
+                .await
+                .is_err(),
+            "noise was answered"
+        );
+    }
+    // Both ports still answer a good request.
+    let read = rtu(&[7, 0x03, 0x04, 0x00, 0x00, 0x01]);
+    rtu_end.write_all(&read).await.expect("write");
+    let mut answer = [0u8; 7];
+    tokio::time::timeout(Duration::from_secs(2), rtu_end.read_exact(&mut answer))
+        .await
+        .expect("RTU answered")
+        .expect("read");
+    assert_eq!(&answer[..3], &[7, 0x03, 2]);
+    // An unfinished ASCII frame (the noise's last `:`) is dropped at the next `:`.
+    ascii
+        .write_all(b":070304000001F1\r\n")
+        .await
+        .expect("write");
+    let mut line = Vec::new();
+    while !line.ends_with(b"\r\n") {
+        tokio::time::timeout(Duration::from_secs(2), ascii.read_exact(&mut byte))
+            .await
+            .expect("ASCII answered")
+            .expect("read");
+        line.push(byte[0]);
+    }
+    assert!(
+        line.starts_with(b":070302"),
+        "{}",
+        String::from_utf8_lossy(&line)
+    );
+    let (_, map) = gw.get("/api/v1/map").await.expect("map");
+    for port in map["serial"].as_array().expect("ports") {
+        let f = &port["frames"];
+        assert_eq!(f["answered"], json!(1), "{port}");
+        let ignored = ["crc_error", "malformed", "other_unit"]
+            .iter()
+            .map(|k| f[*k].as_u64().unwrap_or(0))
+            .sum::<u64>();
+        assert!(ignored >= 10, "{port}");
+    }
+    gw.shutdown().await;
+}
