@@ -9,6 +9,7 @@ use tokio::time::Instant;
 
 use super::outputs::{Checked, Outputs, TakenWrite, WriteError};
 use super::sample::{DeviceCode, Diagnostics, FieldError, Quality, Sample};
+use super::slot::{Slot, SlotReceiver};
 use super::{AccessError, lock};
 use crate::codec::{CodecError, Value};
 use crate::config::DeviceConfig;
@@ -24,7 +25,7 @@ pub struct Device {
     pub(crate) config: DeviceConfig,
     pub(crate) profile: Arc<Profile>,
     /// Shared with the device that replaces this one on a reload, for the fields both have.
-    samples: Vec<Arc<watch::Sender<Sample>>>,
+    samples: Vec<Arc<Slot<Sample>>>,
     diagnostics: Arc<watch::Sender<Diagnostics>>,
     outputs: Outputs,
     /// Whether the device is polled as it is, was replaced by a re-planned one, or removed.
@@ -97,7 +98,7 @@ impl Device {
         let error_code = binding.code(simulated);
         Device {
             samples: (0..n)
-                .map(|_| Arc::new(watch::Sender::new(Sample::never_read())))
+                .map(|_| Arc::new(Slot::new(Sample::never_read())))
                 .collect(),
             diagnostics: Arc::new(watch::Sender::new(Diagnostics {
                 connected: simulated,
@@ -355,7 +356,7 @@ impl Device {
         self.samples[idx].borrow().clone()
     }
 
-    pub(crate) fn subscribe(&self, idx: usize) -> watch::Receiver<Sample> {
+    pub(crate) fn subscribe(&self, idx: usize) -> SlotReceiver<Sample> {
         self.samples[idx].subscribe()
     }
 

@@ -9,6 +9,7 @@ mod device;
 mod link;
 mod outputs;
 pub(crate) mod sample;
+mod slot;
 
 use std::sync::{Arc, Mutex, MutexGuard, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
@@ -26,6 +27,7 @@ pub use link::{
 };
 pub(crate) use outputs::{Checked, WriteError};
 pub(crate) use sample::{Diagnostics, FieldError, LinkDiagnostics, Sample};
+pub(crate) use slot::SlotReceiver;
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     // Sections under these locks are single assignments; a poisoned lock holds whole values.
@@ -409,7 +411,7 @@ mod tests {
         io.publish(di, Ok(Value::Bool(true)));
         let mut rx = io.subscribe(di);
         rx.borrow_and_update();
-        let quality = |rx: &mut tokio::sync::watch::Receiver<sample::Sample>| {
+        let quality = |rx: &mut SlotReceiver<sample::Sample>| {
             rx.borrow_and_update()
                 .quality_at(Instant::now(), io.stale_after())
         };

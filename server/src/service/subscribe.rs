@@ -16,7 +16,7 @@ use tokio_stream::StreamMap;
 use tokio_stream::wrappers::WatchStream;
 
 use super::{Selection, Service, ServiceError};
-use crate::cache::{Cache, Device, Diagnostics, Fate, Sample};
+use crate::cache::{Cache, Device, Diagnostics, Fate, Sample, SlotReceiver};
 
 /// A change of a field's value (or quality), or of a device's diagnostics; or the end of a
 /// field or device that was removed.
@@ -53,7 +53,7 @@ const FIELD_REMOVED: &str = "the field is no longer in the device's profile";
 
 /// What a followed stream watches: one field's samples, or the device's diagnostics.
 enum Watched {
-    Field(usize, watch::Receiver<Sample>),
+    Field(usize, SlotReceiver<Sample>),
     Diagnostics(watch::Receiver<Diagnostics>),
 }
 
@@ -138,11 +138,11 @@ impl Followed {
                 }
                 changed = async {
                     match &mut self.watched {
-                        Watched::Field(_, rx) => rx.changed().await,
-                        Watched::Diagnostics(rx) => rx.changed().await,
+                        Watched::Field(_, rx) => rx.changed().await.is_ok(),
+                        Watched::Diagnostics(rx) => rx.changed().await.is_ok(),
                     }
                 } => {
-                    if changed.is_err() {
+                    if !changed {
                         return None;
                     }
                     return Some(match &mut self.watched {

@@ -1,0 +1,210 @@
+//! A field's latest sample that tasks wait on: what a tokio `watch` channel gives (the
+//! newest value, a version, waiting for the next change, the end when the last owner goes)
+//! in about a fifth of its memory. A `watch` channel carries nine `Notify`s for waiters
+//! spread over cores (about 430 bytes besides its value); a gateway has one per field, and
+//! most fields have one subscriber or none, so a slot has one.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, RwLock, RwLockReadGuard};
+
+use tokio::sync::Notify;
+
+/// The owner's side: changes the value and wakes the receivers. Dropping it ends them.
+#[derive(Debug)]
+pub(crate) struct Slot<T> {
+    shared: Arc<Shared<T>>,
+}
+
+#[derive(Debug)]
+struct Shared<T> {
+    value: RwLock<T>,
+    /// Changed (under the write lock) with every change told.
+    version: AtomicU64,
+    /// The owner is gone: nothing more will change.
+    closed: AtomicBool,
+    changed: Notify,
+}
+
+/// The owner is gone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the value's owner is gone")]
+pub(crate) struct Closed;
+
+/// A waiter's side: the version it last took.
+#[derive(Debug)]
+pub(crate) struct SlotReceiver<T> {
+    shared: Arc<Shared<T>>,
+    seen: u64,
+}
+
+impl<T> Shared<T> {
+    fn read(&self) -> RwLockReadGuard<'_, T> {
+        // Changes are whole; a panic in one leaves a value that is still one.
+        self.value.read().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl<T> Slot<T> {
+    pub(crate) fn new(value: T) -> Self {
+        Slot {
+            shared: Arc::new(Shared {
+                value: RwLock::new(value),
+                version: AtomicU64::new(0),
+                closed: AtomicBool::new(false),
+                changed: Notify::new(),
+            }),
+        }
+    }
+
+    /// The value, read-locked while the guard lives.
+    pub(crate) fn borrow(&self) -> RwLockReadGuard<'_, T> {
+        self.shared.read()
+    }
+
+    /// A receiver that has seen the current value.
+    pub(crate) fn subscribe(&self) -> SlotReceiver<T> {
+        let _value = self.shared.read();
+        SlotReceiver {
+            shared: self.shared.clone(),
+            seen: self.shared.version.load(Ordering::Acquire),
+        }
+    }
+
+    /// Changes the value with `modify`; when it says the change is worth telling, the
+    /// receivers are woken. Answers what `modify` said.
+    pub(crate) fn send_if_modified(&self, modify: impl FnOnce(&mut T) -> bool) -> bool {
+        let told = {
+            let mut value = self.shared.value.write().unwrap_or_else(|e| e.into_inner());
+            let told = modify(&mut value);
+            if told {
+                self.shared.version.fetch_add(1, Ordering::AcqRel);
+            }
+            told
+        };
+        if told {
+            self.shared.changed.notify_waiters();
+        }
+        told
+    }
+
+    /// Changes the value with `modify` and wakes the receivers.
+    pub(crate) fn send_modify(&self, modify: impl FnOnce(&mut T)) {
+        self.send_if_modified(|value| {
+            modify(value);
+            true
+        });
+    }
+}
+
+impl<T> Drop for Slot<T> {
+    fn drop(&mut self) {
+        self.shared.closed.store(true, Ordering::Release);
+        self.shared.changed.notify_waiters();
+    }
+}
+
+impl<T> SlotReceiver<T> {
+    /// The next [`SlotReceiver::changed`] returns at once.
+    pub(crate) fn mark_changed(&mut self) {
+        self.seen = self.shared.version.load(Ordering::Acquire).wrapping_sub(1);
+    }
+
+    /// Waits until the value has changed since this receiver last took it; `Closed` once
+    /// the owner is gone and every change was taken.
+    pub(crate) async fn changed(&mut self) -> Result<(), Closed> {
+        loop {
+            // Registered before the version is looked at, so no change slips between.
+            let notified = self.shared.changed.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if self.shared.version.load(Ordering::Acquire) != self.seen {
+                return Ok(());
+            }
+            if self.shared.closed.load(Ordering::Acquire) {
+                return Err(Closed);
+            }
+            notified.await;
+        }
+    }
+
+    /// The current value counts as taken.
+    #[cfg(test)]
+    pub(crate) fn mark_unchanged(&mut self) {
+        self.seen = self.shared.version.load(Ordering::Acquire);
+    }
+
+    /// Whether the value changed since this receiver last took it; `Closed` once the
+    /// owner is gone and every change was taken.
+    #[cfg(test)]
+    pub(crate) fn has_changed(&self) -> Result<bool, Closed> {
+        if self.shared.version.load(Ordering::Acquire) != self.seen {
+            Ok(true)
+        } else if self.shared.closed.load(Ordering::Acquire) {
+            Err(Closed)
+        } else {
+            Ok(false)
+        }
+    }
+
+    /// The value, marked as taken (the version read under the same lock as the value).
+    pub(crate) fn borrow_and_update(&mut self) -> RwLockReadGuard<'_, T> {
+        let value = self.shared.read();
+        self.seen = self.shared.version.load(Ordering::Acquire);
+        value
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[tokio::test]
+    async fn a_receiver_wakes_for_told_changes_only_and_takes_the_newest() {
+        let slot = Slot::new(0u32);
+        let mut rx = slot.subscribe();
+        assert!(
+            tokio::time::timeout(Duration::from_millis(20), rx.changed())
+                .await
+                .is_err(),
+            "nothing changed yet"
+        );
+        assert!(!slot.send_if_modified(|v| {
+            *v = 1;
+            false
+        }));
+        assert!(
+            tokio::time::timeout(Duration::from_millis(20), rx.changed())
+                .await
+                .is_err(),
+            "a change not told does not wake"
+        );
+        slot.send_modify(|v| *v = 2);
+        slot.send_modify(|v| *v = 3);
+        rx.changed().await.expect("changed");
+        assert_eq!(*rx.borrow_and_update(), 3, "the newest, not a backlog");
+        assert!(
+            tokio::time::timeout(Duration::from_millis(20), rx.changed())
+                .await
+                .is_err()
+        );
+        rx.mark_changed();
+        rx.changed().await.expect("marked");
+    }
+
+    #[tokio::test]
+    async fn a_waiting_receiver_is_woken_and_the_owner_gone_ends_it() {
+        let slot = Slot::new(String::new());
+        let mut rx = slot.subscribe();
+        let (took, taken) = tokio::sync::oneshot::channel();
+        let waiter = tokio::spawn(async move {
+            rx.changed().await.expect("changed");
+            let _ = took.send(rx.borrow_and_update().clone());
+            rx.changed().await
+        });
+        slot.send_modify(|v| v.push_str("new"));
+        assert_eq!(taken.await.expect("taken"), "new");
+        drop(slot);
+        assert_eq!(waiter.await.expect("task"), Err(Closed));
+    }
+}
