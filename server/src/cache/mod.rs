@@ -362,7 +362,7 @@ mod tests {
         let di = io.field_index("DI").expect("field");
         io.publish(di, Ok(Value::Bool(true)));
         let mut rx = io.subscribe(di);
-        rx.borrow_and_update();
+        drop(rx.borrow_and_update());
         // The line works for others (a transaction ends every 100 ms) while this device's
         // poll waits: three times its stale time pass, and its value stays good, untold.
         let steps = (io.stale_after() * 3).as_millis() / 100;
