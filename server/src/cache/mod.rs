@@ -410,7 +410,7 @@ mod tests {
         let di = io.field_index("DI").expect("field");
         io.publish(di, Ok(Value::Bool(true)));
         let mut rx = io.subscribe(di);
-        rx.borrow_and_update();
+        drop(rx.borrow_and_update());
         let quality = |rx: &mut SlotReceiver<sample::Sample>| {
             rx.borrow_and_update()
                 .quality_at(Instant::now(), io.stale_after())
