@@ -438,7 +438,7 @@ mod tests {
         // A value never read is never stale.
         let sp = io.field_index("SP").expect("field");
         let mut never = io.subscribe(sp);
-        never.borrow_and_update();
+        drop(never.borrow_and_update());
         tokio::time::advance(io.stale_after() * 2).await;
         io.tell_stale(Instant::now());
         assert!(!never.has_changed().expect("open"));
