@@ -25,7 +25,7 @@ pub struct Device {
     pub(crate) config: DeviceConfig,
     pub(crate) profile: Arc<Profile>,
     /// Shared with the device that replaces this one on a reload, for the fields both have.
-    samples: Vec<Arc<Slot<Sample>>>,
+    samples: Vec<Slot<Sample>>,
     diagnostics: Arc<watch::Sender<Diagnostics>>,
     outputs: Outputs,
     /// Whether the device is polled as it is, was replaced by a re-planned one, or removed.
@@ -97,9 +97,7 @@ impl Device {
         };
         let error_code = binding.code(simulated);
         Device {
-            samples: (0..n)
-                .map(|_| Arc::new(Slot::new(Sample::never_read())))
-                .collect(),
+            samples: (0..n).map(|_| Slot::new(Sample::never_read())).collect(),
             diagnostics: Arc::new(watch::Sender::new(Diagnostics {
                 connected: simulated,
                 error_code,
@@ -236,9 +234,7 @@ impl Device {
 
     /// Field `idx` of this device in `next` (which replaced it), when `next` kept it.
     pub(crate) fn kept_in(&self, idx: usize, next: &Device) -> Option<usize> {
-        next.samples
-            .iter()
-            .position(|s| Arc::ptr_eq(s, &self.samples[idx]))
+        next.samples.iter().position(|s| s.same(&self.samples[idx]))
     }
 
     /// Remembers the token that stops the device's own task (a simulated device's).
@@ -382,7 +378,7 @@ impl Device {
                 }
                 Err(e) => {
                     s.quality = Quality::Bad;
-                    s.error = Some(e);
+                    s.error = Some(Box::new(e));
                 }
             }
             s.updated = Some(now);

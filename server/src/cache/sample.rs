@@ -38,8 +38,9 @@ pub(crate) struct Sample {
     /// The last good value; kept (and marked) when later reads fail.
     pub(crate) value: Option<Value>,
     pub(crate) quality: Quality,
-    /// Why the quality is bad.
-    pub(crate) error: Option<FieldError>,
+    /// Why the quality is bad (boxed: most samples have none, and a field keeps one
+    /// sample).
+    pub(crate) error: Option<Box<FieldError>>,
     /// When the value was last refreshed.
     pub(crate) updated: Option<(Instant, SystemTime)>,
     /// Subscribers were woken when this good value went stale (so that live views show it);

@@ -4,12 +4,14 @@
 //! spread over cores (about 430 bytes besides its value); a gateway has one per field, and
 //! most fields have one subscriber or none, so a slot has one.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard};
 
 use tokio::sync::Notify;
 
-/// The owner's side: changes the value and wakes the receivers. Dropping it ends them.
+/// An owner's side: changes the value and wakes the receivers. Owners are counted (a
+/// device and the one that succeeds it share a field's slot); when the last is dropped the
+/// receivers end.
 #[derive(Debug)]
 pub(crate) struct Slot<T> {
     shared: Arc<Shared<T>>,
@@ -20,7 +22,9 @@ struct Shared<T> {
     value: RwLock<T>,
     /// Changed (under the write lock) with every change told.
     version: AtomicU64,
-    /// The owner is gone: nothing more will change.
+    /// Owners ([`Slot`]s) alive; at 0 nothing more will change.
+    owners: AtomicUsize,
+    /// The last owner is gone.
     closed: AtomicBool,
     changed: Notify,
 }
@@ -50,10 +54,16 @@ impl<T> Slot<T> {
             shared: Arc::new(Shared {
                 value: RwLock::new(value),
                 version: AtomicU64::new(0),
+                owners: AtomicUsize::new(1),
                 closed: AtomicBool::new(false),
                 changed: Notify::new(),
             }),
         }
+    }
+
+    /// Whether both own the same value.
+    pub(crate) fn same(&self, other: &Slot<T>) -> bool {
+        Arc::ptr_eq(&self.shared, &other.shared)
     }
 
     /// The value, read-locked while the guard lives.
@@ -96,10 +106,22 @@ impl<T> Slot<T> {
     }
 }
 
+impl<T> Clone for Slot<T> {
+    /// Another owner of the same value.
+    fn clone(&self) -> Self {
+        self.shared.owners.fetch_add(1, Ordering::AcqRel);
+        Slot {
+            shared: self.shared.clone(),
+        }
+    }
+}
+
 impl<T> Drop for Slot<T> {
     fn drop(&mut self) {
-        self.shared.closed.store(true, Ordering::Release);
-        self.shared.changed.notify_waiters();
+        if self.shared.owners.fetch_sub(1, Ordering::AcqRel) == 1 {
+            self.shared.closed.store(true, Ordering::Release);
+            self.shared.changed.notify_waiters();
+        }
     }
 }
 
@@ -193,18 +215,28 @@ mod tests {
     }
 
     #[tokio::test]
-    async fn a_waiting_receiver_is_woken_and_the_owner_gone_ends_it() {
+    async fn a_waiting_receiver_is_woken_and_the_last_owner_gone_ends_it() {
         let slot = Slot::new(String::new());
         let mut rx = slot.subscribe();
         let (took, taken) = tokio::sync::oneshot::channel();
         let waiter = tokio::spawn(async move {
             rx.changed().await.expect("changed");
             let _ = took.send(rx.borrow_and_update().clone());
-            rx.changed().await
+            let second = rx.changed().await;
+            let value = rx.borrow_and_update().clone();
+            (second, value, rx.changed().await)
         });
         slot.send_modify(|v| v.push_str("new"));
         assert_eq!(taken.await.expect("taken"), "new");
+        // Two owners (a device and its successor): the first gone ends nothing.
+        let other = slot.clone();
+        assert!(other.same(&slot));
         drop(slot);
-        assert_eq!(waiter.await.expect("task"), Err(Closed));
+        other.send_modify(|v| v.push('!'));
+        drop(other);
+        let (second, value, end) = waiter.await.expect("task");
+        assert_eq!(second, Ok(()), "the second owner's change");
+        assert_eq!(value, "new!");
+        assert_eq!(end, Err(Closed), "both owners gone");
     }
 }

@@ -169,12 +169,12 @@ pub(crate) fn status(sample: &Sample) -> StatusCode {
         Quality::Good if sample.stale_told => StatusCode::UncertainLastUsableValue,
         Quality::Good => StatusCode::Good,
         Quality::Stale => StatusCode::UncertainLastUsableValue,
-        Quality::NeverRead => match &sample.error {
+        Quality::NeverRead => match sample.error.as_deref() {
             Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
             Some(FieldError::NoResponse(_)) => StatusCode::BadCommunicationError,
             _ => StatusCode::BadWaitingForInitialData,
         },
-        Quality::Bad => match &sample.error {
+        Quality::Bad => match sample.error.as_deref() {
             Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
             Some(FieldError::Decode(_)) => StatusCode::BadDecodingError,
             Some(FieldError::Exception(_)) => StatusCode::BadDeviceFailure,
