@@ -1,5 +1,5 @@
-//! Following changes: each chosen field and each chosen device's diagnostics is a `watch`
-//! receiver, merged into one stream. A subscriber first gets every current value, then
+//! Following changes: each chosen field (its slot) and each chosen device's diagnostics (a
+//! `watch`) is a receiver, merged into one stream. A subscriber first gets every current value, then
 //! each change; a slow one skips to the newest value of a field instead of building a
 //! backlog. A field follows its device through a configuration reload (the successor
 //! shares the field's channel, so nothing is repeated or lost); a removed field or device
