@@ -1,7 +1,9 @@
-//! 100,000 fields: 1,000 simulated devices of 100 fields each, refreshed every 100 ms, in
-//! `iogate serve` in its own process. Prints the time from start to ready (`/readyz` 200),
-//! resident memory and CPU (from /proc) once running, and how long `GET /api/v1/devices`
-//! and `GET /api/v1/links` (what the web page's overview asks for) take.
+//! 100,000 fields, two ways, each in `iogate serve` in its own process: 1,000 simulated
+//! devices of 100 fields each refreshed every 100 ms; and 100 Modbus TCP devices of 1,000
+//! holding registers each (tokio-modbus servers in this process, one per device) polled
+//! every second. Prints the time from start to ready (`/readyz` 200), resident memory and
+//! CPU (from /proc) once running, and how long `GET /api/v1/devices` and `GET
+//! /api/v1/links` (what the web page's overview asks for) take.
 //!
 //! `cargo bench -p iogate --bench scale`
 
@@ -10,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
+use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
 
 mod common;
 
@@ -35,37 +38,67 @@ async fn get(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Duration, usi
     Ok((status, elapsed, body.len()))
 }
 
+/// How many devices `GET /api/v1/devices` lists as connected.
+async fn connected(addr: SocketAddr) -> anyhow::Result<usize> {
+    let mut stream = TcpStream::connect(addr).await?;
+    stream
+        .write_all(b"GET /api/v1/devices HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        .await?;
+    let mut body = Vec::new();
+    stream.read_to_end(&mut body).await?;
+    let text = String::from_utf8_lossy(&body);
+    Ok(text.matches("\"connected\":true").count())
+}
+
 fn percentile(sorted: &[Duration], q: f64) -> Duration {
     sorted[((sorted.len() as f64 * q) as usize).min(sorted.len() - 1)]
 }
 
-fn main() -> anyhow::Result<()> {
-    let dir = common::temp_dir("scale")?;
-    let profiles = dir.join("profiles");
-    std::fs::create_dir_all(&profiles)?;
-    let mut profile = String::from("name: Hundred\nprotocol: simulated\nfields:\n");
-    for i in 0..FIELDS {
-        let ty = ["REAL", "INT", "BOOL", "DINT"][i % 4];
-        let direction = if i % 5 == 0 { "output" } else { "input" };
-        profile.push_str(&format!(
-            "  - {{ name: F{i}, type: {ty}, direction: {direction}, register: {{ address: {i}, kind: virtual }} }}\n"
-        ));
+/// A Modbus TCP device of 1,000 holding registers (register n holds n).
+#[derive(Clone)]
+struct Thousand;
+
+impl tokio_modbus::server::Service for Thousand {
+    type Request = SlaveRequest<'static>;
+    type Response = Response;
+    type Exception = ExceptionCode;
+    type Future = std::future::Ready<Result<Response, ExceptionCode>>;
+
+    fn call(&self, req: SlaveRequest<'static>) -> Self::Future {
+        std::future::ready(match req.request {
+            Request::ReadHoldingRegisters(a, n) if usize::from(a) + usize::from(n) <= 1000 => {
+                Ok(Response::ReadHoldingRegisters((a..a + n).collect()))
+            }
+            Request::ReadHoldingRegisters(..) => Err(ExceptionCode::IllegalDataAddress),
+            _ => Err(ExceptionCode::IllegalFunction),
+        })
     }
-    std::fs::write(profiles.join("hundred.yaml"), profile)?;
-    let mut config = format!(
-        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n",
-        profiles.display()
-    );
-    for d in 0..DEVICES {
-        config.push_str(&format!(
-            "  - {{ name: d{d}, profile: Hundred, refresh_rate: 100ms }}\n"
-        ));
-    }
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
+}
+
+/// Serves a [`Thousand`] on a free loopback port.
+async fn device() -> anyhow::Result<u16> {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let port = listener.local_addr()?.port();
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    tokio::spawn(async move {
+        let on_connected = |stream, addr| async move {
+            tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, |_| Ok(Some(Thousand)))
+        };
+        let _ = server.serve(&on_connected, |_| {}).await;
+    });
+    Ok(port)
+}
+
+/// Starts the gateway on `config` and measures it; prints the rows under `title`.
+fn measure(
+    runtime: &tokio::runtime::Runtime,
+    name: &str,
+    title: &str,
+    config: &str,
+) -> anyhow::Result<()> {
+    let dir = common::temp_dir(name)?;
     let started = Instant::now();
-    let gateway = common::start(&dir, &config)?;
+    let gateway = common::start(&dir, config)?;
     let pid = gateway.child.id();
     runtime.block_on(async {
         loop {
@@ -100,12 +133,11 @@ fn main() -> anyhow::Result<()> {
                 bytes,
             ));
         }
-        println!(
-            "{} fields ({DEVICES} simulated devices x {FIELDS}, every 100 ms):",
-            DEVICES * FIELDS
-        );
+        let connected = connected(gateway.http).await?;
+        println!("{title}:");
         println!("| measure | iogate | goal |");
         println!("| --- | --- | --- |");
+        println!("| devices connected while measured | {connected} | all |");
         println!(
             "| start to ready | {:.0} ms | < 1 s |",
             ready.as_secs_f64() * 1e3
@@ -120,8 +152,83 @@ fn main() -> anyhow::Result<()> {
                 p99.as_secs_f64() * 1e3
             );
         }
+        println!();
         anyhow::Ok(())
     })?;
     drop(gateway);
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+
+    // 1,000 simulated devices x 100 fields.
+    let dir = common::temp_dir("scale-profiles")?;
+    let profiles = dir.join("profiles");
+    std::fs::create_dir_all(&profiles)?;
+    let mut profile = String::from("name: Hundred\nprotocol: simulated\nfields:\n");
+    for i in 0..FIELDS {
+        let ty = ["REAL", "INT", "BOOL", "DINT"][i % 4];
+        let direction = if i % 5 == 0 { "output" } else { "input" };
+        profile.push_str(&format!(
+            "  - {{ name: F{i}, type: {ty}, direction: {direction}, register: {{ address: {i}, kind: virtual }} }}\n"
+        ));
+    }
+    std::fs::write(profiles.join("hundred.yaml"), profile)?;
+    let mut thousand = String::from("name: Thousand\nprotocol: modbus-tcp\nfields:\n");
+    for i in 0..1000 {
+        thousand.push_str(&format!(
+            "  - {{ name: R{i}, type: UINT, direction: input, register: {{ address: {i}, kind: holding_register }} }}\n"
+        ));
+    }
+    std::fs::write(profiles.join("thousand.yaml"), thousand)?;
+    let head = format!(
+        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\n",
+        profiles.display()
+    );
+    let mut config = format!("{head}devices:\n");
+    for d in 0..DEVICES {
+        config.push_str(&format!(
+            "  - {{ name: d{d}, profile: Hundred, refresh_rate: 100ms }}\n"
+        ));
+    }
+    measure(
+        &runtime,
+        "scale-sim",
+        &format!(
+            "{} fields ({DEVICES} simulated devices x {FIELDS}, every 100 ms)",
+            DEVICES * FIELDS
+        ),
+        &config,
+    )?;
+
+    // 100 Modbus TCP devices x 1,000 registers.
+    let ports = runtime.block_on(async {
+        let mut ports = Vec::new();
+        for _ in 0..100 {
+            ports.push(device().await?);
+        }
+        anyhow::Ok(ports)
+    })?;
+    let mut config = format!("{head}links:\n");
+    for (i, port) in ports.iter().enumerate() {
+        config.push_str(&format!(
+            "  - {{ name: l{i}, tcp: {{ host: 127.0.0.1, port: {port} }} }}\n"
+        ));
+    }
+    config.push_str("devices:\n");
+    for i in 0..ports.len() {
+        config.push_str(&format!(
+            "  - {{ name: t{i}, profile: Thousand, link: l{i}, slave_id: 1, refresh_rate: 1s }}\n"
+        ));
+    }
+    measure(
+        &runtime,
+        "scale-tcp",
+        "100000 fields (100 Modbus TCP devices x 1000 holding registers, tokio-modbus, every second)",
+        &config,
+    )?;
     Ok(())
 }
