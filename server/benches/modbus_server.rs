@@ -60,11 +60,11 @@ async fn load(
     })
 }
 
-/// Builds and starts the libmodbus server, if the compiler and library are there.
-fn libmodbus_server() -> Option<(Child, SocketAddr)> {
-    let program = common::build_peer("modbus_server")?;
+/// Starts a peer server `program` on a free loopback port (its one argument) and waits for
+/// its first line (`ready`).
+fn start_peer(program: &std::path::Path) -> Option<(Child, SocketAddr)> {
     let port = common::free_port().ok()?;
-    let mut child = Command::new(&program)
+    let mut child = Command::new(program)
         .arg(port.to_string())
         .stdout(Stdio::piped())
         .spawn()
@@ -73,6 +73,11 @@ fn libmodbus_server() -> Option<(Child, SocketAddr)> {
     let stdout = child.stdout.take()?;
     std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line).ok()?;
     Some((child, SocketAddr::from(([127, 0, 0, 1], port))))
+}
+
+/// Builds and starts the libmodbus server, if the compiler and library are there.
+fn libmodbus_server() -> Option<(Child, SocketAddr)> {
+    start_peer(&common::build_peer("modbus_server")?)
 }
 
 /// Builds and starts the rodbus server, if cargo can build it (it fetches the crate).
@@ -89,16 +94,7 @@ fn rodbus_server() -> Option<(Child, SocketAddr)> {
     if !built.success() {
         return None;
     }
-    let port = common::free_port().ok()?;
-    let mut child = Command::new(target.join("release/rodbus-peer"))
-        .arg(port.to_string())
-        .stdout(Stdio::piped())
-        .spawn()
-        .ok()?;
-    let mut line = String::new();
-    let stdout = child.stdout.take()?;
-    std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line).ok()?;
-    Some((child, SocketAddr::from(([127, 0, 0, 1], port))))
+    start_peer(&target.join("release/rodbus-peer"))
 }
 
 /// `iogate serve` on the demo's simulated devices, every field bound (`auto: true`).

@@ -10,8 +10,6 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::TcpStream;
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
 
 mod common;
@@ -19,35 +17,19 @@ mod common;
 const DEVICES: usize = 1000;
 const FIELDS: usize = 100;
 
-/// One GET over a fresh connection: the status and how long the whole answer took.
+/// One GET over a fresh connection: the status, how long the whole answer took, its size.
 async fn get(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Duration, usize)> {
     let started = Instant::now();
-    let mut stream = TcpStream::connect(addr).await?;
-    stream
-        .write_all(
-            format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes(),
-        )
-        .await?;
-    let mut body = Vec::new();
-    stream.read_to_end(&mut body).await?;
-    let elapsed = started.elapsed();
-    let status = std::str::from_utf8(body.get(9..12).unwrap_or_default())
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(0);
-    Ok((status, elapsed, body.len()))
+    let (status, answer) = common::http::get_once(addr, path).await?;
+    Ok((status, started.elapsed(), answer.len()))
 }
 
 /// How many devices `GET /api/v1/devices` lists as connected.
 async fn connected(addr: SocketAddr) -> anyhow::Result<usize> {
-    let mut stream = TcpStream::connect(addr).await?;
-    stream
-        .write_all(b"GET /api/v1/devices HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
-        .await?;
-    let mut body = Vec::new();
-    stream.read_to_end(&mut body).await?;
-    let text = String::from_utf8_lossy(&body);
-    Ok(text.matches("\"connected\":true").count())
+    let (_, answer) = common::http::get_once(addr, "/api/v1/devices").await?;
+    Ok(String::from_utf8_lossy(&answer)
+        .matches("\"connected\":true")
+        .count())
 }
 
 fn percentile(sorted: &[Duration], q: f64) -> Duration {
@@ -73,20 +55,6 @@ impl tokio_modbus::server::Service for Thousand {
             _ => Err(ExceptionCode::IllegalFunction),
         })
     }
-}
-
-/// Serves a [`Thousand`] on a free loopback port.
-async fn device() -> anyhow::Result<u16> {
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let port = listener.local_addr()?.port();
-    let server = tokio_modbus::server::tcp::Server::new(listener);
-    tokio::spawn(async move {
-        let on_connected = |stream, addr| async move {
-            tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, |_| Ok(Some(Thousand)))
-        };
-        let _ = server.serve(&on_connected, |_| {}).await;
-    });
-    Ok(port)
 }
 
 /// Starts the gateway on `config` and measures it; prints the rows under `title`.
@@ -208,7 +176,7 @@ fn main() -> anyhow::Result<()> {
     let ports = runtime.block_on(async {
         let mut ports = Vec::new();
         for _ in 0..100 {
-            ports.push(device().await?);
+            ports.push(common::modbus_device(Thousand).await?);
         }
         anyhow::Ok(ports)
     })?;

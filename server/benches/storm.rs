@@ -18,7 +18,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio_modbus::prelude::{ExceptionCode, Request, Response, SlaveRequest};
 
@@ -62,36 +62,13 @@ impl tokio_modbus::server::Service for Slave {
 }
 
 async fn slave(silent: Arc<AtomicBool>) -> anyhow::Result<u16> {
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let port = listener.local_addr()?.port();
-    let server = tokio_modbus::server::tcp::Server::new(listener);
-    tokio::spawn(async move {
-        let on_connected = move |stream, addr| {
-            let slave = Slave {
-                silent: silent.clone(),
-            };
-            async move {
-                tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, move |_| {
-                    Ok(Some(slave.clone()))
-                })
-            }
-        };
-        let _ = server.serve(&on_connected, |_| {}).await;
-    });
-    Ok(port)
+    common::modbus_device(Slave { silent }).await
 }
 
 /// One GET's JSON body (a new connection each time).
 async fn get_json(addr: SocketAddr, path: &str) -> anyhow::Result<serde_json::Value> {
-    let mut stream = TcpStream::connect(addr).await?;
-    stream
-        .write_all(
-            format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes(),
-        )
-        .await?;
-    let mut text = Vec::new();
-    stream.read_to_end(&mut text).await?;
-    let text = String::from_utf8_lossy(&text);
+    let (_, answer) = common::http::get_once(addr, path).await?;
+    let text = String::from_utf8_lossy(&answer);
     let body = text
         .split_once("\r\n\r\n")
         .map(|(_, b)| b)

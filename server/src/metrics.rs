@@ -117,15 +117,44 @@ pub(crate) struct ServerRequestLabels {
     pub(crate) outcome: String,
 }
 
-/// The outcomes of a frame on a serial port of the Modbus server.
-pub(crate) const SERIAL_OUTCOMES: [&str; 6] = [
-    "answered",
-    "exception",
-    "broadcast",
-    "other_unit",
-    "crc_error",
-    "malformed",
-];
+/// What became of a frame on a serial port of the Modbus server (its index in
+/// [`SerialOutcome::ALL`] is its discriminant).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum SerialOutcome {
+    Answered,
+    Exception,
+    /// Applied, not answered.
+    Broadcast,
+    /// Ignored: for another unit id.
+    OtherUnit,
+    /// Ignored: a bad CRC or LRC.
+    CrcError,
+    /// Ignored: too short, too long, not hexadecimal, no request's function code.
+    Malformed,
+}
+
+impl SerialOutcome {
+    pub(crate) const ALL: [SerialOutcome; 6] = [
+        SerialOutcome::Answered,
+        SerialOutcome::Exception,
+        SerialOutcome::Broadcast,
+        SerialOutcome::OtherUnit,
+        SerialOutcome::CrcError,
+        SerialOutcome::Malformed,
+    ];
+
+    /// The metric's and the API's name.
+    pub(crate) fn label(self) -> &'static str {
+        match self {
+            SerialOutcome::Answered => "answered",
+            SerialOutcome::Exception => "exception",
+            SerialOutcome::Broadcast => "broadcast",
+            SerialOutcome::OtherUnit => "other_unit",
+            SerialOutcome::CrcError => "crc_error",
+            SerialOutcome::Malformed => "malformed",
+        }
+    }
+}
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct PortLabels {
@@ -486,23 +515,25 @@ impl Metrics {
         };
         self.serial_up.remove(&labels);
         self.serial_reopens.remove(&labels);
-        for outcome in SERIAL_OUTCOMES {
+        for outcome in SerialOutcome::ALL {
             self.serial_frames.remove(&FrameLabels {
                 port: port.to_owned(),
-                outcome: outcome.to_owned(),
+                outcome: outcome.label().to_owned(),
             });
         }
     }
 
-    /// The counter of frames on the serial `port` with `outcome` (one of
-    /// [`SERIAL_OUTCOMES`]); a handle to keep.
-    pub(crate) fn serial_frames(&self, port: &str, outcome: &str) -> Counter {
-        self.serial_frames
-            .get_or_create(&FrameLabels {
-                port: port.to_owned(),
-                outcome: outcome.to_owned(),
-            })
-            .clone()
+    /// The counters of frames on the serial `port`, one per outcome (indexed as
+    /// [`SerialOutcome::ALL`]); handles to keep.
+    pub(crate) fn serial_frames(&self, port: &str) -> [Counter; 6] {
+        SerialOutcome::ALL.map(|outcome| {
+            self.serial_frames
+                .get_or_create(&FrameLabels {
+                    port: port.to_owned(),
+                    outcome: outcome.label().to_owned(),
+                })
+                .clone()
+        })
     }
 
     /// The counter of the Modbus TCP server's exception responses with `code`.

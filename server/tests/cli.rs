@@ -20,6 +20,21 @@ fn temp_dir(name: &str) -> PathBuf {
     dir
 }
 
+/// `iogate check` on `text`, written to `dir/{name}.yaml`: its exit code and its errors.
+fn check_text(dir: &Path, name: &str, text: &str) -> (Option<i32>, String) {
+    let config = dir.join(format!("{name}.yaml"));
+    std::fs::write(&config, text).expect("config");
+    let out = iogate()
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 #[test]
 fn check_lists_every_problem_and_exits_64() {
     let out = iogate()
@@ -94,15 +109,8 @@ fn check_refuses_what_the_gateway_would_trip_over_later_naming_the_line() {
         ),
     ];
     for (name, text, expected) in cases {
-        let config = dir.join(format!("{name}.yaml"));
-        std::fs::write(&config, text).expect("config");
-        let out = iogate()
-            .args(["check", "--config"])
-            .arg(&config)
-            .output()
-            .expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(64), "{name}: {stderr}");
+        let (code, stderr) = check_text(&dir, name, &text);
+        assert_eq!(code, Some(64), "{name}: {stderr}");
         assert!(stderr.contains(expected), "{name}: {stderr}");
     }
     let _ = std::fs::remove_dir_all(&dir);
@@ -144,15 +152,8 @@ fn check_refuses_serial_framings_and_server_ports_that_cannot_work() {
         ),
     ];
     for (name, text, expected) in cases {
-        let config = dir.join(format!("{name}.yaml"));
-        std::fs::write(&config, text).expect("config");
-        let out = iogate()
-            .args(["check", "--config"])
-            .arg(&config)
-            .output()
-            .expect("runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(64), "{name}: {stderr}");
+        let (code, stderr) = check_text(&dir, name, text);
+        assert_eq!(code, Some(64), "{name}: {stderr}");
         assert!(stderr.contains(expected), "{name}: {stderr}");
         if name == "turnaround" {
             // Every problem of the entry at once.
@@ -167,24 +168,14 @@ fn check_refuses_serial_framings_and_server_ports_that_cannot_work() {
         }
     }
     // A server on serial ports alone, ASCII at 7E1, and an ASCII link pass.
-    let config = dir.join("good.yaml");
-    std::fs::write(
-        &config,
+    let (code, stderr) = check_text(
+        &dir,
+        "good",
         "links:\n  - { name: old, serial: { port: /dev/ttyS2, baud: 9600, parity: E, data_bits: 7, framing: ascii } }\n\
          modbus_server:\n  serial:\n    - { port: /dev/ttyS1, baud: 19200, parity: E, unit_id: 3, turnaround_delay: 5ms }\n    \
          - { port: /dev/ttyS3, baud: 9600, data_bits: 7, parity: E, framing: ascii }\n",
-    )
-    .expect("config");
-    let out = iogate()
-        .args(["check", "--config"])
-        .arg(&config)
-        .output()
-        .expect("runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
     );
+    assert_eq!(code, Some(0), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

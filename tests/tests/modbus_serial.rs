@@ -151,6 +151,48 @@ fn line(dir: &std::path::Path, name: &str) -> (Line, SerialStream) {
     )
 }
 
+/// A gateway whose Modbus server answers as unit 7 (beside the simulated device `sim`) on
+/// the gateway's end of a sniffed line, `ttyGW` in a directory of its own, with `settings`
+/// after the port; once the port is open: the line, the held pty, the gateway and the
+/// port's path.
+async fn slave_gateway(
+    name: &str,
+    settings: &str,
+) -> (Line, SerialStream, TestGateway, std::path::PathBuf) {
+    let dir = temp_dir(name);
+    let port = dir.join("ttyGW");
+    let (line, holder) = line(&dir, "ttyGW");
+    let gw = TestGateway::start(&gateway_config(&port, settings))
+        .await
+        .expect("gateway");
+    eventually("the port open", || async {
+        serial_state(&gw).await["state"] == "open"
+    })
+    .await
+    .expect("open");
+    (line, holder, gw, port)
+}
+
+/// For each answer on the line, the time since the end of the request before it (its last
+/// chunk for which `ends` holds).
+fn answer_gaps(seen: &Seen, ends: impl Fn(&[u8]) -> bool) -> Vec<Duration> {
+    let seen = seen.lock().expect("sniffer").clone();
+    let mut request_end = None;
+    let mut gaps = Vec::new();
+    for (way, bytes, at) in &seen {
+        match way {
+            Way::Request if ends(bytes) => request_end = Some(*at),
+            Way::Request => {}
+            Way::Answer => {
+                if let Some(end) = request_end.take() {
+                    gaps.push(at.duration_since(end));
+                }
+            }
+        }
+    }
+    gaps
+}
+
 async fn serial_state(gw: &TestGateway) -> Value {
     let (_, map) = gw.get("/api/v1/map").await.expect("map");
     map["serial"][0].clone()
@@ -206,19 +248,7 @@ fn assert_master_results(got: &Value) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
     run_installer("serial/install.sh").expect("serial peers");
-    let dir = temp_dir("serial-rtu");
-    let (line, _holder) = line(&dir, "ttyGW");
-    let gw = TestGateway::start(&gateway_config(
-        &dir.join("ttyGW"),
-        ", baud: 19200, parity: E",
-    ))
-    .await
-    .expect("gateway");
-    eventually("the port open", || async {
-        serial_state(&gw).await["state"] == "open"
-    })
-    .await
-    .expect("open");
+    let (line, _holder, gw, port) = slave_gateway("serial-rtu", ", baud: 19200, parity: E").await;
 
     let got = python(
         "serial/master.py",
@@ -273,9 +303,10 @@ async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
     let mut raw = tokio_serial::SerialStream::open(&tokio_serial::new(&line.masters_path, 19200))
         .expect("the masters' end");
     let answers_before = way_bytes(&line.seen, Way::Answer).len();
-    let mut bad = vec![7u8, 0x03, 0x04, 0x00, 0x00, 0x01];
-    let crc = crc16(&bad) ^ 0x5555;
-    bad.extend_from_slice(&crc.to_le_bytes());
+    let good = rtu(&[7, 0x03, 0x04, 0x00, 0x00, 0x01]);
+    let mut bad = good.clone();
+    bad[6] ^= 0x55;
+    bad[7] ^= 0x55;
     raw.write_all(&bad).await.expect("write");
     let mut answer = [0u8; 7];
     assert!(
@@ -284,9 +315,6 @@ async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
             .is_err(),
         "a frame with a bad CRC was answered"
     );
-    let mut good = vec![7u8, 0x03, 0x04, 0x00, 0x00, 0x01];
-    let crc = crc16(&good);
-    good.extend_from_slice(&crc.to_le_bytes());
     raw.write_all(&good).await.expect("write");
     tokio::time::timeout(Duration::from_secs(2), raw.read_exact(&mut answer))
         .await
@@ -301,18 +329,10 @@ async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
     // pymodbus: 12 answered (2 of them exceptions); mbpoll: 2; the raw good frame: 1.
     assert_eq!(answers.len(), 12 + 2 + 1, "{answers:02x?}");
     // Each answer came at least 3.5 characters (2.005 ms at 19200 8E1) after its request.
-    let seen = line.seen.lock().expect("sniffer").clone();
-    let mut last_request = None;
-    for (way, _, at) in &seen {
-        match way {
-            Way::Request => last_request = Some(*at),
-            Way::Answer => {
-                if let Some(request) = last_request.take() {
-                    let gap = at.duration_since(request);
-                    assert!(gap >= Duration::from_micros(2000), "answered after {gap:?}");
-                }
-            }
-        }
+    let gaps = answer_gaps(&line.seen, |_| true);
+    assert_eq!(gaps.len(), answers.len(), "{gaps:?}");
+    for gap in gaps {
+        assert!(gap >= Duration::from_micros(2000), "answered after {gap:?}");
     }
 
     let state = serial_state(&gw).await;
@@ -324,7 +344,6 @@ async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
     assert_eq!(state["frames"]["other_unit"], json!(1), "{state}");
     assert_eq!(state["frames"]["crc_error"], json!(1), "{state}");
     let metrics = gw.metrics().await.expect("metrics");
-    let port = dir.join("ttyGW");
     for (outcome, n) in [("answered", 13), ("crc_error", 1), ("broadcast", 1)] {
         let line = format!(
             "iogate_modbus_serial_frames_total{{port=\"{}\",outcome=\"{outcome}\"}} {n}",
@@ -342,19 +361,11 @@ async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_ascii_master_reads_and_writes_the_map_through_the_serial_slave() {
     run_installer("serial/install.sh").expect("serial peers");
-    let dir = temp_dir("serial-ascii-server");
-    let (line, _holder) = line(&dir, "ttyGW");
-    let gw = TestGateway::start(&gateway_config(
-        &dir.join("ttyGW"),
+    let (line, _holder, gw, _) = slave_gateway(
+        "serial-ascii-server",
         ", baud: 9600, parity: E, data_bits: 7, framing: ascii, turnaround_delay: 30ms",
-    ))
-    .await
-    .expect("gateway");
-    eventually("the port open", || async {
-        serial_state(&gw).await["state"] == "open"
-    })
-    .await
-    .expect("open");
+    )
+    .await;
     let got = python(
         "serial/master.py",
         &[&line.masters_path, "ascii", "7", "9600", "N", "8"],
@@ -369,19 +380,10 @@ async fn an_ascii_master_reads_and_writes_the_map_through_the_serial_slave() {
     let requests = ascii_frames(&way_bytes(&line.seen, Way::Request));
     assert_eq!(requests.len(), 14, "{requests:02x?}");
     // Each answer waited the turnaround delay after its request's LF.
-    let seen = line.seen.lock().expect("sniffer").clone();
-    let mut request_end = None;
-    for (way, bytes, at) in &seen {
-        match way {
-            Way::Request if bytes.ends_with(b"\n") => request_end = Some(*at),
-            Way::Request => {}
-            Way::Answer => {
-                if let Some(end) = request_end.take() {
-                    let gap = at.duration_since(end);
-                    assert!(gap >= Duration::from_millis(30), "answered after {gap:?}");
-                }
-            }
-        }
+    let gaps = answer_gaps(&line.seen, |bytes| bytes.ends_with(b"\n"));
+    assert_eq!(gaps.len(), answers.len(), "{gaps:?}");
+    for gap in gaps {
+        assert!(gap >= Duration::from_millis(30), "answered after {gap:?}");
     }
     let state = serial_state(&gw).await;
     assert_eq!(state["framing"], "ascii", "{state}");

@@ -63,3 +63,21 @@ pub async fn rate(
     }
     Ok(total as f64 / started.elapsed().as_secs_f64())
 }
+
+/// One GET of `path` on a connection of its own: the status and the whole answer (head
+/// and body).
+pub async fn get_once(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Vec<u8>)> {
+    let mut stream = TcpStream::connect(addr).await?;
+    stream
+        .write_all(
+            format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes(),
+        )
+        .await?;
+    let mut answer = Vec::new();
+    stream.read_to_end(&mut answer).await?;
+    let status = std::str::from_utf8(answer.get(9..12).unwrap_or_default())
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0);
+    Ok((status, answer))
+}

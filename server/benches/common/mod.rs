@@ -130,6 +130,38 @@ pub fn cpu_seconds(pid: u32) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// Serves `device` (a tokio-modbus service, cloned for each master) on a free loopback
+/// port, as a Modbus TCP device independent of the gateway; answers the port.
+#[allow(dead_code)]
+pub async fn modbus_device<S>(device: S) -> anyhow::Result<u16>
+where
+    S: tokio_modbus::server::Service<
+            Request = tokio_modbus::prelude::SlaveRequest<'static>,
+            Response = tokio_modbus::prelude::Response,
+            Exception = tokio_modbus::prelude::ExceptionCode,
+        > + Clone
+        + Send
+        + Sync
+        + 'static,
+    S::Future: Send,
+{
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let port = listener.local_addr()?.port();
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    tokio::spawn(async move {
+        let on_connected = move |stream, addr| {
+            let device = device.clone();
+            async move {
+                tokio_modbus::server::tcp::accept_tcp_connection(stream, addr, move |_| {
+                    Ok(Some(device.clone()))
+                })
+            }
+        };
+        let _ = server.serve(&on_connected, |_| {}).await;
+    });
+    Ok(port)
+}
+
 /// A free loopback port (bound, then let go).
 #[allow(dead_code)]
 pub fn free_port() -> anyhow::Result<u16> {

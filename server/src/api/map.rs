@@ -127,10 +127,10 @@ pub(crate) async fn get_map(
                 state: p.state.name().to_owned(),
                 error: p.error,
                 reopens: p.reopens,
-                frames: crate::metrics::SERIAL_OUTCOMES
+                frames: crate::metrics::SerialOutcome::ALL
                     .iter()
-                    .zip(p.frames)
-                    .map(|(o, n)| ((*o).to_owned(), n))
+                    .zip(&p.frames)
+                    .map(|(o, n)| (o.label().to_owned(), n.get()))
                     .collect(),
             })
             .collect(),

@@ -28,7 +28,7 @@ use crate::config::Framing;
 use crate::config::modbus_server::SerialServer;
 use crate::link::timing::LineTiming;
 use crate::link::{ByteStream, ascii, frame::crc16, open_serial, precise};
-use crate::metrics::SERIAL_OUTCOMES;
+use crate::metrics::SerialOutcome as Outcome;
 use crate::service::Service;
 use crate::service::serial_ports::PortState;
 
@@ -41,17 +41,6 @@ const MAX_RTU: usize = 256;
 const ASCII_GAP: Duration = Duration::from_secs(1);
 /// The longest an answer may take to be written (a port that does not take it is lost).
 const WRITE_WAIT: Duration = Duration::from_secs(1);
-
-/// What became of one frame; the index in [`SERIAL_OUTCOMES`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Outcome {
-    Answered = 0,
-    Exception = 1,
-    Broadcast = 2,
-    OtherUnit = 3,
-    CrcError = 4,
-    Malformed = 5,
-}
 
 /// Serves every configured serial port until `shutdown`, following reloads.
 pub(crate) async fn serve_serial(service: Arc<Service>, shutdown: CancellationToken) {
@@ -102,8 +91,10 @@ async fn port_task(service: Arc<Service>, entry: SerialServer, stop: Cancellatio
         status.framing = s.framing.name();
         status.line = line;
         status.unit_id = entry.unit_id;
+        status.frames = service.metrics.serial_frames(&port);
     });
     let mut was_open = false;
+    let mut last_error: Option<String> = None;
     loop {
         match open_serial(&entry.line) {
             Ok(stream) => {
@@ -115,6 +106,7 @@ async fn port_task(service: Arc<Service>, entry: SerialServer, stop: Cancellatio
                     status.reopens += u64::from(was_open);
                 });
                 was_open = true;
+                last_error = None;
                 let served = Port::new(&service, &entry)
                     .serve(Box::new(stream), &stop)
                     .await;
@@ -129,13 +121,10 @@ async fn port_task(service: Arc<Service>, entry: SerialServer, stop: Cancellatio
                 });
             }
             Err(e) => {
-                let first = service
-                    .serial_ports()
-                    .iter()
-                    .find(|p| p.port == port)
-                    .is_none_or(|p| p.error.as_deref() != Some(&e.to_string()));
-                if first {
-                    tracing::warn!(%port, error = %e, "Modbus server cannot open its serial port; trying again every second");
+                let error = e.to_string();
+                // Said once, not every second.
+                if last_error.as_ref() != Some(&error) {
+                    tracing::warn!(%port, %error, "Modbus server cannot open its serial port; trying again every second");
                 }
                 service.metrics.serial_port(&port, false, false);
                 service.serial_port_update(&port, |status| {
@@ -144,8 +133,9 @@ async fn port_task(service: Arc<Service>, entry: SerialServer, stop: Cancellatio
                     } else {
                         PortState::Opening
                     };
-                    status.error = Some(e.to_string());
+                    status.error = Some(error.clone());
                 });
+                last_error = Some(error);
             }
         }
         tokio::select! {
@@ -173,7 +163,7 @@ impl<'a> Port<'a> {
             entry,
             timing: LineTiming::new(&entry.line),
             counters: Counters::default(),
-            frames: SERIAL_OUTCOMES.map(|o| service.metrics.serial_frames(port, o)),
+            frames: service.metrics.serial_frames(port),
             timer: precise::Timer::new(),
         }
     }
@@ -264,7 +254,6 @@ impl<'a> Port<'a> {
     ) -> std::io::Result<()> {
         let mut assembler = ascii::Assembler::default();
         let mut chunk = [0u8; 512];
-        let mut dropped = 0;
         loop {
             let read = tokio::select! {
                 _ = stop.cancelled() => return Ok(()),
@@ -302,14 +291,6 @@ impl<'a> Port<'a> {
                 if let Some(reply) = reply {
                     self.reply(io, &reply).await?;
                 }
-            }
-            if assembler.dropped > dropped {
-                tracing::trace!(
-                    port = %self.entry.line.port,
-                    characters = assembler.dropped - dropped,
-                    "characters outside an ASCII frame dropped"
-                );
-                dropped = assembler.dropped;
             }
         }
     }
@@ -373,10 +354,7 @@ impl<'a> Port<'a> {
     }
 
     fn count(&self, outcome: Outcome) {
-        let i = outcome as usize;
-        self.frames[i].inc();
-        self.service
-            .serial_port_update(&self.entry.line.port, |status| status.frames[i] += 1);
+        self.frames[outcome as usize].inc();
     }
 }
 

@@ -214,22 +214,28 @@ async fn connection(
     let idle_timer = tokio::time::sleep(idle);
     tokio::pin!(stopped, evicted, idle_timer);
     let mut last = tokio::time::Instant::now();
-    loop {
-        let read = loop {
-            let read = tokio::select! {
-                biased;
-                r = stream.read_exact(&mut header) => Some(r),
-                _ = &mut stopped => return Ok(()),
-                _ = &mut evicted => return Err(Closed::Evicted),
-                _ = &mut idle_timer => None,
-            };
-            match read {
-                Some(r) => break r,
-                None if last.elapsed() >= idle => return Err(Closed::Idle),
-                None => idle_timer.as_mut().reset(last + idle),
+    // Fills `$buf` from the master; returns from the connection when it is stopped,
+    // evicted, or idle (`$idle`: the error then) since `last`.
+    macro_rules! read_whole {
+        ($buf:expr, $idle:expr) => {
+            loop {
+                let read = tokio::select! {
+                    biased;
+                    r = stream.read_exact($buf) => Some(r),
+                    _ = &mut stopped => return Ok(()),
+                    _ = &mut evicted => return Err(Closed::Evicted),
+                    _ = &mut idle_timer => None,
+                };
+                match read {
+                    Some(r) => break r,
+                    None if last.elapsed() >= idle => return Err($idle),
+                    None => idle_timer.as_mut().reset(last + idle),
+                }
             }
         };
-        match read {
+    }
+    loop {
+        match read_whole!(&mut header, Closed::Idle) {
             Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
             Err(e) => return Err(Closed::Io(e)),
             Ok(_) => {}
@@ -239,21 +245,7 @@ async fn connection(
         let unit = header.unit;
         pdu.clear();
         pdu.resize(header.pdu_len, 0);
-        let read = loop {
-            let read = tokio::select! {
-                biased;
-                r = stream.read_exact(&mut pdu) => Some(r),
-                _ = &mut stopped => return Ok(()),
-                _ = &mut evicted => return Err(Closed::Evicted),
-                _ = &mut idle_timer => None,
-            };
-            match read {
-                Some(r) => break r,
-                None if last.elapsed() >= idle => return Err(Closed::IdleMidFrame),
-                None => idle_timer.as_mut().reset(last + idle),
-            }
-        };
-        if let Err(e) = read {
+        if let Err(e) = read_whole!(&mut pdu, Closed::IdleMidFrame) {
             return Err(Closed::Io(e));
         }
         // 0 and 128-255 are no function code a master may send: answering 0x80 | code
@@ -288,14 +280,15 @@ async fn connection(
             }
         }
         // Waiting for the next request from now (so an active master is not taken for an
-        // idle one).
+        // idle one, and its idle time runs from its answer).
         slot.wait_on_master();
+        last = tokio::time::Instant::now();
     }
 }
 
 /// A connection's (or serial port's) handles on the request counters, so that counting a
-/// request costs no label lookup.
-/// A few entries, looked up in order (cheaper than hashing for the handful a master uses).
+/// request costs no label lookup: a few entries, looked up in order (cheaper than hashing
+/// for the handful of functions a master uses).
 #[derive(Default)]
 pub(crate) struct Counters(Vec<CounterEntry>);
 

@@ -4,7 +4,7 @@
 //! spread over cores (about 430 bytes besides its value); a gateway has one per field, and
 //! most fields have one subscriber or none, so a slot has one.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard};
 
 use tokio::sync::Notify;
@@ -24,8 +24,6 @@ struct Shared<T> {
     version: AtomicU64,
     /// Owners ([`Slot`]s) alive; at 0 nothing more will change.
     owners: AtomicUsize,
-    /// The last owner is gone.
-    closed: AtomicBool,
     changed: Notify,
 }
 
@@ -46,6 +44,11 @@ impl<T> Shared<T> {
         // Changes are whole; a panic in one leaves a value that is still one.
         self.value.read().unwrap_or_else(|e| e.into_inner())
     }
+
+    /// The last owner is gone.
+    fn closed(&self) -> bool {
+        self.owners.load(Ordering::Acquire) == 0
+    }
 }
 
 impl<T> Slot<T> {
@@ -55,7 +58,6 @@ impl<T> Slot<T> {
                 value: RwLock::new(value),
                 version: AtomicU64::new(0),
                 owners: AtomicUsize::new(1),
-                closed: AtomicBool::new(false),
                 changed: Notify::new(),
             }),
         }
@@ -73,7 +75,6 @@ impl<T> Slot<T> {
 
     /// A receiver that has seen the current value.
     pub(crate) fn subscribe(&self) -> SlotReceiver<T> {
-        let _value = self.shared.read();
         SlotReceiver {
             shared: self.shared.clone(),
             seen: self.shared.version.load(Ordering::Acquire),
@@ -119,7 +120,6 @@ impl<T> Clone for Slot<T> {
 impl<T> Drop for Slot<T> {
     fn drop(&mut self) {
         if self.shared.owners.fetch_sub(1, Ordering::AcqRel) == 1 {
-            self.shared.closed.store(true, Ordering::Release);
             self.shared.changed.notify_waiters();
         }
     }
@@ -142,7 +142,7 @@ impl<T> SlotReceiver<T> {
             if self.shared.version.load(Ordering::Acquire) != self.seen {
                 return Ok(());
             }
-            if self.shared.closed.load(Ordering::Acquire) {
+            if self.shared.closed() {
                 return Err(Closed);
             }
             notified.await;
@@ -161,7 +161,7 @@ impl<T> SlotReceiver<T> {
     pub(crate) fn has_changed(&self) -> Result<bool, Closed> {
         if self.shared.version.load(Ordering::Acquire) != self.seen {
             Ok(true)
-        } else if self.shared.closed.load(Ordering::Acquire) {
+        } else if self.shared.closed() {
             Err(Closed)
         } else {
             Ok(false)

@@ -5,6 +5,16 @@ use super::rules::{self, RuleError};
 use super::{Framing, Parity, SerialSettings};
 use crate::yaml::{MapReader, Report};
 
+/// A serial line's keys.
+pub(super) const KEYS: &[&str] = &[
+    "port",
+    "baud",
+    "parity",
+    "data_bits",
+    "stop_bits",
+    "framing",
+];
+
 /// The value of a rule's check, or the broken rule reported at `line`.
 pub(super) fn ruled<T>(
     checked: Result<T, RuleError>,
@@ -26,8 +36,9 @@ pub(super) fn read_line(
     report: &mut Report,
 ) -> Option<SerialSettings> {
     let at = |k: &str| format!("{ctx}.{k}");
-    let lines: Vec<(&str, u64)> = ["port", "baud", "parity", "data_bits", "stop_bits"]
-        .into_iter()
+    let lines: Vec<(&str, u64)> = KEYS
+        .iter()
+        .copied()
         .filter_map(|k| map.get(k).map(|n| (k, n.line)))
         .collect();
     let port = map

@@ -26,16 +26,8 @@ const KEYS: &[&str] = &[
     "on_bad_quality",
     "serial",
 ];
-const SERIAL_KEYS: &[&str] = &[
-    "port",
-    "baud",
-    "parity",
-    "data_bits",
-    "stop_bits",
-    "framing",
-    "unit_id",
-    "turnaround_delay",
-];
+/// A `serial` entry's own keys, beside a line's ([`super::line::KEYS`]).
+const SERIAL_KEYS: &[&str] = &["unit_id", "turnaround_delay"];
 /// The longest turnaround delay: a master waits about a second for an answer.
 pub(crate) const MAX_TURNAROUND: Duration = Duration::from_millis(500);
 const MAP_KEYS: &[&str] = &["at", "field"];
@@ -325,7 +317,7 @@ fn read_serial(node: &Node, index: usize, report: &mut Report) -> Option<SerialS
                     .ok()
             }),
     };
-    map.finish(report, &ctx, SERIAL_KEYS);
+    map.finish(report, &ctx, &[super::line::KEYS, SERIAL_KEYS].concat());
     Some(SerialServer {
         line: line?,
         unit_id: unit_id?,

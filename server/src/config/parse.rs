@@ -27,14 +27,6 @@ const TOP_KEYS: &[&str] = &[
 const RELOAD_KEYS: &[&str] = &["watch", "debounce"];
 const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout", "body_timeout"];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
-const SERIAL_KEYS: &[&str] = &[
-    "port",
-    "baud",
-    "parity",
-    "data_bits",
-    "stop_bits",
-    "framing",
-];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 const DEVICE_KEYS: &[&str] = &[
     "name",
@@ -294,7 +286,7 @@ fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSet
     let ctx = format!("{link}: serial");
     let mut map = node.map(report, &ctx)?;
     let settings = super::line::read_line(&mut map, &ctx, report);
-    map.finish(report, &ctx, SERIAL_KEYS);
+    map.finish(report, &ctx, super::line::KEYS);
     settings
 }
 

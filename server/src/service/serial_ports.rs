@@ -41,8 +41,9 @@ pub(crate) struct PortStatus {
     pub(crate) error: Option<String>,
     /// Openings after the port was lost.
     pub(crate) reopens: u64,
-    /// Frames by outcome, in the order of [`crate::metrics::SERIAL_OUTCOMES`].
-    pub(crate) frames: [u64; 6],
+    /// Frames by outcome, indexed as [`crate::metrics::SerialOutcome::ALL`]: the port's
+    /// metric counters themselves.
+    pub(crate) frames: [prometheus_client::metrics::counter::Counter; 6],
 }
 
 /// The ports by name.
