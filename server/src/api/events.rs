@@ -1,15 +1,21 @@
 //! `GET /api/v1/events`: the service's change stream as Server-Sent Events. A client first
 //! gets every current value, then each change; a slow client skips to the newest value of a
-//! field instead of building a backlog; the stream ends on shutdown.
+//! field instead of building a backlog; the stream ends on shutdown. A field's change is
+//! written as an event once for all the clients that follow it (the slot's [`SSE_FORM`]).
 
 use std::collections::HashMap;
 use std::convert::Infallible;
+use std::pin::Pin;
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
+use axum::body::Body;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
-use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use bytes::Bytes;
 use futures_util::{Stream, StreamExt};
 use serde::Serialize;
 
@@ -31,13 +37,50 @@ struct RemovedEvent {
     field: Option<String>,
     reason: &'static str,
 }
+/// A comment sent after this long without an event, so proxies keep the stream open.
 const KEEP_ALIVE: Duration = Duration::from_secs(15);
+/// The name of a change's event among a field's wire forms.
+const SSE_FORM: &str = "sse";
 
-fn event(name: &str, data: &impl Serialize) -> Event {
-    Event::default()
-        .event(name)
-        .json_data(data)
-        .unwrap_or_else(|_| Event::default().comment("unserializable event"))
+/// The event `name` with `data` as its one line of JSON.
+fn event(name: &str, data: &impl Serialize) -> Bytes {
+    let mut text = Vec::with_capacity(160);
+    text.extend_from_slice(b"event: ");
+    text.extend_from_slice(name.as_bytes());
+    text.extend_from_slice(b"\ndata: ");
+    if serde_json::to_writer(&mut text, data).is_err() {
+        return Bytes::from_static(b": unserializable event\n\n");
+    }
+    text.extend_from_slice(b"\n\n");
+    Bytes::from(text)
+}
+
+/// Events with a comment after each [`KEEP_ALIVE`] without one.
+struct KeptAlive<S> {
+    events: S,
+    quiet: Pin<Box<tokio::time::Sleep>>,
+}
+
+impl<S: Stream<Item = Bytes> + Unpin> Stream for KeptAlive<S> {
+    type Item = Result<Bytes, Infallible>;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        let next = tokio::time::Instant::now() + KEEP_ALIVE;
+        match self.events.poll_next_unpin(cx) {
+            Poll::Ready(Some(event)) => {
+                self.quiet.as_mut().reset(next);
+                Poll::Ready(Some(Ok(event)))
+            }
+            Poll::Ready(None) => Poll::Ready(None),
+            Poll::Pending => {
+                if self.quiet.as_mut().poll(cx).is_pending() {
+                    return Poll::Pending;
+                }
+                self.quiet.as_mut().reset(next);
+                Poll::Ready(Some(Ok(Bytes::from_static(b":\n\n"))))
+            }
+        }
+    }
 }
 
 /// Changes of values and diagnostics, as `value` and `diagnostics` events whose data is
@@ -52,7 +95,7 @@ fn event(name: &str, data: &impl Serialize) -> Event {
 pub(crate) async fn events(
     State(service): State<Arc<Service>>,
     query: Result<Query<HashMap<String, String>>, QueryRejection>,
-) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|e| ApiError::bad_request("invalid_query", e.body_text()))?;
     if let Some(unknown) = query
         .keys()
@@ -85,22 +128,26 @@ pub(crate) async fn events(
         Box::pin(futures_util::stream::empty())
     };
     let transactions = transactions.map(|(standing, status)| {
-        Ok(event(
+        event(
             EVENT_TRANSACTION,
             &super::transactions::standing_info(&standing, &status),
-        ))
+        )
     });
     let viewer = service.clone();
-    let stream = service.subscribe(selection, true)?.map(move |change| {
-        Ok(match change {
+    let stream = service
+        .subscribe(selection, true)?
+        .map(move |change| match change {
             Change::Value {
                 device,
                 idx,
                 sample,
-            } => event(
-                EVENT_VALUE,
-                &field_value(&viewer.field_view(&device, idx, &sample)),
-            ),
+                forms,
+            } => forms.get_or_make(SSE_FORM, || {
+                event(
+                    EVENT_VALUE,
+                    &field_value(&viewer.field_view(&device, idx, &sample)),
+                )
+            }),
             Change::Diagnostics {
                 device,
                 diagnostics: d,
@@ -126,8 +173,17 @@ pub(crate) async fn events(
                     reason,
                 },
             ),
-        })
-    });
-    let stream = futures_util::stream::select(stream, transactions);
-    Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(KEEP_ALIVE)))
+        });
+    let stream = KeptAlive {
+        events: futures_util::stream::select(stream, transactions),
+        quiet: Box::pin(tokio::time::sleep(KEEP_ALIVE)),
+    };
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/event-stream"),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        Body::from_stream(stream),
+    )
+        .into_response())
 }

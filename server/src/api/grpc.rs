@@ -5,10 +5,17 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
+use std::convert::Infallible;
+
+use bytes::Bytes;
 use futures_util::{Stream, StreamExt};
+use iogate_proto::codec::EncodedCodec;
 use iogate_proto::pb;
 use iogate_proto::pb::gateway_server::{Gateway, GatewayServer};
+use prost::Message;
 use tokio_stream::wrappers::ReceiverStream;
+use tonic::codegen::{BoxFuture, StdError};
+use tonic::server::{NamedService, ServerStreamingService};
 use tonic::{Request, Response, Status, Streaming};
 
 use super::pb as to_pb;
@@ -20,8 +27,19 @@ use crate::service::ReloadError;
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 use crate::transaction::TransactionSpec;
 
-type UpdateStream = Pin<Box<dyn Stream<Item = Result<pb::Update, Status>> + Send>>;
+/// Encoded `Update`s.
+type EncodedStream = Pin<Box<dyn Stream<Item = Result<Bytes, Status>> + Send>>;
 type ExchangeStream = Pin<Box<dyn Stream<Item = Result<pb::ExchangeResponse, Status>> + Send>>;
+
+/// The name of a change's gRPC form (an encoded `Update`) among a field's wire forms.
+const GRPC_FORM: &str = "grpc";
+
+const SUBSCRIBE_PATH: &str = "/iogate.v1.Gateway/Subscribe";
+
+/// An `Update` of `kind`, encoded.
+fn encoded(kind: pb::update::Kind) -> Bytes {
+    Bytes::from(pb::Update { kind: Some(kind) }.encode_to_vec())
+}
 
 /// The largest gRPC message either way (a snapshot of thousands of fields fits).
 pub(crate) const MAX_MESSAGE: usize = 16 * 1024 * 1024;
@@ -138,10 +156,68 @@ impl GrpcApi {
     }
 
     /// The server for this service.
-    pub(crate) fn server(service: Arc<Service>) -> GatewayServer<GrpcApi> {
-        GatewayServer::new(GrpcApi::new(service))
-            .max_decoding_message_size(MAX_MESSAGE)
-            .max_encoding_message_size(MAX_MESSAGE)
+    pub(crate) fn server(service: Arc<Service>) -> GatewayRoutes {
+        let api = Arc::new(GrpcApi::new(service));
+        GatewayRoutes {
+            generated: GatewayServer::from_arc(api.clone())
+                .max_decoding_message_size(MAX_MESSAGE)
+                .max_encoding_message_size(MAX_MESSAGE),
+            api,
+        }
+    }
+
+    /// `Subscribe`: the selection's current values, then each change, as encoded `Update`s;
+    /// a field's change is encoded once for all its subscribers (the slot's [`GRPC_FORM`]).
+    fn subscribe_encoded(&self, r: pb::SubscribeRequest) -> Result<EncodedStream, Status> {
+        self.service.accepting().map_err(status)?;
+        let selection = self.select(&r.devices, &r.fields)?;
+        let changes = self
+            .service
+            .subscribe(selection, r.diagnostics)
+            .map_err(status)?;
+        let viewer = self.service.clone();
+        let updates = changes.map(move |change| {
+            Ok(match change {
+                Change::Value {
+                    device,
+                    idx,
+                    sample,
+                    forms,
+                } => forms.get_or_make(GRPC_FORM, || {
+                    encoded(pb::update::Kind::Value(to_pb::field_value(
+                        &viewer.field_view(&device, idx, &sample),
+                    )))
+                }),
+                Change::Diagnostics {
+                    device,
+                    diagnostics,
+                } => encoded(pb::update::Kind::Diagnostics(to_pb::diagnostics(
+                    &device,
+                    &diagnostics,
+                ))),
+                Change::Removed {
+                    device,
+                    field,
+                    reason,
+                } => encoded(pb::update::Kind::Removed(pb::Removed {
+                    device,
+                    field: field.unwrap_or_default(),
+                    reason: reason.to_owned(),
+                })),
+            })
+        });
+        if !r.transactions {
+            return Ok(Box::pin(updates));
+        }
+        let transactions = self.service.transaction_changes().map(|(s, st)| {
+            Ok(encoded(pb::update::Kind::Transaction(transaction_status(
+                &s, &st,
+            ))))
+        });
+        Ok(Box::pin(futures_util::stream::select(
+            updates,
+            transactions,
+        )))
     }
 
     fn select(
@@ -292,57 +368,17 @@ impl Gateway for GrpcApi {
         Ok(Response::new(to_pb::write_status(&record, ty)))
     }
 
-    type SubscribeStream = UpdateStream;
+    type SubscribeStream = futures_util::stream::Empty<Result<pb::Update, Status>>;
 
+    /// Never called: [`GatewayRoutes`] answers `Subscribe` before the generated server
+    /// would, with updates encoded once for all subscribers ([`GrpcApi::subscribe_encoded`]).
     async fn subscribe(
         &self,
-        request: Request<pb::SubscribeRequest>,
+        _request: Request<pb::SubscribeRequest>,
     ) -> Result<Response<Self::SubscribeStream>, Status> {
-        self.service.accepting().map_err(status)?;
-        let r = request.into_inner();
-        let selection = self.select(&r.devices, &r.fields)?;
-        let changes = self
-            .service
-            .subscribe(selection, r.diagnostics)
-            .map_err(status)?;
-        let viewer = self.service.clone();
-        let updates = changes.map(move |change| {
-            let kind = match change {
-                Change::Value {
-                    device,
-                    idx,
-                    sample,
-                } => pb::update::Kind::Value(to_pb::field_value(
-                    &viewer.field_view(&device, idx, &sample),
-                )),
-                Change::Diagnostics {
-                    device,
-                    diagnostics,
-                } => pb::update::Kind::Diagnostics(to_pb::diagnostics(&device, &diagnostics)),
-                Change::Removed {
-                    device,
-                    field,
-                    reason,
-                } => pb::update::Kind::Removed(pb::Removed {
-                    device,
-                    field: field.unwrap_or_default(),
-                    reason: reason.to_owned(),
-                }),
-            };
-            Ok(pb::Update { kind: Some(kind) })
-        });
-        if !r.transactions {
-            return Ok(Response::new(Box::pin(updates)));
-        }
-        let transactions = self.service.transaction_changes().map(|(s, st)| {
-            Ok(pb::Update {
-                kind: Some(pb::update::Kind::Transaction(transaction_status(&s, &st))),
-            })
-        });
-        Ok(Response::new(Box::pin(futures_util::stream::select(
-            updates,
-            transactions,
-        ))))
+        Err(Status::internal(
+            "Subscribe is answered by the gateway's own route",
+        ))
     }
 
     type ExchangeStream = ExchangeStream;
@@ -585,6 +621,66 @@ impl Gateway for GrpcApi {
     }
 }
 
+/// The service `iogate.v1.Gateway`: the generated server's methods, except `Subscribe`,
+/// answered here with messages encoded once for all subscribers (the generated server
+/// would encode each subscriber's copy of a change).
+#[derive(Clone)]
+pub(crate) struct GatewayRoutes {
+    generated: GatewayServer<GrpcApi>,
+    api: Arc<GrpcApi>,
+}
+
+impl NamedService for GatewayRoutes {
+    const NAME: &'static str = iogate_proto::SERVICE_NAME;
+}
+
+/// `Subscribe` with encoded messages.
+struct SubscribeEncoded(Arc<GrpcApi>);
+
+impl ServerStreamingService<pb::SubscribeRequest> for SubscribeEncoded {
+    type Response = Bytes;
+    type ResponseStream = EncodedStream;
+    type Future = BoxFuture<Response<EncodedStream>, Status>;
+
+    fn call(&mut self, request: Request<pb::SubscribeRequest>) -> Self::Future {
+        let api = self.0.clone();
+        Box::pin(async move {
+            api.subscribe_encoded(request.into_inner())
+                .map(Response::new)
+        })
+    }
+}
+
+impl<B> tower::Service<axum::http::Request<B>> for GatewayRoutes
+where
+    B: tonic::codegen::Body<Data = Bytes> + Send + 'static,
+    B::Error: Into<StdError> + Send + 'static,
+{
+    type Response = axum::http::Response<tonic::body::Body>;
+    type Error = Infallible;
+    type Future = BoxFuture<Self::Response, Infallible>;
+
+    fn poll_ready(
+        &mut self,
+        _cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Result<(), Infallible>> {
+        std::task::Poll::Ready(Ok(()))
+    }
+
+    fn call(&mut self, request: axum::http::Request<B>) -> Self::Future {
+        if request.uri().path() != SUBSCRIBE_PATH {
+            return self.generated.call(request);
+        }
+        let api = self.api.clone();
+        Box::pin(async move {
+            let mut grpc =
+                tonic::server::Grpc::new(EncodedCodec::<pb::SubscribeRequest>::default())
+                    .apply_max_message_size_config(Some(MAX_MESSAGE), Some(MAX_MESSAGE));
+            Ok(grpc.server_streaming(SubscribeEncoded(api), request).await)
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -614,11 +710,9 @@ mod tests {
             diagnostics: false,
             transactions: false,
         };
-        let mut stream = api
-            .subscribe(Request::new(request))
-            .await
-            .expect("subscribe")
-            .into_inner();
+        let stream = api.subscribe_encoded(request).expect("subscribe");
+        let mut stream =
+            stream.map(|bytes| bytes.map(|b| pb::Update::decode(b).expect("an encoded Update")));
         let first = stream.next().await.expect("current value").expect("ok");
         assert!(matches!(first.kind, Some(pb::update::Kind::Value(_))));
 

@@ -3,6 +3,7 @@
 //! reflection) on its own. Each handler parses, calls the service, and maps the answer.
 
 pub(crate) mod accept;
+pub(crate) mod burst;
 pub(crate) mod config;
 pub(crate) mod convert;
 pub(crate) mod declare;
@@ -328,6 +329,7 @@ pub(crate) async fn serve_grpc(
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
+    use futures_util::StreamExt;
     use iogate_proto::pb::gateway_server::GatewayServer;
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<GatewayServer<grpc::GrpcApi>>().await;
@@ -339,7 +341,8 @@ pub(crate) async fn serve_grpc(
         .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
-    let incoming = accept::ready(listener, http::MAX_CONNECTIONS, tls, header_timeout);
+    let incoming = accept::ready(listener, http::MAX_CONNECTIONS, tls, header_timeout)
+        .map(|conn| conn.map(burst::Burst::new));
     let tokens = service.tokens.clone();
     tonic::transport::Server::builder()
         // A peer that stops answering HTTP/2 pings is dropped; one connection cannot open

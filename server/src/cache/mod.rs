@@ -27,7 +27,7 @@ pub use link::{
 };
 pub(crate) use outputs::{Checked, WriteError};
 pub(crate) use sample::{Diagnostics, FieldError, LinkDiagnostics, Sample};
-pub(crate) use slot::SlotReceiver;
+pub(crate) use slot::{Forms, SlotReceiver};
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     // Sections under these locks are single assignments; a poisoned lock holds whole values.

@@ -3,10 +3,17 @@
 //! in about a fifth of its memory. A `watch` channel carries nine `Notify`s for waiters
 //! spread over cores (about 430 bytes besides its value); a gateway has one per field, and
 //! most fields have one subscriber or none, so a slot has one.
+//!
+//! A slot also keeps the wire forms of its value ([`Forms`]): a front-end's encoding of a
+//! change (a gRPC message, a Server-Sent Event) made by the first receiver that takes it
+//! and handed as shared bytes to every other, so a change to 10,000 subscribers is encoded
+//! once, not 10,000 times.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, RwLock, RwLockReadGuard};
+use std::sync::{Arc, Mutex, RwLock, RwLockReadGuard};
+use std::time::{Duration, Instant};
 
+use bytes::Bytes;
 use tokio::sync::Notify;
 
 /// An owner's side: changes the value and wakes the receivers. Owners are counted (a
@@ -25,6 +32,68 @@ struct Shared<T> {
     /// Owners ([`Slot`]s) alive; at 0 nothing more will change.
     owners: AtomicUsize,
     changed: Notify,
+    /// The wire forms made of one version (none until a receiver asks for one).
+    forms: Mutex<Option<Box<Made>>>,
+}
+
+/// How long a wire form is handed out. A form may say more than the value (a field's
+/// quality by its age, the state of its last write), which can change while the value does
+/// not: a form is reused only while it is at most this old, so what a receiver is given
+/// is never older than a delivery this late would have been.
+pub(crate) const FORM_LIFETIME: Duration = Duration::from_millis(50);
+
+/// The wire forms of one version, by the name of the form.
+#[derive(Debug)]
+struct Made {
+    version: u64,
+    at: Instant,
+    forms: Vec<(&'static str, Bytes)>,
+}
+
+/// The wire forms of the version a receiver took (see the module): each made once, by the
+/// first receiver that needs it.
+#[derive(Debug, Clone)]
+pub(crate) struct Forms<T> {
+    shared: Arc<Shared<T>>,
+    version: u64,
+}
+
+impl<T> Forms<T> {
+    /// The form named `form` of this version: the one already made (within
+    /// [`FORM_LIFETIME`]), or the one `make` makes now, kept for the other receivers. A
+    /// receiver behind the newest version makes its own and keeps nothing.
+    pub(crate) fn get_or_make(&self, form: &'static str, make: impl FnOnce() -> Bytes) -> Bytes {
+        let mut made = self.shared.forms.lock().unwrap_or_else(|e| e.into_inner());
+        let now = Instant::now();
+        let current = made.as_ref().is_some_and(|m| {
+            m.version == self.version && now.saturating_duration_since(m.at) <= FORM_LIFETIME
+        });
+        if current {
+            if let Some((_, bytes)) = made
+                .as_ref()
+                .and_then(|m| m.forms.iter().find(|(name, _)| *name == form))
+            {
+                return bytes.clone();
+            }
+        } else if made.as_ref().is_some_and(|m| m.version > self.version)
+            || self.shared.version.load(Ordering::Acquire) != self.version
+        {
+            drop(made);
+            return make();
+        }
+        let bytes = make();
+        match made.as_mut() {
+            Some(m) if current => m.forms.push((form, bytes.clone())),
+            _ => {
+                *made = Some(Box::new(Made {
+                    version: self.version,
+                    at: now,
+                    forms: vec![(form, bytes.clone())],
+                }))
+            }
+        }
+        bytes
+    }
 }
 
 /// The owner is gone.
@@ -59,6 +128,7 @@ impl<T> Slot<T> {
                 version: AtomicU64::new(0),
                 owners: AtomicUsize::new(1),
                 changed: Notify::new(),
+                forms: Mutex::new(None),
             }),
         }
     }
@@ -174,6 +244,14 @@ impl<T> SlotReceiver<T> {
         self.seen = self.shared.version.load(Ordering::Acquire);
         value
     }
+
+    /// The wire forms of the value this receiver last took.
+    pub(crate) fn forms(&self) -> Forms<T> {
+        Forms {
+            shared: self.shared.clone(),
+            version: self.seen,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -238,5 +316,38 @@ mod tests {
         assert_eq!(second, Ok(()), "the second owner's change");
         assert_eq!(value, "new!");
         assert_eq!(end, Err(Closed), "both owners gone");
+    }
+
+    #[test]
+    fn a_form_is_made_once_per_version_and_not_kept_for_a_receiver_behind() {
+        let slot = Slot::new(1u32);
+        let (mut a, mut b) = (slot.subscribe(), slot.subscribe());
+        slot.send_modify(|v| *v = 2);
+        let made = std::cell::Cell::new(0);
+        let make = |v: u32| {
+            made.set(made.get() + 1);
+            Bytes::from(v.to_string())
+        };
+        let va = *a.borrow_and_update();
+        assert_eq!(a.forms().get_or_make("text", || make(va)), "2");
+        let vb = *b.borrow_and_update();
+        assert_eq!(b.forms().get_or_make("text", || make(vb)), "2");
+        assert_eq!(
+            made.get(),
+            1,
+            "the second receiver is given the first's form"
+        );
+        assert_eq!(b.forms().get_or_make("other", || Bytes::from("x")), "x");
+        assert_eq!(made.get(), 1);
+        // A receiver that took version 2 asks after version 3 was made: its own form.
+        let behind = a.forms();
+        slot.send_modify(|v| *v = 3);
+        let vb = *b.borrow_and_update();
+        assert_eq!(b.forms().get_or_make("text", || make(vb)), "3");
+        assert_eq!(behind.get_or_make("text", || make(2)), "2");
+        assert_eq!(made.get(), 3);
+        // The newest form is still there for the others.
+        assert_eq!(b.forms().get_or_make("text", || make(0)), "3");
+        assert_eq!(made.get(), 3);
     }
 }

@@ -16,7 +16,7 @@ use tokio_stream::StreamMap;
 use tokio_stream::wrappers::WatchStream;
 
 use super::{Selection, Service, ServiceError};
-use crate::cache::{Cache, Device, Diagnostics, Fate, Sample, SlotReceiver};
+use crate::cache::{Cache, Device, Diagnostics, Fate, Forms, Sample, SlotReceiver};
 
 /// A change of a field's value (or quality), or of a device's diagnostics; or the end of a
 /// field or device that was removed.
@@ -26,6 +26,8 @@ pub(crate) enum Change {
         device: Arc<Device>,
         idx: usize,
         sample: Sample,
+        /// The front-ends' encodings of this change, made once for all subscribers.
+        forms: Forms<Sample>,
     },
     Diagnostics {
         device: Arc<Device>,
@@ -156,6 +158,7 @@ impl Followed {
                                 device,
                                 idx: *idx,
                                 sample,
+                                forms: rx.forms(),
                             }
                         }
                         Watched::Diagnostics(rx) => Change::Diagnostics {

@@ -847,6 +847,7 @@ impl Task {
                 device,
                 idx,
                 sample,
+                ..
             } => {
                 let key = self.key(&device, idx);
                 let view = self.service.field_view(&device, idx, &sample);

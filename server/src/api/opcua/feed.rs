@@ -229,6 +229,7 @@ impl Feed {
                     device,
                     idx,
                     sample,
+                    ..
                 } => {
                     let field = device.field(*idx);
                     values.push((
