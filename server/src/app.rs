@@ -135,6 +135,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     }
     let mut service = Service::new(cache.clone(), tasks)
         .with_policy(config.security.declare.clone())
+        .with_max_streams(config.max_streams)
         .with_access(tokens, config.security.read_only);
     if let Some(image) = image {
         service = service.with_modbus(image);

@@ -27,6 +27,10 @@ pub(crate) const DEFAULT_GRPC: &str = "127.0.0.1:50051";
 pub(crate) const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a request body (at most 1 MiB) may take to arrive, by default.
 pub(crate) const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
+/// The most change streams (SSE, gRPC Subscribe and Exchange) open at once, by default.
+pub(crate) const DEFAULT_MAX_STREAMS: usize = 2048;
+/// The most `listen.max_streams` may be.
+pub(crate) const MAX_STREAMS_LIMIT: usize = 100_000;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -36,6 +40,8 @@ pub struct Config {
     pub(crate) header_timeout: Duration,
     /// How long a request body may take to arrive (`listen.body_timeout`).
     pub(crate) body_timeout: Duration,
+    /// The most change streams open at once (`listen.max_streams`).
+    pub(crate) max_streams: usize,
     /// The `profiles` directory as configured, relative to the config file's directory.
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
@@ -306,6 +312,7 @@ impl Config {
                 .unwrap_or(SocketAddr::from(([127, 0, 0, 1], 50051))),
             header_timeout: DEFAULT_HEADER_TIMEOUT,
             body_timeout: DEFAULT_BODY_TIMEOUT,
+            max_streams: DEFAULT_MAX_STREAMS,
             profiles: None,
             links: Vec::new(),
             devices: Vec::new(),
@@ -416,6 +423,40 @@ mod tests {
         assert_eq!(c.devices[2].refresh_rate, Duration::from_millis(100));
         assert_eq!(c.devices[2].link, None);
         assert_eq!(c.devices[2].line, 11);
+    }
+
+    #[test]
+    fn max_streams_is_read_and_bounded() {
+        assert_eq!(
+            parse(
+                "c.yaml",
+                "devices: []
+"
+            )
+            .expect("parses")
+            .max_streams,
+            DEFAULT_MAX_STREAMS
+        );
+        let c = parse(
+            "c.yaml",
+            "listen: { max_streams: 12000 }
+",
+        )
+        .expect("parses");
+        assert_eq!(c.max_streams, 12_000);
+        for (text, needle) in [
+            (
+                "listen: { max_streams: 0 }\n",
+                "c.yaml:1: listen.max_streams: 0 is outside the allowed range 1-100000",
+            ),
+            (
+                "listen: { max_streams: many }\n",
+                "c.yaml:1: listen.max_streams:",
+            ),
+        ] {
+            let all = problems(text);
+            assert!(all.contains(needle), "missing {needle:?} in\n{all}");
+        }
     }
 
     fn problems(text: &str) -> String {

@@ -25,7 +25,13 @@ const TOP_KEYS: &[&str] = &[
     "reload",
 ];
 const RELOAD_KEYS: &[&str] = &["watch", "debounce"];
-const LISTEN_KEYS: &[&str] = &["http", "grpc", "header_timeout", "body_timeout"];
+const LISTEN_KEYS: &[&str] = &[
+    "http",
+    "grpc",
+    "header_timeout",
+    "body_timeout",
+    "max_streams",
+];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 const DEVICE_KEYS: &[&str] = &[
@@ -153,6 +159,16 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
             )
         {
             config.body_timeout = d;
+        }
+        if let Some(n) = listen.get("max_streams").and_then(|node| {
+            node.int_in(
+                report,
+                "listen.max_streams",
+                1,
+                super::MAX_STREAMS_LIMIT as i128,
+            )
+        }) {
+            config.max_streams = usize::try_from(n).unwrap_or(super::DEFAULT_MAX_STREAMS);
         }
         listen.finish(report, "listen", LISTEN_KEYS);
     }

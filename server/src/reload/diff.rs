@@ -48,6 +48,8 @@ pub(crate) struct Diff {
     pub(crate) grpc_listen: bool,
     /// `listen.header_timeout` or `body_timeout`: HTTP and gRPC are served again.
     pub(crate) limits: bool,
+    /// `listen.max_streams`: in force for the streams opened from now on.
+    pub(crate) max_streams: bool,
     pub(crate) mqtt: bool,
     pub(crate) opcua: bool,
 }
@@ -277,9 +279,16 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     .into_iter()
     .flatten()
     .collect();
-    if !limits.is_empty() {
-        d.limits = true;
-        d.push(Kind::Listener, "listen", Action::Changed, limits);
+    d.limits = !limits.is_empty();
+    let mut listen = limits;
+    if let Some(change) = changed_text("max_streams", a.max_streams, b.max_streams) {
+        d.max_streams = true;
+        listen.push(format!(
+            "{change} (streams already open stay; new ones count against it)"
+        ));
+    }
+    if !listen.is_empty() {
+        d.push(Kind::Listener, "listen", Action::Changed, listen);
     }
 
     // Security.

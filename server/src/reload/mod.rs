@@ -381,6 +381,9 @@ impl Reloader {
                 tracing::error!(transaction = %name, error = %e, "standing transaction not started");
             }
         }
+        if diff.max_streams {
+            service.set_max_streams(new.config.max_streams);
+        }
         // Access.
         if diff.access {
             service.set_access(loaded.tokens.clone(), new.config.security.read_only);

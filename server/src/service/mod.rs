@@ -114,8 +114,10 @@ pub struct Service {
     pub(crate) tokens: crate::auth::TokenTable,
     /// `security.read_only`: every write is refused.
     read_only: AtomicBool,
-    /// Open change streams (SSE, Subscribe, Exchange), bounded by [`MAX_STREAMS`].
+    /// Open change streams (SSE, Subscribe, Exchange), bounded by `max_streams`.
     streams: Arc<std::sync::atomic::AtomicUsize>,
+    /// `listen.max_streams`.
+    max_streams: std::sync::atomic::AtomicUsize,
     /// The MQTT front-end's state, when it runs (replaced when a reload restarts it).
     mqtt: std::sync::RwLock<Option<Arc<MqttState>>>,
     /// The OPC UA server's counts, when it runs.
@@ -125,9 +127,6 @@ pub struct Service {
     /// The Modbus server's serial ports.
     serial_ports: serial_ports::SerialPorts,
 }
-
-/// The most change streams (SSE, gRPC Subscribe and Exchange) open at once.
-pub(crate) const MAX_STREAMS: usize = 2048;
 
 /// A place among the open change streams; dropping it frees the place.
 #[derive(Debug)]
@@ -154,6 +153,7 @@ impl Service {
             tokens: crate::auth::TokenTable::default(),
             read_only: AtomicBool::new(false),
             streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
+            max_streams: std::sync::atomic::AtomicUsize::new(crate::config::DEFAULT_MAX_STREAMS),
             mqtt: std::sync::RwLock::new(None),
             opcua: std::sync::RwLock::new(None),
             reloader: std::sync::OnceLock::new(),
@@ -165,8 +165,9 @@ impl Service {
     pub(crate) fn stream_slot(&self) -> Result<StreamSlot, ServiceError> {
         let before = self.streams.fetch_add(1, Ordering::AcqRel);
         let slot = StreamSlot(self.streams.clone());
-        if before >= MAX_STREAMS {
-            return Err(ServiceError::TooManyStreams(MAX_STREAMS));
+        let max = self.max_streams.load(Ordering::Acquire);
+        if before >= max {
+            return Err(ServiceError::TooManyStreams(max));
         }
         Ok(slot)
     }
@@ -200,6 +201,17 @@ impl Service {
         } else {
             Ok(())
         }
+    }
+
+    /// The service with `listen.max_streams`.
+    pub(crate) fn with_max_streams(self, max: usize) -> Self {
+        self.set_max_streams(max);
+        self
+    }
+
+    /// Puts `listen.max_streams` in force for the streams opened from now on.
+    pub(crate) fn set_max_streams(&self, max: usize) {
+        self.max_streams.store(max, Ordering::Release);
     }
 
     /// The service with a declaration policy other than the default.
@@ -419,14 +431,20 @@ mod tests {
     #[test]
     fn change_streams_are_bounded_and_their_places_come_back() {
         let service = demo_service();
-        let held: Vec<StreamSlot> = (0..MAX_STREAMS)
+        let default = crate::config::DEFAULT_MAX_STREAMS;
+        let held: Vec<StreamSlot> = (0..default)
             .map(|_| service.stream_slot().expect("a place"))
             .collect();
         assert!(matches!(
             service.stream_slot(),
-            Err(ServiceError::TooManyStreams(MAX_STREAMS))
+            Err(ServiceError::TooManyStreams(n)) if n == default
         ));
+        // `listen.max_streams` raised (a reload): more places.
+        service.set_max_streams(default + 1);
+        let one_more = service.stream_slot().expect("a place under the new limit");
+        assert!(service.stream_slot().is_err());
         drop(held);
+        drop(one_more);
         assert!(
             service.stream_slot().is_ok(),
             "places come back when streams end"
