@@ -34,6 +34,11 @@ use iogate_client::{Client, Selection, Update, Value};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 mod common;
+#[path = "parts/modbus_server.rs"]
+mod modbus_server;
+#[path = "parts/scale.rs"]
+mod scale;
+use common::Row;
 
 fn timing(baud: u32) -> LineTiming {
     LineTiming::new(&SerialSettings {
@@ -243,14 +248,6 @@ fn libmodbus_on_line(
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
-}
-
-struct Row {
-    measure: String,
-    iogate: String,
-    peer: String,
-    ratio: f64,
-    goal: String,
 }
 
 fn lines(rounds: usize, rows: &mut Vec<Row>) -> anyhow::Result<()> {
@@ -479,8 +476,7 @@ async fn sse_subscriber(addr: std::net::SocketAddr, tally: Arc<Tally>) -> anyhow
         };
         for event in text[..end].split(|&b| b == b'\n') {
             let has = |needle: &[u8]| event.windows(needle.len()).any(|w| w == needle);
-            if event.starts_with(b"data: ") && has(b"\"field\":\"DO_0\"") && has(want(next))
-            {
+            if event.starts_with(b"data: ") && has(b"\"field\":\"DO_0\"") && has(want(next)) {
                 tally.seen(next);
                 next += 1;
                 if next == CHANGES {
@@ -706,14 +702,13 @@ fn main() -> anyhow::Result<()> {
     if wanted("footprint") {
         footprints(&mut rows)?;
     }
-    println!();
-    println!("| measure | iogate | peer or limit | ratio | goal |");
-    println!("| --- | --- | --- | --- | --- |");
-    for r in rows {
-        println!(
-            "| {} | {} | {} | {:.2} | {} |",
-            r.measure, r.iogate, r.peer, r.ratio, r.goal
-        );
+    if wanted("modbus_server") {
+        rows.extend(modbus_server::run(&runtime)?);
     }
+    if wanted("scale") {
+        rows.extend(scale::run(&runtime)?);
+    }
+    println!();
+    common::print_table(&rows);
     Ok(())
 }

@@ -169,3 +169,27 @@ pub fn free_port() -> anyhow::Result<u16> {
         .local_addr()?
         .port())
 }
+
+/// A row of the suite's table: what was measured, iogate's figure, the peer's or the limit,
+/// their ratio and the goal for it.
+#[allow(dead_code)]
+pub struct Row {
+    pub measure: String,
+    pub iogate: String,
+    pub peer: String,
+    pub ratio: f64,
+    pub goal: String,
+}
+
+/// Prints `rows` as one Markdown table.
+#[allow(dead_code)]
+pub fn print_table(rows: &[Row]) {
+    println!("| measure | iogate | peer or limit | ratio | goal |");
+    println!("| --- | --- | --- | --- | --- |");
+    for r in rows {
+        println!(
+            "| {} | {} | {} | {:.2} | {} |",
+            r.measure, r.iogate, r.peer, r.ratio, r.goal
+        );
+    }
+}
