@@ -117,3 +117,56 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for Burst<T> {
         Pin::new(&mut self.get_mut().inner).poll_shutdown(cx)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::task::{Wake, Waker};
+
+    use super::*;
+
+    struct Count(AtomicUsize);
+
+    impl Wake for Count {
+        fn wake(self: Arc<Self>) {
+            self.0.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    #[tokio::test]
+    async fn a_bursts_first_write_gives_way_once_and_the_rest_go_through() {
+        use tokio::io::AsyncReadExt;
+        let (ours, mut theirs) = tokio::io::duplex(1024);
+        let mut burst = Burst::new(ours);
+        let count = Arc::new(Count(AtomicUsize::new(0)));
+        let waker = Waker::from(count.clone());
+        let mut cx = Context::from_waker(&waker);
+        let mut write =
+            |burst: &mut Burst<_>, bytes: &[u8]| Pin::new(burst).poll_write(&mut cx, bytes);
+        assert!(
+            write(&mut burst, b"a").is_pending(),
+            "the first write gives way"
+        );
+        assert_eq!(
+            count.0.load(Ordering::Relaxed),
+            1,
+            "and asks to be polled again"
+        );
+        assert!(matches!(write(&mut burst, b"a"), Poll::Ready(Ok(1))));
+        assert!(matches!(write(&mut burst, b"b"), Poll::Ready(Ok(1))));
+        let mut cx = Context::from_waker(&waker);
+        assert!(Pin::new(&mut burst).poll_flush(&mut cx).is_ready());
+        // Flushed: the next write starts a burst.
+        let mut cx = Context::from_waker(&waker);
+        assert!(Pin::new(&mut burst).poll_write(&mut cx, b"c").is_pending());
+        assert!(matches!(
+            Pin::new(&mut burst).poll_write(&mut cx, b"c"),
+            Poll::Ready(Ok(1))
+        ));
+        assert_eq!(count.0.load(Ordering::Relaxed), 2);
+        let mut read = [0u8; 3];
+        theirs.read_exact(&mut read).await.expect("read");
+        assert_eq!(&read, b"abc", "nothing written twice, nothing lost");
+    }
+}

@@ -1,11 +1,10 @@
 //! The gRPC service `iogate.v1.Gateway`: each call parses its message, calls the service,
 //! and maps the result (or the error, in [`status`]) to protobuf.
 
+use std::convert::Infallible;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
-
-use std::convert::Infallible;
 
 use bytes::Bytes;
 use futures_util::{Stream, StreamExt};
