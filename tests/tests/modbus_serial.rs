@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use serde_json::{Value, json};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
 use tokio_serial::{SerialPort, SerialStream};
 
@@ -34,35 +34,32 @@ type Seen = Arc<Mutex<Vec<(Way, Vec<u8>, Instant)>>>;
 /// slave's side of one line.
 fn sniffer(masters: SerialStream, slave: SerialStream) -> Seen {
     let seen: Seen = Arc::default();
-    let (mut m_read, mut m_write) = tokio::io::split(masters);
-    let (mut s_read, mut s_write) = tokio::io::split(slave);
-    let log = seen.clone();
-    tokio::spawn(async move {
-        let mut buf = [0u8; 1024];
-        while let Ok(n) = m_read.read(&mut buf).await {
-            if n == 0 {
-                break;
-            }
-            record(&log, Way::Request, &buf[..n]);
-            if s_write.write_all(&buf[..n]).await.is_err() {
-                break;
-            }
-        }
-    });
-    let log = seen.clone();
-    tokio::spawn(async move {
-        let mut buf = [0u8; 1024];
-        while let Ok(n) = s_read.read(&mut buf).await {
-            if n == 0 {
-                break;
-            }
-            record(&log, Way::Answer, &buf[..n]);
-            if m_write.write_all(&buf[..n]).await.is_err() {
-                break;
-            }
-        }
-    });
+    let (m_read, m_write) = tokio::io::split(masters);
+    let (s_read, s_write) = tokio::io::split(slave);
+    pipe(m_read, s_write, seen.clone(), Way::Request);
+    pipe(s_read, m_write, seen.clone(), Way::Answer);
     seen
+}
+
+/// Copies `from` to `to` until either ends, recording each chunk as going `way`.
+fn pipe(
+    mut from: impl AsyncRead + Unpin + Send + 'static,
+    mut to: impl AsyncWrite + Unpin + Send + 'static,
+    log: Seen,
+    way: Way,
+) {
+    tokio::spawn(async move {
+        let mut buf = [0u8; 1024];
+        while let Ok(n) = from.read(&mut buf).await {
+            if n == 0 {
+                break;
+            }
+            record(&log, way, &buf[..n]);
+            if to.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+    });
 }
 
 fn record(seen: &Seen, way: Way, bytes: &[u8]) {

@@ -81,6 +81,8 @@ impl<T> Forms<T> {
             drop(made);
             return make();
         }
+        // Made under the lock: a receiver arriving meanwhile waits for these bytes rather
+        // than making the same form again.
         let bytes = make();
         match made.as_mut() {
             Some(m) if current => m.forms.push((form, bytes.clone())),
