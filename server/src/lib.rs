@@ -24,6 +24,7 @@ pub(crate) mod poller;
 pub mod profile;
 pub mod reload;
 pub(crate) mod runtime;
+pub mod scan;
 pub(crate) mod servers;
 pub mod service;
 pub(crate) mod setup;

@@ -154,6 +154,58 @@ impl RtuTransport {
         result
     }
 
+    /// A scan's probe (RTU frames only): sends `pdu` to `slave` after the line's silence and
+    /// keeps every byte that comes back until `until`: one answer, two, or a garbled mix,
+    /// which only the scan can judge. With `early`, it stops once what came is whole RTU
+    /// frames (by their CRCs) followed by the line's silence. No late-reply window follows:
+    /// a scan's next probe goes to another slave, whose answer a late one cannot pass for.
+    pub(crate) async fn probe(
+        &mut self,
+        slave: u8,
+        pdu: &[u8],
+        until: Instant,
+        early: bool,
+    ) -> Result<Vec<u8>, TxError> {
+        self.quiet_line(self.silence()).await?;
+        let mut frame = Vec::with_capacity(pdu.len() + 3);
+        frame.push(slave);
+        frame.extend_from_slice(pdu);
+        frame.extend_from_slice(&crc16(&frame).to_le_bytes());
+        self.io.write_all(&frame).await?;
+        self.io.flush().await?;
+        self.counters.bytes_sent += frame.len() as u64;
+        self.last_activity = Instant::now() + self.frame_time(frame.len());
+        // Silence ends a frame; over a link with no line timing, two milliseconds.
+        let gap = self.silence().max(Duration::from_millis(2));
+        let mut heard = Vec::new();
+        let mut chunk = [0u8; MAX_FRAME];
+        loop {
+            let stop = if early && super::frame::whole_frames(&heard) {
+                (self.last_activity + gap).min(until)
+            } else {
+                until
+            };
+            let read = tokio::select! {
+                biased;
+                read = self.io.read(&mut chunk) => read,
+                _ = self.timer.sleep_until(stop) => break,
+            };
+            match read {
+                Ok(0) => return Err(io::Error::from(io::ErrorKind::UnexpectedEof).into()),
+                Ok(n) => {
+                    self.counters.bytes_received += n as u64;
+                    self.last_activity = Instant::now();
+                    heard.extend_from_slice(&chunk[..n]);
+                    if heard.len() > 4 * MAX_FRAME {
+                        break;
+                    }
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        Ok(heard)
+    }
+
     /// Before a request that a late answer could be taken for (same slave, function and
     /// answer length as one that timed out), discards input until that answer has come or
     /// its horizon has passed.

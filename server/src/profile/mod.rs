@@ -133,8 +133,25 @@ pub struct Profile {
     pub(crate) protocol: Protocol,
     pub(crate) description: Option<String>,
     pub(crate) fields: Vec<Field>,
+    /// What the device says it is (FC 43 objects by key: `vendor`, `product_code`, ...),
+    /// where the profile states it; a scan suggests the profile only for a device that
+    /// says the same.
+    pub(crate) identification: BTreeMap<String, String>,
+    /// The reads a scan tries to tell the device by (else one read of each register kind's
+    /// first field).
+    pub(crate) probe: Vec<ProbeRead>,
     /// The file the profile was loaded from.
     pub(crate) source: String,
+}
+
+/// One read a scan sends to tell a device by: it must answer with data (and, where given,
+/// these register values).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeRead {
+    pub(crate) kind: RegisterKind,
+    pub(crate) address: u16,
+    pub(crate) count: u16,
+    pub(crate) values: Option<Vec<u16>>,
 }
 
 impl Profile {

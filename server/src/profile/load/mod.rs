@@ -1,17 +1,26 @@
 //! Profile YAML to [`Profile`], reporting every problem with file, line and field.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 mod field;
 mod register;
 
-use super::{Field, Profile, Protocol};
+use super::{Field, ProbeRead, Profile, Protocol, RegisterKind};
 use crate::codec::IecType;
 use crate::yaml::{self, Node, Problems, Report};
 use field::read_field;
 
-const PROFILE_KEYS: &[&str] = &["name", "vendor", "protocol", "description", "fields"];
+const PROFILE_KEYS: &[&str] = &[
+    "name",
+    "vendor",
+    "protocol",
+    "description",
+    "identification",
+    "probe",
+    "fields",
+];
+const PROBE_KEYS: &[&str] = &["kind", "address", "count", "values"];
 const FIELD_KEYS: &[&str] = &[
     "name",
     "type",
@@ -184,6 +193,14 @@ fn read_profile(root: &Node, report: &mut Report) -> Option<Profile> {
     let field_nodes = map
         .require("fields", report, &ctx)
         .and_then(|n| n.seq(report, &format!("{ctx}: fields")));
+    let identification = map
+        .get("identification")
+        .map(|n| read_identification(n, report, &ctx))
+        .unwrap_or_default();
+    let probe = map
+        .get("probe")
+        .map(|n| read_probe(n, report, &ctx))
+        .unwrap_or_default();
     map.finish(report, &ctx, PROFILE_KEYS);
 
     let mut fields = Vec::new();
@@ -205,8 +222,111 @@ fn read_profile(root: &Node, report: &mut Report) -> Option<Profile> {
         protocol: protocol?,
         description,
         fields,
+        identification,
+        probe,
         source: report.file().to_owned(),
     })
+}
+
+/// `identification: { vendor: ..., product_code: ... }`: FC 43 objects by key.
+fn read_identification(node: &Node, report: &mut Report, ctx: &str) -> BTreeMap<String, String> {
+    let ctx = format!("{ctx}: identification");
+    let mut out = BTreeMap::new();
+    let Some(mut map) = node.map(report, &ctx) else {
+        return out;
+    };
+    for key in crate::scan::ident::KEYS {
+        if let Some(text) = map
+            .get(key)
+            .and_then(|n| n.scalar_text(report, &format!("{ctx}.{key}")))
+        {
+            out.insert((*key).to_owned(), text);
+        }
+    }
+    map.finish(report, &ctx, crate::scan::ident::KEYS);
+    if out.is_empty() {
+        report.push(
+            node.line,
+            &ctx,
+            "states nothing (keys: vendor, product_code, product_name, model_name, revision)",
+        );
+    }
+    out
+}
+
+/// `probe: [{ kind, address, count, values }]`: reads a scan tells the device by.
+fn read_probe(node: &Node, report: &mut Report, ctx: &str) -> Vec<ProbeRead> {
+    let ctx = format!("{ctx}: probe");
+    let Some(nodes) = node.seq(report, &ctx) else {
+        return Vec::new();
+    };
+    let mut reads = Vec::new();
+    for (i, n) in nodes.iter().enumerate() {
+        let at = format!("{ctx}[{i}]");
+        let Some(mut map) = n.map(report, &at) else {
+            continue;
+        };
+        let kind = map.require("kind", report, &at).and_then(|k| {
+            one_of(
+                k,
+                report,
+                &format!("{at}.kind"),
+                &RegisterKind::ALL[..4],
+                |k| k.name(),
+            )
+        });
+        let address = map
+            .require("address", report, &at)
+            .and_then(|a| a.int_in(report, &format!("{at}.address"), 0, 65535));
+        let count = match map.get("count") {
+            None => Some(1),
+            Some(c) => c.int_in(report, &format!("{at}.count"), 1, 125),
+        };
+        let values = map.get("values").and_then(|v| {
+            let items = v.seq(report, &format!("{at}.values"))?;
+            items
+                .iter()
+                .map(|x| {
+                    x.int_in(report, &format!("{at}.values"), 0, 65535)
+                        .map(|x| x as u16)
+                })
+                .collect::<Option<Vec<u16>>>()
+        });
+        map.finish(report, &at, PROBE_KEYS);
+        let (Some(kind), Some(address), Some(count)) = (kind, address, count) else {
+            continue;
+        };
+        if address + count > 65536 {
+            report.push(
+                n.line,
+                &at,
+                format!("address {address} + {count} runs past 65535"),
+            );
+            continue;
+        }
+        if let Some(v) = &values {
+            if kind.is_bit() {
+                report.push(
+                    n.line,
+                    &at,
+                    "`values` are for register reads, not coils or discrete inputs",
+                );
+            } else if v.len() as i128 != count {
+                report.push(
+                    n.line,
+                    &at,
+                    format!("{} values for a read of {count} registers", v.len()),
+                );
+            }
+        }
+        reads.push(ProbeRead {
+            kind,
+            address: address as u16,
+            count: count as u16,
+            values,
+        });
+    }
+    reads
 }
 
 /// Duplicate names (IEC identifiers ignore case) and names the FB layout already uses.

@@ -1,0 +1,168 @@
+//! `iogate scan --port PORT`: a whole line scanned from the command line, progress on the
+//! terminal (standard error), the result on standard output (text or `--json`).
+
+use std::io::{IsTerminal, Write};
+use std::path::Path;
+use std::sync::Arc;
+
+use tokio_util::sync::CancellationToken;
+
+use super::port::PortProber;
+use super::report::{Summary, device_line};
+use super::{Plan, Progress};
+use crate::profile::Profile;
+
+/// The command line's options, as given.
+pub struct Options {
+    pub port: String,
+    pub baud: Option<String>,
+    pub parity: Option<String>,
+    pub ids: String,
+    pub timeout: String,
+    pub profiles: Option<std::path::PathBuf>,
+    pub json: bool,
+}
+
+/// The plan the options describe, or what is wrong with them.
+pub fn plan(options: &Options) -> Result<Plan, String> {
+    let bauds = match &options.baud {
+        Some(text) => super::parse_bauds(text)?,
+        None => super::DEFAULT_BAUDS.to_vec(),
+    };
+    let parities = match &options.parity {
+        Some(text) => super::parse_parities(text)?,
+        None => super::DEFAULT_PARITIES.to_vec(),
+    };
+    let timeout = crate::duration::parse(&options.timeout)
+        .map_err(|e| format!("--timeout `{}`: {e}", options.timeout))?;
+    let plan = Plan {
+        settings: super::settings(&bauds, &parities),
+        ids: super::parse_ids(&options.ids)?,
+        timeout,
+    };
+    plan.check()?;
+    Ok(plan)
+}
+
+/// The profiles to match: `--profiles DIR`, else `profiles/` here or in a parent; problems
+/// are warnings (the profiles that load are used).
+fn profiles(dir: Option<&Path>) -> Vec<Arc<Profile>> {
+    let here = Path::new(".");
+    let Some(dir) = crate::profile::find_dir(dir, here) else {
+        eprintln!("no profiles directory found (--profiles DIR): devices are not matched");
+        return Vec::new();
+    };
+    let (catalog, problems) = crate::profile::load_catalog_partial(&dir);
+    for problem in problems.iter() {
+        eprintln!("warning: {problem}");
+    }
+    catalog.iter().cloned().collect()
+}
+
+/// Runs the scan; the process's exit code: 0 done, 64 bad options, 1 the port failed.
+pub fn run(options: &Options) -> u8 {
+    let plan = match plan(options) {
+        Ok(plan) => plan,
+        Err(e) => {
+            eprintln!("iogate scan: {e}");
+            return crate::EXIT_CONFIG as u8;
+        }
+    };
+    let profiles = profiles(options.profiles.as_deref());
+    let runtime = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("cannot start the runtime: {e}");
+            return 1;
+        }
+    };
+    eprintln!(
+        "scanning {}: {} setting{} x {} ids ({}), a {} ms slot each: at most {:.1} s, plus a few probes for each device found",
+        options.port,
+        plan.settings.len(),
+        if plan.settings.len() == 1 { "" } else { "s" },
+        plan.ids.len(),
+        super::report::ranges(&plan.ids),
+        plan.timeout.as_millis(),
+        plan.estimate().as_secs_f64()
+    );
+    let terminal = std::io::stderr().is_terminal();
+    let started = std::time::Instant::now();
+    let mut on_progress = |p: Progress| match p {
+        Progress::Setting { setting, index, of } => {
+            if terminal {
+                eprint!("\r\x1b[K");
+            }
+            eprintln!("{} ({} of {of})", setting.label(), index + 1);
+        }
+        Progress::Tried { done, total } if terminal => {
+            eprint!("\r\x1b[K  {done} of {total} probed");
+            let _ = std::io::stderr().flush();
+        }
+        Progress::Tried { .. } => {}
+        Progress::Found(device) => {
+            if terminal {
+                eprint!("\r\x1b[K");
+            }
+            eprintln!("{}", device_line(&device));
+        }
+    };
+    let cancel = CancellationToken::new();
+    let mut prober = PortProber::new(&options.port, plan.timeout);
+    let scanned = runtime.block_on(async {
+        let cancel_on_ctrl_c = cancel.clone();
+        let watch = tokio::spawn(async move {
+            if tokio::signal::ctrl_c().await.is_ok() {
+                cancel_on_ctrl_c.cancel();
+            }
+        });
+        let result = super::run(
+            &mut prober,
+            &plan,
+            &profiles,
+            "line",
+            &mut on_progress,
+            &cancel,
+        )
+        .await;
+        watch.abort();
+        result
+    });
+    if terminal {
+        eprint!("\r\x1b[K");
+    }
+    let devices = match scanned {
+        Ok(devices) => devices,
+        Err(e) => {
+            eprintln!("iogate scan: {e}");
+            return 1;
+        }
+    };
+    eprintln!(
+        "{} device{} found in {:.1} s",
+        devices.len(),
+        if devices.len() == 1 { "" } else { "s" },
+        started.elapsed().as_secs_f64()
+    );
+    let summary = Summary::new(&plan, devices, Some(&options.port), "line");
+    if options.json {
+        match serde_json::to_string_pretty(&summary) {
+            Ok(text) => println!("{text}"),
+            Err(e) => {
+                eprintln!("{e}");
+                return 1;
+            }
+        }
+    } else if summary.devices.is_empty() {
+        println!("no device answered");
+    } else {
+        for d in &summary.devices {
+            println!("{}", device_line(d));
+        }
+        println!("\n# for iogate.yaml:\n{}", summary.config);
+    }
+    0
+}

@@ -1,0 +1,251 @@
+//! A scan's result as the terminal shows it and as JSON, with the `links:` and `devices:`
+//! entries for `iogate.yaml`.
+
+use std::fmt::Write;
+
+use serde::Serialize;
+
+use super::{Found, Plan, Setting};
+
+/// A finished (or running) scan's result: what was tried, what was found, and the config.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub settings: Vec<Setting>,
+    /// The ids tried, as ranges: `1-247`.
+    pub ids: String,
+    pub timeout_ms: u64,
+    /// The longest the search takes (one slot per id and setting).
+    pub estimate_ms: u64,
+    pub devices: Vec<Found>,
+    /// Ready `links:` (for a port) and `devices:` entries.
+    pub config: String,
+}
+
+impl Summary {
+    pub fn new(plan: &Plan, devices: Vec<Found>, port: Option<&str>, link: &str) -> Self {
+        Summary {
+            settings: plan.settings.clone(),
+            ids: ranges(&plan.ids),
+            timeout_ms: plan.timeout.as_millis() as u64,
+            estimate_ms: plan.estimate().as_millis() as u64,
+            config: config(&devices, port, link),
+            devices,
+        }
+    }
+}
+
+/// `1,2,3,7` → `1-3,7`.
+pub fn ranges(ids: &[u8]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < ids.len() {
+        let mut j = i;
+        while j + 1 < ids.len() && ids[j + 1] == ids[j] + 1 {
+            j += 1;
+        }
+        out.push(if i == j {
+            ids[i].to_string()
+        } else {
+            format!("{}-{}", ids[i], ids[j])
+        });
+        i = j + 1;
+    }
+    out.join(",")
+}
+
+/// The link a device found at `setting` goes on: `link` when every device is at one setting,
+/// else one link per setting.
+fn link_name(link: &str, setting: &Setting, many: bool) -> String {
+    if many {
+        format!(
+            "{link}_{}_8{}1",
+            setting.baud,
+            setting.parity.letter().to_ascii_lowercase()
+        )
+    } else {
+        link.to_owned()
+    }
+}
+
+/// The `links:` entries (for a port of its own) and `devices:` entries of the devices found:
+/// the best profile of each (the others named in a comment); an id two devices answer is
+/// a comment, not an entry.
+pub fn config(devices: &[Found], port: Option<&str>, link: &str) -> String {
+    let mut settings: Vec<Setting> = Vec::new();
+    for d in devices {
+        if !settings.contains(&d.setting) {
+            settings.push(d.setting);
+        }
+    }
+    let many = settings.len() > 1;
+    let mut out = String::new();
+    if let Some(port) = port
+        && !settings.is_empty()
+    {
+        if many {
+            out.push_str("# devices answer at different settings: one port runs at one of them\n");
+        }
+        out.push_str("links:\n");
+        for s in &settings {
+            let _ = writeln!(
+                out,
+                "  - {{ name: {}, serial: {{ port: {port}, baud: {}, parity: {} }} }}",
+                link_name(link, s, many),
+                s.baud,
+                s.parity.letter()
+            );
+        }
+    }
+    if devices.is_empty() {
+        return out;
+    }
+    out.push_str("devices:\n");
+    for d in devices {
+        let link = link_name(link, &d.setting, many);
+        if let Some(why) = &d.collision {
+            let _ = writeln!(
+                out,
+                "  # slave {} on {link}: {why}; give one of them another id first",
+                d.slave_id
+            );
+            continue;
+        }
+        match d.profiles.split_first() {
+            None => {
+                let _ = writeln!(
+                    out,
+                    "  # slave {} on {link}: no profile fits; import or write one (iogate profile import)",
+                    d.slave_id
+                );
+            }
+            Some((best, others)) => {
+                let entry = super::matching::device_entry(&best.profile, &link, d.slave_id);
+                let _ = writeln!(out, "  {entry}");
+                if !others.is_empty() {
+                    let names: Vec<&str> = others.iter().map(|s| s.profile.as_str()).collect();
+                    let _ = writeln!(out, "  #   also fits: {}", names.join(", "));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// One device found, as the terminal shows it.
+pub fn device_line(d: &Found) -> String {
+    let mut out = format!("  slave {:>3} at {}:", d.slave_id, d.setting.label());
+    let reads: Vec<String> = d
+        .reads
+        .iter()
+        .map(|r| {
+            let what = match (&r.exception, r.answer) {
+                (Some(x), _) => format!("exception {x}"),
+                (None, "data") => format!("{:?}", r.values),
+                (None, other) => other.to_owned(),
+            };
+            format!("FC{:02} {}+{} {what}", r.function, r.address, r.count)
+        })
+        .collect();
+    let _ = write!(out, " {}", reads.join("; "));
+    if let Some(id) = &d.identification {
+        let parts: Vec<String> = [
+            ("vendor", &id.vendor),
+            ("product code", &id.product_code),
+            ("revision", &id.revision),
+            ("product", &id.product_name),
+            ("model", &id.model_name),
+        ]
+        .iter()
+        .filter_map(|(k, v)| v.as_ref().map(|v| format!("{k} {v:?}")))
+        .collect();
+        let _ = write!(out, "\n      identification: {}", parts.join(", "));
+    }
+    if let Some(why) = &d.collision {
+        let _ = write!(out, "\n      COLLISION: {why}");
+    }
+    if d.profiles.is_empty() {
+        out.push_str("\n      profiles: none fits");
+    } else {
+        let names: Vec<String> = d
+            .profiles
+            .iter()
+            .map(|s| {
+                if s.identified {
+                    format!("{} (identified)", s.profile)
+                } else {
+                    s.profile.clone()
+                }
+            })
+            .collect();
+        let _ = write!(out, "\n      profiles: {}", names.join(", "));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Parity;
+    use crate::scan::Suggestion;
+
+    fn found(id: u8, baud: u32, profile: Option<&str>, collision: Option<&str>) -> Found {
+        Found {
+            slave_id: id,
+            setting: Setting {
+                baud,
+                parity: Parity::None,
+            },
+            reads: Vec::new(),
+            identification: None,
+            collision: collision.map(str::to_owned),
+            profiles: profile
+                .map(|p| Suggestion {
+                    profile: p.to_owned(),
+                    identified: false,
+                    probes: 1,
+                    device: String::new(),
+                })
+                .into_iter()
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn ids_as_ranges() {
+        assert_eq!(ranges(&[1, 2, 3, 7, 9, 10]), "1-3,7,9-10");
+        assert_eq!(ranges(&[]), "");
+    }
+
+    #[test]
+    fn config_has_one_link_per_setting_and_no_entry_for_a_collision() {
+        let one = config(
+            &[
+                found(3, 9600, Some("Meter"), None),
+                found(5, 9600, None, Some("two answers")),
+            ],
+            Some("/dev/ttyUSB0"),
+            "line",
+        );
+        assert!(
+            one.contains(
+                "  - { name: line, serial: { port: /dev/ttyUSB0, baud: 9600, parity: N } }"
+            ),
+            "{one}"
+        );
+        assert!(
+            one.contains("  - { name: meter_3, profile: Meter, link: line, slave_id: 3 }"),
+            "{one}"
+        );
+        assert!(one.contains("# slave 5 on line: two answers"), "{one}");
+        let two = config(
+            &[
+                found(3, 9600, Some("Meter"), None),
+                found(4, 19200, Some("Io"), None),
+            ],
+            Some("/dev/ttyUSB0"),
+            "line",
+        );
+        assert!(two.contains("name: line_9600_8n1"), "{two}");
+        assert!(two.contains("link: line_19200_8n1, slave_id: 4"), "{two}");
+    }
+}
