@@ -817,3 +817,48 @@ fn check_diff_prints_what_a_reload_would_change_and_applies_nothing() {
     assert_eq!(code, Some(0));
     assert!(stdout.contains("no changes"), "{stdout}");
 }
+
+#[test]
+fn scan_names_a_bad_option_and_a_port_it_cannot_open() {
+    let run = |args: &[&str]| {
+        let out = iogate().arg("scan").args(args).output().expect("scan");
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (code, err) = run(&["--port", "/dev/null", "--ids", "0-5"]);
+    assert_eq!(code, Some(64), "{err}");
+    assert!(
+        err.contains("`0` in `0-5` is not a slave id (1-247)"),
+        "{err}"
+    );
+    let (code, err) = run(&["--port", "/dev/null", "--baud", "1200", "--timeout", "20ms"]);
+    assert_eq!(code, Some(64), "{err}");
+    assert!(
+        err.contains("timeout 20 ms is too short at 1200 baud"),
+        "{err}"
+    );
+    let (code, err) = run(&["--port", "/dev/null", "--parity", "X"]);
+    assert_eq!(code, Some(64), "{err}");
+    assert!(err.contains("`X` is not a parity"), "{err}");
+    let missing = temp_dir("scan-missing").join("ttyNONE");
+    let (code, err) = run(&[
+        "--port",
+        &missing.display().to_string(),
+        "--baud",
+        "9600",
+        "--parity",
+        "N",
+        "--ids",
+        "1-2",
+        "--profiles",
+        &repo().join("profiles").display().to_string(),
+    ]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("at most 0.1 s"),
+        "the duration is said first: {err}"
+    );
+    assert!(err.contains("ttyNONE"), "{err}");
+}

@@ -8,6 +8,7 @@ use iogate::app::{self, Running, Setup};
 
 pub mod browser;
 pub mod devices;
+pub mod line;
 pub mod mqtt;
 pub mod opcua;
 pub mod pki;

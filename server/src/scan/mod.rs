@@ -437,7 +437,7 @@ async fn identify(
             let Ok(answer) = ident::parse(&pdu) else {
                 break;
             };
-            any = true;
+            any |= !answer.objects.is_empty();
             conformity = answer.conformity;
             for (k, v) in &answer.objects {
                 found.add(*k, v);

@@ -1,0 +1,193 @@
+//! Scanning a line of independent slaves (pymodbus, on ptys joined by `iogate_tests::line`):
+//! each found at its id and baud rate, identification read, a shared id reported as a
+//! collision, the right profile suggested.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use iogate::scan::{self, Found, Plan, Progress};
+use iogate_tests::devices::temp_dir;
+use iogate_tests::{repo_file, run_installer};
+use serde_json::json;
+use tokio_util::sync::CancellationToken;
+
+/// Starts a pymodbus slave on `path` at `baud` serving `spec`; waits until it serves.
+async fn slave(path: &std::path::Path, baud: u32, spec: serde_json::Value) -> iogate_tests::Piped {
+    let mut command = tokio::process::Command::new("python3");
+    command
+        .arg(repo_file("serial/scan_slave.py"))
+        .arg(path)
+        .arg(baud.to_string())
+        .arg(spec.to_string());
+    let mut piped = iogate_tests::spawn_piped(command).expect("slave");
+    let first = tokio::time::timeout(Duration::from_secs(20), piped.lines.next_line())
+        .await
+        .expect("slave in time")
+        .expect("slave output");
+    assert_eq!(first.as_deref(), Some("serving"));
+    piped
+}
+
+fn profiles(dir: &std::path::Path) -> Vec<Arc<iogate::profile::Profile>> {
+    let profiles = dir.join("profiles");
+    std::fs::create_dir_all(&profiles).expect("dir");
+    for entry in std::fs::read_dir(iogate_tests::profiles_dir()).expect("profiles") {
+        let path = entry.expect("entry").path();
+        std::fs::copy(&path, profiles.join(path.file_name().expect("name"))).expect("copy");
+    }
+    std::fs::write(
+        profiles.join("acme_x1.yaml"),
+        "name: AcmeX1\nvendor: ACME\ndescription: \"a device that says who it is\"\n\
+         identification: { vendor: ACME, product_code: X1 }\nfields:\n  \
+         - { name: Level, type: UINT, direction: input, register: { address: 0, kind: holding_register } }\n",
+    )
+    .expect("profile");
+    iogate::profile::load_dir(&profiles)
+        .expect("profiles load")
+        .into_iter()
+        .map(Arc::new)
+        .collect()
+}
+
+async fn scan(
+    port: &std::path::Path,
+    bauds: &[u32],
+    ids: &str,
+    profiles: &[Arc<iogate::profile::Profile>],
+) -> (Vec<Found>, Vec<String>) {
+    let plan = Plan {
+        settings: scan::settings(bauds, &[iogate::config::Parity::None]),
+        ids: scan::parse_ids(ids).expect("ids"),
+        timeout: Duration::from_millis(60),
+    };
+    plan.check().expect("plan");
+    let mut prober = scan::port::PortProber::new(&port.display().to_string(), plan.timeout);
+    let mut told = Vec::new();
+    let mut progress = |p: Progress| match p {
+        Progress::Setting { setting, .. } => told.push(format!("setting {}", setting.label())),
+        Progress::Found(d) => told.push(format!("found {}", d.slave_id)),
+        Progress::Tried { .. } => {}
+    };
+    let found = scan::run(
+        &mut prober,
+        &plan,
+        profiles,
+        "line",
+        &mut progress,
+        &CancellationToken::new(),
+    )
+    .await
+    .expect("scan");
+    (found, told)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_finds_each_slave_its_identification_a_shared_id_and_the_right_profile() {
+    run_installer("serial/install.sh").expect("serial peers");
+    let dir = temp_dir("scan-line");
+    let port = dir.join("ttyLINE");
+    let line = iogate_tests::line::line(
+        &dir,
+        &port,
+        &[(3, 9600), (7, 9600), (9, 9600), (9, 9600), (12, 19200)],
+    )
+    .expect("line");
+    let _s3 = slave(
+        &line.slaves[0].path,
+        9600,
+        json!({
+            "unit": 3, "holding": {"0": [42]},
+            "identity": {"VendorName": "ACME", "ProductCode": "X1", "MajorMinorRevision": "2.1"}
+        }),
+    )
+    .await;
+    // The Waveshare 8-channel analog input's published map: input registers 0-7 the
+    // channels, holding 0x1000-0x1007 their ranges.
+    let _s7 = slave(
+        &line.slaves[1].path,
+        9600,
+        json!({
+            "unit": 7, "input": {"0": [100, 200, 300, 400, 500, 600, 700, 800]},
+            "holding": {"4096": [0, 0, 0, 0, 0, 0, 0, 0]}
+        }),
+    )
+    .await;
+    let _s9a = slave(
+        &line.slaves[2].path,
+        9600,
+        json!({"unit": 9, "holding": {"0": [1]}}),
+    )
+    .await;
+    let _s9b = slave(
+        &line.slaves[3].path,
+        9600,
+        json!({"unit": 9, "holding": {"0": [2]}}),
+    )
+    .await;
+    let _s12 = slave(
+        &line.slaves[4].path,
+        19200,
+        json!({"unit": 12, "holding": {"0": [5]}}),
+    )
+    .await;
+    let profiles = profiles(&dir);
+
+    let started = std::time::Instant::now();
+    let (found, told) = scan(&port, &[9600], "1-15", &profiles).await;
+    let took = started.elapsed();
+    let ids: Vec<u8> = found.iter().map(|d| d.slave_id).collect();
+    assert_eq!(ids, vec![3, 7, 9], "{found:#?}");
+    assert_eq!(
+        told.first().map(String::as_str),
+        Some("setting 9600 8N1"),
+        "{told:?}"
+    );
+
+    let acme = &found[0];
+    let id = acme.identification.as_ref().expect("identification");
+    assert_eq!(id.vendor.as_deref(), Some("ACME"));
+    assert_eq!(id.product_code.as_deref(), Some("X1"));
+    assert_eq!(id.revision.as_deref(), Some("2.1"));
+    assert_eq!(acme.profiles[0].profile, "AcmeX1", "{:#?}", acme.profiles);
+    assert!(acme.profiles[0].identified);
+    assert!(acme.collision.is_none());
+    assert_eq!(acme.reads[0].values, vec![42]);
+
+    let waveshare = &found[1];
+    assert_eq!(
+        waveshare.profiles[0].profile, "WaveshareAnalogInput",
+        "{:#?}",
+        waveshare.profiles
+    );
+    assert!(waveshare.identification.is_none());
+    assert!(
+        waveshare.profiles.iter().all(|s| s.profile != "AcmeX1"),
+        "a profile that states an identification fits only a device that says it"
+    );
+
+    let shared = &found[2];
+    assert!(
+        shared
+            .collision
+            .as_deref()
+            .is_some_and(|c| c.contains("two answers")),
+        "{shared:#?}"
+    );
+    let config = scan::report::config(&found, Some("/dev/ttyUSB0"), "line");
+    assert!(
+        config.contains("profile: AcmeX1, link: line, slave_id: 3"),
+        "{config}"
+    );
+    assert!(
+        config.contains("# slave 9 on line: two answers"),
+        "{config}"
+    );
+
+    // One slot per id: 15 ids at 60 ms, plus the follow-up probes of three devices.
+    assert!(took < Duration::from_secs(10), "{took:?}");
+
+    // A second run at both rates finds the 19200 baud slave too, at its rate.
+    let (found, _) = scan(&port, &[19200, 9600], "10-13", &profiles).await;
+    let at: Vec<(u8, u32)> = found.iter().map(|d| (d.slave_id, d.setting.baud)).collect();
+    assert_eq!(at, vec![(12, 19200)], "{found:#?}");
+}
