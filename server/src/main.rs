@@ -123,6 +123,19 @@ enum FbCommand {
 
 #[derive(Subcommand)]
 enum ProfileCommand {
+    /// Convert wb-mqtt-serial device templates (JSON) and EdgeX device profiles (YAML) into
+    /// iogate profiles; what cannot be mapped is reported with its source line.
+    Import {
+        /// The source format; default: by the file name (.json wb, .yaml/.yml edgex).
+        #[arg(long)]
+        from: Option<String>,
+        /// Where to write the profiles (one file each); default: standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The files to convert.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+    },
     /// Print the profile's function block as an IEC 61131-3 ST declaration.
     St {
         /// The profile name.
@@ -205,6 +218,16 @@ fn main() -> ExitCode {
             json,
         }));
     }
+    if let Some(Command::Profile {
+        command: ProfileCommand::Import { from, out, files },
+    }) = &cli.command
+    {
+        return ExitCode::from(iogate::profile::import::run(
+            files,
+            from.as_deref(),
+            out.as_deref(),
+        ));
+    }
     let (config, action) = match cli.command {
         None => (None, Action::Serve),
         Some(Command::Serve { config }) => (config, Action::Serve),
@@ -230,7 +253,13 @@ fn main() -> ExitCode {
         Some(Command::Profile {
             command: ProfileCommand::St { name, config },
         }) => (config, Action::St(name)),
-        Some(Command::Fb { .. } | Command::Scan { .. }) => return ExitCode::SUCCESS,
+        Some(
+            Command::Fb { .. }
+            | Command::Scan { .. }
+            | Command::Profile {
+                command: ProfileCommand::Import { .. },
+            },
+        ) => return ExitCode::SUCCESS,
     };
     let setup = match Setup::load(config.as_deref()) {
         Ok(setup) => setup,

@@ -1,5 +1,6 @@
 //! Device profiles: the model, loading with validation, and the generated FB layout.
 
+pub mod import;
 pub(crate) mod keywords;
 mod layout;
 mod load;

@@ -1,0 +1,284 @@
+//! EdgeX device profiles (YAML, device-modbus): `deviceResources` made into fields; device
+//! commands and resources of unsupported tables or value types reported.
+
+use super::{Draft, Imported, entries, get, identifier, num, scalar};
+use crate::codec::{ByteOrder, IecType};
+use crate::profile::{Direction, RegisterKind};
+use crate::yaml::{Kind, Node};
+
+/// Keys of a resource's `properties` that shape nothing on the wire.
+const QUIET_PROPERTIES: &[&str] = &[
+    "valueType",
+    "readWrite",
+    "scale",
+    "offset",
+    "units",
+    "minimum",
+    "maximum",
+    "defaultValue",
+    "mediaType",
+];
+
+pub(super) fn read(root: &Node) -> Result<Draft, String> {
+    let name = get(root, "name")
+        .and_then(scalar)
+        .ok_or("no `name`: not an EdgeX device profile")?;
+    let resources = match get(root, "deviceResources").map(|r| &r.kind) {
+        Some(Kind::Seq(items)) => items.as_slice(),
+        _ => return Err("no `deviceResources`: not an EdgeX device profile".to_owned()),
+    };
+    let mut draft = Draft {
+        name: identifier(&name),
+        vendor: get(root, "manufacturer").and_then(scalar),
+        description: get(root, "description").and_then(scalar).map(|d| {
+            match get(root, "model").and_then(scalar) {
+                Some(model) => format!("{model}: {d}"),
+                None => d,
+            }
+        }),
+        ..Draft::default()
+    };
+    for (key, value) in entries(root) {
+        if key.name == "deviceCommands"
+            && let Kind::Seq(commands) = &value.kind
+        {
+            for command in commands {
+                let cmd = get(command, "name").and_then(scalar).unwrap_or_default();
+                draft.skip(
+                    command.line,
+                    format!(
+                        "device command `{cmd}`: a group of resources (each resource is a field)"
+                    ),
+                );
+            }
+        }
+    }
+    for resource in resources {
+        resource_field(&mut draft, resource);
+    }
+    Ok(draft)
+}
+
+fn resource_field(draft: &mut Draft, resource: &Node) {
+    let line = resource.line;
+    let name = get(resource, "name").and_then(scalar).unwrap_or_default();
+    let (Some(attributes), Some(properties)) =
+        (get(resource, "attributes"), get(resource, "properties"))
+    else {
+        draft.skip(
+            line,
+            format!("resource `{name}`: no attributes or properties"),
+        );
+        return;
+    };
+    let table = get(attributes, "primaryTable")
+        .and_then(scalar)
+        .unwrap_or_default()
+        .to_ascii_uppercase();
+    let kind = match table.as_str() {
+        "COILS" => RegisterKind::Coil,
+        "DISCRETES_INPUT" | "DISCRETE_INPUTS" => RegisterKind::DiscreteInput,
+        "HOLDING_REGISTERS" => RegisterKind::HoldingRegister,
+        "INPUT_REGISTERS" => RegisterKind::InputRegister,
+        other => {
+            draft.skip(
+                line,
+                format!("resource `{name}`: primaryTable `{other}` is not a Modbus table"),
+            );
+            return;
+        }
+    };
+    // `startingAddress: 10.10` is register 10, bit 10 (EdgeX reads it with two decimals).
+    let Some(start) = get(attributes, "startingAddress") else {
+        draft.skip(line, format!("resource `{name}`: no startingAddress"));
+        return;
+    };
+    let (address, bit) = match &start.kind {
+        Kind::Float(f) => {
+            let text = format!("{f:.2}");
+            let (reg, bit) = text.split_once('.').unwrap_or((&text, "0"));
+            (reg.parse::<f64>().ok(), bit.parse::<u8>().ok())
+        }
+        Kind::Str(s) if s.contains('.') => {
+            let (reg, bit) = s.split_once('.').unwrap_or((s, "0"));
+            (
+                reg.trim().parse::<f64>().ok(),
+                bit.trim().parse::<u8>().ok(),
+            )
+        }
+        _ => (num(start), None),
+    };
+    let Some(address) = address.filter(|a| a.fract() == 0.0 && (0.0..=65535.0).contains(a)) else {
+        draft.skip(
+            line,
+            format!("resource `{name}`: startingAddress is not 0-65535"),
+        );
+        return;
+    };
+    if bit.is_some_and(|b| b > 15) {
+        draft.skip(line, format!("resource `{name}`: bit above 15"));
+        return;
+    }
+    for (key, _) in entries(attributes) {
+        if ![
+            "primaryTable",
+            "startingAddress",
+            "rawType",
+            "isByteSwap",
+            "isWordSwap",
+            "stringRegisterSize",
+        ]
+        .contains(&key.name.as_str())
+        {
+            draft.skip(
+                key.line,
+                format!("resource `{name}`: attribute `{}` not mapped", key.name),
+            );
+        }
+    }
+    for (key, _) in entries(properties) {
+        if !QUIET_PROPERTIES.contains(&key.name.as_str()) {
+            draft.skip(
+                key.line,
+                format!("resource `{name}`: property `{}` not mapped", key.name),
+            );
+        }
+    }
+    let value_type = get(properties, "valueType")
+        .and_then(scalar)
+        .unwrap_or_default();
+    let ty = match value_type.to_ascii_lowercase().as_str() {
+        "bool" => IecType::Bool,
+        "int16" => IecType::Int,
+        "uint16" => IecType::Uint,
+        "int32" => IecType::Dint,
+        "uint32" => IecType::Udint,
+        "int64" => IecType::Lint,
+        "uint64" => IecType::Ulint,
+        "float32" => IecType::Real,
+        "float64" => IecType::Lreal,
+        "string" => IecType::String,
+        other => {
+            draft.skip(
+                line,
+                format!("resource `{name}`: valueType `{other}` has no iogate type"),
+            );
+            return;
+        }
+    };
+    let read_write = get(properties, "readWrite")
+        .and_then(scalar)
+        .unwrap_or_else(|| "R".to_owned());
+    let writes = read_write.contains('W');
+    let direction = if writes && !kind.is_read_only() {
+        Direction::Output
+    } else {
+        if writes {
+            draft.skip(line, format!("resource `{name}`: readWrite {read_write} on a read-only table: imported as an input"));
+        }
+        Direction::Input
+    };
+    let byte_swap = matches!(
+        get(attributes, "isByteSwap").map(|n| &n.kind),
+        Some(Kind::Bool(true))
+    );
+    let word_swap = matches!(
+        get(attributes, "isWordSwap").map(|n| &n.kind),
+        Some(Kind::Bool(true))
+    );
+    let mut field = Imported {
+        name: String::new(),
+        ty,
+        direction,
+        kind,
+        address: address as u16,
+        bit: bit.filter(|_| ty == IecType::Bool && !kind.is_bit()),
+        word_count: None,
+        raw_type: None,
+        scale: get(properties, "scale").and_then(num).unwrap_or(1.0),
+        offset: get(properties, "offset").and_then(num).unwrap_or(0.0),
+        order: match (byte_swap, word_swap) {
+            (false, false) => ByteOrder::BigEndian,
+            (true, false) => ByteOrder::SwapBytes,
+            (false, true) => ByteOrder::SwapWords,
+            (true, true) => ByteOrder::LittleEndian,
+        },
+        unit: get(properties, "units").and_then(scalar),
+        description: get(resource, "description").and_then(scalar),
+        line,
+    };
+    if field.scale == 0.0 {
+        draft.skip(line, format!("resource `{name}`: scale 0"));
+        return;
+    }
+    if ty == IecType::Bool {
+        if !kind.is_bit() && field.order != ByteOrder::BigEndian {
+            field.order = ByteOrder::BigEndian;
+        }
+        field.scale = 1.0;
+        field.offset = 0.0;
+        if kind.is_bit() {
+            field.bit = None;
+        }
+        draft.add(field, &name);
+        return;
+    }
+    if kind.is_bit() {
+        draft.skip(
+            line,
+            format!(
+                "resource `{name}`: {value_type} on {table}: a coil or discrete input is one bit"
+            ),
+        );
+        return;
+    }
+    let raw = get(attributes, "rawType")
+        .and_then(scalar)
+        .map(|r| r.to_ascii_lowercase());
+    match (ty, raw.as_deref()) {
+        (IecType::String, _) => {
+            let Some(size) = get(attributes, "stringRegisterSize")
+                .and_then(num)
+                .filter(|s| (1.0..=123.0).contains(s))
+            else {
+                draft.skip(
+                    line,
+                    format!("resource `{name}`: String without a stringRegisterSize of 1-123"),
+                );
+                return;
+            };
+            field.word_count = Some(size as u16);
+            field.scale = 1.0;
+            field.offset = 0.0;
+        }
+        (IecType::Real | IecType::Lreal, Some(raw @ ("int16" | "uint16" | "int32" | "uint32"))) => {
+            field.raw_type = Some(match raw {
+                "int16" => IecType::Int,
+                "uint16" => IecType::Uint,
+                "int32" => IecType::Dint,
+                _ => IecType::Udint,
+            });
+        }
+        (_, Some(raw)) if raw != value_type.to_ascii_lowercase() => {
+            draft.skip(
+                line,
+                format!("resource `{name}`: rawType `{raw}` for {value_type} not mapped"),
+            );
+            return;
+        }
+        _ => {
+            let words = crate::codec::full_words(ty);
+            if field.scale != 1.0 || field.offset != 0.0 {
+                if ty.is_real() {
+                    field.word_count = Some(words);
+                } else {
+                    field.raw_type = Some(ty);
+                    field.ty = IecType::Real;
+                }
+            } else {
+                field.word_count = (words > 1).then_some(words);
+            }
+        }
+    }
+    draft.add(field, &name);
+}

@@ -1,0 +1,265 @@
+//! wb-mqtt-serial device templates (JSON): `device.channels` made into fields; setup
+//! registers, parameters, sub-devices and channels of unsupported kinds or formats reported.
+
+use super::{Draft, Imported, entries, get, identifier, num, scalar};
+use crate::codec::{ByteOrder, IecType};
+use crate::profile::{Direction, RegisterKind};
+use crate::yaml::{Kind, Node};
+
+/// Channel keys that only shape wb-mqtt-serial's web interface or polling: nothing to map.
+const DISPLAY_KEYS: &[&str] = &[
+    "name",
+    "reg_type",
+    "address",
+    "format",
+    "word_order",
+    "byte_order",
+    "scale",
+    "offset",
+    "units",
+    "readonly",
+    "type",
+    "string_data_size",
+    "enabled",
+    "group",
+    "title",
+    "description",
+    "order",
+    "min",
+    "max",
+    "enum",
+    "enum_titles",
+    "hidden",
+    "read_period_ms",
+    "read_rate_limit_ms",
+    "sporadic",
+    "id",
+];
+
+pub(super) fn read(root: &Node) -> Result<Draft, String> {
+    let device = get(root, "device").ok_or("no `device` object: not a wb-mqtt-serial template")?;
+    let protocol = get(device, "protocol").and_then(scalar);
+    if let Some(p) = protocol.as_deref()
+        && p != "modbus"
+        && p != "modbus-io"
+    {
+        return Err(format!(
+            "protocol `{p}` is not Modbus (iogate speaks Modbus RTU and TCP)"
+        ));
+    }
+    let type_name = get(root, "device_type")
+        .and_then(scalar)
+        .or_else(|| get(device, "name").and_then(scalar))
+        .ok_or("no `device_type`")?;
+    let mut draft = Draft {
+        name: identifier(&type_name),
+        description: get(root, "title")
+            .and_then(scalar)
+            .or_else(|| Some(type_name.clone())),
+        ..Draft::default()
+    };
+    for (key, value) in entries(device) {
+        let why = match key.name.as_str() {
+            "setup" => {
+                Some("setup registers written on connect: iogate writes only what clients ask")
+            }
+            "parameters" => {
+                Some("configuration parameters (registers set once, with conditions): not a field")
+            }
+            "subdevices" => Some("sub-devices chosen by parameters: not imported"),
+            "translations" | "groups" | "name" | "id" | "channels" | "protocol" => None,
+            _ => None,
+        };
+        if let Some(why) = why {
+            let count = match &value.kind {
+                Kind::Seq(items) => items.len(),
+                Kind::Map(items) => items.len(),
+                _ => 1,
+            };
+            draft.skip(key.line, format!("`{}` ({count}): {why}", key.name));
+        }
+    }
+    let channels = match get(device, "channels").map(|c| &c.kind) {
+        Some(Kind::Seq(items)) => items.as_slice(),
+        _ => &[],
+    };
+    for channel in channels {
+        channel_field(&mut draft, channel);
+    }
+    Ok(draft)
+}
+
+/// One channel: a field, or why not.
+fn channel_field(draft: &mut Draft, channel: &Node) {
+    let line = channel.line;
+    let name = get(channel, "name").and_then(scalar).unwrap_or_default();
+    if get(channel, "consists_of").is_some() {
+        draft.skip(
+            line,
+            format!("channel `{name}`: made of other registers (consists_of)"),
+        );
+        return;
+    }
+    for (key, _) in entries(channel) {
+        if !DISPLAY_KEYS.contains(&key.name.as_str()) {
+            let what = match key.name.as_str() {
+                "condition" => {
+                    "shown only when parameters say (condition); imported unconditionally"
+                }
+                "error_value" => "an error value: iogate takes it as a value",
+                "round_to" => "rounding: iogate keeps the full value",
+                "on_value" | "off_value" => "switch values other than 1/0: iogate writes 1/0",
+                "write_address" => "written at another address: iogate writes where it reads",
+                "unsupported_value" => {
+                    "a value meaning \"unsupported\": iogate takes it as a value"
+                }
+                _ => "not mapped",
+            };
+            draft.skip(
+                key.line,
+                format!("channel `{name}`: `{}`: {what}", key.name),
+            );
+        }
+    }
+    let reg_type = get(channel, "reg_type")
+        .and_then(scalar)
+        .unwrap_or_default();
+    let kind = match reg_type.as_str() {
+        "coil" => RegisterKind::Coil,
+        "discrete" => RegisterKind::DiscreteInput,
+        "holding" | "holding_single" | "holding_multi" => RegisterKind::HoldingRegister,
+        "input" | "press_counter" => RegisterKind::InputRegister,
+        other => {
+            draft.skip(
+                line,
+                format!("channel `{name}`: register type `{other}` is not a Modbus table"),
+            );
+            return;
+        }
+    };
+    let Some(address_node) = get(channel, "address") else {
+        draft.skip(line, format!("channel `{name}`: no address"));
+        return;
+    };
+    // `reg:shift:width` reads bits of a register.
+    let address_text = scalar(address_node).unwrap_or_default();
+    let (address, bit) = match address_text.split(':').collect::<Vec<_>>().as_slice() {
+        [reg, shift, width] => {
+            let reg = num(&Node {
+                line,
+                kind: Kind::Str((*reg).to_owned()),
+            });
+            match (reg, shift.parse::<u8>(), width.parse::<u8>()) {
+                (Some(r), Ok(s), Ok(1)) if s < 16 => (Some(r), Some(s)),
+                _ => {
+                    draft.skip(
+                        line,
+                        format!(
+                            "channel `{name}`: bits `{address_text}` wider than one: not a field"
+                        ),
+                    );
+                    return;
+                }
+            }
+        }
+        _ => (num(address_node), None),
+    };
+    let Some(address) = address.filter(|a| a.fract() == 0.0 && (0.0..=65535.0).contains(a)) else {
+        draft.skip(
+            line,
+            format!("channel `{name}`: address `{address_text}` is not 0-65535"),
+        );
+        return;
+    };
+    let readonly = matches!(
+        get(channel, "readonly").map(|n| &n.kind),
+        Some(Kind::Bool(true))
+    );
+    let direction = if kind.is_read_only() || readonly {
+        Direction::Input
+    } else {
+        Direction::Output
+    };
+    let mut field = Imported {
+        name: String::new(),
+        ty: IecType::Bool,
+        direction,
+        kind,
+        address: address as u16,
+        bit,
+        word_count: None,
+        raw_type: None,
+        scale: get(channel, "scale").and_then(num).unwrap_or(1.0),
+        offset: get(channel, "offset").and_then(num).unwrap_or(0.0),
+        order: ByteOrder::BigEndian,
+        unit: get(channel, "units").and_then(scalar),
+        description: None,
+        line,
+    };
+    if field.scale == 0.0 {
+        draft.skip(line, format!("channel `{name}`: scale 0"));
+        return;
+    }
+    if kind.is_bit() || bit.is_some() {
+        field.scale = 1.0;
+        field.offset = 0.0;
+        draft.add(field, &name);
+        return;
+    }
+    let format = get(channel, "format")
+        .and_then(scalar)
+        .unwrap_or_else(|| "u16".to_owned());
+    let (ty, words) = match format.as_str() {
+        "u16" => (IecType::Uint, 1),
+        "s16" => (IecType::Int, 1),
+        "u8" => (IecType::Usint, 1),
+        "s8" => (IecType::Sint, 1),
+        "u32" => (IecType::Udint, 2),
+        "s32" => (IecType::Dint, 2),
+        "u64" => (IecType::Ulint, 4),
+        "s64" => (IecType::Lint, 4),
+        "float" => (IecType::Real, 2),
+        "double" => (IecType::Lreal, 4),
+        "string8" => {
+            let Some(size) = get(channel, "string_data_size")
+                .and_then(num)
+                .filter(|s| (1.0..=125.0).contains(s))
+            else {
+                draft.skip(
+                    line,
+                    format!("channel `{name}`: string8 without a string_data_size of 1-125"),
+                );
+                return;
+            };
+            (IecType::String, size as u16)
+        }
+        other => {
+            draft.skip(line, format!("channel `{name}`: format `{other}` has no iogate type (BCD, 24-bit, one character a register)"));
+            return;
+        }
+    };
+    let word_little =
+        get(channel, "word_order").and_then(scalar).as_deref() == Some("little_endian");
+    let byte_little =
+        get(channel, "byte_order").and_then(scalar).as_deref() == Some("little_endian");
+    field.order = match (word_little && words > 1, byte_little) {
+        (false, false) => ByteOrder::BigEndian,
+        (true, false) => ByteOrder::SwapWords,
+        (false, true) => ByteOrder::SwapBytes,
+        (true, true) => ByteOrder::LittleEndian,
+    };
+    if ty == IecType::String {
+        field.ty = ty;
+        field.word_count = Some(words);
+        field.scale = 1.0;
+        field.offset = 0.0;
+    } else if (field.scale != 1.0 || field.offset != 0.0) && !ty.is_real() {
+        // A scaled integer is a REAL read from that integer.
+        field.ty = IecType::Real;
+        field.raw_type = Some(ty);
+    } else {
+        field.ty = ty;
+        field.word_count = (words > 1).then_some(words);
+    }
+    draft.add(field, &name);
+}
