@@ -192,7 +192,11 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         scale: get(channel, "scale").and_then(num).unwrap_or(1.0),
         offset: get(channel, "offset").and_then(num).unwrap_or(0.0),
         order: ByteOrder::BigEndian,
-        unit: get(channel, "units").and_then(scalar),
+        unit: get(channel, "units").and_then(scalar).or_else(|| {
+            get(channel, "type")
+                .and_then(scalar)
+                .and_then(|t| unit_of(&t))
+        }),
         description: None,
         line,
     };
@@ -262,4 +266,27 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         field.word_count = (words > 1).then_some(words);
     }
     draft.add(field, &name);
+}
+
+/// The unit a wb-mqtt-serial control type implies (its MQTT conventions), where it has one.
+fn unit_of(control: &str) -> Option<String> {
+    let unit = match control {
+        "voltage" => "V",
+        "current" => "A",
+        "power" => "W",
+        "power_consumption" => "kWh",
+        "temperature" => "deg C",
+        "rel_humidity" => "%RH",
+        "atmospheric_pressure" => "mbar",
+        "pressure" => "bar",
+        "lux" => "lx",
+        "concentration" => "ppm",
+        "sound_level" => "dB",
+        "wind_speed" => "m/s",
+        "water_flow" => "m^3/h",
+        "water_consumption" => "m^3",
+        "resistance" => "Ohm",
+        _ => return None,
+    };
+    Some(unit.to_owned())
 }
