@@ -253,6 +253,8 @@ pub(crate) enum Operation {
     Remove,
     /// Loading the configuration again and applying what changed.
     Reload,
+    /// Scanning a link for devices (probes every slave id between polls).
+    Scan,
 }
 
 impl Operation {
@@ -264,7 +266,9 @@ impl Operation {
             | Operation::Simulate
             | Operation::Transact
             | Operation::SwitchTransaction => Role::Write,
-            Operation::Declare | Operation::Remove | Operation::Reload => Role::Admin,
+            Operation::Declare | Operation::Remove | Operation::Reload | Operation::Scan => {
+                Role::Admin
+            }
         }
     }
 }
@@ -418,6 +422,7 @@ mod tests {
         assert_eq!(Operation::Transact.role(), Role::Write);
         assert_eq!(Operation::Declare.role(), Role::Admin);
         assert_eq!(Operation::Remove.role(), Role::Admin);
+        assert_eq!(Operation::Scan.role(), Role::Admin);
         let t = tokens();
         assert_eq!(
             t.allows(Some(&bearer(READ)), Operation::WriteOutputs),

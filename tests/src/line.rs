@@ -16,6 +16,9 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio_serial::{SerialPort, SerialStream};
 
+/// The frames a master sent, each with when it came.
+pub type Sent = std::sync::Arc<std::sync::Mutex<Vec<(std::time::Instant, Vec<u8>)>>>;
+
 /// A slave's end of the line.
 pub struct SlaveEnd {
     /// The path the slave opens.
@@ -27,8 +30,8 @@ pub struct SlaveEnd {
 /// The line: its task ends when dropped.
 pub struct Line {
     pub slaves: Vec<SlaveEnd>,
-    /// Frames the master sent, in order.
-    pub sent: std::sync::Arc<std::sync::Mutex<Vec<Vec<u8>>>>,
+    /// Frames the master sent, in order, each with when it came.
+    pub sent: Sent,
     task: JoinHandle<()>,
     _holders: Vec<SerialStream>,
 }
@@ -53,7 +56,7 @@ pub fn line(dir: &Path, master_path: &Path, slaves: &[(u8, u32)]) -> anyhow::Res
         streams.push(stream);
         ends.push(SlaveEnd { path, unit, baud });
     }
-    let sent = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let sent: Sent = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let record = sent.clone();
     let routes: Vec<(u8, u32)> = slaves.to_vec();
     let task = tokio::spawn(async move {
@@ -82,7 +85,7 @@ pub fn line(dir: &Path, master_path: &Path, slaves: &[(u8, u32)]) -> anyhow::Res
                     let frame = buf[..n].to_vec();
                     let baud = master.baud_rate().unwrap_or(0);
                     if let Ok(mut sent) = record.lock() {
-                        sent.push(frame.clone());
+                        sent.push((std::time::Instant::now(), frame.clone()));
                     }
                     for (i, (unit, at)) in routes.iter().enumerate() {
                         if *at == baud && (frame[0] == *unit || frame[0] == 0) {

@@ -106,6 +106,9 @@ async fn the_document_is_valid_openapi_3_1_and_describes_every_route() {
         ("/api/v1/mqtt", &["get"]),
         ("/api/v1/config", &["get"]),
         ("/api/v1/config/reload", &["post"]),
+        ("/api/v1/links/{link}/scan", &["post"]),
+        ("/api/v1/scans/{id}", &["get", "delete"]),
+        ("/api/v1/scans/{id}/events", &["get"]),
     ];
     let paths = doc["paths"].as_object().expect("paths");
     assert_eq!(paths.len(), routes.len(), "{:?}", paths.keys());

@@ -191,3 +191,131 @@ async fn a_scan_finds_each_slave_its_identification_a_shared_id_and_the_right_pr
     let at: Vec<(u8, u32)> = found.iter().map(|d| (d.slave_id, d.setting.baud)).collect();
     assert_eq!(at, vec![(12, 19200)], "{found:#?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_of_a_configured_link_runs_between_polls_and_reports_over_rest() {
+    run_installer("serial/install.sh").expect("serial peers");
+    let dir = temp_dir("scan-rest");
+    let port = dir.join("ttyLINE");
+    let line = iogate_tests::line::line(&dir, &port, &[(3, 9600), (7, 9600)]).expect("line");
+    let _s3 = slave(
+        &line.slaves[0].path,
+        9600,
+        json!({"unit": 3, "holding": {"0": [42, 43]},
+               "identity": {"VendorName": "ACME", "ProductCode": "X1", "MajorMinorRevision": "2.1"}}),
+    )
+    .await;
+    let _s7 = slave(
+        &line.slaves[1].path,
+        9600,
+        json!({"unit": 7, "input": {"0": [1, 2, 3, 4, 5, 6, 7, 8]}, "holding": {"4096": [0, 0, 0, 0, 0, 0, 0, 0]}}),
+    )
+    .await;
+    profiles(&dir);
+    std::fs::write(
+        dir.join("profiles/acme_pair.yaml"),
+        "name: AcmePair\nfields:\n  \
+         - { name: A, type: UINT, direction: input, register: { address: 0, kind: holding_register } }\n  \
+         - { name: B, type: UINT, direction: input, register: { address: 1, kind: holding_register } }\n",
+    )
+    .expect("profile");
+    let gw = iogate_tests::TestGateway::start(&format!(
+        "profiles: {}\nlinks:\n  - {{ name: line, serial: {{ port: {}, baud: 9600 }} }}\n\
+         devices:\n  - {{ name: acme, profile: AcmePair, link: line, slave_id: 3, refresh_rate: 10ms, timeout: 100ms }}\n",
+        dir.join("profiles").display(),
+        port.display()
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/devices/acme", "polled", |b| b["connected"] == true)
+        .await
+        .expect("polled");
+
+    let (status, bad) = gw
+        .send(
+            reqwest::Method::POST,
+            "/api/v1/links/line/scan",
+            r#"{"ids": "0-3"}"#,
+        )
+        .await
+        .expect("post");
+    assert_eq!(status, 400, "{bad}");
+    let (status, missing) = gw
+        .send(reqwest::Method::POST, "/api/v1/links/nowhere/scan", "")
+        .await
+        .expect("post");
+    assert_eq!(status, 404, "{missing}");
+
+    let (status, started) = gw
+        .send(
+            reqwest::Method::POST,
+            "/api/v1/links/line/scan",
+            r#"{"ids": "1-10", "timeout": "60ms"}"#,
+        )
+        .await
+        .expect("post");
+    assert_eq!(status, 202, "{started}");
+    assert_eq!(started["state"], "running");
+    assert_eq!(
+        started["estimate_ms"], 600,
+        "said before it starts: {started}"
+    );
+    let id = started["id"].as_u64().expect("id");
+    let (status, twice) = gw
+        .send(reqwest::Method::POST, "/api/v1/links/line/scan", "")
+        .await
+        .expect("post");
+    assert_eq!(status, 409, "one scan a link at a time: {twice}");
+    line.sent.lock().expect("sent").clear();
+
+    let done = gw
+        .until(&format!("/api/v1/scans/{id}"), "done", |b| {
+            b["state"] != "running"
+        })
+        .await
+        .expect("scan");
+    assert_eq!(done["state"], "done", "{done:#}");
+    let ids: Vec<u64> = done["devices"]
+        .as_array()
+        .expect("devices")
+        .iter()
+        .filter_map(|d| d["slave_id"].as_u64())
+        .collect();
+    assert_eq!(ids, vec![3, 7], "{done:#}");
+    assert_eq!(done["devices"][0]["identification"]["vendor"], "ACME");
+    assert_eq!(
+        done["devices"][1]["profiles"][0]["profile"],
+        "WaveshareAnalogInput"
+    );
+    assert!(
+        done["config"]
+            .as_str()
+            .is_some_and(|c| c.contains("link: line, slave_id: 7")),
+        "{done:#}"
+    );
+    assert_eq!(done["probed"], 10);
+
+    // Polling went on: a due poll waits for one probe at most (a 60 ms slot), never for
+    // the scan (600 ms and more).
+    let poll = [3u8, 3, 0, 0, 0, 2];
+    let sent = line.sent.lock().expect("sent").clone();
+    let polls: Vec<std::time::Instant> = sent
+        .iter()
+        .filter(|(_, f)| f.starts_with(&poll))
+        .map(|(at, _)| *at)
+        .collect();
+    let probes = sent.len() - polls.len();
+    assert!(
+        polls.len() >= 10 && probes >= 10,
+        "{} polls, {probes} probes",
+        polls.len()
+    );
+    let widest = polls.windows(2).map(|w| w[1] - w[0]).max().expect("gaps");
+    assert!(
+        widest < Duration::from_millis(250),
+        "a poll waited {widest:?}: {sent:02x?}"
+    );
+    let (_, acme) = gw.get("/api/v1/devices/acme").await.expect("device");
+    assert_eq!(acme["connected"], true, "{acme}");
+    gw.shutdown().await;
+}

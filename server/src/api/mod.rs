@@ -20,6 +20,7 @@ pub(crate) mod opcua;
 pub(crate) mod openapi;
 pub(crate) mod pb;
 pub(crate) mod rest;
+pub(crate) mod scan;
 pub(crate) mod transactions;
 pub(crate) mod ui;
 
@@ -61,6 +62,7 @@ pub(crate) const MAX_BODY: usize = 1024 * 1024;
         transactions::disable_standing, transactions::trigger_standing,
         transactions::put_standing_values,
         config::get_config, config::reload,
+        scan::post_scan, scan::get_scan, scan::delete_scan, scan::scan_events,
     ),
     tags(
         (name = "devices", description = "devices, fields, writes and change events"),
@@ -217,6 +219,12 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
             "/links/{link}/plan",
             needs(s, Read, get(rest::get_link_plan)),
         )
+        .route("/links/{link}/scan", needs(s, Scan, post(scan::post_scan)))
+        .route(
+            "/scans/{id}",
+            needs(s, Read, get(scan::get_scan)).merge(needs(s, Scan, delete(scan::delete_scan))),
+        )
+        .route("/scans/{id}/events", needs(s, Read, get(scan::scan_events)))
         .route(
             "/links/{link}/transactions",
             needs(s, Transact, post(transactions::post_transaction)),

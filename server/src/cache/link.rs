@@ -49,10 +49,46 @@ pub enum PassthroughError {
     NoAnswer,
 }
 
+/// A scan's probe of one slave id, queued like a [`Passthrough`]: the request PDU goes on
+/// the line as it is and every byte heard within the slot comes back, for the scan to judge
+/// (`crate::scan`). Only RTU links carry probes; others answer at once.
+#[derive(Debug)]
+pub struct Probe {
+    pub slave: u8,
+    pub pdu: Vec<u8>,
+    /// The probe's whole slot: silence, request and answer.
+    pub slot: Duration,
+    /// End the slot once a whole answer is followed by the line's silence.
+    pub early: bool,
+    pub deadline: tokio::time::Instant,
+    pub reply: oneshot::Sender<Result<Vec<u8>, PassthroughError>>,
+}
+
+/// What waits in a link's inbox.
+#[derive(Debug)]
+pub enum Inbox {
+    Request(Passthrough),
+    Probe(Probe),
+}
+
+impl Inbox {
+    /// Answers it unsent with `error`.
+    pub(crate) fn refuse(self, error: PassthroughError) {
+        match self {
+            Inbox::Request(r) => {
+                let _ = r.reply.send(Err(error));
+            }
+            Inbox::Probe(p) => {
+                let _ = p.reply.send(Err(error));
+            }
+        }
+    }
+}
+
 /// A queued request with when it came.
 #[derive(Debug)]
 struct Queued {
-    request: Passthrough,
+    request: Inbox,
     since: tokio::time::Instant,
 }
 
@@ -244,10 +280,19 @@ impl Link {
     /// Queues a request for the link's task; the answer comes on its `reply`: at once
     /// [`PassthroughError::Busy`] when the inbox is full.
     pub fn submit(&self, request: Passthrough) {
+        self.enqueue(Inbox::Request(request));
+    }
+
+    /// Queues a scan's probe, as [`Link::submit`] a request.
+    pub fn submit_probe(&self, probe: Probe) {
+        self.enqueue(Inbox::Probe(probe));
+    }
+
+    fn enqueue(&self, request: Inbox) {
         let mut queue = super::lock(&self.queue);
         if queue.len() >= INBOX_CAPACITY {
             drop(queue);
-            let _ = request.reply.send(Err(PassthroughError::Busy));
+            request.refuse(PassthroughError::Busy);
             return;
         }
         queue.push_back(Queued {
@@ -259,7 +304,7 @@ impl Link {
     }
 
     /// The oldest queued request, for the link's task.
-    pub(crate) fn take_queued(&self) -> Option<Passthrough> {
+    pub(crate) fn take_queued(&self) -> Option<Inbox> {
         super::lock(&self.queue).pop_front().map(|q| q.request)
     }
 

@@ -23,7 +23,8 @@ use crate::write_log::WriteLog;
 
 pub(crate) use device::{Binding, Device, Fate};
 pub use link::{
-    INBOX_CAPACITY, Link, LinkState, Passthrough, PassthroughError, Progress, Utilisation,
+    INBOX_CAPACITY, Inbox, Link, LinkState, Passthrough, PassthroughError, Probe, Progress,
+    Utilisation,
 };
 pub(crate) use outputs::{Checked, WriteError};
 pub(crate) use sample::{Diagnostics, FieldError, LinkDiagnostics, Sample};

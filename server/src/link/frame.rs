@@ -158,6 +158,8 @@ pub enum Malformed {
         function: Function,
         response: Response,
     },
+    #[error("a scan's probe needs RTU frames; this link speaks MBAP or ASCII")]
+    NotRtu,
     #[error("ASCII frame: {0}")]
     Ascii(super::ascii::AsciiError),
 }

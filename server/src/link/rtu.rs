@@ -166,6 +166,9 @@ impl RtuTransport {
         until: Instant,
         early: bool,
     ) -> Result<Vec<u8>, TxError> {
+        if self.ascii {
+            return Err(TxError::Invalid(Malformed::NotRtu));
+        }
         self.quiet_line(self.silence()).await?;
         let mut frame = Vec::with_capacity(pdu.len() + 3);
         frame.push(slave);

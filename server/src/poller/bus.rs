@@ -68,6 +68,24 @@ impl Bus {
             .await
     }
 
+    /// A scan's probe: the bytes heard within its slot. Only an RTU connection carries one
+    /// (an MBAP or ASCII link answers with an invalid-response error, nothing sent).
+    pub(super) async fn probe(&mut self, probe: &crate::cache::Probe) -> Result<Vec<u8>, TxError> {
+        let crate::link::Connection::Rtu(rtu) = &mut self.conn else {
+            return Err(TxError::Invalid(crate::link::frame::Malformed::NotRtu));
+        };
+        let started = Instant::now();
+        self.progress.started(started + probe.slot + WIRE_BOUND);
+        self.sent = self.sent.saturating_add(1);
+        let heard = rtu
+            .probe(probe.slave, &probe.pdu, started + probe.slot, probe.early)
+            .await;
+        self.progress.ended();
+        self.busy += started.elapsed();
+        self.account();
+        heard
+    }
+
     /// One transaction to `slave`, counted in the metrics under `label` (a device name).
     pub(super) async fn transact_as(
         &mut self,

@@ -20,7 +20,8 @@ use tokio_util::sync::CancellationToken;
 use tokio::sync::watch;
 
 use crate::cache::{
-    Device, FieldError, Link, LinkDiagnostics, LinkState, Passthrough, PassthroughError, WriteError,
+    Device, FieldError, Inbox, Link, LinkDiagnostics, LinkState, Passthrough, PassthroughError,
+    Probe, WriteError,
 };
 use crate::config::{LinkConfig, Transport};
 use crate::link::timing::LineTiming;
@@ -312,11 +313,27 @@ impl LinkTask {
         fault.map_or(Ok(()), Err)
     }
 
+    /// Sends a scan's probe between polls, unless its caller has gone or its deadline would
+    /// pass first; a link that is not RTU answers it unsent.
+    async fn probe(&mut self, queued: Probe, bus: &mut Bus) -> Step {
+        if queued.reply.is_closed() {
+            self.metrics.inbox_dropped(self.link.name(), "abandoned");
+            return Ok(());
+        }
+        if Instant::now() + queued.slot > queued.deadline {
+            self.metrics.inbox_dropped(self.link.name(), "expired");
+            let _ = queued.reply.send(Err(PassthroughError::Expired));
+            return Ok(());
+        }
+        let result = bus.probe(&queued).await;
+        let fault = result.as_ref().err().and_then(connection_fault);
+        let _ = queued.reply.send(result.map_err(PassthroughError::from));
+        fault.map_or(Ok(()), Err)
+    }
+
     fn all_unreachable(&self, fault: &LinkFault) {
         while let Some(queued) = self.link.take_queued() {
-            let _ = queued
-                .reply
-                .send(Err(PassthroughError::LinkDown(fault.clone())));
+            queued.refuse(PassthroughError::LinkDown(fault.clone()));
         }
         for p in &self.devices {
             p.device.set_unreachable();
@@ -354,7 +371,10 @@ impl LinkTask {
             };
             after_request = request.is_some();
             let step = if let Some(queued) = request {
-                self.pass_through(queued, &mut bus).await
+                match queued {
+                    Inbox::Request(r) => self.pass_through(r, &mut bus).await,
+                    Inbox::Probe(p) => self.probe(p, &mut bus).await,
+                }
             } else if let Some(i) = self.next_writer() {
                 self.write_device(i, &mut bus).await
             } else if let Some(i) = due {

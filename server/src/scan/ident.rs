@@ -72,7 +72,7 @@ pub(crate) fn parse(pdu: &[u8]) -> Result<Answer, String> {
 }
 
 /// What a device says it is: the standard objects by name, any other by number.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Identification {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vendor: Option<String>,

@@ -22,10 +22,13 @@ use crate::profile::{Profile, RegisterKind};
 pub use ident::Identification;
 use judge::Heard;
 
-/// One line setting a scan tries: baud rate and parity (8 data bits, 1 stop bit).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// One line setting a scan tries: baud rate and parity (8 data bits, 1 stop bit); baud 0
+/// for RTU over TCP, which has no line of its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, utoipa::ToSchema)]
 pub struct Setting {
     pub baud: u32,
+    /// `N`, `E` or `O`.
+    #[schema(value_type = String)]
     pub parity: Parity,
 }
 
@@ -182,7 +185,7 @@ pub trait Prober: Send {
 }
 
 /// One read of a device found, and what came of it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct ReadAnswer {
     pub function: u8,
     pub address: u16,
@@ -203,7 +206,7 @@ impl ReadAnswer {
 }
 
 /// A profile that fits a device found, and why.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Suggestion {
     pub profile: String,
     /// Whether the device's identification matched what the profile states.
@@ -215,7 +218,7 @@ pub struct Suggestion {
 }
 
 /// A device found: where it answers, what it answered, what it may be.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Found {
     pub slave_id: u8,
     pub setting: Setting,

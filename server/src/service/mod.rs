@@ -7,6 +7,7 @@
 mod modbus_map;
 mod refusal;
 mod reload;
+pub(crate) mod scan;
 mod select;
 pub(crate) mod serial_ports;
 mod standing;
@@ -80,6 +81,13 @@ pub enum ServiceError {
     /// A located address no field is bound to.
     #[error("no field is bound to {0}")]
     Unbound(String),
+    /// A scan that cannot run as asked.
+    #[error("{0}")]
+    Scan(String),
+    #[error("scan {id} is running on link {link}; one scan a link at a time")]
+    ScanRunning { link: String, id: u64 },
+    #[error("no scan {0} (the last {kept} scans are kept)", kept = scan::KEPT_SCANS)]
+    UnknownScan(u64),
 }
 
 /// The refusals, the first ten of them named (a request with thousands of bad keys gets a
@@ -126,6 +134,8 @@ pub struct Service {
     reloader: std::sync::OnceLock<Arc<dyn Reloading>>,
     /// The Modbus server's serial ports.
     serial_ports: serial_ports::SerialPorts,
+    /// Scans of links, running and done.
+    scans: scan::Scans,
 }
 
 /// A place among the open change streams; dropping it frees the place.
@@ -158,6 +168,7 @@ impl Service {
             opcua: std::sync::RwLock::new(None),
             reloader: std::sync::OnceLock::new(),
             serial_ports: serial_ports::SerialPorts::default(),
+            scans: scan::Scans::default(),
         }
     }
 

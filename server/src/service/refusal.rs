@@ -68,6 +68,9 @@ impl ServiceError {
             ServiceError::UnknownTransaction(_) => (Refusal::NotFound, "unknown_transaction"),
             ServiceError::TransactionConflict(_) => (Refusal::Conflict, "declaration_conflict"),
             ServiceError::Unbound(_) => (Refusal::NotFound, "unbound_location"),
+            ServiceError::Scan(_) => (Refusal::Invalid, "invalid_scan"),
+            ServiceError::ScanRunning { .. } => (Refusal::Conflict, "scan_running"),
+            ServiceError::UnknownScan(_) => (Refusal::NotFound, "unknown_scan"),
         }
     }
 }
