@@ -408,6 +408,8 @@ async fn read_request<S: AsyncRead + Unpin>(stream: &mut S) -> std::io::Result<O
         }
         let rest = match frame[1] {
             1..=6 => 6,
+            // FC 43 / MEI 14 (read device identification): MEI type, code, object, CRC.
+            0x2B => 5,
             15 | 16 => {
                 let mut head = [0u8; 5];
                 stream.read_exact(&mut head).await?;

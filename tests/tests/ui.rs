@@ -691,3 +691,47 @@ async fn the_overview_shows_the_modbus_servers_serial_ports_and_their_frames() -
     gw.shutdown().await;
     Ok(())
 }
+
+#[tokio::test]
+async fn a_link_is_scanned_from_its_page_with_progress_and_the_devices_found() -> anyhow::Result<()>
+{
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    let bus = RtuBus::default();
+    bus.slave(1, |_| {});
+    bus.slave(5, |s| s.tables.input[0] = 77);
+    let (gw, _pty, task, _) = bus_gateway(
+        "ui-scan",
+        &bus,
+        &[],
+        "  - { name: rack, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, timeout: 100ms }\n",
+    )
+    .await;
+    gw.until("/api/v1/devices/rack", "connected", |b| {
+        b["connected"] == true
+    })
+    .await?;
+    browser.goto(&gw.url("/ui#/links/bus")).await?;
+    let ids = browser.wait_for("#scan-ids").await?;
+    browser.clear(&ids).await?;
+    browser.type_text(&ids, "1-8").await?;
+    let start = browser.wait_for("#scan-start").await?;
+    browser.click(&start).await?;
+    let status = browser
+        .until_text("#scan-status", Duration::from_secs(20), |t| {
+            t.starts_with("Done")
+        })
+        .await?;
+    assert!(status.contains("2 devices found"), "{status}");
+    let found = browser.text("#scan-found").await?;
+    assert!(
+        found.contains("slave 1") && found.contains("slave 5"),
+        "{found}"
+    );
+    assert!(found.contains("MyIoModule"), "{found}");
+    let config = browser.text("#scan-config").await?;
+    assert!(config.contains("link: bus, slave_id: 5"), "{config}");
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    task.abort();
+    gw.shutdown().await;
+    Ok(())
+}
