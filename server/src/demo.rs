@@ -34,6 +34,14 @@ pub(crate) const PROFILES: &[(&str, &str)] = &[
         "profiles/waveshare_analog_input.yaml",
         include_str!("../../profiles/waveshare_analog_input.yaml"),
     ),
+    (
+        "profiles/waveshare_io_8ch.yaml",
+        include_str!("../../profiles/waveshare_io_8ch.yaml"),
+    ),
+    (
+        "profiles/waveshare_relay_8ch.yaml",
+        include_str!("../../profiles/waveshare_relay_8ch.yaml"),
+    ),
 ];
 
 /// The demo's config and profiles.

@@ -212,7 +212,7 @@ fn check_accepts_the_example_and_the_demo() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(String::from_utf8_lossy(&out.stdout).contains("ok (6 profiles, 0 links, 2 devices)"));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("ok (8 profiles, 0 links, 2 devices)"));
 
     // With nothing configured, the built-in demo is checked.
     let empty = temp_dir("empty");

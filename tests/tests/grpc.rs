@@ -491,7 +491,7 @@ async fn health_and_reflection_are_served() {
 async fn profiles_describe_their_layout_and_st_declaration() {
     let (gw, mut client) = demo().await;
     let profiles = client.profiles().await.expect("profiles");
-    assert_eq!(profiles.len(), 6);
+    assert_eq!(profiles.len(), 8);
     let p = client
         .profile("WaveshareAnalogInput")
         .await

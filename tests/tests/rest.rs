@@ -460,7 +460,7 @@ async fn profiles_show_their_function_block_layout() {
     let gw = demo().await;
     let (status, body) = gw.get("/api/v1/profiles").await.expect("get");
     assert_eq!(status, 200);
-    assert_eq!(body["profiles"].as_array().map(Vec::len), Some(6));
+    assert_eq!(body["profiles"].as_array().map(Vec::len), Some(8));
     let (status, body) = gw
         .get("/api/v1/profiles/WaveshareAnalogInput")
         .await
