@@ -145,6 +145,15 @@ pub struct Profile {
     pub(crate) source: String,
 }
 
+/// The FC 43 objects a profile's `identification:` may state, by key.
+pub(crate) const IDENTIFICATION_KEYS: &[&str] = &[
+    "vendor",
+    "product_code",
+    "product_name",
+    "model_name",
+    "revision",
+];
+
 /// One read a scan sends to tell a device by: it must answer with data (and, where given,
 /// these register values).
 #[derive(Debug, Clone, PartialEq)]

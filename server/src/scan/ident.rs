@@ -130,15 +130,6 @@ impl Identification {
     }
 }
 
-/// The keys a profile's `identification:` may state.
-pub(crate) const KEYS: &[&str] = &[
-    "vendor",
-    "product_code",
-    "product_name",
-    "model_name",
-    "revision",
-];
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -235,7 +235,7 @@ fn read_identification(node: &Node, report: &mut Report, ctx: &str) -> BTreeMap<
     let Some(mut map) = node.map(report, &ctx) else {
         return out;
     };
-    for key in crate::scan::ident::KEYS {
+    for key in super::IDENTIFICATION_KEYS {
         if let Some(text) = map
             .get(key)
             .and_then(|n| n.scalar_text(report, &format!("{ctx}.{key}")))
@@ -243,7 +243,7 @@ fn read_identification(node: &Node, report: &mut Report, ctx: &str) -> BTreeMap<
             out.insert((*key).to_owned(), text);
         }
     }
-    map.finish(report, &ctx, crate::scan::ident::KEYS);
+    map.finish(report, &ctx, super::IDENTIFICATION_KEYS);
     if out.is_empty() {
         report.push(
             node.line,
