@@ -89,18 +89,27 @@ pub(super) async fn suggest(
                 continue 'profiles;
             }
         }
-        suggestions.push(Suggestion {
-            profile: profile.name.clone(),
-            identified: identified == Some(true),
-            probes: reads.len(),
-            device: device_entry(&profile.name, link, device.slave_id),
-        });
+        // The strongest evidence first: an identification, then probes the profile states
+        // (over the default ones), then how many registers answered as it expects.
+        let registers: u32 = reads.iter().map(|r| u32::from(r.count)).sum();
+        let rank = (
+            identified == Some(true),
+            !profile.probe.is_empty(),
+            reads.len(),
+            registers,
+        );
+        suggestions.push((
+            rank,
+            Suggestion {
+                profile: profile.name.clone(),
+                identified: identified == Some(true),
+                probes: reads.len(),
+                device: device_entry(&profile.name, link, device.slave_id),
+            },
+        ));
     }
-    suggestions.sort_by(|a, b| {
-        (b.identified, b.probes)
-            .cmp(&(a.identified, a.probes))
-            .then_with(|| a.profile.cmp(&b.profile))
-    });
+    suggestions.sort_by(|(a, x), (b, y)| b.cmp(a).then_with(|| x.profile.cmp(&y.profile)));
+    let suggestions: Vec<Suggestion> = suggestions.into_iter().map(|(_, s)| s).collect();
     let mut probed: Vec<ReadAnswer> = answers
         .into_values()
         .filter(|a| !device.reads.contains(a))
