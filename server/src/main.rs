@@ -85,29 +85,7 @@ enum Command {
     /// Find the devices on a serial line: every slave id at each baud rate and parity, what
     /// answers, its identification (FC 43), collisions, the profiles that fit, and ready
     /// `links:` and `devices:` entries. Progress on standard error.
-    Scan {
-        /// The serial port (nothing else may have it open).
-        #[arg(long)]
-        port: String,
-        /// Baud rates to try, in this order; default 115200,57600,38400,19200,9600.
-        #[arg(long)]
-        baud: Option<String>,
-        /// Parities to try (N, E, O); default N,E.
-        #[arg(long)]
-        parity: Option<String>,
-        /// Slave ids to try: ranges and single ids, `1-247`, `1,5,10-20`.
-        #[arg(long, default_value = "1-247")]
-        ids: String,
-        /// One probe's time slot: the silence, the request and the answer.
-        #[arg(long, default_value = "50ms")]
-        timeout: String,
-        /// The profiles to match devices against; default: ./profiles or a parent's.
-        #[arg(long)]
-        profiles: Option<PathBuf>,
-        /// Print the result as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Scan(iogate::scan::cli::Options),
     /// Profiles: `iogate profile st NAME` prints a profile's ST function-block declaration.
     Profile {
         #[command(subcommand)]
@@ -198,25 +176,8 @@ fn main() -> ExitCode {
         print!("{}", iogate::transaction::st::declarations());
         return ExitCode::SUCCESS;
     }
-    if let Some(Command::Scan {
-        port,
-        baud,
-        parity,
-        ids,
-        timeout,
-        profiles,
-        json,
-    }) = cli.command
-    {
-        return ExitCode::from(iogate::scan::cli::run(&iogate::scan::cli::Options {
-            port,
-            baud,
-            parity,
-            ids,
-            timeout,
-            profiles,
-            json,
-        }));
+    if let Some(Command::Scan(options)) = &cli.command {
+        return ExitCode::from(iogate::scan::cli::run(options));
     }
     if let Some(Command::Profile {
         command: ProfileCommand::Import { from, out, files },
@@ -255,7 +216,7 @@ fn main() -> ExitCode {
         }) => (config, Action::St(name)),
         Some(
             Command::Fb { .. }
-            | Command::Scan { .. }
+            | Command::Scan(_)
             | Command::Profile {
                 command: ProfileCommand::Import { .. },
             },

@@ -306,6 +306,21 @@ impl TestGateway {
         }
     }
 
+    /// Waits until every field of `device` has been read (quality good); answers the
+    /// device's JSON.
+    pub async fn all_read(&self, device: &str) -> anyhow::Result<serde_json::Value> {
+        self.until(
+            &format!("/api/v1/devices/{device}"),
+            "every field read",
+            |b| {
+                b["fields"]
+                    .as_object()
+                    .is_some_and(|f| f.values().all(|v| v["quality"] == "good"))
+            },
+        )
+        .await
+    }
+
     /// The Prometheus text at `/metrics`.
     pub async fn metrics(&self) -> anyhow::Result<String> {
         Ok(self

@@ -183,14 +183,7 @@ async fn poll(
     ))
     .await
     .expect("gateway");
-    let body = gw
-        .until("/api/v1/devices/dev", "every field read", |b| {
-            b["fields"]
-                .as_object()
-                .is_some_and(|f| f.values().all(|v| v["quality"] == "good"))
-        })
-        .await
-        .expect("every field read");
+    let body = gw.all_read("dev").await.expect("every field read");
     (gw, body, server)
 }
 

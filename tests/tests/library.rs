@@ -87,11 +87,7 @@ async fn every_cited_profile_reads_what_its_published_map_says() {
         .await
         .expect("gateway");
         let body = gw
-            .until("/api/v1/devices/dev", "every field read", |b| {
-                b["fields"]
-                    .as_object()
-                    .is_some_and(|f| f.values().all(|v| v["quality"] == "good"))
-            })
+            .all_read("dev")
             .await
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         for (field, want) in spec["expect"].as_object().expect("expect") {

@@ -13,13 +13,28 @@ use super::{Plan, Progress};
 use crate::profile::Profile;
 
 /// The command line's options, as given.
+#[derive(Debug, clap::Args)]
 pub struct Options {
+    /// The serial port (nothing else may have it open).
+    #[arg(long)]
     pub port: String,
+    /// Baud rates to try, in this order; default 115200,57600,38400,19200,9600.
+    #[arg(long)]
     pub baud: Option<String>,
+    /// Parities to try (N, E, O); default N,E.
+    #[arg(long)]
     pub parity: Option<String>,
+    /// Slave ids to try: ranges and single ids, `1-247`, `1,5,10-20`.
+    #[arg(long, default_value = "1-247")]
     pub ids: String,
+    /// One probe's time slot: the silence, the request and the answer.
+    #[arg(long, default_value = "50ms")]
     pub timeout: String,
+    /// The profiles to match devices against; default: ./profiles or a parent's.
+    #[arg(long)]
     pub profiles: Option<std::path::PathBuf>,
+    /// Print the result as JSON.
+    #[arg(long)]
     pub json: bool,
 }
 
