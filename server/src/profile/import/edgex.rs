@@ -158,10 +158,10 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         "float32" => IecType::Real,
         "float64" => IecType::Lreal,
         "string" => IecType::String,
-        other => {
+        _ => {
             draft.skip(
                 line,
-                format!("resource `{name}`: valueType `{other}` has no iogate type"),
+                format!("resource `{name}`: valueType `{value_type}` has no iogate type"),
             );
             return;
         }
@@ -178,14 +178,14 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         }
         Direction::Input
     };
-    let byte_swap = matches!(
-        get(attributes, "isByteSwap").map(|n| &n.kind),
-        Some(Kind::Bool(true))
-    );
-    let word_swap = matches!(
-        get(attributes, "isWordSwap").map(|n| &n.kind),
-        Some(Kind::Bool(true))
-    );
+    // EdgeX takes a swap attribute as a boolean or its text.
+    let is_true = |key: &str| match get(attributes, key).map(|n| &n.kind) {
+        Some(Kind::Bool(b)) => *b,
+        Some(Kind::Str(s)) => s.trim().eq_ignore_ascii_case("true"),
+        _ => false,
+    };
+    let byte_swap = is_true("isByteSwap");
+    let word_swap = is_true("isWordSwap");
     let mut field = Imported {
         name: String::new(),
         ty,
@@ -281,4 +281,33 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         }
     }
     draft.add(field, &name);
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::profile::import::{Format, import_text};
+
+    #[test]
+    fn swaps_bits_and_raw_types_are_mapped_and_the_rest_named_at_its_line() {
+        let text = "name: \"Meter-1\"\nmanufacturer: ACME\ndeviceResources:\n  - name: Energy\n    attributes: { primaryTable: HOLDING_REGISTERS, startingAddress: 4, isByteSwap: \"true\", isWordSwap: true }\n    properties: { valueType: Uint32, readWrite: R, units: kWh }\n  - name: Alarm\n    attributes: { primaryTable: INPUT_REGISTERS, startingAddress: 2.03 }\n    properties: { valueType: Bool, readWrite: R }\n  - name: Temp\n    attributes: { primaryTable: INPUT_REGISTERS, startingAddress: 1, rawType: Int16 }\n    properties: { valueType: Float32, readWrite: R, scale: \"0.5\", mask: 3 }\n  - name: Blob\n    attributes: { primaryTable: HOLDING_REGISTERS, startingAddress: 9 }\n    properties: { valueType: Binary, readWrite: R }\n";
+        let c = import_text("m.yaml", text, Format::Edgex).expect("imports");
+        assert_eq!(c.profile, "Meter_1");
+        assert!(c.text.contains("name: Energy, type: UDINT, direction: input, register: { address: 4, kind: holding_register, word_count: 2, byte_order: little-endian, unit: \"kWh\" }"), "{}", c.text);
+        assert!(c.text.contains("name: Alarm, type: BOOL, direction: input, register: { address: 2, kind: input_register, bit: 3 }"), "{}", c.text);
+        assert!(c.text.contains("name: Temp, type: REAL, direction: input, register: { address: 1, kind: input_register, raw_type: INT, scale: 0.5 }"), "{}", c.text);
+        assert!(
+            c.unmapped
+                .iter()
+                .any(|u| u.starts_with("m.yaml:12:") && u.contains("`mask`")),
+            "{:#?}",
+            c.unmapped
+        );
+        assert!(
+            c.unmapped
+                .iter()
+                .any(|u| u.starts_with("m.yaml:13:") && u.contains("`Binary`")),
+            "{:#?}",
+            c.unmapped
+        );
+    }
 }

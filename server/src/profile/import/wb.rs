@@ -290,3 +290,51 @@ fn unit_of(control: &str) -> Option<String> {
     };
     Some(unit.to_owned())
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::profile::import::{Format, import_text};
+
+    #[test]
+    fn bits_scaled_integers_strings_and_orders_are_mapped_and_the_rest_named_at_its_line() {
+        let text = r#"{
+    "device_type": "T-1",
+    "device": {
+        "name": "T-1",
+        "setup": [ { "title": "mode", "address": 5, "value": 1 } ],
+        "channels": [
+            { "name": "Alarm", "reg_type": "input", "address": "0x10:3:1" },
+            { "name": "Temp", "reg_type": "holding", "address": 2, "format": "s16", "scale": 0.1, "readonly": true },
+            { "name": "Serial", "reg_type": "input", "address": 20, "format": "string8", "string_data_size": 4 },
+            { "name": "Energy", "reg_type": "input", "address": 30, "format": "u32", "word_order": "little_endian", "byte_order": "little_endian" },
+            { "name": "Code", "reg_type": "input", "address": 40, "format": "bcd16" },
+            { "name": "Relay", "reg_type": "coil", "address": 0, "type": "switch" }
+        ]
+    }
+}"#;
+        let c = import_text("t.json", text, Format::Wb).expect("imports");
+        for line in [
+            "name: Alarm, type: BOOL, direction: input, register: { address: 16, kind: input_register, bit: 3 }",
+            "name: Temp, type: REAL, direction: input, register: { address: 2, kind: holding_register, raw_type: INT, scale: 0.1 }",
+            "name: Serial, type: STRING, direction: input, register: { address: 20, kind: input_register, word_count: 4 }",
+            "name: Energy, type: UDINT, direction: input, register: { address: 30, kind: input_register, word_count: 2, byte_order: little-endian }",
+            "name: Relay, type: BOOL, direction: output, register: { address: 0, kind: coil }",
+        ] {
+            assert!(c.text.contains(line), "{line}\n{}", c.text);
+        }
+        assert!(
+            c.unmapped
+                .iter()
+                .any(|u| u.starts_with("t.json:5:") && u.contains("`setup`")),
+            "{:#?}",
+            c.unmapped
+        );
+        assert!(
+            c.unmapped
+                .iter()
+                .any(|u| u.starts_with("t.json:11:") && u.contains("bcd16")),
+            "{:#?}",
+            c.unmapped
+        );
+    }
+}
