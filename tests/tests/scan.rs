@@ -72,7 +72,6 @@ async fn scan(
         &mut prober,
         &plan,
         profiles,
-        "line",
         &mut progress,
         &CancellationToken::new(),
     )
@@ -267,6 +266,30 @@ async fn a_scan_of_a_configured_link_runs_between_polls_and_reports_over_rest() 
         .expect("post");
     assert_eq!(status, 409, "one scan a link at a time: {twice}");
     line.sent.lock().expect("sent").clear();
+
+    // Its events: the state as it goes, the stream ending with the last one.
+    let events = gw
+        .client
+        .get(gw.url(&format!("/api/v1/scans/{id}/events")))
+        .send()
+        .await
+        .expect("events")
+        .text()
+        .await
+        .expect("the stream ends with the scan");
+    let states: Vec<serde_json::Value> = events
+        .split("\n\n")
+        .filter(|e| e.starts_with("event: scan\n"))
+        .filter_map(|e| e.lines().find_map(|l| l.strip_prefix("data: ")))
+        .map(|d| serde_json::from_str(d).expect("a state"))
+        .collect();
+    let last = states.last().expect("at least one state");
+    assert_eq!(last["state"], "done", "{events}");
+    assert_eq!(last["probed"], 10, "{events}");
+    assert!(
+        states.iter().any(|s| s["state"] == "running"),
+        "progress before the end: {events}"
+    );
 
     let done = gw
         .until(&format!("/api/v1/scans/{id}"), "done", |b| {

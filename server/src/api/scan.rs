@@ -1,6 +1,5 @@
 //! Scans of configured links over REST: start one, read or follow its state, cancel it.
 
-use std::convert::Infallible;
 use std::sync::Arc;
 
 use axum::Json;
@@ -112,37 +111,27 @@ pub(crate) async fn delete_scan(
     params(("id" = u64, Path, description = "the scan's id")),
     responses((status = 200, description = "`event: scan` with a ScanState as `data`", content_type = "text/event-stream"),
               (status = 400, description = "the id is not a number", body = ErrorBody),
-              (status = 404, description = "no such scan", body = ErrorBody)))]
+              (status = 404, description = "no such scan", body = ErrorBody),
+              (status = 429, description = "too many open streams (`listen.max_streams`)", body = ErrorBody)))]
 pub(crate) async fn scan_events(
     State(service): State<Arc<Service>>,
     Path(id): Path<String>,
-) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
-    let mut states = service.scan(scan_id(&id)?)?;
-    let stream = async_stream(move |emit| async move {
-        loop {
-            let state = states.borrow_and_update().clone();
-            let running = state.state == "running";
-            if let Ok(event) = Event::default().event("scan").json_data(&state)
-                && emit.send(Ok(event)).await.is_err()
-            {
-                return;
-            }
-            if !running || states.changed().await.is_err() {
-                return;
-            }
+) -> Result<Sse<impl Stream<Item = Result<Event, axum::Error>>>, ApiError> {
+    let states = service.scan(scan_id(&id)?)?;
+    // An open stream holds one of the gateway's places for streams, as every stream does.
+    let slot = service.stream_slot()?;
+    // The state now, then at each change, until a state that is not `running` has been sent.
+    let events = futures_util::stream::unfold(Some((states, slot, true)), |next| async move {
+        let (mut states, slot, first) = next?;
+        if !first {
+            states.changed().await.ok()?;
         }
+        let state = states.borrow_and_update().clone();
+        let event = Event::default().event("scan").json_data(&state);
+        Some((
+            event,
+            (state.state == "running").then_some((states, slot, false)),
+        ))
     });
-    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
-}
-
-/// A stream fed by `produce` through a channel of one (a slow reader holds the producer back;
-/// each state is whole, so nothing is lost that the next does not say).
-fn async_stream<F, Fut>(produce: F) -> impl Stream<Item = Result<Event, Infallible>>
-where
-    F: FnOnce(tokio::sync::mpsc::Sender<Result<Event, Infallible>>) -> Fut,
-    Fut: std::future::Future<Output = ()> + Send + 'static,
-{
-    let (tx, rx) = tokio::sync::mpsc::channel(1);
-    tokio::spawn(produce(tx));
-    tokio_stream::wrappers::ReceiverStream::new(rx)
+    Ok(Sse::new(events).keep_alive(KeepAlive::default()))
 }

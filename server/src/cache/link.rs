@@ -72,6 +72,23 @@ pub enum Inbox {
 }
 
 impl Inbox {
+    /// Whether its caller has stopped waiting for the answer.
+    pub(crate) fn abandoned(&self) -> bool {
+        match self {
+            Inbox::Request(r) => r.reply.is_closed(),
+            Inbox::Probe(p) => p.reply.is_closed(),
+        }
+    }
+
+    /// Whether, sent at `now`, its answer could come only after its caller's deadline.
+    pub(crate) fn too_late(&self, now: tokio::time::Instant) -> bool {
+        let (wait, deadline) = match self {
+            Inbox::Request(r) => (r.timeout, r.deadline),
+            Inbox::Probe(p) => (p.slot, p.deadline),
+        };
+        now + wait > deadline
+    }
+
     /// Answers it unsent with `error`.
     pub(crate) fn refuse(self, error: PassthroughError) {
         match self {

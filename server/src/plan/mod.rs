@@ -7,7 +7,7 @@ mod report;
 mod write_groups;
 
 pub(crate) use budget::{cycle_time, transaction_time, utilisation};
-pub(crate) use read_batches::{ReadBatch, read_batches};
+pub(crate) use read_batches::{ReadBatch, read_batches, read_request};
 pub use report::{link_plan, render, warnings};
 pub(crate) use write_groups::{WriteItem, WriteOp, write_ops};
 

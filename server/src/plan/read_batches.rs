@@ -19,17 +19,21 @@ pub(crate) struct ReadBatch {
     pub(crate) fields: Vec<usize>,
 }
 
+/// The read request of `count` of `kind` from `address`.
+pub(crate) fn read_request(kind: RegisterKind, address: u16, count: u16) -> Request {
+    match kind {
+        RegisterKind::Coil => Request::ReadCoils { address, count },
+        RegisterKind::DiscreteInput => Request::ReadDiscreteInputs { address, count },
+        RegisterKind::InputRegister => Request::ReadInputRegisters { address, count },
+        RegisterKind::HoldingRegister | RegisterKind::Virtual => {
+            Request::ReadHoldingRegisters { address, count }
+        }
+    }
+}
+
 impl ReadBatch {
     pub(crate) fn request(&self) -> Request {
-        let (address, count) = (self.address, self.count);
-        match self.kind {
-            RegisterKind::Coil => Request::ReadCoils { address, count },
-            RegisterKind::DiscreteInput => Request::ReadDiscreteInputs { address, count },
-            RegisterKind::InputRegister => Request::ReadInputRegisters { address, count },
-            RegisterKind::HoldingRegister | RegisterKind::Virtual => {
-                Request::ReadHoldingRegisters { address, count }
-            }
-        }
+        read_request(self.kind, self.address, self.count)
     }
 
     /// The batch as two halves, by field, when it has more than one field.

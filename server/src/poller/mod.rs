@@ -285,18 +285,23 @@ impl LinkTask {
         tracing::debug!(link = %name, "link task stopped");
     }
 
-    /// Sends a queued request as it is, and answers it; unless its caller has gone, or its
-    /// deadline would pass before the slave's timeout: such a request is never sent.
-    async fn pass_through(&mut self, queued: Passthrough, bus: &mut Bus) -> Step {
-        if queued.reply.is_closed() {
+    /// What of the inbox may go on the line: a request or probe whose caller has gone, or
+    /// whose deadline would pass before its answer could come, is never sent.
+    fn admit(&self, queued: Inbox) -> Option<Inbox> {
+        if queued.abandoned() {
             self.metrics.inbox_dropped(self.link.name(), "abandoned");
-            return Ok(());
+            return None;
         }
-        if Instant::now() + queued.timeout > queued.deadline {
+        if queued.too_late(Instant::now()) {
             self.metrics.inbox_dropped(self.link.name(), "expired");
-            let _ = queued.reply.send(Err(PassthroughError::Expired));
-            return Ok(());
+            queued.refuse(PassthroughError::Expired);
+            return None;
         }
+        Some(queued)
+    }
+
+    /// Sends a queued request as it is, and answers it.
+    async fn pass_through(&mut self, queued: Passthrough, bus: &mut Bus) -> Step {
         let label = self
             .devices
             .iter()
@@ -313,18 +318,8 @@ impl LinkTask {
         fault.map_or(Ok(()), Err)
     }
 
-    /// Sends a scan's probe between polls, unless its caller has gone or its deadline would
-    /// pass first; a link that is not RTU answers it unsent.
+    /// Sends a scan's probe between polls; a link that is not RTU answers it unsent.
     async fn probe(&mut self, queued: Probe, bus: &mut Bus) -> Step {
-        if queued.reply.is_closed() {
-            self.metrics.inbox_dropped(self.link.name(), "abandoned");
-            return Ok(());
-        }
-        if Instant::now() + queued.slot > queued.deadline {
-            self.metrics.inbox_dropped(self.link.name(), "expired");
-            let _ = queued.reply.send(Err(PassthroughError::Expired));
-            return Ok(());
-        }
         let result = bus.probe(&queued).await;
         let fault = result.as_ref().err().and_then(connection_fault);
         let _ = queued.reply.send(result.map_err(PassthroughError::from));
@@ -371,9 +366,10 @@ impl LinkTask {
             };
             after_request = request.is_some();
             let step = if let Some(queued) = request {
-                match queued {
-                    Inbox::Request(r) => self.pass_through(r, &mut bus).await,
-                    Inbox::Probe(p) => self.probe(p, &mut bus).await,
+                match self.admit(queued) {
+                    Some(Inbox::Request(r)) => self.pass_through(r, &mut bus).await,
+                    Some(Inbox::Probe(p)) => self.probe(p, &mut bus).await,
+                    None => Ok(()),
                 }
             } else if let Some(i) = self.next_writer() {
                 self.write_device(i, &mut bus).await

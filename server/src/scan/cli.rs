@@ -134,15 +134,7 @@ pub fn run(options: &Options) -> u8 {
                 cancel_on_ctrl_c.cancel();
             }
         });
-        let result = super::run(
-            &mut prober,
-            &plan,
-            &profiles,
-            "line",
-            &mut on_progress,
-            &cancel,
-        )
-        .await;
+        let result = super::run(&mut prober, &plan, &profiles, &mut on_progress, &cancel).await;
         watch.abort();
         result
     });

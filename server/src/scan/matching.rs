@@ -59,7 +59,6 @@ pub(super) async fn suggest(
     prober: &mut dyn Prober,
     device: &mut Found,
     profiles: &[Arc<Profile>],
-    link: &str,
 ) -> Result<(), ScanError> {
     let mut answers: HashMap<(RegisterKind, u16, u16), ReadAnswer> = HashMap::new();
     let mut suggestions = Vec::new();
@@ -104,7 +103,6 @@ pub(super) async fn suggest(
                 profile: profile.name.clone(),
                 identified: identified == Some(true),
                 probes: reads.len(),
-                device: device_entry(&profile.name, link, device.slave_id),
             },
         ));
     }

@@ -37,6 +37,18 @@ impl Setting {
     pub fn label(&self) -> String {
         format!("{} 8{}1", self.baud, self.parity.letter())
     }
+
+    /// The line settings of `port` at this setting (RTU, 8 data bits, 1 stop bit).
+    pub fn serial(&self, port: &str) -> crate::config::SerialSettings {
+        crate::config::SerialSettings {
+            port: port.to_owned(),
+            baud: self.baud,
+            parity: self.parity,
+            data_bits: 8,
+            stop_bits: 1,
+            framing: crate::config::Framing::Rtu,
+        }
+    }
 }
 
 impl Serialize for Setting {
@@ -74,13 +86,8 @@ impl Plan {
     /// The shortest slot that can carry a probe and its answer at `setting`: the silence,
     /// an 8-byte request, a 7-byte answer and 2 ms for the device to turn round.
     pub fn shortest_slot(setting: &Setting) -> Duration {
-        let char_time = Duration::from_nanos(11_000_000_000 / u64::from(setting.baud.max(1)));
-        let silence = if setting.baud > 19_200 {
-            Duration::from_micros(1_750)
-        } else {
-            char_time * 7 / 2
-        };
-        silence + char_time * 15 + Duration::from_millis(2)
+        let timing = crate::link::timing::LineTiming::new(&setting.serial(""));
+        timing.silence() + timing.frame_time(8) + timing.frame_time(7) + Duration::from_millis(2)
     }
 
     /// Every problem with the plan, named.
@@ -213,8 +220,6 @@ pub struct Suggestion {
     pub identified: bool,
     /// The profile's probe reads, each answered.
     pub probes: usize,
-    /// A ready `devices:` entry.
-    pub device: String,
 }
 
 /// A device found: where it answers, what it answered, what it may be.
@@ -253,13 +258,11 @@ pub enum Progress {
 pub const MAX_FOLLOW_UPS: usize = 7;
 
 /// Runs `plan` through `prober`, telling `progress` as it goes; matches each device found
-/// against `profiles` (naming `link` in the suggested entries). `cancel` stops it between
-/// probes.
+/// against `profiles`. `cancel` stops it between probes.
 pub async fn run(
     prober: &mut dyn Prober,
     plan: &Plan,
     profiles: &[Arc<Profile>],
-    link: &str,
     progress: &mut (dyn FnMut(Progress) + Send),
     cancel: &tokio_util::sync::CancellationToken,
 ) -> Result<Vec<Found>, ScanError> {
@@ -277,7 +280,7 @@ pub async fn run(
             if cancel.is_cancelled() {
                 return Err(ScanError::Cancelled);
             }
-            if let Some(device) = discover(prober, id, *setting, profiles, link).await? {
+            if let Some(device) = discover(prober, id, *setting, profiles).await? {
                 progress(Progress::Found(Box::new(device.clone())));
                 found.push(device);
             }
@@ -295,16 +298,12 @@ async fn discover(
     id: u8,
     setting: Setting,
     profiles: &[Arc<Profile>],
-    link: &str,
 ) -> Result<Option<Found>, ScanError> {
     let pdu = read_pdu(RegisterKind::HoldingRegister, 0, 1);
     let mut heard = judge::judge(&prober.probe(id, &pdu, false).await?, id, 3);
     if matches!(heard, Heard::Garbled(_)) {
-        heard = match judge::judge(&prober.probe(id, &pdu, false).await?, id, 3) {
-            // Garbled twice: two devices answering at once.
-            Heard::Garbled(pdu) => Heard::Garbled(pdu),
-            other => other,
-        };
+        // Once more: garbled twice is two devices answering at once, not noise.
+        heard = judge::judge(&prober.probe(id, &pdu, false).await?, id, 3);
     }
     let mut collision = match &heard {
         Heard::Silent => return Ok(None),
@@ -332,7 +331,7 @@ async fn discover(
     }
     device.identification = identify(prober, id, &mut collision).await?;
     device.collision = collision;
-    matching::suggest(prober, &mut device, profiles, link).await?;
+    matching::suggest(prober, &mut device, profiles).await?;
     Ok(Some(device))
 }
 
@@ -352,22 +351,18 @@ async fn read(
 
 /// The request PDU of a read.
 fn read_pdu(kind: RegisterKind, address: u16, count: u16) -> Vec<u8> {
-    let function = match kind {
-        RegisterKind::Coil => 1,
-        RegisterKind::DiscreteInput => 2,
-        RegisterKind::HoldingRegister => 3,
-        _ => 4,
-    };
-    let mut pdu = vec![function];
-    pdu.extend_from_slice(&address.to_be_bytes());
-    pdu.extend_from_slice(&count.to_be_bytes());
+    let mut pdu = Vec::with_capacity(5);
+    crate::plan::read_request(kind, address, count).encode(&mut pdu);
     pdu
 }
 
+/// What a read heard: its data, the device's exception, nothing, or bytes that are neither
+/// (checked as a poll's answer is: function, byte count, length).
 fn read_answer(kind: RegisterKind, address: u16, count: u16, heard: &Heard) -> ReadAnswer {
-    let function = read_pdu(kind, address, count)[0];
+    use crate::link::frame::{Response, ResponseError};
+    let request = crate::plan::read_request(kind, address, count);
     let mut answer = ReadAnswer {
-        function,
+        function: request.function().code(),
         address,
         count,
         answer: "no answer",
@@ -382,33 +377,20 @@ fn read_answer(kind: RegisterKind, address: u16, count: u16, heard: &Heard) -> R
         }
         Heard::One(pdu) | Heard::Two(pdu) | Heard::Garbled(Some(pdu)) => pdu,
     };
-    match pdu.as_slice() {
-        [f, code] if *f == function | 0x80 => {
+    match request.parse_response(pdu) {
+        Ok(Response::Registers(values)) => {
+            answer.answer = "data";
+            answer.values = values;
+        }
+        Ok(Response::Bits(bits)) => {
+            answer.answer = "data";
+            answer.values = bits.into_iter().map(u16::from).collect();
+        }
+        Err(ResponseError::Exception(x)) => {
             answer.answer = "exception";
-            answer.exception = Some(format!(
-                "{code:02X} ({})",
-                crate::link::frame::Exception(*code).describe()
-            ));
+            answer.exception = Some(format!("{:02X} ({})", x.0, x.describe()));
         }
-        [f, bytes, data @ ..] if *f == function && data.len() == usize::from(*bytes) => {
-            answer.values = if kind.is_bit() {
-                crate::link::frame::unpack_bits(data, usize::from(count))
-                    .into_iter()
-                    .map(u16::from)
-                    .collect()
-            } else {
-                data.chunks_exact(2)
-                    .map(|w| u16::from_be_bytes([w[0], w[1]]))
-                    .collect()
-            };
-            let whole = if kind.is_bit() {
-                answer.values.len() == usize::from(count)
-            } else {
-                data.len() == 2 * usize::from(count)
-            };
-            answer.answer = if whole { "data" } else { "garbled" };
-        }
-        _ => answer.answer = "garbled",
+        Ok(_) | Err(ResponseError::Invalid(_)) => answer.answer = "garbled",
     }
     answer
 }

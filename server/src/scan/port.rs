@@ -6,7 +6,6 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::{Prober, ScanError, Setting};
-use crate::config::{Framing, SerialSettings};
 use crate::link::rtu::RtuTransport;
 use crate::link::timing::LineTiming;
 
@@ -31,14 +30,7 @@ impl Prober for PortProber {
     async fn set(&mut self, setting: &Setting) -> Result<(), ScanError> {
         // Closed first: a port is opened once at a time.
         self.transport = None;
-        let settings = SerialSettings {
-            port: self.port.clone(),
-            baud: setting.baud,
-            parity: setting.parity,
-            data_bits: 8,
-            stop_bits: 1,
-            framing: Framing::Rtu,
-        };
+        let settings = setting.serial(&self.port);
         let stream =
             crate::link::open_serial(&settings).map_err(|e| ScanError::Port(e.to_string()))?;
         self.transport = Some(RtuTransport::new(

@@ -8,7 +8,7 @@ use serde::Serialize;
 use super::{Found, Plan, Setting};
 
 /// A finished (or running) scan's result: what was tried, what was found, and the config.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct Summary {
     pub settings: Vec<Setting>,
     /// The ids tried, as ranges: `1-247`.
@@ -203,7 +203,6 @@ mod tests {
                     profile: p.to_owned(),
                     identified: false,
                     probes: 1,
-                    device: String::new(),
                 })
                 .into_iter()
                 .collect(),

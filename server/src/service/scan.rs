@@ -15,32 +15,28 @@ use tokio_util::sync::CancellationToken;
 use super::{Service, ServiceError};
 use crate::cache::{Link, PassthroughError, Probe};
 use crate::config::{Framing, Transport};
-use crate::scan::{Found, Plan, Prober, Progress, ScanError, Setting};
+use crate::scan::report::Summary;
+use crate::scan::{Plan, Prober, Progress, ScanError, Setting};
 
 /// How many scans are kept (the oldest finished one is forgotten first).
 pub const KEPT_SCANS: usize = 16;
 /// How long a probe may wait in a busy link's inbox before the scan gives up.
 const PROBE_WAIT: Duration = Duration::from_secs(10);
 
-/// A scan as its readers see it.
+/// A scan as its readers see it: where it stands, and its result so far (what is tried, the
+/// longest it takes on an idle line, said before it starts, the devices found and their
+/// `devices:` entries), as `iogate scan --json` prints it.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct ScanState {
     pub id: u64,
     pub link: String,
     /// `running`, `done`, `failed` or `cancelled`.
     pub state: &'static str,
-    pub settings: Vec<Setting>,
-    pub ids: String,
-    pub timeout_ms: u64,
-    /// The longest the search takes on an idle line (one slot per id), said before it starts;
-    /// polls in between add their own time.
-    pub estimate_ms: u64,
     pub probed: usize,
     pub total: usize,
     pub elapsed_ms: u64,
-    pub devices: Vec<Found>,
-    /// Ready `devices:` entries for the devices found.
-    pub config: String,
+    #[serde(flatten)]
+    pub result: Summary,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
@@ -157,20 +153,14 @@ impl Service {
             });
         }
         let id = self.scans.next.fetch_add(1, Ordering::Relaxed) + 1;
-        let summary = crate::scan::report::Summary::new(&plan, Vec::new(), None, link.name());
         let first = ScanState {
             id,
             link: link.name().to_owned(),
             state: "running",
-            settings: summary.settings,
-            ids: summary.ids,
-            timeout_ms: summary.timeout_ms,
-            estimate_ms: summary.estimate_ms,
             probed: 0,
             total: plan.ids.len(),
             elapsed_ms: 0,
-            devices: Vec::new(),
-            config: String::new(),
+            result: Summary::new(&plan, Vec::new(), None, link.name()),
             error: None,
         };
         let (state, _) = watch::channel(first.clone());
@@ -206,26 +196,18 @@ impl Service {
                     s.elapsed_ms = started.elapsed().as_millis() as u64;
                     match p {
                         Progress::Tried { done, .. } => s.probed = done,
-                        Progress::Found(d) => s.devices.push(*d),
+                        Progress::Found(d) => s.result.devices.push(*d),
                         Progress::Setting { .. } => {}
                     }
                 });
             };
-            let result = crate::scan::run(
-                &mut prober,
-                &plan,
-                &profiles,
-                &name,
-                &mut on_progress,
-                &cancel,
-            )
-            .await;
+            let result =
+                crate::scan::run(&mut prober, &plan, &profiles, &mut on_progress, &cancel).await;
             state.send_modify(|s| {
                 s.elapsed_ms = started.elapsed().as_millis() as u64;
                 match result {
                     Ok(devices) => {
-                        s.config = crate::scan::report::config(&devices, None, &name);
-                        s.devices = devices;
+                        s.result = Summary::new(&plan, devices, None, &name);
                         s.state = "done";
                     }
                     Err(ScanError::Cancelled) => s.state = "cancelled",

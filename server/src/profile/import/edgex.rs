@@ -212,14 +212,10 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         return;
     }
     if ty == IecType::Bool {
-        if !kind.is_bit() && field.order != ByteOrder::BigEndian {
-            field.order = ByteOrder::BigEndian;
-        }
+        // A bit has no byte order, scale or offset.
+        field.order = ByteOrder::BigEndian;
         field.scale = 1.0;
         field.offset = 0.0;
-        if kind.is_bit() {
-            field.bit = None;
-        }
         draft.add(field, &name);
         return;
     }

@@ -381,14 +381,17 @@ fn num(node: &Node) -> Option<f64> {
     match &node.kind {
         Kind::Int(i) => Some(*i as f64),
         Kind::Float(f) => Some(*f),
-        Kind::Str(s) => {
-            let s = s.trim();
-            match s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
-                Some(hex) => i64::from_str_radix(hex, 16).ok().map(|i| i as f64),
-                None => s.parse().ok(),
-            }
-        }
+        Kind::Str(s) => num_text(s),
         _ => None,
+    }
+}
+
+/// A number written as text: decimal, or hexadecimal with `0x`.
+fn num_text(text: &str) -> Option<f64> {
+    let text = text.trim();
+    match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => i64::from_str_radix(hex, 16).ok().map(|i| i as f64),
+        None => text.parse().ok(),
     }
 }
 

@@ -67,7 +67,6 @@ pub(super) fn read(root: &Node) -> Result<Draft, String> {
                 Some("configuration parameters (registers set once, with conditions): not a field")
             }
             "subdevices" => Some("sub-devices chosen by parameters: not imported"),
-            "translations" | "groups" | "name" | "id" | "channels" | "protocol" => None,
             _ => None,
         };
         if let Some(why) = why {
@@ -145,10 +144,7 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
     let address_text = scalar(address_node).unwrap_or_default();
     let (address, bit) = match address_text.split(':').collect::<Vec<_>>().as_slice() {
         [reg, shift, width] => {
-            let reg = num(&Node {
-                line,
-                kind: Kind::Str((*reg).to_owned()),
-            });
+            let reg = super::num_text(reg);
             match (reg, shift.parse::<u8>(), width.parse::<u8>()) {
                 (Some(r), Ok(s), Ok(1)) if s < 16 => (Some(r), Some(s)),
                 _ => {
