@@ -61,10 +61,11 @@ fn every_published_file_imports_into_profiles_that_load_or_says_why_not() {
             }
         }
     }
-    assert_eq!(imported, 7);
-    // What `iogate check` loads: every profile, none with a problem.
+    assert_eq!(imported, 12);
+    // What `iogate check` loads: every profile, none with a problem (the two ONOKOM
+    // templates, deprecated and current, give one name).
     let profiles = iogate::profile::load_dir(&out).unwrap_or_else(|p| panic!("{p}"));
-    assert_eq!(profiles.len(), 7);
+    assert_eq!(profiles.len(), 11);
 
     // What was not mapped is named with the source's line.
     let danfoss = import("wb", "config-danfoss-fc51.json").expect("danfoss");
@@ -247,4 +248,112 @@ async fn a_device_emulated_from_the_source_map_reads_the_same_through_the_import
     assert_eq!(f["CommunicationFailure"]["value"], true);
     gw.shutdown().await;
     server.abort();
+}
+
+/// Writes `value` to `field` of `dev` and waits for the write's outcome.
+async fn write(gw: &TestGateway, field: &str, value: bool) {
+    let (status, body) = gw
+        .send(
+            reqwest::Method::PUT,
+            &format!("/api/v1/devices/dev/fields/{field}"),
+            format!("{{\"value\": {value}}}"),
+        )
+        .await
+        .expect("put");
+    assert_eq!(status, 202, "{body}");
+    let generation = body["generation"].as_u64().expect("generation");
+    gw.until(&format!("/api/v1/writes/{generation}"), "written", |w| {
+        w["status"] == "written"
+    })
+    .await
+    .expect("written");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_switch_with_its_own_on_and_off_values_is_written_as_the_device_means_it() {
+    let profiles = temp_dir("import-switch");
+    for file in ["config-carel-ir33.json", "config-bac-6000aln.json"] {
+        let c = import("wb", file).expect("import");
+        std::fs::write(profiles.join(&c.file_name), &c.text).expect("write");
+    }
+
+    // Carel IR33 "Unit On-Off": coil 54, on_value 0 / off_value 1; the unit is off.
+    let device = ModbusDevice::default();
+    device.tables.lock().expect("tables").coils[54] = true;
+    let (gw, body, server) = poll(&profiles, "carel_ir33", device.clone()).await;
+    assert_eq!(body["fields"]["Unit_On_Off"]["value"], false, "{body:#}");
+    write(&gw, "Unit_On_Off", true).await;
+    assert!(
+        !device.tables.lock().expect("tables").coils[54],
+        "TRUE (switch the unit on) is coil 54 = 0"
+    );
+    gw.until("/api/v1/devices/dev/fields/Unit_On_Off", "on", |f| {
+        f["value"] == true
+    })
+    .await
+    .expect("read back on");
+    write(&gw, "Unit_On_Off", false).await;
+    assert!(
+        device.tables.lock().expect("tables").coils[54],
+        "FALSE is 1"
+    );
+    gw.shutdown().await;
+    server.abort();
+
+    // BAC-6000ALN "Status": holding 0, on 0x00a5 / off 0x005a; anything else is no value.
+    let device = ModbusDevice::default();
+    device.tables.lock().expect("tables").holding[0] = 0x5a;
+    let (gw, body, server) = poll(&profiles, "BAC_6000ALN", device.clone()).await;
+    assert_eq!(body["fields"]["Status"]["value"], false, "{body:#}");
+    write(&gw, "Status", true).await;
+    assert_eq!(device.tables.lock().expect("tables").holding[0], 0xa5);
+    device.tables.lock().expect("tables").holding[0] = 7;
+    let bad = gw
+        .until("/api/v1/devices/dev/fields/Status", "bad", |f| {
+            f["quality"] == "bad"
+        })
+        .await
+        .expect("a value that is neither is bad");
+    assert!(
+        bad.to_string()
+            .contains("neither on_value 165 nor off_value 90"),
+        "{bad:#}"
+    );
+    gw.shutdown().await;
+    server.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scaled_thirty_two_bit_counter_keeps_every_digit() {
+    let profiles = temp_dir("import-lreal");
+    let c = import("wb", "config-pzem-016.json").expect("import");
+    assert!(c.text.contains("name: Energy, type: LREAL"), "{}", c.text);
+    std::fs::write(profiles.join(&c.file_name), &c.text).expect("write");
+    // Energy: input 5-6, u32 low word first, scale 0.0001: 123456789 is 12345.6789 kWh.
+    let device = ModbusDevice::default();
+    {
+        let mut t = device.tables.lock().expect("tables");
+        t.input[5] = (123_456_789u32 & 0xFFFF) as u16;
+        t.input[6] = (123_456_789u32 >> 16) as u16;
+    }
+    let (gw, body, server) = poll(&profiles, "PZEM_016", device).await;
+    assert_eq!(body["fields"]["Energy"]["value"], 12345.6789, "{body:#}");
+    gw.shutdown().await;
+    server.abort();
+}
+
+#[test]
+fn a_current_template_is_imported_over_its_deprecated_twin_with_its_title_resolved() {
+    let current = import("wb", "config-onokom-air-aux-1-mb-b.json").expect("current");
+    assert!(!current.deprecated);
+    assert!(
+        current
+            .text
+            .contains("description: \"ONOKOM AIR AUX-1-MB-B (Adapter"),
+        "the title is the translation of `template_title`"
+    );
+    let old = import("wb", "config-onokom-air-aux-1-mb-b-depricated.json").expect("old");
+    assert!(old.deprecated);
+    assert_eq!(old.profile, current.profile);
+    assert!(current.fields > old.fields);
 }

@@ -438,6 +438,10 @@ pub(crate) struct RegisterInfo {
     pub(crate) byte_order: String,
     pub(crate) word_count: u16,
     pub(crate) raw_type: Option<String>,
+    /// A BOOL switch's raw value for TRUE, where not the plain one (0 on an inverted coil).
+    pub(crate) on_value: Option<u16>,
+    /// A BOOL switch's raw value for FALSE, where not the plain one.
+    pub(crate) off_value: Option<u16>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -505,6 +509,8 @@ pub(crate) fn profile_detail(p: &Profile) -> ProfileDetail {
                     byte_order: f.register.byte_order.name().to_owned(),
                     word_count: f.register.word_count,
                     raw_type: f.register.raw_type.map(|t| t.name().to_owned()),
+                    on_value: f.register.switch.map(|s| s.on),
+                    off_value: f.register.switch.map(|s| s.off),
                 },
             })
             .collect(),

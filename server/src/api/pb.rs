@@ -146,6 +146,8 @@ pub(crate) fn profile(p: &Profile, full: bool) -> pb::Profile {
                     byte_order: f.register.byte_order.name().to_owned(),
                     word_count: f.register.word_count.into(),
                     raw_type: f.register.raw_type.map_or(0, |t| iec_type(t).into()),
+                    on_value: f.register.switch.map(|s| s.on.into()),
+                    off_value: f.register.switch.map(|s| s.off.into()),
                 }),
             })
             .collect();

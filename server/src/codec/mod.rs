@@ -8,7 +8,7 @@ mod encoding;
 
 use std::fmt;
 
-pub(crate) use encoding::{Encoding, Raw};
+pub(crate) use encoding::{Encoding, Raw, Switch};
 
 pub(crate) use iogate_types::{IecType, Value, ValueError, int_range};
 
@@ -128,6 +128,9 @@ pub enum CodecError {
     /// A duration literal that does not parse.
     #[error(transparent)]
     Time(#[from] iogate_types::time::TimeError),
+    /// A switch's register holding neither of its two values.
+    #[error("the register holds {raw}, neither on_value {on} nor off_value {off}")]
+    NotASwitchValue { raw: u16, on: u16, off: u16 },
     /// A value of another type than the field's.
     #[error("a {ty} value is needed")]
     NotOfType { ty: IecType },

@@ -86,10 +86,13 @@ pub(crate) fn write_ops(
         let field = &profile.fields[item.field];
         let address = field.register.address;
         match (field.register.kind, field.encoding.raw, &item.value) {
-            (RegisterKind::Coil, _, Value::Bool(b)) => coils.push((address, *b, n)),
+            // The bit on the wire: an inverted switch writes 0 for TRUE.
+            (RegisterKind::Coil, _, Value::Bool(b)) => {
+                coils.push((address, field.encoding.wire_bit(*b), n));
+            }
             (RegisterKind::HoldingRegister, Raw::RegisterBit(bit), Value::Bool(b)) => {
                 let entry = bits.entry(address).or_default();
-                entry.0.push((bit, *b));
+                entry.0.push((bit, field.encoding.wire_bit(*b)));
                 entry.1.push(n);
             }
             (RegisterKind::HoldingRegister, _, _) if item.registers.is_some() => {

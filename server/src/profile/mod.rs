@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::codec::{ByteOrder, Encoding, IecType, Raw};
+use crate::codec::{ByteOrder, Encoding, IecType, Raw, Switch};
 use crate::yaml::Problems;
 
 pub use layout::{LayoutEntry, LayoutSection, fb_layout, st_declaration};
@@ -99,6 +99,9 @@ pub struct Register {
     pub(crate) word_count_set: bool,
     /// For REAL/LREAL fields stored as integers: the integer type of the register value.
     pub(crate) raw_type: Option<IecType>,
+    /// For a BOOL: `on_value`/`off_value`, the raw values meaning TRUE and FALSE where they
+    /// are not the plain ones (an inverted coil, a register switched by 0xA5/0x5A).
+    pub(crate) switch: Option<Switch>,
 }
 
 #[derive(Debug, Clone, PartialEq)]

@@ -165,6 +165,7 @@ fn field_details(a: &Field, b: &Field) -> Vec<String> {
         changed("register.byte_order", &ra.byte_order, &rb.byte_order),
         changed_text("register.word_count", ra.word_count, rb.word_count),
         changed("register.raw_type", &ra.raw_type, &rb.raw_type),
+        changed("register.on_value/off_value", &ra.switch, &rb.switch),
         changed("description", &a.description, &b.description),
         changed("deadband", &a.deadband, &b.deadband),
     ]

@@ -195,6 +195,7 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         bit: bit.filter(|_| ty == IecType::Bool && !kind.is_bit()),
         word_count: None,
         raw_type: None,
+        switch: None,
         scale: get(properties, "scale").and_then(num).unwrap_or(1.0),
         offset: get(properties, "offset").and_then(num).unwrap_or(0.0),
         order: match (byte_swap, word_swap) {
@@ -269,7 +270,7 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
                     field.word_count = Some(words);
                 } else {
                     field.raw_type = Some(ty);
-                    field.ty = IecType::Real;
+                    field.ty = super::scaled_type(ty);
                 }
             } else {
                 field.word_count = (words > 1).then_some(words);

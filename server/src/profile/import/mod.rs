@@ -4,11 +4,14 @@
 //! scale, offset, unit, bits); everything else is reported with its source line. A result is
 //! loaded back as `iogate check` loads it before it is given out.
 
+mod cli;
 mod edgex;
 mod wb;
 
+pub use cli::run;
+
 use std::fmt::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::codec::{ByteOrder, IecType};
 use crate::profile::{Direction, RegisterKind};
@@ -60,6 +63,8 @@ struct Imported {
     order: ByteOrder,
     unit: Option<String>,
     description: Option<String>,
+    /// A BOOL's raw values where not the plain ones.
+    switch: Option<crate::codec::Switch>,
     line: u64,
 }
 
@@ -82,6 +87,8 @@ struct Draft {
     fields: Vec<Imported>,
     /// What was not mapped: line and why.
     unmapped: Vec<(u64, String)>,
+    /// The source says it is superseded (wb-mqtt-serial's `"deprecated": true`).
+    deprecated: bool,
 }
 
 impl Draft {
@@ -157,6 +164,15 @@ fn identifier(source: &str) -> String {
     out
 }
 
+/// The type of a scaled integer: REAL holds every 16-bit raw value's digits, but not a
+/// 32- or 64-bit counter's (12345.6789 kWh as REAL reads 12345.679): those are LREAL.
+fn scaled_type(raw: IecType) -> IecType {
+    match raw.int_bits() {
+        Some((bits, _)) if bits > 16 => IecType::Lreal,
+        _ => IecType::Real,
+    }
+}
+
 /// A number as YAML writes it: integers without a fraction.
 fn number(x: f64) -> String {
     if x.fract() == 0.0 && x.abs() < 1e15 {
@@ -224,6 +240,9 @@ fn render(draft: &Draft, source: &str, from: &str) -> String {
         if let Some(u) = &f.unit {
             let _ = write!(reg, ", unit: {}", quoted(u));
         }
+        if let Some(s) = f.switch {
+            let _ = write!(reg, ", on_value: {}, off_value: {}", s.on, s.off);
+        }
         let _ = write!(
             out,
             "  - {{ name: {}, type: {}, direction: {}, register: {{ {reg} }}",
@@ -248,6 +267,8 @@ pub struct Converted {
     pub text: String,
     pub fields: usize,
     pub unmapped: Vec<String>,
+    /// The source is a deprecated template (a current one may share its name).
+    pub deprecated: bool,
 }
 
 /// Imports one file (`from` as given, else by its name).
@@ -320,6 +341,7 @@ pub fn import_text(file: &str, text: &str, format: Format) -> Result<Converted, 
         profile: draft.name.clone(),
         file_name,
         fields: draft.fields.len(),
+        deprecated: draft.deprecated,
         unmapped: draft
             .unmapped
             .iter()
@@ -409,86 +431,6 @@ fn get<'a>(node: &'a Node, key: &str) -> Option<&'a Node> {
         .find(|(k, _)| k.name == key)
         .map(|(_, v)| v)
         .filter(|v| v.kind != Kind::Null)
-}
-
-/// `iogate profile import`: converts every file, writes the profiles into `out` (or prints
-/// them), prints the report; the exit code: 0 every file imported, 1 some could not be.
-pub fn run(files: &[PathBuf], from: Option<&str>, out: Option<&Path>) -> u8 {
-    let from = match from.map(Format::parse).transpose() {
-        Ok(from) => from,
-        Err(e) => {
-            eprintln!("iogate profile import: {e}");
-            return crate::EXIT_CONFIG as u8;
-        }
-    };
-    if let Some(dir) = out
-        && let Err(e) = std::fs::create_dir_all(dir)
-    {
-        eprintln!(
-            "iogate profile import: cannot create {}: {e}",
-            dir.display()
-        );
-        return 1;
-    }
-    let mut failed = 0;
-    let mut names: std::collections::HashMap<String, String> = std::collections::HashMap::new();
-    for path in files {
-        match import_file(path, from) {
-            Ok(c) if names.contains_key(&c.profile.to_ascii_lowercase()) => {
-                let first = &names[&c.profile.to_ascii_lowercase()];
-                eprintln!(
-                    "{}: profile {} was imported from {first} already: not written (profile names are unique)",
-                    path.display(),
-                    c.profile
-                );
-                failed += 1;
-            }
-            Ok(c) => {
-                names.insert(c.profile.to_ascii_lowercase(), path.display().to_string());
-                let written = match out {
-                    Some(dir) => {
-                        let target = dir.join(&c.file_name);
-                        match std::fs::write(&target, &c.text) {
-                            Ok(()) => target.display().to_string(),
-                            Err(e) => {
-                                eprintln!(
-                                    "{}: cannot write {}: {e}",
-                                    path.display(),
-                                    target.display()
-                                );
-                                failed += 1;
-                                continue;
-                            }
-                        }
-                    }
-                    None => {
-                        println!("---\n{}", c.text);
-                        "standard output".to_owned()
-                    }
-                };
-                eprintln!(
-                    "{}: profile {} ({} fields) to {written}; {} not imported",
-                    path.display(),
-                    c.profile,
-                    c.fields,
-                    c.unmapped.len()
-                );
-                for line in &c.unmapped {
-                    eprintln!("  {line}");
-                }
-            }
-            Err(e) => {
-                eprintln!("{e}");
-                failed += 1;
-            }
-        }
-    }
-    if failed > 0 {
-        eprintln!("{failed} of {} files not imported", files.len());
-        1
-    } else {
-        0
-    }
 }
 
 #[cfg(test)]

@@ -2,7 +2,7 @@
 //! registers, parameters, sub-devices and channels of unsupported kinds or formats reported.
 
 use super::{Draft, Imported, entries, get, identifier, num, scalar};
-use crate::codec::{ByteOrder, IecType};
+use crate::codec::{ByteOrder, IecType, Switch};
 use crate::profile::{Direction, RegisterKind};
 use crate::yaml::{Kind, Node};
 
@@ -34,6 +34,8 @@ const DISPLAY_KEYS: &[&str] = &[
     "read_rate_limit_ms",
     "sporadic",
     "id",
+    "on_value",
+    "off_value",
 ];
 
 pub(super) fn read(root: &Node) -> Result<Draft, String> {
@@ -55,7 +57,12 @@ pub(super) fn read(root: &Node) -> Result<Draft, String> {
         name: identifier(&type_name),
         description: get(root, "title")
             .and_then(scalar)
+            .map(|title| translated(device, &title))
             .or_else(|| Some(type_name.clone())),
+        deprecated: matches!(
+            get(root, "deprecated").map(|n| &n.kind),
+            Some(Kind::Bool(true))
+        ),
         ..Draft::default()
     };
     for (key, value) in entries(device) {
@@ -107,7 +114,6 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
                 }
                 "error_value" => "an error value: iogate takes it as a value",
                 "round_to" => "rounding: iogate keeps the full value",
-                "on_value" | "off_value" => "switch values other than 1/0: iogate writes 1/0",
                 "write_address" => "written at another address: iogate writes where it reads",
                 "unsupported_value" => {
                     "a value meaning \"unsupported\": iogate takes it as a value"
@@ -194,7 +200,15 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
                 .and_then(|t| unit_of(&t))
         }),
         description: None,
+        switch: None,
         line,
+    };
+    let switch = match switch_values(channel) {
+        Ok(switch) => switch,
+        Err(why) => {
+            draft.skip(line, format!("channel `{name}`: {why}"));
+            return;
+        }
     };
     if field.scale == 0.0 {
         draft.skip(line, format!("channel `{name}`: scale 0"));
@@ -203,12 +217,31 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
     if kind.is_bit() || bit.is_some() {
         field.scale = 1.0;
         field.offset = 0.0;
+        match switch {
+            Some((on, off)) if on > 1 || off > 1 => {
+                draft.skip(line, format!("channel `{name}`: on_value {on} / off_value {off} on a bit (0 or 1): not a switch iogate can write faithfully"));
+                return;
+            }
+            Some((on, off)) if (on, off) != (1, 0) => field.switch = Some(Switch { on, off }),
+            _ => {}
+        }
         draft.add(field, &name);
         return;
     }
     let format = get(channel, "format")
         .and_then(scalar)
         .unwrap_or_else(|| "u16".to_owned());
+    if let Some((on, off)) = switch {
+        // A switch in a register: a BOOL that holds exactly its two values.
+        let one_register = matches!(format.as_str(), "u16" | "s16" | "u8" | "s8");
+        if !one_register || field.scale != 1.0 || field.offset != 0.0 {
+            draft.skip(line, format!("channel `{name}`: on_value {on} / off_value {off} on a {format} register{}: an iogate switch is one unscaled register", if one_register { " with scale or offset" } else { "" }));
+            return;
+        }
+        field.switch = Some(Switch { on, off });
+        draft.add(field, &name);
+        return;
+    }
     let (ty, words) = match format.as_str() {
         "u16" => (IecType::Uint, 1),
         "s16" => (IecType::Int, 1),
@@ -254,14 +287,60 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         field.scale = 1.0;
         field.offset = 0.0;
     } else if (field.scale != 1.0 || field.offset != 0.0) && !ty.is_real() {
-        // A scaled integer is a REAL read from that integer.
-        field.ty = IecType::Real;
+        // A scaled integer is a REAL (LREAL past 16 bits) read from that integer.
+        field.ty = super::scaled_type(ty);
         field.raw_type = Some(ty);
     } else {
         field.ty = ty;
         field.word_count = (words > 1).then_some(words);
     }
     draft.add(field, &name);
+}
+
+/// A text as the template shows it in English: a key of `device.translations` (its `en`
+/// entry, else the first language that has it), else the text itself.
+fn translated(device: &Node, text: &str) -> String {
+    let Some(translations) = get(device, "translations") else {
+        return text.to_owned();
+    };
+    let in_language = |(_, table): &(crate::yaml::Key, Node)| get(table, text).and_then(scalar);
+    let entries = entries(translations);
+    entries
+        .iter()
+        .filter(|(lang, _)| lang.name == "en")
+        .chain(entries.iter())
+        .find_map(in_language)
+        .unwrap_or_else(|| text.to_owned())
+}
+
+/// A channel's `on_value`/`off_value` as raw register values (wb-mqtt-serial writes 0 for
+/// "off" where `off_value` is not given), or why they cannot be: a value past 16 bits, or
+/// one value for both states.
+fn switch_values(channel: &Node) -> Result<Option<(u16, u16)>, String> {
+    let value = |key: &str| -> Result<Option<u16>, String> {
+        let Some(node) = get(channel, key) else {
+            return Ok(None);
+        };
+        let text = scalar(node).unwrap_or_default();
+        match num(node) {
+            Some(x) if x.fract() == 0.0 && (0.0..=65535.0).contains(&x) => Ok(Some(x as u16)),
+            Some(x) if x.fract() == 0.0 && (-32768.0..0.0).contains(&x) => {
+                Ok(Some(x as i16 as u16))
+            }
+            _ => Err(format!("`{key}` {text} is not a 16-bit register value")),
+        }
+    };
+    let (on, off) = (value("on_value")?, value("off_value")?);
+    if on.is_none() && off.is_none() {
+        return Ok(None);
+    }
+    let (on, off) = (on.unwrap_or(1), off.unwrap_or(0));
+    if on == off {
+        return Err(format!(
+            "on_value and off_value are both {on}: a write of TRUE or FALSE would say the same"
+        ));
+    }
+    Ok(Some((on, off)))
 }
 
 /// The unit a wb-mqtt-serial control type implies (its MQTT conventions), where it has one.

@@ -48,6 +48,7 @@ pub(super) fn read_field(
         order: register.byte_order,
         scale: register.scale,
         offset: register.offset,
+        switch: register.switch,
     };
     Some(Field {
         name,

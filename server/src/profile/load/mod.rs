@@ -39,6 +39,8 @@ const REGISTER_KEYS: &[&str] = &[
     "byte_order",
     "word_count",
     "raw_type",
+    "on_value",
+    "off_value",
 ];
 
 /// Names a profile field may not take: the generated function block already has them.

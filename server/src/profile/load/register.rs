@@ -2,7 +2,7 @@
 //! field's type and direction and the profile's protocol; `word_count` resolved.
 
 use super::{MAX_STRING_WORDS, REGISTER_KEYS, iec_type, one_of};
-use crate::codec::{ByteOrder, IecType, full_words};
+use crate::codec::{ByteOrder, IecType, Switch, full_words};
 use crate::profile::{Direction, Protocol, Register, RegisterKind};
 use crate::yaml::{MapReader, Node, Report};
 
@@ -26,6 +26,10 @@ struct Keys<'a> {
     words_node: Option<&'a Node>,
     raw_type: Option<IecType>,
     raw_node: Option<&'a Node>,
+    on_value: Option<u16>,
+    on_node: Option<&'a Node>,
+    off_value: Option<u16>,
+    off_node: Option<&'a Node>,
 }
 
 impl Keys<'_> {
@@ -85,6 +89,14 @@ fn read_keys<'a>(node: &'a Node, ctx: String, report: &mut Report) -> Option<Key
         .map(|w| w as u16);
     let raw_node = map.get("raw_type");
     let raw_type = raw_node.and_then(|n| iec_type(n, report, &at("raw_type")));
+    let on_node = map.get("on_value");
+    let on_value = on_node
+        .and_then(|n| n.int_in(report, &at("on_value"), 0, 65535))
+        .map(|v| v as u16);
+    let off_node = map.get("off_value");
+    let off_value = off_node
+        .and_then(|n| n.int_in(report, &at("off_value"), 0, 65535))
+        .map(|v| v as u16);
     map.finish(report, &ctx, REGISTER_KEYS);
     Some(Keys {
         line: node.line,
@@ -105,6 +117,10 @@ fn read_keys<'a>(node: &'a Node, ctx: String, report: &mut Report) -> Option<Key
         words_node,
         raw_type,
         raw_node,
+        on_value,
+        on_node,
+        off_value,
+        off_node,
     })
 }
 
@@ -124,6 +140,7 @@ pub(super) fn read_register(
     let ty = ty?;
     check_type(&keys, ty, report);
     let word_count = word_count(&keys, kind, ty, report);
+    let switch = switch(&keys, kind, ty, report);
     let address = keys.address?;
     let span = if kind.is_bit() {
         1
@@ -148,7 +165,68 @@ pub(super) fn read_register(
         word_count,
         word_count_set: keys.word_count.is_some(),
         raw_type: keys.raw_type,
+        switch,
     })
+}
+
+/// A BOOL's `on_value`/`off_value`: on a bit (a coil, a discrete input, a register's `bit`)
+/// each is 0 or 1, the missing one the other bit, so `on_value: 0` is an inverted switch; on
+/// a whole register any two 16-bit values, the missing one 1 (on) or 0 (off). The two must
+/// differ: a write must say one thing.
+fn switch(keys: &Keys<'_>, kind: RegisterKind, ty: IecType, report: &mut Report) -> Option<Switch> {
+    let node = keys.on_node.or(keys.off_node)?;
+    let key = keys.at(if keys.on_node.is_some() {
+        "on_value"
+    } else {
+        "off_value"
+    });
+    if kind == RegisterKind::Virtual {
+        report.push(
+            node.line,
+            key,
+            "has no effect on a virtual register (simulated fields hold typed values)",
+        );
+        return None;
+    }
+    if ty != IecType::Bool {
+        report.push(
+            node.line,
+            key,
+            format!("on_value/off_value are the raw values of a BOOL switch, not of {ty}"),
+        );
+        return None;
+    }
+    let on_bit = kind.is_bit() || keys.bit.is_some();
+    let (on, off) = match (keys.on_value, keys.off_value) {
+        (Some(on), Some(off)) => (on, off),
+        (Some(on), None) if on_bit => (on, 1 - on.min(1)),
+        (None, Some(off)) if on_bit => (1 - off.min(1), off),
+        (Some(on), None) => (on, 0),
+        (None, Some(off)) => (1, off),
+        (None, None) => return None, // a value out of range, reported
+    };
+    if on_bit && (on > 1 || off > 1) {
+        let what = if kind.is_bit() {
+            kind.name()
+        } else {
+            "register bit"
+        };
+        report.push(
+            node.line,
+            keys.at("on_value"),
+            format!("a {what} is 0 or 1: on_value {on} and off_value {off} must each be 0 or 1"),
+        );
+        return None;
+    }
+    if on == off {
+        report.push(
+            node.line,
+            keys.at("on_value"),
+            format!("on_value and off_value are both {on}: a switch needs two different values"),
+        );
+        return None;
+    }
+    Some(Switch { on, off })
 }
 
 /// What the register kind allows: virtual registers only in simulated profiles, outputs
@@ -323,5 +401,75 @@ fn allowed_word_counts(ty: IecType) -> String {
             16 * full_words(t)
         ),
         _ => "1".to_owned(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::codec::{Switch, Value};
+    use crate::profile::load_str;
+
+    fn field(register: &str) -> String {
+        format!(
+            "name: X\nfields:\n  - {{ name: A, type: BOOL, direction: output, register: {{ {register} }} }}\n"
+        )
+    }
+
+    fn problems(text: &str) -> String {
+        load_str("p.yaml", text)
+            .err()
+            .map(|p| p.to_string())
+            .unwrap_or_default()
+    }
+
+    #[test]
+    fn on_value_zero_makes_a_coil_inverted() {
+        let p = load_str("p.yaml", &field("address: 54, kind: coil, on_value: 0")).expect("loads");
+        let f = &p.fields[0];
+        assert_eq!(f.register.switch, Some(Switch { on: 0, off: 1 }));
+        assert!(!f.encoding.wire_bit(true), "TRUE is written as 0");
+        assert_eq!(f.encoding.decode_bit(false), Value::Bool(true));
+    }
+
+    #[test]
+    fn a_register_switch_takes_two_sixteen_bit_values() {
+        let p = load_str(
+            "p.yaml",
+            &field("address: 3, kind: holding_register, on_value: 0xA5, off_value: 0x5A"),
+        )
+        .expect("loads");
+        assert_eq!(
+            p.fields[0].encoding.encode(&Value::Bool(true)),
+            Ok(vec![0xA5])
+        );
+        let only_on = load_str(
+            "p.yaml",
+            &field("address: 3, kind: holding_register, on_value: 7"),
+        )
+        .expect("loads");
+        assert_eq!(
+            only_on.fields[0].register.switch,
+            Some(Switch { on: 7, off: 0 })
+        );
+    }
+
+    #[test]
+    fn switch_values_that_cannot_be_written_faithfully_are_refused_with_their_line() {
+        let text = field("address: 0, kind: coil, on_value: 2");
+        assert!(
+            problems(&text).contains("p.yaml:3: field A: register.on_value: a coil is 0 or 1"),
+            "{}",
+            problems(&text)
+        );
+        let text = field("address: 0, kind: holding_register, on_value: 5, off_value: 5");
+        assert!(problems(&text).contains("both 5"), "{}", problems(&text));
+        let text = "name: X\nfields:\n  - { name: A, type: INT, direction: output, register: { address: 0, kind: holding_register, on_value: 1 } }\n";
+        assert!(
+            problems(text).contains("raw values of a BOOL switch, not of INT"),
+            "{}",
+            problems(text)
+        );
+        let text = field("address: 0, kind: holding_register, bit: 3, off_value: 1, on_value: 1");
+        assert!(problems(&text).contains("both 1"), "{}", problems(&text));
     }
 }
