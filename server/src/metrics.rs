@@ -74,6 +74,7 @@ pub const MQTT_BUFFER_BYTES: &str = "iogate_mqtt_buffer_bytes";
 pub const MQTT_BUFFER_OLDEST: &str = "iogate_mqtt_buffer_oldest_seconds";
 pub const MQTT_BUFFER_DROPPED: &str = "iogate_mqtt_buffer_dropped";
 pub const MQTT_BUFFER_REPLAYED: &str = "iogate_mqtt_buffer_replayed";
+pub const MQTT_DROPPED_IN: &str = "iogate_mqtt_incoming_dropped";
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct LinkLabels {

@@ -20,6 +20,9 @@ pub(crate) struct MqttStatus {
     pub(crate) bytes_out: u64,
     pub(crate) messages_in: u64,
     pub(crate) bytes_in: u64,
+    /// Packets from the broker read past and dropped: over the 1 MiB accepted, malformed,
+    /// or of a type a client does not receive (each logged with its reason).
+    pub(crate) dropped_in: u64,
     /// Writes refused (bad topic, payload or value, or writes not enabled).
     pub(crate) writes_refused: u64,
     /// Writes accepted from `/set`, DCMD.

@@ -20,6 +20,7 @@ const KEYS: &[&str] = &[
     "version",
     "keep_alive",
     "clean_start",
+    "reconnect_max",
     "sparkplug",
     "json",
     "report",
@@ -33,6 +34,9 @@ const REPORT_KEYS: &[&str] = &["deadband", "min_interval", "max_interval"];
 const BUFFER_KEYS: &[&str] = &["dir", "max_bytes", "max_age", "replay_rate", "fsync"];
 
 pub(crate) const DEFAULT_KEEP_ALIVE: Duration = Duration::from_secs(30);
+/// The longest wait between attempts to reach the broker (the waits double up to it, each
+/// with a quarter of jitter): short, so a host sees the node born soon after an outage.
+pub(crate) const DEFAULT_RECONNECT_MAX: Duration = Duration::from_secs(5);
 pub(crate) const DEFAULT_MIN_INTERVAL: Duration = Duration::ZERO;
 pub(crate) const DEFAULT_MAX_INTERVAL: Duration = Duration::ZERO;
 pub(crate) const DEFAULT_MAX_BYTES: u64 = 256 << 20;
@@ -235,6 +239,8 @@ pub struct MqttConfig {
     pub(crate) version: MqttVersion,
     pub(crate) keep_alive: Duration,
     pub(crate) clean_start: bool,
+    /// The longest wait between attempts to connect.
+    pub(crate) reconnect_max: Duration,
     pub(crate) sparkplug: Option<SparkplugConfig>,
     pub(crate) json: Option<JsonConfig>,
     pub(crate) report: ReportConfig,
@@ -421,9 +427,21 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
             }
         }),
     };
+    let clean_line = map.get("clean_start").map_or(node.line, |n| n.line);
     let clean_start = match map.get("clean_start") {
         None => Some(true),
         Some(n) => boolean(n, report, &at("clean_start")),
+    };
+    let reconnect_max = match map.get("reconnect_max") {
+        None => Some(DEFAULT_RECONNECT_MAX),
+        Some(n) => duration_at(n, report, &at("reconnect_max")).and_then(|d| {
+            if (Duration::from_millis(500)..=Duration::from_secs(3600)).contains(&d) {
+                Some(d)
+            } else {
+                report.push(n.line, at("reconnect_max"), "must be from 500ms to 1h");
+                None
+            }
+        }),
     };
     let sparkplug_node = map.get("sparkplug");
     let json_node = map.get("json");
@@ -463,6 +481,13 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
             "a client certificate needs its key, and a key its certificate",
         );
     }
+    if sparkplug_node.is_some() && clean_start == Some(false) {
+        report.push(
+            clean_line,
+            at("clean_start"),
+            "a Sparkplug B edge node connects with a clean session (Sparkplug 3.0: Clean Session, with MQTT 5 Clean Start and no session expiry): remove clean_start: false",
+        );
+    }
     if client_id.as_deref() == Some("") && clean_start == Some(false) {
         report.push(
             node.line,
@@ -479,6 +504,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
         version: version.unwrap_or_default(),
         keep_alive: keep_alive.unwrap_or(DEFAULT_KEEP_ALIVE),
         clean_start: clean_start.unwrap_or(true),
+        reconnect_max: reconnect_max.unwrap_or(DEFAULT_RECONNECT_MAX),
         sparkplug,
         json,
         report: report_config,
@@ -781,6 +807,31 @@ mod tests {
                 "missing {e:?} in {problems:#?}"
             );
         }
+    }
+
+    #[test]
+    fn a_sparkplug_node_keeps_no_session_and_the_reconnect_cap_is_bounded() {
+        let (_, problems) = read_text(
+            "mqtt:
+  url: mqtt://broker
+  client_id: gw
+  clean_start: false
+  reconnect_max: 2h
+  sparkplug: { group_id: plant1, edge_node_id: line1 }
+",
+        );
+        for e in [
+            "4: mqtt.clean_start: a Sparkplug B edge node connects with a clean session",
+            "5: mqtt.reconnect_max: must be from 500ms to 1h",
+        ] {
+            assert!(
+                problems.iter().any(|p| p.starts_with(e)),
+                "missing {e:?} in {problems:#?}"
+            );
+        }
+        let (config, problems) = read_text("mqtt:\n  url: mqtt://broker\n  json: { prefix: a }\n");
+        assert_eq!(problems, Vec::<String>::new());
+        assert_eq!(config.expect("config").reconnect_max, DEFAULT_RECONNECT_MAX);
     }
 
     #[test]

@@ -35,6 +35,7 @@ pub(crate) struct MqttMetrics {
     buffer_oldest: Gauge,
     buffer_dropped: Counter,
     buffer_replayed: Counter,
+    dropped_in: Counter,
 }
 
 fn grow(counter: &Counter, to: u64) {
@@ -58,6 +59,7 @@ impl MqttMetrics {
             buffer_oldest: Gauge::default(),
             buffer_dropped: Counter::default(),
             buffer_replayed: Counter::default(),
+            dropped_in: Counter::default(),
         };
         registry.register(
             MQTT_CONNECTED,
@@ -114,6 +116,11 @@ impl MqttMetrics {
             "Messages replayed from the buffer and acknowledged",
             m.buffer_replayed.clone(),
         );
+        registry.register(
+            MQTT_DROPPED_IN,
+            "Packets from the broker read past and dropped: too big, malformed or unexpected",
+            m.dropped_in.clone(),
+        );
         MqttMetrics { registry, ..m }
     }
 
@@ -145,5 +152,6 @@ impl MqttMetrics {
         gauge(&self.buffer_oldest, s.buffer.oldest_age_s);
         grow(&self.buffer_dropped, s.buffer.dropped);
         grow(&self.buffer_replayed, s.buffer.replayed);
+        grow(&self.dropped_in, s.dropped_in);
     }
 }

@@ -89,6 +89,8 @@ pub(crate) struct Connection {
     io: Pin<Box<dyn Io>>,
     version: MqttVersion,
     buf: Vec<u8>,
+    /// Bytes of a packet too big to keep still to be read past.
+    skip: usize,
     keep_alive: Duration,
     /// When a packet was last sent (a ping is due `keep_alive` after).
     last_sent: Instant,
@@ -147,6 +149,7 @@ impl Connection {
             io,
             version: config.version,
             buf: Vec::with_capacity(4096),
+            skip: 0,
             keep_alive: Duration::from_secs(u64::from(connect.keep_alive)),
             last_sent: Instant::now(),
             ping_sent: None,
@@ -174,12 +177,20 @@ impl Connection {
         Ok(())
     }
 
-    /// The next packet from the broker. Cancel-safe: bytes read stay in the buffer.
+    /// The next packet from the broker. Cancel-safe: bytes read stay in the buffer. A packet
+    /// read past ([`Incoming::Dropped`]) is acknowledged when it is a QoS 1 publish and
+    /// handed on to be reported.
     pub(crate) async fn read(&mut self) -> Result<Incoming, ConnError> {
         loop {
             if let Some(packet) = packet::decode(self.version, &mut self.buf)? {
                 if let Incoming::Disconnect { code } = packet {
                     return Err(ConnError::Disconnected(code));
+                }
+                if let Incoming::Dropped { pkid, rest, .. } = &packet {
+                    self.skip = *rest;
+                    if let Some(pkid) = *pkid {
+                        self.puback(pkid).await?;
+                    }
                 }
                 if packet == Incoming::PingResp {
                     self.ping_sent = None;
@@ -194,7 +205,9 @@ impl Connection {
             if n == 0 {
                 return Err(ConnError::Closed);
             }
-            self.buf.extend_from_slice(&chunk[..n]);
+            let past = self.skip.min(n);
+            self.skip -= past;
+            self.buf.extend_from_slice(&chunk[past..n]);
         }
     }
 

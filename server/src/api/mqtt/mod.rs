@@ -45,9 +45,8 @@ use packet::{Connect, Incoming, Will};
 use report::{Decision, Reporter};
 use sparkplug::{Aliases, Form, HostState};
 
-/// Waits between attempts to connect: doubling from the first to the last.
+/// The first wait between attempts to connect: doubling up to `reconnect_max`.
 const RECONNECT_MIN: Duration = Duration::from_millis(500);
-const RECONNECT_MAX: Duration = Duration::from_secs(30);
 /// Writes from `/set` whose final outcome is still to be published, at most.
 const MAX_FOLLOWED_WRITES: usize = 1024;
 /// How often followed writes are looked at, the buffer synced and the status copied.
@@ -269,6 +268,18 @@ pub(crate) fn spawn(
     Ok(running)
 }
 
+/// `wait` give or take a quarter, so that gateways that lost one broker together do not
+/// all come back in the same instant.
+fn jittered(wait: Duration) -> Duration {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    // A multiplicative hash of the clock's nanoseconds: 0-1023, evenly spread.
+    let spread = nanos.wrapping_mul(2_654_435_761) >> 22;
+    let quarter = wait / 4;
+    wait - quarter + quarter * 2 * spread / 1024
+}
+
 fn read_bd_seq(dir: &Path) -> Option<u8> {
     std::fs::read_to_string(dir.join("bdseq"))
         .ok()?
@@ -432,7 +443,7 @@ impl Task {
             self.keep_bd_seq();
             let connect = self.connect_packet();
             let tls = self.prepared.tls.clone();
-            let delay = wait;
+            let delay = jittered(wait);
             let attempt = async {
                 tokio::time::sleep(delay).await;
                 Connection::open(&config, tls.as_ref(), &connect).await
@@ -511,9 +522,12 @@ impl Task {
                     self.next_bd_seq();
                 }
                 Err(e) => {
+                    wait = (wait * 2).clamp(RECONNECT_MIN, config.reconnect_max);
                     tracing::warn!(broker = %config.url, error = %e, retry_in = ?wait, "cannot connect to the MQTT broker");
                     self.status.last_error = Some(e.to_string());
-                    wait = (wait * 2).clamp(RECONNECT_MIN, RECONNECT_MAX);
+                    // The CONNECT may have reached the broker (a lost CONNACK): its Will,
+                    // published later, must not carry the next session's bdSeq.
+                    self.next_bd_seq();
                 }
             }
             self.publish_status();
@@ -1252,6 +1266,10 @@ impl Task {
                     online.conn.puback(p.pkid).await?;
                 }
                 return Ok(self.command(online, &p.topic, &p.payload).await);
+            }
+            Incoming::Dropped { why, topic, .. } => {
+                self.status.dropped_in += 1;
+                tracing::warn!(error = %why, topic = topic.as_deref().unwrap_or("-"), "a packet from the broker read past and dropped");
             }
             Incoming::SubAck { codes, .. } if codes.iter().any(|&c| c >= 0x80) => {
                 tracing::warn!("the broker refused a subscription (commands or writes)");

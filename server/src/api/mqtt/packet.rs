@@ -5,7 +5,9 @@
 
 use crate::config::mqtt::MqttVersion;
 
-/// The largest packet the gateway accepts from a broker; a bigger one ends the connection.
+/// The largest packet the gateway takes from a broker (MQTT 5 announces it as the Maximum
+/// Packet Size). A bigger one is read past without being kept, acknowledged when it is a
+/// QoS 1 publish, and reported: never the end of the connection.
 pub(crate) const MAX_INCOMING: usize = 1 << 20;
 
 /// A message the broker publishes for the client if the connection ends without a
@@ -58,6 +60,18 @@ pub(crate) enum Incoming {
     /// MQTT 5: the broker ends the connection, with its reason.
     Disconnect {
         code: u8,
+    },
+    /// A packet read past: too big to keep, malformed, or of a type a client does not
+    /// receive. Its framing was whole, so the connection goes on.
+    Dropped {
+        why: PacketError,
+        /// The topic of a publish, where it could be read.
+        topic: Option<String>,
+        /// The packet id of a QoS 1 publish, to acknowledge it (the broker would otherwise
+        /// hold it in flight).
+        pkid: Option<u16>,
+        /// Bytes of the packet still to come, to be read past as they arrive.
+        rest: usize,
     },
 }
 
@@ -139,14 +153,17 @@ pub(crate) fn connect(version: MqttVersion, c: &Connect) -> Vec<u8> {
     body.push(flags);
     put_u16(&mut body, c.keep_alive);
     if version == MqttVersion::V5 {
+        let mut properties = Vec::new();
         // Session Expiry Interval: a kept session outlives the connection by an hour.
-        if c.clean_start {
-            put_varint(&mut body, 0);
-        } else {
-            put_varint(&mut body, 5);
-            body.push(0x11);
-            body.extend_from_slice(&3600u32.to_be_bytes());
+        if !c.clean_start {
+            properties.push(0x11);
+            properties.extend_from_slice(&3600u32.to_be_bytes());
         }
+        // Maximum Packet Size: the broker sends nothing bigger (it drops it instead).
+        properties.push(0x27);
+        properties.extend_from_slice(&(MAX_INCOMING as u32).to_be_bytes());
+        put_varint(&mut body, properties.len());
+        body.extend_from_slice(&properties);
     }
     put_str(&mut body, &c.client_id);
     if let Some(w) = &c.will {
@@ -232,13 +249,64 @@ pub(crate) fn decode(
         }
     }
     if len > MAX_INCOMING {
-        return Err(PacketError::TooBig(len));
+        return Ok(too_big(buf, first, header, len));
     }
     if buf.len() < header + len {
         return Ok(None);
     }
     let body: Vec<u8> = buf.drain(..header + len).skip(header).collect();
-    parse(version, first, &body).map(Some)
+    Ok(Some(parse(version, first, &body).unwrap_or_else(|why| {
+        let (topic, pkid) = publish_head(first, &body);
+        Incoming::Dropped {
+            why,
+            topic,
+            pkid,
+            rest: 0,
+        }
+    })))
+}
+
+/// A packet over [`MAX_INCOMING`]: once its head is in (a publish's topic and packet id,
+/// at most 65,539 bytes), what of it is buffered is dropped and the rest is to be read past.
+fn too_big(buf: &mut Vec<u8>, first: u8, header: usize, len: usize) -> Option<Incoming> {
+    let body = &buf[header..];
+    if first >> 4 == 3 {
+        let id_len = if (first >> 1) & 3 > 0 { 2 } else { 0 };
+        let topic_len = body
+            .get(..2)
+            .map(|b| usize::from(u16::from_be_bytes([b[0], b[1]])))?;
+        if body.len() < (2 + topic_len + id_len).min(len) {
+            return None;
+        }
+    }
+    let (topic, pkid) = publish_head(first, body);
+    let take = buf.len().min(header + len);
+    buf.drain(..take);
+    Some(Incoming::Dropped {
+        why: PacketError::TooBig(len),
+        topic,
+        pkid,
+        rest: header + len - take,
+    })
+}
+
+/// The topic (lossy) and QoS 1 packet id at the head of a publish's `body`, where they are.
+fn publish_head(first: u8, body: &[u8]) -> (Option<String>, Option<u16>) {
+    if first >> 4 != 3 {
+        return (None, None);
+    }
+    let Ok(topic_len) = u16_at(body, 0, "PUBLISH").map(usize::from) else {
+        return (None, None);
+    };
+    let topic = body
+        .get(2..2 + topic_len)
+        .map(|t| String::from_utf8_lossy(t).into_owned());
+    let pkid = if (first >> 1) & 3 == 1 {
+        u16_at(body, 2 + topic_len, "PUBLISH").ok()
+    } else {
+        None
+    };
+    (topic, pkid)
 }
 
 /// Reads an MQTT 5 properties block at `at`, returning where it ends.
@@ -368,6 +436,27 @@ mod tests {
     use super::*;
 
     #[test]
+    fn an_mqtt_5_connect_announces_the_maximum_packet_size() {
+        let bytes = connect(
+            MqttVersion::V5,
+            &Connect {
+                client_id: "gw".into(),
+                keep_alive: 30,
+                clean_start: true,
+                username: None,
+                password: None,
+                will: None,
+            },
+        );
+        // Header, "MQTT", level 5, flags, keep-alive, then 5 bytes of properties.
+        assert_eq!(
+            &bytes[2..12],
+            [0, 4, b'M', b'Q', b'T', b'T', 5, 0x02, 0, 30]
+        );
+        assert_eq!(&bytes[12..18], [5, 0x27, 0, 0x10, 0, 0]);
+    }
+
+    #[test]
     fn a_3_1_1_connect_is_the_standards_bytes() {
         let bytes = connect(
             MqttVersion::V311,
@@ -451,29 +540,82 @@ mod tests {
         );
     }
 
+    fn dropped(why: PacketError, topic: Option<&str>, pkid: Option<u16>, rest: usize) -> Incoming {
+        Incoming::Dropped {
+            why,
+            topic: topic.map(str::to_owned),
+            pkid,
+            rest,
+        }
+    }
+
     #[test]
-    fn bad_bytes_are_errors_not_panics() {
+    fn bad_packets_are_read_past_and_only_lost_framing_is_an_error() {
         let v = MqttVersion::V5;
         assert_eq!(
             decode(v, &mut vec![0x30, 0xFF, 0xFF, 0xFF, 0xFF, 1]),
             Err(PacketError::Length)
         );
+        let mut b = vec![0x30, 3, 0, 9, b'a', 0xD0, 0];
         assert_eq!(
-            decode(v, &mut vec![0x30, 0xFF, 0xFF, 0xFF, 0x7F]),
-            Err(PacketError::TooBig(268_435_455))
+            decode(v, &mut b),
+            Ok(Some(dropped(
+                PacketError::Malformed("PUBLISH"),
+                None,
+                None,
+                0
+            )))
         );
         assert_eq!(
-            decode(v, &mut vec![0x30, 3, 0, 9, b'a']),
-            Err(PacketError::Malformed("PUBLISH"))
+            decode(v, &mut b),
+            Ok(Some(Incoming::PingResp)),
+            "the next packet is read"
         );
         assert_eq!(
             decode(v, &mut vec![0x10, 0]),
-            Err(PacketError::Unexpected(1))
+            Ok(Some(dropped(PacketError::Unexpected(1), None, None, 0)))
         );
+        // A QoS 1 publish with a topic that is not UTF-8: dropped, its id kept to acknowledge.
         assert_eq!(
-            decode(v, &mut vec![0x30, 4, 0, 1, 0xFF, 0]),
-            Err(PacketError::Topic)
+            decode(
+                MqttVersion::V311,
+                &mut vec![0x32, 6, 0, 2, 0xFF, b'a', 1, 2]
+            ),
+            Ok(Some(dropped(
+                PacketError::Topic,
+                Some("\u{fffd}a"),
+                Some(258),
+                0
+            )))
         );
+    }
+
+    #[test]
+    fn a_publish_too_big_to_keep_is_dropped_with_its_topic_and_id_and_the_rest_read_past() {
+        let v = MqttVersion::V311;
+        let big = Publish {
+            topic: "spBv1.0/g/NCMD/n".into(),
+            payload: vec![0; MAX_INCOMING + 10],
+            qos: 1,
+            retain: true,
+            pkid: 7,
+        };
+        let bytes = publish(v, &big);
+        let total = bytes.len();
+        // The head alone is not enough to say more than "wait".
+        let mut head = bytes[..5].to_vec();
+        assert_eq!(decode(v, &mut head), Ok(None));
+        let mut some = bytes[..4096].to_vec();
+        assert_eq!(
+            decode(v, &mut some),
+            Ok(Some(dropped(
+                PacketError::TooBig(total - 4),
+                Some("spBv1.0/g/NCMD/n"),
+                Some(7),
+                total - 4096
+            )))
+        );
+        assert!(some.is_empty(), "nothing of it is kept");
     }
 
     proptest::proptest! {

@@ -299,7 +299,8 @@ fn bd_seq_metric(bd_seq: u8, now_ms: u64) -> Metric {
     Metric {
         name: Some(BD_SEQ.into()),
         timestamp: Some(now_ms),
-        datatype: Some(DataType::UInt64 as u32),
+        // Sparkplug 3.0 types `bdSeq` Int64 (its values wrap at 255).
+        datatype: Some(DataType::Int64 as u32),
         value: Some(MetricValue::LongValue(u64::from(bd_seq))),
         ..Metric::default()
     }

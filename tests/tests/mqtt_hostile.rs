@@ -1,0 +1,186 @@
+//! What another client on the broker can send the gateway, against a real Mosquitto with
+//! paho-mqtt and pysparkplug as the independent peers: nothing it sends ends the session.
+
+use iogate_tests::TestGateway;
+use iogate_tests::mqtt::{Broker, Message, Peer};
+
+fn sparkplug_config(port: u16, extra: &str) -> String {
+    format!(
+        "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
+mqtt:
+  url: mqtt://127.0.0.1:{port}
+  client_id: iogate-hostile-{port}
+  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
+  writes: true
+{extra}"
+    )
+}
+
+#[tokio::test]
+async fn a_retained_command_too_big_to_keep_is_read_past_and_the_session_lives_on() {
+    too_big_a_command("").await;
+}
+
+#[tokio::test]
+async fn over_mqtt_5_the_broker_is_told_the_maximum_packet_size_and_drops_it_itself() {
+    too_big_a_command("  version: 5\n").await;
+}
+
+/// A retained command over 1 MiB and then a command: the first is dropped (by the gateway
+/// over MQTT 3.1.1, by the broker over MQTT 5, which was told the Maximum Packet Size), the
+/// second taken, the session never ended.
+async fn too_big_a_command(extra: &str) {
+    let v5 = !extra.is_empty();
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut watcher = Peer::subscribe(&broker, "spBv1.0/plant1/NDEATH/#")
+        .await
+        .expect("paho");
+    // The sender hears nothing back: paho takes seconds over a 1 MiB message it receives.
+    let mut sender = Peer::subscribe(&broker, "iogate-test/quiet")
+        .await
+        .expect("paho");
+    let gw = TestGateway::start(&sparkplug_config(broker.port, extra))
+        .await
+        .expect("gateway");
+    gw.until("/api/v1/mqtt", "born", |s| {
+        s["sparkplug"]["born_devices"] == 1
+    })
+    .await
+    .expect("born");
+    // Over the 1 MiB the gateway keeps, retained, on the node's own command topic.
+    let big = "x".repeat((1 << 20) + 1024);
+    sender
+        .publish_retained("spBv1.0/plant1/NCMD/line1", &big)
+        .await
+        .expect("publish");
+    if !v5 {
+        let status = gw
+            .until("/api/v1/mqtt", "the packet reported", |s| {
+                s["dropped_in"] == 1
+            })
+            .await
+            .expect("dropped and counted");
+        assert_eq!(status["connected"], true, "{status:#}");
+    }
+    // The session goes on: a command after it is taken.
+    sender
+        .command(
+            "spBv1.0/plant1/DCMD/line1/sim",
+            serde_json::json!([{"name": "DO_0", "datatype": "BOOLEAN", "value": true}]),
+        )
+        .await
+        .expect("DCMD");
+    gw.until("/api/v1/devices/sim/fields/DO_0", "DO_0 written", |f| {
+        f["value"] == true
+    })
+    .await
+    .expect("written");
+    let metrics = gw.metrics().await.expect("metrics");
+    let dropped = if v5 { 0 } else { 1 };
+    assert!(
+        metrics.contains(&format!("iogate_mqtt_incoming_dropped_total {dropped}")),
+        "{metrics}"
+    );
+    let (_, status) = gw.get("/api/v1/mqtt").await.expect("status");
+    assert_eq!(status["reconnects"], 0, "{status:#}");
+    // One death, at the stop, and not a second one by the Will.
+    gw.shutdown().await;
+    let deaths = deaths_until_marker(&mut watcher).await;
+    assert_eq!(deaths.len(), 1, "{deaths:?}");
+    watcher.stop().await;
+    sender.stop().await;
+    broker.stop().await;
+}
+
+/// The `bdSeq` of every NDEATH the watcher (subscribed to NDEATH) sees before a marker it
+/// publishes itself.
+async fn deaths_until_marker(watcher: &mut Peer) -> Vec<serde_json::Value> {
+    let marker = "spBv1.0/plant1/NDEATH/iogate-test-marker";
+    watcher.publish(marker, "end").await.expect("marker");
+    let mut deaths = Vec::new();
+    loop {
+        let m = watcher.next().await.expect("message");
+        if m.topic == marker {
+            return deaths;
+        }
+        deaths.push(metric(&m, "bdSeq").expect("bdSeq")["value"].clone());
+    }
+}
+
+fn metric<'a>(m: &'a Message, name: &str) -> Option<&'a serde_json::Value> {
+    m.sparkplug["metrics"]
+        .as_array()?
+        .iter()
+        .find(|x| x["name"] == name)
+}
+
+/// A proxy to the broker that passes the first connection's CONNECT and then drops the
+/// connection before the CONNACK reaches the client (a lost answer); every later connection
+/// it passes whole.
+async fn losing_first_connack(broker: u16) -> u16 {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    tokio::spawn(async move {
+        let mut first = true;
+        while let Ok((mut client, _)) = listener.accept().await {
+            let Ok(mut upstream) = tokio::net::TcpStream::connect(("127.0.0.1", broker)).await
+            else {
+                continue;
+            };
+            if first {
+                first = false;
+                tokio::spawn(async move {
+                    use tokio::io::AsyncReadExt;
+                    let (mut from_client, mut to_broker) = (client, upstream);
+                    let mut buf = vec![0u8; 4096];
+                    // Pass the CONNECT, read the CONNACK, then close both sides.
+                    if let Ok(n) = from_client.read(&mut buf).await {
+                        use tokio::io::AsyncWriteExt;
+                        let _ = to_broker.write_all(&buf[..n]).await;
+                        let _ = to_broker.read(&mut buf).await;
+                    }
+                });
+            } else {
+                tokio::spawn(async move {
+                    let _ = tokio::io::copy_bidirectional(&mut client, &mut upstream).await;
+                });
+            }
+        }
+    });
+    port
+}
+
+#[tokio::test]
+async fn a_connect_whose_connack_was_lost_never_lends_its_bd_seq_to_the_next_session() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut watcher = Peer::subscribe(&broker, "spBv1.0/#").await.expect("paho");
+    let proxy = losing_first_connack(broker.port).await;
+    let gw = TestGateway::start(&sparkplug_config(proxy, ""))
+        .await
+        .expect("gateway");
+    // The abandoned attempt's Will arrives, and the live session's birth, in either order.
+    let mut will = None;
+    let mut birth = None;
+    while will.is_none() || birth.is_none() {
+        let m = watcher.next().await.expect("message");
+        let bd_seq = metric(&m, "bdSeq").map(|b| b["value"].clone());
+        if m.topic == "spBv1.0/plant1/NDEATH/line1" {
+            will = bd_seq;
+        } else if m.topic == "spBv1.0/plant1/NBIRTH/line1" {
+            birth = bd_seq;
+        }
+    }
+    let (will, birth) = (will.expect("will"), birth.expect("birth"));
+    assert_ne!(
+        will, birth,
+        "the Will of the lost attempt would kill the live session"
+    );
+    let (_, status) = gw.get("/api/v1/mqtt").await.expect("status");
+    assert_eq!(status["connected"], true, "{status:#}");
+    gw.shutdown().await;
+    watcher.stop().await;
+    broker.stop().await;
+}
