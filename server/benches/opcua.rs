@@ -3,7 +3,9 @@
 //! PATCH per device), and
 //!
 //! 1. one session monitoring all 10,000 fields;
-//! 2. 50 sessions monitoring 100 fields each (one device each).
+//! 2. 50 sessions monitoring 100 fields each (one device each);
+//! 3. no session at all, beside the same gateway without its `opcua:` section (what an
+//!    OPC UA server nobody uses costs).
 //!
 //! For each: notifications received against changes made, change-to-client latency (from
 //! the value's SourceTimestamp, when the simulated device took it, to its arrival at the
@@ -257,14 +259,27 @@ async fn main() -> anyhow::Result<()> {
         ));
     }
     let gw = common::start(&dir, &config)?;
+    let plain_dir = common::temp_dir("opcua-plain")?;
+    let plain_config = config.replace(
+        &format!(
+            "opcua: {{ listen: 127.0.0.1:{port}, security: [none], pki_dir: {} }}\n",
+            dir.join("pki").display()
+        ),
+        "",
+    );
+    let plain = common::start(&plain_dir, &plain_config)?;
     let url = format!("opc.tcp://127.0.0.1:{port}/");
     // The namespace index: the server's namespace array is [UA, application, iogate].
     let ns = 2;
     let idle_rss = common::rss_kib(gw.child.id()) as f64 / 1024.0;
     let rows = [
+        scenario("no session, opcua: configured", &gw, &url, ns, 0, 0).await?,
+        scenario("the same without opcua:", &plain, &url, ns, 0, 0).await?,
         scenario("1 session x 10,000 items", &gw, &url, ns, 1, DEVICES).await?,
         scenario("50 sessions x 100 items", &gw, &url, ns, 50, 1).await?,
     ];
+    drop(plain);
+    let per_item = (rows[2].rss_mib - idle_rss) * 1024.0 / (DEVICES * FIELDS) as f64;
     println!(
         "OPC UA subscriptions: {DEVICES} simulated devices x {FIELDS} UINT outputs written once a second; {} s per row; gateway RSS before any session {idle_rss:.1} MiB",
         RUN.as_secs()
@@ -273,6 +288,9 @@ async fn main() -> anyhow::Result<()> {
         "| load | changes | notifications | latency p50 | latency p99 | gateway CPU | gateway RSS |"
     );
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: |");
+    println!(
+        "gateway memory per monitored item (RSS with 10,000 items over RSS before any session): {per_item:.2} KiB"
+    );
     for r in rows {
         println!(
             "| {} | {} | {} | {:.1} ms | {:.1} ms | {:.1} % | {:.1} MiB |",

@@ -5,6 +5,8 @@
 
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 
+use tokio::sync::Notify;
+
 /// A copy of the counts.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub(crate) struct OpcUaStatus {
@@ -12,6 +14,8 @@ pub(crate) struct OpcUaStatus {
     pub(crate) sessions_created: u64,
     pub(crate) subscriptions: u64,
     pub(crate) monitored_items: u64,
+    /// Monitored items refused because every session's together reached the bound.
+    pub(crate) monitored_items_refused: u64,
     pub(crate) value_updates: u64,
     pub(crate) writes_accepted: u64,
     pub(crate) writes_refused: u64,
@@ -27,6 +31,11 @@ pub(crate) type Probe = Box<dyn Fn(&mut OpcUaStatus) + Send + Sync>;
 /// The front-end's shared counts.
 pub(crate) struct OpcUaState {
     monitored_items: AtomicI64,
+    /// Monitored items of every session together, at most.
+    max_items: i64,
+    /// Told when the first monitored item is made: the feed then follows changes again.
+    watched: Notify,
+    items_refused: AtomicU64,
     value_updates: AtomicU64,
     writes_accepted: AtomicU64,
     writes_refused: AtomicU64,
@@ -40,9 +49,12 @@ impl std::fmt::Debug for OpcUaState {
 }
 
 impl OpcUaState {
-    pub(crate) fn new(probe: Probe) -> Self {
+    pub(crate) fn new(probe: Probe, max_items: usize) -> Self {
         OpcUaState {
             monitored_items: AtomicI64::new(0),
+            max_items: i64::try_from(max_items).unwrap_or(i64::MAX),
+            watched: Notify::new(),
+            items_refused: AtomicU64::new(0),
             value_updates: AtomicU64::new(0),
             writes_accepted: AtomicU64::new(0),
             writes_refused: AtomicU64::new(0),
@@ -50,8 +62,36 @@ impl OpcUaState {
         }
     }
 
-    pub(crate) fn items_created(&self, n: usize) {
-        self.monitored_items.fetch_add(n as i64, Ordering::Relaxed);
+    /// Takes up to `n` of the places left for monitored items; answers how many were taken
+    /// (the rest are refused, Bad_TooManyMonitoredItems, and counted).
+    pub(crate) fn reserve_items(&self, n: usize) -> usize {
+        let n = i64::try_from(n).unwrap_or(i64::MAX);
+        let mut taken = 0;
+        let _ = self
+            .monitored_items
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |now| {
+                taken = n.min((self.max_items - now).max(0));
+                Some(now + taken)
+            });
+        let refused = n - taken;
+        if refused > 0 {
+            self.items_refused
+                .fetch_add(refused as u64, Ordering::Relaxed);
+        }
+        if taken > 0 {
+            self.watched.notify_one();
+        }
+        taken as usize
+    }
+
+    /// Whether any monitored item exists: while none does, changes cost nothing here.
+    pub(crate) fn watching(&self) -> bool {
+        self.monitored_items.load(Ordering::Acquire) > 0
+    }
+
+    /// Waits until a monitored item is made.
+    pub(crate) async fn watched(&self) {
+        self.watched.notified().await;
     }
 
     pub(crate) fn items_deleted(&self, n: usize) {
@@ -74,6 +114,7 @@ impl OpcUaState {
     pub(crate) fn status(&self) -> OpcUaStatus {
         let mut status = OpcUaStatus {
             monitored_items: self.monitored_items.load(Ordering::Relaxed).max(0) as u64,
+            monitored_items_refused: self.items_refused.load(Ordering::Relaxed),
             value_updates: self.value_updates.load(Ordering::Relaxed),
             writes_accepted: self.writes_accepted.load(Ordering::Relaxed),
             writes_refused: self.writes_refused.load(Ordering::Relaxed),

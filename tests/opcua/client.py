@@ -21,6 +21,12 @@ input is a command, answered by one JSON line:
     {"cmd": "subscribe_events", "type": T}  -> {"subscribed": 1} (the Server object's events of
                                                type T, a name in ua.ObjectIds, and its subtypes;
                                                every event without T)
+    {"cmd": "monitor_many", "node": ID, "count": N}
+                                            -> {"good": K, "refused": {STATUS: COUNT}} (N items
+                                               on one node, 1,000 a call, on a subscription of
+                                               its own)
+    {"cmd": "path", "path": ["2:iogate", ...]}
+                                            -> {"id": ID} (a browse path from Objects)
     {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}
                                                             or {"event", "message", "source",
                                                             "changes": [{"affected", "verb"}]}]}
@@ -179,6 +185,22 @@ async def main():
                     else:
                         await sub.subscribe_events()  # BaseEventType on the Server object
                     out({"subscribed": 1})
+                elif c["cmd"] == "monitor_many":
+                    many = await client.create_subscription(1000, handler)
+                    good, refused = 0, {}
+                    left = c["count"]
+                    while left > 0:
+                        batch = min(left, 1000)
+                        left -= batch
+                        for r in await many.subscribe_data_change([node(c["node"])] * batch):
+                            if isinstance(r, ua.StatusCode):
+                                refused[r.name] = refused.get(r.name, 0) + 1
+                            else:
+                                good += 1
+                    out({"good": good, "refused": refused})
+                elif c["cmd"] == "path":
+                    found = await client.nodes.objects.get_child(c["path"])
+                    out({"id": found.nodeid.Identifier, "ns": found.nodeid.NamespaceIndex})
                 elif c["cmd"] == "changes":
                     if not handler.seen:
                         handler.event.clear()

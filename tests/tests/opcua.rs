@@ -35,9 +35,9 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
         .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
         .await
         .expect("browse");
-    assert_eq!(devices["children"][0]["id"], "plant", "{devices}");
+    assert_eq!(devices["children"][0]["id"], "Devices/plant", "{devices}");
     let fields = ua
-        .cmd(json!({"cmd": "browse", "node": "plant"}))
+        .cmd(json!({"cmd": "browse", "node": "Devices/plant"}))
         .await
         .expect("browse plant");
     let names: Vec<&str> = fields["children"]
@@ -116,7 +116,7 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
     );
     assert!(read["server"].is_string(), "{read}");
     let units = ua
-        .read("plant.Level.EngineeringUnits")
+        .read("plant.Level/EngineeringUnits")
         .await
         .expect("units");
     assert!(
@@ -124,7 +124,7 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
         "{units}"
     );
     let connected = ua
-        .read("plant.diagnostics.connected")
+        .read("Diagnostics/plant/connected")
         .await
         .expect("diagnostics");
     assert_eq!(connected["value"], true, "{connected}");
@@ -150,14 +150,17 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
     assert_eq!(event["event"], 2133, "GeneralModelChangeEventType: {event}");
     assert_eq!(
         event["changes"],
-        json!([{"affected": "extra", "verb": 1}, {"affected": "/iogate/Devices", "verb": 4}]),
+        json!([{"affected": "Devices/extra", "verb": 1}, {"affected": "/iogate/Devices", "verb": 4}]),
         "NodeAdded, and ReferenceAdded on its folder: {event}"
     );
     let devices = ua
         .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
         .await
         .expect("browse");
-    assert!(devices.to_string().contains("\"extra\""), "{devices}");
+    assert!(
+        devices.to_string().contains("\"Devices/extra\""),
+        "{devices}"
+    );
     assert_eq!(
         ua.read("extra.DI_0").await.expect("read")["type"],
         "Boolean"
@@ -195,14 +198,17 @@ async fn every_iec_type_is_browsed_and_read_with_its_status_and_timestamps() {
     assert!(
         seen.iter().any(|c| c["event"] == 2133
             && c["changes"]
-                == json!([{"affected": "extra", "verb": 2}, {"affected": "/iogate/Devices", "verb": 8}])),
+                == json!([{"affected": "Devices/extra", "verb": 2}, {"affected": "/iogate/Devices", "verb": 8}])),
         "NodeDeleted, ReferenceDeleted: {seen:?}"
     );
     let devices = ua
         .cmd(json!({"cmd": "browse", "node": "/iogate/Devices"}))
         .await
         .expect("browse");
-    assert!(!devices.to_string().contains("\"extra\""), "{devices}");
+    assert!(
+        !devices.to_string().contains("\"Devices/extra\""),
+        "{devices}"
+    );
     gw.shutdown().await;
 }
 
@@ -265,7 +271,7 @@ async fn writes_go_through_the_service_and_refusals_are_opc_ua_status_codes() {
         ("plant.TrimOffset", json!(300), "Int16", "BadOutOfRange"),
         ("plant.Recipe", json!(2.5), "Double", "BadTypeMismatch"),
         (
-            "plant.diagnostics.io_cycles",
+            "Diagnostics/plant/io_cycles",
             json!(1),
             "UInt64",
             "BadNotWritable",
@@ -593,7 +599,7 @@ async fn absolute_and_percent_deadbands_filter_changes() {
         .await
         .expect("asyncua");
     // Pressure is an INT: its EURange is -32768..32767, so 10 % is 6553.5.
-    let range = ua.read("plant.Pressure.EURange").await.expect("EURange");
+    let range = ua.read("plant.Pressure/EURange").await.expect("EURange");
     assert!(range["value"].is_string(), "{range}");
     ua.cmd(json!({"cmd": "deadband", "node": "plant.Pressure", "value": 10.0, "type": 2}))
         .await

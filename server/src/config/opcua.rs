@@ -21,6 +21,7 @@ const KEYS: &[&str] = &[
     "max_sessions",
     "max_subscriptions_per_session",
     "max_monitored_items_per_subscription",
+    "max_monitored_items",
 ];
 
 pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:4840";
@@ -29,6 +30,9 @@ pub(crate) const DEFAULT_PKI_DIR: &str = "pki";
 pub(crate) const DEFAULT_MAX_SESSIONS: usize = 100;
 pub(crate) const DEFAULT_MAX_SUBSCRIPTIONS: usize = 10;
 pub(crate) const DEFAULT_MAX_MONITORED_ITEMS: usize = 20_000;
+/// Monitored items of all sessions together, by default: what 10,000 fields watched by five
+/// clients need, bounding the memory every client together can make the server hold.
+pub(crate) const DEFAULT_MAX_MONITORED_ITEMS_TOTAL: usize = 50_000;
 /// The most sessions, subscriptions per session and items per subscription configurable.
 const MAX_SESSIONS: usize = 10_000;
 const MAX_SUBSCRIPTIONS: usize = 1_000;
@@ -107,6 +111,8 @@ pub struct OpcUaConfig {
     pub(crate) max_sessions: usize,
     pub(crate) max_subscriptions_per_session: usize,
     pub(crate) max_monitored_items_per_subscription: usize,
+    /// Monitored items of every session together.
+    pub(crate) max_monitored_items: usize,
     pub(crate) line: u64,
 }
 
@@ -236,6 +242,11 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         DEFAULT_MAX_MONITORED_ITEMS,
         MAX_MONITORED_ITEMS,
     );
+    let max_items_total = limit(
+        "max_monitored_items",
+        DEFAULT_MAX_MONITORED_ITEMS_TOTAL,
+        MAX_MONITORED_ITEMS,
+    );
     map.finish(report, ctx, KEYS);
     if certificate.is_some() != private_key.is_some() {
         report.push(
@@ -259,6 +270,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_sessions: max_sessions?,
         max_subscriptions_per_session: max_subscriptions?,
         max_monitored_items_per_subscription: max_items?,
+        max_monitored_items: max_items_total?,
         line: node.line,
     })
 }

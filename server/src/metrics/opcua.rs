@@ -13,6 +13,7 @@ pub const OPCUA_SESSIONS: &str = "iogate_opcua_sessions";
 pub const OPCUA_SESSIONS_CREATED: &str = "iogate_opcua_sessions_created";
 pub const OPCUA_SUBSCRIPTIONS: &str = "iogate_opcua_subscriptions";
 pub const OPCUA_MONITORED_ITEMS: &str = "iogate_opcua_monitored_items";
+pub const OPCUA_MONITORED_ITEMS_REFUSED: &str = "iogate_opcua_monitored_items_refused";
 pub const OPCUA_VALUE_UPDATES: &str = "iogate_opcua_value_updates";
 pub const OPCUA_WRITES: &str = "iogate_opcua_writes";
 pub const OPCUA_SECURITY_REJECTED: &str = "iogate_opcua_security_rejected";
@@ -28,6 +29,7 @@ pub(crate) struct OpcUaMetrics {
     sessions_created: Counter,
     subscriptions: Gauge,
     monitored_items: Gauge,
+    items_refused: Counter,
     value_updates: Counter,
     writes: Family<OutcomeLabels, Counter>,
     security_rejected: Counter,
@@ -43,6 +45,7 @@ impl OpcUaMetrics {
             sessions_created: Counter::default(),
             subscriptions: Gauge::default(),
             monitored_items: Gauge::default(),
+            items_refused: Counter::default(),
             value_updates: Counter::default(),
             writes: Family::default(),
             security_rejected: Counter::default(),
@@ -65,8 +68,13 @@ impl OpcUaMetrics {
             m.monitored_items.clone(),
         );
         registry.register(
+            OPCUA_MONITORED_ITEMS_REFUSED,
+            "OPC UA monitored items refused: every session's items together at opcua.max_monitored_items",
+            m.items_refused.clone(),
+        );
+        registry.register(
             OPCUA_VALUE_UPDATES,
-            "Values and diagnostics set on OPC UA variables from the change streams (each notifies the items monitoring it)",
+            "Values and diagnostics rendered for monitored OPC UA variables from the change streams (once for all the items monitoring one)",
             m.value_updates.clone(),
         );
         registry.register(
@@ -94,6 +102,7 @@ impl OpcUaMetrics {
         grow(&self.sessions_created, s.sessions_created);
         gauge(&self.subscriptions, s.subscriptions);
         gauge(&self.monitored_items, s.monitored_items);
+        grow(&self.items_refused, s.monitored_items_refused);
         grow(&self.value_updates, s.value_updates);
         for (outcome, n) in [
             ("accepted", s.writes_accepted),

@@ -1,8 +1,11 @@
 //! The address space follows the gateway: devices and links added, removed or re-planned
-//! (declarations, reloads) appear and disappear, and every value and diagnostics change
-//! from the service's change stream is set on its variable, which notifies the monitored
-//! items (their sampling, queue and deadband filter are the OPC UA library's). Writes to
-//! output variables go to the service, as REST's do.
+//! (declarations, reloads, links declared at run time) appear and disappear. Values are not
+//! kept in it (`live.rs` reads them when asked): a change from the service's change stream
+//! goes to the monitored items of its variable only, rendered only when an item watches it
+//! (their sampling, queue and deadband filter are the OPC UA library's), and while no
+//! monitored item exists at all the stream is not even read (it keeps the newest value of
+//! each field for when one is made). Writes to output variables go to the service, as
+//! REST's do.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -11,7 +14,9 @@ use std::time::Duration;
 use futures_util::{FutureExt, StreamExt};
 use opcua::core_namespace::events::BaseModelChangeEventType;
 use opcua::server::SubscriptionCache;
-use opcua::types::{DataValue, DateTime, ModelChangeStructureDataType, NodeId, ObjectTypeId};
+use opcua::types::{
+    AttributeId, DataValue, DateTime, ModelChangeStructureDataType, NodeId, ObjectTypeId,
+};
 use tokio_util::sync::CancellationToken;
 
 use super::space::{self, Ids};
@@ -54,13 +59,16 @@ impl Feed {
         let mut links = tokio::time::interval(LINKS_EVERY);
         links.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
+            let watching = self.counts.watching();
             tokio::select! {
                 _ = token.cancelled() => return,
                 _ = devices_changed.changed() => {
                     self.sync(&mut shown);
                     changes = self.subscribe();
                 }
-                change = next(&mut changes) => match change {
+                // Woken when the first item is made: the loop then reads the stream.
+                _ = self.counts.watched(), if !watching => {}
+                change = next(&mut changes), if watching => match change {
                     Some(change) => {
                         let mut batch = vec![change];
                         while batch.len() < BATCH {
@@ -73,7 +81,14 @@ impl Feed {
                     }
                     None => changes = None,
                 },
-                _ = links.tick() => self.link_values(&mut shown),
+                _ = links.tick() => {
+                    if self.links_changed(&shown) {
+                        self.sync(&mut shown);
+                    }
+                    if watching {
+                        self.diagnostics(&shown);
+                    }
+                }
             }
         }
     }
@@ -220,62 +235,116 @@ impl Feed {
         model
     }
 
+    /// A batch of changes to the items that monitor their variables; a value is rendered
+    /// only for a variable that has one.
     fn apply(&self, batch: &[Change]) {
         let now = DateTime::now();
-        let mut values: Vec<(NodeId, DataValue)> = Vec::with_capacity(batch.len());
-        for change in batch {
+        let mut ids: Vec<(NodeId, (usize, Option<&'static str>))> = Vec::with_capacity(batch.len());
+        for (n, change) in batch.iter().enumerate() {
             match change {
-                Change::Value {
-                    device,
-                    idx,
-                    sample,
-                    ..
-                } => {
+                Change::Value { device, idx, .. } => {
                     let field = device.field(*idx);
-                    values.push((
-                        self.ids.field(device.name(), &field.name),
-                        space::data_value(field.ty, sample, now),
-                    ));
+                    ids.push((self.ids.field(device.name(), &field.name), (n, None)));
                 }
-                Change::Diagnostics {
-                    device,
-                    diagnostics,
-                } => {
-                    for (name, value) in space::device_diagnostics(diagnostics, now) {
-                        values.push((self.ids.device_diagnostic(device.name(), name), value));
+                Change::Diagnostics { device, .. } => {
+                    for name in space::DEVICE_DIAGNOSTICS {
+                        let id = self.ids.device_diagnostic(device.name(), name);
+                        ids.push((id, (n, Some(name))));
                     }
                 }
                 Change::Removed { .. } => {}
             }
         }
-        self.set(values);
+        self.notify(&ids, |&(_, (n, diagnostic))| {
+            match (&batch[n], diagnostic) {
+                (
+                    Change::Value {
+                        device,
+                        idx,
+                        sample,
+                        ..
+                    },
+                    _,
+                ) => Some(space::data_value(device.field(*idx).ty, sample, now)),
+                (Change::Diagnostics { diagnostics, .. }, Some(name)) => {
+                    space::device_diagnostics(diagnostics, now)
+                        .into_iter()
+                        .find(|(n, _)| *n == name)
+                        .map(|(_, v)| v)
+                }
+                _ => None,
+            }
+        });
     }
 
-    fn link_values(&self, shown: &mut Shown) {
-        let now = DateTime::now();
-        let mut values = Vec::new();
-        for (name, link) in &shown.links {
-            for (var, value) in space::link_diagnostics(&link.diagnostics(), now) {
-                values.push((self.ids.link_diagnostic(name, var), value));
+    /// Whether links came or went since the address space was last brought up to date
+    /// (declared or removed at run time, with no device changing).
+    fn links_changed(&self, shown: &Shown) -> bool {
+        let links = self.service.links();
+        links.len() != shown.links.len()
+            || links
+                .iter()
+                .any(|l| shown.links.get(l.name()).is_none_or(|s| !Arc::ptr_eq(s, l)))
+    }
+
+    /// The diagnostics that count on without a change of state (a device's `io_cycles` and
+    /// `last_response_ms`, a link's state) to the items that monitor them.
+    fn diagnostics(&self, shown: &Shown) {
+        let mut ids: Vec<(NodeId, super::space::Live)> = Vec::new();
+        for name in shown.links.keys() {
+            for var in space::LINK_DIAGNOSTICS {
+                let id = self.ids.link_diagnostic(name, var);
+                ids.push((
+                    id.clone(),
+                    super::space::Live::LinkDiagnostic(name.clone(), var.into()),
+                ));
             }
         }
-        self.set(values);
+        for name in shown.devices.keys() {
+            for var in space::DEVICE_DIAGNOSTICS {
+                let id = self.ids.device_diagnostic(name, var);
+                ids.push((
+                    id.clone(),
+                    super::space::Live::DeviceDiagnostic(name.clone(), var.into()),
+                ));
+            }
+        }
+        let now = DateTime::now();
+        self.notify(&ids, |(id, _)| {
+            super::live::value(&self.service, self.ids, id, now)
+        });
     }
 
-    /// Sets values and notifies their monitored items; a node removed meanwhile is skipped.
+    /// Notifies the monitored items of the variables `items` name (each with what renders
+    /// its value), rendering a value only for a variable that has one.
+    fn notify<T>(&self, items: &[(NodeId, T)], render: impl Fn(&(NodeId, T)) -> Option<DataValue>) {
+        if items.is_empty() {
+            return;
+        }
+        let by_id: HashMap<&NodeId, &(NodeId, T)> = items.iter().map(|i| (&i.0, i)).collect();
+        let rendered = std::cell::Cell::new(0usize);
+        self.subscriptions.maybe_notify(
+            items.iter().map(|(id, _)| (id, AttributeId::Value)),
+            |id, _, _, _| {
+                let value = render(by_id.get(id)?);
+                rendered.set(rendered.get() + usize::from(value.is_some()));
+                value
+            },
+        );
+        self.counts.values_set(rendered.get());
+    }
+
+    /// Tells the items of variables that go (or come back) their value, whatever it is.
     fn set(&self, values: Vec<(NodeId, DataValue)>) {
         if values.is_empty() {
             return;
         }
         self.counts.values_set(values.len());
-        let all = values.iter().map(|(id, v)| (id, None, v.clone()));
-        if self.manager.set_values(&self.subscriptions, all).is_err() {
-            for (id, value) in values {
-                let _ = self
-                    .manager
-                    .set_value(&self.subscriptions, &id, None, value);
-            }
-        }
+        self.subscriptions.notify_data_change(
+            values
+                .iter()
+                .map(|(id, v)| (v.clone(), id, AttributeId::Value)),
+        );
     }
 }
 

@@ -9,6 +9,7 @@
 
 mod auth;
 mod feed;
+mod live;
 mod nodes;
 mod space;
 
@@ -152,10 +153,10 @@ pub(crate) async fn start(
     let host = endpoint_host(addr);
     let token = service.tasks().token().child_token();
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
-    let counts = Arc::new(OpcUaState::new(probe(
-        server_handle.clone(),
-        pki.join("rejected"),
-    )));
+    let counts = Arc::new(OpcUaState::new(
+        probe(server_handle.clone(), pki.join("rejected")),
+        config.max_monitored_items,
+    ));
     let mut builder = ServerBuilder::new()
         .application_name("iogate")
         .application_uri(config.application_uri.clone())
@@ -232,19 +233,19 @@ pub(crate) async fn start(
         let mut space = manager.address_space().write();
         space.add_folder(
             &ids.folder(space::ROOT),
-            "iogate",
+            ids.name("iogate"),
             "iogate",
             &NodeId::objects_folder_id(),
         );
         space.add_folder(
             &ids.folder(space::DEVICES),
-            "Devices",
+            ids.name("Devices"),
             "Devices",
             &ids.folder(space::ROOT),
         );
         space.add_folder(
             &ids.folder(space::LINKS),
-            "Links",
+            ids.name("Links"),
             "Links",
             &ids.folder(space::ROOT),
         );

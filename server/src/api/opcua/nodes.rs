@@ -98,6 +98,14 @@ impl InMemoryNodeManagerImpl for GatewayNodes {
         max_age: f64,
         timestamps_to_return: TimestampsToReturn,
     ) -> Vec<DataValue> {
+        if let Some(service) = self.service.upgrade() {
+            super::live::refresh(
+                &service,
+                self.ids,
+                address_space,
+                nodes.iter().map(|n| &n.node_id),
+            );
+        }
         let space = address_space.read();
         nodes
             .iter()
@@ -117,6 +125,12 @@ impl InMemoryNodeManagerImpl for GatewayNodes {
         address_space: &RwLock<AddressSpace>,
         items: &mut [&mut &mut CreateMonitoredItem],
     ) {
+        // Every session's items together are bounded: past the bound, an item is refused.
+        let taken = self.counts.reserve_items(items.len());
+        let (items, refused) = items.split_at_mut(taken);
+        for item in refused {
+            item.set_status(StatusCode::BadTooManyMonitoredItems);
+        }
         let to_read: Vec<_> = items.iter().map(|r| r.item_to_monitor()).collect();
         let values = self
             .read_values(
@@ -133,7 +147,6 @@ impl InMemoryNodeManagerImpl for GatewayNodes {
             }
             item.set_status(StatusCode::Good);
         }
-        self.counts.items_created(items.len());
     }
 
     async fn delete_monitored_items(&self, _context: &RequestContext, items: &[&MonitoredItemRef]) {

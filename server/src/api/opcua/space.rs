@@ -5,20 +5,24 @@
 //! ```text
 //! Objects/iogate                  s=/iogate
 //!   Devices                       s=/iogate/Devices
-//!     <device>                    s=<device>             (object)
+//!     <device>                    s=Devices/<device>     (object)
 //!       <field>                   s=<device>.<field>     (variable)
-//!         EngineeringUnits        s=<device>.<field>.EngineeringUnits (property)
-//!         EURange                 s=<device>.<field>.EURange (property, numeric fields)
-//!       Diagnostics               s=<device>/Diagnostics (object)
-//!         connected ...           s=<device>.diagnostics.<name>
+//!         EngineeringUnits        s=<device>.<field>/EngineeringUnits (property)
+//!         EURange                 s=<device>.<field>/EURange (property, numeric fields)
+//!       Diagnostics               s=Diagnostics/<device> (object)
+//!         connected ...           s=Diagnostics/<device>/<name>
 //!   Links                         s=/iogate/Links
 //!     <link>                      s=/Links/<link>
-//!       connected, error_code     s=/Links/<link>.diagnostics.<name>
+//!       connected, error_code     s=/Links/<link>/<name>
 //! ```
 //!
-//! Device and link names hold `[A-Za-z0-9_.-]`, field names `[A-Za-z0-9_]`: no id made here
-//! can be another's. TIME is a `Duration` (a Double of milliseconds, OPC UA's own type for
-//! spans of time).
+//! Device and link names hold `[A-Za-z0-9_.-]` (a dot, but never a `/`), field names
+//! `[A-Za-z0-9_]`: an id without `/` is a field's, split at its last dot; every other id
+//! starts with a word no device-and-field id can (`Devices/`, `Diagnostics/`, `/`), so no
+//! id made here can be another's, whatever the names (a device `plant.Level` beside a
+//! device `plant` with a field `Level` included). BrowseNames are in the gateway's
+//! namespace (`2:plant`), but for the standard properties'. TIME is a `Duration` (a Double
+//! of milliseconds, OPC UA's own type for spans of time).
 
 use std::time::SystemTime;
 
@@ -27,7 +31,7 @@ use opcua::server::address_space::{
 };
 use opcua::types::{
     DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId,
-    ObjectTypeId, Range, StatusCode, UAString, VariableTypeId, Variant,
+    ObjectTypeId, QualifiedName, Range, StatusCode, UAString, VariableTypeId, Variant,
 };
 
 use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics, Sample};
@@ -56,33 +60,37 @@ impl Ids {
         NodeId::new(self.ns, id)
     }
     pub(crate) fn device(self, device: &str) -> NodeId {
-        NodeId::new(self.ns, device)
+        NodeId::new(self.ns, format!("Devices/{device}"))
     }
     pub(crate) fn field(self, device: &str, field: &str) -> NodeId {
         NodeId::new(self.ns, format!("{device}.{field}"))
     }
     fn units(self, device: &str, field: &str) -> NodeId {
-        NodeId::new(self.ns, format!("{device}.{field}.EngineeringUnits"))
+        NodeId::new(self.ns, format!("{device}.{field}/EngineeringUnits"))
     }
     fn range(self, device: &str, field: &str) -> NodeId {
-        NodeId::new(self.ns, format!("{device}.{field}.EURange"))
+        NodeId::new(self.ns, format!("{device}.{field}/EURange"))
     }
     pub(crate) fn device_diagnostics(self, device: &str) -> NodeId {
-        NodeId::new(self.ns, format!("{device}/Diagnostics"))
+        NodeId::new(self.ns, format!("Diagnostics/{device}"))
     }
     pub(crate) fn device_diagnostic(self, device: &str, name: &str) -> NodeId {
-        NodeId::new(self.ns, format!("{device}.diagnostics.{name}"))
+        NodeId::new(self.ns, format!("Diagnostics/{device}/{name}"))
     }
     pub(crate) fn link(self, link: &str) -> NodeId {
         NodeId::new(self.ns, format!("/Links/{link}"))
     }
     pub(crate) fn link_diagnostic(self, link: &str, name: &str) -> NodeId {
-        NodeId::new(self.ns, format!("/Links/{link}.diagnostics.{name}"))
+        NodeId::new(self.ns, format!("/Links/{link}/{name}"))
     }
 
-    /// The device and field a field variable's id names (`<device>.<field>`: field names
-    /// hold no dot).
-    pub(crate) fn field_of(self, id: &NodeId) -> Option<(String, String)> {
+    /// A name in the gateway's namespace, for BrowseNames.
+    pub(crate) fn name(self, name: &str) -> QualifiedName {
+        QualifiedName::new(self.ns, name)
+    }
+
+    /// What a variable whose value lives in the gateway (not in the address space) shows.
+    pub(crate) fn live_of(self, id: &NodeId) -> Option<Live> {
         if id.namespace != self.ns {
             return None;
         }
@@ -90,12 +98,40 @@ impl Ids {
             return None;
         };
         let text = s.as_ref();
-        if text.starts_with('/') || text.contains(".diagnostics.") || text.contains('/') {
+        let pair = |rest: &str| {
+            rest.split_once('/')
+                .filter(|(_, name)| !name.contains('/'))
+                .map(|(a, b)| (a.to_owned(), b.to_owned()))
+        };
+        if let Some(rest) = text.strip_prefix("Diagnostics/") {
+            return pair(rest).map(|(d, n)| Live::DeviceDiagnostic(d, n));
+        }
+        if let Some(rest) = text.strip_prefix("/Links/") {
+            return pair(rest).map(|(l, n)| Live::LinkDiagnostic(l, n));
+        }
+        if text.contains('/') {
             return None;
         }
         let (device, field) = text.rsplit_once('.')?;
-        Some((device.to_owned(), field.to_owned()))
+        Some(Live::Field(device.to_owned(), field.to_owned()))
     }
+
+    /// The device and field a field variable's id names (`<device>.<field>`: field names
+    /// hold no dot).
+    pub(crate) fn field_of(self, id: &NodeId) -> Option<(String, String)> {
+        match self.live_of(id)? {
+            Live::Field(device, field) => Some((device, field)),
+            _ => None,
+        }
+    }
+}
+
+/// A variable whose value is read from the gateway when asked.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum Live {
+    Field(String, String),
+    DeviceDiagnostic(String, String),
+    LinkDiagnostic(String, String),
 }
 
 /// The OPC UA built-in type of an IEC type.
@@ -268,9 +304,10 @@ fn diagnostic_type(name: &str) -> DataTypeId {
     }
 }
 
-/// A read-only scalar variable of `data_type` (a diagnostic or a property).
-fn read_only(id: &NodeId, name: &str, data_type: DataTypeId) -> VariableBuilder {
-    VariableBuilder::new(id, name, name)
+/// A read-only scalar variable of `data_type` (a diagnostic or a property) named `name`.
+fn read_only(id: &NodeId, name: QualifiedName, data_type: DataTypeId) -> VariableBuilder {
+    let display = name.name.as_ref().to_owned();
+    VariableBuilder::new(id, name, display.as_str())
         .data_type(data_type)
         .access_level(AccessLevel::CURRENT_READ)
         .user_access_level(AccessLevel::CURRENT_READ)
@@ -293,7 +330,7 @@ pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, no
         .description
         .clone()
         .unwrap_or_else(|| format!("profile {}", device.profile.name));
-    ObjectBuilder::new(&object, name, name)
+    ObjectBuilder::new(&object, ids.name(name), name)
         .description(description)
         .has_type_definition(ObjectTypeId::BaseObjectType)
         .organized_by(ids.folder(DEVICES))
@@ -302,7 +339,7 @@ pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, no
         add_field(space, ids, device, idx, field, now);
     }
     let diag = ids.device_diagnostics(name);
-    ObjectBuilder::new(&diag, "Diagnostics", "Diagnostics")
+    ObjectBuilder::new(&diag, ids.name("Diagnostics"), "Diagnostics")
         .description(
             "connected, error_code (0 OK, 1 no link, 2 no slave, 10 communication error), io_cycles, last_response_ms",
         )
@@ -311,7 +348,7 @@ pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, no
         .insert(space);
     for (var, value) in device_diagnostics(&device.diagnostics(), now) {
         let id = ids.device_diagnostic(name, var);
-        read_only(&id, var, diagnostic_type(var))
+        read_only(&id, ids.name(var), diagnostic_type(var))
             .has_type_definition(VariableTypeId::BaseDataVariableType)
             .component_of(diag.clone())
             .insert(space);
@@ -329,7 +366,7 @@ fn add_field(
 ) {
     let id = ids.field(device.name(), &field.name);
     let level = access(field.direction);
-    let builder = VariableBuilder::new(&id, field.name.as_str(), field.name.as_str())
+    let builder = VariableBuilder::new(&id, ids.name(&field.name), field.name.as_str())
         .data_type(data_type(field.ty))
         .access_level(level)
         .user_access_level(level)
@@ -363,7 +400,8 @@ fn add_field(
         }),
     ];
     for (property, name, data_type, value) in properties.into_iter().flatten() {
-        read_only(&property, name, data_type)
+        // The standard properties keep their standard BrowseNames (namespace 0).
+        read_only(&property, QualifiedName::from(name), data_type)
             .value(value)
             .has_type_definition(VariableTypeId::PropertyType)
             .property_of(id.clone())
@@ -407,14 +445,14 @@ pub(crate) fn remove_device(space: &mut AddressSpace, ids: Ids, name: &str, fiel
 pub(crate) fn add_link(space: &mut AddressSpace, ids: Ids, link: &Link, now: DateTime) {
     let name = link.name();
     let object = ids.link(name);
-    ObjectBuilder::new(&object, name, name)
+    ObjectBuilder::new(&object, ids.name(name), name)
         .description(link.config().transport.to_string())
         .has_type_definition(ObjectTypeId::BaseObjectType)
         .organized_by(ids.folder(LINKS))
         .insert(space);
     for (var, value) in link_diagnostics(&link.diagnostics(), now) {
         let id = ids.link_diagnostic(name, var);
-        read_only(&id, var, diagnostic_type(var))
+        read_only(&id, ids.name(var), diagnostic_type(var))
             .has_type_definition(VariableTypeId::BaseDataVariableType)
             .component_of(object.clone())
             .insert(space);

@@ -1,0 +1,230 @@
+//! The OPC UA server against what clients found (asyncua, Python, as the independent peer):
+//! names that could collide, browse paths, every session's monitored items bounded together,
+//! diagnostics and links that follow the gateway.
+
+use iogate_tests::devices::temp_dir;
+use iogate_tests::opcua::{Options, UaClient};
+use iogate_tests::{TestGateway, eventually};
+use reqwest::Method;
+use serde_json::json;
+
+fn opcua(dir: &std::path::Path, extra: &str) -> String {
+    format!(
+        "opcua:\n  listen: 127.0.0.1:0\n  pki_dir: {}\n{extra}",
+        dir.join("pki").display()
+    )
+}
+
+fn url(gw: &TestGateway) -> String {
+    format!("opc.tcp://{}/", gw.opcua.expect("an OPC UA server"))
+}
+
+#[tokio::test]
+async fn a_dotted_device_name_never_takes_another_devices_node() {
+    let dir = temp_dir("opcua-dots");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
+        opcua(&dir, "")
+    ))
+    .await
+    .expect("gateway");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    let level = ua.read("plant.Level").await.expect("read");
+    assert_eq!(level["type"], "Float", "{level}");
+    // A device named `plant.Level` beside it: its own object, its own fields.
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/plant.Level",
+            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 201, "{body}");
+    eventually("the dotted device browsed", || async {
+        ua_children(&url(&gw), "Devices/plant.Level")
+            .await
+            .is_some_and(|c| c.contains("DI_0"))
+    })
+    .await
+    .expect("browsed");
+    assert_eq!(
+        ua.read("plant.Level").await.expect("read")["type"],
+        "Float",
+        "plant's Level is still plant's Level"
+    );
+    assert_eq!(
+        ua.read("plant.Level.DI_0").await.expect("read")["type"],
+        "Boolean"
+    );
+    // Removing the dotted device removes its nodes only.
+    let (status, _) = gw
+        .send(Method::DELETE, "/api/v1/devices/plant.Level", "")
+        .await
+        .expect("remove");
+    assert!((200..300).contains(&status));
+    eventually("the dotted device gone", || async {
+        ua_children(&url(&gw), "/iogate/Devices")
+            .await
+            .is_some_and(|c| !c.contains("plant.Level"))
+    })
+    .await
+    .expect("gone");
+    let level = ua.read("plant.Level").await.expect("read");
+    assert_eq!(level["status"], "Good", "{level}");
+    // Browse paths name nodes in the gateway's namespace, as clients write them.
+    let ns = ua.ns;
+    let found = ua
+        .cmd(json!({"cmd": "path", "path": [
+            format!("{ns}:iogate"), format!("{ns}:Devices"), format!("{ns}:plant"), format!("{ns}:Level")
+        ]}))
+        .await
+        .expect("path");
+    assert_eq!(found["id"], "plant.Level", "{found}");
+    let found = ua
+        .cmd(json!({"cmd": "path", "path": [
+            format!("{ns}:iogate"), format!("{ns}:Devices"), format!("{ns}:plant"),
+            format!("{ns}:Diagnostics"), format!("{ns}:io_cycles")
+        ]}))
+        .await
+        .expect("path");
+    assert_eq!(found["id"], "Diagnostics/plant/io_cycles", "{found}");
+    gw.shutdown().await;
+}
+
+/// The names of a node's children, by a client of its own.
+async fn ua_children(url: &str, node: &str) -> Option<String> {
+    let mut ua = UaClient::connect(url, &Options::default()).await.ok()?;
+    let children = ua.cmd(json!({"cmd": "browse", "node": node})).await.ok()?;
+    Some(children.to_string())
+}
+
+#[tokio::test]
+async fn monitored_items_are_bounded_for_every_session_together() {
+    let dir = temp_dir("opcua-items");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
+        opcua(&dir, "  max_monitored_items: 2500\n")
+    ))
+    .await
+    .expect("gateway");
+    let mut first = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    let mut second = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    let one = first
+        .cmd(json!({"cmd": "monitor_many", "node": "plant.Level", "count": 2000}))
+        .await
+        .expect("items");
+    assert_eq!(one["good"], 2000, "{one}");
+    let two = second
+        .cmd(json!({"cmd": "monitor_many", "node": "plant.Level", "count": 2000}))
+        .await
+        .expect("items");
+    assert_eq!(two["good"], 500, "{two}");
+    assert_eq!(two["refused"]["BadTooManyMonitoredItems"], 1500, "{two}");
+    let metrics = gw.metrics().await.expect("metrics");
+    for line in [
+        "iogate_opcua_monitored_items 2500",
+        "iogate_opcua_monitored_items_refused_total 1500",
+    ] {
+        assert!(metrics.contains(line), "{line}\n{metrics}");
+    }
+    // A session that goes gives its places back.
+    first.close().await.expect("closed");
+    eventually("the first session's items released", || async {
+        gw.metrics()
+            .await
+            .is_ok_and(|m| m.contains("iogate_opcua_monitored_items 500\n"))
+    })
+    .await
+    .expect("released");
+    let again = second
+        .cmd(json!({"cmd": "monitor_many", "node": "plant.Level", "count": 1000}))
+        .await
+        .expect("items");
+    assert_eq!(again["good"], 1000, "{again}");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn diagnostics_count_on_and_links_follow_declarations() {
+    let dir = temp_dir("opcua-diagnostics");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 50ms }}\n{}",
+        opcua(&dir, "")
+    ))
+    .await
+    .expect("gateway");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    let cycles = |v: &serde_json::Value| v["value"].as_u64().unwrap_or(0);
+    let before = cycles(&ua.read("Diagnostics/plant/io_cycles").await.expect("read"));
+    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(10);
+    while cycles(&ua.read("Diagnostics/plant/io_cycles").await.expect("read")) <= before {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "io_cycles never counts on"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    // Monitored, it is told as it counts.
+    ua.cmd(json!({"cmd": "subscribe", "nodes": ["Diagnostics/plant/io_cycles"], "interval": 50}))
+        .await
+        .expect("subscribe");
+    let mut told = Vec::new();
+    while told.len() < 3 {
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 5}))
+            .await
+            .expect("changes");
+        told.extend(
+            changes["changes"]
+                .as_array()
+                .cloned()
+                .unwrap_or_default()
+                .iter()
+                .map(cycles),
+        );
+        assert!(
+            !changes["changes"].as_array().is_none_or(|c| c.is_empty()),
+            "{told:?}"
+        );
+    }
+    assert!(told.windows(2).all(|w| w[0] < w[1]), "{told:?}");
+    // A link declared at run time appears in the Links folder, and goes.
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/links/far",
+            json!({"tcp": {"host": "127.0.0.1", "port": 9}}).to_string(),
+        )
+        .await
+        .expect("declare a link");
+    assert!((200..300).contains(&status), "{body}");
+    eventually("the link browsed", || async {
+        ua_children(&url(&gw), "/iogate/Links")
+            .await
+            .is_some_and(|c| c.contains("/Links/far"))
+    })
+    .await
+    .expect("link shown");
+    let (status, body) = gw
+        .send(Method::DELETE, "/api/v1/links/far", "")
+        .await
+        .expect("remove the link");
+    assert!((200..300).contains(&status), "{body}");
+    eventually("the link gone", || async {
+        ua_children(&url(&gw), "/iogate/Links")
+            .await
+            .is_some_and(|c| !c.contains("/Links/far"))
+    })
+    .await
+    .expect("link gone");
+    gw.shutdown().await;
+}
