@@ -27,6 +27,10 @@ input is a command, answered by one JSON line:
                                                its own)
     {"cmd": "path", "path": ["2:iogate", ...]}
                                             -> {"id": ID} (a browse path from Objects)
+    {"cmd": "read_many", "node": ID, "count": N}
+                                            -> {"status": "Good", "results": K} or {"status": NAME}
+                                               (one Read of N times the node's value)
+    {"cmd": "read0", "id": I}               -> {"value"} (the standard node ns=0;i=I)
     {"cmd": "changes", "wait": S}           -> {"changes": [{"node", "value", "status", "source"}
                                                             or {"event", "message", "source",
                                                             "changes": [{"affected", "verb"}]}]}
@@ -198,6 +202,21 @@ async def main():
                             else:
                                 good += 1
                     out({"good": good, "refused": refused})
+                elif c["cmd"] == "read_many":
+                    params = ua.ReadParameters()
+                    for _ in range(c["count"]):
+                        rv = ua.ReadValueId()
+                        rv.NodeId = ua.NodeId(c["node"], ns)
+                        rv.AttributeId = ua.AttributeIds.Value
+                        params.NodesToRead.append(rv)
+                    try:
+                        results = await client.uaclient.read(params)
+                        out({"status": "Good", "results": len(results)})
+                    except ua.UaStatusCodeError as e:
+                        out({"status": ua.StatusCode(e.code).name})
+                elif c["cmd"] == "read0":
+                    value = await client.get_node(ua.NodeId(c["id"], 0)).read_value()
+                    out({"value": plain(value)})
                 elif c["cmd"] == "path":
                     found = await client.nodes.objects.get_child(c["path"])
                     out({"id": found.nodeid.Identifier, "ns": found.nodeid.NamespaceIndex})

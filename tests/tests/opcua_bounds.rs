@@ -228,3 +228,99 @@ async fn diagnostics_count_on_and_links_follow_declarations() {
     .expect("link gone");
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn sessions_never_activated_cannot_keep_a_client_out() {
+    let dir = temp_dir("opcua-unactivated");
+    let tokens = dir.join("tokens");
+    std::fs::write(&tokens, "read reader-0123456789abcdef\n").expect("tokens");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\nsecurity: {{ tokens_file: {} }}\n{}",
+        tokens.display(),
+        opcua(&dir, "  max_sessions: 10\n")
+    ))
+    .await
+    .expect("gateway");
+    // Ten sessions created and left: the whole table.
+    iogate_tests::opcua::install().expect("asyncua");
+    let mut command = tokio::process::Command::new("python3");
+    command
+        .arg(iogate_tests::repo_file("opcua/unactivated.py"))
+        .arg(url(&gw))
+        .arg("10");
+    let mut squatter = iogate_tests::spawn_piped(command).expect("unactivated.py");
+    let line = squatter
+        .lines
+        .next_line()
+        .await
+        .expect("answer")
+        .expect("a line");
+    let created: serde_json::Value = serde_json::from_str(&line).expect("json");
+    assert_eq!(created["created"], 10, "{created}");
+    // A real client with a token gets in at once (the oldest unactivated session gives way).
+    let reader = Options {
+        user: Some(("token".into(), "reader-0123456789abcdef".into())),
+        ..Options::default()
+    };
+    let mut ua = UaClient::connect(&url(&gw), &reader)
+        .await
+        .expect("a real client is not locked out");
+    assert_eq!(
+        ua.read("plant.Level").await.expect("read")["status"],
+        "Good"
+    );
+    ua.close().await.expect("closed");
+    drop(squatter);
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn the_advertised_operation_limits_are_the_ones_kept() {
+    let dir = temp_dir("opcua-limits");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
+        opcua(&dir, "")
+    ))
+    .await
+    .expect("gateway");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    // Server_ServerCapabilities_OperationLimits_MaxNodesPerRead (Part 5).
+    let advertised = ua
+        .cmd(json!({"cmd": "read0", "id": 11705}))
+        .await
+        .expect("MaxNodesPerRead");
+    let max = advertised["value"].as_u64().expect("a number");
+    let at = ua
+        .cmd(json!({"cmd": "read_many", "node": "plant.Level", "count": max}))
+        .await
+        .expect("read");
+    assert_eq!(at, json!({"status": "Good", "results": max}));
+    let past = ua
+        .cmd(json!({"cmd": "read_many", "node": "plant.Level", "count": max + 1}))
+        .await
+        .expect("read");
+    assert_eq!(past["status"], "BadTooManyOperations", "{past}");
+    // The session goes on.
+    assert_eq!(
+        ua.read("plant.Level").await.expect("read")["status"],
+        "Good"
+    );
+    // The key the server made is its user's alone.
+    use std::os::unix::fs::PermissionsExt;
+    let private = dir.join("pki/private");
+    let mode =
+        |p: &std::path::Path| std::fs::metadata(p).expect("stat").permissions().mode() & 0o777;
+    assert_eq!(mode(&private), 0o700);
+    let keys: Vec<_> = std::fs::read_dir(&private)
+        .expect("private")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .collect();
+    assert!(!keys.is_empty());
+    for key in keys {
+        assert_eq!(mode(&key), 0o600, "{}", key.display());
+    }
+    gw.shutdown().await;
+}

@@ -295,6 +295,27 @@ fn check_opcua(
             ),
         );
     }
+    if opcua.trust_client_certs {
+        report.push(
+            opcua.line,
+            "opcua.trust_client_certs",
+            format!(
+                "{addr} is not a loopback address: trusting every client certificate gives anyone who reaches it a secure channel; trust certificates one by one (pki_dir/trusted), or set security.insecure: true"
+            ),
+        );
+    }
+    if let Some(Anonymous::Role(role)) = opcua.anonymous
+        && role > crate::auth::Role::Read
+    {
+        report.push(
+            opcua.line,
+            "opcua.anonymous",
+            format!(
+                "{addr} is not a loopback address: anonymous sessions with the {} role let anyone who reaches it change the plant; give anonymous `read` or `false` and sign in with tokens, or set security.insecure: true",
+                role.name()
+            ),
+        );
+    }
     let anonymous_allowed = match opcua.anonymous {
         Some(Anonymous::Refused) => false,
         Some(Anonymous::Role(_)) => true,
@@ -344,5 +365,27 @@ mod opcua_tests {
             ),
             ""
         );
+    }
+
+    #[test]
+    fn off_loopback_anonymous_may_not_write_and_no_certificate_is_trusted_blindly() {
+        let tokens =
+            std::env::temp_dir().join(format!("iogate-check-tokens-{}", std::process::id()));
+        std::fs::write(&tokens, "admin admin-0123456789abcdef\n").expect("tokens");
+        let wide = problems(&format!(
+            "opcua: {{ listen: 0.0.0.0:4840, security: [basic256sha256_sign_encrypt], anonymous: admin, trust_client_certs: true }}\nsecurity: {{ tokens_file: {} }}\n",
+            tokens.display()
+        ));
+        assert!(
+            wide.contains("anonymous sessions with the admin role"),
+            "{wide}"
+        );
+        assert!(wide.contains("trusting every client certificate"), "{wide}");
+        let reader = problems(&format!(
+            "opcua: {{ listen: 0.0.0.0:4840, security: [basic256sha256_sign_encrypt], anonymous: read }}\nsecurity: {{ tokens_file: {} }}\n",
+            tokens.display()
+        ));
+        assert_eq!(reader, "");
+        std::fs::remove_file(&tokens).expect("cleanup");
     }
 }

@@ -28,6 +28,11 @@ use space::Ids;
 
 /// Notifications in one publish answer, at most.
 const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1000;
+/// Nodes (or items) in one call of each service, at most, as advertised in
+/// ServerCapabilities/OperationLimits.
+const MAX_OPERATIONS: usize = 1000;
+/// Elements of an array in a message, at most (the message size bounds them too).
+const MAX_ARRAY_LENGTH: usize = 10_000;
 
 /// The namespace of the devices' and links' nodes.
 pub(crate) const NAMESPACE: &str = "urn:iogate:devices";
@@ -129,6 +134,28 @@ fn probe(handle: Arc<std::sync::OnceLock<ServerHandle>>, rejected: std::path::Pa
     })
 }
 
+/// Makes the server's private key (made by the library, world-readable) readable by the
+/// gateway's user alone: the directory 0700, each file in it 0600.
+fn keep_private(dir: &Path) -> Result<(), String> {
+    use std::os::unix::fs::PermissionsExt;
+    let set = |path: &Path, mode: u32| {
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
+            .map_err(|e| format!("opcua.pki_dir {}: {e}", path.display()))
+    };
+    if !dir.is_dir() {
+        return Ok(());
+    }
+    set(dir, 0o700)?;
+    let entries =
+        std::fs::read_dir(dir).map_err(|e| format!("opcua.pki_dir {}: {e}", dir.display()))?;
+    for entry in entries.filter_map(Result::ok) {
+        if entry.path().is_file() {
+            set(&entry.path(), 0o600)?;
+        }
+    }
+    Ok(())
+}
+
 /// Starts the server on `config.listen` (bound here: a listener that cannot be bound stops
 /// the start) and the task that keeps its address space; both end with the gateway or
 /// [`Running::stop`].
@@ -207,6 +234,26 @@ pub(crate) async fn start(
         // thousands of changes at once go in several answers within the message size
         // instead of one the client cannot take.
         limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
+        // The operation limits the server advertises are the ones it keeps: a request past
+        // one is refused with Bad_TooManyOperations. Arrays may be longer than the limits
+        // (within the message size), so that a request of 1,001 reads is that refusal and
+        // not a decoding error.
+        limits.max_array_length = MAX_ARRAY_LENGTH;
+        let ops = &mut limits.operational;
+        for limit in [
+            &mut ops.max_nodes_per_read,
+            &mut ops.max_nodes_per_write,
+            &mut ops.max_nodes_per_browse,
+            &mut ops.max_nodes_per_translate_browse_paths_to_node_ids,
+            &mut ops.max_nodes_per_register_nodes,
+            &mut ops.max_nodes_per_method_call,
+            &mut ops.max_nodes_per_history_read_data,
+            &mut ops.max_nodes_per_history_read_events,
+            &mut ops.max_nodes_per_history_update,
+            &mut ops.max_monitored_items_per_call,
+        ] {
+            *limit = MAX_OPERATIONS;
+        }
     }
     for endpoint in &config.security {
         let (policy, mode) = security(*endpoint);
@@ -214,6 +261,9 @@ pub(crate) async fn start(
         builder = builder.add_endpoint(endpoint.name(), ("/", policy, mode, none));
     }
     let (server, handle) = builder.build().map_err(|e| format!("OPC UA server: {e}"))?;
+    if secure {
+        keep_private(&pki.join("private"))?;
+    }
     let _ = server_handle.set(handle.clone());
     if secure && handle.info().server_certificate.is_none() {
         return Err(format!(

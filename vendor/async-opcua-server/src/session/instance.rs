@@ -16,6 +16,9 @@ use opcua_types::{
     ApplicationDescription, ByteString, MessageSecurityMode, NodeId, StatusCode, UAString,
 };
 
+/// How long a session may wait for its ActivateSession before it is closed.
+pub(crate) const UNACTIVATED_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// An instance of an OPC-UA session.
 pub struct Session {
     /// The session identifier
@@ -138,9 +141,16 @@ impl Session {
         }
     }
 
-    /// Get the session timeout deadline.
+    /// Get the session timeout deadline. A session never activated lives at most
+    /// [`UNACTIVATED_TIMEOUT`]: a client that creates sessions it does not activate
+    /// cannot keep others out for the whole session timeout.
     pub fn deadline(&self) -> Instant {
-        **self.last_service_request.load() + self.session_timeout
+        let timeout = if self.is_activated() {
+            self.session_timeout
+        } else {
+            self.session_timeout.min(UNACTIVATED_TIMEOUT)
+        };
+        **self.last_service_request.load() + timeout
     }
 
     /// Check whether this session is validated and return the appropriate error if not.

@@ -68,7 +68,18 @@ impl SessionManager {
         request: &CreateSessionRequest,
     ) -> Result<CreateSessionResponse, StatusCode> {
         if self.sessions.len() >= self.info.config.limits.max_sessions {
-            return Err(StatusCode::BadTooManySessions);
+            // A session never activated gives way to a new one, the oldest first: sessions
+            // nobody activates cannot fill the table and lock clients out.
+            let oldest = self
+                .sessions
+                .iter()
+                .filter(|(_, s)| !s.read().is_activated())
+                .min_by_key(|(_, s)| s.read().deadline())
+                .map(|(id, _)| id.clone());
+            match oldest {
+                Some(id) => self.expire_session(&id),
+                None => return Err(StatusCode::BadTooManySessions),
+            }
         }
 
         // TODO: Auditing and diagnostics.
