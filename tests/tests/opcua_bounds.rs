@@ -324,3 +324,45 @@ async fn the_advertised_operation_limits_are_the_ones_kept() {
     }
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn an_event_item_is_told_events_and_never_a_data_value() {
+    let dir = temp_dir("opcua-event-item");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
+        opcua(&dir, "")
+    ))
+    .await
+    .expect("gateway");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    ua.cmd(json!({"cmd": "subscribe_events", "type": "GeneralModelChangeEventType"}))
+        .await
+        .expect("events");
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/extra",
+            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 201, "{body}");
+    // Everything the event item is told, up to the model change event.
+    let mut seen: Vec<serde_json::Value> = Vec::new();
+    while !seen.iter().any(|c| c["event"] == 2133) {
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 5}))
+            .await
+            .expect("changes");
+        let batch = changes["changes"].as_array().cloned().unwrap_or_default();
+        assert!(!batch.is_empty(), "no event came: {seen:?}");
+        seen.extend(batch);
+    }
+    assert!(
+        seen.iter().all(|c| c.get("node").is_none()),
+        "a data value on an event item: {seen:?}"
+    );
+    gw.shutdown().await;
+}

@@ -153,11 +153,22 @@ impl Device {
     ) -> Self {
         let mut next = Device::new(config, profile, log, wake);
         let mut kept = Vec::new();
+        // A device moved to another link or slave id is another device until it is read:
+        // what the old place held is not served as its good value.
+        let moved = next.binding() != old.binding() && !next.is_simulated();
         for (idx, field) in next.profile.fields.iter().enumerate() {
             if let Some(before) = old.kept_field(field) {
                 next.samples[idx] = old.samples[before].clone();
                 let same_registers = old.field(before).encoding == field.encoding
                     && old.field(before).register == field.register;
+                if moved || !same_registers {
+                    next.samples[idx].send_modify(|s| {
+                        *s = Sample {
+                            retold: s.retold,
+                            ..Sample::never_read()
+                        }
+                    });
+                }
                 kept.push((before, idx, same_registers));
             }
         }

@@ -322,7 +322,10 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     // Profiles.
     for p in new.catalog.iter() {
         match old.catalog.get(&p.name) {
-            None => d.push(Kind::Profile, &p.name, Action::Added, Vec::new()),
+            None => {
+                d.profiles = true;
+                d.push(Kind::Profile, &p.name, Action::Added, Vec::new());
+            }
             Some(o) if !same_profile(o, p) => {
                 d.profiles = true;
                 let details = field_items("", o, p)
@@ -336,11 +339,9 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     }
     for p in old.catalog.iter() {
         if new.catalog.get(&p.name).is_none() {
+            d.profiles = true;
             d.push(Kind::Profile, &p.name, Action::Removed, Vec::new());
         }
-    }
-    if old.catalog.len() != new.catalog.len() {
-        d.profiles = true;
     }
 
     // Links.

@@ -100,6 +100,9 @@ pub(crate) struct Reloader {
     in_force: tokio::sync::Mutex<InForce>,
     status: Mutex<ConfigStatus>,
     servers: Arc<Servers>,
+    /// Counts the reloads applied, whatever started them: the watch looks at its settings
+    /// (and the files it watches) again after each.
+    applied: tokio::sync::watch::Sender<u64>,
 }
 
 impl std::fmt::Debug for Reloader {
@@ -143,6 +146,7 @@ impl Reloader {
             }),
             status: Mutex::new(status),
             servers,
+            applied: tokio::sync::watch::Sender::new(0),
         });
         service.attach_reloader(reloader.clone());
         watch::spawn(service, &reloader);
@@ -161,6 +165,11 @@ impl Reloader {
             in_force.setup.profiles_dir.clone(),
             in_force.setup.config.reload,
         )
+    }
+
+    /// Told after every reload applied, whatever started it.
+    pub(crate) fn follow_applied(&self) -> tokio::sync::watch::Receiver<u64> {
+        self.applied.subscribe()
     }
 
     /// The hash of the files in force.
@@ -232,6 +241,7 @@ impl Reloader {
         in_force.tokens = loaded.tokens;
         in_force.hash = loaded.hash.clone();
         drop(in_force);
+        self.applied.send_modify(|n| *n = n.wrapping_add(1));
         let result = if diff.is_empty() {
             "unchanged"
         } else {
@@ -495,6 +505,36 @@ fn clashes(service: &Service, old: &Setup, new: &Setup) -> Option<Problems> {
                 device.line,
                 format!("device {}", device.name),
                 "a device of this name was declared at run time (EnsureDevice or PUT); remove the declaration or rename the entry".to_owned(),
+            );
+        }
+    }
+    // A link the new file no longer has, still carrying devices declared at run time: the
+    // reload would leave them on nothing (as DELETE of a link in use is refused, so is this).
+    for link in &old.config.links {
+        if new.config.links.iter().any(|l| l.name == link.name) {
+            continue;
+        }
+        let declared: Vec<String> = service
+            .devices()
+            .iter()
+            .filter(|d| d.binding().link.as_deref() == Some(link.name.as_str()))
+            .filter(|d| {
+                let name = d.name();
+                !old.config.devices.iter().any(|o| o.name == name)
+                    && !new.config.devices.iter().any(|n| n.name == name)
+            })
+            .map(|d| d.name().to_owned())
+            .collect();
+        if !declared.is_empty() {
+            report.push(
+                1,
+                format!("link {}", link.name),
+                format!(
+                    "the file no longer has link {} (line {} before), but device(s) {} declared at run time are on it: remove them first (DELETE or RemoveDevice), or keep the link",
+                    link.name,
+                    link.line,
+                    declared.join(", ")
+                ),
             );
         }
     }

@@ -6,7 +6,11 @@
 //! symlink (a Kubernetes ConfigMap's `..data`). So the directories are watched, not the
 //! files; any event starts the debounce period again, and when it has passed quietly the
 //! files' contents are hashed and compared with those in force: a reload happens only when
-//! the contents differ, once per change however many events it made.
+//! the contents differ, once per change however many events it made. A directory replaced
+//! as a whole (rsync, ansible: a new one renamed over the old) leaves a watch on a directory
+//! that is gone, so the watch is made anew after every look and every reload, and the
+//! profiles directory's parent is watched too (the rename itself is an event there). A
+//! reload from any trigger (SIGHUP, the API, gRPC) puts its `reload.watch` in force at once.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -58,7 +62,16 @@ fn watcher(
         .unwrap_or(Path::new("."));
     watcher.watch(dir, RecursiveMode::NonRecursive)?;
     if let Some(profiles) = profiles {
-        watcher.watch(profiles, RecursiveMode::NonRecursive)?;
+        if let Some(parent) = profiles.parent().filter(|p| !p.as_os_str().is_empty())
+            && parent != dir
+        {
+            watcher.watch(parent, RecursiveMode::NonRecursive)?;
+        }
+        // Between the two renames of a directory swap it is not there: its parent's watch
+        // sees it come back, and the next watch is made on it then.
+        if let Err(e) = watcher.watch(profiles, RecursiveMode::NonRecursive) {
+            tracing::debug!(error = %e, profiles = %profiles.display(), "the profiles directory is not there to watch");
+        }
     }
     Ok(watcher)
 }
@@ -105,10 +118,13 @@ async fn reload(service: &Arc<Service>, trigger: Trigger) {
 async fn run(service: Arc<Service>, reloader: Arc<Reloader>) {
     let token = service.tasks().token().clone();
     let mut hangup = hangup();
-    // The contents last loaded by the watch (applied or refused): a refused file is not
-    // loaded again until it changes.
-    let mut tried: Option<String> = None;
+    let mut applied = reloader.follow_applied();
+    // The contents the watch last loaded and refused, with the contents then in force: a
+    // refused file is not loaded again until it (or what runs) changes.
+    let mut refused: Option<(String, String)> = None;
+    let mut again = false;
     loop {
+        applied.borrow_and_update();
         let (config, profiles, settings) = reloader.watched().await;
         let (tx, mut rx) = mpsc::channel(EVENTS);
         let _watcher = if settings.watch {
@@ -125,6 +141,9 @@ async fn run(service: Arc<Service>, reloader: Arc<Reloader>) {
         } else {
             None
         };
+        if std::mem::take(&mut again) && settings.watch {
+            look(&service, &reloader, &config, &profiles, &mut refused).await;
+        }
         let mut due: Option<Instant> = None;
         loop {
             let wait = due.unwrap_or_else(|| Instant::now() + Duration::from_secs(3600));
@@ -133,25 +152,38 @@ async fn run(service: Arc<Service>, reloader: Arc<Reloader>) {
                 _ = next_hangup(&mut hangup) => {
                     tracing::info!("SIGHUP: reloading the configuration");
                     reload(&service, Trigger::Sighup).await;
-                    if reloader.watched().await != (config.clone(), profiles.clone(), settings) {
-                        break;
-                    }
                 }
+                // Any trigger's reload: its settings, and directories, anew.
+                Ok(()) = applied.changed() => break,
                 Some(()) = rx.recv() => due = Some(Instant::now() + settings.debounce),
                 _ = tokio::time::sleep_until(wait), if due.is_some() => {
-                    due = None;
-                    let now = contents(&config, profiles.clone()).await;
-                    if now != reloader.hash().await && tried.as_ref() != Some(&now) {
-                        tried = Some(now);
-                        reload(&service, Trigger::Watch).await;
-                        if reloader.watched().await != (config.clone(), profiles.clone(), settings) {
-                            break;
-                        }
-                    }
+                    look(&service, &reloader, &config, &profiles, &mut refused).await;
+                    // Made anew: a directory renamed over the watched one is followed (and
+                    // what changed while it was made is looked at once more, below).
+                    again = true;
+                    break;
                 }
             }
         }
     }
+}
+
+/// Reloads when the files' contents differ from those in force, unless the same contents
+/// were refused while the same ones ran.
+async fn look(
+    service: &Arc<Service>,
+    reloader: &Reloader,
+    config: &Path,
+    profiles: &Option<PathBuf>,
+    refused: &mut Option<(String, String)>,
+) {
+    let now = contents(config, profiles.clone()).await;
+    let in_force = reloader.hash().await;
+    if now == in_force || refused.as_ref() == Some(&(now.clone(), in_force.clone())) {
+        return;
+    }
+    let outcome = service.reload(Trigger::Watch, false).await;
+    *refused = outcome.is_err().then_some((now, in_force));
 }
 
 /// The hash of the files' contents now.

@@ -336,7 +336,9 @@ impl MonitoredItem {
             eu_range: request.eu_range,
         };
         let now = DateTime::now();
-        if let Some(val) = request.initial_value.as_ref() {
+        if request.item_to_monitor.attribute_id == opcua_types::AttributeId::EventNotifier {
+            // An event item is told events only, never a data value.
+        } else if let Some(val) = request.initial_value.as_ref() {
             v.notify_data_value(val.clone(), &now, true);
         } else {
             v.notify_data_value(
