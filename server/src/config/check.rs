@@ -175,11 +175,24 @@ pub(crate) fn safe_value(
             field: field.to_owned(),
         });
     }
-    let value = crate::codec::Value::parse(f.ty, text).map_err(|reason| SafeValueError::Value {
+    let invalid = |reason| SafeValueError::Value {
         text: text.to_owned(),
         ty: f.ty,
         reason,
-    })?;
+    };
+    let value = crate::codec::Value::parse(f.ty, text).map_err(invalid)?;
+    // The type's own range, as every write is checked (99999 is no INT, whatever the
+    // device): parsing reads the number, this says whether the type holds it.
+    let value = match (&value, value.as_i128()) {
+        (crate::codec::Value::Int(_) | crate::codec::Value::UInt(_), Some(n)) => {
+            crate::codec::Value::from_int(f.ty, n).map_err(invalid)?
+        }
+        (crate::codec::Value::Real(_) | crate::codec::Value::LReal(_), _) => {
+            let x = value.as_f64().unwrap_or(f64::NAN);
+            crate::codec::Value::from_real(f.ty, x).map_err(invalid)?
+        }
+        _ => value,
+    };
     // The same check as a write's: the value must fit the register once scaled.
     let on_the_bus = profile.protocol != crate::profile::Protocol::Simulated
         && f.register.kind != crate::profile::RegisterKind::Virtual;
@@ -387,5 +400,27 @@ mod opcua_tests {
         ));
         assert_eq!(reader, "");
         std::fs::remove_file(&tokens).expect("cleanup");
+    }
+}
+
+#[cfg(test)]
+mod safe_value_tests {
+    use super::*;
+
+    #[test]
+    fn a_safe_value_outside_its_type_is_refused_on_a_simulated_device_too() {
+        let profile = crate::profile::load_str(
+            "sim.yaml",
+            "name: Sim\nprotocol: simulated\nfields:\n  - { name: AO_1, type: INT, direction: output, register: { address: 0, kind: virtual } }\n  - { name: R, type: REAL, direction: output, register: { address: 1, kind: virtual } }\n",
+        )
+        .expect("profile");
+        let refused = safe_value(&profile, "AO_1", "99999").expect_err("no INT");
+        assert!(
+            refused.to_string().contains("`99999` is not a INT value"),
+            "{refused}"
+        );
+        assert!(safe_value(&profile, "AO_1", "-32768").is_ok());
+        assert!(safe_value(&profile, "R", "1e39").is_err(), "no REAL either");
+        assert!(safe_value(&profile, "R", "2.5").is_ok());
     }
 }
