@@ -739,9 +739,10 @@ function foundItem(d) {
   return h('li', { 'data-slave': String(d.slave_id) },
     h('strong', {}, `slave ${d.slave_id}`), ` at ${d.setting.baud} 8${d.setting.parity}1 — ${who}`,
     d.collision ? h('div', { class: 'error' }, `Collision: ${d.collision}`) : '',
+    d.garbled ? h('div', { class: 'error' }, `Unreadable answers: ${d.garbled}`) : '',
     h('div', { class: 'meaning' }, reads.join('; ')),
     h('div', {}, d.profiles.length
-      ? `Profiles: ${d.profiles.map((p) => p.identified ? `${p.profile} (identified)` : p.profile).join(', ')}`
+      ? `Profiles: ${d.profiles.map((p) => p.identified ? `${p.profile} (identified)` : p.telling ? p.profile : `${p.profile} (registers only)`).join(', ')}`
       : 'No profile fits.'));
 }
 

@@ -8,7 +8,9 @@ unit id, as a slave on a shared line does; serves until killed.
 SPEC: {"unit": 3, "coils": {"0": [1, 0]}, "discrete": {...}, "holding": {"0": [1, 2]},
        "input": {...}, "identity": {"VendorName": "...", "ProductCode": "...",
        "MajorMinorRevision": "..."}}
-Tables map a start address to its values; every other address answers exception 02.
+Tables map a start address to its values; every other address answers exception 02, but
+with "everywhere": true every address of every table answers (zeros where not given), as
+many simple devices and gateways do.
 """
 
 import json
@@ -19,8 +21,11 @@ from pymodbus.datastore import ModbusDeviceContext, ModbusServerContext, ModbusS
 from pymodbus.server import StartSerialServer
 
 
+EVERYWHERE = False
+
+
 def block(table, bits):
-    values = {}
+    values = {a: (False if bits else 0) for a in range(65536)} if EVERYWHERE else {}
     for start, items in table.items():
         for i, v in enumerate(items):
             values[int(start) + i] = bool(v) if bits else int(v)
@@ -29,7 +34,9 @@ def block(table, bits):
 
 
 def main():
+    global EVERYWHERE
     port, baud, spec = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3])
+    EVERYWHERE = bool(spec.get("everywhere"))
     identity = None
     if "identity" in spec:
         identity = ModbusDeviceIdentification(info_name=spec["identity"])

@@ -1,7 +1,9 @@
 //! What the bytes heard after one probe say: nothing, one answer, two answers (two devices
 //! on one id), or a garbled mix.
 
+use super::ReadAnswer;
 use crate::link::frame::split_frames;
+use crate::profile::RegisterKind;
 
 /// What came back to one probe of `slave`; each answer is its PDU.
 #[derive(Debug, Clone, PartialEq)]
@@ -30,6 +32,86 @@ pub(super) fn judge(bytes: &[u8], slave: u8, function: u8) -> Heard {
         ([one], _) => Heard::Garbled(Some(pdu(one))),
         ([first, ..], _) => Heard::Two(pdu(first)),
     }
+}
+
+/// What a read heard: its data, the device's exception, nothing, or bytes that are neither
+/// (checked as a poll's answer is: function, byte count, length).
+pub(super) fn read_answer(
+    kind: RegisterKind,
+    address: u16,
+    count: u16,
+    heard: &Heard,
+) -> ReadAnswer {
+    use crate::link::frame::{Response, ResponseError};
+    let request = crate::plan::read_request(kind, address, count);
+    let mut answer = ReadAnswer {
+        function: request.function().code(),
+        address,
+        count,
+        answer: "no answer",
+        exception: None,
+        values: Vec::new(),
+    };
+    let pdu = match heard {
+        Heard::Silent => return answer,
+        Heard::Garbled(None) => {
+            answer.answer = "garbled";
+            return answer;
+        }
+        Heard::One(pdu) | Heard::Two(pdu) | Heard::Garbled(Some(pdu)) => pdu,
+    };
+    match request.parse_response(pdu) {
+        Ok(Response::Registers(values)) => {
+            answer.answer = "data";
+            answer.values = values;
+        }
+        Ok(Response::Bits(bits)) => {
+            answer.answer = "data";
+            answer.values = bits.into_iter().map(u16::from).collect();
+        }
+        Err(ResponseError::Exception(x)) => {
+            answer.answer = "exception";
+            answer.exception = Some(format!("{:02X} ({})", x.0, x.describe()));
+        }
+        Ok(_) | Err(ResponseError::Invalid(_)) => answer.answer = "garbled",
+    }
+    answer
+}
+
+/// What two garbled hearings of one probe show, in words a user can act on. A frame of this
+/// slave whose CRC alone is wrong, or the same unreadable bytes twice, is one device whose
+/// bytes are damaged or framed at other settings: never two devices. Bytes that differ
+/// each time are noise, a missing termination or a collision: which, the bytes cannot say.
+pub(super) fn garbled(first: &[u8], second: &[u8], slave: u8, function: u8) -> String {
+    let bad_crc = |b: &[u8]| {
+        let shaped = match (b.first(), b.get(1), b.get(2)) {
+            (Some(&s), Some(&f), _) if s == slave && f == function | 0x80 => b.len() == 5,
+            (Some(&s), Some(&f), Some(&n)) if s == slave && f == function => {
+                b.len() == 5 + usize::from(n)
+            }
+            _ => false,
+        };
+        shaped && {
+            let (body, crc) = b.split_at(b.len() - 2);
+            crate::link::frame::crc16(body).to_le_bytes() != [crc[0], crc[1]]
+        }
+    };
+    if bad_crc(first) && bad_crc(second) {
+        "answers whose CRC is wrong, each time: one device whose bytes are damaged on the line (noise, termination, a parity setting), not two devices".to_owned()
+    } else if first == second {
+        format!(
+            "the same unreadable bytes each time ({}): one device at another baud rate or parity, or a faulty one, not two devices",
+            hex(first)
+        )
+    } else {
+        "unreadable bytes, different each time: noise or a missing termination, or two devices answering at once".to_owned()
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    let shown: Vec<String> = bytes.iter().take(12).map(|b| format!("{b:02X}")).collect();
+    let more = if bytes.len() > 12 { " ..." } else { "" };
+    format!("{}{more}", shown.join(" "))
 }
 
 #[cfg(test)]
@@ -61,6 +143,23 @@ mod tests {
             judge(&frame(&[5, 0x83, 2]), 5, 3),
             Heard::One(vec![0x83, 2])
         );
+    }
+
+    #[test]
+    fn garbled_bytes_are_told_apart_from_a_collision() {
+        let mut bad = frame(&[5, 3, 2, 0x12, 0x34]);
+        bad[6] ^= 0xFF;
+        assert!(garbled(&bad, &bad, 5, 3).contains("CRC is wrong"));
+        assert!(garbled(&bad, &bad, 5, 3).contains("not two devices"));
+        let noise = [0x7E, 0x01, 0xF0];
+        let same = garbled(&noise, &noise, 5, 3);
+        assert!(
+            same.contains("the same unreadable bytes each time (7E 01 F0)"),
+            "{same}"
+        );
+        assert!(same.contains("another baud rate or parity"), "{same}");
+        let differ = garbled(&noise, &[0x11, 0x22], 5, 3);
+        assert!(differ.contains("two devices answering at once"), "{differ}");
     }
 
     #[test]

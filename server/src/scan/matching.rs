@@ -8,6 +8,10 @@ use std::sync::Arc;
 use super::{Found, Prober, ReadAnswer, ScanError, Suggestion, read};
 use crate::profile::{ProbeRead, Profile, Protocol, RegisterKind};
 
+/// A register no device's map has: a device that answers it answers every address, and its
+/// answers to a profile's probes tell nothing.
+const CONTROL: u16 = 0xFFF0;
+
 /// The reads a scan tells `profile`'s device by: its `probe:`, else the first field of each
 /// register kind it uses, read whole.
 pub fn probes(profile: &Profile) -> Vec<ProbeRead> {
@@ -88,10 +92,24 @@ pub(super) async fn suggest(
                 continue 'profiles;
             }
         }
+        // Evidence that tells this profile from others: an identification, values the
+        // profile states, or its map answered by a device that refuses a register no map
+        // has (one that answers every address tells nothing by answering these).
+        let valued = reads.iter().any(|r| r.values.is_some());
+        let mut mapped = true;
+        for kind in reads.iter().map(|r| r.kind) {
+            let key = (kind, CONTROL, 1);
+            if let std::collections::hash_map::Entry::Vacant(slot) = answers.entry(key) {
+                slot.insert(read(prober, device.slave_id, kind, CONTROL, 1).await?.0);
+            }
+            mapped &= answers.get(&key).is_some_and(|a| !a.answered());
+        }
+        let telling = identified == Some(true) || valued || mapped;
         // The strongest evidence first: an identification, then probes the profile states
         // (over the default ones), then how many registers answered as it expects.
         let registers: u32 = reads.iter().map(|r| u32::from(r.count)).sum();
         let rank = (
+            telling,
             identified == Some(true),
             !profile.probe.is_empty(),
             reads.len(),
@@ -103,6 +121,7 @@ pub(super) async fn suggest(
                 profile: profile.name.clone(),
                 identified: identified == Some(true),
                 probes: reads.len(),
+                telling,
             },
         ));
     }
@@ -120,10 +139,17 @@ pub(super) async fn suggest(
 
 /// A `devices:` entry for `iogate.yaml`: named after the profile (in snake case) and the id.
 pub fn device_entry(profile: &str, link: &str, slave: u8) -> String {
-    format!(
-        "- {{ name: {}_{slave}, profile: {profile}, link: {link}, slave_id: {slave} }}",
-        snake(profile)
-    )
+    named_entry(&entry_name(profile, slave), profile, link, slave)
+}
+
+/// The name [`device_entry`] gives.
+pub(super) fn entry_name(profile: &str, slave: u8) -> String {
+    format!("{}_{slave}", snake(profile))
+}
+
+/// A `devices:` entry named `name`.
+pub(super) fn named_entry(name: &str, profile: &str, link: &str, slave: u8) -> String {
+    format!("- {{ name: {name}, profile: {profile}, link: {link}, slave_id: {slave} }}")
 }
 
 /// `WaveshareAnalogInput` → `waveshare_analog_input`.

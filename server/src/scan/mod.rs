@@ -220,6 +220,10 @@ pub struct Suggestion {
     pub identified: bool,
     /// The profile's probe reads, each answered.
     pub probes: usize,
+    /// Whether the evidence tells this profile from others: an identification, stated
+    /// probe values, or a register map answered by a device that refuses registers no map
+    /// has (a device that answers every address tells nothing by answering the profile's).
+    pub telling: bool,
 }
 
 /// A device found: where it answers, what it answered, what it may be.
@@ -233,6 +237,10 @@ pub struct Found {
     /// Two devices on this id: what showed it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub collision: Option<String>,
+    /// Its answers could not be read: what the bytes show (one damaged device, or noise or
+    /// a collision).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub garbled: Option<String>,
     pub profiles: Vec<Suggestion>,
 }
 
@@ -300,24 +308,30 @@ async fn discover(
     profiles: &[Arc<Profile>],
 ) -> Result<Option<Found>, ScanError> {
     let pdu = read_pdu(RegisterKind::HoldingRegister, 0, 1);
-    let mut heard = judge::judge(&prober.probe(id, &pdu, false).await?, id, 3);
+    let first = prober.probe(id, &pdu, false).await?;
+    let mut heard = judge::judge(&first, id, 3);
+    let mut garbled = None;
     if matches!(heard, Heard::Garbled(_)) {
-        // Once more: garbled twice is two devices answering at once, not noise.
-        heard = judge::judge(&prober.probe(id, &pdu, false).await?, id, 3);
+        // Once more: what the two hearings show (the same damage twice is one device).
+        let again = prober.probe(id, &pdu, false).await?;
+        heard = judge::judge(&again, id, 3);
+        if matches!(heard, Heard::Garbled(_)) {
+            garbled = Some(judge::garbled(&first, &again, id, 3));
+        }
     }
     let mut collision = match &heard {
         Heard::Silent => return Ok(None),
         Heard::Two(_) => Some("two answers to one request".to_owned()),
-        Heard::Garbled(_) => Some("garbled answers (two devices answering at once)".to_owned()),
-        Heard::One(_) => None,
+        Heard::Garbled(_) | Heard::One(_) => None,
     };
-    let first = read_answer(RegisterKind::HoldingRegister, 0, 1, &heard);
+    let first = judge::read_answer(RegisterKind::HoldingRegister, 0, 1, &heard);
     let mut device = Found {
         slave_id: id,
         setting,
         reads: vec![first],
         identification: None,
         collision: None,
+        garbled,
         profiles: Vec::new(),
     };
     for kind in [
@@ -346,7 +360,7 @@ async fn read(
     let pdu = read_pdu(kind, address, count);
     let heard = judge::judge(&prober.probe(id, &pdu, true).await?, id, pdu[0]);
     let two = matches!(heard, Heard::Two(_)).then(|| "two answers to one request".to_owned());
-    Ok((read_answer(kind, address, count, &heard), two))
+    Ok((judge::read_answer(kind, address, count, &heard), two))
 }
 
 /// The request PDU of a read.
@@ -354,45 +368,6 @@ fn read_pdu(kind: RegisterKind, address: u16, count: u16) -> Vec<u8> {
     let mut pdu = Vec::with_capacity(5);
     crate::plan::read_request(kind, address, count).encode(&mut pdu);
     pdu
-}
-
-/// What a read heard: its data, the device's exception, nothing, or bytes that are neither
-/// (checked as a poll's answer is: function, byte count, length).
-fn read_answer(kind: RegisterKind, address: u16, count: u16, heard: &Heard) -> ReadAnswer {
-    use crate::link::frame::{Response, ResponseError};
-    let request = crate::plan::read_request(kind, address, count);
-    let mut answer = ReadAnswer {
-        function: request.function().code(),
-        address,
-        count,
-        answer: "no answer",
-        exception: None,
-        values: Vec::new(),
-    };
-    let pdu = match heard {
-        Heard::Silent => return answer,
-        Heard::Garbled(None) => {
-            answer.answer = "garbled";
-            return answer;
-        }
-        Heard::One(pdu) | Heard::Two(pdu) | Heard::Garbled(Some(pdu)) => pdu,
-    };
-    match request.parse_response(pdu) {
-        Ok(Response::Registers(values)) => {
-            answer.answer = "data";
-            answer.values = values;
-        }
-        Ok(Response::Bits(bits)) => {
-            answer.answer = "data";
-            answer.values = bits.into_iter().map(u16::from).collect();
-        }
-        Err(ResponseError::Exception(x)) => {
-            answer.answer = "exception";
-            answer.exception = Some(format!("{:02X} ({})", x.0, x.describe()));
-        }
-        Ok(_) | Err(ResponseError::Invalid(_)) => answer.answer = "garbled",
-    }
-    answer
 }
 
 /// FC 43 / MEI 14: the basic objects, then the regular ones where the device offers them,

@@ -100,33 +100,52 @@ pub fn config(devices: &[Found], port: Option<&str>, link: &str) -> String {
         return out;
     }
     out.push_str("devices:\n");
+    let mut names: Vec<String> = Vec::new();
     for d in devices {
         let link = link_name(link, &d.setting, many);
-        if let Some(why) = &d.collision {
-            let _ = writeln!(
-                out,
-                "  # slave {} on {link}: {why}; give one of them another id first",
-                d.slave_id
+        let _ = writeln!(out, "{}", device_lines(d, &link, &mut names));
+    }
+    out
+}
+
+/// The entry (or the comment saying why there is none) of one device found; `names` are
+/// those given so far (a device that answers at two settings gets two names).
+fn device_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
+    let slave = d.slave_id;
+    if let Some(why) = &d.collision {
+        return format!("  # slave {slave} on {link}: {why}; give one of them another id first");
+    }
+    if let Some(why) = &d.garbled {
+        return format!(
+            "  # slave {slave} on {link}: its answers cannot be read: {why}; check the line before adding it"
+        );
+    }
+    let (telling, shape): (Vec<&super::Suggestion>, Vec<&super::Suggestion>) =
+        d.profiles.iter().partition(|s| s.telling);
+    let Some((best, others)) = telling.split_first() else {
+        if shape.is_empty() {
+            return format!(
+                "  # slave {slave} on {link}: no profile fits; import or write one (iogate profile import)"
             );
-            continue;
         }
-        match d.profiles.split_first() {
-            None => {
-                let _ = writeln!(
-                    out,
-                    "  # slave {} on {link}: no profile fits; import or write one (iogate profile import)",
-                    d.slave_id
-                );
-            }
-            Some((best, others)) => {
-                let entry = super::matching::device_entry(&best.profile, &link, d.slave_id);
-                let _ = writeln!(out, "  {entry}");
-                if !others.is_empty() {
-                    let names: Vec<&str> = others.iter().map(|s| s.profile.as_str()).collect();
-                    let _ = writeln!(out, "  #   also fits: {}", names.join(", "));
-                }
-            }
-        }
+        let fits: Vec<&str> = shape.iter().map(|s| s.profile.as_str()).collect();
+        return format!(
+            "  # slave {slave} on {link}: answers where {} expect(s), but also where no map has registers: nothing tells which device it is; add its entry by hand",
+            fits.join(", ")
+        );
+    };
+    let mut name = super::matching::entry_name(&best.profile, slave);
+    if names.contains(&name) {
+        name = format!("{name}_{link}");
+    }
+    names.push(name.clone());
+    let mut out = format!(
+        "  {}",
+        super::matching::named_entry(&name, &best.profile, link, slave)
+    );
+    if !others.is_empty() {
+        let names: Vec<&str> = others.iter().map(|s| s.profile.as_str()).collect();
+        let _ = write!(out, "\n  #   also fits: {}", names.join(", "));
     }
     out
 }
@@ -163,6 +182,9 @@ pub fn device_line(d: &Found) -> String {
     if let Some(why) = &d.collision {
         let _ = write!(out, "\n      COLLISION: {why}");
     }
+    if let Some(why) = &d.garbled {
+        let _ = write!(out, "\n      UNREADABLE: {why}");
+    }
     if d.profiles.is_empty() {
         out.push_str("\n      profiles: none fits");
     } else {
@@ -198,11 +220,13 @@ mod tests {
             reads: Vec::new(),
             identification: None,
             collision: collision.map(str::to_owned),
+            garbled: None,
             profiles: profile
                 .map(|p| Suggestion {
                     profile: p.to_owned(),
                     identified: false,
                     probes: 1,
+                    telling: true,
                 })
                 .into_iter()
                 .collect(),
@@ -246,5 +270,43 @@ mod tests {
         );
         assert!(two.contains("name: line_9600_8n1"), "{two}");
         assert!(two.contains("link: line_19200_8n1, slave_id: 4"), "{two}");
+    }
+
+    #[test]
+    fn one_device_at_two_settings_gets_two_names_and_a_shape_alone_no_entry() {
+        let twice = config(
+            &[
+                found(3, 9600, Some("Meter"), None),
+                found(3, 19200, Some("Meter"), None),
+            ],
+            Some("/dev/ttyUSB0"),
+            "line",
+        );
+        let text = format!(
+            "devices:\n{}",
+            twice.split("devices:\n").nth(1).unwrap_or("")
+        );
+        assert!(text.contains("name: meter_3,"), "{twice}");
+        assert!(text.contains("name: meter_3_line_19200_8n1,"), "{twice}");
+        let mut shape = found(4, 9600, Some("WaveshareAnalogInput"), None);
+        shape.profiles[0].telling = false;
+        let mut garbled = found(5, 9600, None, None);
+        garbled.garbled = Some("answers whose CRC is wrong, each time".to_owned());
+        let out = config(&[shape, garbled], None, "line");
+        assert!(!out.contains("profile: WaveshareAnalogInput"), "{out}");
+        assert!(
+            out.contains("# slave 4 on line: answers where WaveshareAnalogInput expect(s), but also where no map has registers"),
+            "{out}"
+        );
+        assert!(
+            out.contains(
+                "# slave 5 on line: its answers cannot be read: answers whose CRC is wrong"
+            ),
+            "{out}"
+        );
+        assert!(
+            !out.contains("another id"),
+            "no collision is claimed: {out}"
+        );
     }
 }
