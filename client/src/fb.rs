@@ -54,9 +54,12 @@ impl std::str::FromStr for InputEdge {
 }
 
 impl InputEdge {
-    /// Whether going from `before` to `now` (None is null) starts a read.
-    pub fn fires(self, before: Option<Option<bool>>, now: Option<bool>) -> bool {
-        let before = before.flatten();
+    /// Whether the input `now` (None is null) starts a read, `last` being the last logical
+    /// value the input had: a null is no logical value and is ignored by the edges
+    /// (source document 004: "other values are ignored"), so false, null, true is a rising
+    /// edge.
+    pub fn fires(self, last: Option<bool>, now: Option<bool>) -> bool {
+        let before = last;
         match self {
             InputEdge::Rising => before == Some(false) && now == Some(true),
             InputEdge::Falling => before == Some(true) && now == Some(false),
@@ -82,7 +85,8 @@ pub struct ModbusRead {
     request: TransactRequest,
     edge: InputEdge,
     refresh: Duration,
-    previous: Option<Option<bool>>,
+    /// The input's last logical value (nulls do not change it).
+    previous: Option<bool>,
     running: Option<Running>,
     next_cyclic: Option<Instant>,
     value: Option<f64>,
@@ -125,7 +129,9 @@ impl ModbusRead {
     /// One scan cycle with the main input (`None` is null). Returns (value, ok).
     pub fn call(&mut self, input: Option<bool>) -> (Option<f64>, bool) {
         let fired = self.edge.fires(self.previous, input);
-        self.previous = Some(input);
+        if input.is_some() {
+            self.previous = input;
+        }
         self.collect();
         let now = Instant::now();
         let cyclic = self.next_cyclic.is_some_and(|at| now >= at);
@@ -159,6 +165,12 @@ impl ModbusRead {
             Some(Ok(Ok(o))) => {
                 self.ok = false;
                 self.status = o.error.unwrap_or_else(|| "Internal error".into());
+            }
+            // The gateway's words as they are (source document 004's messages, each on
+            // its line), without the gRPC code a log line would add.
+            Some(Ok(Err(Error::Status { message, .. }))) => {
+                self.ok = false;
+                self.status = message;
             }
             Some(Ok(Err(e))) => {
                 self.ok = false;
@@ -232,7 +244,7 @@ impl ModbusWrite {
 
     /// One scan cycle: `enable` and the values to write. Returns (actual, state).
     pub fn call(&mut self, enable: bool, values: &[f64]) -> (bool, i32) {
-        self.collect();
+        let ended = self.collect();
         if let Some(_running) = &self.running {
             self.calls_in_flight += 1;
             self.state = if self.calls_in_flight == 1 { 2 } else { 3 };
@@ -250,19 +262,23 @@ impl ModbusWrite {
                 self.state = 1;
                 self.running = Some(tokio::spawn(async move { client.transact(request).await }));
             }
-        } else if !enable {
+        } else if !ended {
+            // Not active. A transaction `enable` started still runs to its end after
+            // `enable` drops (a one-cycle pulse), and the call that sees it end reports its
+            // outcome (4, or the failure) for that cycle, as a DONE bit does.
             self.state = 0;
         }
         self.was_enabled = enable;
         (self.actual, self.state)
     }
 
-    fn collect(&mut self) {
+    /// Takes a finished transaction's outcome; whether one ended.
+    fn collect(&mut self) -> bool {
         if !self.running.as_ref().is_some_and(JoinHandle::is_finished) {
-            return;
+            return false;
         }
         let Some(handle) = self.running.take() else {
-            return;
+            return false;
         };
         match futures_util::FutureExt::now_or_never(handle) {
             Some(Ok(Ok(o))) => {
@@ -278,6 +294,7 @@ impl ModbusWrite {
                 self.state = -3;
             }
         }
+        true
     }
 
     /// Output `actual`: the last command got a correct response.
@@ -303,21 +320,21 @@ mod tests {
         let f = Some(false);
         // (edge, before, now, fires)
         let cases = [
-            (E::Rising, Some(f), t, true),
-            (E::Rising, Some(t), t, false),
+            (E::Rising, f, t, true),
+            (E::Rising, t, t, false),
             (E::Rising, None, t, false),
-            (E::Falling, Some(t), f, true),
-            (E::Falling, Some(f), f, false),
-            (E::Both, Some(t), f, true),
-            (E::Both, Some(f), t, true),
-            (E::Both, Some(t), t, false),
-            (E::Both, Some(None), t, false),
-            (E::True, Some(t), t, true),
-            (E::True, Some(f), f, false),
-            (E::False, Some(f), f, true),
-            (E::Null, Some(t), None, true),
-            (E::Null, Some(None), t, false),
-            (E::None, Some(f), t, false),
+            (E::Falling, t, f, true),
+            (E::Falling, f, f, false),
+            (E::Both, t, f, true),
+            (E::Both, f, t, true),
+            (E::Both, t, t, false),
+            (E::Both, None, t, false),
+            (E::True, t, t, true),
+            (E::True, f, f, false),
+            (E::False, f, f, true),
+            (E::Null, t, None, true),
+            (E::Null, None, t, false),
+            (E::None, f, t, false),
         ];
         for (edge, before, now, fires) in cases {
             assert_eq!(
@@ -327,5 +344,19 @@ mod tests {
             );
         }
         assert_eq!("sideways".parse::<InputEdge>(), Err(INVALID_INPUT_EDGE));
+    }
+
+    #[test]
+    fn a_null_between_false_and_true_is_ignored_and_the_rising_edge_fires() {
+        // What a block keeps as `last`: the input's last logical value.
+        let mut last = None;
+        let mut fired = Vec::new();
+        for input in [Some(false), None, Some(true), None, Some(true)] {
+            fired.push(InputEdge::Rising.fires(last, input));
+            if input.is_some() {
+                last = input;
+            }
+        }
+        assert_eq!(fired, [false, false, true, false, false]);
     }
 }

@@ -605,6 +605,26 @@ async fn the_read_block_reads_on_its_edge_keeps_its_value_on_error_and_ignores_t
     .await;
     let sent = bus.seen().len();
     assert!(sent <= 2, "{sent} reads for 20 calls without waiting");
+
+    // A refused configuration: the block's status is the message as it is, and a null
+    // between false and true is ignored, so the rising edge fires.
+    let client = on.gw.client().await.expect("client");
+    let bad = iogate_client::proto::TransactRequest {
+        precision: Some(9),
+        ..read_request()
+    };
+    let mut refused =
+        ModbusRead::new(client, bad, "rising", std::time::Duration::ZERO).expect("block");
+    refused.call(Some(false));
+    refused.call(None);
+    refused.call(Some(true));
+    assert!(refused.busy(), "false, null, true is a rising edge");
+    cycles(|| {
+        refused.call(Some(true));
+        !refused.busy()
+    })
+    .await;
+    assert_eq!(refused.status(), "Invalid precision configuration.");
     on.gw.shutdown().await;
     on.task.abort();
 }
@@ -675,7 +695,25 @@ async fn the_write_block_walks_its_states_and_resends_while_enabled() {
         bus.read_slave(17, |s| s.tables.holding[1]) == Some(5)
     })
     .await;
+    // Released: not active once the last transaction has ended (that cycle reports it).
+    cycles(|| block.call(false, &[5.0]).1 == 0).await;
     assert_eq!(block.call(false, &[5.0]).1, 0);
+
+    // A one-cycle pulse of `enable`: its write runs to the end and reports 4 for a cycle.
+    let mut block = block;
+    let (_, started) = block.call(true, &[9.0]);
+    assert_eq!(started, 1, "the pulse starts a write");
+    let mut seen = vec![started];
+    cycles(|| {
+        let (_, s) = block.call(false, &[9.0]);
+        if seen.last() != Some(&s) {
+            seen.push(s);
+        }
+        s == 4
+    })
+    .await;
+    assert_eq!(bus.read_slave(17, |s| s.tables.holding[1]), Some(9));
+    assert_eq!(block.call(false, &[9.0]).1, 0, "then not active: {seen:?}");
     on.gw.shutdown().await;
     on.task.abort();
 }
@@ -1115,6 +1153,7 @@ async fn a_request_whose_caller_is_gone_or_late_is_never_sent() {
         timeout: Duration::from_millis(100),
         deadline: Instant::now() + Duration::from_secs(5),
         reply: gone,
+        stage: None,
     });
     // A deadline the slave's timeout would pass: answered, not sent.
     let (late, late_answer) = tokio::sync::oneshot::channel();
@@ -1124,6 +1163,7 @@ async fn a_request_whose_caller_is_gone_or_late_is_never_sent() {
         timeout: Duration::from_millis(100),
         deadline: Instant::now() + Duration::from_millis(50),
         reply: late,
+        stage: None,
     });
     // And one that is sent.
     let (fine, fine_answer) = tokio::sync::oneshot::channel();
@@ -1133,6 +1173,7 @@ async fn a_request_whose_caller_is_gone_or_late_is_never_sent() {
         timeout: Duration::from_millis(100),
         deadline: Instant::now() + Duration::from_secs(5),
         reply: fine,
+        stage: None,
     });
     assert!(matches!(
         late_answer.await.expect("answered"),
@@ -1156,6 +1197,7 @@ async fn a_request_whose_caller_is_gone_or_late_is_never_sent() {
             timeout: Duration::from_millis(100),
             deadline: Instant::now() + Duration::from_secs(5),
             reply,
+            stage: None,
         });
         answers.push(answer);
     }

@@ -113,6 +113,9 @@ pub enum LocationError {
     /// `%IB1.1`.
     #[error("`{0}`: two part hierarchy is only permitted for X data size")]
     TwoParts(String),
+    /// `%IX0..1`, `%IX0.`: a part missing between periods.
+    #[error("`{0}`: parts are separated by a single period, each a number")]
+    EmptyPart(String),
     /// `%IX3`: a bit address without its bit.
     #[error("`{0}`: a bit address has two parts, byte.bit (e.g. %IX0.0)")]
     OnePartBit(String),
@@ -158,6 +161,9 @@ impl Location {
             }
             p.parse().map_err(|_| LocationError::Number(owned()))
         };
+        if parts.len() > 1 && parts.iter().any(|p| p.is_empty()) {
+            return Err(LocationError::EmptyPart(owned()));
+        }
         match (size, parts.as_slice()) {
             (_, [_, _, _, ..]) => Err(LocationError::ThreeParts(owned())),
             (Size::Bit, [byte, bit]) => {
@@ -255,6 +261,9 @@ mod tests {
             ("%IW", "natural number"),
             ("%IW-1", "natural number"),
             ("%IX0", "two parts"),
+            ("%IX0..1", "separated by a single period"),
+            ("%IX0.", "separated by a single period"),
+            ("%QX.1", "separated by a single period"),
         ];
         for (text, reason) in cases {
             let err = Location::parse(text).expect_err(text).to_string();

@@ -138,6 +138,7 @@ fn transaction_status(
         runs: st.runs,
         failures: st.failures,
         updated: st.updated.map(prost_types::Timestamp::from),
+        state: st.state(),
     }
 }
 

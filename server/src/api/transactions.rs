@@ -81,7 +81,9 @@ pub(crate) struct StandingInfo {
     /// write (from the start of the previous); 0: only when triggered.
     pub(crate) period_ms: u64,
     pub(crate) actual: bool,
-    /// 0 not run yet; 4 done; -1 interface unavailable; -2 response timeout; -3 unknown error.
+    /// 0 not active (not run yet); while a run is under way 1 waiting for the link, 2 the
+    /// link taken, 3 on the line; then 4 done, -1 interface unavailable, -2 response timeout,
+    /// -3 unknown error.
     pub(crate) state: i32,
     pub(crate) value: Option<f64>,
     pub(crate) error: Option<String>,
@@ -104,7 +106,7 @@ pub(crate) fn standing_info(s: &Standing, status: &StandingStatus) -> StandingIn
         enabled: status.enabled,
         period_ms: s.period.as_millis() as u64,
         actual: last.is_some_and(|o| o.actual),
-        state: last.map_or(crate::transaction::state::NOT_ACTIVE, |o| o.state),
+        state: status.state(),
         value: last.and_then(|o| o.value),
         error: last.and_then(|o| o.error).map(str::to_owned),
         request: last.map(|o| o.request.clone()),

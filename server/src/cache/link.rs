@@ -28,6 +28,18 @@ pub struct Passthrough {
     /// sent.
     pub deadline: tokio::time::Instant,
     pub reply: oneshot::Sender<Result<Response, PassthroughError>>,
+    /// Told where the request is, for a caller that shows it (source document 002's
+    /// states 1-3); `None` for one that does not.
+    pub stage: Option<tokio::sync::watch::Sender<Stage>>,
+}
+
+/// Where a queued request is: in the inbox, taken by the link's task (waiting for the
+/// line's silence), or on the line waiting for its answer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    Queued,
+    Taken,
+    Sent,
 }
 
 /// How many requests a link's inbox holds; one more is answered busy at once.

@@ -23,7 +23,7 @@ use crate::write_log::WriteLog;
 
 pub(crate) use device::{Binding, Device, Fate};
 pub use link::{
-    INBOX_CAPACITY, Inbox, Link, LinkState, Passthrough, PassthroughError, Probe, Progress,
+    INBOX_CAPACITY, Inbox, Link, LinkState, Passthrough, PassthroughError, Probe, Progress, Stage,
     Utilisation,
 };
 pub(crate) use outputs::{Checked, WriteError};

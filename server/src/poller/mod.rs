@@ -302,6 +302,9 @@ impl LinkTask {
 
     /// Sends a queued request as it is, and answers it.
     async fn pass_through(&mut self, queued: Passthrough, bus: &mut Bus) -> Step {
+        if let Some(stage) = &queued.stage {
+            stage.send_replace(crate::cache::Stage::Taken);
+        }
         let label = self
             .devices
             .iter()
@@ -310,6 +313,9 @@ impl LinkTask {
                 || format!("unit{}", queued.slave),
                 |p| p.device.name().to_owned(),
             );
+        if let Some(stage) = &queued.stage {
+            stage.send_replace(crate::cache::Stage::Sent);
+        }
         let (result, _) = bus
             .transact_as(&label, queued.slave, queued.timeout, &queued.request, 0)
             .await;

@@ -319,7 +319,7 @@ impl Service {
                 // send by then (after the slave's timeout) is dropped, never sent late.
                 let deadline = Instant::now() + timeout + FORWARD_PATIENCE;
                 match self
-                    .pass_through(&link, unit, request, timeout, deadline)
+                    .pass_through(&link, unit, request, timeout, deadline, None)
                     .await
                 {
                     Ok(response) => Ok(response),

@@ -24,6 +24,21 @@ pub(crate) struct StandingStatus {
     pub(crate) runs: u64,
     pub(crate) failures: u64,
     pub(crate) updated: Option<SystemTime>,
+    /// Where a run under way is (source document 002's states): 1 waiting for the link,
+    /// 2 taken by its task, 3 on the line; `None` between runs.
+    pub(crate) phase: Option<i32>,
+}
+
+impl StandingStatus {
+    /// The write block's `state` now: a run's phase while one is under way, else the last
+    /// run's outcome (0 before the first).
+    pub(crate) fn state(&self) -> i32 {
+        self.phase.unwrap_or_else(|| {
+            self.last
+                .as_ref()
+                .map_or(crate::transaction::state::NOT_ACTIVE, |o| o.state)
+        })
+    }
 }
 
 /// A standing transaction.
@@ -153,6 +168,7 @@ impl Service {
                 runs: 0,
                 failures: 0,
                 updated: None,
+                phase: None,
             }),
             wake: Notify::new(),
             line: config.line,
@@ -240,6 +256,37 @@ impl Service {
         Ok(s)
     }
 
+    /// Runs `spec` once, its phase (1, 2, 3) told in the status as the request moves on;
+    /// `None` when the transaction was removed meanwhile.
+    async fn run_tracked(
+        &self,
+        s: &Standing,
+        spec: &crate::transaction::TransactionSpec,
+        token: &tokio_util::sync::CancellationToken,
+    ) -> Option<Result<crate::transaction::Outcome, ServiceError>> {
+        use crate::cache::Stage;
+        use crate::transaction::state;
+        let (stage, mut told) = watch::channel(Stage::Queued);
+        let phase = |at: Stage| match at {
+            Stage::Queued => state::WAITING,
+            Stage::Taken => state::ACCESS,
+            Stage::Sent => state::IN_PROGRESS,
+        };
+        s.status.send_modify(|st| st.phase = Some(state::WAITING));
+        let run = self.transact_staged(&s.link, spec, Some(stage));
+        tokio::pin!(run);
+        loop {
+            tokio::select! {
+                _ = token.cancelled() => return None,
+                outcome = &mut run => return Some(outcome),
+                Ok(()) = told.changed() => {
+                    let at = phase(*told.borrow_and_update());
+                    s.status.send_modify(|st| st.phase = Some(at));
+                }
+            }
+        }
+    }
+
     async fn run_standing(self: Arc<Self>, s: Arc<Standing>) {
         let token = s.stop.clone();
         // Source document 004: the first cyclic read about 2 s after start (of the gateway
@@ -280,12 +327,12 @@ impl Service {
             }
             let started = Instant::now();
             let spec = s.spec();
-            let outcome = tokio::select! {
-                _ = token.cancelled() => return,
-                outcome = self.transact(&s.link, &spec) => outcome,
+            let Some(outcome) = self.run_tracked(&s, &spec, &token).await else {
+                return;
             };
             let ok = matches!(&outcome, Ok(o) if o.actual);
             s.status.send_modify(|st| {
+                st.phase = None;
                 st.runs += 1;
                 if !ok {
                     st.failures += 1;

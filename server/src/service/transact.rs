@@ -7,7 +7,7 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 
 use super::{Service, ServiceError};
-use crate::cache::{Link, Passthrough, PassthroughError};
+use crate::cache::{Link, Passthrough, PassthroughError, Stage};
 use crate::config::{Framing, Transport};
 use crate::link::frame::{Request, Response, crc16};
 use crate::transaction::params::ParamError;
@@ -40,6 +40,7 @@ impl Service {
         request: &Request,
         timeout: Duration,
         deadline: Instant,
+        stage: Option<tokio::sync::watch::Sender<Stage>>,
     ) -> Result<Response, PassthroughError> {
         let (reply, answer) = oneshot::channel();
         link.submit(Passthrough {
@@ -48,6 +49,7 @@ impl Service {
             timeout,
             deadline,
             reply,
+            stage,
         });
         let answered = tokio::time::timeout_at(deadline + timeout + TASK_GRACE, answer)
             .await
@@ -75,6 +77,16 @@ impl Service {
         &self,
         link: &str,
         spec: &TransactionSpec,
+    ) -> Result<Outcome, ServiceError> {
+        self.transact_staged(link, spec, None).await
+    }
+
+    /// [`Service::transact`], telling `stage` where the request is on its way.
+    pub(crate) async fn transact_staged(
+        &self,
+        link: &str,
+        spec: &TransactionSpec,
+        stage: Option<tokio::sync::watch::Sender<Stage>>,
     ) -> Result<Outcome, ServiceError> {
         self.accepting()?;
         let link = self.cache.link(link).ok();
@@ -129,7 +141,7 @@ impl Service {
         // link cannot send by then is dropped (busy), never sent late.
         let deadline = started + checked.timeout * 2 + Duration::from_secs(1);
         let answered = self
-            .pass_through(&link, slave, &request, checked.timeout, deadline)
+            .pass_through(&link, slave, &request, checked.timeout, deadline, stage)
             .await;
         Ok(match answered {
             Err(PassthroughError::Busy | PassthroughError::Expired) => {
