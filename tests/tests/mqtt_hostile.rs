@@ -184,3 +184,96 @@ async fn a_connect_whose_connack_was_lost_never_lends_its_bd_seq_to_the_next_ses
     watcher.stop().await;
     broker.stop().await;
 }
+
+#[tokio::test]
+async fn a_clean_stop_is_one_death_with_json_beside_sparkplug() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut watcher = Peer::subscribe(&broker, "spBv1.0/plant1/NDEATH/#")
+        .await
+        .expect("paho");
+    let gw = TestGateway::start(&sparkplug_config(
+        broker.port,
+        "  json: { prefix: iogate/line1, qos: 1, retain: true }\n",
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/mqtt", "born", |s| {
+        s["sparkplug"]["born_devices"] == 1
+    })
+    .await
+    .expect("born");
+    gw.shutdown().await;
+    let deaths = deaths_until_marker(&mut watcher).await;
+    assert_eq!(
+        deaths.len(),
+        1,
+        "one NDEATH, not the Will beside it: {deaths:?}"
+    );
+    watcher.stop().await;
+    broker.stop().await;
+}
+
+/// A proxy to the broker that passes a connection's CONNECT and CONNACK and then nothing
+/// more, either way, keeping both sockets open: a broker that stalls (its acknowledgements
+/// and pings' answers never come).
+async fn stalling_after_connack(broker: u16) -> u16 {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    tokio::spawn(async move {
+        while let Ok((mut client, _)) = listener.accept().await {
+            let Ok(mut upstream) = tokio::net::TcpStream::connect(("127.0.0.1", broker)).await
+            else {
+                continue;
+            };
+            tokio::spawn(async move {
+                let mut buf = vec![0u8; 4096];
+                let Ok(n) = client.read(&mut buf).await else {
+                    return;
+                };
+                let _ = upstream.write_all(&buf[..n]).await;
+                let Ok(n) = upstream.read(&mut buf).await else {
+                    return;
+                };
+                let _ = client.write_all(&buf[..n]).await;
+                // Nothing more is passed; what the client sends is read and dropped.
+                while let Ok(n) = client.read(&mut buf).await {
+                    if n == 0 {
+                        break;
+                    }
+                }
+                drop(upstream);
+            });
+        }
+    });
+    port
+}
+
+#[tokio::test]
+async fn first_values_unconfirmed_when_a_connection_ends_are_not_kept_as_changes() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let proxy = stalling_after_connack(broker.port).await;
+    let dir = iogate_tests::devices::temp_dir("mqtt-first-values");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}\nmqtt:\n  url: mqtt://127.0.0.1:{proxy}\n  client_id: iogate-first-{proxy}\n  keep_alive: 1s\n  json: {{ prefix: iogate/line1, qos: 1, retain: true }}\n  buffer: {{ dir: {} }}\n",
+        dir.display()
+    ))
+    .await
+    .expect("gateway");
+    // Connected, its first values published and never acknowledged, then the keep-alive
+    // ends the connection.
+    let status = gw
+        .until("/api/v1/mqtt", "the stalled connection ended", |s| {
+            s["last_error"].as_str().is_some_and(|e| e.contains("ping"))
+        })
+        .await
+        .expect("ended");
+    assert_eq!(
+        status["buffer"]["messages"], 0,
+        "no change happened, so nothing is kept for replay: {status:#}"
+    );
+    gw.shutdown().await;
+    broker.stop().await;
+}

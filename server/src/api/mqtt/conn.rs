@@ -316,11 +316,20 @@ impl Connection {
         self.send(&packet::puback(pkid)).await
     }
 
-    /// Ends the connection cleanly: the broker does not publish the Will.
+    /// Ends the connection cleanly: the broker does not publish the Will. After the
+    /// DISCONNECT the socket is read to its end (the broker closes it): a socket closed with
+    /// unread bytes in it (the PUBACKs of the last publishes) is reset, and a reset can throw
+    /// away the DISCONNECT before the broker reads it, which then publishes the Will.
     pub(crate) async fn disconnect(mut self) {
         let _ = tokio::time::timeout(Duration::from_secs(2), async {
             let _ = self.send(&packet::disconnect()).await;
             let _ = self.io.shutdown().await;
+            let mut rest = [0u8; 4096];
+            while let Ok(n) = self.io.read(&mut rest).await {
+                if n == 0 {
+                    break;
+                }
+            }
         })
         .await;
     }

@@ -290,9 +290,10 @@ fn read_bd_seq(dir: &Path) -> Option<u8> {
 
 /// A message waiting to be published on the connection.
 enum Item {
-    /// A data message: tracked until the broker confirms it, buffered if the connection
-    /// ends first.
-    Data(Record),
+    /// A data message: tracked until the broker confirms it, and buffered if the connection
+    /// ends first when it is a change (a field's first value and heartbeats are not: the
+    /// next connection's births and first messages carry the current values).
+    Data { record: Record, change: bool },
     /// A JSON message that is not data (states, write results).
     Plain(Out),
     /// A Sparkplug message to a device (DBIRTH, DDATA, DDEATH); `seq` is given when sent.
@@ -324,7 +325,8 @@ struct Unconfirmed<T> {
 struct Online {
     conn: Connection,
     outbox: VecDeque<Item>,
-    live: VecDeque<Unconfirmed<Record>>,
+    /// Data published and not confirmed, each with whether it is a change to keep.
+    live: VecDeque<Unconfirmed<(Record, bool)>>,
     replay: VecDeque<Unconfirmed<Pos>>,
     replay_budget: f64,
     /// NBIRTH sent (and the host online, when one is configured).
@@ -598,14 +600,17 @@ impl Task {
         let live: Vec<Record> = online
             .live
             .drain(..)
-            .filter(|u| !u.confirmed)
-            .map(|u| u.item)
+            .filter(|u| !u.confirmed && u.item.1)
+            .map(|u| u.item.0)
             .collect();
         let waiting: Vec<Record> = online
             .outbox
             .drain(..)
             .filter_map(|i| match i {
-                Item::Data(r) => Some(r),
+                Item::Data {
+                    record,
+                    change: true,
+                } => Some(record),
                 _ => None,
             })
             .collect();
@@ -867,7 +872,7 @@ impl Task {
                 let view = self.service.field_view(&device, idx, &sample);
                 let deadband = view.field.deadband;
                 let now = Instant::now();
-                let first = !self.reporter.has_sent(key);
+                let first = !self.reporter.has_sent_value(key);
                 let decision =
                     self.reporter
                         .change(key, view.value.as_ref(), view.quality, deadband, now);
@@ -922,7 +927,7 @@ impl Task {
                 payload: serde_json::to_vec(&field_value(view)).unwrap_or_default(),
             };
             match online.as_deref_mut() {
-                Some(o) => o.outbox.push_back(Item::Data(record)),
+                Some(o) => o.outbox.push_back(Item::Data { record, change }),
                 None if change => self.keep(record),
                 None => {}
             }
@@ -938,7 +943,7 @@ impl Task {
             };
             match online {
                 Some(o) if o.node_born && o.born.contains(&device) => {
-                    o.outbox.push_back(Item::Data(record));
+                    o.outbox.push_back(Item::Data { record, change });
                 }
                 // A device that does not answer is dead to the host; its DBIRTH brings the
                 // values when it answers again.
@@ -1093,7 +1098,7 @@ impl Task {
                     )
                     .await?;
                 }
-                Item::Data(record) => {
+                Item::Data { record, change } => {
                     let Some(out) = self.data_out(online, &record, false) else {
                         continue;
                     };
@@ -1101,7 +1106,7 @@ impl Task {
                     self.publish(online, out, ticket).await?;
                     online.live.push_back(Unconfirmed {
                         ticket,
-                        item: record,
+                        item: (record, change),
                         confirmed: false,
                     });
                 }
@@ -1236,7 +1241,7 @@ impl Task {
         if let Ok(i) = online.live.binary_search_by_key(&ticket, |u| u.ticket) {
             let u = &mut online.live[i];
             u.confirmed = true;
-            let latency = now_ms().saturating_sub(u.item.at_ms);
+            let latency = now_ms().saturating_sub(u.item.0.at_ms);
             self.service
                 .metrics
                 .mqtt_publish_latency(latency as f64 / 1000.0);

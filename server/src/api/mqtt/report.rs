@@ -22,6 +22,8 @@ struct Reported {
     /// A change held back by `min_interval`.
     held: bool,
     timer: Option<delay_queue::Key>,
+    /// A value (not only a never-read state) has been published.
+    valued: bool,
 }
 
 /// What to do with a change.
@@ -86,6 +88,7 @@ impl Reporter {
         let max = self.config.max_interval;
         let r = self.fields.entry(key).or_default();
         r.value = value.cloned();
+        r.valued |= value.is_some();
         r.quality = Some(quality);
         r.sent = Some(now);
         r.held = false;
@@ -101,10 +104,10 @@ impl Reporter {
         }
     }
 
-    /// Whether `key` was ever published (its first value is the current state, which the
-    /// births and a connection's first messages carry, not a change to keep for later).
-    pub(crate) fn has_sent(&self, key: Key) -> bool {
-        self.fields.get(&key).is_some_and(|r| r.sent.is_some())
+    /// Whether a value of `key` has been published (its never-read state does not count):
+    /// the next one is else the field's first value.
+    pub(crate) fn has_sent_value(&self, key: Key) -> bool {
+        self.fields.get(&key).is_some_and(|r| r.valued)
     }
 
     /// Whether `key` has a change held back by `min_interval` (else what is due for it is
