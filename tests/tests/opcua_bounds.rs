@@ -366,3 +366,39 @@ async fn an_event_item_is_told_events_and_never_a_data_value() {
     );
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn security_refusals_are_each_counted() {
+    let dir = temp_dir("opcua-refusals");
+    let tokens = dir.join("tokens");
+    std::fs::write(&tokens, "read reader-0123456789abcdef\n").expect("tokens");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\nsecurity: {{ tokens_file: {} }}\n{}",
+        tokens.display(),
+        opcua(&dir, "")
+    ))
+    .await
+    .expect("gateway");
+    let count = |m: &str| -> u64 {
+        m.lines()
+            .find_map(|l| l.strip_prefix("iogate_opcua_security_rejected_total "))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0)
+    };
+    let before = count(&gw.metrics().await.expect("metrics"));
+    // Two refusals: no token at all (anonymous), and a token the gateway does not know.
+    let anonymous = iogate_tests::opcua::refused(&url(&gw), &Options::default())
+        .await
+        .expect("anonymous refused");
+    assert!(anonymous.contains("Bad"), "{anonymous}");
+    let wrong = Options {
+        user: Some(("token".into(), "not-a-token-at-all".into())),
+        ..Options::default()
+    };
+    iogate_tests::opcua::refused(&url(&gw), &wrong)
+        .await
+        .expect("unknown token refused");
+    let after = count(&gw.metrics().await.expect("metrics"));
+    assert_eq!(after - before, 2, "each refusal counted once");
+    gw.shutdown().await;
+}

@@ -267,12 +267,7 @@ impl SessionController {
             let status = msg.message.response_header().service_result;
             if status.is_bad() {
                 self.info.diagnostics.inc_rejected_requests();
-                if matches!(
-                    status,
-                    StatusCode::BadSessionIdInvalid
-                        | StatusCode::BadSecurityChecksFailed
-                        | StatusCode::BadUserAccessDenied
-                ) {
+                if security_refusal(status) {
                     self.info.diagnostics.inc_security_rejected_requests();
                 }
             }
@@ -572,12 +567,7 @@ impl SessionController {
             Ok(m) => m.into(),
             Err(e) => {
                 self.info.diagnostics.inc_rejected_requests();
-                if matches!(
-                    e,
-                    StatusCode::BadSessionIdInvalid
-                        | StatusCode::BadSecurityChecksFailed
-                        | StatusCode::BadUserAccessDenied
-                ) {
+                if security_refusal(e) {
                     self.info.diagnostics.inc_security_rejected_requests();
                 }
 
@@ -770,4 +760,36 @@ impl SecureChannelState {
         self.last_token_id += 1;
         self.last_token_id
     }
+}
+
+/// Whether a refusal is for security: a session, a user's token, a client certificate, a
+/// signature (the published crate counted three codes, so an untrusted certificate or an
+/// unknown token went uncounted).
+fn security_refusal(status: StatusCode) -> bool {
+    matches!(
+        status,
+        StatusCode::BadSessionIdInvalid
+            | StatusCode::BadSecurityChecksFailed
+            | StatusCode::BadUserAccessDenied
+            | StatusCode::BadIdentityTokenInvalid
+            | StatusCode::BadIdentityTokenRejected
+            | StatusCode::BadUserSignatureInvalid
+            | StatusCode::BadApplicationSignatureInvalid
+            | StatusCode::BadNonceInvalid
+            | StatusCode::BadSecurityPolicyRejected
+            | StatusCode::BadSecurityModeRejected
+            | StatusCode::BadCertificateInvalid
+            | StatusCode::BadCertificateUntrusted
+            | StatusCode::BadCertificateTimeInvalid
+            | StatusCode::BadCertificateIssuerTimeInvalid
+            | StatusCode::BadCertificateHostNameInvalid
+            | StatusCode::BadCertificateUriInvalid
+            | StatusCode::BadCertificateUseNotAllowed
+            | StatusCode::BadCertificateIssuerUseNotAllowed
+            | StatusCode::BadCertificateRevoked
+            | StatusCode::BadCertificateIssuerRevoked
+            | StatusCode::BadCertificateRevocationUnknown
+            | StatusCode::BadCertificateIssuerRevocationUnknown
+            | StatusCode::BadCertificatePolicyCheckFailed
+    )
 }
