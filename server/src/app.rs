@@ -250,7 +250,8 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     println!("Health:    {base}/livez  {base}/readyz");
     tracing::info!(http = %running.http_addr, "iogate started");
     if demo {
-        running.service.tasks().spawn(demo_hangup());
+        let token = running.service.tasks().token().clone();
+        running.service.tasks().spawn(demo_hangup(token));
     }
     signal.await;
     tracing::info!("shutting down");
@@ -258,18 +259,27 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The built-in demo has no file to reload: a SIGHUP is logged, and stops nothing.
-async fn demo_hangup() {
+/// The built-in demo has no file to reload: a SIGHUP is logged, and stops nothing. Ends
+/// with the gateway (a task that outlived the token held the shutdown to its grace period).
+async fn demo_hangup(token: tokio_util::sync::CancellationToken) {
     #[cfg(unix)]
     {
         use tokio::signal::unix::{SignalKind, signal};
         let Ok(mut hangup) = signal(SignalKind::hangup()) else {
             return;
         };
-        while hangup.recv().await.is_some() {
-            tracing::info!("SIGHUP: the built-in demo has no configuration file to reload");
+        loop {
+            tokio::select! {
+                _ = token.cancelled() => return,
+                got = hangup.recv() => match got {
+                    Some(()) => tracing::info!("SIGHUP: the built-in demo has no configuration file to reload"),
+                    None => return,
+                },
+            }
         }
     }
+    #[cfg(not(unix))]
+    token.cancelled().await;
 }
 
 /// Registers for SIGINT and SIGTERM now (so a signal that comes during start-up is not

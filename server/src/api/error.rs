@@ -159,3 +159,28 @@ pub(crate) async fn json_errors(response: Response) -> Response {
     }
     out
 }
+
+/// Ends every JSON answer with a newline, as command-line tools expect (`curl` otherwise
+/// runs the answer and the next prompt together). Errors made JSON by [`json_errors`] pass
+/// through here after it.
+pub(crate) async fn json_newline(response: Response) -> Response {
+    let is_json = response
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if !is_json {
+        return response;
+    }
+    let (mut parts, body) = response.into_parts();
+    let Ok(bytes) = axum::body::to_bytes(body, usize::MAX).await else {
+        return Response::from_parts(parts, axum::body::Body::empty());
+    };
+    let mut text = Vec::with_capacity(bytes.len() + 1);
+    text.extend_from_slice(&bytes);
+    if text.last() != Some(&b'\n') {
+        text.push(b'\n');
+    }
+    parts.headers.remove(axum::http::header::CONTENT_LENGTH);
+    Response::from_parts(parts, axum::body::Body::from(text))
+}

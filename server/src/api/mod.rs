@@ -312,6 +312,7 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
         ))
         .layer(axum::middleware::from_fn(refuse_large_bodies))
         .layer(axum::middleware::map_response(error::json_errors))
+        .layer(axum::middleware::map_response(error::json_newline))
         .layer(TraceLayer::new_for_http())
         .with_state(service)
 }
