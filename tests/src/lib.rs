@@ -13,8 +13,12 @@ pub mod mqtt;
 pub mod opcua;
 pub mod pki;
 
-/// How long `eventually` waits for a condition.
-pub const PATIENCE: Duration = Duration::from_secs(10);
+/// How long a test waits for what it needs (a condition, a message, an answer) before it
+/// fails. The waits end as soon as what they wait for comes: this is a bound against a
+/// hang, not a timing, so it is generous, as a loaded machine (a build beside the tests,
+/// two cores) can take many times the usual for a broker's restart and a client's
+/// reconnect.
+pub const PATIENCE: Duration = Duration::from_secs(60);
 
 /// A file of the tests crate (`tests/` in the repository): a peer's script, an installer.
 pub fn repo_file(path: &str) -> PathBuf {

@@ -140,7 +140,7 @@ async fn a_subscriber_sees_current_values_then_changes_in_order() {
     }
     let mut seen = Vec::new();
     while seen.last() != Some(&3) {
-        let update = tokio::time::timeout(Duration::from_secs(5), updates.next())
+        let update = tokio::time::timeout(iogate_tests::PATIENCE, updates.next())
             .await
             .expect("an update in time")
             .expect("stream open")
@@ -156,7 +156,7 @@ async fn a_subscriber_sees_current_values_then_changes_in_order() {
 
     // The stream ends when the gateway shuts down.
     gw.shutdown().await;
-    let end = tokio::time::timeout(Duration::from_secs(5), async {
+    let end = tokio::time::timeout(iogate_tests::PATIENCE, async {
         while let Some(item) = updates.next().await {
             if item.is_err() {
                 break;

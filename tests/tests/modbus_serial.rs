@@ -313,7 +313,7 @@ async fn rtu_masters_read_and_write_the_map_through_the_serial_slave() {
         "a frame with a bad CRC was answered"
     );
     raw.write_all(&good).await.expect("write");
-    tokio::time::timeout(Duration::from_secs(2), raw.read_exact(&mut answer))
+    tokio::time::timeout(iogate_tests::PATIENCE, raw.read_exact(&mut answer))
         .await
         .expect("answered in time")
         .expect("read");
@@ -519,7 +519,7 @@ async fn a_frame_ends_at_a_silence_and_a_lost_port_is_reopened() {
     assert_eq!(state["frames"]["crc_error"], json!(2), "{state}");
     // Whole, it is answered.
     master.write_all(&read).await.expect("write");
-    tokio::time::timeout(Duration::from_secs(2), master.read_exact(&mut answer))
+    tokio::time::timeout(iogate_tests::PATIENCE, master.read_exact(&mut answer))
         .await
         .expect("answered")
         .expect("read");
@@ -549,7 +549,7 @@ async fn a_frame_ends_at_a_silence_and_a_lost_port_is_reopened() {
         .expect("reopened");
     assert_eq!(state["serial"][0]["reopens"], json!(1), "{state}");
     master.write_all(&read).await.expect("write");
-    tokio::time::timeout(Duration::from_secs(2), master.read_exact(&mut answer))
+    tokio::time::timeout(iogate_tests::PATIENCE, master.read_exact(&mut answer))
         .await
         .expect("answered after the reopening")
         .expect("read");
@@ -624,7 +624,7 @@ async fn noise_on_the_line_is_never_answered_and_the_ports_keep_serving() {
     let read = rtu(&[7, 0x03, 0x04, 0x00, 0x00, 0x01]);
     rtu_end.write_all(&read).await.expect("write");
     let mut answer = [0u8; 7];
-    tokio::time::timeout(Duration::from_secs(2), rtu_end.read_exact(&mut answer))
+    tokio::time::timeout(iogate_tests::PATIENCE, rtu_end.read_exact(&mut answer))
         .await
         .expect("RTU answered")
         .expect("read");
@@ -636,7 +636,7 @@ async fn noise_on_the_line_is_never_answered_and_the_ports_keep_serving() {
         .expect("write");
     let mut line = Vec::new();
     while !line.ends_with(b"\r\n") {
-        tokio::time::timeout(Duration::from_secs(2), ascii.read_exact(&mut byte))
+        tokio::time::timeout(iogate_tests::PATIENCE, ascii.read_exact(&mut byte))
             .await
             .expect("ASCII answered")
             .expect("read");

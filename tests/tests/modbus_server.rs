@@ -35,9 +35,9 @@ modbus_server:
     - { at: \"%IX100.0\", field: sim.connected }
 ";
 
-/// Waits (at most 5 s) until `check` holds.
+/// Waits (at most [`iogate_tests::PATIENCE`]) until `check` holds.
 async fn until(what: &str, mut check: impl AsyncFnMut() -> bool) {
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    let deadline = tokio::time::Instant::now() + iogate_tests::PATIENCE;
     while !check().await {
         assert!(tokio::time::Instant::now() < deadline, "timed out: {what}");
         tokio::time::sleep(Duration::from_millis(20)).await;
@@ -559,11 +559,12 @@ async fn a_master_that_never_reads_its_answers_loses_its_connection() {
     gw.shutdown().await;
 }
 
-/// Whether the server has closed the connection (end of stream or reset), within 5 s.
+/// Whether the server has closed the connection (end of stream or reset), waiting for it
+/// at most [`iogate_tests::PATIENCE`].
 async fn closed(stream: &mut TcpStream) -> bool {
     let mut buf = [0u8; 64];
     matches!(
-        tokio::time::timeout(Duration::from_secs(5), stream.read(&mut buf)).await,
+        tokio::time::timeout(iogate_tests::PATIENCE, stream.read(&mut buf)).await,
         Ok(Ok(0) | Err(_))
     )
 }

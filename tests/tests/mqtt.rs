@@ -396,9 +396,13 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
     // The replay ends with the ten changes in order (a message unconfirmed when the broker
     // went away may come before them).
     while !history_json.ends_with(&expected) || !history_sparkplug.ends_with(&expected) {
-        let m = peer.next().await.unwrap_or_else(|e| {
-            panic!("{e}: JSON {history_json:?}, Sparkplug {history_sparkplug:?}")
-        });
+        let m = match peer.next().await {
+            Ok(m) => m,
+            Err(e) => {
+                let status = gw.get("/api/v1/mqtt").await;
+                panic!("{e}: JSON {history_json:?}, Sparkplug {history_sparkplug:?}; {status:?}")
+            }
+        };
         index += 1;
         if m.topic == "iogate/line1/history/sim/DI_0" {
             assert!(!m.retain, "a replay must not be retained");

@@ -165,7 +165,7 @@ async fn diagnostics_count_on_and_links_follow_declarations() {
         .expect("asyncua connects");
     let cycles = |v: &serde_json::Value| v["value"].as_u64().unwrap_or(0);
     let before = cycles(&ua.read("Diagnostics/plant/io_cycles").await.expect("read"));
-    let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(10);
+    let deadline = tokio::time::Instant::now() + iogate_tests::PATIENCE;
     while cycles(&ua.read("Diagnostics/plant/io_cycles").await.expect("read")) <= before {
         assert!(
             tokio::time::Instant::now() < deadline,

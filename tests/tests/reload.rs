@@ -476,7 +476,7 @@ async fn a_reload_moves_the_modbus_servers_serial_ports() {
     request.extend_from_slice(&crc.to_le_bytes());
     b_end.write_all(&request).await.expect("write");
     let mut answer = [0u8; 7];
-    tokio::time::timeout(Duration::from_secs(2), b_end.read_exact(&mut answer))
+    tokio::time::timeout(iogate_tests::PATIENCE, b_end.read_exact(&mut answer))
         .await
         .expect("answered")
         .expect("read");

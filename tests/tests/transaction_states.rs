@@ -37,7 +37,7 @@ async fn a_standing_write_shows_each_state_of_its_run() {
     assert!((200..300).contains(&status), "{body}");
     // Every state seen while the slave takes 400 ms to answer, then the end.
     let mut seen: Vec<i64> = Vec::new();
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    let deadline = tokio::time::Instant::now() + iogate_tests::PATIENCE;
     while seen.last() != Some(&4) {
         assert!(tokio::time::Instant::now() < deadline, "{seen:?}");
         let (_, t) = gw.get("/api/v1/transactions/setpoint").await.expect("get");

@@ -670,7 +670,7 @@ async fn the_overview_shows_the_modbus_servers_serial_ports_and_their_frames() -
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     master.write_all(&request).await?;
     let mut answer = [0u8; 6];
-    tokio::time::timeout(Duration::from_secs(2), master.read_exact(&mut answer)).await??;
+    tokio::time::timeout(iogate_tests::PATIENCE, master.read_exact(&mut answer)).await??;
     browser.goto(&gw.url("/")).await?;
     let row = format!("#serial tr[data-serial='{}']", path.display());
     browser
