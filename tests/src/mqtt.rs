@@ -95,7 +95,14 @@ impl Broker {
         };
         std::fs::write(
             &config,
-            format!("allow_anonymous true\n{persistence}listener {port} 127.0.0.1\n{tls_listener}"),
+            // Started as root, mosquitto drops to its own user, which cannot write this
+            // directory: its persistence (kept sessions across a restart) and log would be
+            // lost silently. `user root` keeps it as the user that started it (and does
+            // nothing for any other user).
+            format!(
+                "user root\nallow_anonymous true\n{persistence}listener {port} 127.0.0.1\n{tls_listener}log_dest file {}\nlog_type all\n",
+                dir.join("mosquitto.log").display()
+            ),
         )?;
         let mut broker = Broker {
             port,
