@@ -94,6 +94,8 @@ impl Setup {
             }
             None if config.devices.is_empty() => Catalog::default(),
             None => {
+                // Reported once; every other check still runs (a wrong link is no less wrong
+                // for a missing directory), the profiles' own ones aside.
                 let mut report = Report::new(&config.source);
                 report.push(
                     config.lines.profiles.max(1),
@@ -104,7 +106,8 @@ impl Setup {
                         profile::PARENT_SEARCH_DEPTH
                     ),
                 );
-                return Err(report.into_problems());
+                problems.extend(report.into_problems());
+                Catalog::missing(config.devices.iter().map(|d| d.profile.clone()))
             }
         };
         let checks = [
@@ -120,10 +123,14 @@ impl Setup {
             report.push(mqtt.line, "mqtt", e);
             problems.extend(report.into_problems());
         }
-        let map = crate::map::plan(&config, &catalog).unwrap_or_else(|more| {
-            problems.extend(more);
-            None
-        });
+        let map = if dir.is_none() && !config.devices.is_empty() {
+            None // the map's fields are the profiles' (checked once they load)
+        } else {
+            crate::map::plan(&config, &catalog).unwrap_or_else(|more| {
+                problems.extend(more);
+                None
+            })
+        };
         if !problems.is_empty() {
             return Err(problems);
         }

@@ -75,14 +75,18 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
     for d in &config.devices {
         let ctx = format!("device {}", d.name);
         let Some(profile) = catalog.get(&d.profile) else {
+            // A link named but not configured is wrong whatever the profile.
+            unknown_link(config, d, &mut report);
             if catalog.is_unreadable(&d.profile) {
                 continue; // the profile's own problems are reported
             }
             let known: Vec<_> = catalog.iter().map(|p| p.name.as_str()).collect();
-            report.push(
-                d.line,
-                &ctx,
-                format!(
+            let message = match known.iter().find(|k| k.eq_ignore_ascii_case(&d.profile)) {
+                Some(near) => format!(
+                    "unknown profile `{}`: profile names are case-sensitive, did you mean `{near}`?",
+                    d.profile
+                ),
+                None => format!(
                     "unknown profile `{}` (known: {})",
                     d.profile,
                     if known.is_empty() {
@@ -91,7 +95,8 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
                         known.join(", ")
                     }
                 ),
-            );
+            };
+            report.push(d.line, &ctx, message);
             continue;
         };
         let link = d.link.as_deref();
@@ -103,24 +108,8 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
             }
             report.push(d.line, &ctx, e.to_string());
         }
-        if let Some(link) = link
-            && profile.protocol != crate::profile::Protocol::Simulated
-            && !config.links.iter().any(|l| l.name == link)
-            && !config.unreadable.links.iter().any(|l| l == link)
-        {
-            let known: Vec<_> = config.links.iter().map(|l| l.name.as_str()).collect();
-            report.push(
-                d.line,
-                &ctx,
-                format!(
-                    "unknown link `{link}` (known: {})",
-                    if known.is_empty() {
-                        "none".to_owned()
-                    } else {
-                        known.join(", ")
-                    }
-                ),
-            );
+        if profile.protocol != crate::profile::Protocol::Simulated {
+            unknown_link(config, d, &mut report);
         }
         for (field, text) in d.on_client_loss.iter().flat_map(|l| &l.safe) {
             if let Err(why) = safe_value(profile, field, text) {
@@ -134,6 +123,31 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
     } else {
         Err(problems)
     }
+}
+
+/// A device's `link` that names no link of the file.
+fn unknown_link(config: &Config, d: &super::DeviceConfig, report: &mut Report) {
+    let Some(link) = d.link.as_deref() else {
+        return;
+    };
+    if config.links.iter().any(|l| l.name == link)
+        || config.unreadable.links.iter().any(|l| l == link)
+    {
+        return;
+    }
+    let known: Vec<_> = config.links.iter().map(|l| l.name.as_str()).collect();
+    report.push(
+        d.line,
+        format!("device {}", d.name),
+        format!(
+            "unknown link `{link}` (known: {})",
+            if known.is_empty() {
+                "none".to_owned()
+            } else {
+                known.join(", ")
+            }
+        ),
+    );
 }
 
 /// Why an `on_client_loss.safe` entry is refused.

@@ -277,6 +277,15 @@ impl Catalog {
         }
     }
 
+    /// No profiles, with `names` taken as unreadable: the directory itself is missing (that
+    /// is reported once), so a device's profile is not reported unknown on top of it.
+    pub(crate) fn missing(names: impl IntoIterator<Item = String>) -> Self {
+        Catalog {
+            profiles: BTreeMap::new(),
+            unreadable: names.into_iter().collect(),
+        }
+    }
+
     /// Whether `name` is a profile whose file could not be loaded: its problems are
     /// reported already, so a device that uses it is not checked against it.
     pub(crate) fn is_unreadable(&self, name: &str) -> bool {
