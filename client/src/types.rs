@@ -32,10 +32,11 @@ pub struct FieldValue {
     pub value: Option<Value>,
     /// Good, stale, never read or bad, as of the answer.
     pub quality: Quality,
-    /// When the value was last refreshed.
-    #[serde(skip)]
+    /// When the value was last refreshed; in JSON as REST gives it (RFC 3339, milliseconds).
+    #[serde(serialize_with = "rfc3339")]
     pub timestamp: Option<SystemTime>,
-    /// Milliseconds since 1970 (for JSON output).
+    /// Milliseconds since 1970.
+    #[serde(skip)]
     pub timestamp_ms: Option<u128>,
     /// Why the quality is bad.
     pub error: Option<String>,
@@ -330,5 +331,41 @@ impl WriteStatus {
             field: s.field,
             outcome,
         }
+    }
+}
+
+/// A time as REST writes it: RFC 3339 in UTC with milliseconds, or null.
+fn rfc3339<S: serde::Serializer>(t: &Option<SystemTime>, s: S) -> Result<S::Ok, S::Error> {
+    match t {
+        Some(t) => s.serialize_str(&humantime::format_rfc3339_millis(*t).to_string()),
+        None => s.serialize_none(),
+    }
+}
+
+#[cfg(test)]
+mod json_tests {
+    use super::*;
+
+    #[test]
+    fn a_fields_json_names_its_time_as_rest_does() {
+        let at = SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(1_500);
+        let v = FieldValue {
+            device: "sim".into(),
+            field: "DO_0".into(),
+            ty: Some(IecType::Bool),
+            direction: Direction::Output,
+            value: Some(Value::Bool(true)),
+            quality: Quality::Good,
+            timestamp: Some(at),
+            timestamp_ms: Some(1_500),
+            error: None,
+            unit: None,
+            mismatch: false,
+            desired: None,
+            last_write: None,
+        };
+        let json = serde_json::to_value(&v).expect("json");
+        assert_eq!(json["timestamp"], "1970-01-01T00:00:01.500Z", "{json}");
+        assert!(json.get("timestamp_ms").is_none(), "{json}");
     }
 }
