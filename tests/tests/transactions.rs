@@ -434,6 +434,16 @@ async fn standing_reads_and_writes_repeat_and_can_be_switched_and_triggered() {
         after["runs"].as_u64() <= before["runs"].as_u64().map(|r| r + 1),
         "{before} {after}"
     );
+    // A trigger of a disabled transaction would run nothing: refused, said why.
+    let (status, refused) = gw
+        .send(Method::POST, "/api/v1/transactions/temp/trigger", "")
+        .await
+        .expect("trigger");
+    assert_eq!(status, 409, "{refused}");
+    assert_eq!(
+        refused["error"]["code"], "transaction_disabled",
+        "{refused}"
+    );
 
     // Declared at run time with no period: runs only when triggered, never by itself; a
     // declared cyclic read first runs about 2 s after its declaration (source document 004).

@@ -273,7 +273,8 @@ pub(crate) async fn disable_standing(
 #[utoipa::path(post, path = "/api/v1/transactions/{name}/trigger", tag = "transactions",
     params(("name" = String, Path, description = "transaction name")),
     responses((status = 200, description = "triggered", body = StandingInfo),
-              (status = 404, description = "no such transaction", body = ErrorBody)))]
+              (status = 404, description = "no such transaction", body = ErrorBody),
+              (status = 409, description = "the transaction is disabled: a trigger would run nothing", body = ErrorBody)))]
 pub(crate) async fn trigger_standing(
     State(service): State<Arc<Service>>,
     Path(name): Path<String>,

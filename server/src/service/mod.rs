@@ -78,6 +78,9 @@ pub enum ServiceError {
     UnknownTransaction(String),
     #[error("transaction `{0}` exists with other settings")]
     TransactionConflict(String),
+    /// A trigger of a disabled standing transaction: it would run nothing.
+    #[error("transaction `{0}` is disabled: enable it first, a trigger runs only an enabled one")]
+    TransactionDisabled(String),
     /// A located address no field is bound to.
     #[error("no field is bound to {0}")]
     Unbound(String),

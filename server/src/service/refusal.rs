@@ -67,6 +67,7 @@ impl ServiceError {
             ServiceError::Transaction(_) => (Refusal::Invalid, "invalid_transaction"),
             ServiceError::UnknownTransaction(_) => (Refusal::NotFound, "unknown_transaction"),
             ServiceError::TransactionConflict(_) => (Refusal::Conflict, "declaration_conflict"),
+            ServiceError::TransactionDisabled(_) => (Refusal::Conflict, "transaction_disabled"),
             ServiceError::Unbound(_) => (Refusal::NotFound, "unbound_location"),
             ServiceError::Scan(_) => (Refusal::Invalid, "invalid_scan"),
             ServiceError::ScanRunning { .. } => (Refusal::Conflict, "scan_running"),

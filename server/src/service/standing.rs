@@ -249,9 +249,13 @@ impl Service {
         Some(removed)
     }
 
-    /// Runs a standing transaction now; ignored while one of its runs is in flight.
+    /// Runs a standing transaction now; ignored while one of its runs is in flight. A
+    /// disabled one is refused (it would run nothing), not answered as if it ran.
     pub(crate) fn trigger_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         let s = self.transaction(name)?;
+        if !s.status().enabled {
+            return Err(ServiceError::TransactionDisabled(s.name.clone()));
+        }
         s.wake.notify_waiters();
         Ok(s)
     }
