@@ -18,7 +18,7 @@ use crate::runtime::Tasks;
 use crate::servers::Servers;
 use crate::service::Service;
 
-pub use crate::setup::Setup;
+pub use crate::setup::{Listeners, Setup};
 /// How long shutdown waits for tasks before giving up on them.
 pub(crate) const SHUTDOWN_GRACE: Duration = Duration::from_millis(1500);
 
@@ -85,17 +85,17 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let reload_tokens = tokens.clone();
     let modbus_listener = match config.modbus_server.as_ref().and_then(|s| s.listen) {
         Some(listen) => Some(TcpListener::bind(listen).await.map_err(|e| {
-            anyhow::anyhow!("cannot listen on {listen} (modbus_server.listen): {e}")
+            anyhow::anyhow!("cannot listen on {listen} (modbus_server.listen, or serve --modbus ADDR; port 0 takes any free one): {e}")
         })?),
         None => None,
     };
     let listener = TcpListener::bind(config.http)
         .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http): {e}", config.http))?;
+        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http, or serve --http ADDR; port 0 takes any free one): {e}", config.http))?;
     let http_addr = listener.local_addr()?;
     let grpc_listener = TcpListener::bind(config.grpc)
         .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc): {e}", config.grpc))?;
+        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc, or serve --grpc ADDR; port 0 takes any free one): {e}", config.grpc))?;
     let grpc_addr = grpc_listener.local_addr()?;
 
     let token = CancellationToken::new();

@@ -37,6 +37,8 @@ enum Command {
         /// The config file; default: ./iogate.yaml, else the built-in demo.
         #[arg(long, short)]
         config: Option<PathBuf>,
+        #[command(flatten)]
+        listen: ListenArgs,
     },
     /// Check the config and profiles; print every problem and exit 64 if there is any.
     /// With --diff, also print what a reload would change, applying nothing.
@@ -133,7 +135,7 @@ struct DiffOptions {
 }
 
 enum Action {
-    Serve,
+    Serve(ListenArgs),
     Check,
     Diff(DiffOptions),
     Plan,
@@ -190,8 +192,8 @@ fn main() -> ExitCode {
         ));
     }
     let (config, action) = match cli.command {
-        None => (None, Action::Serve),
-        Some(Command::Serve { config }) => (config, Action::Serve),
+        None => (None, Action::Serve(ListenArgs::default())),
+        Some(Command::Serve { config, listen }) => (config, Action::Serve(listen)),
         Some(Command::Check {
             config,
             diff: true,
@@ -222,7 +224,7 @@ fn main() -> ExitCode {
             },
         ) => return ExitCode::SUCCESS,
     };
-    let setup = match Setup::load(config.as_deref()) {
+    let mut setup = match Setup::load(config.as_deref()) {
         Ok(setup) => setup,
         Err(problems) => {
             eprintln!("{problems}");
@@ -234,7 +236,7 @@ fn main() -> ExitCode {
             return ExitCode::from(iogate::EXIT_CONFIG as u8);
         }
     };
-    if matches!(action, Action::Check | Action::Serve | Action::Diff(_)) {
+    if matches!(action, Action::Check | Action::Serve(_) | Action::Diff(_)) {
         for warning in setup.warnings() {
             eprintln!("warning: {warning}");
         }
@@ -295,6 +297,12 @@ fn main() -> ExitCode {
         );
         return ExitCode::SUCCESS;
     }
+    if let Action::Serve(listen) = &action
+        && let Err(e) = setup.move_listeners(listen.listeners())
+    {
+        eprintln!("iogate serve: {e}");
+        return ExitCode::from(iogate::EXIT_CONFIG as u8);
+    }
     let runtime = match tokio::runtime::Runtime::new() {
         Ok(rt) => rt,
         Err(e) => {
@@ -308,6 +316,35 @@ fn main() -> ExitCode {
             // A log line, so a log collector reading JSON lines sees why.
             tracing::error!(error = %format!("{e:#}"), "the gateway could not start");
             ExitCode::FAILURE
+        }
+    }
+}
+
+/// `serve`'s listeners on the command line, over the config's (or the demo's): port 0 takes
+/// any free one, and the address bound is printed.
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
+struct ListenArgs {
+    /// REST, the web page and /metrics (listen.http).
+    #[arg(long, value_name = "ADDR")]
+    http: Option<std::net::SocketAddr>,
+    /// gRPC (listen.grpc).
+    #[arg(long, value_name = "ADDR")]
+    grpc: Option<std::net::SocketAddr>,
+    /// The Modbus TCP server (modbus_server.listen).
+    #[arg(long, value_name = "ADDR")]
+    modbus: Option<std::net::SocketAddr>,
+    /// The OPC UA server (opcua.listen).
+    #[arg(long, value_name = "ADDR")]
+    opcua: Option<std::net::SocketAddr>,
+}
+
+impl ListenArgs {
+    fn listeners(&self) -> iogate::app::Listeners {
+        iogate::app::Listeners {
+            http: self.http,
+            grpc: self.grpc,
+            modbus: self.modbus,
+            opcua: self.opcua,
         }
     }
 }

@@ -23,7 +23,43 @@ pub struct Setup {
     pub map: Option<crate::map::Plan>,
 }
 
+/// Listeners moved from the command line (`serve --http ...`), over the config's.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Listeners {
+    pub http: Option<std::net::SocketAddr>,
+    pub grpc: Option<std::net::SocketAddr>,
+    pub modbus: Option<std::net::SocketAddr>,
+    pub opcua: Option<std::net::SocketAddr>,
+}
+
 impl Setup {
+    /// Moves the listeners the command line names; one for a server the configuration does
+    /// not have (`--opcua` with no `opcua:` section) is refused, naming it.
+    pub fn move_listeners(&mut self, to: Listeners) -> Result<(), String> {
+        let config = &mut self.config;
+        if let Some(a) = to.http {
+            config.http = a;
+        }
+        if let Some(a) = to.grpc {
+            config.grpc = a;
+        }
+        if let Some(a) = to.modbus {
+            match &mut config.modbus_server {
+                Some(server) => server.listen = Some(a),
+                None => {
+                    return Err("--modbus: the configuration has no modbus_server section".into());
+                }
+            }
+        }
+        if let Some(a) = to.opcua {
+            match &mut config.opcua {
+                Some(server) => server.listen = a,
+                None => return Err("--opcua: the configuration has no opcua section".into()),
+            }
+        }
+        Ok(())
+    }
+
     /// `path` if given; else `iogate.yaml` in the working directory; else the built-in demo.
     pub fn load(path: Option<&Path>) -> Result<Setup, Problems> {
         match path {

@@ -444,7 +444,7 @@ fn serve_that_cannot_listen_stops_before_it_touches_a_bus() {
     assert!(!out.status.success(), "{stderr}");
     assert!(
         stderr.contains(&format!(
-            "cannot listen on 127.0.0.1:{taken_port} (listen.http)"
+            "cannot listen on 127.0.0.1:{taken_port} (listen.http, or serve --http ADDR"
         )),
         "{stderr}"
     );
@@ -669,7 +669,10 @@ fn version_and_json_logs_for_log_collectors() {
             .lines()
             .find(|l| l.contains("could not start"))
             .unwrap_or_else(|| panic!("no log line: {stderr}"));
-        assert!(line.contains("(listen.http)"), "{line}");
+        assert!(
+            line.contains("(listen.http, or serve --http ADDR"),
+            "{line}"
+        );
         let parsed = serde_json::from_str::<serde_json::Value>(line);
         if json {
             let object = parsed.unwrap_or_else(|e| panic!("{e}: {line}"));

@@ -173,7 +173,12 @@ pub(crate) async fn start(
     }
     let listener = tokio::net::TcpListener::bind(config.listen)
         .await
-        .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
+        .map_err(|e| {
+            format!(
+                "cannot listen on {} (opcua.listen, or serve --opcua ADDR; port 0 takes any free one): {e}",
+                config.listen
+            )
+        })?;
     let addr = listener
         .local_addr()
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
