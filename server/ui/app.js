@@ -270,22 +270,24 @@ function plural(n, word) {
   return `${n} ${word}${n === 1 ? '' : 's'}`;
 }
 
-/** The configuration's file, hash, load time and watch, and the last reload's report. */
+/** The configuration's file, hash, load time and watch, and the last reload's report. Each
+ * row's header names it, so its cell carries no label of its own (on a phone the card would
+ * say the name twice). */
 function configRows(c) {
   const loaded = c.loaded_at_unix_ms ? new Date(c.loaded_at_unix_ms).toISOString() : null;
   const rows = [
     h('tr', { 'data-config': 'File' }, h('th', { scope: 'row' }, 'File'),
-      cell('File', c.file, h('div', { class: 'meaning' }, c.profiles ? `profiles in ${c.profiles}` : ''))),
+      cell('', c.file, h('div', { class: 'meaning' }, c.profiles ? `profiles in ${c.profiles}` : ''))),
   ];
   if (!c.hash) return rows;
   rows.push(h('tr', { 'data-config': 'Loaded' }, h('th', { scope: 'row' }, 'Loaded'),
-    cell('Loaded', ago(loaded), h('div', { class: 'meaning' },
+    cell('', ago(loaded), h('div', { class: 'meaning' },
       `sha256 ${c.hash.slice(0, 12)} · ${c.watch ? 'files watched' : 'reloaded on SIGHUP or request'}`))));
   const r = c.last_report;
   const problems = c.last_problems ?? [];
   if (problems.length) {
     rows.push(h('tr', { class: 'problem', 'data-config': 'Refused' }, h('th', { scope: 'row' }, 'Refused'),
-      cell('Refused', h('span', { class: 'badge bad' }, 'last reload refused: nothing changed'),
+      cell('', h('span', { class: 'badge bad' }, 'last reload refused: nothing changed'),
         h('ul', { class: 'problems' }, ...problems.map((p) => h('li', {}, p))))));
   }
   if (r) {
@@ -293,7 +295,7 @@ function configRows(c) {
     const changes = r.changes ?? [];
     const reopened = r.reopened ?? [];
     rows.push(h('tr', { 'data-config': 'Last reload' }, h('th', { scope: 'row' }, 'Last reload'),
-      cell('Last reload',
+      cell('',
         `${plural(changes.length, 'change')} (${r.trigger}), ${ago(when)}`,
         h('div', { class: 'meaning' }, `took ${r.took_ms} ms${reopened.length ? ` · reopened ${reopened.join(', ')}` : ''}`),
         h('ul', { class: 'changes' }, ...changes.map((x) => h('li', { 'data-change': `${x.kind} ${x.name}` },

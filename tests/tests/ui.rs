@@ -611,6 +611,17 @@ async fn the_overview_shows_the_last_reload_and_a_refused_one() -> anyhow::Resul
             |t| t.contains("iogate.yaml"),
         )
         .await?;
+    // On a phone the row is a card: its name once (the header), not again as a cell label.
+    browser.resize(PHONE.0, PHONE.1).await?;
+    let labels = browser
+        .run(
+            "return [...document.querySelectorAll(\"#config tr[data-config='File'] th, #config tr[data-config='File'] td\")].map((e) => (e.innerText + ' ' + getComputedStyle(e, '::before').content))",
+            serde_json::json!([]),
+        )
+        .await?;
+    let text = labels.to_string();
+    assert_eq!(text.matches("File").count(), 1, "{text}");
+    browser.resize(DESKTOP.0, DESKTOP.1).await?;
     std::fs::write(&path, config("40ms"))?;
     let (status, body) = gw.send(Method::POST, "/api/v1/config/reload", "").await?;
     assert_eq!(status, 200, "{body}");
