@@ -45,6 +45,8 @@ use packet::{Connect, Incoming, Will};
 use report::{Decision, Reporter};
 use sparkplug::{Aliases, Form, HostState};
 
+/// The topic level the JSON replays go under.
+const HISTORY: &str = "history";
 /// The first wait between attempts to connect: doubling up to `reconnect_max`.
 const RECONNECT_MIN: Duration = Duration::from_millis(500);
 /// Writes from `/set` whose final outcome is still to be published, at most.
@@ -125,16 +127,19 @@ impl Topics<'_> {
     }
     /// Where a replayed (buffered) value goes: not the live, retained topic.
     fn history(&self, device: &str, field: &str) -> String {
-        format!("{}/history/{device}/{field}", self.0.prefix)
+        format!("{}/{HISTORY}/{device}/{field}", self.0.prefix)
     }
     /// The device and field a `/set` topic names.
+    /// The device and field a `/set` topic names. `<prefix>/history/<device>/set` is also
+    /// the replay of a field named `set`, which the gateway publishes itself: a topic under
+    /// `history/` is never a write (a device named `history` takes no writes here).
     fn parse_set<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str)> {
         let rest = topic
             .strip_prefix(self.0.prefix.as_str())?
             .strip_prefix('/')?;
         let rest = rest.strip_suffix("/set")?;
         let (device, field) = rest.split_once('/')?;
-        (!field.contains('/')).then_some((device, field))
+        (!field.contains('/') && device != HISTORY).then_some((device, field))
     }
 }
 
@@ -1608,4 +1613,31 @@ fn state_payload(online: bool) -> Vec<u8> {
         version: env!("CARGO_PKG_VERSION"),
     })
     .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_replay_topic_is_never_taken_for_a_write() {
+        let json = JsonConfig {
+            prefix: "iogate/line1".into(),
+            qos: 1,
+            retain: true,
+        };
+        let topics = Topics(&json);
+        assert_eq!(
+            topics.parse_set("iogate/line1/sim/DO_0/set"),
+            Some(("sim", "DO_0"))
+        );
+        // The replay of device `pump`'s field named `set`, which the gateway itself
+        // publishes, is not a write of a field `pump` of a device `history`.
+        assert_eq!(
+            topics.history("pump", "set"),
+            "iogate/line1/history/pump/set"
+        );
+        assert_eq!(topics.parse_set("iogate/line1/history/pump/set"), None);
+        assert_eq!(topics.parse_set("other/sim/DO_0/set"), None);
+    }
 }
