@@ -251,7 +251,11 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     tracing::info!(http = %running.http_addr, "iogate started");
     if demo {
         let token = running.service.tasks().token().clone();
-        running.service.tasks().spawn(demo_hangup(token));
+        running.service.tasks().spawn(demo_hangup(token.clone()));
+        running
+            .service
+            .tasks()
+            .spawn(crate::motion::run(running.service.clone(), token));
     }
     signal.await;
     tracing::info!("shutting down");

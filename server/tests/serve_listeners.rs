@@ -1,7 +1,7 @@
 //! `iogate serve` moves its listeners from the command line: the demo on ports of its own
 //! when the usual ones are taken, port 0 for any free one, printed as bound.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
@@ -71,6 +71,44 @@ fn the_demo_serves_on_the_ports_the_command_line_gives() {
             "not the taken port: {line}"
         );
     }
+    // The demo's plant moves: started, its pump runs and the level rises.
+    let rest = printed
+        .iter()
+        .find_map(|l| l.strip_prefix("REST API:  http://"))
+        .and_then(|l| l.split('/').next())
+        .expect("REST address")
+        .to_owned();
+    let level = |rest: &str| -> f64 {
+        let body = http(rest, "GET", "/api/v1/devices/plant/fields/Level", "");
+        let at = body.find("\"value\":").expect("a value") + 8;
+        body[at..]
+            .split(|c: char| c == ',' || c == '}')
+            .next()
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(f64::NAN)
+    };
+    let answer = http(
+        &rest,
+        "PUT",
+        "/api/v1/devices/plant/fields/PumpStart",
+        "{\"value\": true}",
+    );
+    assert!(answer.contains("generation"), "{answer}");
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    while !http(&rest, "GET", "/api/v1/devices/plant/fields/PumpRunning", "")
+        .contains("\"value\":true")
+    {
+        assert!(std::time::Instant::now() < deadline, "the pump never ran");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let before = level(&rest);
+    while level(&rest) <= before {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the level never rose from {before}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
     let _ = Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status();
@@ -78,4 +116,20 @@ fn the_demo_serves_on_the_ports_the_command_line_gives() {
     assert!(status.success(), "{status}");
     drop(taken);
     std::fs::remove_dir_all(&dir).expect("cleanup");
+}
+
+/// One HTTP/1.0 request; the answer's body.
+fn http(addr: &str, method: &str, path: &str, body: &str) -> String {
+    let mut stream = std::net::TcpStream::connect(addr).expect("connect");
+    let request = format!(
+        "{method} {path} HTTP/1.0\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    stream.write_all(request.as_bytes()).expect("send");
+    let mut answer = String::new();
+    stream.read_to_string(&mut answer).expect("read");
+    answer
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_owned())
+        .unwrap_or_default()
 }
