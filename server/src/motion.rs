@@ -43,9 +43,9 @@ pub(crate) async fn run(service: Arc<Service>, token: CancellationToken) {
             plant.move_on(&device);
         }
         if let Ok(device) = service.device("sim")
-            && plant.step % 10 == 0
+            && plant.step.is_multiple_of(10)
         {
-            set(&device, "DI_0", Value::Bool(plant.step % 20 == 0));
+            set(&device, "DI_0", Value::Bool(plant.step.is_multiple_of(20)));
         }
     }
 }
