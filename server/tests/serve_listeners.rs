@@ -82,7 +82,7 @@ fn the_demo_serves_on_the_ports_the_command_line_gives() {
         let body = http(rest, "GET", "/api/v1/devices/plant/fields/Level", "");
         let at = body.find("\"value\":").expect("a value") + 8;
         body[at..]
-            .split(|c: char| c == ',' || c == '}')
+            .split([',', '}'])
             .next()
             .and_then(|v| v.trim().parse().ok())
             .unwrap_or(f64::NAN)
