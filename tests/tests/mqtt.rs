@@ -330,7 +330,12 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
     let mut peer = Peer::subscribe_kept(&broker, "#", &format!("peer-{}", broker.port))
         .await
         .expect("paho");
-    let gw = TestGateway::start(&sparkplug_config(broker.port, &extra))
+    // The gateway reaches the broker through a gate, so that after the outage it comes
+    // back only once the peer has (what it replays must find the peer subscribed).
+    let gate = iogate_tests::mqtt::Gate::to(broker.port)
+        .await
+        .expect("gate");
+    let gw = TestGateway::start(&sparkplug_config(gate.port, &extra))
         .await
         .expect("gateway");
     peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/sim")
@@ -342,6 +347,7 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
     })
     .await
     .expect("first replay");
+    gate.shut();
     broker.pause().await;
     let status = gw
         .until("/api/v1/mqtt", "disconnected", |s| s["connected"] == false)
@@ -369,6 +375,7 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
     }
     broker.resume().await.expect("mosquitto again");
     peer.resync("iogate-test/marker").await.expect("peer back");
+    gate.open();
     gw.until("/api/v1/mqtt", "reconnected", |s| s["connected"] == true)
         .await
         .expect("reconnected");
