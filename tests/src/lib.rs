@@ -514,3 +514,22 @@ pub async fn bus_gateway_with(
     .expect("gateway");
     (gw, holder, task, port)
 }
+
+/// A directory named after `name` with `profiles/` holding `profiles` (file name, text)
+/// and `iogate.yaml` holding `config`; answers the directory and the config's path.
+pub fn config_files(name: &str, profiles: &[(&str, &str)], config: &str) -> (PathBuf, PathBuf) {
+    let dir = devices::temp_dir(name);
+    std::fs::create_dir_all(dir.join("profiles")).expect("profiles dir");
+    for (file, text) in profiles {
+        std::fs::write(dir.join("profiles").join(file), text).expect("profile");
+    }
+    let path = dir.join("iogate.yaml");
+    std::fs::write(&path, config).expect("config");
+    (dir, path)
+}
+
+/// A gateway started from the config file at `path` (so that it can be reloaded).
+pub async fn start_file(path: &Path) -> TestGateway {
+    let setup = iogate::app::Setup::from_file(path).expect("valid config");
+    TestGateway::start_setup(setup).await.expect("gateway")
+}

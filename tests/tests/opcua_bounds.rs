@@ -19,18 +19,29 @@ fn url(gw: &TestGateway) -> String {
     format!("opc.tcp://{}/", gw.opcua.expect("an OPC UA server"))
 }
 
-#[tokio::test]
-async fn a_dotted_device_name_never_takes_another_devices_node() {
-    let dir = temp_dir("opcua-dots");
+/// The demo's plant (SimPlant) behind an OPC UA server with `extra` keys, in `name`'s dir.
+async fn plant(name: &str, extra: &str) -> (TestGateway, std::path::PathBuf) {
+    let dir = temp_dir(name);
     let gw = TestGateway::start(&format!(
         "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
-        opcua(&dir, "")
+        opcua(&dir, extra)
     ))
     .await
     .expect("gateway");
-    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+    (gw, dir)
+}
+
+/// An asyncua client of its own, anonymous.
+async fn client(gw: &TestGateway) -> UaClient {
+    UaClient::connect(&url(gw), &Options::default())
         .await
-        .expect("asyncua connects");
+        .expect("asyncua connects")
+}
+
+#[tokio::test]
+async fn a_dotted_device_name_never_takes_another_devices_node() {
+    let (gw, _) = plant("opcua-dots", "").await;
+    let mut ua = client(&gw).await;
     let level = ua.read("plant.Level").await.expect("read");
     assert_eq!(level["type"], "Float", "{level}");
     // A device named `plant.Level` beside it: its own object, its own fields.
@@ -103,19 +114,9 @@ async fn ua_children(url: &str, node: &str) -> Option<String> {
 
 #[tokio::test]
 async fn monitored_items_are_bounded_for_every_session_together() {
-    let dir = temp_dir("opcua-items");
-    let gw = TestGateway::start(&format!(
-        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
-        opcua(&dir, "  max_monitored_items: 2500\n")
-    ))
-    .await
-    .expect("gateway");
-    let mut first = UaClient::connect(&url(&gw), &Options::default())
-        .await
-        .expect("asyncua connects");
-    let mut second = UaClient::connect(&url(&gw), &Options::default())
-        .await
-        .expect("asyncua connects");
+    let (gw, _) = plant("opcua-items", "  max_monitored_items: 2500\n").await;
+    let mut first = client(&gw).await;
+    let mut second = client(&gw).await;
     let one = first
         .cmd(json!({"cmd": "monitor_many", "node": "plant.Level", "count": 2000}))
         .await
@@ -160,9 +161,7 @@ async fn diagnostics_count_on_and_links_follow_declarations() {
     ))
     .await
     .expect("gateway");
-    let mut ua = UaClient::connect(&url(&gw), &Options::default())
-        .await
-        .expect("asyncua connects");
+    let mut ua = client(&gw).await;
     let cycles = |v: &serde_json::Value| v["value"].as_u64().unwrap_or(0);
     let before = cycles(&ua.read("Diagnostics/plant/io_cycles").await.expect("read"));
     let deadline = tokio::time::Instant::now() + iogate_tests::PATIENCE;
@@ -276,16 +275,8 @@ async fn sessions_never_activated_cannot_keep_a_client_out() {
 
 #[tokio::test]
 async fn the_advertised_operation_limits_are_the_ones_kept() {
-    let dir = temp_dir("opcua-limits");
-    let gw = TestGateway::start(&format!(
-        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
-        opcua(&dir, "")
-    ))
-    .await
-    .expect("gateway");
-    let mut ua = UaClient::connect(&url(&gw), &Options::default())
-        .await
-        .expect("asyncua connects");
+    let (gw, dir) = plant("opcua-limits", "").await;
+    let mut ua = client(&gw).await;
     // Server_ServerCapabilities_OperationLimits_MaxNodesPerRead (Part 5).
     let advertised = ua
         .cmd(json!({"cmd": "read0", "id": 11705}))
@@ -327,16 +318,8 @@ async fn the_advertised_operation_limits_are_the_ones_kept() {
 
 #[tokio::test]
 async fn an_event_item_is_told_events_and_never_a_data_value() {
-    let dir = temp_dir("opcua-event-item");
-    let gw = TestGateway::start(&format!(
-        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
-        opcua(&dir, "")
-    ))
-    .await
-    .expect("gateway");
-    let mut ua = UaClient::connect(&url(&gw), &Options::default())
-        .await
-        .expect("asyncua connects");
+    let (gw, _) = plant("opcua-event-item", "").await;
+    let mut ua = client(&gw).await;
     ua.cmd(json!({"cmd": "subscribe_events", "type": "GeneralModelChangeEventType"}))
         .await
         .expect("events");

@@ -1,36 +1,20 @@
 //! Configuration reload against a running gateway: a device added on a line that keeps
 //! polling, a bad profile that changes nothing, and file replacements seen once.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 use futures_util::StreamExt;
-use iogate::app::Setup;
 use iogate_tests::devices::{RtuBus, pty_at, temp_dir};
 use iogate_tests::mqtt::{Broker, Message, Peer};
-use iogate_tests::{SseReader, TestGateway, eventually};
+use iogate_tests::{SseReader, eventually};
 use reqwest::Method;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 const REG: &str = "name: Reg\nfields:\n  - { name: N, type: UINT, direction: input, register: { address: 0, kind: input_register } }\n";
 const SIM: &str = "name: SimOne\nprotocol: simulated\nfields:\n  - { name: X, type: INT, direction: inout, register: { address: 0, kind: virtual } }\n";
 
-/// A directory with `profiles/` holding `profiles` and `iogate.yaml` holding `config`.
-fn files(name: &str, profiles: &[(&str, &str)], config: &str) -> (PathBuf, PathBuf) {
-    let dir = temp_dir(name);
-    std::fs::create_dir_all(dir.join("profiles")).expect("dir");
-    for (file, text) in profiles {
-        std::fs::write(dir.join("profiles").join(file), text).expect("profile");
-    }
-    let path = dir.join("iogate.yaml");
-    std::fs::write(&path, config).expect("config");
-    (dir, path)
-}
-
-async fn start(path: &Path) -> TestGateway {
-    let setup = Setup::from_file(path).expect("valid config");
-    TestGateway::start_setup(setup).await.expect("gateway")
-}
+use iogate_tests::{config_files as files, start_file as start};
 
 fn line_config(port: &Path, devices: &str) -> String {
     format!(

@@ -2,9 +2,6 @@
 //! watch switched by the API, a save after another trigger's reload, a profiles directory
 //! replaced by rename again and again, a device moved to another slave id.
 
-use std::path::{Path, PathBuf};
-
-use iogate::app::Setup;
 use iogate_tests::TestGateway;
 use iogate_tests::devices::{ModbusDevice, RtuBus, modbus_tcp_server, pty_at, temp_dir};
 use reqwest::Method;
@@ -14,22 +11,7 @@ const REG: &str = "name: Reg\nfields:\n  - { name: N, type: UINT, direction: inp
 const SIM: &str = "name: SimOne\nprotocol: simulated\nfields:\n  - { name: X, type: INT, direction: inout, register: { address: 0, kind: virtual } }\n";
 const HEAD: &str = "listen: { http: 127.0.0.1:0, grpc: 127.0.0.1:0 }\nprofiles: profiles\n";
 
-/// A directory with `profiles/` holding `profiles` and `iogate.yaml` holding `config`.
-fn files(name: &str, profiles: &[(&str, &str)], config: &str) -> (PathBuf, PathBuf) {
-    let dir = temp_dir(name);
-    std::fs::create_dir_all(dir.join("profiles")).expect("dir");
-    for (file, text) in profiles {
-        std::fs::write(dir.join("profiles").join(file), text).expect("profile");
-    }
-    let path = dir.join("iogate.yaml");
-    std::fs::write(&path, config).expect("config");
-    (dir, path)
-}
-
-async fn start(path: &Path) -> TestGateway {
-    let setup = Setup::from_file(path).expect("valid config");
-    TestGateway::start_setup(setup).await.expect("gateway")
-}
+use iogate_tests::{config_files as files, start_file as start};
 
 async fn reload(gw: &TestGateway) -> (u16, serde_json::Value) {
     gw.send(Method::POST, "/api/v1/config/reload", "")
