@@ -334,7 +334,9 @@ async fn a_device_on_a_pty_is_subscribed_written_and_turns_bad_and_back() {
         "opcua-pty",
         &bus,
         &[],
-        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, timeout: 50ms, retries: 0 }\n",
+        // A timeout a loaded machine's pty keeps (the test's "bad" comes from a silent
+        // slave, not from a slow answer).
+        "  - { name: io, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms, timeout: 300ms, retries: 1 }\n",
         &opcua(&dir, ""),
     )
     .await;
@@ -373,7 +375,8 @@ async fn a_device_on_a_pty_is_subscribed_written_and_turns_bad_and_back() {
     assert_eq!(values, deduped, "each change once: {seen:?}");
     assert!(
         seen.iter()
-            .all(|c| c["source"].is_string() && c["status"] == "Good")
+            .all(|c| c["source"].is_string() && c["status"] == "Good"),
+        "{seen:?}"
     );
     // A write of an output reaches the slave.
     assert_eq!(
