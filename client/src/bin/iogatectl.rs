@@ -10,6 +10,15 @@ use futures_util::StreamExt;
 use iogate_client::{Client, FieldValue, Selection, Update, Value, WriteOutcome};
 use serde::Serialize;
 
+#[path = "iogatectl/describe.rs"]
+mod describe;
+#[path = "iogatectl/format.rs"]
+mod format;
+#[path = "iogatectl/watch.rs"]
+mod watch;
+
+use format::{field_table, print_json, show, split_target};
+
 #[derive(Parser)]
 #[command(
     name = "iogatectl",
@@ -110,60 +119,6 @@ enum Describe {
         #[arg(long)]
         st: bool,
     },
-}
-
-/// `DEVICE`, `DEVICE.FIELD`, or a located address such as `%QX2.6` (a field the Modbus
-/// server's map binds there).
-fn split_target(target: &str) -> (&str, Option<&str>) {
-    if target.starts_with('%') {
-        return ("", Some(target));
-    }
-    match target.split_once('.') {
-        Some((d, f)) => (d, Some(f)),
-        None => (target, None),
-    }
-}
-
-fn print_json(value: &impl Serialize) -> anyhow::Result<()> {
-    println!("{}", serde_json::to_string_pretty(value)?);
-    Ok(())
-}
-
-fn show(v: &FieldValue) -> String {
-    match &v.value {
-        None => "-".to_owned(),
-        Some(Value::Time(ms)) => format!("{ms} ms"),
-        Some(other) => other.to_string(),
-    }
-}
-
-fn age(v: &FieldValue) -> String {
-    v.timestamp.and_then(|t| t.elapsed().ok()).map_or_else(
-        || "-".to_owned(),
-        |d| format!("{:.1}s ago", d.as_secs_f64()),
-    )
-}
-
-fn field_table(values: &[FieldValue]) -> String {
-    let mut out = format!(
-        "{:<28} {:<7} {:<24} {:<11} {}\n",
-        "FIELD", "TYPE", "VALUE", "QUALITY", "UPDATED"
-    );
-    for v in values {
-        out.push_str(&format!(
-            "{:<28} {:<7} {:<24} {:<11} {}{}\n",
-            format!("{}.{}", v.device, v.field),
-            v.ty.map_or("", |t| t.name()),
-            show(v),
-            v.quality.name(),
-            age(v),
-            v.error
-                .as_ref()
-                .map(|e| format!("  ({e})"))
-                .unwrap_or_default()
-        ));
-    }
-    out
 }
 
 async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -315,80 +270,7 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::FAILURE);
             }
         }
-        Command::Watch { devices } => {
-            let selection = Selection {
-                devices,
-                fields: Vec::new(),
-            };
-            let mut updates = client.subscribe(&selection, true).await?;
-            let live = std::io::stdout().is_terminal() && !cli.json;
-            let mut table: BTreeMap<(String, String), FieldValue> = BTreeMap::new();
-            let mut diagnostics = BTreeMap::new();
-            let mut drawn = Instant::now() - Duration::from_secs(1);
-            while let Some(update) = updates.next().await {
-                let update = update?;
-                if cli.json {
-                    println!("{}", serde_json::to_string(&update)?);
-                    continue;
-                }
-                if !live {
-                    match &update {
-                        Update::Value(v) => println!(
-                            "{}.{} = {} ({})",
-                            v.device,
-                            v.field,
-                            show(v),
-                            v.quality.name()
-                        ),
-                        Update::Diagnostics(d) => println!(
-                            "{}: connected={} error_code={}",
-                            d.device, d.connected, d.error_code
-                        ),
-                        Update::Removed {
-                            device,
-                            field,
-                            reason,
-                        } => match field {
-                            Some(f) => println!("{device}.{f} removed: {reason}"),
-                            None => println!("{device} removed: {reason}"),
-                        },
-                    }
-                    continue;
-                }
-                match update {
-                    Update::Value(v) => {
-                        table.insert((v.device.clone(), v.field.clone()), v);
-                    }
-                    Update::Diagnostics(d) => {
-                        diagnostics.insert(d.device.clone(), d);
-                    }
-                    Update::Removed { device, field, .. } => match field {
-                        Some(f) => {
-                            table.remove(&(device, f));
-                        }
-                        None => {
-                            table.retain(|(d, _), _| *d != device);
-                            diagnostics.remove(&device);
-                        }
-                    },
-                }
-                if drawn.elapsed() >= Duration::from_millis(100) {
-                    drawn = Instant::now();
-                    let values: Vec<FieldValue> = table.values().cloned().collect();
-                    let mut screen = String::from("\x1b[2J\x1b[H");
-                    for d in diagnostics.values() {
-                        screen.push_str(&format!(
-                            "{}: connected={} error_code={} io_cycles={}\n",
-                            d.device, d.connected, d.error_code, d.io_cycles
-                        ));
-                    }
-                    screen.push('\n');
-                    screen.push_str(&field_table(&values));
-                    print!("{screen}");
-                    std::io::stdout().flush()?;
-                }
-            }
-        }
+        Command::Watch { devices } => return watch::watch(&mut client, devices, cli.json).await,
         Command::Tx {
             link,
             function,
@@ -448,73 +330,7 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::FAILURE);
             }
         }
-        Command::Describe { what } => match what {
-            Describe::Device { name } => {
-                let device = client.device(&name).await?;
-                if cli.json {
-                    print_json(&device)?;
-                } else {
-                    println!(
-                        "device {} (profile {}, {})",
-                        device.name, device.profile, device.protocol
-                    );
-                    if let Some(link) = &device.link {
-                        println!("link {link}, slave {}", device.slave_id.unwrap_or(0));
-                    }
-                    println!(
-                        "refresh every {} ms, timeout {} ms",
-                        device.refresh_rate_ms, device.timeout_ms
-                    );
-                    if let Some(d) = &device.diagnostics {
-                        println!(
-                            "connected={} error_code={} io_cycles={} last_response_ms={:.3}",
-                            d.connected, d.error_code, d.io_cycles, d.last_response_ms
-                        );
-                    }
-                    println!();
-                    print!("{}", field_table(&device.fields));
-                }
-            }
-            Describe::Profile { name, st } => {
-                let profile = client.profile(&name).await?;
-                if st {
-                    print!("{}", profile.st_declaration);
-                } else if cli.json {
-                    print_json(&profile)?;
-                } else {
-                    println!(
-                        "profile {} ({}) {}",
-                        profile.name, profile.protocol, profile.description
-                    );
-                    println!("\nfunction block layout:");
-                    for m in &profile.layout {
-                        println!(
-                            "  {:<10} {:<20} : {:<6} ({})",
-                            m.section,
-                            m.name,
-                            m.ty.map_or("", |t| t.name()),
-                            m.role
-                        );
-                    }
-                    println!("\nfields:");
-                    for f in &profile.fields {
-                        println!(
-                            "  {:<24} {:<6} {:<7} {} {}{}",
-                            f.name,
-                            f.ty.map_or("", |t| t.name()),
-                            format!("{:?}", f.direction).to_lowercase(),
-                            f.kind,
-                            f.address,
-                            if f.unit.is_empty() {
-                                String::new()
-                            } else {
-                                format!(" [{}]", f.unit)
-                            }
-                        );
-                    }
-                }
-            }
-        },
+        Command::Describe { what } => return describe::describe(&mut client, what, cli.json).await,
     }
     Ok(ExitCode::SUCCESS)
 }
