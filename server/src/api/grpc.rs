@@ -26,6 +26,12 @@ use crate::service::ReloadError;
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 use crate::transaction::TransactionSpec;
 
+mod helpers;
+mod routes;
+
+use helpers::*;
+pub(crate) use routes::GatewayRoutes;
+
 /// Encoded `Update`s.
 type EncodedStream = Pin<Box<dyn Stream<Item = Result<Bytes, Status>> + Send>>;
 type ExchangeStream = Pin<Box<dyn Stream<Item = Result<pb::ExchangeResponse, Status>> + Send>>;
@@ -85,160 +91,6 @@ pub(crate) fn operation(path: &str) -> Option<Operation> {
         // Not a method of the service (UNIMPLEMENTED): as a read.
         _ => Operation::Read,
     })
-}
-
-/// A transaction's value as JSON: a double is a float (so `int32/float` writes it as
-/// IEEE-754; the integer types take it when it is whole). Not finite: null, refused.
-fn json_number(n: f64) -> serde_json::Value {
-    serde_json::Number::from_f64(n).map_or(serde_json::Value::Null, Into::into)
-}
-
-/// The link and parameters of a transaction request.
-fn transaction_spec(r: pb::TransactRequest) -> (String, TransactionSpec) {
-    let text = |s: String| (!s.is_empty()).then_some(s);
-    let spec = TransactionSpec {
-        function: Some(r.function.into()),
-        slave: Some(r.slave.into()),
-        address: Some(r.address.into()),
-        bit_count: (r.bit_count > 0).then_some(r.bit_count.into()),
-        value_type: text(r.value_type),
-        divisor: (r.divisor > 0).then(|| i64::try_from(r.divisor).unwrap_or(i64::MAX)),
-        precision: r.precision.map(i64::from),
-        byte_order: text(r.byte_order),
-        timeout_ms: (r.timeout_ms > 0).then_some(r.timeout_ms.into()),
-        write_type: text(r.r#type),
-        values: (!r.values.is_empty()).then(|| r.values.into_iter().map(json_number).collect()),
-    };
-    (r.link, spec)
-}
-
-fn transact_response(o: &crate::transaction::Outcome) -> pb::TransactResponse {
-    pb::TransactResponse {
-        actual: o.actual,
-        state: o.state,
-        value: o.value,
-        error: o.error.unwrap_or_default().to_owned(),
-        request: o.request.clone(),
-        response: o.response.clone().unwrap_or_default(),
-        elapsed_ms: o.elapsed_ms,
-    }
-}
-
-fn transaction_status(
-    s: &crate::service::Standing,
-    st: &crate::service::StandingStatus,
-) -> pb::TransactionStatus {
-    pb::TransactionStatus {
-        name: s.name.clone(),
-        link: s.link.clone(),
-        kind: if s.is_write { "write" } else { "read" }.to_owned(),
-        enabled: st.enabled,
-        period_ms: u32::try_from(s.period.as_millis()).unwrap_or(u32::MAX),
-        last: st.last.as_ref().map(transact_response),
-        runs: st.runs,
-        failures: st.failures,
-        updated: st.updated.map(prost_types::Timestamp::from),
-        state: st.state(),
-    }
-}
-
-fn ack(a: Accepted) -> pb::WriteAck {
-    pb::WriteAck {
-        device: a.device,
-        field: a.field,
-        generation: a.generation,
-    }
-}
-
-impl GrpcApi {
-    pub(crate) fn new(service: Arc<Service>) -> Self {
-        GrpcApi { service }
-    }
-
-    /// The server for this service.
-    pub(crate) fn server(service: Arc<Service>) -> GatewayRoutes {
-        let api = Arc::new(GrpcApi::new(service));
-        GatewayRoutes {
-            generated: GatewayServer::from_arc(api.clone())
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
-            api,
-        }
-    }
-
-    /// `Subscribe`: the selection's current values, then each change, as encoded `Update`s;
-    /// a field's change is encoded once for all its subscribers (the slot's [`GRPC_FORM`]).
-    fn subscribe_encoded(&self, r: pb::SubscribeRequest) -> Result<EncodedStream, Status> {
-        self.service.accepting().map_err(status)?;
-        let selection = self.select(&r.devices, &r.fields)?;
-        let changes = self
-            .service
-            .subscribe(selection, r.diagnostics)
-            .map_err(status)?;
-        let viewer = self.service.clone();
-        let updates = changes.map(move |change| {
-            Ok(match change {
-                Change::Value {
-                    device,
-                    idx,
-                    sample,
-                    forms,
-                } => forms.get_or_make(GRPC_FORM, || {
-                    encoded(pb::update::Kind::Value(to_pb::field_value(
-                        &viewer.field_view(&device, idx, &sample),
-                    )))
-                }),
-                Change::Diagnostics {
-                    device,
-                    diagnostics,
-                } => encoded(pb::update::Kind::Diagnostics(to_pb::diagnostics(
-                    &device,
-                    &diagnostics,
-                ))),
-                Change::Removed {
-                    device,
-                    field,
-                    reason,
-                } => encoded(pb::update::Kind::Removed(pb::Removed {
-                    device,
-                    field: field.unwrap_or_default(),
-                    reason: reason.to_owned(),
-                })),
-            })
-        });
-        if !r.transactions {
-            return Ok(Box::pin(updates));
-        }
-        let transactions = self.service.transaction_changes().map(|(s, st)| {
-            Ok(encoded(pb::update::Kind::Transaction(transaction_status(
-                &s, &st,
-            ))))
-        });
-        Ok(Box::pin(futures_util::stream::select(
-            updates,
-            transactions,
-        )))
-    }
-
-    fn select(
-        &self,
-        devices: &[String],
-        fields: &[pb::FieldRef],
-    ) -> Result<crate::service::Selection, Status> {
-        let pairs: Vec<(&str, &str)> = fields
-            .iter()
-            .map(|f| (f.device.as_str(), f.field.as_str()))
-            .collect();
-        self.service.select(devices, &pairs).map_err(status)
-    }
-
-    /// Converts and checks one write; nothing is written.
-    fn prepare(service: &Service, w: &pb::FieldWrite) -> Result<Prepared, ServiceError> {
-        service.prepare_named(&w.device, &w.field, |ty| match &w.value {
-            Some(v) => Value::from_pb_as(ty, v),
-            None => Err(ValueError::Missing { ty }),
-        })
-    }
 }
 
 #[tonic::async_trait]
@@ -618,66 +470,6 @@ impl Gateway for GrpcApi {
             applied: !dry_run,
             report: Some(to_pb::config_report(&report)),
         }))
-    }
-}
-
-/// The service `iogate.v1.Gateway`: the generated server's methods, except `Subscribe`,
-/// answered here with messages encoded once for all subscribers (the generated server
-/// would encode each subscriber's copy of a change).
-#[derive(Clone)]
-pub(crate) struct GatewayRoutes {
-    generated: GatewayServer<GrpcApi>,
-    api: Arc<GrpcApi>,
-}
-
-impl NamedService for GatewayRoutes {
-    const NAME: &'static str = iogate_proto::SERVICE_NAME;
-}
-
-/// `Subscribe` with encoded messages.
-struct SubscribeEncoded(Arc<GrpcApi>);
-
-impl ServerStreamingService<pb::SubscribeRequest> for SubscribeEncoded {
-    type Response = Bytes;
-    type ResponseStream = EncodedStream;
-    type Future = BoxFuture<Response<EncodedStream>, Status>;
-
-    fn call(&mut self, request: Request<pb::SubscribeRequest>) -> Self::Future {
-        let api = self.0.clone();
-        Box::pin(async move {
-            api.subscribe_encoded(request.into_inner())
-                .map(Response::new)
-        })
-    }
-}
-
-impl<B> tower::Service<axum::http::Request<B>> for GatewayRoutes
-where
-    B: tonic::codegen::Body<Data = Bytes> + Send + 'static,
-    B::Error: Into<StdError> + Send + 'static,
-{
-    type Response = axum::http::Response<tonic::body::Body>;
-    type Error = Infallible;
-    type Future = BoxFuture<Self::Response, Infallible>;
-
-    fn poll_ready(
-        &mut self,
-        _cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<Result<(), Infallible>> {
-        std::task::Poll::Ready(Ok(()))
-    }
-
-    fn call(&mut self, request: axum::http::Request<B>) -> Self::Future {
-        if request.uri().path() != SUBSCRIBE_PATH {
-            return self.generated.call(request);
-        }
-        let api = self.api.clone();
-        Box::pin(async move {
-            let mut grpc =
-                tonic::server::Grpc::new(EncodedCodec::<pb::SubscribeRequest>::default())
-                    .apply_max_message_size_config(Some(MAX_MESSAGE), Some(MAX_MESSAGE));
-            Ok(grpc.server_streaming(SubscribeEncoded(api), request).await)
-        })
     }
 }
 
