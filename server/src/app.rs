@@ -72,8 +72,9 @@ impl Running {
 /// that cannot serve stops without having touched a bus.
 pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let source = (!setup.demo).then(|| PathBuf::from(&setup.config.source));
+    let demo = setup.demo;
     let Setup {
-        config,
+        mut config,
         catalog,
         map,
         profiles_dir,
@@ -98,6 +99,11 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc, or serve --grpc ADDR; port 0 takes any free one): {e}", config.grpc))?;
     let grpc_addr = grpc_listener.local_addr()?;
 
+    // The demo's simulated field devices answer before its link first asks.
+    let field = match demo {
+        true => crate::demo::field::bind(&mut config).await,
+        false => None,
+    };
     let token = CancellationToken::new();
     let tracker = TaskTracker::new();
     let cache = Arc::new(Cache::new(&config, catalog));
@@ -114,6 +120,9 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         if device.is_simulated() {
             tasks.spawn_sim(device);
         }
+    }
+    if let Some(field) = field {
+        tasks.spawn(crate::demo::field::run(field, token.clone()));
     }
     for link in cache.links() {
         tasks.spawn_link(link);
@@ -227,7 +236,15 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     let scheme = if running.secure { "https" } else { "http" };
     let base = format!("{scheme}://{}", running.http_addr);
     if demo {
-        println!("iogate is running its built-in demo (simulated devices sim and plant).");
+        println!("iogate is running its built-in demo: the simulated devices sim and plant,");
+        if let Ok(link) = running.service.cache.link(crate::demo::field::LINK)
+            && let config::Transport::Tcp { host, port, .. } = link.config().transport
+        {
+            println!(
+                "and on link {} (Modbus TCP, {host}:{port}) an energy meter (meter) and an I/O module (io)",
+                crate::demo::field::LINK
+            );
+        }
     }
     println!("Web page:  {base}/ui");
     println!("REST API:  {base}/api/v1/devices");
@@ -255,7 +272,7 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
         running
             .service
             .tasks()
-            .spawn(crate::motion::run(running.service.clone(), token));
+            .spawn(crate::demo::motion::run(running.service.clone(), token));
     }
     signal.await;
     tracing::info!("shutting down");

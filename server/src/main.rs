@@ -289,11 +289,15 @@ fn main() -> ExitCode {
         } else {
             setup.config.source.clone()
         };
+        let count = |n: usize, one: &str| match n {
+            1 => format!("1 {one}"),
+            n => format!("{n} {one}s"),
+        };
         println!(
-            "{what}: ok ({} profiles, {} links, {} devices)",
-            setup.catalog.len(),
-            setup.config.links.len(),
-            setup.config.devices.len()
+            "{what}: ok ({}, {}, {})",
+            count(setup.catalog.len(), "profile"),
+            count(setup.config.links.len(), "link"),
+            count(setup.config.devices.len(), "device")
         );
         return ExitCode::SUCCESS;
     }

@@ -13,6 +13,7 @@ use tokio_util::task::TaskTracker;
 use crate::api;
 use crate::config::Config;
 use crate::service::Service;
+use crate::service::listening::Server;
 
 /// The listeners' servers and the TLS configuration they serve with.
 pub(crate) struct Servers {
@@ -78,6 +79,7 @@ impl Servers {
             service.clone(),
             stop.clone(),
         ));
+        service.listening.set(Server::Modbus, addr, false);
         self.running.lock().await.modbus = Some((addr, stop));
         Ok(addr)
     }
@@ -89,6 +91,7 @@ impl Servers {
         limits: api::http::Limits,
     ) -> anyhow::Result<SocketAddr> {
         let addr = listener.local_addr()?;
+        service.listening.set(Server::Grpc, addr, false);
         let stop = self.token.child_token();
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {
@@ -116,6 +119,9 @@ impl Servers {
     ) -> anyhow::Result<SocketAddr> {
         let addr = listener.local_addr()?;
         let stop = self.token.child_token();
+        service
+            .listening
+            .set(Server::Http, addr, self.tls().is_some());
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {
             let served =
@@ -247,6 +253,7 @@ impl Servers {
                     .as_ref()
                     .is_none_or(|s| s.listen.is_none()) =>
             {
+                service.listening.remove(Server::Modbus);
                 stop.cancel()
             }
             (None, old) => self.running.lock().await.modbus = old,

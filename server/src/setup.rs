@@ -83,6 +83,16 @@ impl Setup {
         })
     }
 
+    /// The demo without its field line: only the simulated devices `sim` and `plant` (what
+    /// the tests of simulated devices and the benchmarks start).
+    pub fn demo_simulated() -> Result<Setup, Problems> {
+        let mut setup = Setup::demo()?;
+        setup.config.links.clear();
+        setup.config.devices.retain(|d| d.link.is_none());
+        setup.map = crate::map::plan(&setup.config, &setup.catalog)?;
+        Ok(setup)
+    }
+
     /// Loads a config file, then its profiles, then checks the devices against both.
     /// Every problem of every file is reported: what could not be read is left out of the
     /// checks that follow, and the rest is still checked.

@@ -212,7 +212,7 @@ fn check_accepts_the_example_and_the_demo() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(String::from_utf8_lossy(&out.stdout).contains("ok (8 profiles, 0 links, 2 devices)"));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("ok (8 profiles, 1 link, 4 devices)"));
 
     // With nothing configured, the built-in demo is checked.
     let empty = temp_dir("empty");
@@ -253,7 +253,7 @@ fn profiles_are_found_in_a_parent_from_relative_and_absolute_config_paths() {
         );
         assert!(out.status.success(), "{stdout}{stderr}");
         assert!(
-            stdout.contains("ok (1 profiles, 0 links, 1 devices)"),
+            stdout.contains("ok (1 profile, 0 links, 1 device)"),
             "{stdout}"
         );
     };

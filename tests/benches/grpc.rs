@@ -42,7 +42,7 @@ fn main() -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(async {
-        let mut setup = iogate::app::Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
+        let mut setup = iogate::app::Setup::demo_simulated().map_err(|p| anyhow::anyhow!("{p}"))?;
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
         if let Some(server) = setup.config.modbus_server.as_mut()

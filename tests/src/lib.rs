@@ -219,9 +219,22 @@ impl TestGateway {
         }
     }
 
-    /// Starts the built-in demo.
+    /// Starts the built-in demo's simulated devices (`sim` and `plant`) and servers, without
+    /// its field line (the tests that use it declare links and devices of their own).
     pub async fn demo() -> anyhow::Result<TestGateway> {
-        let mut setup = Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
+        let setup = Setup::demo_simulated().map_err(|p| anyhow::anyhow!("{p}"))?;
+        TestGateway::start_demo(setup).await
+    }
+
+    /// Starts the built-in demo as shipped: its field line with the simulated meter and I/O
+    /// module as well.
+    pub async fn demo_as_shipped() -> anyhow::Result<TestGateway> {
+        let setup = Setup::demo().map_err(|p| anyhow::anyhow!("{p}"))?;
+        TestGateway::start_demo(setup).await
+    }
+
+    /// Starts a demo setup on free ports.
+    async fn start_demo(mut setup: Setup) -> anyhow::Result<TestGateway> {
         setup.config.http = "127.0.0.1:0".parse()?;
         setup.config.grpc = "127.0.0.1:0".parse()?;
         if let Some(server) = setup.config.modbus_server.as_mut()

@@ -132,7 +132,7 @@ pub(crate) async fn reload(
 #[utoipa::path(get, path = "/api/v1/config", tag = "config",
     responses((status = 200, description = "the configuration in force", body = ConfigStatus)))]
 pub(crate) async fn get_config(State(service): State<Arc<Service>>) -> Json<ConfigStatus> {
-    Json(service.config_status().unwrap_or_else(|| ConfigStatus {
+    let mut status = service.config_status().unwrap_or_else(|| ConfigStatus {
         file: "built-in demo".to_owned(),
         profiles: None,
         hash: String::new(),
@@ -140,5 +140,8 @@ pub(crate) async fn get_config(State(service): State<Arc<Service>>) -> Json<Conf
         watch: false,
         last_report: None,
         last_problems: Vec::new(),
-    }))
+        listening: Vec::new(),
+    });
+    status.listening = service.listening.list();
+    Json(status)
 }

@@ -484,7 +484,7 @@ mod tests {
     #[tokio::test]
     async fn a_slow_subscriber_gets_the_newest_value_not_a_backlog() {
         // No device tasks run: only this test changes the value.
-        let setup = Setup::demo().expect("demo");
+        let setup = Setup::demo_simulated().expect("demo");
         let cache = Arc::new(Cache::new(&setup.config, setup.catalog));
         let tasks = Tasks::new(
             tokio_util::task::TaskTracker::new(),

@@ -41,6 +41,7 @@ const ASSETS: &[Asset] = &[
     asset!("/ui/app.js", "app.js", JS),
     asset!("/ui/api.js", "api.js", JS),
     asset!("/ui/dom.js", "dom.js", JS),
+    asset!("/ui/sections.js", "sections.js", JS),
     asset!("/ui/style.css", "style.css", "text/css; charset=utf-8"),
     asset!("/ui/icon.svg", "icon.svg", "image/svg+xml"),
 ];

@@ -527,7 +527,7 @@ mod tests {
 
     #[tokio::test]
     async fn an_unbounded_guard_time_is_refused_before_anything_is_opened() {
-        let setup = crate::app::Setup::demo().expect("demo");
+        let setup = crate::app::Setup::demo_simulated().expect("demo");
         let cache = Cache::new(&setup.config, setup.catalog);
         let tasks = Tasks::new(
             TaskTracker::new(),

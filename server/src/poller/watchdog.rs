@@ -73,7 +73,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn a_link_past_its_bound_is_reported_and_recovers() {
-        let setup = crate::app::Setup::demo().expect("demo");
+        let setup = crate::app::Setup::demo_simulated().expect("demo");
         let mut config = setup.config.clone();
         config.links.push(LinkConfig {
             name: "line".into(),

@@ -135,6 +135,7 @@ impl Reloader {
             watch: setup.config.reload.watch,
             last_report: None,
             last_problems: Vec::new(),
+            listening: Vec::new(),
         };
         let reloader = Arc::new(Reloader {
             path,

@@ -4,6 +4,7 @@
 //! over this layer: they parse their request, call one function here, and map the result
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
+pub(crate) mod listening;
 mod modbus_map;
 mod refusal;
 mod reload;
@@ -139,6 +140,8 @@ pub struct Service {
     serial_ports: serial_ports::SerialPorts,
     /// Scans of links, running and done.
     scans: scan::Scans,
+    /// Where the servers listen.
+    pub(crate) listening: listening::Listening,
 }
 
 /// A place among the open change streams; dropping it frees the place.
@@ -172,6 +175,7 @@ impl Service {
             reloader: std::sync::OnceLock::new(),
             serial_ports: serial_ports::SerialPorts::default(),
             scans: scan::Scans::default(),
+            listening: listening::Listening::default(),
         }
     }
 
@@ -402,7 +406,7 @@ mod tests {
     use super::*;
 
     fn demo_service() -> Service {
-        let setup = crate::app::Setup::demo().expect("demo");
+        let setup = crate::app::Setup::demo_simulated().expect("demo");
         let cache = Arc::new(Cache::new(&setup.config, setup.catalog));
         let tasks = Tasks::new(
             tokio_util::task::TaskTracker::new(),

@@ -158,6 +158,8 @@ pub struct ConfigStatus {
     /// The problems of the last reload that was refused, if it came after the last applied.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub last_problems: Vec<String>,
+    /// The servers listening now, each with what a client connects to.
+    pub listening: Vec<super::listening::Listener>,
 }
 
 /// Why a reload changed nothing.

@@ -90,6 +90,9 @@ impl Running {
         self.stop.cancel();
         if let Some(service) = self.service.upgrade() {
             service.attach_opcua(None);
+            service
+                .listening
+                .remove(crate::service::listening::Server::Opcua);
         }
         tokio::time::timeout(STOP_WAIT, self.stopped)
             .await
@@ -183,6 +186,9 @@ pub(crate) async fn start(
         .local_addr()
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
     let host = endpoint_host(addr);
+    service
+        .listening
+        .set(crate::service::listening::Server::Opcua, addr, false);
     let token = service.tasks().token().child_token();
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
     let counts = Arc::new(OpcUaState::new(

@@ -1,6 +1,9 @@
 //! The built-in demo: simulated devices, and every shipped profile to browse, compiled into
 //! the binary so that `iogate serve` works anywhere with nothing configured.
 
+pub(crate) mod field;
+pub(crate) mod motion;
+
 use crate::config::{self, Config};
 use crate::profile::{self, Catalog};
 use crate::yaml::Problems;
@@ -8,39 +11,42 @@ use crate::yaml::Problems;
 /// The demo configuration (`examples/demo.yaml`).
 pub(crate) const CONFIG: (&str, &str) = (
     "examples/demo.yaml",
-    include_str!("../../examples/demo.yaml"),
+    include_str!("../../../examples/demo.yaml"),
 );
 
 /// The shipped profiles (`profiles/`).
 pub(crate) const PROFILES: &[(&str, &str)] = &[
     (
         "profiles/energy_meter_sdm630.yaml",
-        include_str!("../../profiles/energy_meter_sdm630.yaml"),
+        include_str!("../../../profiles/energy_meter_sdm630.yaml"),
     ),
     (
         "profiles/generic_io_module.yaml",
-        include_str!("../../profiles/generic_io_module.yaml"),
+        include_str!("../../../profiles/generic_io_module.yaml"),
     ),
     (
         "profiles/sim_io.yaml",
-        include_str!("../../profiles/sim_io.yaml"),
+        include_str!("../../../profiles/sim_io.yaml"),
     ),
     (
         "profiles/sim_plant.yaml",
-        include_str!("../../profiles/sim_plant.yaml"),
+        include_str!("../../../profiles/sim_plant.yaml"),
     ),
-    ("profiles/vfd.yaml", include_str!("../../profiles/vfd.yaml")),
+    (
+        "profiles/vfd.yaml",
+        include_str!("../../../profiles/vfd.yaml"),
+    ),
     (
         "profiles/waveshare_analog_input.yaml",
-        include_str!("../../profiles/waveshare_analog_input.yaml"),
+        include_str!("../../../profiles/waveshare_analog_input.yaml"),
     ),
     (
         "profiles/waveshare_io_8ch.yaml",
-        include_str!("../../profiles/waveshare_io_8ch.yaml"),
+        include_str!("../../../profiles/waveshare_io_8ch.yaml"),
     ),
     (
         "profiles/waveshare_relay_8ch.yaml",
-        include_str!("../../profiles/waveshare_relay_8ch.yaml"),
+        include_str!("../../../profiles/waveshare_relay_8ch.yaml"),
     ),
 ];
 
