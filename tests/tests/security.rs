@@ -501,7 +501,7 @@ async fn a_body_over_the_limit_is_refused_at_once_and_a_refusal_reaches_http2_cl
     gw.shutdown().await;
 }
 
-/// The role a REST route needs, as the README's Security section states it.
+/// The role a REST route needs, as docs/security.md states it.
 fn needed_rest(method: &str, path: &str) -> Option<usize> {
     // 0 open, 1 read, 2 write, 3 admin.
     if matches!(path, "/livez" | "/readyz" | "/metrics") {

@@ -928,7 +928,7 @@ async fn with_tcp_device() -> (
     (gw, master, server)
 }
 
-/// The documented rule for FC01/02 (README, "Raw transactions"), written out as bytes of
+/// The documented rule for FC01/02 (docs/transactions.md), written out as bytes of
 /// bit strings: byte k holds coils 8k.., the last only the bits left over; the bytes are
 /// ordered as register bytes, then their bits are concatenated, most significant first.
 fn expected_bits(coils: &[bool], order: &str) -> u64 {

@@ -91,7 +91,7 @@ pub struct Plan {
 /// Why a field or diagnostic does not fit a location.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 enum FitError {
-    #[error("a {ty} does not fit {at} ({}; see the README's map table)", holds(at.size))]
+    #[error("a {ty} does not fit {at} ({}; see the map table of docs/modbus-server.md)", holds(at.size))]
     Type { ty: IecType, at: Location },
     #[error(
         "{at} is an output location that masters write: bind an output or inout field (or use %I or %M)"

@@ -1,7 +1,7 @@
 //! The bytes of raw transactions: values packed for the write block (source document 002)
 //! and read values interpreted for the read block (source document 004).
 //!
-//! Choices where the documents are silent (README, "Raw transactions"):
+//! Choices where the documents are silent (docs/transactions.md):
 //! - uint8 and int8 values take one register each (the low byte, the high byte 0 or the
 //!   sign), so FC06 writes one and FC16 one per register; int32 and float take two.
 //! - `int32` is always a signed 32-bit integer (a value with a fraction is refused) and

@@ -403,7 +403,7 @@ fn identifier(node: &Node, report: &mut Report, ctx: &str) -> Option<String> {
             node.line,
             ctx,
             format!(
-                "`{text}` is an IEC 61131-3 keyword: the generated function block would not parse (choose another name; the README's \"Device profiles\" lists the keywords)"
+                "`{text}` is an IEC 61131-3 keyword: the generated function block would not parse (choose another name; docs/profiles.md lists the keywords)"
             ),
         );
         None
