@@ -89,6 +89,15 @@ impl Setup {
         let mut setup = Setup::demo()?;
         setup.config.links.clear();
         setup.config.devices.retain(|d| d.link.is_none());
+        let kept: Vec<String> = setup
+            .config
+            .devices
+            .iter()
+            .map(|d| d.name.clone())
+            .collect();
+        if let Some(server) = setup.config.modbus_server.as_mut() {
+            server.map.retain(|entry| kept.contains(&entry.device));
+        }
         setup.map = crate::map::plan(&setup.config, &setup.catalog)?;
         Ok(setup)
     }

@@ -1,9 +1,9 @@
 //! The `iogate` binary as a user runs it.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 fn iogate() -> Command {
@@ -381,13 +381,7 @@ fn serve_runs_until_sigterm_and_exits_promptly() {
         .stderr(Stdio::null())
         .spawn()
         .expect("starts");
-    let stdout = child.stdout.take().expect("stdout");
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
+    let rx = common::printed_lines(&mut child);
     let line = rx
         .recv_timeout(Duration::from_secs(20))
         .expect("prints its URLs");
@@ -711,14 +705,8 @@ fn serve(config: &Path) -> (Serving, String) {
         .stderr(Stdio::null())
         .spawn()
         .expect("starts");
-    let stdout = child.stdout.take().expect("stdout");
+    let rx = common::printed_lines(&mut child);
     let serving = Serving(child);
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
     let line = rx
         .recv_timeout(Duration::from_secs(20))
         .expect("prints its URLs");

@@ -2,10 +2,11 @@
 //! (asyncua, an independent implementation) connects and reads, and the log says nothing
 //! about certificates the server has by design none of.
 
-use std::io::{BufRead, BufReader, Read};
+mod common;
+
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
 use std::time::Duration;
 
 fn repo() -> PathBuf {
@@ -47,13 +48,7 @@ fn a_server_without_security_logs_no_certificate_error() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("starts");
-    let stdout = child.stdout.take().expect("stdout");
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
+    let rx = common::printed_lines(&mut child);
     // Its URLs are printed once it serves, the OPC UA server's among them.
     loop {
         let line = rx

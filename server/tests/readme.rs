@@ -9,10 +9,10 @@
 //! The set-up lines (`cargo run`, `cargo test`, `cargo install`) are the ones this test is
 //! part of, and are named here so that any other line is run.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
 use std::time::Duration;
 
 /// Lines the test does not run: the set-up it is itself part of.
@@ -119,15 +119,7 @@ fn start_demo(line: &str, bin: &Path) -> Demo {
         .stderr(Stdio::null())
         .spawn()
         .expect("the demo starts");
-    let stdout = child.stdout.take().expect("stdout");
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                return;
-            }
-        }
-    });
+    let rx = common::printed_lines(&mut child);
     let mut banner = Vec::new();
     while !banner.iter().any(|l: &String| l.starts_with("Health:")) {
         match rx.recv_timeout(Duration::from_secs(60)) {

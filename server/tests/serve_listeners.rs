@@ -1,9 +1,10 @@
 //! `iogate serve` moves its listeners from the command line: the demo on ports of its own
 //! when the usual ones are taken, port 0 for any free one, printed as bound.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod common;
+
+use std::io::{Read, Write};
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
 use std::time::Duration;
 
 #[test]
@@ -41,13 +42,7 @@ fn the_demo_serves_on_the_ports_the_command_line_gives() {
         .stderr(Stdio::null())
         .spawn()
         .expect("starts");
-    let stdout = child.stdout.take().expect("stdout");
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
+    let rx = common::printed_lines(&mut child);
     let mut printed = Vec::new();
     while let Ok(line) = rx.recv_timeout(Duration::from_secs(30)) {
         let done = line.starts_with("Health:");
