@@ -17,8 +17,6 @@ pub mod link;
 pub mod logging;
 pub mod map;
 pub mod metrics;
-pub(crate) mod mqtt_status;
-pub(crate) mod opcua_status;
 pub mod plan;
 pub(crate) mod poller;
 pub mod profile;

@@ -20,17 +20,11 @@ use crate::link::frame::Function;
 
 mod format;
 mod labels;
-mod mqtt;
 mod names;
-mod opcua;
 mod register;
 pub(crate) use format::Format;
 pub(crate) use labels::*;
 pub use names::*;
-pub use opcua::{
-    OPCUA_MONITORED_ITEMS, OPCUA_REJECTED_CERTIFICATES, OPCUA_SECURITY_REJECTED, OPCUA_SESSIONS,
-    OPCUA_SESSIONS_CREATED, OPCUA_SUBSCRIPTIONS, OPCUA_VALUE_UPDATES, OPCUA_WRITES,
-};
 
 type Ratio = Gauge<f64, AtomicU64>;
 
@@ -74,8 +68,9 @@ pub struct Metrics {
     serial_up: Family<PortLabels, Gauge>,
     serial_reopens: Family<PortLabels, Counter>,
     serial_frames: Family<FrameLabels, Counter>,
-    mqtt: mqtt::MqttMetrics,
-    opcua: opcua::OpcUaMetrics,
+    /// Metrics other parts keep here so that they outlive a restart of their owner (a
+    /// front-end's, across reloads), one of each type.
+    kept: std::sync::Mutex<Vec<std::sync::Arc<dyn std::any::Any + Send + Sync>>>,
 }
 
 impl std::fmt::Debug for Metrics {
@@ -279,18 +274,27 @@ impl Metrics {
             .inc();
     }
 
-    /// A message published by the MQTT front-end was confirmed `seconds` after its change.
-    pub(crate) fn mqtt_publish_latency(&self, seconds: f64) {
-        self.mqtt.observe_latency(seconds);
+    /// The `T` kept here, made by `make` the first time: metrics whose owner may restart
+    /// (a front-end stopped and started by a reload) and whose counters go on.
+    pub(crate) fn kept<T: std::any::Any + Send + Sync>(
+        &self,
+        make: impl FnOnce() -> T,
+    ) -> std::sync::Arc<T> {
+        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(found) = kept.iter().find_map(|k| k.clone().downcast::<T>().ok()) {
+            return found;
+        }
+        let made = std::sync::Arc::new(make());
+        kept.push(made.clone());
+        made
     }
 
-    /// The registry in the text format `format`, with states copied from the cache (and the
-    /// MQTT front-end's status, when it runs) first.
+    /// The registry in the text format `format`, with states copied from the cache first,
+    /// and then what `more` appends (the running front-ends' families).
     pub(crate) fn render(
         &self,
         cache: &Cache,
-        mqtt: Option<&crate::mqtt_status::MqttStatus>,
-        opcua: Option<&crate::opcua_status::OpcUaStatus>,
+        more: impl FnOnce(&mut String) -> std::fmt::Result,
         format: Format,
     ) -> String {
         // State gauges are copied afresh, so removed links and devices leave no series.
@@ -377,14 +381,7 @@ impl Metrics {
         let encoded = (|| {
             use prometheus_client::encoding::text::{encode_eof, encode_registry};
             encode_registry(&mut out, &self.registry)?;
-            if let Some(status) = mqtt {
-                self.mqtt.copy(status);
-                encode_registry(&mut out, &self.mqtt.registry)?;
-            }
-            if let Some(status) = opcua {
-                self.opcua.copy(status);
-                encode_registry(&mut out, &self.opcua.registry)?;
-            }
+            more(&mut out)?;
             encode_eof(&mut out)
         })();
         if encoded.is_err() {

@@ -13,7 +13,6 @@ use tokio_util::task::TaskTracker;
 use crate::api;
 use crate::config::Config;
 use crate::service::Service;
-use crate::service::listening::Server;
 
 /// The listeners' servers and the TLS configuration they serve with.
 pub(crate) struct Servers {
@@ -79,7 +78,7 @@ impl Servers {
             service.clone(),
             stop.clone(),
         ));
-        service.listening.set(Server::Modbus, addr, false);
+        service.listening.set("modbus", addr.to_string());
         self.running.lock().await.modbus = Some((addr, stop));
         Ok(addr)
     }
@@ -91,7 +90,7 @@ impl Servers {
         limits: api::http::Limits,
     ) -> anyhow::Result<SocketAddr> {
         let addr = listener.local_addr()?;
-        service.listening.set(Server::Grpc, addr, false);
+        service.listening.set("grpc", addr.to_string());
         let stop = self.token.child_token();
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {
@@ -119,9 +118,8 @@ impl Servers {
     ) -> anyhow::Result<SocketAddr> {
         let addr = listener.local_addr()?;
         let stop = self.token.child_token();
-        service
-            .listening
-            .set(Server::Http, addr, self.tls().is_some());
+        let scheme = if self.tls().is_some() { "https" } else { "http" };
+        service.listening.set("http", format!("{scheme}://{addr}"));
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {
             let served =
@@ -253,7 +251,7 @@ impl Servers {
                     .as_ref()
                     .is_none_or(|s| s.listen.is_none()) =>
             {
-                service.listening.remove(Server::Modbus);
+                service.listening.remove("modbus");
                 stop.cancel()
             }
             (None, old) => self.running.lock().await.modbus = old,

@@ -133,9 +133,11 @@ const SERVERS = {
   opcua: ['OPC UA server', () => 'the devices under Objects/iogate'],
 };
 
-/** The servers listening now and how a client reaches each. */
+/** The servers listening now and how a client reaches each, the web page's own first. */
 export function serverRows(listening) {
-  return listening.map((l) => {
+  const order = Object.keys(SERVERS);
+  const rank = (l) => (order.includes(l.server) ? order.indexOf(l.server) : order.length);
+  return [...listening].sort((a, b) => rank(a) - rank(b)).map((l) => {
     const [name, meaning] = SERVERS[l.server] ?? [l.server, () => ''];
     return h('tr', { 'data-server': l.server },
       h('th', { scope: 'row' }, name),

@@ -33,11 +33,12 @@ async fn the_demos_overview_shows_its_field_line_and_how_to_reach_every_server()
 
     let (_, config) = gw.get("/api/v1/config").await?;
     let listening = config["listening"].as_array().cloned().unwrap_or_default();
-    let servers: Vec<&str> = listening
+    let mut servers: Vec<&str> = listening
         .iter()
         .filter_map(|l| l["server"].as_str())
         .collect();
-    assert_eq!(servers, ["http", "grpc", "modbus", "opcua"], "{config}");
+    servers.sort_unstable();
+    assert_eq!(servers, ["grpc", "http", "modbus", "opcua"], "{config}");
     for listener in &listening {
         let server = listener["server"].as_str().unwrap_or_default();
         let address = listener["address"].as_str().unwrap_or_default();
@@ -51,6 +52,13 @@ async fn the_demos_overview_shows_its_field_line_and_how_to_reach_every_server()
     assert!(row.contains(&format!("opc.tcp://{opcua}/")), "{row}");
     let row = browser.text("#servers tr[data-server='modbus']").await?;
     assert!(row.contains("iogate map"), "{row}");
+    let order = browser
+        .run(
+            "return [...document.querySelectorAll('#servers tr')].map((r) => r.dataset.server)",
+            serde_json::json!([]),
+        )
+        .await?;
+    assert_eq!(order, serde_json::json!(["http", "grpc", "modbus", "opcua"]));
     browser
         .screenshot(&screenshots_dir().join("demo-overview.png"))
         .await?;

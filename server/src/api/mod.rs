@@ -96,8 +96,7 @@ async fn metrics(State(service): State<Arc<Service>>, headers: HeaderMap) -> imp
         [(header::CONTENT_TYPE, format.content_type())],
         service.metrics.render(
             &service.cache,
-            service.mqtt().map(|m| m.status()).as_ref(),
-            service.opcua().map(|o| o.status()).as_ref(),
+            |out| service.doors.encode_metrics(out),
             format,
         ),
     )

@@ -28,25 +28,15 @@ pub(crate) struct Health {
     /// gateway still serves, so this alone does not make it unready.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub(crate) starved_devices: Vec<String>,
-    /// The MQTT front-end, when one is configured: a broker away does not make the gateway
-    /// unready (its messages wait in the buffer), so this is detail only.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(crate) mqtt: Option<MqttHealth>,
+    /// Each running front-end's detail, under its name (`mqtt`: connected, messages
+    /// buffered, the last error): a front-end never makes the gateway unready.
+    #[serde(flatten)]
+    pub(crate) doors: std::collections::BTreeMap<String, serde_json::Value>,
     /// The Modbus server's serial ports by state (`open`, `opening`, `lost`), when it has
     /// any: a port away does not make the gateway unready, so this is detail only (the
     /// ports' counters are in `GET /api/v1/map`).
     #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub(crate) modbus_serial: std::collections::BTreeMap<String, String>,
-}
-
-/// The MQTT front-end in `/readyz`.
-#[derive(Debug, Serialize, ToSchema)]
-pub(crate) struct MqttHealth {
-    pub(crate) connected: bool,
-    /// Messages waiting in the buffer for the broker.
-    pub(crate) buffered: u64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(crate) last_error: Option<String>,
 }
 
 /// The process is alive.
@@ -56,7 +46,7 @@ pub(crate) async fn livez() -> Json<Health> {
         status: "ok".into(),
         stalled_links: Vec::new(),
         starved_devices: Vec::new(),
-        mqtt: None,
+        doors: Default::default(),
         modbus_serial: Default::default(),
     })
 }
@@ -78,14 +68,6 @@ pub(crate) async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Heal
         .filter(|d| d.starved(now))
         .map(|d| d.name().to_owned())
         .collect();
-    let mqtt = service.mqtt().map(|m| {
-        let s = m.status();
-        MqttHealth {
-            connected: s.connected,
-            buffered: s.buffer.messages,
-            last_error: s.last_error,
-        }
-    });
     let ready = service.is_ready() && stalled_links.is_empty();
     (
         if ready {
@@ -97,7 +79,7 @@ pub(crate) async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Heal
             status: if ready { "ready" } else { "not ready" }.into(),
             stalled_links,
             starved_devices,
-            mqtt,
+            doors: service.doors.health(),
             modbus_serial: service
                 .serial_ports()
                 .into_iter()
@@ -111,12 +93,13 @@ pub(crate) async fn readyz(State(service): ServiceRef) -> (StatusCode, Json<Heal
 /// Sparkplug edge node's session and the counters (404 when no `mqtt:` section is
 /// configured).
 #[utoipa::path(get, path = "/api/v1/mqtt", tag = "health",
-    responses((status = 200, description = "the MQTT front-end's state", body = crate::service::MqttStatus),
+    responses((status = 200, description = "the MQTT front-end's state", body = crate::api::mqtt::MqttStatus),
               (status = 404, description = "no MQTT front-end is configured", body = ErrorBody)))]
 pub(crate) async fn get_mqtt(
     State(service): ServiceRef,
-) -> Result<Json<crate::service::MqttStatus>, ApiError> {
-    service.mqtt().map(|m| Json(m.status())).ok_or_else(|| {
+) -> Result<Json<crate::api::mqtt::MqttStatus>, ApiError> {
+    let mqtt = service.doors.get::<crate::api::mqtt::MqttState>("mqtt");
+    mqtt.map(|m| Json(m.status())).ok_or_else(|| {
         ApiError::not_found(
             "no_mqtt",
             "no MQTT front-end is configured (the mqtt: section)",

@@ -112,3 +112,9 @@ pub(crate) struct WriteLabels {
     pub(crate) device: String,
     pub(crate) outcome: String,
 }
+
+/// A front-end's writes by outcome (`accepted`, `refused`).
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub(crate) struct OutcomeLabels {
+    pub(crate) outcome: &'static str,
+}

@@ -45,8 +45,7 @@ impl Metrics {
             serial_up: Family::default(),
             serial_reopens: Family::default(),
             serial_frames: Family::default(),
-            mqtt: mqtt::MqttMetrics::new(),
-            opcua: opcua::OpcUaMetrics::new(),
+            kept: std::sync::Mutex::default(),
             registry: Registry::default(),
         };
         registry.register(

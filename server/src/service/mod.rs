@@ -5,6 +5,7 @@
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
 pub(crate) mod listening;
+pub(crate) mod doors;
 mod modbus_map;
 mod refusal;
 mod reload;
@@ -27,8 +28,6 @@ use crate::profile::Profile;
 use crate::runtime::Tasks;
 
 pub(crate) use crate::cache::Refusal;
-pub(crate) use crate::mqtt_status::{MqttState, MqttStatus, SparkplugStatus};
-pub(crate) use crate::opcua_status::OpcUaState;
 pub(crate) use modbus_map::ModbusImage;
 pub(crate) use reload::{
     Action, ConfigStatus, Item, Kind, ReloadError, Reloading, Report, Trigger,
@@ -130,10 +129,8 @@ pub struct Service {
     streams: Arc<std::sync::atomic::AtomicUsize>,
     /// `listen.max_streams`.
     max_streams: std::sync::atomic::AtomicUsize,
-    /// The MQTT front-end's state, when it runs (replaced when a reload restarts it).
-    mqtt: std::sync::RwLock<Option<Arc<MqttState>>>,
-    /// The OPC UA server's counts, when it runs.
-    opcua: std::sync::RwLock<Option<Arc<OpcUaState>>>,
+    /// The front-ends that run, as the rest of the gateway sees them.
+    pub(crate) doors: doors::Doors,
     /// What reloads the configuration, when it came from a file.
     reloader: std::sync::OnceLock<Arc<dyn Reloading>>,
     /// The Modbus server's serial ports.
@@ -170,8 +167,7 @@ impl Service {
             read_only: AtomicBool::new(false),
             streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
             max_streams: std::sync::atomic::AtomicUsize::new(crate::config::DEFAULT_MAX_STREAMS),
-            mqtt: std::sync::RwLock::new(None),
-            opcua: std::sync::RwLock::new(None),
+            doors: doors::Doors::default(),
             reloader: std::sync::OnceLock::new(),
             serial_ports: serial_ports::SerialPorts::default(),
             scans: scan::Scans::default(),
@@ -277,26 +273,6 @@ impl Service {
 
     pub(crate) fn devices(&self) -> Vec<Arc<Device>> {
         self.cache.devices()
-    }
-
-    /// The MQTT front-end's state, while it runs.
-    pub(crate) fn mqtt(&self) -> Option<Arc<MqttState>> {
-        self.mqtt.read().unwrap_or_else(|e| e.into_inner()).clone()
-    }
-
-    /// Gives the MQTT front-end's state to the other front-ends (`None`: it no longer runs).
-    pub(crate) fn attach_mqtt(&self, state: Option<Arc<MqttState>>) {
-        *self.mqtt.write().unwrap_or_else(|e| e.into_inner()) = state;
-    }
-
-    /// The OPC UA server's counts, while it runs.
-    pub(crate) fn opcua(&self) -> Option<Arc<OpcUaState>> {
-        self.opcua.read().unwrap_or_else(|e| e.into_inner()).clone()
-    }
-
-    /// Gives the OPC UA server's counts to the metrics (`None`: it no longer runs).
-    pub(crate) fn attach_opcua(&self, state: Option<Arc<OpcUaState>>) {
-        *self.opcua.write().unwrap_or_else(|e| e.into_inner()) = state;
     }
 
     /// Wakes when a device is added or removed.

@@ -19,9 +19,11 @@
 
 mod buffer;
 mod conn;
+mod metrics;
 mod packet;
 mod report;
 mod sparkplug;
+mod status;
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
@@ -37,7 +39,8 @@ use super::convert::{self, DiagnosticsEvent, field_value};
 use super::error::ApiError;
 use crate::cache::{Device, Diagnostics};
 use crate::config::mqtt::{JsonConfig, MqttConfig, Password};
-use crate::service::{Change, FieldView, MqttState, MqttStatus, Service, SparkplugStatus};
+pub(crate) use status::{MqttState, MqttStatus, SparkplugStatus};
+use crate::service::{Change, FieldView, Service};
 use crate::write_log::WriteStatus;
 use buffer::{Buffer, Kind, Pos, Record, now_ms};
 use conn::{ConnError, Connection, TlsSetup};
@@ -191,7 +194,7 @@ impl Running {
     pub(crate) async fn stop(self, service: &Service) -> Result<u8, String> {
         self.stop.cancel();
         let stopped = tokio::time::timeout(STOP_WAIT, self.stopped).await;
-        service.attach_mqtt(None);
+        service.doors.detach("mqtt");
         let next = self
             .state
             .status()
@@ -226,7 +229,8 @@ pub(crate) fn spawn(
         .as_deref()
         .and_then(read_bd_seq)
         .map_or(bd_seq, |b| b.wrapping_add(1));
-    let state = Arc::new(MqttState::default());
+    let metrics = service.metrics.kept(metrics::MqttMetrics::new);
+    let state = Arc::new(MqttState::new(metrics));
     state.update(|s| {
         s.broker = config.url.to_string();
         s.client_id = config.client_id.clone();
@@ -240,7 +244,7 @@ pub(crate) fn spawn(
             ..SparkplugStatus::default()
         });
     });
-    service.attach_mqtt(Some(state.clone()));
+    service.doors.attach(state.clone());
     let status = state.status();
     let token = service.tasks().token().child_token();
     let (done, stopped) = tokio::sync::oneshot::channel();
@@ -1247,9 +1251,9 @@ impl Task {
             let u = &mut online.live[i];
             u.confirmed = true;
             let latency = now_ms().saturating_sub(u.item.0.at_ms);
-            self.service
+            self.state
                 .metrics
-                .mqtt_publish_latency(latency as f64 / 1000.0);
+                .observe_latency(latency as f64 / 1000.0);
         } else if let Ok(i) = online.replay.binary_search_by_key(&ticket, |u| u.ticket) {
             online.replay[i].confirmed = true;
         }

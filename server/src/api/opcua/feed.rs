@@ -43,7 +43,7 @@ pub(crate) struct Feed {
     pub(crate) manager: Arc<Manager>,
     pub(crate) subscriptions: Arc<SubscriptionCache>,
     pub(crate) ids: Ids,
-    pub(crate) counts: Arc<crate::service::OpcUaState>,
+    pub(crate) counts: Arc<super::OpcUaState>,
 }
 
 impl Feed {

@@ -10,8 +10,10 @@
 mod auth;
 mod feed;
 mod live;
+mod metrics;
 mod nodes;
 mod space;
+mod status;
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -22,8 +24,9 @@ use opcua::server::{ServerBuilder, ServerHandle};
 use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId, VariableId, Variant};
 
 use crate::config::opcua::{Endpoint, OpcUaConfig};
-use crate::opcua_status::{OpcUaStatus, Probe};
-use crate::service::{OpcUaState, Service};
+pub(crate) use status::OpcUaState;
+use crate::service::Service;
+use status::{OpcUaStatus, Probe};
 use space::Ids;
 
 /// Notifications in one publish answer, at most.
@@ -89,10 +92,8 @@ impl Running {
     pub(crate) async fn stop(self) -> Result<(), String> {
         self.stop.cancel();
         if let Some(service) = self.service.upgrade() {
-            service.attach_opcua(None);
-            service
-                .listening
-                .remove(crate::service::listening::Server::Opcua);
+            service.doors.detach("opcua");
+            service.listening.remove("opcua");
         }
         tokio::time::timeout(STOP_WAIT, self.stopped)
             .await
@@ -186,14 +187,13 @@ pub(crate) async fn start(
         .local_addr()
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
     let host = endpoint_host(addr);
-    service
-        .listening
-        .set(crate::service::listening::Server::Opcua, addr, false);
+    service.listening.set("opcua", format!("opc.tcp://{addr}/"));
     let token = service.tasks().token().child_token();
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
     let counts = Arc::new(OpcUaState::new(
         probe(server_handle.clone(), pki.join("rejected")),
         config.max_monitored_items,
+        service.metrics.kept(metrics::OpcUaMetrics::new),
     ));
     let mut builder = ServerBuilder::new()
         .application_name("iogate")
@@ -327,7 +327,7 @@ pub(crate) async fn start(
         let _ = done.send(());
     });
     tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
-    service.attach_opcua(Some(counts));
+    service.doors.attach(counts);
     Ok(Running {
         addr,
         stop: token,

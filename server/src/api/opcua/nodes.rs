@@ -22,7 +22,8 @@ use opcua::types::{AttributeId, DataValue, NumericRange, StatusCode, TimestampsT
 use super::space::{self, Ids};
 use crate::cache::AccessError;
 use crate::codec::CodecError;
-use crate::service::{OpcUaState, Service, ServiceError};
+use super::OpcUaState;
+use crate::service::{Service, ServiceError};
 use iogate_types::ValueError;
 
 /// Builds the node manager of namespace `namespace`.

@@ -1,13 +1,14 @@
 //! The OPC UA server's metrics: a registry of their own, shown only when the server runs,
-//! copied from its counts at the scrape (one source of truth).
+//! kept by the gateway's metrics across restarts, copied from its counts at the scrape (one
+//! source of truth).
 
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::Registry;
 
-use super::mqtt::OutcomeLabels;
-use crate::opcua_status::OpcUaStatus;
+use super::status::OpcUaStatus;
+use crate::metrics::OutcomeLabels;
 
 pub const OPCUA_SESSIONS: &str = "iogate_opcua_sessions";
 pub const OPCUA_SESSIONS_CREATED: &str = "iogate_opcua_sessions_created";
@@ -23,6 +24,7 @@ fn grow(counter: &Counter, to: u64) {
     counter.inc_by(to.saturating_sub(counter.get()));
 }
 
+#[derive(Debug)]
 pub(crate) struct OpcUaMetrics {
     pub(crate) registry: Registry,
     sessions: Gauge,
@@ -96,7 +98,13 @@ impl OpcUaMetrics {
     }
 
     /// Copies the server's counts.
-    pub(crate) fn copy(&self, s: &OpcUaStatus) {
+    /// The server's counts copied in, then every family encoded into a scrape.
+    pub(crate) fn encode(&self, status: &OpcUaStatus, out: &mut String) -> std::fmt::Result {
+        self.copy(status);
+        prometheus_client::encoding::text::encode_registry(out, &self.registry)
+    }
+
+    fn copy(&self, s: &OpcUaStatus) {
         let gauge = |g: &Gauge, v: u64| g.set(i64::try_from(v).unwrap_or(i64::MAX));
         gauge(&self.sessions, s.sessions);
         grow(&self.sessions_created, s.sessions_created);

@@ -1,9 +1,13 @@
-//! The MQTT front-end's state as the other front-ends show it (`GET /api/v1/mqtt`, `/readyz`,
-//! the web page, the metrics). The front-end's task writes it; readers take a copy.
+//! The MQTT front-end's state as the rest of the gateway shows it (`GET /api/v1/mqtt`,
+//! `/readyz`, the web page, the metrics), through its [`Door`]. The front-end's task writes
+//! it; readers take a copy.
 
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use serde::Serialize;
+
+use super::metrics::MqttMetrics;
+use crate::service::doors::Door;
 
 /// What `GET /api/v1/mqtt` shows.
 #[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
@@ -69,12 +73,52 @@ pub(crate) struct SparkplugStatus {
 }
 
 /// The front-end's shared state.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub(crate) struct MqttState {
     status: Mutex<MqttStatus>,
+    /// Its metric families, kept by the gateway's metrics across restarts.
+    pub(crate) metrics: Arc<MqttMetrics>,
+}
+
+/// The front-end in `/readyz`: a broker away does not make the gateway unready (its
+/// messages wait in the buffer), so this is detail only.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub(crate) struct MqttHealth {
+    pub(crate) connected: bool,
+    /// Messages waiting in the buffer for the broker.
+    pub(crate) buffered: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) last_error: Option<String>,
+}
+
+impl Door for MqttState {
+    fn name(&self) -> &'static str {
+        "mqtt"
+    }
+
+    fn health(&self) -> Option<serde_json::Value> {
+        let s = self.status();
+        serde_json::to_value(MqttHealth {
+            connected: s.connected,
+            buffered: s.buffer.messages,
+            last_error: s.last_error,
+        })
+        .ok()
+    }
+
+    fn encode_metrics(&self, out: &mut String) -> std::fmt::Result {
+        self.metrics.encode(&self.status(), out)
+    }
 }
 
 impl MqttState {
+    pub(crate) fn new(metrics: Arc<MqttMetrics>) -> MqttState {
+        MqttState {
+            status: Mutex::default(),
+            metrics,
+        }
+    }
+
     pub(crate) fn status(&self) -> MqttStatus {
         self.status
             .lock()

@@ -1,6 +1,7 @@
-//! The MQTT front-end's metrics: a registry of their own, shown only when the front-end runs.
-//! Counts are copied from the front-end's status at the scrape (one source of truth); the
-//! publish latency is observed by the front-end as messages are confirmed.
+//! The MQTT front-end's metrics: a registry of their own, shown only when the front-end runs,
+//! kept by the gateway's metrics across the front-end's restarts. Counts are copied from the
+//! front-end's status at the scrape (one source of truth); the publish latency is observed
+//! by the front-end as messages are confirmed.
 
 use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
@@ -9,19 +10,28 @@ use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
 use prometheus_client::registry::Registry;
 
-use super::*;
-use crate::mqtt_status::MqttStatus;
+use super::status::MqttStatus;
+use crate::metrics::OutcomeLabels;
+
+pub const MQTT_CONNECTED: &str = "iogate_mqtt_connected";
+pub const MQTT_RECONNECTS: &str = "iogate_mqtt_reconnects";
+pub const MQTT_MESSAGES: &str = "iogate_mqtt_messages";
+pub const MQTT_BYTES: &str = "iogate_mqtt_bytes";
+pub const MQTT_WRITES: &str = "iogate_mqtt_writes";
+pub const MQTT_PUBLISH_LATENCY: &str = "iogate_mqtt_publish_latency_seconds";
+pub const MQTT_BUFFER_MESSAGES: &str = "iogate_mqtt_buffer_messages";
+pub const MQTT_BUFFER_BYTES: &str = "iogate_mqtt_buffer_bytes";
+pub const MQTT_BUFFER_OLDEST: &str = "iogate_mqtt_buffer_oldest_seconds";
+pub const MQTT_BUFFER_DROPPED: &str = "iogate_mqtt_buffer_dropped";
+pub const MQTT_BUFFER_REPLAYED: &str = "iogate_mqtt_buffer_replayed";
+pub const MQTT_DROPPED_IN: &str = "iogate_mqtt_incoming_dropped";
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct DirectionLabels {
     pub(crate) direction: &'static str,
 }
 
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub(crate) struct OutcomeLabels {
-    pub(crate) outcome: &'static str,
-}
-
+#[derive(Debug)]
 pub(crate) struct MqttMetrics {
     pub(crate) registry: Registry,
     connected: Gauge,
@@ -128,8 +138,14 @@ impl MqttMetrics {
         self.latency.observe(seconds);
     }
 
+    /// The front-end's counts copied in, then every family encoded into a scrape.
+    pub(crate) fn encode(&self, status: &MqttStatus, out: &mut String) -> std::fmt::Result {
+        self.copy(status);
+        prometheus_client::encoding::text::encode_registry(out, &self.registry)
+    }
+
     /// Copies the front-end's counts.
-    pub(crate) fn copy(&self, s: &MqttStatus) {
+    fn copy(&self, s: &MqttStatus) {
         self.connected.set(i64::from(s.connected));
         grow(&self.reconnects, s.reconnects);
         for (direction, messages, bytes) in [

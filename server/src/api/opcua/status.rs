@@ -1,11 +1,16 @@
-//! The OPC UA server's counts as the metrics show them. The front-end counts what passes
+//! The OPC UA server's counts as the metrics show them, through its [`Door`]. The front-end counts what passes
 //! through it (monitored items, values set, writes); what only the OPC UA library knows
 //! (sessions, subscriptions, security rejections) and the certificates waiting for review
 //! are read when asked, through the probe the front-end installs.
 
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 
+use std::sync::Arc;
+
 use tokio::sync::Notify;
+
+use super::metrics::OpcUaMetrics;
+use crate::service::doors::Door;
 
 /// A copy of the counts.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -40,6 +45,18 @@ pub(crate) struct OpcUaState {
     writes_accepted: AtomicU64,
     writes_refused: AtomicU64,
     probe: Probe,
+    /// Its metric families, kept by the gateway's metrics across restarts.
+    metrics: Arc<OpcUaMetrics>,
+}
+
+impl Door for OpcUaState {
+    fn name(&self) -> &'static str {
+        "opcua"
+    }
+
+    fn encode_metrics(&self, out: &mut String) -> std::fmt::Result {
+        self.metrics.encode(&self.status(), out)
+    }
 }
 
 impl std::fmt::Debug for OpcUaState {
@@ -49,7 +66,7 @@ impl std::fmt::Debug for OpcUaState {
 }
 
 impl OpcUaState {
-    pub(crate) fn new(probe: Probe, max_items: usize) -> Self {
+    pub(crate) fn new(probe: Probe, max_items: usize, metrics: Arc<OpcUaMetrics>) -> Self {
         OpcUaState {
             monitored_items: AtomicI64::new(0),
             max_items: i64::try_from(max_items).unwrap_or(i64::MAX),
@@ -59,6 +76,7 @@ impl OpcUaState {
             writes_accepted: AtomicU64::new(0),
             writes_refused: AtomicU64::new(0),
             probe,
+            metrics,
         }
     }
 

@@ -1,0 +1,96 @@
+//! The front-ends that run, as the rest of the gateway sees them: each by its name, with
+//! its detail for `/readyz`, its metric families and its own state for its own routes. The
+//! core knows a front-end only through [`Door`]; what a front-end is, it says itself.
+
+use std::any::Any;
+use std::collections::BTreeMap;
+use std::sync::{Arc, RwLock};
+
+/// A running front-end's face toward the rest of the gateway.
+pub(crate) trait Door: Any + Send + Sync {
+    /// Its name: the key of its detail in `/readyz` and of its configuration section.
+    fn name(&self) -> &'static str;
+
+    /// Its detail in `/readyz`, when it gives one (a front-end never makes the gateway
+    /// unready: it is detail only).
+    fn health(&self) -> Option<serde_json::Value> {
+        None
+    }
+
+    /// Appends its metric families (OpenMetrics text, without `# EOF`) to a scrape.
+    fn encode_metrics(&self, out: &mut String) -> std::fmt::Result {
+        let _ = out;
+        Ok(())
+    }
+}
+
+/// The front-ends running now, by name.
+#[derive(Default)]
+pub(crate) struct Doors(RwLock<BTreeMap<&'static str, Arc<dyn Door>>>);
+
+impl Doors {
+    /// `door` runs (replacing one of its name).
+    pub(crate) fn attach(&self, door: Arc<dyn Door>) {
+        self.0
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(door.name(), door);
+    }
+
+    /// The front-end `name` no longer runs.
+    pub(crate) fn detach(&self, name: &str) {
+        self.0
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(name);
+    }
+
+    /// The running front-end `name` as its own type (for its own routes).
+    pub(crate) fn get<T: Door>(&self, name: &str) -> Option<Arc<T>> {
+        let door = self
+            .0
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(name)
+            .cloned()?;
+        (door as Arc<dyn Any + Send + Sync>).downcast::<T>().ok()
+    }
+
+    /// Every running front-end's detail for `/readyz`, by name.
+    pub(crate) fn health(&self) -> BTreeMap<String, serde_json::Value> {
+        self.all()
+            .iter()
+            .filter_map(|d| Some((d.name().to_owned(), d.health()?)))
+            .collect()
+    }
+
+    /// Every running front-end's metric families, in name order.
+    pub(crate) fn encode_metrics(&self, out: &mut String) -> std::fmt::Result {
+        for door in self.all() {
+            door.encode_metrics(out)?;
+        }
+        Ok(())
+    }
+
+    fn all(&self) -> Vec<Arc<dyn Door>> {
+        self.0
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .values()
+            .cloned()
+            .collect()
+    }
+}
+
+impl std::fmt::Debug for Doors {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let names: Vec<&str> = self
+            .0
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .keys()
+            .copied()
+            .collect();
+        f.debug_tuple("Doors").field(&names).finish()
+    }
+}
