@@ -202,9 +202,9 @@ impl Tokens {
             .max()
     }
 
-    /// Whether a request with `authorization` (the header's value) may do what `needed`
-    /// allows. Without tokens configured everything is allowed.
-    pub(crate) fn check(&self, authorization: Option<&str>, needed: Role) -> Result<(), Denied> {
+    /// Whether a request with `authorization` (the header's value) may do `operation`.
+    /// Without tokens configured everything is allowed.
+    fn check(&self, authorization: Option<&str>, operation: Operation) -> Result<(), Denied> {
         if self.0.is_empty() {
             return Ok(());
         }
@@ -217,11 +217,7 @@ impl Tokens {
             .ok_or(Denied::Unauthenticated)?;
         // Compare every known token in full (no early exit on the first byte).
         let role = self.role_of(token).ok_or(Denied::Unauthenticated)?;
-        if role >= needed {
-            Ok(())
-        } else {
-            Err(Denied::Forbidden { needed })
-        }
+        operation.allowed_to(role)
     }
 }
 
@@ -258,6 +254,18 @@ pub(crate) enum Operation {
 }
 
 impl Operation {
+    /// Whether a client whose role is `role` may do it: the one rule of every front-end (a
+    /// bearer token's role over REST and gRPC, an OPC UA session's, the MQTT front-end's
+    /// own from `mqtt.writes`).
+    pub(crate) fn allowed_to(self, role: Role) -> Result<(), Denied> {
+        let needed = self.role();
+        if role >= needed {
+            Ok(())
+        } else {
+            Err(Denied::Forbidden { needed })
+        }
+    }
+
     /// The role the operation needs.
     pub(crate) const fn role(self) -> Role {
         match self {
@@ -347,7 +355,7 @@ impl Tokens {
         authorization: Option<&str>,
         operation: Operation,
     ) -> Result<(), Denied> {
-        self.check(authorization, operation.role())
+        self.check(authorization, operation)
     }
 }
 
@@ -370,21 +378,22 @@ mod tests {
     fn roles_include_the_ones_below() {
         let t = tokens();
         let bearer = |tok: &str| format!("Bearer {tok}");
-        assert_eq!(t.check(None, Role::Read), Err(Denied::Unauthenticated));
+        let (read, write, admin) = (Operation::Read, Operation::WriteOutputs, Operation::Declare);
+        assert_eq!(t.allows(None, read), Err(Denied::Unauthenticated));
         assert_eq!(
-            t.check(Some("Bearer nope-nope-nope-nope"), Role::Read),
+            t.allows(Some("Bearer nope-nope-nope-nope"), read),
             Err(Denied::Unauthenticated)
         );
-        assert_eq!(t.check(Some(&bearer(READ)), Role::Read), Ok(()));
+        assert_eq!(t.allows(Some(&bearer(READ)), read), Ok(()));
         assert_eq!(
-            t.check(Some(&bearer(READ)), Role::Write),
+            t.allows(Some(&bearer(READ)), write),
             Err(Denied::Forbidden {
                 needed: Role::Write
             })
         );
-        assert_eq!(t.check(Some(&bearer(WRITE)), Role::Write), Ok(()));
-        assert_eq!(t.check(Some(&bearer(ADMIN)), Role::Admin), Ok(()));
-        assert_eq!(Tokens::default().check(None, Role::Admin), Ok(()));
+        assert_eq!(t.allows(Some(&bearer(WRITE)), write), Ok(()));
+        assert_eq!(t.allows(Some(&bearer(ADMIN)), admin), Ok(()));
+        assert_eq!(Tokens::default().allows(None, admin), Ok(()));
     }
 
     #[test]

@@ -118,7 +118,11 @@ impl Servers {
     ) -> anyhow::Result<SocketAddr> {
         let addr = listener.local_addr()?;
         let stop = self.token.child_token();
-        let scheme = if self.tls().is_some() { "https" } else { "http" };
+        let scheme = if self.tls().is_some() {
+            "https"
+        } else {
+            "http"
+        };
         service.listening.set("http", format!("{scheme}://{addr}"));
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {

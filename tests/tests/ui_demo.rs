@@ -58,7 +58,10 @@ async fn the_demos_overview_shows_its_field_line_and_how_to_reach_every_server()
             serde_json::json!([]),
         )
         .await?;
-    assert_eq!(order, serde_json::json!(["http", "grpc", "modbus", "opcua"]));
+    assert_eq!(
+        order,
+        serde_json::json!(["http", "grpc", "modbus", "opcua"])
+    );
     browser
         .screenshot(&screenshots_dir().join("demo-overview.png"))
         .await?;

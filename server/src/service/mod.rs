@@ -4,8 +4,8 @@
 //! over this layer: they parse their request, call one function here, and map the result
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
-pub(crate) mod listening;
 pub(crate) mod doors;
+pub(crate) mod listening;
 mod modbus_map;
 mod refusal;
 mod reload;

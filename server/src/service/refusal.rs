@@ -76,6 +76,26 @@ impl ServiceError {
     }
 }
 
+impl ServiceError {
+    /// Whether a value was refused for being outside what its type (or, after scaling, its
+    /// register) holds: a finer kind of [`Refusal::Invalid`] that some wires name apart
+    /// (OPC UA's `Bad_OutOfRange`, beside `Bad_TypeMismatch`).
+    pub(crate) fn out_of_range(&self) -> bool {
+        use crate::codec::CodecError;
+        use iogate_types::ValueError;
+        let ServiceError::Access(AccessError::InvalidValue { reason, .. }) = self else {
+            return false;
+        };
+        matches!(
+            reason.as_ref(),
+            CodecError::Value(ValueError::OutOfRange { .. } | ValueError::NotFinite { .. })
+                | CodecError::RawOutOfRange { .. }
+                | CodecError::NotFinite { .. }
+                | CodecError::TooLong { .. }
+        )
+    }
+}
+
 impl AccessError {
     /// The kind of refusal and its stable code.
     pub(crate) fn refusal(&self) -> (Refusal, &'static str) {

@@ -21,6 +21,7 @@ mod buffer;
 mod conn;
 mod metrics;
 mod packet;
+mod refusal;
 mod report;
 mod sparkplug;
 mod status;
@@ -36,17 +37,18 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::convert::{self, DiagnosticsEvent, field_value};
-use super::error::ApiError;
+use crate::auth::{Operation, Role};
 use crate::cache::{Device, Diagnostics};
 use crate::config::mqtt::{JsonConfig, MqttConfig, Password};
-pub(crate) use status::{MqttState, MqttStatus, SparkplugStatus};
 use crate::service::{Change, FieldView, Service};
 use crate::write_log::WriteStatus;
 use buffer::{Buffer, Kind, Pos, Record, now_ms};
 use conn::{ConnError, Connection, TlsSetup};
 use packet::{Connect, Incoming, Will};
+use refusal::Refused;
 use report::{Decision, Reporter};
 use sparkplug::{Aliases, Form, HostState};
+pub(crate) use status::{MqttState, MqttStatus, SparkplugStatus};
 
 /// The topic level the JSON replays go under.
 const HISTORY: &str = "history";
@@ -71,6 +73,18 @@ pub(crate) struct Prepared {
     config: MqttConfig,
     password: Option<Vec<u8>>,
     tls: Option<TlsSetup>,
+}
+
+impl Prepared {
+    /// Whether the front-end may do `operation`, by the one role rule: its role is `write`
+    /// with `mqtt.writes: true`, else `read`.
+    fn may(&self, operation: Operation) -> bool {
+        let role = match self.config.writes {
+            true => Role::Write,
+            false => Role::Read,
+        };
+        operation.allowed_to(role).is_ok()
+    }
 }
 
 /// Reads the password and TLS files; a problem is named with its file.
@@ -742,7 +756,7 @@ impl Task {
             }
         }
         if let Some(json) = self.json()
-            && self.prepared.config.writes
+            && self.prepared.may(Operation::WriteOutputs)
         {
             filters.push((Topics(json).set_filter(), 1));
         }
@@ -1251,9 +1265,7 @@ impl Task {
             let u = &mut online.live[i];
             u.confirmed = true;
             let latency = now_ms().saturating_sub(u.item.0.at_ms);
-            self.state
-                .metrics
-                .observe_latency(latency as f64 / 1000.0);
+            self.state.metrics.observe_latency(latency as f64 / 1000.0);
         } else if let Ok(i) = online.replay.binary_search_by_key(&ticket, |u| u.ticket) {
             online.replay[i].confirmed = true;
         }
@@ -1356,7 +1368,7 @@ impl Task {
         let commands = match sparkplug::commands(payload) {
             Ok(c) => c,
             Err(e) => {
-                self.refused("NCMD", &e.to_string());
+                self.refused("NCMD", Refused::invalid_body(e.to_string()));
                 return;
             }
         };
@@ -1375,7 +1387,7 @@ impl Task {
                 let name = c
                     .name
                     .unwrap_or_else(|| format!("alias {}", c.alias.unwrap_or(0)));
-                self.refused("NCMD", &format!("the node has no writable metric `{name}`"));
+                self.refused("NCMD", Refused::unknown_metric(&name));
             }
         }
     }
@@ -1385,17 +1397,20 @@ impl Task {
         let commands = match sparkplug::commands(payload) {
             Ok(c) => c,
             Err(e) => {
-                self.refused(device, &e.to_string());
+                self.refused(device, Refused::invalid_body(e.to_string()));
                 return;
             }
         };
-        if !self.prepared.config.writes {
-            self.refused(device, "writes over MQTT are not enabled (mqtt.writes)");
+        if !self.prepared.may(Operation::WriteOutputs) {
+            self.refused(device, Refused::not_enabled());
             return;
         }
-        let Ok(d) = self.service.device(device) else {
-            self.refused(device, "unknown device");
-            return;
+        let d = match self.service.device(device) {
+            Ok(d) => d,
+            Err(e) => {
+                self.refused(device, e.into());
+                return;
+            }
         };
         let n = d.profile.fields.len();
         let base = self.aliases.base(device, n);
@@ -1406,15 +1421,13 @@ impl Task {
                     d.field((alias - base) as usize).name.clone()
                 }
                 (None, alias) => {
-                    self.refused(
-                        device,
-                        &format!("no field has alias {}", alias.unwrap_or(0)),
-                    );
+                    self.refused(device, Refused::unknown_alias(alias.unwrap_or(0)));
                     continue;
                 }
             };
             let Some(value) = c.value else {
-                self.refused(device, &format!("{field}: the metric has no value"));
+                let why = format!("{field}: the metric has no value");
+                self.refused(device, Refused::invalid_body(why));
                 continue;
             };
             let accepted = self
@@ -1432,14 +1445,22 @@ impl Task {
                         "Sparkplug DCMD write accepted"
                     );
                 }
-                Err(e) => self.refused(device, &format!("{field}: {e}")),
+                Err(e) => self.refused(device, e.into()),
             }
         }
     }
 
-    fn refused(&mut self, what: &str, why: &str) {
+    /// A Sparkplug command to `target` (a device, or `NCMD`) refused: counted and logged with
+    /// its kind and code (it has no answer topic).
+    fn refused(&mut self, target: &str, refused: Refused) {
         self.status.writes_refused += 1;
-        tracing::warn!(target_ = what, reason = why, "MQTT command refused");
+        tracing::warn!(
+            target_ = target,
+            kind = refused.kind_name(),
+            code = refused.code,
+            reason = %refused.message,
+            "MQTT command refused"
+        );
     }
 
     /// The timer: followed writes, the buffer's sync, the shared status.
@@ -1497,8 +1518,8 @@ impl Task {
         let json = topics.0;
         let (device, field) = topics.parse_set(topic)?;
         let result_topic = format!("{topic}/result");
-        let refused = |e: ApiError| {
-            tracing::info!(device, field, error = %e.message, "MQTT write refused");
+        let refused = |e: Refused| {
+            tracing::info!(device, field, kind = e.kind_name(), code = e.code, error = %e.message, "MQTT write refused");
             Out {
                 topic: result_topic.clone(),
                 payload: serde_json::to_vec(&SetRefused {
@@ -1514,18 +1535,13 @@ impl Task {
                 retain: false,
             }
         };
-        if !self.prepared.config.writes {
+        if !self.prepared.may(Operation::WriteOutputs) {
             self.status.writes_refused += 1;
-            return Some(refused(ApiError::new(
-                axum::http::StatusCode::FORBIDDEN,
-                "forbidden",
-                "writes over MQTT are not enabled (mqtt.writes)",
-            )));
+            return Some(refused(Refused::not_enabled()));
         }
-        let accepted = (|| -> Result<_, ApiError> {
-            let body: serde_json::Value = serde_json::from_slice(payload).map_err(|e| {
-                ApiError::bad_request("invalid_body", format!("the payload is not JSON: {e}"))
-            })?;
+        let accepted = (|| -> Result<_, Refused> {
+            let body: serde_json::Value = serde_json::from_slice(payload)
+                .map_err(|e| Refused::invalid_body(format!("the payload is not JSON: {e}")))?;
             let value = super::rest::value_of(body);
             let d = self.service.device(device)?;
             let write = self

@@ -12,7 +12,7 @@ use opcua::server::authenticator::{
 };
 use opcua::types::{Error, NodeId, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 
-use crate::auth::Role;
+use crate::auth::{Operation, Role};
 use crate::config::opcua::Anonymous;
 use crate::service::Service;
 
@@ -101,7 +101,7 @@ impl AuthManager for Authenticator {
         _node_id: &NodeId,
     ) -> AccessLevel {
         match role_of(token, self.anonymous_role()) {
-            Some(role) if role >= Role::Write => user_access_level,
+            Some(role) if Operation::WriteOutputs.allowed_to(role).is_ok() => user_access_level,
             Some(_) => user_access_level - AccessLevel::CURRENT_WRITE,
             None => AccessLevel::empty(),
         }

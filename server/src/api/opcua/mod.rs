@@ -24,10 +24,10 @@ use opcua::server::{ServerBuilder, ServerHandle};
 use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId, VariableId, Variant};
 
 use crate::config::opcua::{Endpoint, OpcUaConfig};
-pub(crate) use status::OpcUaState;
 use crate::service::Service;
-use status::{OpcUaStatus, Probe};
 use space::Ids;
+pub(crate) use status::OpcUaState;
+use status::{OpcUaStatus, Probe};
 
 /// Notifications in one publish answer, at most.
 const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1000;

@@ -19,12 +19,10 @@ use opcua::server::node_manager::{
 use opcua::sync::RwLock;
 use opcua::types::{AttributeId, DataValue, NumericRange, StatusCode, TimestampsToReturn};
 
-use super::space::{self, Ids};
-use crate::cache::AccessError;
-use crate::codec::CodecError;
 use super::OpcUaState;
+use super::space::{self, Ids};
+use crate::cache::Refusal;
 use crate::service::{Service, ServiceError};
-use iogate_types::ValueError;
 
 /// Builds the node manager of namespace `namespace`.
 pub(crate) fn builder(
@@ -232,23 +230,55 @@ impl GatewayNodes {
 /// The node manager as the server holds it.
 pub(crate) type Manager = opcua::server::node_manager::memory::InMemoryNodeManager<GatewayNodes>;
 
-/// The status code of a refused write.
+/// The status code of a refused write: the OPC UA column of the refusal kinds (the one
+/// table; REST's is `api/error.rs`, gRPC's `api::grpc::status`).
 pub(crate) fn refused(e: &ServiceError) -> StatusCode {
-    match e {
-        ServiceError::Access(AccessError::InvalidValue { reason, .. }) => match reason.as_ref() {
-            CodecError::Value(ValueError::OutOfRange { .. } | ValueError::NotFinite { .. })
-            | CodecError::RawOutOfRange { .. }
-            | CodecError::NotFinite { .. }
-            | CodecError::TooLong { .. } => StatusCode::BadOutOfRange,
-            _ => StatusCode::BadTypeMismatch,
-        },
-        ServiceError::Access(AccessError::NotWritable { .. }) => StatusCode::BadNotWritable,
-        ServiceError::Access(AccessError::UnknownDevice(_) | AccessError::UnknownField { .. }) => {
+    match e.refusal().0 {
+        Refusal::Invalid if e.out_of_range() => StatusCode::BadOutOfRange,
+        Refusal::Invalid => StatusCode::BadTypeMismatch,
+        Refusal::NotFound => StatusCode::BadNodeIdUnknown,
+        Refusal::Conflict => StatusCode::BadNotWritable,
+        Refusal::Forbidden => StatusCode::BadUserAccessDenied,
+        Refusal::Gone => StatusCode::BadNotFound,
+        Refusal::Unavailable => StatusCode::BadShutdown,
+        Refusal::TooMany | Refusal::Busy => StatusCode::BadTooManyOperations,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cache::AccessError;
+
+    #[test]
+    fn every_refusal_kind_has_its_status_code() {
+        let input = AccessError::NotWritable {
+            device: "d".into(),
+            field: "f".into(),
+        };
+        assert_eq!(
+            refused(&ServiceError::Access(input)),
+            StatusCode::BadNotWritable
+        );
+        let unknown = AccessError::UnknownField {
+            device: "d".into(),
+            field: "f".into(),
+        };
+        assert_eq!(
+            refused(&ServiceError::Access(unknown)),
             StatusCode::BadNodeIdUnknown
-        }
-        ServiceError::ReadOnly => StatusCode::BadUserAccessDenied,
-        ServiceError::Busy(_) => StatusCode::BadTooManyOperations,
-        ServiceError::ShuttingDown => StatusCode::BadShutdown,
-        _ => StatusCode::BadInternalError,
+        );
+        assert_eq!(
+            refused(&ServiceError::ReadOnly),
+            StatusCode::BadUserAccessDenied
+        );
+        assert_eq!(
+            refused(&ServiceError::Busy("rs485".into())),
+            StatusCode::BadTooManyOperations
+        );
+        assert_eq!(
+            refused(&ServiceError::ShuttingDown),
+            StatusCode::BadShutdown
+        );
     }
 }
