@@ -172,7 +172,7 @@ pub(crate) fn field_value<'a>(view: &FieldView<'a>) -> FieldValue<'a> {
         quality: view.quality.name(),
         timestamp: view.timestamp.map(Timestamp),
         unit: field.register.unit.as_deref(),
-        error: view.error.clone(),
+        error: view.error.as_ref().map(ToString::to_string),
         last_write: view.last_write.as_ref().map(WriteInfo::from),
         mismatch: view.mismatch(),
         desired: view.desired.clone().map(|d| ValueJson(Some(d))),

@@ -32,7 +32,11 @@ pub(crate) fn field_value(view: &FieldView<'_>) -> pb::FieldValue {
         value: view.value.as_ref().map(|v| value(field.ty, v)),
         quality: view.quality.to_pb().into(),
         timestamp: view.timestamp.map(timestamp),
-        error: view.error.clone().unwrap_or_default(),
+        error: view
+            .error
+            .as_ref()
+            .map(ToString::to_string)
+            .unwrap_or_default(),
         direction: field.direction.to_pb().into(),
         mismatch: view.mismatch(),
         desired: view.desired.as_ref().map(|v| value(field.ty, v)),

@@ -1,14 +1,14 @@
 //! One view of a field, as every front-end shows it: value, type, unit, quality as of now,
 //! timestamp, why it is bad, mismatch with the desired value, and the latest write. Built
-//! here once; REST, the event stream, the map over REST and gRPC only render it, none
-//! computes a part of it again.
+//! here once; REST, the event stream, the map over REST, gRPC, MQTT and OPC UA only render
+//! it, none computes a part of it again.
 
 use std::time::SystemTime;
 
 use iogate_types::Quality;
 
 use super::Service;
-use crate::cache::{Device, Sample};
+use crate::cache::{Device, FieldError, Sample};
 use crate::codec::Value;
 use crate::profile::Field;
 use crate::write_log::WriteRecord;
@@ -25,7 +25,7 @@ pub(crate) struct FieldView<'a> {
     /// When the value was last refreshed.
     pub(crate) timestamp: Option<SystemTime>,
     /// Why the quality is bad.
-    pub(crate) error: Option<String>,
+    pub(crate) error: Option<FieldError>,
     /// The newest value requested for this output, when the device holds another with no
     /// write of it waiting (a mismatch).
     pub(crate) desired: Option<Value>,
@@ -58,7 +58,7 @@ impl Service {
             value: sample.value.clone(),
             quality: device.quality(sample, tokio::time::Instant::now()),
             timestamp: sample.updated.map(|(_, wall)| wall),
-            error: sample.error.as_ref().map(ToString::to_string),
+            error: sample.error.as_deref().cloned(),
             desired: device.mismatch(idx),
             last_write: self.last_write(device, idx),
         }

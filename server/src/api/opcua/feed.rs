@@ -185,7 +185,7 @@ impl Feed {
             if shown.devices.contains_key(device.name()) {
                 continue;
             }
-            space::add_device(&mut space, ids, device, now);
+            space::add_device(&mut space, &self.service, ids, device, now);
             model.extend(node_changes(
                 ids,
                 ids.device(device.name()),
@@ -226,7 +226,7 @@ impl Feed {
                 d.profile.fields.iter().enumerate().map(|(idx, f)| {
                     (
                         self.ids.field(d.name(), &f.name),
-                        space::data_value(f.ty, &d.sample(idx), now),
+                        space::data_value(&self.service.field_view_now(d, idx), now),
                     )
                 })
             })
@@ -265,7 +265,10 @@ impl Feed {
                         ..
                     },
                     _,
-                ) => Some(space::data_value(device.field(*idx).ty, sample, now)),
+                ) => Some(space::data_value(
+                    &self.service.field_view(device, *idx, sample),
+                    now,
+                )),
                 (Change::Diagnostics { diagnostics, .. }, Some(name)) => {
                     space::device_diagnostics(diagnostics, now)
                         .into_iter()

@@ -18,7 +18,7 @@ pub(crate) fn value(service: &Service, ids: Ids, id: &NodeId, now: DateTime) -> 
             let idx = device.field_index(&field).ok()?;
             // A name that matched another case is another node.
             (device.field(idx).name == field)
-                .then(|| space::data_value(device.field(idx).ty, &device.sample(idx), now))
+                .then(|| space::data_value(&service.field_view_now(&device, idx), now))
         }
         Live::DeviceDiagnostic(device, name) => {
             let device = service.device(&device).ok()?;

@@ -34,9 +34,10 @@ use opcua::types::{
     ObjectTypeId, QualifiedName, Range, StatusCode, UAString, VariableTypeId, Variant,
 };
 
-use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics, Sample};
+use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics};
 use crate::codec::{IecType, Value};
 use crate::profile::{Direction, Field};
+use crate::service::{FieldView, Service};
 use iogate_types::Quality;
 
 pub(crate) const ROOT: &str = "/iogate";
@@ -198,19 +199,17 @@ pub(crate) fn value_of(ty: IecType, v: &Variant) -> Result<Value, iogate_types::
     }
 }
 
-/// The status code of a sample's quality.
-pub(crate) fn status(sample: &Sample) -> StatusCode {
-    match sample.quality {
-        // Gone stale since its last refresh (the watchdog told the feed so).
-        Quality::Good if sample.stale_told => StatusCode::UncertainLastUsableValue,
+/// The status code of a field's quality as of now, as the service tells it.
+pub(crate) fn status(view: &FieldView<'_>) -> StatusCode {
+    match view.quality {
         Quality::Good => StatusCode::Good,
         Quality::Stale => StatusCode::UncertainLastUsableValue,
-        Quality::NeverRead => match sample.error.as_deref() {
+        Quality::NeverRead => match &view.error {
             Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
             Some(FieldError::NoResponse(_)) => StatusCode::BadCommunicationError,
             _ => StatusCode::BadWaitingForInitialData,
         },
-        Quality::Bad => match sample.error.as_deref() {
+        Quality::Bad => match &view.error {
             Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
             Some(FieldError::Decode(_)) => StatusCode::BadDecodingError,
             Some(FieldError::Exception(_)) => StatusCode::BadDeviceFailure,
@@ -223,19 +222,19 @@ fn date_time(at: SystemTime) -> DateTime {
     DateTime::from(opcua::types::DateTimeUtc::from(at))
 }
 
-/// A field's sample as a data value: the value (the last good one while stale; none with
-/// a Bad status, as OPC UA Part 4, 7.7.1 asks), the status from the quality, the source
+/// A field's view as a data value: the value (the last good one while stale; none with a
+/// Bad status, as OPC UA Part 4, 7.7.1 asks), the status from the quality, the source
 /// timestamp when the device was read.
-pub(crate) fn data_value(ty: IecType, sample: &Sample, now: DateTime) -> DataValue {
-    let status = status(sample);
-    let value = match &sample.value {
-        Some(v) if !status.is_bad() => variant(ty, v),
+pub(crate) fn data_value(view: &FieldView<'_>, now: DateTime) -> DataValue {
+    let status = status(view);
+    let value = match &view.value {
+        Some(v) if !status.is_bad() => variant(view.field.ty, v),
         _ => Variant::Empty,
     };
     DataValue {
         value: Some(value),
         status: Some(status),
-        source_timestamp: sample.updated.map(|(_, at)| date_time(at)),
+        source_timestamp: view.timestamp.map(date_time),
         source_picoseconds: None,
         server_timestamp: Some(now),
         server_picoseconds: None,
@@ -322,7 +321,13 @@ fn set_initial(space: &mut AddressSpace, id: &NodeId, value: DataValue) {
 }
 
 /// Adds a device: its object, a variable per field and its diagnostics.
-pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, now: DateTime) {
+pub(crate) fn add_device(
+    space: &mut AddressSpace,
+    service: &Service,
+    ids: Ids,
+    device: &Device,
+    now: DateTime,
+) {
     let name = device.name();
     let object = ids.device(name);
     let description = device
@@ -336,7 +341,12 @@ pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, no
         .organized_by(ids.folder(DEVICES))
         .insert(space);
     for (idx, field) in device.profile.fields.iter().enumerate() {
-        add_field(space, ids, device, idx, field, now);
+        add_field(space, ids, device, field);
+        set_initial(
+            space,
+            &ids.field(device.name(), &field.name),
+            data_value(&service.field_view_now(device, idx), now),
+        );
     }
     let diag = ids.device_diagnostics(name);
     ObjectBuilder::new(&diag, ids.name("Diagnostics"), "Diagnostics")
@@ -356,14 +366,7 @@ pub(crate) fn add_device(space: &mut AddressSpace, ids: Ids, device: &Device, no
     }
 }
 
-fn add_field(
-    space: &mut AddressSpace,
-    ids: Ids,
-    device: &Device,
-    idx: usize,
-    field: &Field,
-    now: DateTime,
-) {
+fn add_field(space: &mut AddressSpace, ids: Ids, device: &Device, field: &Field) {
     let id = ids.field(device.name(), &field.name);
     let level = access(field.direction);
     let builder = VariableBuilder::new(&id, ids.name(&field.name), field.name.as_str())
@@ -380,7 +383,6 @@ fn add_field(
         (None, None) => format!("{} {}", field.ty, field.direction.name()),
     };
     builder.description(description).insert(space);
-    set_initial(space, &id, data_value(field.ty, &device.sample(idx), now));
     let properties = [
         eu_range(field).map(|(low, high)| {
             (
