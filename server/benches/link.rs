@@ -14,8 +14,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use iogate::config::{Parity, SerialSettings};
-use iogate::link::frame::{Request, crc16};
+use iogate::link::frame::Request;
 use iogate::link::rtu::RtuTransport;
+use iogate::link::rtu_frame::crc16;
 use iogate::link::timing::LineTiming;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 

@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 
 use futures_util::StreamExt;
 use iogate::config::{Parity, SerialSettings};
-use iogate::link::frame::crc16;
+use iogate::link::rtu_frame::crc16;
 use iogate::link::timing::LineTiming;
 use iogate_client::{Client, Selection, Update, Value};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};

@@ -26,8 +26,9 @@ use tokio_util::sync::CancellationToken;
 use super::modbus_server::{Counters, answer};
 use crate::config::Framing;
 use crate::config::modbus_server::SerialServer;
+use crate::link::rtu_frame::{self, Unframed};
 use crate::link::timing::LineTiming;
-use crate::link::{ByteStream, ascii, frame::crc16, open_serial, precise};
+use crate::link::{ByteStream, ascii, open_serial, precise};
 use crate::metrics::SerialOutcome as Outcome;
 use crate::service::Service;
 use crate::service::serial_ports::PortState;
@@ -229,22 +230,19 @@ impl<'a> Port<'a> {
 
     /// The answer to an RTU frame, if it calls for one.
     async fn rtu_frame(&mut self, frame: &[u8]) -> Option<Vec<u8>> {
-        if frame.len() < 4 {
-            self.count(Outcome::Malformed);
-            return None;
-        }
-        let (body, crc) = frame.split_at(frame.len() - 2);
-        if crc16(body) != u16::from_le_bytes([crc[0], crc[1]]) {
-            self.count(Outcome::CrcError);
-            return None;
-        }
+        let body = match rtu_frame::open(frame) {
+            Ok(_) => &frame[..frame.len() - 2],
+            Err(Unframed::Short) => {
+                self.count(Outcome::Malformed);
+                return None;
+            }
+            Err(Unframed::Crc) => {
+                self.count(Outcome::CrcError);
+                return None;
+            }
+        };
         let pdu = self.request(body).await?;
-        let mut reply = Vec::with_capacity(pdu.len() + 3);
-        reply.push(self.entry.unit_id);
-        reply.extend_from_slice(&pdu);
-        let crc = crc16(&reply);
-        reply.extend_from_slice(&crc.to_le_bytes());
-        Some(reply)
+        Some(rtu_frame::seal(self.entry.unit_id, &pdu))
     }
 
     async fn serve_ascii(

@@ -498,91 +498,10 @@ pub(crate) fn unpack_bits(bytes: &[u8], count: usize) -> Vec<bool> {
         .collect()
 }
 
-/// CRC-16/MODBUS of `data`, sent low byte first.
-pub fn crc16(data: &[u8]) -> u16 {
-    let mut crc: u16 = 0xFFFF;
-    for &byte in data {
-        crc ^= u16::from(byte);
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 {
-                (crc >> 1) ^ 0xA001
-            } else {
-                crc >> 1
-            };
-        }
-    }
-    crc
-}
-
-/// Splits bytes heard on a line into RTU frames by their CRCs: at each position, the
-/// length the function code announces if its CRC holds, else the shortest length whose CRC
-/// holds. Bytes no frame accounts for are noise (their count is returned).
-pub(crate) fn split_frames(bytes: &[u8]) -> (Vec<&[u8]>, usize) {
-    let crc_holds =
-        |f: &[u8]| f.len() >= 4 && crc16(&f[..f.len() - 2]).to_le_bytes() == f[f.len() - 2..];
-    let mut frames = Vec::new();
-    let mut noise = 0;
-    let mut at = 0;
-    while at < bytes.len() {
-        let rest = &bytes[at..];
-        let announced = match rest {
-            [_, f, ..] if f & 0x80 != 0 => Some(5),
-            [_, 1..=4, count, ..] => Some(5 + usize::from(*count)),
-            [_, 5 | 6 | 15 | 16, ..] => Some(8),
-            [_, 0x2B, 0x0E, ..] => identification_len(rest),
-            _ => None,
-        };
-        let len = announced
-            .filter(|&n| n <= rest.len() && crc_holds(&rest[..n]))
-            .or_else(|| (4..=rest.len().min(MAX_RTU_FRAME)).find(|&n| crc_holds(&rest[..n])));
-        match len {
-            Some(n) => {
-                frames.push(&rest[..n]);
-                at += n;
-            }
-            None => {
-                noise += 1;
-                at += 1;
-            }
-        }
-    }
-    (frames, noise)
-}
-
-/// The length of an RTU frame answering FC 43 / MEI 14 (read device identification), by
-/// walking its objects: slave, 43, 14, code, conformity, more, next, count, then each
-/// object's id, length and value, then the CRC.
-fn identification_len(frame: &[u8]) -> Option<usize> {
-    let count = *frame.get(7)?;
-    let mut at = 8;
-    for _ in 0..count {
-        at += 2 + usize::from(*frame.get(at + 1)?);
-    }
-    Some(at + 2)
-}
-
-/// Whether `bytes` are one or more whole RTU frames and nothing else.
-pub(crate) fn whole_frames(bytes: &[u8]) -> bool {
-    let (frames, noise) = split_frames(bytes);
-    !frames.is_empty() && noise == 0
-}
-
-/// The longest RTU frame: slave, 253 bytes of PDU, CRC.
-const MAX_RTU_FRAME: usize = 256;
-
-/// A whole RTU frame: slave, PDU, CRC.
-pub(crate) fn rtu_frame(slave: u8, request: &Request) -> Vec<u8> {
-    let mut frame = Vec::with_capacity(9 + 2 * usize::from(request.count()));
-    frame.push(slave);
-    request.encode(&mut frame);
-    let crc = crc16(&frame);
-    frame.extend_from_slice(&crc.to_le_bytes());
-    frame
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::link::rtu_frame::rtu_frame;
 
     #[test]
     fn write_block_example_frame_has_its_crc() {

@@ -6,6 +6,7 @@ pub mod frame;
 pub(crate) mod mbap;
 pub mod precise;
 pub mod rtu;
+pub mod rtu_frame;
 pub(crate) mod tcp;
 pub mod timing;
 

@@ -33,7 +33,8 @@ use tokio::time::{Instant, timeout_at};
 use super::precise;
 
 use super::ascii;
-use super::frame::{Malformed, Request, Response, crc16, rtu_frame};
+use super::frame::{Malformed, Request, Response};
+use super::rtu_frame::{self, Unframed, rtu_frame};
 use super::timing::LineTiming;
 use super::{ByteStream, Counters, TxError};
 
@@ -170,10 +171,7 @@ impl RtuTransport {
             return Err(TxError::Invalid(Malformed::NotRtu));
         }
         self.quiet_line(self.silence()).await?;
-        let mut frame = Vec::with_capacity(pdu.len() + 3);
-        frame.push(slave);
-        frame.extend_from_slice(pdu);
-        frame.extend_from_slice(&crc16(&frame).to_le_bytes());
+        let frame = rtu_frame::seal(slave, pdu);
         self.io.write_all(&frame).await?;
         self.io.flush().await?;
         self.counters.bytes_sent += frame.len() as u64;
@@ -183,7 +181,7 @@ impl RtuTransport {
         let mut heard = Vec::new();
         let mut chunk = [0u8; MAX_FRAME];
         loop {
-            let stop = if early && super::frame::whole_frames(&heard) {
+            let stop = if early && rtu_frame::whole_frames(&heard) {
                 (self.last_activity + gap).min(until)
             } else {
                 until
@@ -283,20 +281,17 @@ impl RtuTransport {
         };
         self.read_into(&mut buf[3..total], deadline).await?;
         self.last_activity = Instant::now();
-        let frame = &buf[..total];
-        let crc = u16::from_le_bytes([frame[total - 2], frame[total - 1]]);
-        if crc16(&frame[..total - 2]) != crc {
-            return Err(TxError::Crc);
-        }
-        if frame[0] != slave {
+        let (found, pdu) = match rtu_frame::open(&buf[..total]) {
+            Ok(opened) => opened,
+            Err(Unframed::Crc | Unframed::Short) => return Err(TxError::Crc),
+        };
+        if found != slave {
             return Err(TxError::Invalid(Malformed::Slave {
-                found: frame[0],
+                found,
                 expected: slave,
             }));
         }
-        request
-            .parse_response(&frame[1..total - 2])
-            .map_err(TxError::from)
+        request.parse_response(pdu).map_err(TxError::from)
     }
 
     /// An ASCII answer: characters before its `:` are discarded, a frame is taken at its
@@ -427,7 +422,7 @@ mod tests {
     /// A response frame with a correct CRC.
     fn frame(bytes: &[u8]) -> Vec<u8> {
         let mut f = bytes.to_vec();
-        f.extend_from_slice(&crc16(bytes).to_le_bytes());
+        f.extend_from_slice(&rtu_frame::crc16(bytes).to_le_bytes());
         f
     }
 

@@ -432,8 +432,8 @@ mod tests {
     use crate::codec::Value;
     use crate::config::{Parity, SerialSettings};
     use crate::link::Connection;
-    use crate::link::frame::crc16;
     use crate::link::rtu::RtuTransport;
+    use crate::link::rtu_frame::crc16;
     use crate::profile::Catalog;
     use crate::write_log::{Lookup, WriteStatus};
     use std::sync::atomic::{AtomicU32, Ordering};

@@ -2,7 +2,7 @@
 //! on one id), or a garbled mix.
 
 use super::ReadAnswer;
-use crate::link::frame::split_frames;
+use crate::link::rtu_frame::{self, Unframed, split_frames};
 use crate::profile::RegisterKind;
 
 /// What came back to one probe of `slave`; each answer is its PDU.
@@ -91,10 +91,7 @@ pub(super) fn garbled(first: &[u8], second: &[u8], slave: u8, function: u8) -> S
             }
             _ => false,
         };
-        shaped && {
-            let (body, crc) = b.split_at(b.len() - 2);
-            crate::link::frame::crc16(body).to_le_bytes() != [crc[0], crc[1]]
-        }
+        shaped && rtu_frame::open(b) == Err(Unframed::Crc)
     };
     if bad_crc(first) && bad_crc(second) {
         "answers whose CRC is wrong, each time: one device whose bytes are damaged on the line (noise, termination, a parity setting), not two devices".to_owned()
@@ -117,7 +114,7 @@ fn hex(bytes: &[u8]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::link::frame::crc16;
+    use crate::link::rtu_frame::crc16;
 
     fn frame(bytes: &[u8]) -> Vec<u8> {
         let mut f = bytes.to_vec();

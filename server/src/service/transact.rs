@@ -9,18 +9,19 @@ use tokio::time::Instant;
 use super::{Service, ServiceError};
 use crate::cache::{Link, Passthrough, PassthroughError, Stage};
 use crate::config::{Framing, Transport};
-use crate::link::frame::{Request, Response, crc16};
+use crate::link::frame::{Request, Response};
+use crate::link::rtu_frame;
 use crate::transaction::params::ParamError;
 use crate::transaction::{Outcome, Plan, TransactionSpec, codec, failure, hex, state};
 
 /// The frame as it goes on the line: RTU (slave, PDU, CRC) on serial links and RTU over
 /// TCP; unit id and PDU on Modbus TCP links.
 fn frame(rtu: bool, slave: u8, pdu: &[u8]) -> String {
+    if rtu {
+        return hex(&rtu_frame::seal(slave, pdu));
+    }
     let mut bytes = vec![slave];
     bytes.extend_from_slice(pdu);
-    if rtu {
-        bytes.extend_from_slice(&crc16(&bytes).to_le_bytes());
-    }
     hex(&bytes)
 }
 
