@@ -962,7 +962,7 @@ impl Task {
                 kind: Kind::Sparkplug,
                 device: device.clone(),
                 field,
-                payload: sparkplug::encode_metric(&metric),
+                payload: sparkplug::kept_metric(&metric),
             };
             match online {
                 Some(o) if o.node_born && o.born.contains(&device) => {
@@ -1166,13 +1166,12 @@ impl Task {
                     return None;
                 }
                 let alias = self.alias(&record.device, &record.field)?;
-                let metric = sparkplug::decode_metric(&record.payload)?;
-                let metric = sparkplug::aliased(metric, alias, historical);
+                let metric = sparkplug::sendable(&record.payload)?;
                 let topic = self.spark.as_ref()?.device("DDATA", &record.device);
                 let seq = Self::next_seq(online);
                 Some(Out {
                     topic,
-                    payload: sparkplug::encode(now_ms(), Some(seq), vec![metric]),
+                    payload: sparkplug::data_payload(now_ms(), seq, &metric, alias, historical),
                     qos: 0,
                     retain: false,
                 })

@@ -169,7 +169,8 @@ fn millis(t: std::time::SystemTime) -> u64 {
 pub(crate) enum Form {
     /// In a birth: name, alias and the properties.
     Birth,
-    /// In data: the name (buffered records are kept by name; see [`aliased`]).
+    /// In data: neither name nor alias (the record that keeps it carries the name, and the
+    /// session's alias is added as it is sent; see [`data_payload`]).
     Data,
 }
 
@@ -222,7 +223,7 @@ pub(crate) fn field_metric(view: &FieldView<'_>, alias: u64, form: Form, now_ms:
     }
     props.push(quality_property(view.quality));
     Metric {
-        name: Some(view.field.name.clone()),
+        name: (form == Form::Birth).then(|| view.field.name.clone()),
         alias: (form == Form::Birth).then_some(alias),
         timestamp: Some(view.timestamp.map_or(now_ms, millis)),
         datatype: Some(datatype(ty) as u32),
@@ -266,17 +267,6 @@ pub(crate) fn diagnostics_metrics(
         .collect()
 }
 
-/// A data metric (kept by name) as it is sent: by alias only, marked historical when it is
-/// replayed from the buffer.
-pub(crate) fn aliased(mut m: Metric, alias: u64, historical: bool) -> Metric {
-    m.name = None;
-    m.alias = Some(alias);
-    if historical {
-        m.is_historical = Some(true);
-    }
-    m
-}
-
 pub(crate) fn encode(timestamp: u64, seq: Option<u8>, metrics: Vec<Metric>) -> Vec<u8> {
     Payload {
         timestamp: Some(timestamp),
@@ -287,12 +277,48 @@ pub(crate) fn encode(timestamp: u64, seq: Option<u8>, metrics: Vec<Metric>) -> V
     .encode_to_vec()
 }
 
-pub(crate) fn encode_metric(m: &Metric) -> Vec<u8> {
+/// A data metric as a record keeps it: encoded once, without name or alias.
+pub(crate) fn kept_metric(m: &Metric) -> Vec<u8> {
     m.encode_to_vec()
 }
 
-pub(crate) fn decode_metric(bytes: &[u8]) -> Option<Metric> {
-    Metric::decode(bytes).ok()
+/// A kept metric as it can be sent: as kept, or, kept by an earlier version with its name,
+/// decoded and encoded without it (`None`: not a metric).
+pub(crate) fn sendable(kept: &[u8]) -> Option<std::borrow::Cow<'_, [u8]>> {
+    // Field 1 (name), length-delimited: the form an earlier version kept.
+    if kept.first() != Some(&0x0A) {
+        return Some(std::borrow::Cow::Borrowed(kept));
+    }
+    let mut m = Metric::decode(kept).ok()?;
+    m.name = None;
+    Some(std::borrow::Cow::Owned(m.encode_to_vec()))
+}
+
+/// A DDATA payload of one [`sendable`] metric, sent by `alias` (marked historical when
+/// replayed from the buffer): the metric's bytes as kept, its alias and mark appended to
+/// them (protobuf takes a message's fields in any order), between the payload's timestamp
+/// and `seq`; the value is not encoded again.
+pub(crate) fn data_payload(
+    timestamp: u64,
+    seq: u8,
+    metric: &[u8],
+    alias: u64,
+    historical: bool,
+) -> Vec<u8> {
+    use prost::encoding::{WireType, encode_key, encode_varint};
+    let mut tail = Vec::with_capacity(12);
+    prost::encoding::uint64::encode(2, &alias, &mut tail);
+    if historical {
+        prost::encoding::bool::encode(5, &true, &mut tail);
+    }
+    let mut out = Vec::with_capacity(metric.len() + tail.len() + 24);
+    prost::encoding::uint64::encode(1, &timestamp, &mut out);
+    encode_key(2, WireType::LengthDelimited, &mut out);
+    encode_varint((metric.len() + tail.len()) as u64, &mut out);
+    out.extend_from_slice(metric);
+    out.extend_from_slice(&tail);
+    prost::encoding::uint64::encode(3, &u64::from(seq), &mut out);
+    out
 }
 
 fn bd_seq_metric(bd_seq: u8, now_ms: u64) -> Metric {
@@ -432,49 +458,5 @@ fn json_of(ty: Option<DataType>, v: MetricValue) -> Option<serde_json::Value> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn signed_values_travel_sign_extended_and_come_back() {
-        let m = Metric {
-            datatype: Some(DataType::Int16 as u32),
-            value: Some(metric_value(&Value::Int(-5))),
-            ..Metric::default()
-        };
-        assert_eq!(m.value, Some(MetricValue::IntValue(0xFFFF_FFFB)));
-        let bytes = encode(1, Some(3), vec![m]);
-        let c = commands(&bytes).expect("test");
-        assert_eq!(c[0].value, Some(serde_json::json!(-5)));
-        assert_eq!(
-            typed_value(IecType::Lint, &Value::Int(-1)),
-            MetricValue::LongValue(u64::MAX)
-        );
-    }
-
-    #[test]
-    fn command_topics_name_the_node_or_a_device() {
-        let t = Topics::new(&SparkplugConfig {
-            group_id: "plant1".into(),
-            edge_node_id: "line1".into(),
-            primary_host: None,
-        });
-        assert_eq!(t.command("spBv1.0/plant1/NCMD/line1"), Some(None));
-        assert_eq!(
-            t.command("spBv1.0/plant1/DCMD/line1/pump"),
-            Some(Some("pump"))
-        );
-        assert_eq!(t.command("spBv1.0/plant1/DCMD/line1/"), None);
-        assert_eq!(t.command("spBv1.0/plant1/DCMD/line2/pump"), None);
-    }
-
-    #[test]
-    fn aliases_are_unique_and_stable() {
-        let mut a = Aliases::default();
-        let p = a.base("pump", 10);
-        let v = a.base("valve", 3);
-        assert!(v >= p + 14);
-        assert_eq!(a.base("pump", 10), p);
-        assert!(p > 3);
-    }
-}
+#[path = "sparkplug_tests.rs"]
+mod tests;
