@@ -77,9 +77,20 @@ impl Diff {
 /// Compares the configuration in force (`old`, with its tokens) with `new`.
 pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &Tokens) -> Diff {
     let mut d = Diff::default();
-    let (a, b) = (&old.config, &new.config);
+    listeners(&mut d, old, new);
+    security(&mut d, old, old_tokens, new, new_tokens);
+    profiles(&mut d, old, new);
+    links(&mut d, old, new);
+    devices(&mut d, old, new);
+    modbus_server(&mut d, old, new);
+    transactions(&mut d, old, new);
+    front_ends(&mut d, old, new);
+    d
+}
 
-    // Listeners.
+/// The HTTP and gRPC listeners, their limits and the streams' bound.
+fn listeners(d: &mut Diff, old: &Setup, new: &Setup) {
+    let (a, b) = (&old.config, &new.config);
     for (key, before, after, flag) in [
         ("listen.http", a.http, b.http, &mut d.http_listen),
         ("listen.grpc", a.grpc, b.grpc, &mut d.grpc_listen),
@@ -120,8 +131,11 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
     if !listen.is_empty() {
         d.push(Kind::Listener, "listen", Action::Changed, listen);
     }
+}
 
-    // Security.
+/// Tokens, read-only, what declarations may reach, TLS.
+fn security(d: &mut Diff, old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &Tokens) {
+    let (a, b) = (&old.config, &new.config);
     let mut security = old_tokens.changes_to(new_tokens);
     security.extend(changed_text(
         "read_only",
@@ -147,8 +161,10 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             vec![what.to_owned()],
         );
     }
+}
 
-    // Profiles.
+/// Profiles added, changed (field by field) and removed.
+fn profiles(d: &mut Diff, old: &Setup, new: &Setup) {
     for p in new.catalog.iter() {
         match old.catalog.get(&p.name) {
             None => {
@@ -172,8 +188,11 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             d.push(Kind::Profile, &p.name, Action::Removed, Vec::new());
         }
     }
+}
 
-    // Links.
+/// Links added, changed and removed.
+fn links(d: &mut Diff, old: &Setup, new: &Setup) {
+    let (a, b) = (&old.config, &new.config);
     for l in &b.links {
         match a.links.iter().find(|o| o.name == l.name) {
             None => {
@@ -207,8 +226,11 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             );
         }
     }
+}
 
-    // Devices and their fields.
+/// Devices and their fields.
+fn devices(d: &mut Diff, old: &Setup, new: &Setup) {
+    let (a, b) = (&old.config, &new.config);
     for n in &b.devices {
         let Some(new_profile) = new.catalog.get(&n.profile) else {
             continue;
@@ -247,8 +269,11 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             d.push(Kind::Device, &o.name, Action::Removed, Vec::new());
         }
     }
+}
 
-    // The Modbus server.
+/// The Modbus server: its listener, map, memory and serial ports.
+fn modbus_server(d: &mut Diff, old: &Setup, new: &Setup) {
+    let (a, b) = (&old.config, &new.config);
     match (&a.modbus_server, &b.modbus_server) {
         (None, None) => {}
         (None, Some(s)) => {
@@ -322,6 +347,11 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             }
         }
     }
+    map(d, old, new);
+}
+
+/// The Modbus server's map: bindings added, moved and removed, and the devices they touch.
+fn map(d: &mut Diff, old: &Setup, new: &Setup) {
     if let (Some(pa), Some(pb)) = (&old.map, &new.map) {
         if pa.space != pb.space {
             d.modbus = true;
@@ -364,10 +394,13 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
         }
     }
     if d.items.iter().any(|i| i.kind == Kind::Map) || !d.devices.is_empty() {
-        d.modbus |= b.modbus_server.is_some();
+        d.modbus |= new.config.modbus_server.is_some();
     }
+}
 
-    // Standing transactions.
+/// Standing transactions.
+fn transactions(d: &mut Diff, old: &Setup, new: &Setup) {
+    let (a, b) = (&old.config, &new.config);
     for t in &b.transactions {
         match a.transactions.iter().find(|o| o.name == t.name) {
             None => {
@@ -399,8 +432,11 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             d.push(Kind::Transaction, &o.name, Action::Removed, Vec::new());
         }
     }
+}
 
-    // The front-ends restarted when their section changes, and the reload section.
+/// The front-ends restarted when their section changes, and the reload section.
+fn front_ends(d: &mut Diff, old: &Setup, new: &Setup) {
+    let (a, b) = (&old.config, &new.config);
     let mqtt = |c: &crate::config::Config| {
         c.mqtt.clone().map(|mut m| {
             m.line = 0;
@@ -413,23 +449,7 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             &a.mqtt,
             &b.mqtt,
             "the MQTT front-end",
-            |x, y| {
-                vec![
-                    changed_text("url", &x.url, &y.url),
-                    changed_text("client_id", &x.client_id, &y.client_id),
-                    changed("username", &x.username, &y.username),
-                    (x.password != y.password).then(|| "password changed".to_owned()),
-                    (x.tls != y.tls).then(|| "tls changed".to_owned()),
-                    changed("version", &x.version, &y.version),
-                    changed_text("keep_alive", duration(x.keep_alive), duration(y.keep_alive)),
-                    changed_text("clean_start", x.clean_start, y.clean_start),
-                    (x.sparkplug != y.sparkplug).then(|| "sparkplug changed".to_owned()),
-                    (x.json != y.json).then(|| "json changed".to_owned()),
-                    (x.report != y.report).then(|| "report changed".to_owned()),
-                    (x.buffer != y.buffer).then(|| "buffer changed".to_owned()),
-                    changed_text("writes", x.writes, y.writes),
-                ]
-            },
+            crate::api::mqtt::changed_keys,
             "(NDEATH, offline state)",
             "the MQTT connection is closed (NDEATH) and opened again (NBIRTH, next bdSeq); the buffer on disk is kept",
         );
@@ -447,33 +467,7 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
             &a.opcua,
             &b.opcua,
             "the OPC UA server",
-            |x, y| {
-                vec![
-                    changed_text("listen", x.listen, y.listen),
-                    changed_text("application_uri", &x.application_uri, &y.application_uri),
-                    (x.security != y.security).then(|| "security changed".to_owned()),
-                    changed("pki_dir", &x.pki_dir, &y.pki_dir),
-                    (x.certificate != y.certificate || x.private_key != y.private_key)
-                        .then(|| "certificate changed".to_owned()),
-                    changed_text(
-                        "trust_client_certs",
-                        x.trust_client_certs,
-                        y.trust_client_certs,
-                    ),
-                    changed("anonymous", &x.anonymous, &y.anonymous),
-                    changed_text("max_sessions", x.max_sessions, y.max_sessions),
-                    changed_text(
-                        "max_subscriptions_per_session",
-                        x.max_subscriptions_per_session,
-                        y.max_subscriptions_per_session,
-                    ),
-                    changed_text(
-                        "max_monitored_items_per_subscription",
-                        x.max_monitored_items_per_subscription,
-                        y.max_monitored_items_per_subscription,
-                    ),
-                ]
-            },
+            crate::api::opcua::changed_keys,
             "(its sessions end)",
             "the OPC UA server is restarted: its sessions end and clients reconnect",
         );
@@ -493,197 +487,8 @@ pub(crate) fn diff(old: &Setup, old_tokens: &Tokens, new: &Setup, new_tokens: &T
         .collect();
         d.push(Kind::Reload, "reload", Action::Changed, details);
     }
-    d
 }
 
 #[cfg(test)]
-mod tests {
-    use std::path::{Path, PathBuf};
-
-    use super::*;
-
-    fn profiles() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles")
-    }
-
-    /// A setup from config text, with profiles from `dir`.
-    fn setup_in(dir: &Path, text: &str) -> Setup {
-        let text = format!("profiles: {}\n{text}", dir.display());
-        let config = crate::config::parse("iogate.yaml", &text).expect("config parses");
-        Setup::from_config(config, Path::new(".")).expect("config checks")
-    }
-
-    fn setup(text: &str) -> Setup {
-        setup_in(&profiles(), text)
-    }
-
-    fn tokens(text: &str) -> Tokens {
-        Tokens::parse(text).expect("tokens")
-    }
-
-    fn compare(a: &Setup, b: &Setup) -> Diff {
-        diff(a, &Tokens::default(), b, &Tokens::default())
-    }
-
-    fn item<'d>(d: &'d Diff, kind: Kind, name: &str) -> &'d Item {
-        d.items
-            .iter()
-            .find(|i| i.kind == kind && i.name == name)
-            .unwrap_or_else(|| panic!("no {kind:?} {name} in {:?}", d.items))
-    }
-
-    const LINE: &str = "links:\n  - { name: bus, serial: { port: /dev/ttyUSB0, baud: 9600 } }\n  - { name: plant, tcp: { host: 192.0.2.10, port: 502 } }\n";
-
-    fn devices(rate: &str) -> String {
-        format!(
-            "devices:\n  - {{ name: rack, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms }}\n  - {{ name: vfd, profile: GenericVfd, link: plant, slave_id: 2, refresh_rate: {rate} }}\n"
-        )
-    }
-
-    #[test]
-    fn the_same_files_differ_in_nothing_whatever_their_lines() {
-        let a = setup(&format!("{LINE}{}", devices("100ms")));
-        let b = setup(&format!("# a comment\n\n{LINE}\n{}", devices("100ms")));
-        let d = compare(&a, &b);
-        assert!(d.is_empty(), "{:?}", d.items);
-        assert!(d.devices.is_empty() && d.links.is_empty());
-    }
-
-    #[test]
-    fn a_device_setting_re_plans_that_device_only() {
-        let a = setup(&format!("{LINE}{}", devices("100ms")));
-        let b = setup(&format!("{LINE}{}", devices("20ms")));
-        let d = compare(&a, &b);
-        assert_eq!(d.devices.changed, vec!["vfd".to_owned()]);
-        assert!(d.devices.added.is_empty() && d.devices.removed.is_empty());
-        assert!(d.links.is_empty(), "no link reopened: {:?}", d.links);
-        let vfd = item(&d, Kind::Device, "vfd");
-        assert_eq!(vfd.action, Action::Changed);
-        assert!(
-            vfd.details
-                .iter()
-                .any(|x| x == "refresh_rate: 100ms -> 20ms"),
-            "{:?}",
-            vfd.details
-        );
-    }
-
-    #[test]
-    fn devices_added_and_removed_and_a_link_whose_settings_changed() {
-        let a = setup(&format!("{LINE}{}", devices("100ms")));
-        let b = setup(&format!(
-            "{}devices:\n  - {{ name: rack, profile: MyIoModule, link: bus, slave_id: 1, refresh_rate: 50ms }}\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\n",
-            LINE.replace("baud: 9600", "baud: 19200")
-        ));
-        let d = compare(&a, &b);
-        assert_eq!(d.links.changed, vec!["bus".to_owned()]);
-        assert_eq!(d.devices.added, vec!["sim".to_owned()]);
-        assert_eq!(d.devices.removed, vec!["vfd".to_owned()]);
-        // A device on a reopened link is not re-planned for it.
-        assert!(d.devices.changed.is_empty(), "{:?}", d.devices);
-        let bus = item(&d, Kind::Link, "bus");
-        assert!(
-            bus.details
-                .iter()
-                .any(|x| x == "serial.baud: 9600 -> 19200"),
-            "{:?}",
-            bus.details
-        );
-        assert_eq!(item(&d, Kind::Device, "sim").action, Action::Added);
-        assert_eq!(item(&d, Kind::Device, "vfd").action, Action::Removed);
-    }
-
-    #[test]
-    fn a_profile_edit_names_its_fields_and_re_plans_the_devices_using_it() {
-        let dir = tempfile::tempdir().expect("temp dir");
-        let profile = |ty: &str, extra: &str| {
-            format!(
-                "name: Meter\nfields:\n  - {{ name: V, type: {ty}, direction: input, register: {{ address: 0, kind: input_register }} }}\n  - {{ name: A, type: UINT, direction: input, register: {{ address: 1, kind: input_register }} }}\n{extra}"
-            )
-        };
-        let config = "links:\n  - { name: bus, serial: { port: /dev/ttyUSB0, baud: 9600 } }\ndevices:\n  - { name: m, profile: Meter, link: bus, slave_id: 1, refresh_rate: 1s }\n";
-        std::fs::write(dir.path().join("meter.yaml"), profile("UINT", "")).expect("write");
-        let a = setup_in(dir.path(), config);
-        std::fs::write(
-            dir.path().join("meter.yaml"),
-            profile(
-                "INT",
-                "  - { name: W, type: UINT, direction: input, register: { address: 2, kind: input_register } }\n",
-            ),
-        )
-        .expect("write");
-        let b = setup_in(dir.path(), config);
-        let d = compare(&a, &b);
-        assert!(d.profiles);
-        assert_eq!(d.devices.changed, vec!["m".to_owned()]);
-        assert_eq!(item(&d, Kind::Profile, "Meter").action, Action::Changed);
-        let v = item(&d, Kind::Field, "m.V");
-        assert_eq!(v.action, Action::Changed);
-        assert!(
-            v.details.iter().any(|x| x == "type: UINT -> INT"),
-            "{:?}",
-            v.details
-        );
-        assert!(
-            v.details.iter().any(|x| x.contains("a new field")),
-            "a changed type ends the old field: {:?}",
-            v.details
-        );
-        assert_eq!(item(&d, Kind::Field, "m.W").action, Action::Added);
-        assert!(
-            !d.items.iter().any(|i| i.name == "m.A"),
-            "an unchanged field is not reported: {:?}",
-            d.items
-        );
-    }
-
-    #[test]
-    fn tokens_are_counted_by_role_and_never_named() {
-        let a = setup("devices: []\n");
-        let d = diff(
-            &a,
-            &tokens("read aaaaaaaaaaaaaaaaaaaaaaaa\n"),
-            &a,
-            &tokens("read aaaaaaaaaaaaaaaaaaaaaaaa\nadmin bbbbbbbbbbbbbbbbbbbbbbbb\n"),
-        );
-        assert!(d.access);
-        let text = format!("{:?}", d.items);
-        assert!(text.contains("admin"), "{text}");
-        assert!(
-            !text.contains("bbbbbbbbbbbbbbbbbbbbbbbb"),
-            "a token is never reported: {text}"
-        );
-    }
-
-    #[test]
-    fn listeners_and_the_mqtt_section_are_flagged_for_what_applies_them() {
-        let mqtt = |id: &str| {
-            format!(
-                "devices: []\nmqtt:\n  url: mqtt://127.0.0.1:1883\n  client_id: {id}\n  json: {{ prefix: plant }}\n"
-            )
-        };
-        let a = setup(&format!(
-            "listen: {{ http: 127.0.0.1:8080 }}\n{}",
-            mqtt("one")
-        ));
-        let b = setup(&format!(
-            "listen: {{ http: 127.0.0.1:8081 }}\n{}",
-            mqtt("two")
-        ));
-        let d = compare(&a, &b);
-        assert!(d.http_listen && !d.grpc_listen && !d.modbus_listen);
-        assert!(d.mqtt);
-        let m = item(&d, Kind::Mqtt, "mqtt");
-        assert_eq!(m.action, Action::Changed);
-        assert!(
-            m.details.iter().any(|x| x == "client_id: one -> two"),
-            "{:?}",
-            m.details
-        );
-        let gone = setup("listen: { http: 127.0.0.1:8081 }\ndevices: []\n");
-        let d = compare(&b, &gone);
-        assert!(d.mqtt);
-        assert_eq!(item(&d, Kind::Mqtt, "mqtt").action, Action::Removed);
-        assert!(!d.http_listen);
-    }
-}
+#[path = "diff/tests.rs"]
+mod tests;

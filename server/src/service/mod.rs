@@ -30,7 +30,8 @@ use crate::runtime::Tasks;
 pub(crate) use crate::cache::Refusal;
 pub(crate) use modbus_map::ModbusImage;
 pub(crate) use reload::{
-    Action, ConfigStatus, Item, Kind, ReloadError, Reloading, Report, Trigger,
+    Action, ConfigStatus, Item, Kind, ReloadError, Reloading, Report, Trigger, changed,
+    changed_text, duration,
 };
 pub(crate) use select::Selection;
 pub(crate) use standing::{Standing, StandingSet, StandingStatus};

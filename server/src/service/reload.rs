@@ -138,6 +138,30 @@ impl Report {
     }
 }
 
+/// `key: before -> after` when they differ (a reload report's words for a setting).
+pub(crate) fn changed<T: PartialEq + std::fmt::Debug>(
+    key: &str,
+    before: &T,
+    after: &T,
+) -> Option<String> {
+    (before != after).then(|| format!("{key}: {before:?} -> {after:?}"))
+}
+
+/// `key: before -> after` when their texts differ.
+pub(crate) fn changed_text(
+    key: &str,
+    before: impl ToString,
+    after: impl ToString,
+) -> Option<String> {
+    let (b, a) = (before.to_string(), after.to_string());
+    (b != a).then(|| format!("{key}: {b} -> {a}"))
+}
+
+/// A duration as a reload's report writes it.
+pub(crate) fn duration(d: std::time::Duration) -> String {
+    format!("{d:?}")
+}
+
 /// The configuration in force, for `GET /api/v1/config`.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct ConfigStatus {

@@ -27,6 +27,7 @@ mod packet;
 mod refusal;
 mod report;
 mod session;
+mod setup;
 mod sparkplug;
 mod status;
 
@@ -51,6 +52,7 @@ use conn::{ConnError, Connection, TlsSetup};
 use packet::{Connect, Incoming, Will};
 use refusal::Refused;
 use report::{Decision, Reporter};
+pub(crate) use setup::{Prepared, changed_keys, prepare};
 use sparkplug::{Aliases, Form, HostState};
 pub(crate) use status::{MqttState, MqttStatus, SparkplugStatus};
 
@@ -71,64 +73,6 @@ const MAX_UNCONFIRMED: usize = 8192;
 const REPLAY_WINDOW: usize = 32;
 /// How often the replay's budget is refilled.
 const REPLAY_EVERY: Duration = Duration::from_millis(10);
-
-/// What the front-end needs from the files its section names, read once at start.
-pub(crate) struct Prepared {
-    config: MqttConfig,
-    password: Option<Vec<u8>>,
-    tls: Option<TlsSetup>,
-}
-
-impl Prepared {
-    /// Whether the front-end may do `operation`, by the one role rule: its role is `write`
-    /// with `mqtt.writes: true`, else `read`.
-    fn may(&self, operation: Operation) -> bool {
-        let role = match self.config.writes {
-            true => Role::Write,
-            false => Role::Read,
-        };
-        operation.allowed_to(role).is_ok()
-    }
-}
-
-/// Reads the password and TLS files; a problem is named with its file.
-pub(crate) fn prepare(config: &MqttConfig, base: &std::path::Path) -> Result<Prepared, String> {
-    let password = match &config.password {
-        None => None,
-        Some(Password::File(path)) => {
-            let path = base.join(path);
-            let text = std::fs::read(&path)
-                .map_err(|e| format!("mqtt.password_file {}: {e}", path.display()))?;
-            // A trailing newline is the file's, not the password's.
-            let end = text
-                .iter()
-                .rposition(|&b| b != b'\n' && b != b'\r')
-                .map_or(0, |i| i + 1);
-            Some(text[..end].to_vec())
-        }
-        Some(Password::Env(name)) => Some(
-            std::env::var_os(name)
-                .ok_or_else(|| format!("mqtt.password_env: the environment has no `{name}`"))?
-                .into_encoded_bytes(),
-        ),
-    };
-    let tls = if config.url.tls {
-        let mut c = config.clone();
-        c.tls.ca = c.tls.ca.map(|p| base.join(p));
-        c.tls.cert = c.tls.cert.map(|p| base.join(p));
-        c.tls.key = c.tls.key.map(|p| base.join(p));
-        Some(TlsSetup::load(&c)?)
-    } else {
-        None
-    };
-    let mut config = config.clone();
-    config.buffer.dir = config.buffer.dir.map(|d| base.join(d));
-    Ok(Prepared {
-        config,
-        password,
-        tls,
-    })
-}
 
 /// The topics of the JSON publisher.
 struct Topics<'a>(&'a JsonConfig);

@@ -84,6 +84,37 @@ pub(crate) struct Running {
     service: std::sync::Weak<Service>,
 }
 
+/// What differs between two `opcua:` sections, key by key, in a reload report's words (a
+/// change restarts the server).
+pub(crate) fn changed_keys(x: &OpcUaConfig, y: &OpcUaConfig) -> Vec<Option<String>> {
+    use crate::service::{changed, changed_text};
+    vec![
+        changed_text("listen", x.listen, y.listen),
+        changed_text("application_uri", &x.application_uri, &y.application_uri),
+        (x.security != y.security).then(|| "security changed".to_owned()),
+        changed("pki_dir", &x.pki_dir, &y.pki_dir),
+        (x.certificate != y.certificate || x.private_key != y.private_key)
+            .then(|| "certificate changed".to_owned()),
+        changed_text(
+            "trust_client_certs",
+            x.trust_client_certs,
+            y.trust_client_certs,
+        ),
+        changed("anonymous", &x.anonymous, &y.anonymous),
+        changed_text("max_sessions", x.max_sessions, y.max_sessions),
+        changed_text(
+            "max_subscriptions_per_session",
+            x.max_subscriptions_per_session,
+            y.max_subscriptions_per_session,
+        ),
+        changed_text(
+            "max_monitored_items_per_subscription",
+            x.max_monitored_items_per_subscription,
+            y.max_monitored_items_per_subscription,
+        ),
+    ]
+}
+
 /// How long a stopping server may take to close its sessions.
 const STOP_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
 

@@ -3,28 +3,12 @@
 
 use super::*;
 
-/// `key: before -> after` when they differ.
-pub(super) fn changed<T: PartialEq + Debug>(key: &str, before: &T, after: &T) -> Option<String> {
-    (before != after).then(|| format!("{key}: {before:?} -> {after:?}"))
-}
-
-pub(super) fn changed_text(
-    key: &str,
-    before: impl ToString,
-    after: impl ToString,
-) -> Option<String> {
-    let (b, a) = (before.to_string(), after.to_string());
-    (b != a).then(|| format!("{key}: {b} -> {a}"))
-}
+pub(super) use crate::service::{changed, changed_text, duration};
 
 /// The Modbus server's TCP address, or that it has none.
 pub(super) fn listened(s: &crate::config::modbus_server::ModbusServerConfig) -> String {
     s.listen
         .map_or_else(|| "no TCP listener".to_owned(), |l| l.to_string())
-}
-
-pub(super) fn duration(d: std::time::Duration) -> String {
-    format!("{d:?}")
 }
 
 pub(super) fn option<T: ToString>(v: &Option<T>) -> String {
