@@ -141,19 +141,19 @@ impl Servers {
     pub(crate) async fn bind(
         &self,
         config: &Config,
-        diff: &crate::reload::diff::Diff,
+        diff: ListenerChanges,
     ) -> Result<Bound, String> {
         let running = self.running.lock().await;
         let moved = |now: Option<SocketAddr>, to: SocketAddr| now.is_some_and(|a| a != to);
         let mut bound = Bound::default();
-        if diff.http_listen && moved(running.http.as_ref().map(|h| h.0), config.http) {
+        if diff.http && moved(running.http.as_ref().map(|h| h.0), config.http) {
             bound.http = Some(bind(config.http, "listen.http").await?);
         }
-        if diff.grpc_listen && moved(running.grpc.as_ref().map(|g| g.0), config.grpc) {
+        if diff.grpc && moved(running.grpc.as_ref().map(|g| g.0), config.grpc) {
             bound.grpc = Some(bind(config.grpc, "listen.grpc").await?);
         }
         if let Some(listen) = config.modbus_server.as_ref().and_then(|s| s.listen)
-            && diff.modbus_listen
+            && diff.modbus
         {
             let now = running.modbus.as_ref().map(|m| m.0);
             if now.is_none() || moved(now, listen) {
@@ -171,7 +171,7 @@ impl Servers {
         &self,
         service: &Arc<Service>,
         config: &Config,
-        diff: &crate::reload::diff::Diff,
+        diff: ListenerChanges,
         bound: Bound,
         tls: Option<Arc<crate::tls::Tls>>,
     ) {
@@ -265,6 +265,19 @@ impl Servers {
     fn token_spawn_watch(&self, tls: Arc<crate::tls::Tls>) {
         self.tracker.spawn(tls.watch(self.token.clone()));
     }
+}
+
+/// What a reload changed of the listeners, as the servers need to know it.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct ListenerChanges {
+    /// `listen.http`, `listen.grpc`, `modbus_server.listen` changed.
+    pub(crate) http: bool,
+    pub(crate) grpc: bool,
+    pub(crate) modbus: bool,
+    /// TLS turned on or off, or its files changed.
+    pub(crate) tls: bool,
+    /// The header or body timeouts changed.
+    pub(crate) limits: bool,
 }
 
 /// Binds `addr` again after its server was stopped (TLS turned on or off, timeouts

@@ -64,6 +64,17 @@ impl Diff {
         self.items.is_empty()
     }
 
+    /// What the listeners' servers are told of it.
+    pub(crate) fn listeners(&self) -> crate::servers::ListenerChanges {
+        crate::servers::ListenerChanges {
+            http: self.http_listen,
+            grpc: self.grpc_listen,
+            modbus: self.modbus_listen,
+            tls: self.tls,
+            limits: self.limits,
+        }
+    }
+
     fn push(&mut self, kind: Kind, name: impl Into<String>, action: Action, details: Vec<String>) {
         self.items.push(Item {
             kind,

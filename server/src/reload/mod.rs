@@ -291,7 +291,7 @@ impl Reloader {
             }
             _ => None,
         };
-        let bound = self.servers.bind(&new.config, diff).await?;
+        let bound = self.servers.bind(&new.config, diff.listeners()).await?;
         let tls = match (&new.config.security.tls, diff.tls) {
             (Some(files), true) => Some(
                 crate::tls::Tls::load(files.clone())
@@ -417,7 +417,7 @@ impl Reloader {
             service.set_modbus(None);
         }
         self.servers
-            .apply(service, &new.config, diff, bound, tls)
+            .apply(service, &new.config, diff.listeners(), bound, tls)
             .await;
         if diff.mqtt {
             restart_mqtt(service, &mut in_force.mqtt, mqtt).await;

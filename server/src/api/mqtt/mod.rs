@@ -29,6 +29,7 @@ mod report;
 mod session;
 mod setup;
 mod sparkplug;
+mod state;
 mod status;
 
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -54,7 +55,8 @@ use refusal::Refused;
 use report::{Decision, Reporter};
 pub(crate) use setup::{Prepared, changed_keys, prepare};
 use sparkplug::{Aliases, Form, HostState};
-pub(crate) use status::{MqttState, MqttStatus, SparkplugStatus};
+pub(crate) use state::MqttState;
+pub(crate) use status::{MqttStatus, SparkplugStatus};
 
 /// The topic level the JSON replays go under.
 const HISTORY: &str = "history";

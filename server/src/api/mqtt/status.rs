@@ -1,13 +1,7 @@
-//! The MQTT front-end's state as the rest of the gateway shows it (`GET /api/v1/mqtt`,
-//! `/readyz`, the web page, the metrics), through its [`Door`]. The front-end's task writes
-//! it; readers take a copy.
-
-use std::sync::{Arc, Mutex};
+//! The MQTT front-end's status as the rest of the gateway shows it (`GET /api/v1/mqtt`,
+//! `/readyz`, the web page, the metrics): a copy of what its task counts (`state.rs`).
 
 use serde::Serialize;
-
-use super::metrics::MqttMetrics;
-use crate::service::doors::Door;
 
 /// What `GET /api/v1/mqtt` shows.
 #[derive(Debug, Clone, Default, Serialize, utoipa::ToSchema)]
@@ -70,63 +64,4 @@ pub(crate) struct SparkplugStatus {
     pub(crate) primary_host: Option<String>,
     /// Whether its STATE says online (`None` until one is seen).
     pub(crate) host_online: Option<bool>,
-}
-
-/// The front-end's shared state.
-#[derive(Debug)]
-pub(crate) struct MqttState {
-    status: Mutex<MqttStatus>,
-    /// Its metric families, kept by the gateway's metrics across restarts.
-    pub(crate) metrics: Arc<MqttMetrics>,
-}
-
-/// The front-end in `/readyz`: a broker away does not make the gateway unready (its
-/// messages wait in the buffer), so this is detail only.
-#[derive(Debug, Serialize, utoipa::ToSchema)]
-pub(crate) struct MqttHealth {
-    pub(crate) connected: bool,
-    /// Messages waiting in the buffer for the broker.
-    pub(crate) buffered: u64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(crate) last_error: Option<String>,
-}
-
-impl Door for MqttState {
-    fn name(&self) -> &'static str {
-        "mqtt"
-    }
-
-    fn health(&self) -> Option<serde_json::Value> {
-        let s = self.status();
-        serde_json::to_value(MqttHealth {
-            connected: s.connected,
-            buffered: s.buffer.messages,
-            last_error: s.last_error,
-        })
-        .ok()
-    }
-
-    fn encode_metrics(&self, out: &mut String) -> std::fmt::Result {
-        self.metrics.encode(&self.status(), out)
-    }
-}
-
-impl MqttState {
-    pub(crate) fn new(metrics: Arc<MqttMetrics>) -> MqttState {
-        MqttState {
-            status: Mutex::default(),
-            metrics,
-        }
-    }
-
-    pub(crate) fn status(&self) -> MqttStatus {
-        self.status
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone()
-    }
-
-    pub(crate) fn update(&self, f: impl FnOnce(&mut MqttStatus)) {
-        f(&mut self.status.lock().unwrap_or_else(|e| e.into_inner()));
-    }
 }

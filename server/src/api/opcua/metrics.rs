@@ -7,8 +7,25 @@ use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::Registry;
 
-use super::status::OpcUaStatus;
 use crate::metrics::OutcomeLabels;
+
+/// A copy of the server's counts (`OpcUaState::status`), as the metrics show them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(crate) struct OpcUaStatus {
+    pub(crate) sessions: u64,
+    pub(crate) sessions_created: u64,
+    pub(crate) subscriptions: u64,
+    pub(crate) monitored_items: u64,
+    /// Monitored items refused because every session's together reached the bound.
+    pub(crate) monitored_items_refused: u64,
+    pub(crate) value_updates: u64,
+    pub(crate) writes_accepted: u64,
+    pub(crate) writes_refused: u64,
+    /// Sessions and requests refused for their security (certificate, signature, user).
+    pub(crate) security_rejected: u64,
+    /// Client certificates refused and kept in the PKI directory's `rejected/`.
+    pub(crate) rejected_certificates: u64,
+}
 
 pub const OPCUA_SESSIONS: &str = "iogate_opcua_sessions";
 pub const OPCUA_SESSIONS_CREATED: &str = "iogate_opcua_sessions_created";

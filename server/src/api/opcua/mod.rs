@@ -25,9 +25,10 @@ use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId, VariableId,
 
 use crate::config::opcua::{Endpoint, OpcUaConfig};
 use crate::service::Service;
+use metrics::OpcUaStatus;
 use space::Ids;
 pub(crate) use status::OpcUaState;
-use status::{OpcUaStatus, Probe};
+use status::Probe;
 
 /// Notifications in one publish answer, at most.
 const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1000;

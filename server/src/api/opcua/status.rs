@@ -9,26 +9,8 @@ use std::sync::Arc;
 
 use tokio::sync::Notify;
 
-use super::metrics::OpcUaMetrics;
+use super::metrics::{OpcUaMetrics, OpcUaStatus};
 use crate::service::doors::Door;
-
-/// A copy of the counts.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub(crate) struct OpcUaStatus {
-    pub(crate) sessions: u64,
-    pub(crate) sessions_created: u64,
-    pub(crate) subscriptions: u64,
-    pub(crate) monitored_items: u64,
-    /// Monitored items refused because every session's together reached the bound.
-    pub(crate) monitored_items_refused: u64,
-    pub(crate) value_updates: u64,
-    pub(crate) writes_accepted: u64,
-    pub(crate) writes_refused: u64,
-    /// Sessions and requests refused for their security (certificate, signature, user).
-    pub(crate) security_rejected: u64,
-    /// Client certificates refused and kept in the PKI directory's `rejected/`.
-    pub(crate) rejected_certificates: u64,
-}
 
 /// What the library knows, read at a scrape.
 pub(crate) type Probe = Box<dyn Fn(&mut OpcUaStatus) + Send + Sync>;
