@@ -155,19 +155,6 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             .ensure_transaction(standing.clone())
             .map_err(|e| anyhow::anyhow!("transaction {}: {e}", standing.name))?;
     }
-    let mqtt = match &config.mqtt {
-        Some(mqtt) => {
-            let base = Path::new(&config.source)
-                .parent()
-                .unwrap_or_else(|| Path::new("."));
-            let prepared = api::mqtt::prepare(mqtt, base).map_err(|e| anyhow::anyhow!("{e}"))?;
-            Some(
-                api::mqtt::spawn(service.clone(), prepared, 0)
-                    .map_err(|e| anyhow::anyhow!("{e}"))?,
-            )
-        }
-        None => None,
-    };
     let servers = Arc::new(Servers::new(token.clone(), tracker.clone(), tls.clone()));
     let limits = api::http::Limits {
         header_timeout: config.header_timeout,
@@ -183,20 +170,14 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         Some(listener) => Some(servers.serve_modbus(&service, listener).await?),
         None => None,
     };
-    let opcua = match &config.opcua {
-        Some(opcua) => {
-            let base = Path::new(&config.source)
-                .parent()
-                .unwrap_or_else(|| Path::new("."));
-            Some(
-                api::opcua::start(&service, opcua, base)
-                    .await
-                    .map_err(|e| anyhow::anyhow!("{e}"))?,
-            )
-        }
-        None => None,
-    };
-    let opcua_addr = opcua.as_ref().map(|o| o.addr);
+    // The front-ends with a section of their own (MQTT, OPC UA), as one list.
+    let base = Path::new(&config.source)
+        .parent()
+        .unwrap_or_else(|| Path::new("."));
+    let front_ends = api::front_end::start_all(&service, &config, base)
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let opcua_addr = service.listening.bound("opcua");
     servers.serve_grpc(&service, grpc_listener, limits).await?;
     servers.serve_http(&service, listener, limits).await?;
     if let Some(path) = source {
@@ -212,8 +193,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             },
             reload_tokens,
             servers.clone(),
-            mqtt,
-            opcua,
+            front_ends,
         );
     }
     service.set_ready(true);

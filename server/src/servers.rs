@@ -78,7 +78,7 @@ impl Servers {
             service.clone(),
             stop.clone(),
         ));
-        service.listening.set("modbus", addr.to_string());
+        service.listening.set("modbus", addr, addr.to_string());
         self.running.lock().await.modbus = Some((addr, stop));
         Ok(addr)
     }
@@ -90,7 +90,7 @@ impl Servers {
         limits: api::http::Limits,
     ) -> anyhow::Result<SocketAddr> {
         let addr = listener.local_addr()?;
-        service.listening.set("grpc", addr.to_string());
+        service.listening.set("grpc", addr, addr.to_string());
         let stop = self.token.child_token();
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {
@@ -123,7 +123,9 @@ impl Servers {
         } else {
             "http"
         };
-        service.listening.set("http", format!("{scheme}://{addr}"));
+        service
+            .listening
+            .set("http", addr, format!("{scheme}://{addr}"));
         let (service, shutdown, tls) = (service.clone(), stop.clone(), self.tls());
         self.tracker.spawn(async move {
             let served =

@@ -9,6 +9,7 @@ pub(crate) mod convert;
 pub(crate) mod declare;
 pub(crate) mod error;
 pub(crate) mod events;
+pub(crate) mod front_end;
 pub(crate) mod grpc;
 pub(crate) mod http;
 pub(crate) mod limit;

@@ -55,8 +55,8 @@ pub(crate) struct Diff {
     pub(crate) limits: bool,
     /// `listen.max_streams`: in force for the streams opened from now on.
     pub(crate) max_streams: bool,
-    pub(crate) mqtt: bool,
-    pub(crate) opcua: bool,
+    /// The front-ends with a section of their own whose section changed (restarted).
+    pub(crate) front_ends: Vec<&'static str>,
 }
 
 impl Diff {
@@ -448,41 +448,11 @@ fn transactions(d: &mut Diff, old: &Setup, new: &Setup) {
 /// The front-ends restarted when their section changes, and the reload section.
 fn front_ends(d: &mut Diff, old: &Setup, new: &Setup) {
     let (a, b) = (&old.config, &new.config);
-    let mqtt = |c: &crate::config::Config| {
-        c.mqtt.clone().map(|mut m| {
-            m.line = 0;
-            m
-        })
-    };
-    if mqtt(a) != mqtt(b) {
-        d.mqtt = true;
-        let (action, details) = restarted_section(
-            &a.mqtt,
-            &b.mqtt,
-            "the MQTT front-end",
-            crate::api::mqtt::changed_keys,
-            "(NDEATH, offline state)",
-            "the MQTT connection is closed (NDEATH) and opened again (NBIRTH, next bdSeq); the buffer on disk is kept",
-        );
-        d.push(Kind::Mqtt, "mqtt", action, details);
-    }
-    let opcua = |c: &crate::config::Config| {
-        c.opcua.clone().map(|mut o| {
-            o.line = 0;
-            o
-        })
-    };
-    if opcua(a) != opcua(b) {
-        d.opcua = true;
-        let (action, details) = restarted_section(
-            &a.opcua,
-            &b.opcua,
-            "the OPC UA server",
-            crate::api::opcua::changed_keys,
-            "(its sessions end)",
-            "the OPC UA server is restarted: its sessions end and clients reconnect",
-        );
-        d.push(Kind::Opcua, "opcua", action, details);
+    for front_end in crate::api::front_end::all() {
+        if let Some((action, details)) = front_end.changed(a, b) {
+            d.front_ends.push(front_end.name());
+            d.push(front_end.kind(), front_end.name(), action, details);
+        }
     }
     if a.reload != b.reload {
         let details = [

@@ -89,10 +89,8 @@ struct InForce {
     setup: Setup,
     tokens: Tokens,
     hash: String,
-    /// The MQTT front-end, when its section is configured.
-    mqtt: Option<crate::api::mqtt::Running>,
-    /// The OPC UA server, when its section is configured.
-    opcua: Option<crate::api::opcua::Running>,
+    /// The front-ends with a section of their own that run.
+    front_ends: Vec<crate::api::front_end::Held>,
 }
 
 /// Reloads the configuration of a gateway started from a file.
@@ -123,8 +121,7 @@ impl Reloader {
         setup: Setup,
         tokens: Tokens,
         servers: Arc<Servers>,
-        mqtt: Option<crate::api::mqtt::Running>,
-        opcua: Option<crate::api::opcua::Running>,
+        front_ends: Vec<crate::api::front_end::Held>,
     ) -> Arc<Reloader> {
         let hash = hash_files(&path, setup.profiles_dir.as_deref());
         let status = ConfigStatus {
@@ -143,8 +140,7 @@ impl Reloader {
                 setup,
                 tokens,
                 hash,
-                mqtt,
-                opcua,
+                front_ends,
             }),
             status: Mutex::new(status),
             servers,
@@ -281,16 +277,17 @@ impl Reloader {
         diff: &Diff,
     ) -> Result<(), String> {
         let new = &loaded.setup;
-        // The MQTT section's files (password, TLS) are read before anything changes.
-        let mqtt = match (&new.config.mqtt, diff.mqtt) {
-            (Some(section), true) => {
-                let base = Path::new(&new.config.source)
-                    .parent()
-                    .unwrap_or_else(|| Path::new("."));
-                Some(crate::api::mqtt::prepare(section, base)?)
+        // What the changed front-ends' sections name (passwords, certificates) is read
+        // before anything changes.
+        let base = Path::new(&new.config.source)
+            .parent()
+            .unwrap_or_else(|| Path::new("."));
+        let mut starting = Vec::new();
+        for front_end in crate::api::front_end::all() {
+            if diff.front_ends.contains(&front_end.name()) {
+                starting.push((front_end.name(), front_end.prepare(&new.config, base)?));
             }
-            _ => None,
-        };
+        }
         let bound = self.servers.bind(&new.config, diff.listeners()).await?;
         let tls = match (&new.config.security.tls, diff.tls) {
             (Some(files), true) => Some(
@@ -419,62 +416,37 @@ impl Reloader {
         self.servers
             .apply(service, &new.config, diff.listeners(), bound, tls)
             .await;
-        if diff.mqtt {
-            restart_mqtt(service, &mut in_force.mqtt, mqtt).await;
-        }
-        if diff.opcua {
-            restart_opcua(service, &mut in_force.opcua, new).await;
+        for (name, starting) in starting {
+            restart(service, &mut in_force.front_ends, name, starting).await;
         }
         Ok(())
     }
 }
 
-/// Stops the MQTT front-end (NDEATH, offline state, its buffer kept on disk) and starts it
-/// again with its new section, its Sparkplug `bdSeq` going on from the old session's.
-async fn restart_mqtt(
+/// Stops the front-end `name` (MQTT: NDEATH, offline state, its buffer kept on disk; OPC
+/// UA: its sessions end) and starts it again with its new section, carrying on what it
+/// hands over (MQTT's next `bdSeq`).
+async fn restart(
     service: &Arc<Service>,
-    running: &mut Option<crate::api::mqtt::Running>,
-    prepared: Option<crate::api::mqtt::Prepared>,
+    held: &mut Vec<crate::api::front_end::Held>,
+    name: &'static str,
+    starting: Option<Box<dyn crate::api::front_end::Starting>>,
 ) {
-    let mut bd_seq = 0;
-    if let Some(old) = running.take() {
-        match old.stop(service).await {
-            Ok(next) => bd_seq = next,
+    let mut carried = None;
+    if let Some(at) = held.iter().position(|h| h.name == name) {
+        let old = held.remove(at);
+        match old.running.stop(service.clone()).await {
+            Ok(c) => carried = c,
             Err(e) => {
-                tracing::warn!(error = %e, "MQTT front-end restarted before the old one ended")
+                tracing::warn!(front_end = name, error = %e, "restarted before the old one ended")
             }
         }
     }
-    if let Some(prepared) = prepared {
-        match crate::api::mqtt::spawn(service.clone(), prepared, bd_seq) {
-            Ok(started) => *running = Some(started),
+    if let Some(starting) = starting {
+        match starting.start(service.clone(), carried).await {
+            Ok(running) => held.push(crate::api::front_end::Held { name, running }),
             Err(e) => {
-                tracing::error!(error = %e, "the MQTT front-end could not start with the reloaded section")
-            }
-        }
-    }
-}
-
-/// Stops the OPC UA server (its sessions end; clients reconnect) and starts it again with
-/// its new section, on its new address.
-async fn restart_opcua(
-    service: &Arc<Service>,
-    running: &mut Option<crate::api::opcua::Running>,
-    new: &Setup,
-) {
-    if let Some(old) = running.take()
-        && let Err(e) = old.stop().await
-    {
-        tracing::warn!(error = %e, "OPC UA server restarted before the old one ended");
-    }
-    if let Some(section) = &new.config.opcua {
-        let base = Path::new(&new.config.source)
-            .parent()
-            .unwrap_or_else(|| Path::new("."));
-        match crate::api::opcua::start(service, section, base).await {
-            Ok(started) => *running = Some(started),
-            Err(e) => {
-                tracing::error!(error = %e, "the OPC UA server could not start with the reloaded section")
+                tracing::error!(front_end = name, error = %e, "could not start with the reloaded section")
             }
         }
     }

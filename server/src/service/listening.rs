@@ -2,6 +2,7 @@
 //! can say how to reach each of them.
 
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
 
 use serde::Serialize;
 
@@ -17,15 +18,25 @@ pub struct Listener {
 
 /// The servers listening now.
 #[derive(Debug, Default)]
-pub(crate) struct Listening(std::sync::RwLock<BTreeMap<&'static str, String>>);
+pub(crate) struct Listening(std::sync::RwLock<BTreeMap<&'static str, (SocketAddr, String)>>);
 
 impl Listening {
-    /// `server` listens: a client reaches it at `address` (each server says its own form).
-    pub(crate) fn set(&self, server: &'static str, address: String) {
+    /// `server` listens on `addr`: a client reaches it at `address` (each server says its
+    /// own form).
+    pub(crate) fn set(&self, server: &'static str, addr: SocketAddr, address: String) {
         self.0
             .write()
             .unwrap_or_else(|e| e.into_inner())
-            .insert(server, address);
+            .insert(server, (addr, address));
+    }
+
+    /// Where `server` listens, while it does.
+    pub(crate) fn bound(&self, server: &str) -> Option<SocketAddr> {
+        self.0
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(server)
+            .map(|(addr, _)| *addr)
     }
 
     /// `server` no longer listens.
@@ -41,7 +52,7 @@ impl Listening {
             .read()
             .unwrap_or_else(|e| e.into_inner())
             .iter()
-            .map(|(server, address)| Listener {
+            .map(|(server, (_, address))| Listener {
                 server: (*server).to_owned(),
                 address: address.clone(),
             })

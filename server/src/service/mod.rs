@@ -31,7 +31,7 @@ pub(crate) use crate::cache::Refusal;
 pub(crate) use modbus_map::ModbusImage;
 pub(crate) use reload::{
     Action, ConfigStatus, Item, Kind, ReloadError, Reloading, Report, Trigger, changed,
-    changed_text, duration,
+    changed_text, duration, restarted_section,
 };
 pub(crate) use select::Selection;
 pub(crate) use standing::{Standing, StandingSet, StandingStatus};

@@ -9,6 +9,7 @@
 
 mod auth;
 mod feed;
+mod front_end;
 mod live;
 mod metrics;
 mod nodes;
@@ -25,6 +26,7 @@ use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId, VariableId,
 
 use crate::config::opcua::{Endpoint, OpcUaConfig};
 use crate::service::Service;
+pub(crate) use front_end::OpcUaFrontEnd;
 use metrics::OpcUaStatus;
 use space::Ids;
 pub(crate) use status::OpcUaState;
@@ -79,7 +81,6 @@ fn endpoint_host(addr: SocketAddr) -> String {
 /// The running server, to stop it (a reload that changes the `opcua:` section). Dropping
 /// it leaves the server running until the gateway shuts down.
 pub(crate) struct Running {
-    pub(crate) addr: SocketAddr,
     stop: tokio_util::sync::CancellationToken,
     stopped: tokio::sync::oneshot::Receiver<()>,
     service: std::sync::Weak<Service>,
@@ -219,7 +220,9 @@ pub(crate) async fn start(
         .local_addr()
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
     let host = endpoint_host(addr);
-    service.listening.set("opcua", format!("opc.tcp://{addr}/"));
+    service
+        .listening
+        .set("opcua", addr, format!("opc.tcp://{addr}/"));
     let token = service.tasks().token().child_token();
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
     let counts = Arc::new(OpcUaState::new(
@@ -361,7 +364,6 @@ pub(crate) async fn start(
     tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
     service.doors.attach(counts);
     Ok(Running {
-        addr,
         stop: token,
         stopped,
         service: Arc::downgrade(service),

@@ -142,27 +142,3 @@ pub(super) fn field_items(prefix: &str, a: &Profile, b: &Profile) -> Vec<Item> {
     }
     items
 }
-
-/// A front-end's section that differs (its front-end is started, stopped or restarted):
-/// the action, and the keys that changed followed by what the restart does.
-pub(super) fn restarted_section<T>(
-    old: &Option<T>,
-    new: &Option<T>,
-    what: &str,
-    keys: impl Fn(&T, &T) -> Vec<Option<String>>,
-    stopped: &str,
-    restart: &str,
-) -> (Action, Vec<String>) {
-    match (old, new) {
-        (Some(x), Some(y)) => {
-            let mut details: Vec<String> = keys(x, y).into_iter().flatten().collect();
-            details.push(restart.to_owned());
-            (Action::Changed, details)
-        }
-        (Some(_), None) => (
-            Action::Removed,
-            vec![format!("{what} is stopped {stopped}")],
-        ),
-        (None, _) => (Action::Added, vec![format!("{what} is started")]),
-    }
-}

@@ -1,0 +1,79 @@
+//! The MQTT front-end as one of the list of front-ends (`api::front_end`): its section
+//! compared, its files read, started, stopped with its next `bdSeq` carried on.
+
+use std::any::Any;
+use std::path::Path;
+use std::sync::Arc;
+
+use futures_util::future::BoxFuture;
+
+use super::{Prepared, changed_keys, prepare, spawn};
+use crate::api::front_end::{Carried, FrontEnd, Running, Starting};
+use crate::config::Config;
+use crate::service::{Action, Kind, Service, restarted_section};
+
+pub(crate) struct MqttFrontEnd;
+
+impl FrontEnd for MqttFrontEnd {
+    fn name(&self) -> &'static str {
+        "mqtt"
+    }
+
+    fn kind(&self) -> Kind {
+        Kind::Mqtt
+    }
+
+    fn changed(&self, old: &Config, new: &Config) -> Option<(Action, Vec<String>)> {
+        let section = |c: &Config| {
+            c.mqtt.clone().map(|mut m| {
+                m.line = 0;
+                m
+            })
+        };
+        (section(old) != section(new)).then(|| {
+            restarted_section(
+                &old.mqtt,
+                &new.mqtt,
+                "the MQTT front-end",
+                changed_keys,
+                "(NDEATH, offline state)",
+                "the MQTT connection is closed (NDEATH) and opened again (NBIRTH, next bdSeq); the buffer on disk is kept",
+            )
+        })
+    }
+
+    fn prepare(&self, config: &Config, base: &Path) -> Result<Option<Box<dyn Starting>>, String> {
+        let Some(section) = &config.mqtt else {
+            return Ok(None);
+        };
+        Ok(Some(Box::new(MqttStarting(prepare(section, base)?))))
+    }
+}
+
+struct MqttStarting(Prepared);
+
+impl Starting for MqttStarting {
+    fn start(
+        self: Box<Self>,
+        service: Arc<Service>,
+        carried: Carried,
+    ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
+        // The Sparkplug `bdSeq` goes on from the stopped session's.
+        let bd_seq = carried
+            .and_then(|c| c.downcast::<u8>().ok())
+            .map_or(0, |b| *b);
+        let started = spawn(service, self.0, bd_seq)
+            .map(|r| Box::new(r) as Box<dyn Running>)
+            .map_err(|e| e.to_string());
+        Box::pin(std::future::ready(started))
+    }
+}
+
+impl Running for super::Running {
+    fn stop(self: Box<Self>, service: Arc<Service>) -> BoxFuture<'static, Result<Carried, String>> {
+        Box::pin(async move {
+            let next = super::Running::stop(*self, &service).await?;
+            Ok(Some(Box::new(next) as Box<dyn Any + Send>))
+        })
+    }
+}
