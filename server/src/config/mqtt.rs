@@ -13,7 +13,8 @@ use crate::yaml::{Kind, Node, Report};
 mod sections;
 mod topics;
 
-pub(crate) use sections::read_deadband;
+pub use crate::profile::deadband::Deadband;
+pub(crate) use crate::profile::deadband::read_deadband;
 use sections::{read_buffer, read_json, read_report, read_sparkplug, read_tls};
 pub(crate) use topics::{check_level, check_prefix, parse_size};
 
@@ -162,16 +163,6 @@ pub struct JsonConfig {
     pub(crate) prefix: String,
     pub(crate) qos: u8,
     pub(crate) retain: bool,
-}
-
-/// A change smaller than this is not reported.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub enum Deadband {
-    #[default]
-    None,
-    Absolute(f64),
-    /// Percent of the last reported value's magnitude.
-    Percent(f64),
 }
 
 /// Report by exception.

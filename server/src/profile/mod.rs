@@ -1,5 +1,6 @@
 //! Device profiles: the model, loading with validation, and the generated FB layout.
 
+pub(crate) mod deadband;
 pub mod import;
 pub(crate) mod keywords;
 mod layout;
@@ -112,7 +113,7 @@ pub struct Field {
     pub(crate) register: Register,
     pub(crate) description: Option<String>,
     /// How much the value must change before MQTT reports it (else the section's).
-    pub(crate) deadband: Option<crate::config::mqtt::Deadband>,
+    pub(crate) deadband: Option<deadband::Deadband>,
     pub(crate) encoding: Encoding,
     /// The line of the profile file the field starts on.
     pub(crate) line: u64,

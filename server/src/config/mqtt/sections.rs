@@ -1,5 +1,5 @@
-//! The `mqtt:` section's sub-sections (`tls`, `sparkplug`, `json`, `report`, `buffer`) and a
-//! field's `deadband`, each read with its problems at their lines.
+//! The `mqtt:` section's sub-sections (`tls`, `sparkplug`, `json`, `report`, `buffer`), each
+//! read with its problems at their lines.
 
 use super::*;
 
@@ -63,49 +63,6 @@ pub(super) fn read_json(node: &Node, report: &mut Report) -> Option<JsonConfig> 
         qos: qos.unwrap_or(1),
         retain: retain.unwrap_or(true),
     })
-}
-
-/// A deadband as written: a number (absolute) or a percentage (`"5%"`).
-pub(crate) fn read_deadband(node: &Node, report: &mut Report, ctx: &str) -> Option<Deadband> {
-    let bad = |report: &mut Report, why: &str| {
-        report.push(node.line, ctx, why);
-        None
-    };
-    match &node.kind {
-        Kind::Int(_) | Kind::Float(_) => {
-            let x = node.number(report, ctx)?;
-            if x < 0.0 {
-                return bad(report, "must not be negative");
-            }
-            Some(if x == 0.0 {
-                Deadband::None
-            } else {
-                Deadband::Absolute(x)
-            })
-        }
-        _ => {
-            let text = node.scalar_text(report, ctx)?;
-            let Some(p) = text
-                .strip_suffix('%')
-                .and_then(|p| p.trim().parse::<f64>().ok())
-            else {
-                return bad(
-                    report,
-                    &format!(
-                        "`{text}` is not a deadband (write an absolute change, e.g. 0.5, or a percentage, e.g. 2%)"
-                    ),
-                );
-            };
-            if !(0.0..=100.0).contains(&p) {
-                return bad(report, "a percentage deadband must be 0% to 100%");
-            }
-            Some(if p == 0.0 {
-                Deadband::None
-            } else {
-                Deadband::Percent(p)
-            })
-        }
-    }
 }
 
 pub(super) fn read_report(node: &Node, report: &mut Report) -> Option<ReportConfig> {

@@ -34,9 +34,9 @@ pub(super) fn read_field(
     let description = map
         .get("description")
         .and_then(|n| n.scalar_text(report, &format!("{ctx}: description")));
-    let deadband = map
-        .get("deadband")
-        .and_then(|n| crate::config::mqtt::read_deadband(n, report, &format!("{ctx}: deadband")));
+    let deadband = map.get("deadband").and_then(|n| {
+        crate::profile::deadband::read_deadband(n, report, &format!("{ctx}: deadband"))
+    });
     let register = map
         .require("register", report, &ctx)
         .and_then(|n| read_register(n, &ctx, ty, direction, protocol, report));
