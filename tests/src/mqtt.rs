@@ -368,3 +368,20 @@ impl Drop for Gate {
         self.task.abort();
     }
 }
+
+/// A gateway configuration with the simulated device `sim` and a Sparkplug B edge node
+/// (group `plant1`, node `line1`, writes on, every change reported) on the broker at `port`,
+/// as client `<client>-<port>`; `extra` is appended (more of the `mqtt:` section).
+pub fn sparkplug_config(client: &str, port: u16, extra: &str) -> String {
+    format!(
+        "devices:
+  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
+mqtt:
+  url: mqtt://127.0.0.1:{port}
+  client_id: {client}-{port}
+  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
+  report: {{ min_interval: 1ms, max_interval: 1h }}
+  writes: true
+{extra}"
+    )
+}

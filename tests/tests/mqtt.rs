@@ -1,7 +1,7 @@
 //! The MQTT front-end against a real Mosquitto, with paho-mqtt as the independent peer.
 
 use iogate_tests::devices::{Behaviour, RtuBus};
-use iogate_tests::mqtt::{Broker, Message, Peer};
+use iogate_tests::mqtt::{Broker, Message, Peer, sparkplug_config};
 use iogate_tests::{GatewayProcess, TestGateway, bus_gateway_with, eventually};
 use reqwest::Method;
 
@@ -131,20 +131,6 @@ async fn without_writes_enabled_nothing_is_written() {
     broker.stop().await;
 }
 
-fn sparkplug_config(port: u16, extra: &str) -> String {
-    format!(
-        "devices:
-  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
-mqtt:
-  url: mqtt://127.0.0.1:{port}
-  client_id: iogate-sp-{port}
-  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
-  report: {{ min_interval: 1ms, max_interval: 1h }}
-  writes: true
-{extra}"
-    )
-}
-
 fn metric<'a>(m: &'a Message, name: &str) -> Option<&'a serde_json::Value> {
     m.sparkplug["metrics"]
         .as_array()?
@@ -189,7 +175,7 @@ fn assert_seq_follows(messages: &[Message]) {
 async fn a_sparkplug_edge_node_births_reports_by_alias_rebirths_and_takes_commands() {
     let broker = Broker::start().await.expect("mosquitto");
     let mut peer = Peer::subscribe(&broker, "spBv1.0/#").await.expect("paho");
-    let gw = TestGateway::start(&sparkplug_config(broker.port, ""))
+    let gw = TestGateway::start(&sparkplug_config("iogate-sp", broker.port, ""))
         .await
         .expect("gateway");
     // Every message seen, in order, for the `seq` check.
@@ -335,7 +321,7 @@ async fn while_the_broker_is_away_changes_are_kept_and_replayed_in_order_beside_
     let gate = iogate_tests::mqtt::Gate::to(broker.port)
         .await
         .expect("gate");
-    let gw = TestGateway::start(&sparkplug_config(gate.port, &extra))
+    let gw = TestGateway::start(&sparkplug_config("iogate-sp", gate.port, &extra))
         .await
         .expect("gateway");
     peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/sim")
@@ -518,6 +504,7 @@ async fn a_device_on_a_pty_is_written_by_dcmd_and_set_dies_and_is_born_again() {
 
 fn process_config(port: u16, dir: &std::path::Path) -> String {
     sparkplug_config(
+        "iogate-sp",
         port,
         &format!(
             "  json: {{ prefix: iogate/line1, qos: 1, retain: true }}

@@ -2,20 +2,7 @@
 //! paho-mqtt and pysparkplug as the independent peers: nothing it sends ends the session.
 
 use iogate_tests::TestGateway;
-use iogate_tests::mqtt::{Broker, Message, Peer};
-
-fn sparkplug_config(port: u16, extra: &str) -> String {
-    format!(
-        "devices:
-  - {{ name: sim, profile: SimIo, refresh_rate: 50ms }}
-mqtt:
-  url: mqtt://127.0.0.1:{port}
-  client_id: iogate-hostile-{port}
-  sparkplug: {{ group_id: plant1, edge_node_id: line1 }}
-  writes: true
-{extra}"
-    )
-}
+use iogate_tests::mqtt::{Broker, Message, Peer, sparkplug_config};
 
 #[tokio::test]
 async fn a_retained_command_too_big_to_keep_is_read_past_and_the_session_lives_on() {
@@ -40,7 +27,7 @@ async fn too_big_a_command(extra: &str) {
     let mut sender = Peer::subscribe(&broker, "iogate-test/quiet")
         .await
         .expect("paho");
-    let gw = TestGateway::start(&sparkplug_config(broker.port, extra))
+    let gw = TestGateway::start(&sparkplug_config("iogate-hostile", broker.port, extra))
         .await
         .expect("gateway");
     gw.until("/api/v1/mqtt", "born", |s| {
@@ -158,7 +145,7 @@ async fn a_connect_whose_connack_was_lost_never_lends_its_bd_seq_to_the_next_ses
     let broker = Broker::start().await.expect("mosquitto");
     let mut watcher = Peer::subscribe(&broker, "spBv1.0/#").await.expect("paho");
     let proxy = losing_first_connack(broker.port).await;
-    let gw = TestGateway::start(&sparkplug_config(proxy, ""))
+    let gw = TestGateway::start(&sparkplug_config("iogate-hostile", proxy, ""))
         .await
         .expect("gateway");
     // The abandoned attempt's Will arrives, and the live session's birth, in either order.
@@ -192,6 +179,7 @@ async fn a_clean_stop_is_one_death_with_json_beside_sparkplug() {
         .await
         .expect("paho");
     let gw = TestGateway::start(&sparkplug_config(
+        "iogate-hostile",
         broker.port,
         "  json: { prefix: iogate/line1, qos: 1, retain: true }\n",
     ))
