@@ -272,6 +272,18 @@ struct Out {
     retain: bool,
 }
 
+impl Out {
+    /// A Sparkplug message: QoS 0 and not retained, as the specification has them.
+    fn sparkplug(topic: String, payload: Vec<u8>) -> Out {
+        Out {
+            topic,
+            payload,
+            qos: 0,
+            retain: false,
+        }
+    }
+}
+
 /// A data message published and not yet confirmed.
 struct Unconfirmed<T> {
     ticket: u64,

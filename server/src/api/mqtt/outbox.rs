@@ -55,17 +55,8 @@ impl Task {
                         self.started.elapsed().as_secs(),
                         now_ms(),
                     );
-                    self.publish(
-                        online,
-                        Out {
-                            topic,
-                            payload,
-                            qos: 0,
-                            retain: false,
-                        },
-                        0,
-                    )
-                    .await?;
+                    self.publish(online, Out::sparkplug(topic, payload), 0)
+                        .await?;
                 }
                 Item::Spark {
                     kind,
@@ -76,17 +67,8 @@ impl Task {
                     let topic = t.device(kind, &device);
                     let seq = Self::next_seq(online);
                     let payload = sparkplug::encode(now_ms(), Some(seq), metrics);
-                    self.publish(
-                        online,
-                        Out {
-                            topic,
-                            payload,
-                            qos: 0,
-                            retain: false,
-                        },
-                        0,
-                    )
-                    .await?;
+                    self.publish(online, Out::sparkplug(topic, payload), 0)
+                        .await?;
                 }
                 Item::Data { record, change } => {
                     let Some(out) = self.data_out(online, &record, false) else {
@@ -141,12 +123,8 @@ impl Task {
                 let metric = sparkplug::sendable(&record.payload)?;
                 let topic = self.spark.as_ref()?.device("DDATA", &record.device);
                 let seq = Self::next_seq(online);
-                Some(Out {
-                    topic,
-                    payload: sparkplug::data_payload(now_ms(), seq, &metric, alias, historical),
-                    qos: 0,
-                    retain: false,
-                })
+                let payload = sparkplug::data_payload(now_ms(), seq, &metric, alias, historical);
+                Some(Out::sparkplug(topic, payload))
             }
         }
     }
