@@ -84,20 +84,8 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let config::Access { tokens, tls } =
         config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
     let reload_tokens = tokens.clone();
-    let modbus_listener = match config.modbus_server.as_ref().and_then(|s| s.listen) {
-        Some(listen) => Some(TcpListener::bind(listen).await.map_err(|e| {
-            anyhow::anyhow!("cannot listen on {listen} (modbus_server.listen, or serve --modbus ADDR; port 0 takes any free one): {e}")
-        })?),
-        None => None,
-    };
-    let listener = TcpListener::bind(config.http)
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.http, or serve --http ADDR; port 0 takes any free one): {e}", config.http))?;
-    let http_addr = listener.local_addr()?;
-    let grpc_listener = TcpListener::bind(config.grpc)
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot listen on {} (listen.grpc, or serve --grpc ADDR; port 0 takes any free one): {e}", config.grpc))?;
-    let grpc_addr = grpc_listener.local_addr()?;
+    let bound = bind_listeners(&config).await?;
+    let (http_addr, grpc_addr) = (bound.http.local_addr()?, bound.grpc.local_addr()?);
 
     // The demo's simulated field devices answer before its link first asks.
     let field = match demo {
@@ -116,18 +104,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     };
 
     let tasks = Tasks::new(tracker.clone(), token.clone(), Arc::new(Metrics::new()));
-    for device in cache.devices() {
-        if device.is_simulated() {
-            tasks.spawn_sim(device);
-        }
-    }
-    if let Some(field) = field {
-        tasks.spawn(crate::demo::field::run(field, token.clone()));
-    }
-    for link in cache.links() {
-        tasks.spawn_link(link);
-    }
-    tasks.spawn(crate::poller::watchdog::run(cache.clone(), token.clone()));
+    spawn_polling(&tasks, &cache, field, &token);
 
     let tls = tls.map(Arc::new);
     if let Some(tls) = &tls {
@@ -137,24 +114,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
             "HTTP and gRPC served over TLS"
         );
     }
-    if tokens.is_empty() {
-        tracing::info!(
-            "no tokens configured: every client may read and write (listeners on loopback)"
-        );
-    }
-    let mut service = Service::new(cache.clone(), tasks)
-        .with_policy(config.security.declare.clone())
-        .with_max_streams(config.max_streams)
-        .with_access(tokens, config.security.read_only);
-    if let Some(image) = image {
-        service = service.with_modbus(image);
-    }
-    let service = Arc::new(service);
-    for standing in &config.transactions {
-        service
-            .ensure_transaction(standing.clone())
-            .map_err(|e| anyhow::anyhow!("transaction {}: {e}", standing.name))?;
-    }
+    let service = build_service(&config, cache.clone(), tasks, tokens, image)?;
     let servers = Arc::new(Servers::new(token.clone(), tracker.clone(), tls.clone()));
     let limits = api::http::Limits {
         header_timeout: config.header_timeout,
@@ -166,7 +126,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         service.clone(),
         token.clone(),
     ));
-    let modbus_addr = match modbus_listener {
+    let modbus_addr = match bound.modbus {
         Some(listener) => Some(servers.serve_modbus(&service, listener).await?),
         None => None,
     };
@@ -178,8 +138,8 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let opcua_addr = service.listening.bound("opcua");
-    servers.serve_grpc(&service, grpc_listener, limits).await?;
-    servers.serve_http(&service, listener, limits).await?;
+    servers.serve_grpc(&service, bound.grpc, limits).await?;
+    servers.serve_http(&service, bound.http, limits).await?;
     if let Some(path) = source {
         crate::reload::Reloader::start(
             &service,
@@ -206,6 +166,84 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         secure,
         tracker,
     })
+}
+
+/// The listeners `start` binds before anything else.
+struct Bound {
+    modbus: Option<TcpListener>,
+    http: TcpListener,
+    grpc: TcpListener,
+}
+
+/// Binds the Modbus TCP, HTTP and gRPC listeners; one that cannot be bound says how to
+/// move it.
+async fn bind_listeners(config: &config::Config) -> anyhow::Result<Bound> {
+    let bind = |addr: std::net::SocketAddr, key: &'static str, option: &'static str| async move {
+        TcpListener::bind(addr).await.map_err(|e| {
+            anyhow::anyhow!("cannot listen on {addr} ({key}, or serve {option} ADDR; port 0 takes any free one): {e}")
+        })
+    };
+    let modbus = match config.modbus_server.as_ref().and_then(|s| s.listen) {
+        Some(listen) => Some(bind(listen, "modbus_server.listen", "--modbus").await?),
+        None => None,
+    };
+    Ok(Bound {
+        modbus,
+        http: bind(config.http, "listen.http", "--http").await?,
+        grpc: bind(config.grpc, "listen.grpc", "--grpc").await?,
+    })
+}
+
+/// Starts what reads the devices: the simulated ones, the demo's field devices, a task a
+/// link, and the watchdog.
+fn spawn_polling(
+    tasks: &Tasks,
+    cache: &Arc<Cache>,
+    field: Option<TcpListener>,
+    token: &CancellationToken,
+) {
+    for device in cache.devices() {
+        if device.is_simulated() {
+            tasks.spawn_sim(device);
+        }
+    }
+    if let Some(field) = field {
+        tasks.spawn(crate::demo::field::run(field, token.clone()));
+    }
+    for link in cache.links() {
+        tasks.spawn_link(link);
+    }
+    tasks.spawn(crate::poller::watchdog::run(cache.clone(), token.clone()));
+}
+
+/// The service over the cache, with the configuration's access rules and standing
+/// transactions.
+fn build_service(
+    config: &config::Config,
+    cache: Arc<Cache>,
+    tasks: Tasks,
+    tokens: crate::auth::Tokens,
+    image: Option<crate::service::ModbusImage>,
+) -> anyhow::Result<Arc<Service>> {
+    if tokens.is_empty() {
+        tracing::info!(
+            "no tokens configured: every client may read and write (listeners on loopback)"
+        );
+    }
+    let mut service = Service::new(cache, tasks)
+        .with_policy(config.security.declare.clone())
+        .with_max_streams(config.max_streams)
+        .with_access(tokens, config.security.read_only);
+    if let Some(image) = image {
+        service = service.with_modbus(image);
+    }
+    let service = Arc::new(service);
+    for standing in &config.transactions {
+        service
+            .ensure_transaction(standing.clone())
+            .map_err(|e| anyhow::anyhow!("transaction {}: {e}", standing.name))?;
+    }
+    Ok(service)
 }
 
 /// Runs the gateway until SIGINT or SIGTERM.
