@@ -219,7 +219,6 @@ pub(crate) async fn start(
     let addr = listener
         .local_addr()
         .map_err(|e| format!("opcua.listen {}: {e}", config.listen))?;
-    let host = endpoint_host(addr);
     service
         .listening
         .set("opcua", addr, format!("opc.tcp://{addr}/"));
@@ -230,7 +229,63 @@ pub(crate) async fn start(
         config.max_monitored_items,
         service.metrics.kept(metrics::OpcUaMetrics::new),
     ));
-    let mut builder = ServerBuilder::new()
+    let mut builder =
+        builder(service, config, &pki, addr, secure, counts.clone()).token(token.clone());
+    builder = with_certificate(builder, config, base)?;
+    set_limits(&mut builder, config);
+    for endpoint in &config.security {
+        let (policy, mode) = security(*endpoint);
+        let none: &[&str] = &[];
+        builder = builder.add_endpoint(endpoint.name(), ("/", policy, mode, none));
+    }
+    let (server, handle) = builder.build().map_err(|e| format!("OPC UA server: {e}"))?;
+    if secure {
+        keep_private(&pki.join("private"))?;
+    }
+    let _ = server_handle.set(handle.clone());
+    if secure && handle.info().server_certificate.is_none() {
+        return Err(format!(
+            "OPC UA server: no application certificate (looked for it and could not make one in {})",
+            pki.display()
+        ));
+    }
+    let (manager, ids) = address_space(&handle)?;
+    let feed = feed::Feed {
+        service: service.clone(),
+        manager,
+        subscriptions: handle.subscriptions().clone(),
+        ids,
+        counts: counts.clone(),
+    };
+    service.tasks().spawn(feed.run(token.clone()));
+    let (done, stopped) = tokio::sync::oneshot::channel();
+    service.tasks().spawn(async move {
+        if let Err(e) = server.run_with(listener).await {
+            tracing::error!(error = %e, "the OPC UA server stopped");
+        }
+        let _ = done.send(());
+    });
+    tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
+    service.doors.attach(counts);
+    Ok(Running {
+        stop: token,
+        stopped,
+        service: Arc::downgrade(service),
+    })
+}
+
+/// The server as the library builds it: its identity, address, PKI directory, access and
+/// node manager.
+fn builder(
+    service: &Arc<Service>,
+    config: &OpcUaConfig,
+    pki: &Path,
+    addr: std::net::SocketAddr,
+    secure: bool,
+    counts: Arc<OpcUaState>,
+) -> ServerBuilder {
+    let host = endpoint_host(addr);
+    ServerBuilder::new()
         .application_name("iogate")
         .application_uri(config.application_uri.clone())
         .product_uri("urn:iogate")
@@ -245,23 +300,26 @@ pub(crate) async fn start(
         .host(host.clone())
         .port(addr.port())
         .discovery_urls(vec![format!("opc.tcp://{host}:{}/", addr.port())])
-        .pki_dir(&pki)
+        .pki_dir(pki)
         .create_sample_keypair(secure && config.certificate.is_none())
         .trust_client_certs(config.trust_client_certs)
         .with_authenticator(Arc::new(auth::Authenticator::new(
             service.clone(),
             config.anonymous,
         )))
-        .with_node_manager(nodes::builder(
-            NAMESPACE,
-            Arc::downgrade(service),
-            counts.clone(),
-        ))
+        .with_node_manager(nodes::builder(NAMESPACE, Arc::downgrade(service), counts))
         .max_sessions(config.max_sessions)
         // The library's counts (sessions, subscriptions, rejections) for the metrics; the
         // Server's diagnostics nodes stay unreadable to sessions (no diagnostics role).
         .diagnostics_enabled(true)
-        .token(token.clone());
+}
+
+/// The application certificate and key the section names, when it names them.
+fn with_certificate(
+    mut builder: ServerBuilder,
+    config: &OpcUaConfig,
+    base: &Path,
+) -> Result<ServerBuilder, String> {
     if let (Some(cert), Some(key)) = (&config.certificate, &config.private_key) {
         let (cert, key) = (base.join(cert), base.join(key));
         for (what, file) in [("opcua.certificate", &cert), ("opcua.private_key", &key)] {
@@ -271,6 +329,11 @@ pub(crate) async fn start(
         }
         builder = builder.certificate_path(cert).private_key_path(key);
     }
+    Ok(builder)
+}
+
+/// The limits the server advertises and keeps.
+fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
     {
         let limits = builder.limits_mut();
         limits.subscriptions.max_subscriptions_per_session = config.max_subscriptions_per_session;
@@ -301,22 +364,11 @@ pub(crate) async fn start(
             *limit = MAX_OPERATIONS;
         }
     }
-    for endpoint in &config.security {
-        let (policy, mode) = security(*endpoint);
-        let none: &[&str] = &[];
-        builder = builder.add_endpoint(endpoint.name(), ("/", policy, mode, none));
-    }
-    let (server, handle) = builder.build().map_err(|e| format!("OPC UA server: {e}"))?;
-    if secure {
-        keep_private(&pki.join("private"))?;
-    }
-    let _ = server_handle.set(handle.clone());
-    if secure && handle.info().server_certificate.is_none() {
-        return Err(format!(
-            "OPC UA server: no application certificate (looked for it and could not make one in {})",
-            pki.display()
-        ));
-    }
+}
+
+/// The built server's node manager and the gateway's namespace, with the gateway's folders
+/// made under Objects.
+fn address_space(handle: &ServerHandle) -> Result<(Arc<nodes::Manager>, Ids), String> {
     let manager = handle
         .node_managers()
         .get_of_type::<nodes::Manager>()
@@ -325,6 +377,12 @@ pub(crate) async fn start(
         .get_namespace_index(NAMESPACE)
         .ok_or("OPC UA server: its namespace is missing")?;
     let ids = Ids { ns };
+    add_folders(&manager, ids);
+    Ok((manager, ids))
+}
+
+/// The gateway's folders under Objects: `iogate`, its `Devices` and `Links`.
+fn add_folders(manager: &nodes::Manager, ids: Ids) {
     {
         let mut space = manager.address_space().write();
         space.add_folder(
@@ -346,26 +404,4 @@ pub(crate) async fn start(
             &ids.folder(space::ROOT),
         );
     }
-    let feed = feed::Feed {
-        service: service.clone(),
-        manager,
-        subscriptions: handle.subscriptions().clone(),
-        ids,
-        counts: counts.clone(),
-    };
-    service.tasks().spawn(feed.run(token.clone()));
-    let (done, stopped) = tokio::sync::oneshot::channel();
-    service.tasks().spawn(async move {
-        if let Err(e) = server.run_with(listener).await {
-            tracing::error!(error = %e, "the OPC UA server stopped");
-        }
-        let _ = done.send(());
-    });
-    tracing::info!(%addr, endpoints = ?config.security.iter().map(|e| e.name()).collect::<Vec<_>>(), "serving OPC UA");
-    service.doors.attach(counts);
-    Ok(Running {
-        stop: token,
-        stopped,
-        service: Arc::downgrade(service),
-    })
 }
