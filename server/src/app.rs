@@ -246,6 +246,15 @@ fn build_service(
     Ok(service)
 }
 
+/// Prints a line of the banner; standard output closed (a supervisor that does not read
+/// it) is no reason to stop serving, so a failed write is ignored, never a panic.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 /// Runs the gateway until SIGINT or SIGTERM.
 pub async fn run(setup: Setup) -> anyhow::Result<()> {
     let demo = setup.demo;
@@ -254,35 +263,35 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     let scheme = if running.secure { "https" } else { "http" };
     let base = format!("{scheme}://{}", running.http_addr);
     if demo {
-        println!("iogate is running its built-in demo: the simulated devices sim and plant,");
+        say!("iogate is running its built-in demo: the simulated devices sim and plant,");
         if let Ok(link) = running.service.cache.link(crate::demo::field::LINK)
             && let config::Transport::Tcp { host, port, .. } = link.config().transport
         {
-            println!(
+            say!(
                 "and on link {} (Modbus TCP, {host}:{port}) an energy meter (meter) and an I/O module (io)",
                 crate::demo::field::LINK
             );
         }
     }
-    println!("Web page:  {base}/ui");
-    println!("REST API:  {base}/api/v1/devices");
-    println!(
+    say!("Web page:  {base}/ui");
+    say!("REST API:  {base}/api/v1/devices");
+    say!(
         "gRPC:      {} (iogate.v1.Gateway, reflection, health)",
         running.grpc_addr
     );
     if let Some(addr) = running.modbus_addr {
-        println!("Modbus TCP: {addr} (iogate map prints the located addresses)");
+        say!("Modbus TCP: {addr} (iogate map prints the located addresses)");
     }
     if let Some(addr) = running.opcua_addr {
-        println!(
+        say!(
             "OPC UA:    opc.tcp://{addr}/ (namespace {})",
             api::opcua::NAMESPACE
         );
     }
-    println!("Events:    {base}/api/v1/events");
-    println!("OpenAPI:   {base}/api/v1/openapi.json");
-    println!("Metrics:   {base}/metrics");
-    println!("Health:    {base}/livez  {base}/readyz");
+    say!("Events:    {base}/api/v1/events");
+    say!("OpenAPI:   {base}/api/v1/openapi.json");
+    say!("Metrics:   {base}/metrics");
+    say!("Health:    {base}/livez  {base}/readyz");
     tracing::info!(http = %running.http_addr, "iogate started");
     if demo {
         let token = running.service.tasks().token().clone();

@@ -1,26 +1,14 @@
 //! `iogate check` on a config outside the repository with three mistakes: each is named,
 //! none hides another.
 
-use std::process::Command;
+mod common;
 
 #[test]
 fn three_mistakes_are_three_problems_with_or_without_a_profiles_directory() {
     let dir = std::env::temp_dir().join(format!("iogate-check-three-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("dir");
     let body = "links:\n  - { name: bus, tcp: { host: 127.0.0.1, port: 1502 } }\ndevices:\n  - { name: io, profile: myiomodule, link: bus, slave_id: 1, refresh_rat: 100ms }\n  - { name: io2, profile: MyIoModule, link: nolink, slave_id: 2 }\n";
-    let run = |text: &str| {
-        let config = dir.join("iogate.yaml");
-        std::fs::write(&config, text).expect("config");
-        let out = Command::new(env!("CARGO_BIN_EXE_iogate"))
-            .args(["check", "--config"])
-            .arg(&config)
-            .output()
-            .expect("runs");
-        (
-            out.status.code(),
-            String::from_utf8_lossy(&out.stderr).into_owned(),
-        )
-    };
+    let run = |text: &str| common::check_text(&dir, "iogate", text);
     // No profiles directory anywhere above it: said once, and the rest still checked.
     let (code, text) = run(body);
     assert_eq!(code, Some(64), "{text}");

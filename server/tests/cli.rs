@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use common::check_text;
+
 fn iogate() -> Command {
     Command::new(env!("CARGO_BIN_EXE_iogate"))
 }
@@ -18,21 +20,6 @@ fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("iogate-cli-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     dir
-}
-
-/// `iogate check` on `text`, written to `dir/{name}.yaml`: its exit code and its errors.
-fn check_text(dir: &Path, name: &str, text: &str) -> (Option<i32>, String) {
-    let config = dir.join(format!("{name}.yaml"));
-    std::fs::write(&config, text).expect("config");
-    let out = iogate()
-        .args(["check", "--config"])
-        .arg(&config)
-        .output()
-        .expect("runs");
-    (
-        out.status.code(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 #[test]
@@ -763,8 +750,8 @@ fn check_diff_prints_what_a_reload_would_change_and_applies_nothing() {
         );
         assert!(stdout.contains("device sim2 added"), "{stdout}");
     }
-    let (code, stdout, _) = check_diff(&["--server", &url, "--json"], &config);
-    assert_eq!(code, Some(0));
+    let (code, stdout, stderr) = check_diff(&["--server", &url, "--json"], &config);
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
     let report: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
     assert_eq!(report["dry_run"], true, "{report}");
     assert_eq!(

@@ -29,6 +29,8 @@ const IO: u8 = 2;
 const MAX_CONNECTIONS: usize = 4;
 /// How often the devices' readings move.
 const STEP: Duration = Duration::from_millis(500);
+/// A master that asks nothing for this long is let go (its place is one of the few).
+const IDLE: Duration = Duration::from_secs(60);
 /// Answered at register 0x8000 of the I/O module: its software version (1.00).
 const IO_VERSION: u16 = 100;
 
@@ -79,23 +81,26 @@ fn lock(devices: &Mutex<Devices>) -> std::sync::MutexGuard<'_, Devices> {
     devices.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Answers one master's requests until it leaves or sends what is no MBAP frame.
+/// Answers one master's requests until it leaves, stays idle for [`IDLE`], or sends what
+/// is no MBAP frame.
 async fn serve(mut stream: TcpStream, devices: Arc<Mutex<Devices>>) {
     let peer: Option<SocketAddr> = stream.peer_addr().ok();
     let mut head = [0u8; mbap::HEADER_LEN];
     let mut pdu = Vec::new();
     let mut out = Vec::new();
     loop {
-        if stream.read_exact(&mut head).await.is_err() {
-            return;
+        match tokio::time::timeout(IDLE, stream.read_exact(&mut head)).await {
+            Ok(Ok(_)) => {}
+            _ => return,
         }
         let Ok(header) = mbap::Header::parse(&head) else {
             tracing::debug!(?peer, "the demo's field devices: not an MBAP frame");
             return;
         };
         pdu.resize(header.pdu_len, 0);
-        if stream.read_exact(&mut pdu).await.is_err() {
-            return;
+        match tokio::time::timeout(IDLE, stream.read_exact(&mut pdu)).await {
+            Ok(Ok(_)) => {}
+            _ => return,
         }
         mbap::start_frame(&mut out);
         let code = pdu.first().copied().unwrap_or(0);
