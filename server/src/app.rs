@@ -29,14 +29,18 @@ pub struct Running {
     pub grpc_addr: SocketAddr,
     /// The Modbus TCP server's address, when one is configured.
     pub modbus_addr: Option<SocketAddr>,
-    /// The OPC UA server's address, when one is configured.
-    pub opcua_addr: Option<SocketAddr>,
     /// Whether HTTP and gRPC are served over TLS.
     pub(crate) secure: bool,
     tracker: TaskTracker,
 }
 
 impl Running {
+    /// The address the listener `name` is bound to (`opcua`, `modbus_server`, ...), when
+    /// it runs.
+    pub fn bound(&self, name: &str) -> Option<SocketAddr> {
+        self.service.listening.bound(name)
+    }
+
     pub fn token(&self) -> &CancellationToken {
         self.service.tasks().token()
     }
@@ -137,7 +141,6 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let front_ends = api::front_end::start_all(&service, &config, base)
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let opcua_addr = service.listening.bound("opcua");
     servers.serve_grpc(&service, bound.grpc, limits).await?;
     servers.serve_http(&service, bound.http, limits).await?;
     if let Some(path) = source {
@@ -162,7 +165,6 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         http_addr,
         grpc_addr,
         modbus_addr,
-        opcua_addr,
         secure,
         tracker,
     })
@@ -282,11 +284,8 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     if let Some(addr) = running.modbus_addr {
         say!("Modbus TCP: {addr} (iogate map prints the located addresses)");
     }
-    if let Some(addr) = running.opcua_addr {
-        say!(
-            "OPC UA:    opc.tcp://{addr}/ (namespace {})",
-            api::opcua::NAMESPACE
-        );
+    for line in api::front_end::banners(&running.service) {
+        say!("{line}");
     }
     say!("Events:    {base}/api/v1/events");
     say!("OpenAPI:   {base}/api/v1/openapi.json");

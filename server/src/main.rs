@@ -348,7 +348,7 @@ impl ListenArgs {
             http: self.http,
             grpc: self.grpc,
             modbus: self.modbus,
-            opcua: self.opcua,
+            sections: self.opcua.map(|a| ("opcua", a)).into_iter().collect(),
         }
     }
 }

@@ -24,12 +24,13 @@ pub struct Setup {
 }
 
 /// Listeners moved from the command line (`serve --http ...`), over the config's.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct Listeners {
     pub http: Option<std::net::SocketAddr>,
     pub grpc: Option<std::net::SocketAddr>,
     pub modbus: Option<std::net::SocketAddr>,
-    pub opcua: Option<std::net::SocketAddr>,
+    /// The listeners of front-ends' sections, by section (`opcua`).
+    pub sections: Vec<(&'static str, std::net::SocketAddr)>,
 }
 
 impl Setup {
@@ -51,10 +52,14 @@ impl Setup {
                 }
             }
         }
-        if let Some(a) = to.opcua {
-            match &mut config.opcua {
-                Some(server) => server.listen = a,
-                None => return Err("--opcua: the configuration has no opcua section".into()),
+        for (section, a) in to.sections {
+            match config.sections.listen_mut(section) {
+                Some(listen) => *listen = a,
+                None => {
+                    return Err(format!(
+                        "--{section}: the configuration has no {section} section"
+                    ));
+                }
             }
         }
         Ok(())
@@ -72,7 +77,11 @@ impl Setup {
     }
 
     pub fn demo() -> Result<Setup, Problems> {
-        let (config, catalog) = crate::demo::load()?;
+        let (mut config, catalog) = crate::demo::load()?;
+        let problems = crate::api::front_end::read_sections(&mut config);
+        if !problems.is_empty() {
+            return Err(problems);
+        }
         let map = crate::map::plan(&config, &catalog)?;
         Ok(Setup {
             config,
@@ -138,8 +147,8 @@ impl Setup {
     /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in
     /// `base` or up to six parents) and checks its devices, security, standing transactions
     /// and Modbus map: every problem of every stage at once.
-    pub fn from_config(config: Config, base: &Path) -> Result<Setup, Problems> {
-        let mut problems = Problems::default();
+    pub fn from_config(mut config: Config, base: &Path) -> Result<Setup, Problems> {
+        let mut problems = crate::api::front_end::read_sections(&mut config);
         let dir = profile::find_dir(config.profiles.as_deref(), base);
         let catalog = match &dir {
             Some(dir) => {
@@ -171,13 +180,7 @@ impl Setup {
             crate::transaction::check_standing(&config).err(),
         ];
         problems.extend_all(checks.into_iter().flatten());
-        if let Some(mqtt) = &config.mqtt
-            && let Err(e) = crate::api::mqtt::prepare(mqtt, base)
-        {
-            let mut report = Report::new(&config.source);
-            report.push(mqtt.line, "mqtt", e);
-            problems.extend(report.into_problems());
-        }
+        problems.extend(crate::api::front_end::check_prepare(&config, base));
         let map = if dir.is_none() && !config.devices.is_empty() {
             None // the map's fields are the profiles' (checked once they load)
         } else {

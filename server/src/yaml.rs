@@ -198,6 +198,14 @@ fn strip_location(msg: &str) -> &str {
 }
 
 impl Node {
+    /// A `null` value on `line`.
+    pub(crate) fn null(line: u64) -> Node {
+        Node {
+            line,
+            kind: Kind::Null,
+        }
+    }
+
     pub(crate) fn describe(&self) -> &'static str {
         match self.kind {
             Kind::Null => "nothing",
@@ -370,6 +378,18 @@ impl<'a> MapReader<'a> {
             report.push(self.line, ctx, format!("missing required key `{key}`"));
         }
         node
+    }
+
+    /// Every key not read yet, with its value (`null` ones included), marked as read.
+    pub(crate) fn rest(&mut self) -> Vec<(&'a Key, &'a Node)> {
+        let mut rest = Vec::new();
+        for ((key, node), used) in self.entries.iter().zip(self.used.iter_mut()) {
+            if !*used {
+                *used = true;
+                rest.push((key, node));
+            }
+        }
+        rest
     }
 
     /// Reports every key that was not read, naming the keys that are allowed.

@@ -50,8 +50,8 @@ fn main() -> anyhow::Result<()> {
         {
             server.listen = Some("127.0.0.1:0".parse()?);
         }
-        if let Some(opcua) = setup.config.opcua.as_mut() {
-            opcua.listen = "127.0.0.1:0".parse()?;
+        if let Some(opcua) = setup.config.sections.listen_mut("opcua") {
+            *opcua = "127.0.0.1:0".parse()?;
         }
         let running = iogate::app::start(setup).await?;
         let url = format!("http://{}", running.grpc_addr);

@@ -242,8 +242,8 @@ impl TestGateway {
         {
             server.listen = Some("127.0.0.1:0".parse()?);
         }
-        if let Some(opcua) = setup.config.opcua.as_mut() {
-            opcua.listen = "127.0.0.1:0".parse()?;
+        if let Some(opcua) = setup.config.sections.listen_mut("opcua") {
+            *opcua = "127.0.0.1:0".parse()?;
         }
         setup.config.security.declare = test_policy();
         TestGateway::start_setup(setup).await
@@ -262,7 +262,7 @@ impl TestGateway {
             grpc: format!("http://{}", running.grpc_addr),
             client: reqwest::Client::new(),
             modbus: running.modbus_addr,
-            opcua: running.opcua_addr,
+            opcua: running.bound("opcua"),
             running: Some(running),
         };
         gateway.until_ready().await?;

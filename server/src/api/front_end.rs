@@ -9,8 +9,9 @@ use std::sync::Arc;
 
 use futures_util::future::BoxFuture;
 
-use crate::config::Config;
+use crate::config::{CORE_KEYS, Config, Section};
 use crate::service::{Action, Kind, Service};
+use crate::yaml::{Node, Problems, Report};
 
 /// What a stopped front-end hands to the one started after it (MQTT's next `bdSeq`).
 pub(crate) type Carried = Option<Box<dyn Any + Send>>;
@@ -22,6 +23,14 @@ pub(crate) trait FrontEnd: Send + Sync {
 
     /// The kind of a reload report's item about its section.
     fn kind(&self) -> Kind;
+
+    /// Reads its section as written (`node`, never `null`), every problem with its line.
+    fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>>;
+
+    /// Its line of the banner `serve` prints, when it runs.
+    fn banner(&self, _service: &Service) -> Option<String> {
+        None
+    }
 
     /// How its section changed from `old` to `new`, as a reload's report says it (the
     /// action and its details); `None` when it did not. A change restarts the front-end.
@@ -55,6 +64,76 @@ pub(crate) fn all() -> Vec<Box<dyn FrontEnd>> {
         Box::new(super::mqtt::MqttFrontEnd),
         Box::new(super::opcua::OpcUaFrontEnd),
     ]
+}
+
+/// Reads the sections the config reader kept (`Config::sections`), each by the front-end
+/// of its key; a key no front-end reads is unknown, as the config reader would say. A
+/// section read before (a reload's, a test's) is kept as it is.
+pub(crate) fn read_sections(config: &mut Config) -> Problems {
+    let mut report = Report::new(&config.source);
+    let front_ends = all();
+    let mut read = Vec::new();
+    for (key, line, node) in config.sections.written() {
+        if config.sections.section(key).is_some() || node.kind == crate::yaml::Kind::Null {
+            continue;
+        }
+        match front_ends.iter().find(|f| f.name() == key) {
+            Some(front_end) => {
+                if let Some(section) = front_end.read(node, &mut report) {
+                    read.push((key.to_owned(), section));
+                }
+            }
+            None => {
+                let known = CORE_KEYS
+                    .iter()
+                    .copied()
+                    .chain(front_ends.iter().map(|f| f.name()));
+                report.push(
+                    line,
+                    "config",
+                    format!(
+                        "unknown key `{key}` (expected one of: {})",
+                        known.collect::<Vec<_>>().join(", ")
+                    ),
+                );
+            }
+        }
+    }
+    for (key, section) in read {
+        config.sections.set(&key, section);
+    }
+    report.into_problems()
+}
+
+/// Prepares every configured front-end without starting it, as `check` does: what its
+/// section names outside the file (a password file, say) that cannot be read is a problem
+/// at its section's line.
+pub(crate) fn check_prepare(config: &Config, base: &Path) -> Problems {
+    let mut report = Report::new(&config.source);
+    for front_end in all() {
+        if let Err(e) = front_end.prepare(config, base) {
+            let line = config
+                .sections
+                .section(front_end.name())
+                .map_or(0, |s| s.line());
+            report.push(line, front_end.name(), e);
+        }
+    }
+    report.into_problems()
+}
+
+/// Every front-end's banner line, in the list's order.
+pub(crate) fn banners(service: &Service) -> Vec<String> {
+    all().iter().filter_map(|f| f.banner(service)).collect()
+}
+
+/// A config from text with its front-ends' sections read (the sections' unit tests).
+#[cfg(test)]
+pub(crate) fn parse_config(text: &str) -> Config {
+    let mut config = crate::config::parse("iogate.yaml", text).expect("parses");
+    let problems = read_sections(&mut config);
+    assert!(problems.is_empty(), "{problems}");
+    config
 }
 
 /// A running front-end with its name, as the composition root and the reloader hold it.

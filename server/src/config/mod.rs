@@ -6,10 +6,9 @@
 mod check;
 mod line;
 pub(crate) mod modbus_server;
-pub(crate) mod mqtt;
-pub(crate) mod opcua;
 mod parse;
 pub(crate) mod rules;
+mod sections;
 pub mod security;
 pub(crate) mod transactions;
 
@@ -20,6 +19,9 @@ use std::time::Duration;
 use crate::yaml::{self, Problems, Report};
 
 pub(crate) use check::{Access, check_devices, check_security, safe_value};
+pub(crate) use parse::CORE_KEYS;
+pub use sections::Sections;
+pub(crate) use sections::{Exposure, Section};
 
 pub(crate) const DEFAULT_HTTP: &str = "127.0.0.1:8080";
 pub(crate) const DEFAULT_GRPC: &str = "127.0.0.1:50051";
@@ -48,10 +50,8 @@ pub struct Config {
     pub devices: Vec<DeviceConfig>,
     /// The Modbus TCP server, when configured.
     pub modbus_server: Option<modbus_server::ModbusServerConfig>,
-    /// The MQTT publisher, when configured.
-    pub(crate) mqtt: Option<mqtt::MqttConfig>,
-    /// The OPC UA server, when configured.
-    pub opcua: Option<opcua::OpcUaConfig>,
+    /// The sections of the front-ends that read their own (`api::front_end`).
+    pub sections: Sections,
     /// Standing raw transactions.
     pub(crate) transactions: Vec<transactions::StandingConfig>,
     pub security: security::SecurityConfig,
@@ -317,8 +317,7 @@ impl Config {
             links: Vec::new(),
             devices: Vec::new(),
             modbus_server: None,
-            mqtt: None,
-            opcua: None,
+            sections: Sections::default(),
             transactions: Vec::new(),
             security: security::SecurityConfig::default(),
             reload: ReloadConfig::default(),

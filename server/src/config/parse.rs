@@ -12,14 +12,14 @@ use super::{Config, DeviceConfig, Framing, LinkConfig, SerialSettings, Transport
 use crate::duration;
 use crate::yaml::{self, Node, Report};
 
-const TOP_KEYS: &[&str] = &[
+/// The top-level keys the config reader reads; every other one is kept for the
+/// front-ends, which name the keys they read.
+pub(crate) const CORE_KEYS: &[&str] = &[
     "listen",
     "profiles",
     "links",
     "devices",
     "modbus_server",
-    "mqtt",
-    "opcua",
     "transactions",
     "security",
     "reload",
@@ -210,8 +210,6 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     config.modbus_server = map
         .get("modbus_server")
         .and_then(|n| super::modbus_server::read(n, report));
-    config.mqtt = map.get("mqtt").and_then(|n| super::mqtt::read(n, report));
-    config.opcua = map.get("opcua").and_then(|n| super::opcua::read(n, report));
     if let Some(n) = map.get("security") {
         config.security = super::security::read(n, report);
     }
@@ -243,7 +241,9 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         }
         reload.finish(report, "reload", RELOAD_KEYS);
     }
-    map.finish(report, "config", TOP_KEYS);
+    for (key, node) in map.rest() {
+        config.sections.keep(&key.name, key.line, node);
+    }
     super::check::check_ports(&config.links, report);
     super::check::check_server_ports(&config, report);
     Some(config)

@@ -12,7 +12,7 @@ use tokio::net::TcpStream;
 use tokio::time::Instant;
 
 use super::packet::{self, Connect, Incoming, PacketError, Publish};
-use crate::config::mqtt::{MqttConfig, MqttVersion};
+use crate::api::mqtt::config::{MqttConfig, MqttVersion};
 
 /// How long connecting (TCP, TLS and the CONNACK) may take.
 pub(crate) const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);

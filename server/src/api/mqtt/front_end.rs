@@ -7,10 +7,12 @@ use std::sync::Arc;
 
 use futures_util::future::BoxFuture;
 
+use super::config::MqttConfig;
 use super::{Prepared, changed_keys, prepare, spawn};
 use crate::api::front_end::{Carried, FrontEnd, Running, Starting};
-use crate::config::Config;
+use crate::config::{Config, Section};
 use crate::service::{Action, Kind, Service, restarted_section};
+use crate::yaml::{Node, Report};
 
 pub(crate) struct MqttFrontEnd;
 
@@ -23,17 +25,22 @@ impl FrontEnd for MqttFrontEnd {
         Kind::Mqtt
     }
 
+    fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {
+        super::config::read(node, report).map(|s| Box::new(s) as Box<dyn Section>)
+    }
+
     fn changed(&self, old: &Config, new: &Config) -> Option<(Action, Vec<String>)> {
-        let section = |c: &Config| {
-            c.mqtt.clone().map(|mut m| {
+        let (old, new) = (section(old).cloned(), section(new).cloned());
+        let unlined = |c: &Option<MqttConfig>| {
+            c.clone().map(|mut m| {
                 m.line = 0;
                 m
             })
         };
-        (section(old) != section(new)).then(|| {
+        (unlined(&old) != unlined(&new)).then(|| {
             restarted_section(
-                &old.mqtt,
-                &new.mqtt,
+                &old,
+                &new,
                 "the MQTT front-end",
                 changed_keys,
                 "(NDEATH, offline state)",
@@ -43,10 +50,21 @@ impl FrontEnd for MqttFrontEnd {
     }
 
     fn prepare(&self, config: &Config, base: &Path) -> Result<Option<Box<dyn Starting>>, String> {
-        let Some(section) = &config.mqtt else {
+        let Some(section) = section(config) else {
             return Ok(None);
         };
         Ok(Some(Box::new(MqttStarting(prepare(section, base)?))))
+    }
+}
+
+/// The MQTT section of `config`, when it has one.
+pub(crate) fn section(config: &Config) -> Option<&MqttConfig> {
+    config.sections.get("mqtt")
+}
+
+impl Section for MqttConfig {
+    fn line(&self) -> u64 {
+        self.line
     }
 }
 

@@ -20,6 +20,7 @@
 mod births;
 mod buffer;
 mod commands;
+pub(crate) mod config;
 mod conn;
 mod front_end;
 mod metrics;
@@ -44,9 +45,9 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::convert::{self, DiagnosticsEvent, field_value};
+use crate::api::mqtt::config::{JsonConfig, MqttConfig, Password};
 use crate::auth::{Operation, Role};
 use crate::cache::{Device, Diagnostics};
-use crate::config::mqtt::{JsonConfig, MqttConfig, Password};
 use crate::service::{Change, FieldView, Service};
 use crate::write_log::WriteStatus;
 use buffer::{Buffer, Kind, Pos, Record, now_ms};

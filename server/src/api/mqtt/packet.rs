@@ -3,7 +3,7 @@
 //! a publishing client needs: CONNECT, PUBLISH (QoS 0 and 1), PUBACK, SUBSCRIBE, PINGREQ and
 //! DISCONNECT out; CONNACK, PUBLISH, PUBACK, SUBACK, PINGRESP and DISCONNECT in.
 
-use crate::config::mqtt::MqttVersion;
+use crate::api::mqtt::config::MqttVersion;
 
 /// The largest packet the gateway takes from a broker (MQTT 5 announces it as the Maximum
 /// Packet Size). A bigger one is read past without being kept, acknowledged when it is a

@@ -7,8 +7,8 @@ use std::collections::HashMap;
 use tokio::time::Instant;
 use tokio_util::time::{DelayQueue, delay_queue};
 
+use crate::api::mqtt::config::{Deadband, ReportConfig};
 use crate::codec::Value;
-use crate::config::mqtt::{Deadband, ReportConfig};
 use iogate_types::Quality;
 
 /// A field: the device's position in the front-end's list and the field's index.

@@ -16,9 +16,9 @@ use iogate_types::{IecType, Quality};
 use prost::Message;
 use serde::{Deserialize, Serialize};
 
+use crate::api::mqtt::config::SparkplugConfig;
 use crate::cache::Diagnostics;
 use crate::codec::Value;
-use crate::config::mqtt::SparkplugConfig;
 use crate::service::FieldView;
 
 pub(crate) type Metric = payload::Metric;

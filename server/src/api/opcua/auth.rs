@@ -12,8 +12,8 @@ use opcua::server::authenticator::{
 };
 use opcua::types::{Error, NodeId, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 
+use crate::api::opcua::config::Anonymous;
 use crate::auth::{Operation, Role};
-use crate::config::opcua::Anonymous;
 use crate::service::Service;
 
 /// The user name whose password is a bearer token.

@@ -7,10 +7,11 @@ use std::sync::Arc;
 use futures_util::future::BoxFuture;
 
 use super::changed_keys;
+use super::config::OpcUaConfig;
 use crate::api::front_end::{Carried, FrontEnd, Running, Starting};
-use crate::config::Config;
-use crate::config::opcua::OpcUaConfig;
+use crate::config::{Config, Section};
 use crate::service::{Action, Kind, Service, restarted_section};
+use crate::yaml::{Node, Report};
 
 pub(crate) struct OpcUaFrontEnd;
 
@@ -23,17 +24,30 @@ impl FrontEnd for OpcUaFrontEnd {
         Kind::Opcua
     }
 
+    fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {
+        super::config::read(node, report).map(|s| Box::new(s) as Box<dyn Section>)
+    }
+
+    fn banner(&self, service: &Service) -> Option<String> {
+        let addr = service.listening.bound("opcua")?;
+        Some(format!(
+            "OPC UA:    opc.tcp://{addr}/ (namespace {})",
+            super::NAMESPACE
+        ))
+    }
+
     fn changed(&self, old: &Config, new: &Config) -> Option<(Action, Vec<String>)> {
-        let section = |c: &Config| {
-            c.opcua.clone().map(|mut o| {
+        let (old, new) = (section(old).cloned(), section(new).cloned());
+        let unlined = |c: &Option<OpcUaConfig>| {
+            c.clone().map(|mut o| {
                 o.line = 0;
                 o
             })
         };
-        (section(old) != section(new)).then(|| {
+        (unlined(&old) != unlined(&new)).then(|| {
             restarted_section(
-                &old.opcua,
-                &new.opcua,
+                &old,
+                &new,
                 "the OPC UA server",
                 changed_keys,
                 "(its sessions end)",
@@ -43,13 +57,18 @@ impl FrontEnd for OpcUaFrontEnd {
     }
 
     fn prepare(&self, config: &Config, base: &Path) -> Result<Option<Box<dyn Starting>>, String> {
-        Ok(config.opcua.clone().map(|section| {
+        Ok(section(config).cloned().map(|section| {
             Box::new(OpcUaStarting {
                 section,
                 base: base.to_owned(),
             }) as Box<dyn Starting>
         }))
     }
+}
+
+/// The OPC UA section of `config`, when it has one.
+fn section(config: &Config) -> Option<&OpcUaConfig> {
+    config.sections.get("opcua")
 }
 
 struct OpcUaStarting {

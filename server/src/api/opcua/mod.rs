@@ -8,6 +8,8 @@
 //! Like every front-end it only renders the service.
 
 mod auth;
+pub(crate) mod config;
+mod exposure;
 mod feed;
 mod front_end;
 mod live;
@@ -24,7 +26,7 @@ use opcua::crypto::SecurityPolicy;
 use opcua::server::{ServerBuilder, ServerHandle};
 use opcua::types::{BuildInfo, DateTime, MessageSecurityMode, NodeId, VariableId, Variant};
 
-use crate::config::opcua::{Endpoint, OpcUaConfig};
+use crate::api::opcua::config::{Endpoint, OpcUaConfig};
 use crate::service::Service;
 pub(crate) use front_end::OpcUaFrontEnd;
 use metrics::OpcUaStatus;

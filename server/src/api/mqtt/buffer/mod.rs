@@ -16,7 +16,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use crate::config::mqtt::{BufferConfig, Fsync};
+use crate::api::mqtt::config::{BufferConfig, Fsync};
 
 mod records;
 pub(crate) use records::{Kind, Record};
