@@ -33,8 +33,19 @@ pub(crate) fn document(secured: bool) -> &'static Value {
     DOCUMENTS[usize::from(secured)].get_or_init(|| {
         let mut doc = serde_json::to_value(super::ApiDoc::openapi()).unwrap_or(Value::Null);
         refine(&mut doc, secured);
+        section_kinds(&mut doc);
         doc
     })
+}
+
+/// A reload report's kinds: the core's, each front-end's section key before `reload`.
+fn section_kinds(doc: &mut Value) {
+    if let Some(Value::Array(kinds)) = doc.pointer_mut("/components/schemas/Kind/enum") {
+        let at = kinds.len().saturating_sub(1);
+        for (i, front_end) in super::front_end::all().iter().enumerate() {
+            kinds.insert(at + i, front_end.name().into());
+        }
+    }
 }
 
 fn set(doc: &mut Value, pointer: &str, value: Value) {

@@ -37,10 +37,7 @@ impl Trigger {
 }
 
 /// What kind of thing a reload changed.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, utoipa::ToSchema,
-)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kind {
     Listener,
     Security,
@@ -50,12 +47,25 @@ pub enum Kind {
     Field,
     Map,
     Transaction,
-    Mqtt,
-    Opcua,
+    /// A front-end's own section, by its key (`api::front_end`).
+    Section(&'static str),
     Reload,
 }
 
 impl Kind {
+    /// The kinds the core reports; sections' kinds are their keys.
+    pub(crate) const CORE: [Kind; 9] = [
+        Kind::Listener,
+        Kind::Security,
+        Kind::Profile,
+        Kind::Link,
+        Kind::Device,
+        Kind::Field,
+        Kind::Map,
+        Kind::Transaction,
+        Kind::Reload,
+    ];
+
     pub(crate) fn name(self) -> &'static str {
         match self {
             Kind::Listener => "listener",
@@ -66,12 +76,76 @@ impl Kind {
             Kind::Field => "field",
             Kind::Map => "map",
             Kind::Transaction => "transaction",
-            Kind::Mqtt => "mqtt",
-            Kind::Opcua => "opcua",
+            Kind::Section(key) => key,
             Kind::Reload => "reload",
         }
     }
+
+    /// Where it comes in a report: the core's kinds in their order, the sections by key
+    /// before the reload's own settings.
+    fn rank(self) -> (usize, &'static str) {
+        match self {
+            Kind::Section(key) => (Kind::CORE.len() - 1, key),
+            Kind::Reload => (Kind::CORE.len(), ""),
+            core => (Kind::CORE.iter().position(|k| *k == core).unwrap_or(0), ""),
+        }
+    }
 }
+
+impl Ord for Kind {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.rank().cmp(&other.rank())
+    }
+}
+
+impl PartialOrd for Kind {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Serialize for Kind {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+/// A core kind by its name; any other name is a section's (a gateway asked by
+/// `iogate check --diff` may have front-ends this program has not). Each section name is
+/// kept once for the life of the process.
+impl<'de> Deserialize<'de> for Kind {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        static KEYS: std::sync::Mutex<Vec<&'static str>> = std::sync::Mutex::new(Vec::new());
+        let name = String::deserialize(d)?;
+        if let Some(core) = Kind::CORE.iter().find(|k| k.name() == name) {
+            return Ok(*core);
+        }
+        let mut keys = KEYS.lock().unwrap_or_else(|e| e.into_inner());
+        let key = match keys.iter().find(|k| **k == name) {
+            Some(key) => key,
+            None => {
+                let key: &'static str = Box::leak(name.into_boxed_str());
+                keys.push(key);
+                key
+            }
+        };
+        Ok(Kind::Section(key))
+    }
+}
+
+/// A string, one of the core's kinds or a front-end's section key; the OpenAPI document
+/// lists the sections' keys beside the core's kinds.
+impl utoipa::PartialSchema for Kind {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::schema::{ObjectBuilder, Type};
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .enum_values(Some(Kind::CORE.iter().map(|k| k.name())))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for Kind {}
 
 /// What happened to it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]

@@ -22,7 +22,7 @@ impl FrontEnd for MqttFrontEnd {
     }
 
     fn kind(&self) -> Kind {
-        Kind::Mqtt
+        Kind::Section("mqtt")
     }
 
     fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {

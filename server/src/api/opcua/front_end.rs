@@ -21,7 +21,7 @@ impl FrontEnd for OpcUaFrontEnd {
     }
 
     fn kind(&self) -> Kind {
-        Kind::Opcua
+        Kind::Section("opcua")
     }
 
     fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {

@@ -173,7 +173,7 @@ fn listeners_and_the_mqtt_section_are_flagged_for_what_applies_them() {
     let d = compare(&a, &b);
     assert!(d.http_listen && !d.grpc_listen && !d.modbus_listen);
     assert!(d.front_ends.contains(&"mqtt"));
-    let m = item(&d, Kind::Mqtt, "mqtt");
+    let m = item(&d, Kind::Section("mqtt"), "mqtt");
     assert_eq!(m.action, Action::Changed);
     assert!(
         m.details.iter().any(|x| x == "client_id: one -> two"),
@@ -183,6 +183,9 @@ fn listeners_and_the_mqtt_section_are_flagged_for_what_applies_them() {
     let gone = setup("listen: { http: 127.0.0.1:8081 }\ndevices: []\n");
     let d = compare(&b, &gone);
     assert!(d.front_ends.contains(&"mqtt"));
-    assert_eq!(item(&d, Kind::Mqtt, "mqtt").action, Action::Removed);
+    assert_eq!(
+        item(&d, Kind::Section("mqtt"), "mqtt").action,
+        Action::Removed
+    );
     assert!(!d.http_listen);
 }
