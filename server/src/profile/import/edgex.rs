@@ -62,15 +62,79 @@ pub(super) fn read(root: &Node) -> Result<Draft, String> {
 fn resource_field(draft: &mut Draft, resource: &Node) {
     let line = resource.line;
     let name = get(resource, "name").and_then(scalar).unwrap_or_default();
+    match imported(draft, resource, &name) {
+        Ok(field) => draft.add(field, &name),
+        Err(why) => draft.skip(line, format!("resource `{name}`: {why}")),
+    }
+}
+
+/// The field a resource becomes, or why it becomes none; what it says that is not mapped
+/// is noted in `draft` on the way.
+fn imported(draft: &mut Draft, resource: &Node, name: &str) -> Result<Imported, String> {
+    let line = resource.line;
     let (Some(attributes), Some(properties)) =
         (get(resource, "attributes"), get(resource, "properties"))
     else {
-        draft.skip(
-            line,
-            format!("resource `{name}`: no attributes or properties"),
-        );
-        return;
+        return Err("no attributes or properties".into());
     };
+    let (kind, table) = table_kind(attributes)?;
+    let (address, bit) = starting_address(attributes)?;
+    note_unmapped(draft, name, attributes, properties);
+    let value_type = get(properties, "valueType")
+        .and_then(scalar)
+        .unwrap_or_default();
+    let ty = iec_type(&value_type)
+        .ok_or_else(|| format!("valueType `{value_type}` has no iogate type"))?;
+    let read_write = get(properties, "readWrite")
+        .and_then(scalar)
+        .unwrap_or_else(|| "R".to_owned());
+    let writes = read_write.contains('W');
+    let direction = if writes && !kind.is_read_only() {
+        Direction::Output
+    } else {
+        if writes {
+            draft.skip(line, format!("resource `{name}`: readWrite {read_write} on a read-only table: imported as an input"));
+        }
+        Direction::Input
+    };
+    let mut field = Imported {
+        name: String::new(),
+        ty,
+        direction,
+        kind,
+        address,
+        bit: bit.filter(|_| ty == IecType::Bool && !kind.is_bit()),
+        word_count: None,
+        raw_type: None,
+        switch: None,
+        scale: get(properties, "scale").and_then(num).unwrap_or(1.0),
+        offset: get(properties, "offset").and_then(num).unwrap_or(0.0),
+        order: byte_order(attributes),
+        unit: get(properties, "units").and_then(scalar),
+        description: get(resource, "description").and_then(scalar),
+        line,
+    };
+    if field.scale == 0.0 {
+        return Err("scale 0".into());
+    }
+    if ty == IecType::Bool {
+        // A bit has no byte order, scale or offset.
+        field.order = ByteOrder::BigEndian;
+        field.scale = 1.0;
+        field.offset = 0.0;
+        return Ok(field);
+    }
+    if kind.is_bit() {
+        return Err(format!(
+            "{value_type} on {table}: a coil or discrete input is one bit"
+        ));
+    }
+    encoded(&mut field, attributes, &value_type)?;
+    Ok(field)
+}
+
+/// `primaryTable`: the register kind, and the table as written (upper case).
+fn table_kind(attributes: &Node) -> Result<(RegisterKind, String), String> {
     let table = get(attributes, "primaryTable")
         .and_then(scalar)
         .unwrap_or_default()
@@ -80,19 +144,14 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         "DISCRETES_INPUT" | "DISCRETE_INPUTS" => RegisterKind::DiscreteInput,
         "HOLDING_REGISTERS" => RegisterKind::HoldingRegister,
         "INPUT_REGISTERS" => RegisterKind::InputRegister,
-        other => {
-            draft.skip(
-                line,
-                format!("resource `{name}`: primaryTable `{other}` is not a Modbus table"),
-            );
-            return;
-        }
+        other => return Err(format!("primaryTable `{other}` is not a Modbus table")),
     };
-    // `startingAddress: 10.10` is register 10, bit 10 (EdgeX reads it with two decimals).
-    let Some(start) = get(attributes, "startingAddress") else {
-        draft.skip(line, format!("resource `{name}`: no startingAddress"));
-        return;
-    };
+    Ok((kind, table))
+}
+
+/// `startingAddress: 10.10` is register 10, bit 10 (EdgeX reads it with two decimals).
+fn starting_address(attributes: &Node) -> Result<(u16, Option<u8>), String> {
+    let start = get(attributes, "startingAddress").ok_or("no startingAddress")?;
     let (address, bit) = match &start.kind {
         Kind::Float(f) => {
             let text = format!("{f:.2}");
@@ -108,28 +167,27 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         }
         _ => (num(start), None),
     };
-    let Some(address) = address.filter(|a| a.fract() == 0.0 && (0.0..=65535.0).contains(a)) else {
-        draft.skip(
-            line,
-            format!("resource `{name}`: startingAddress is not 0-65535"),
-        );
-        return;
-    };
+    let address = address
+        .filter(|a| a.fract() == 0.0 && (0.0..=65535.0).contains(a))
+        .ok_or("startingAddress is not 0-65535")?;
     if bit.is_some_and(|b| b > 15) {
-        draft.skip(line, format!("resource `{name}`: bit above 15"));
-        return;
+        return Err("bit above 15".into());
     }
+    Ok((address as u16, bit))
+}
+
+/// Notes every attribute and property the import does not map.
+fn note_unmapped(draft: &mut Draft, name: &str, attributes: &Node, properties: &Node) {
+    const MAPPED: [&str; 6] = [
+        "primaryTable",
+        "startingAddress",
+        "rawType",
+        "isByteSwap",
+        "isWordSwap",
+        "stringRegisterSize",
+    ];
     for (key, _) in entries(attributes) {
-        if ![
-            "primaryTable",
-            "startingAddress",
-            "rawType",
-            "isByteSwap",
-            "isWordSwap",
-            "stringRegisterSize",
-        ]
-        .contains(&key.name.as_str())
-        {
+        if !MAPPED.contains(&key.name.as_str()) {
             draft.skip(
                 key.line,
                 format!("resource `{name}`: attribute `{}` not mapped", key.name),
@@ -144,10 +202,11 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
             );
         }
     }
-    let value_type = get(properties, "valueType")
-        .and_then(scalar)
-        .unwrap_or_default();
-    let ty = match value_type.to_ascii_lowercase().as_str() {
+}
+
+/// The iogate type of an EdgeX `valueType`.
+fn iec_type(value_type: &str) -> Option<IecType> {
+    Some(match value_type.to_ascii_lowercase().as_str() {
         "bool" => IecType::Bool,
         "int16" => IecType::Int,
         "uint16" => IecType::Uint,
@@ -158,92 +217,38 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
         "float32" => IecType::Real,
         "float64" => IecType::Lreal,
         "string" => IecType::String,
-        _ => {
-            draft.skip(
-                line,
-                format!("resource `{name}`: valueType `{value_type}` has no iogate type"),
-            );
-            return;
-        }
-    };
-    let read_write = get(properties, "readWrite")
-        .and_then(scalar)
-        .unwrap_or_else(|| "R".to_owned());
-    let writes = read_write.contains('W');
-    let direction = if writes && !kind.is_read_only() {
-        Direction::Output
-    } else {
-        if writes {
-            draft.skip(line, format!("resource `{name}`: readWrite {read_write} on a read-only table: imported as an input"));
-        }
-        Direction::Input
-    };
-    // EdgeX takes a swap attribute as a boolean or its text.
+        _ => return None,
+    })
+}
+
+/// The byte order of `isByteSwap` and `isWordSwap` (EdgeX takes each as a boolean or its
+/// text).
+fn byte_order(attributes: &Node) -> ByteOrder {
     let is_true = |key: &str| match get(attributes, key).map(|n| &n.kind) {
         Some(Kind::Bool(b)) => *b,
         Some(Kind::Str(s)) => s.trim().eq_ignore_ascii_case("true"),
         _ => false,
     };
-    let byte_swap = is_true("isByteSwap");
-    let word_swap = is_true("isWordSwap");
-    let mut field = Imported {
-        name: String::new(),
-        ty,
-        direction,
-        kind,
-        address: address as u16,
-        bit: bit.filter(|_| ty == IecType::Bool && !kind.is_bit()),
-        word_count: None,
-        raw_type: None,
-        switch: None,
-        scale: get(properties, "scale").and_then(num).unwrap_or(1.0),
-        offset: get(properties, "offset").and_then(num).unwrap_or(0.0),
-        order: match (byte_swap, word_swap) {
-            (false, false) => ByteOrder::BigEndian,
-            (true, false) => ByteOrder::SwapBytes,
-            (false, true) => ByteOrder::SwapWords,
-            (true, true) => ByteOrder::LittleEndian,
-        },
-        unit: get(properties, "units").and_then(scalar),
-        description: get(resource, "description").and_then(scalar),
-        line,
-    };
-    if field.scale == 0.0 {
-        draft.skip(line, format!("resource `{name}`: scale 0"));
-        return;
+    match (is_true("isByteSwap"), is_true("isWordSwap")) {
+        (false, false) => ByteOrder::BigEndian,
+        (true, false) => ByteOrder::SwapBytes,
+        (false, true) => ByteOrder::SwapWords,
+        (true, true) => ByteOrder::LittleEndian,
     }
-    if ty == IecType::Bool {
-        // A bit has no byte order, scale or offset.
-        field.order = ByteOrder::BigEndian;
-        field.scale = 1.0;
-        field.offset = 0.0;
-        draft.add(field, &name);
-        return;
-    }
-    if kind.is_bit() {
-        draft.skip(
-            line,
-            format!(
-                "resource `{name}`: {value_type} on {table}: a coil or discrete input is one bit"
-            ),
-        );
-        return;
-    }
+}
+
+/// A register field's words: a string's size, a scaled integer read raw, or its type's.
+fn encoded(field: &mut Imported, attributes: &Node, value_type: &str) -> Result<(), String> {
     let raw = get(attributes, "rawType")
         .and_then(scalar)
         .map(|r| r.to_ascii_lowercase());
+    let ty = field.ty;
     match (ty, raw.as_deref()) {
         (IecType::String, _) => {
-            let Some(size) = get(attributes, "stringRegisterSize")
+            let size = get(attributes, "stringRegisterSize")
                 .and_then(num)
                 .filter(|s| (1.0..=123.0).contains(s))
-            else {
-                draft.skip(
-                    line,
-                    format!("resource `{name}`: String without a stringRegisterSize of 1-123"),
-                );
-                return;
-            };
+                .ok_or("String without a stringRegisterSize of 1-123")?;
             field.word_count = Some(size as u16);
             field.scale = 1.0;
             field.offset = 0.0;
@@ -257,11 +262,7 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
             });
         }
         (_, Some(raw)) if raw != value_type.to_ascii_lowercase() => {
-            draft.skip(
-                line,
-                format!("resource `{name}`: rawType `{raw}` for {value_type} not mapped"),
-            );
-            return;
+            return Err(format!("rawType `{raw}` for {value_type} not mapped"));
         }
         _ => {
             let words = crate::codec::full_words(ty);
@@ -277,7 +278,7 @@ fn resource_field(draft: &mut Draft, resource: &Node) {
             }
         }
     }
-    draft.add(field, &name);
+    Ok(())
 }
 
 #[cfg(test)]

@@ -106,6 +106,15 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         );
         return;
     }
+    note_unmapped(draft, &name, channel);
+    match imported(channel) {
+        Ok(field) => draft.add(field, &name),
+        Err(why) => draft.skip(line, format!("channel `{name}`: {why}")),
+    }
+}
+
+/// Notes every key of a channel the import does not map, with what it loses.
+fn note_unmapped(draft: &mut Draft, name: &str, channel: &Node) {
     for (key, _) in entries(channel) {
         if !DISPLAY_KEYS.contains(&key.name.as_str()) {
             let what = match key.name.as_str() {
@@ -126,53 +135,12 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
             );
         }
     }
-    let reg_type = get(channel, "reg_type")
-        .and_then(scalar)
-        .unwrap_or_default();
-    let kind = match reg_type.as_str() {
-        "coil" => RegisterKind::Coil,
-        "discrete" => RegisterKind::DiscreteInput,
-        "holding" | "holding_single" | "holding_multi" => RegisterKind::HoldingRegister,
-        "input" | "press_counter" => RegisterKind::InputRegister,
-        other => {
-            draft.skip(
-                line,
-                format!("channel `{name}`: register type `{other}` is not a Modbus table"),
-            );
-            return;
-        }
-    };
-    let Some(address_node) = get(channel, "address") else {
-        draft.skip(line, format!("channel `{name}`: no address"));
-        return;
-    };
-    // `reg:shift:width` reads bits of a register.
-    let address_text = scalar(address_node).unwrap_or_default();
-    let (address, bit) = match address_text.split(':').collect::<Vec<_>>().as_slice() {
-        [reg, shift, width] => {
-            let reg = super::num_text(reg);
-            match (reg, shift.parse::<u8>(), width.parse::<u8>()) {
-                (Some(r), Ok(s), Ok(1)) if s < 16 => (Some(r), Some(s)),
-                _ => {
-                    draft.skip(
-                        line,
-                        format!(
-                            "channel `{name}`: bits `{address_text}` wider than one: not a field"
-                        ),
-                    );
-                    return;
-                }
-            }
-        }
-        _ => (num(address_node), None),
-    };
-    let Some(address) = address.filter(|a| a.fract() == 0.0 && (0.0..=65535.0).contains(a)) else {
-        draft.skip(
-            line,
-            format!("channel `{name}`: address `{address_text}` is not 0-65535"),
-        );
-        return;
-    };
+}
+
+/// The field a channel becomes, or why it becomes none.
+fn imported(channel: &Node) -> Result<Imported, String> {
+    let kind = register_kind(channel)?;
+    let (address, bit) = channel_address(channel)?;
     let readonly = matches!(
         get(channel, "readonly").map(|n| &n.kind),
         Some(Kind::Bool(true))
@@ -187,7 +155,7 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         ty: IecType::Bool,
         direction,
         kind,
-        address: address as u16,
+        address,
         bit,
         word_count: None,
         raw_type: None,
@@ -201,32 +169,25 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         }),
         description: None,
         switch: None,
-        line,
+        line: channel.line,
     };
-    let switch = match switch_values(channel) {
-        Ok(switch) => switch,
-        Err(why) => {
-            draft.skip(line, format!("channel `{name}`: {why}"));
-            return;
-        }
-    };
+    let switch = switch_values(channel)?;
     if field.scale == 0.0 {
-        draft.skip(line, format!("channel `{name}`: scale 0"));
-        return;
+        return Err("scale 0".into());
     }
     if kind.is_bit() || bit.is_some() {
         field.scale = 1.0;
         field.offset = 0.0;
         match switch {
             Some((on, off)) if on > 1 || off > 1 => {
-                draft.skip(line, format!("channel `{name}`: on_value {on} / off_value {off} on a bit (0 or 1): not a switch iogate can write faithfully"));
-                return;
+                return Err(format!(
+                    "on_value {on} / off_value {off} on a bit (0 or 1): not a switch iogate can write faithfully"
+                ));
             }
             Some((on, off)) if (on, off) != (1, 0) => field.switch = Some(Switch { on, off }),
             _ => {}
         }
-        draft.add(field, &name);
-        return;
+        return Ok(field);
     }
     let format = get(channel, "format")
         .and_then(scalar)
@@ -235,14 +196,61 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         // A switch in a register: a BOOL that holds exactly its two values.
         let one_register = matches!(format.as_str(), "u16" | "s16" | "u8" | "s8");
         if !one_register || field.scale != 1.0 || field.offset != 0.0 {
-            draft.skip(line, format!("channel `{name}`: on_value {on} / off_value {off} on a {format} register{}: an iogate switch is one unscaled register", if one_register { " with scale or offset" } else { "" }));
-            return;
+            return Err(format!(
+                "on_value {on} / off_value {off} on a {format} register{}: an iogate switch is one unscaled register",
+                if one_register {
+                    " with scale or offset"
+                } else {
+                    ""
+                }
+            ));
         }
         field.switch = Some(Switch { on, off });
-        draft.add(field, &name);
-        return;
+        return Ok(field);
     }
-    let (ty, words) = match format.as_str() {
+    typed(&mut field, channel, &format)?;
+    Ok(field)
+}
+
+/// `reg_type`: the register kind.
+fn register_kind(channel: &Node) -> Result<RegisterKind, String> {
+    let reg_type = get(channel, "reg_type")
+        .and_then(scalar)
+        .unwrap_or_default();
+    Ok(match reg_type.as_str() {
+        "coil" => RegisterKind::Coil,
+        "discrete" => RegisterKind::DiscreteInput,
+        "holding" | "holding_single" | "holding_multi" => RegisterKind::HoldingRegister,
+        "input" | "press_counter" => RegisterKind::InputRegister,
+        other => return Err(format!("register type `{other}` is not a Modbus table")),
+    })
+}
+
+/// `address`, with `reg:shift:width` reading bits of a register.
+fn channel_address(channel: &Node) -> Result<(u16, Option<u8>), String> {
+    let address_node = get(channel, "address").ok_or("no address")?;
+    let address_text = scalar(address_node).unwrap_or_default();
+    let (address, bit) = match address_text.split(':').collect::<Vec<_>>().as_slice() {
+        [reg, shift, width] => {
+            let reg = super::num_text(reg);
+            match (reg, shift.parse::<u8>(), width.parse::<u8>()) {
+                (Some(r), Ok(s), Ok(1)) if s < 16 => (Some(r), Some(s)),
+                _ => {
+                    return Err(format!("bits `{address_text}` wider than one: not a field"));
+                }
+            }
+        }
+        _ => (num(address_node), None),
+    };
+    let address = address
+        .filter(|a| a.fract() == 0.0 && (0.0..=65535.0).contains(a))
+        .ok_or_else(|| format!("address `{address_text}` is not 0-65535"))?;
+    Ok((address as u16, bit))
+}
+
+/// A register field's type, words and byte order from its `format`.
+fn typed(field: &mut Imported, channel: &Node, format: &str) -> Result<(), String> {
+    let (ty, words) = match format {
         "u16" => (IecType::Uint, 1),
         "s16" => (IecType::Int, 1),
         "u8" => (IecType::Usint, 1),
@@ -254,21 +262,16 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         "float" => (IecType::Real, 2),
         "double" => (IecType::Lreal, 4),
         "string8" => {
-            let Some(size) = get(channel, "string_data_size")
+            let size = get(channel, "string_data_size")
                 .and_then(num)
                 .filter(|s| (1.0..=125.0).contains(s))
-            else {
-                draft.skip(
-                    line,
-                    format!("channel `{name}`: string8 without a string_data_size of 1-125"),
-                );
-                return;
-            };
+                .ok_or("string8 without a string_data_size of 1-125")?;
             (IecType::String, size as u16)
         }
         other => {
-            draft.skip(line, format!("channel `{name}`: format `{other}` has no iogate type (BCD, 24-bit, one character a register)"));
-            return;
+            return Err(format!(
+                "format `{other}` has no iogate type (BCD, 24-bit, one character a register)"
+            ));
         }
     };
     let word_little =
@@ -294,7 +297,7 @@ fn channel_field(draft: &mut Draft, channel: &Node) {
         field.ty = ty;
         field.word_count = (words > 1).then_some(words);
     }
-    draft.add(field, &name);
+    Ok(())
 }
 
 /// A text as the template shows it in English: a key of `device.translations` (its `en`
