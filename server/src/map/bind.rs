@@ -11,7 +11,7 @@ use super::space::{Slot, Space};
 use super::value::Repr;
 use crate::codec::IecType;
 use crate::config::Config;
-use crate::config::modbus_server::ModbusServerConfig;
+use crate::config::modbus_server::{MapEntry, ModbusServerConfig};
 use crate::profile::{Catalog, Profile, RegisterKind};
 use crate::yaml::{Problems, Report};
 
@@ -168,101 +168,89 @@ fn resolve(
     catalog: &Catalog,
     report: &mut Report,
 ) -> Plan {
-    let space = Space::of(server.address_space);
-    let profile_of = |device: &str| {
-        config
-            .devices
-            .iter()
-            .find(|d| d.name == device)
-            .and_then(|d| catalog.get(&d.profile))
-    };
-    let mut bindings: Vec<Binding> = Vec::new();
-    let mut warnings = Vec::new();
-    // Which binding holds each table address, to refuse overlaps.
-    let mut taken: HashMap<(super::space::Table, u16), Location> = HashMap::new();
-    let mut claim = |slot: Slot, at: Location| -> Result<(), Location> {
-        let addresses = (slot.address..slot.address + slot.width).map(|a| (slot.table, a));
-        if let Some(other) = addresses.clone().find_map(|k| taken.get(&k).copied()) {
-            return Err(other);
-        }
-        for k in addresses {
-            taken.insert(k, at);
-        }
-        Ok(())
+    let mut r = Resolver {
+        config,
+        catalog,
+        space: Space::of(server.address_space),
+        taken: HashMap::new(),
+        bindings: Vec::new(),
+        warnings: Vec::new(),
+        unbound: Vec::new(),
     };
     for entry in &server.map {
         let ctx = format!("modbus_server.map: {}", entry.at);
-        let slot = match space.slot(&entry.at) {
-            Ok(s) => s,
-            Err(e) => {
-                report.push(entry.line, &ctx, e);
-                continue;
-            }
-        };
-        let Some(profile) = profile_of(&entry.device) else {
+        if let Err(e) = r.entry(entry, &ctx) {
+            report.push(entry.line, &ctx, e);
+        }
+    }
+    check_forwards(server, config, report);
+    if server.auto {
+        r.auto();
+    }
+    let Resolver {
+        space,
+        mut bindings,
+        warnings,
+        unbound,
+        ..
+    } = r;
+    bindings.sort_by_key(|b| (b.slot.table, b.slot.address));
+    Plan {
+        space,
+        bindings,
+        unbound,
+        warnings,
+    }
+}
+
+/// The bindings made so far, and which binding holds each table address (to refuse
+/// overlaps).
+struct Resolver<'a> {
+    config: &'a Config,
+    catalog: &'a Catalog,
+    space: Space,
+    taken: HashMap<(super::space::Table, u16), Location>,
+    bindings: Vec<Binding>,
+    warnings: Vec<crate::yaml::Problem>,
+    unbound: Vec<String>,
+}
+
+impl<'a> Resolver<'a> {
+    /// Takes every address of `slot` for `at`, or names the location holding one of them.
+    fn claim(&mut self, slot: Slot, at: Location) -> Result<(), Location> {
+        claim(&mut self.taken, slot, at)
+    }
+
+    fn profile_of(&self, device: &str) -> Option<&'a Profile> {
+        let (config, catalog) = (self.config, self.catalog);
+        let device = config.devices.iter().find(|d| d.name == device)?;
+        catalog.get(&device.profile).map(|p| &**p)
+    }
+
+    /// Binds one map entry, or says why not (`Ok` also when its device's problems are
+    /// reported elsewhere).
+    fn entry(&mut self, entry: &MapEntry, ctx: &str) -> Result<(), String> {
+        let slot = self.space.slot(&entry.at).map_err(|e| e.to_string())?;
+        let Some(profile) = self.profile_of(&entry.device) else {
             // A device (or its profile) that could not be read has its problems reported.
             // So has a device whose profile is unknown (`check` names the profile).
+            let config = self.config;
             let reported = config.unreadable.devices.contains(&entry.device)
                 || config.devices.iter().any(|d| d.name == entry.device);
-            if reported {
-                continue;
-            }
-            report.push(
-                entry.line,
-                &ctx,
-                format!("unknown device `{}`", entry.device),
-            );
-            continue;
+            return match reported {
+                true => Ok(()),
+                false => Err(format!("unknown device `{}`", entry.device)),
+            };
         };
-        let (target, name, ty, writable_field, diagnostic) = match profile.field_index(&entry.field)
-        {
-            Some(idx) => {
-                let f = &profile.fields[idx];
-                (
-                    Target::Field(idx),
-                    f.name.clone(),
-                    f.ty,
-                    f.direction.is_writable(),
-                    false,
-                )
-            }
-            None => match Diag::ALL
-                .into_iter()
-                .find(|d| d.name().eq_ignore_ascii_case(&entry.field))
-            {
-                Some(d) => (
-                    Target::Diagnostic(d),
-                    d.name().to_owned(),
-                    d.ty(),
-                    false,
-                    true,
-                ),
-                None => {
-                    report.push(
-                        entry.line,
-                        &ctx,
-                        format!(
-                            "device {} has no field or diagnostic `{}`",
-                            entry.device, entry.field
-                        ),
-                    );
-                    continue;
-                }
-            },
-        };
+        let (target, name, ty, writable_field, diagnostic) = entry_target(profile, entry)?;
         let one = matches!(target, Target::Field(i) if one_register(profile, i));
-        let (repr, writable) = match fit(&entry.at, ty, one, writable_field, diagnostic) {
-            Ok(f) => f,
-            Err(e) => {
-                report.push(entry.line, &ctx, format!("{}.{name}: {e}", entry.device));
-                continue;
-            }
-        };
+        let (repr, writable) = fit(&entry.at, ty, one, writable_field, diagnostic)
+            .map_err(|e| format!("{}.{name}: {e}", entry.device))?;
         if ty == IecType::Time && entry.at.size == Size::Double {
-            warnings.push(crate::yaml::Problem {
-                file: config.source.clone(),
+            self.warnings.push(crate::yaml::Problem {
+                file: self.config.source.clone(),
                 line: entry.line,
-                context: ctx.clone(),
+                context: ctx.to_owned(),
                 message: format!(
                     "{}.{name}: TIME is 64-bit milliseconds; {} holds -2147483648 to 2147483647 ms \
                      (about ±24.8 days) and a value outside is answered with exception 0B, not \
@@ -271,15 +259,9 @@ fn resolve(
                 ),
             });
         }
-        if let Err(other) = claim(slot, entry.at) {
-            report.push(
-                entry.line,
-                &ctx,
-                format!("overlaps {other}, bound to another field"),
-            );
-            continue;
-        }
-        bindings.push(Binding {
+        self.claim(slot, entry.at)
+            .map_err(|other| format!("overlaps {other}, bound to another field"))?;
+        self.bindings.push(Binding {
             at: entry.at,
             slot,
             device: entry.device.clone(),
@@ -290,7 +272,129 @@ fn resolve(
             writable,
             auto: false,
         });
+        Ok(())
     }
+
+    /// `auto: true`: every field no entry binds, at the next free location of its kind.
+    fn auto(&mut self) {
+        let mapped: HashSet<(String, String)> = self
+            .bindings
+            .iter()
+            .map(|b| (b.device.clone(), b.name.to_ascii_lowercase()))
+            .collect();
+        let mut cursors: HashMap<(Area, Size), u32> = HashMap::new();
+        let (config, catalog) = (self.config, self.catalog);
+        for device in &config.devices {
+            let Some(profile) = catalog.get(&device.profile) else {
+                continue;
+            };
+            for (idx, f) in profile.fields.iter().enumerate() {
+                if !mapped.contains(&(device.name.clone(), f.name.to_ascii_lowercase())) {
+                    self.auto_field(&device.name, profile, idx, &mut cursors);
+                }
+            }
+        }
+    }
+
+    fn auto_field(
+        &mut self,
+        device: &str,
+        profile: &Profile,
+        idx: usize,
+        cursors: &mut HashMap<(Area, Size), u32>,
+    ) {
+        let f = &profile.fields[idx];
+        let one = one_register(profile, idx);
+        let writable = f.direction.is_writable();
+        let Some((area, size)) = auto_kind(f.ty, one, writable) else {
+            self.unbound.push(format!("{device}.{} ({})", f.name, f.ty));
+            return;
+        };
+        let cursor = cursors.entry((area, size)).or_insert(0);
+        let (space, taken) = (&self.space, &mut self.taken);
+        let free = space
+            .locations(area, size)
+            .skip(*cursor as usize)
+            .enumerate()
+            .find_map(|(k, at)| {
+                let slot = space.slot(&at).ok()?;
+                claim(taken, slot, at).ok().map(|()| (k, at, slot))
+            });
+        let Some((k, at, slot)) = free else {
+            self.unbound.push(format!("{device}.{} ({})", f.name, f.ty));
+            return;
+        };
+        *cursor += k as u32 + 1;
+        let Ok((repr, writable)) = fit(&at, f.ty, one, writable, false) else {
+            return;
+        };
+        self.bindings.push(Binding {
+            at,
+            slot,
+            device: device.to_owned(),
+            target: Target::Field(idx),
+            name: f.name.clone(),
+            ty: f.ty,
+            repr,
+            writable,
+            auto: true,
+        });
+    }
+}
+
+/// Takes every address of `slot` for `at` in `taken`, or names the location holding one
+/// of them.
+fn claim(
+    taken: &mut HashMap<(super::space::Table, u16), Location>,
+    slot: Slot,
+    at: Location,
+) -> Result<(), Location> {
+    let addresses = (slot.address..slot.address + slot.width).map(|a| (slot.table, a));
+    if let Some(other) = addresses.clone().find_map(|k| taken.get(&k).copied()) {
+        return Err(other);
+    }
+    for k in addresses {
+        taken.insert(k, at);
+    }
+    Ok(())
+}
+
+/// What a map entry binds: a field of the profile or a device diagnostic, with its name,
+/// type, whether it is written, and whether it is a diagnostic.
+fn entry_target(
+    profile: &Profile,
+    entry: &MapEntry,
+) -> Result<(Target, String, IecType, bool, bool), String> {
+    if let Some(idx) = profile.field_index(&entry.field) {
+        let f = &profile.fields[idx];
+        return Ok((
+            Target::Field(idx),
+            f.name.clone(),
+            f.ty,
+            f.direction.is_writable(),
+            false,
+        ));
+    }
+    match Diag::ALL
+        .into_iter()
+        .find(|d| d.name().eq_ignore_ascii_case(&entry.field))
+    {
+        Some(d) => Ok((
+            Target::Diagnostic(d),
+            d.name().to_owned(),
+            d.ty(),
+            false,
+            true,
+        )),
+        None => Err(format!(
+            "device {} has no field or diagnostic `{}`",
+            entry.device, entry.field
+        )),
+    }
+}
+
+/// The forwarded unit ids: a known link each, never the server's own unit id.
+fn check_forwards(server: &ModbusServerConfig, config: &Config, report: &mut Report) {
     for f in &server.forward {
         if !config.links.iter().any(|l| l.name == f.link)
             && !config.unreadable.links.contains(&f.link)
@@ -311,64 +415,5 @@ fn resolve(
                 ),
             );
         }
-    }
-    let mut unbound = Vec::new();
-    if server.auto {
-        let mapped: HashSet<(String, String)> = bindings
-            .iter()
-            .map(|b| (b.device.clone(), b.name.to_ascii_lowercase()))
-            .collect();
-        let mut cursors: HashMap<(Area, Size), u32> = HashMap::new();
-        for device in &config.devices {
-            let Some(profile) = catalog.get(&device.profile) else {
-                continue;
-            };
-            for (idx, f) in profile.fields.iter().enumerate() {
-                if mapped.contains(&(device.name.clone(), f.name.to_ascii_lowercase())) {
-                    continue;
-                }
-                let one = one_register(profile, idx);
-                let writable = f.direction.is_writable();
-                let Some((area, size)) = auto_kind(f.ty, one, writable) else {
-                    unbound.push(format!("{}.{} ({})", device.name, f.name, f.ty));
-                    continue;
-                };
-                let cursor = cursors.entry((area, size)).or_insert(0);
-                let free = space
-                    .locations(area, size)
-                    .skip(*cursor as usize)
-                    .enumerate()
-                    .find_map(|(k, at)| {
-                        let slot = space.slot(&at).ok()?;
-                        claim(slot, at).ok().map(|()| (k, at, slot))
-                    });
-                let Some((k, at, slot)) = free else {
-                    unbound.push(format!("{}.{} ({})", device.name, f.name, f.ty));
-                    continue;
-                };
-                *cursor += k as u32 + 1;
-                let Ok((repr, writable)) = fit(&at, f.ty, one, writable, false) else {
-                    continue;
-                };
-                bindings.push(Binding {
-                    at,
-                    slot,
-                    device: device.name.clone(),
-                    target: Target::Field(idx),
-                    name: f.name.clone(),
-                    ty: f.ty,
-                    repr,
-                    writable,
-                    auto: true,
-                });
-            }
-        }
-    }
-    bindings.sort_by_key(|b| (b.slot.table, b.slot.address));
-    Plan {
-        space,
-        bindings,
-        unbound,
-        warnings,
     }
 }
