@@ -123,154 +123,18 @@ enum Describe {
 
 async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     let mut client = Client::connect(&cli.server).await?;
+    let json = cli.json;
     match cli.command {
-        Command::Devices => {
-            let devices = client.devices().await?;
-            if cli.json {
-                print_json(&devices)?;
-            } else {
-                println!(
-                    "{:<16} {:<22} {:<10} {:>5} {:>9} {:>5} {:>10} {:>9}",
-                    "DEVICE",
-                    "PROFILE",
-                    "LINK",
-                    "SLAVE",
-                    "CONNECTED",
-                    "ERROR",
-                    "IO_CYCLES",
-                    "LAST_MS"
-                );
-                for d in devices {
-                    let diag = d.diagnostics.clone().unwrap_or(iogate_client::Diagnostics {
-                        device: d.name.clone(),
-                        connected: false,
-                        error_code: 0,
-                        io_cycles: 0,
-                        last_response_ms: 0.0,
-                    });
-                    println!(
-                        "{:<16} {:<22} {:<10} {:>5} {:>9} {:>5} {:>10} {:>9.3}",
-                        d.name,
-                        d.profile,
-                        d.link.as_deref().unwrap_or("-"),
-                        d.slave_id.map_or_else(|| "-".to_owned(), |s| s.to_string()),
-                        diag.connected,
-                        diag.error_code,
-                        diag.io_cycles,
-                        diag.last_response_ms
-                    );
-                }
-            }
-        }
-        Command::Links => {
-            let links = client.links().await?;
-            if cli.json {
-                print_json(&links)?;
-            } else {
-                println!(
-                    "{:<16} {:<40} {:>9} {:>5}  DEVICES",
-                    "LINK", "ENDPOINT", "CONNECTED", "ERROR"
-                );
-                for l in links {
-                    println!(
-                        "{:<16} {:<40} {:>9} {:>5}  {}",
-                        l.name,
-                        l.endpoint,
-                        l.connected,
-                        l.error_code,
-                        l.devices.join(", ")
-                    );
-                }
-            }
-        }
-        Command::Profiles => {
-            let profiles = client.profiles().await?;
-            if cli.json {
-                print_json(&profiles)?;
-            } else {
-                println!(
-                    "{:<24} {:<12} {:>6}  DESCRIPTION",
-                    "PROFILE", "PROTOCOL", "FIELDS"
-                );
-                for p in profiles {
-                    println!(
-                        "{:<24} {:<12} {:>6}  {}",
-                        p.name, p.protocol, p.field_count, p.description
-                    );
-                }
-            }
-        }
-        Command::Get { target } => {
-            let (device, field) = split_target(&target);
-            let selection = match field {
-                Some(f) => Selection::field(device, f),
-                None => Selection::device(device),
-            };
-            let values = client.read(&selection).await?;
-            if cli.json {
-                match (field, values.as_slice()) {
-                    (Some(_), [one]) => print_json(one)?,
-                    _ => print_json(&values)?,
-                }
-            } else {
-                print!("{}", field_table(&values));
-            }
-        }
+        Command::Devices => devices(&mut client, json).await?,
+        Command::Links => links(&mut client, json).await?,
+        Command::Profiles => profiles(&mut client, json).await?,
+        Command::Get { target } => get(&mut client, &target, json).await?,
         Command::Set {
             target,
             value,
             wait_ms,
-        } => {
-            let (device, field) = match split_target(&target) {
-                ("", Some(at)) => {
-                    let bound = client.get("", at).await?;
-                    (bound.device, bound.field)
-                }
-                (device, Some(field)) => (device.to_owned(), field.to_owned()),
-                _ => anyhow::bail!(
-                    "write DEVICE.FIELD or a located address, e.g. sim.DO_0 or %QX0.0"
-                ),
-            };
-            let (device, field) = (device.as_str(), field.as_str());
-            let info = client.device(device).await?;
-            let current = info
-                .fields
-                .iter()
-                .find(|f| f.field.eq_ignore_ascii_case(field))
-                .ok_or_else(|| anyhow::anyhow!("device {device} has no field `{field}`"))?;
-            let ty = client
-                .profile(&info.profile)
-                .await?
-                .fields
-                .iter()
-                .find(|f| f.name == current.field)
-                .and_then(|f| f.ty)
-                .ok_or_else(|| anyhow::anyhow!("the profile does not give {field}'s type"))?;
-            let value = Value::parse(ty, &value)?;
-            let generation = client.write(device, &current.field, value).await?;
-            let status = if wait_ms > 0 {
-                client
-                    .wait_write(generation, Duration::from_millis(wait_ms))
-                    .await?
-            } else {
-                client.write_status(generation).await?
-            };
-            if cli.json {
-                print_json(&status)?;
-            } else {
-                let outcome = match &status.outcome {
-                    WriteOutcome::Pending => "pending".to_owned(),
-                    WriteOutcome::Written => "written".to_owned(),
-                    WriteOutcome::Superseded => "superseded".to_owned(),
-                    WriteOutcome::Failed(e) => format!("failed: {e}"),
-                };
-                println!("{device}.{} write {generation}: {outcome}", current.field);
-            }
-            if matches!(status.outcome, WriteOutcome::Failed(_)) {
-                return Ok(ExitCode::FAILURE);
-            }
-        }
-        Command::Watch { devices } => return watch::watch(&mut client, devices, cli.json).await,
+        } => return set(&mut client, &target, &value, wait_ms, json).await,
+        Command::Watch { devices } => return watch::watch(&mut client, devices, json).await,
         Command::Tx {
             link,
             function,
@@ -285,52 +149,217 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             write_type,
             values,
         } => {
-            let outcome = client
-                .transact(iogate_client::proto::TransactRequest {
-                    link,
-                    function,
-                    slave,
-                    address,
-                    bit_count,
-                    value_type,
-                    divisor,
-                    precision,
-                    byte_order,
-                    timeout_ms,
-                    r#type: write_type,
-                    values,
-                })
-                .await?;
-            if cli.json {
-                print_json(&outcome)?;
-            } else {
-                let state = match outcome.state {
-                    4 => "done",
-                    -1 => "interface unavailable",
-                    -2 => "response timeout",
-                    -3 => "error",
-                    _ => "?",
-                };
-                match (outcome.value, &outcome.error) {
-                    (Some(v), _) => println!("value {v}"),
-                    (None, Some(e)) => println!("error {e}"),
-                    (None, None) => println!("written"),
-                }
-                println!(
-                    "actual {}  state {} ({state})  {:.1} ms",
-                    outcome.actual, outcome.state, outcome.elapsed_ms
-                );
-                println!("> {}", outcome.request);
-                println!(
-                    "< {}",
-                    outcome.response.as_deref().unwrap_or("(no response)")
-                );
-            }
-            if !outcome.actual {
-                return Ok(ExitCode::FAILURE);
-            }
+            let request = iogate_client::proto::TransactRequest {
+                link,
+                function,
+                slave,
+                address,
+                bit_count,
+                value_type,
+                divisor,
+                precision,
+                byte_order,
+                timeout_ms,
+                r#type: write_type,
+                values,
+            };
+            return tx(&mut client, request, json).await;
         }
-        Command::Describe { what } => return describe::describe(&mut client, what, cli.json).await,
+        Command::Describe { what } => return describe::describe(&mut client, what, json).await,
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `devices`: a line each, with its diagnostics.
+async fn devices(client: &mut Client, json: bool) -> anyhow::Result<()> {
+    let devices = client.devices().await?;
+    if json {
+        print_json(&devices)?;
+    } else {
+        println!(
+            "{:<16} {:<22} {:<10} {:>5} {:>9} {:>5} {:>10} {:>9}",
+            "DEVICE", "PROFILE", "LINK", "SLAVE", "CONNECTED", "ERROR", "IO_CYCLES", "LAST_MS"
+        );
+        for d in devices {
+            let diag = d.diagnostics.clone().unwrap_or(iogate_client::Diagnostics {
+                device: d.name.clone(),
+                connected: false,
+                error_code: 0,
+                io_cycles: 0,
+                last_response_ms: 0.0,
+            });
+            println!(
+                "{:<16} {:<22} {:<10} {:>5} {:>9} {:>5} {:>10} {:>9.3}",
+                d.name,
+                d.profile,
+                d.link.as_deref().unwrap_or("-"),
+                d.slave_id.map_or_else(|| "-".to_owned(), |s| s.to_string()),
+                diag.connected,
+                diag.error_code,
+                diag.io_cycles,
+                diag.last_response_ms
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `links`: a line each, with its devices.
+async fn links(client: &mut Client, json: bool) -> anyhow::Result<()> {
+    let links = client.links().await?;
+    if json {
+        print_json(&links)?;
+    } else {
+        println!(
+            "{:<16} {:<40} {:>9} {:>5}  DEVICES",
+            "LINK", "ENDPOINT", "CONNECTED", "ERROR"
+        );
+        for l in links {
+            println!(
+                "{:<16} {:<40} {:>9} {:>5}  {}",
+                l.name,
+                l.endpoint,
+                l.connected,
+                l.error_code,
+                l.devices.join(", ")
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `profiles`: a line each.
+async fn profiles(client: &mut Client, json: bool) -> anyhow::Result<()> {
+    let profiles = client.profiles().await?;
+    if json {
+        print_json(&profiles)?;
+    } else {
+        println!(
+            "{:<24} {:<12} {:>6}  DESCRIPTION",
+            "PROFILE", "PROTOCOL", "FIELDS"
+        );
+        for p in profiles {
+            println!(
+                "{:<24} {:<12} {:>6}  {}",
+                p.name, p.protocol, p.field_count, p.description
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `get DEVICE[.FIELD]` or a located address.
+async fn get(client: &mut Client, target: &str, json: bool) -> anyhow::Result<()> {
+    let (device, field) = split_target(target);
+    let selection = match field {
+        Some(f) => Selection::field(device, f),
+        None => Selection::device(device),
+    };
+    let values = client.read(&selection).await?;
+    if json {
+        match (field, values.as_slice()) {
+            (Some(_), [one]) => print_json(one)?,
+            _ => print_json(&values)?,
+        }
+    } else {
+        print!("{}", field_table(&values));
+    }
+    Ok(())
+}
+
+/// `set DEVICE.FIELD VALUE` (or a located address): the write and its outcome; a failed
+/// write is a failure of the command.
+async fn set(
+    client: &mut Client,
+    target: &str,
+    value: &str,
+    wait_ms: u64,
+    json: bool,
+) -> anyhow::Result<ExitCode> {
+    let (device, field) = match split_target(target) {
+        ("", Some(at)) => {
+            let bound = client.get("", at).await?;
+            (bound.device, bound.field)
+        }
+        (device, Some(field)) => (device.to_owned(), field.to_owned()),
+        _ => anyhow::bail!("write DEVICE.FIELD or a located address, e.g. sim.DO_0 or %QX0.0"),
+    };
+    let (device, field) = (device.as_str(), field.as_str());
+    let info = client.device(device).await?;
+    let current = info
+        .fields
+        .iter()
+        .find(|f| f.field.eq_ignore_ascii_case(field))
+        .ok_or_else(|| anyhow::anyhow!("device {device} has no field `{field}`"))?;
+    let ty = client
+        .profile(&info.profile)
+        .await?
+        .fields
+        .iter()
+        .find(|f| f.name == current.field)
+        .and_then(|f| f.ty)
+        .ok_or_else(|| anyhow::anyhow!("the profile does not give {field}'s type"))?;
+    let value = Value::parse(ty, value)?;
+    let generation = client.write(device, &current.field, value).await?;
+    let status = if wait_ms > 0 {
+        client
+            .wait_write(generation, Duration::from_millis(wait_ms))
+            .await?
+    } else {
+        client.write_status(generation).await?
+    };
+    if json {
+        print_json(&status)?;
+    } else {
+        let outcome = match &status.outcome {
+            WriteOutcome::Pending => "pending".to_owned(),
+            WriteOutcome::Written => "written".to_owned(),
+            WriteOutcome::Superseded => "superseded".to_owned(),
+            WriteOutcome::Failed(e) => format!("failed: {e}"),
+        };
+        println!("{device}.{} write {generation}: {outcome}", current.field);
+    }
+    if matches!(status.outcome, WriteOutcome::Failed(_)) {
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `tx`: a raw transaction on a link, its request and response; one that did not happen
+/// is a failure of the command.
+async fn tx(
+    client: &mut Client,
+    request: iogate_client::proto::TransactRequest,
+    json: bool,
+) -> anyhow::Result<ExitCode> {
+    let outcome = client.transact(request).await?;
+    if json {
+        print_json(&outcome)?;
+    } else {
+        let state = match outcome.state {
+            4 => "done",
+            -1 => "interface unavailable",
+            -2 => "response timeout",
+            -3 => "error",
+            _ => "?",
+        };
+        match (outcome.value, &outcome.error) {
+            (Some(v), _) => println!("value {v}"),
+            (None, Some(e)) => println!("error {e}"),
+            (None, None) => println!("written"),
+        }
+        println!(
+            "actual {}  state {} ({state})  {:.1} ms",
+            outcome.actual, outcome.state, outcome.elapsed_ms
+        );
+        println!("> {}", outcome.request);
+        println!(
+            "< {}",
+            outcome.response.as_deref().unwrap_or("(no response)")
+        );
+    }
+    if !outcome.actual {
+        return Ok(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
 }
