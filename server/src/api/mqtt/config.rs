@@ -276,90 +276,28 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
     let ctx = "mqtt";
     let mut map = node.map(report, ctx)?;
     let at = |k: &str| format!("{ctx}.{k}");
-    let url = map.require("url", report, ctx).and_then(|n| {
-        let text = n.scalar_text(report, &at("url"))?;
-        BrokerUrl::parse(&text)
-            .map_err(|e| report.push(n.line, at("url"), e))
-            .ok()
-    });
+    let url = map
+        .require("url", report, ctx)
+        .and_then(|n| broker_url(n, report));
     let client_id = match map.get("client_id") {
         None => Some(String::new()),
-        Some(n) => n.scalar_text(report, &at("client_id")).and_then(|t| {
-            if t.len() > 65_535 || t.contains('\0') {
-                report.push(n.line, at("client_id"), "is not a valid MQTT client id");
-                None
-            } else {
-                Some(t)
-            }
-        }),
+        Some(n) => client_id(n, report),
     };
     let username = map
         .get("username")
         .and_then(|n| n.scalar_text(report, &at("username")));
-    let password_file = map
-        .get("password_file")
-        .and_then(|n| path_at(n, report, &at("password_file")));
-    let password_env = map.get("password_env").and_then(|n| {
-        let name = n.scalar_text(report, &at("password_env"))?;
-        if name.is_empty() || name.contains(['=', '\0']) {
-            report.push(
-                n.line,
-                at("password_env"),
-                "is not an environment variable name",
-            );
-            return None;
-        }
-        Some(name)
-    });
-    let password = match (password_file, password_env) {
-        (Some(_), Some(_)) => {
-            report.push(
-                node.line,
-                ctx,
-                "give the password in password_file or password_env, not both",
-            );
-            None
-        }
-        (Some(f), None) => Some(Password::File(f)),
-        (None, Some(e)) => Some(Password::Env(e)),
-        (None, None) => None,
-    };
+    let password = password(&mut map, node.line, report);
     let tls = match map.get("tls") {
         None => MqttTls::default(),
         Some(n) => read_tls(n, report).unwrap_or_default(),
     };
     let version = match map.get("version") {
         None => Some(MqttVersion::V311),
-        Some(n) => {
-            let text = n.scalar_text(report, &at("version"))?;
-            match text.as_str() {
-                "3.1.1" | "4" => Some(MqttVersion::V311),
-                "5" | "5.0" => Some(MqttVersion::V5),
-                other => {
-                    report.push(
-                        n.line,
-                        at("version"),
-                        format!("unknown MQTT version `{other}` (expected 3.1.1 or 5)"),
-                    );
-                    None
-                }
-            }
-        }
+        Some(n) => version(&n.scalar_text(report, &at("version"))?, n.line, report),
     };
     let keep_alive = match map.get("keep_alive") {
         None => Some(DEFAULT_KEEP_ALIVE),
-        Some(n) => duration_at(n, report, &at("keep_alive")).and_then(|d| {
-            if d.as_secs() > u64::from(u16::MAX) || (d > Duration::ZERO && d.as_secs() == 0) {
-                report.push(
-                    n.line,
-                    at("keep_alive"),
-                    "must be 0 (off) or whole seconds from 1s to 65535s",
-                );
-                None
-            } else {
-                Some(d)
-            }
-        }),
+        Some(n) => keep_alive(n, report),
     };
     let clean_line = map.get("clean_start").map_or(node.line, |n| n.line);
     let clean_start = match map.get("clean_start") {
@@ -368,67 +306,29 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
     };
     let reconnect_max = match map.get("reconnect_max") {
         None => Some(DEFAULT_RECONNECT_MAX),
-        Some(n) => duration_at(n, report, &at("reconnect_max")).and_then(|d| {
-            if (Duration::from_millis(500)..=Duration::from_secs(3600)).contains(&d) {
-                Some(d)
-            } else {
-                report.push(n.line, at("reconnect_max"), "must be from 500ms to 1h");
-                None
-            }
-        }),
+        Some(n) => reconnect_max(n, report),
     };
     let sparkplug_node = map.get("sparkplug");
     let json_node = map.get("json");
     let sparkplug = sparkplug_node.and_then(|n| read_sparkplug(n, report));
     let json = json_node.and_then(|n| read_json(n, report));
-    let report_config = match map.get("report") {
-        None => ReportConfig::default(),
-        Some(n) => read_report(n, report).unwrap_or_default(),
-    };
-    let buffer = match map.get("buffer") {
-        None => BufferConfig::default(),
-        Some(n) => read_buffer(n, report).unwrap_or_default(),
-    };
+    let report_config = map.get("report").and_then(|n| read_report(n, report));
+    let buffer = map.get("buffer").and_then(|n| read_buffer(n, report));
     let writes = match map.get("writes") {
         None => Some(false),
         Some(n) => boolean(n, report, &at("writes")),
     };
     map.finish(report, ctx, KEYS);
-    if sparkplug_node.is_none() && json_node.is_none() {
-        report.push(
-            node.line,
-            ctx,
-            "publishes nothing: give `sparkplug:`, `json:` or both",
-        );
-    }
-    if url.as_ref().is_some_and(|u| !u.tls) && tls != MqttTls::default() {
-        report.push(
-            node.line,
-            at("tls"),
-            "TLS files are given but the URL is mqtt://; write mqtts://",
-        );
-    }
-    if tls.cert.is_some() != tls.key.is_some() {
-        report.push(
-            node.line,
-            at("tls"),
-            "a client certificate needs its key, and a key its certificate",
-        );
-    }
-    if sparkplug_node.is_some() && clean_start == Some(false) {
-        report.push(
-            clean_line,
-            at("clean_start"),
-            "a Sparkplug B edge node connects with a clean session (Sparkplug 3.0: Clean Session, with MQTT 5 Clean Start and no session expiry): remove clean_start: false",
-        );
-    }
-    if client_id.as_deref() == Some("") && clean_start == Some(false) {
-        report.push(
-            node.line,
-            at("clean_start"),
-            "a session kept across connections (clean_start: false) needs a client_id",
-        );
-    }
+    let together = Together {
+        url: url.as_ref(),
+        tls: &tls,
+        sparkplug: sparkplug_node.is_some(),
+        json: json_node.is_some(),
+        client_id: client_id.as_deref(),
+        clean_start,
+        clean_line,
+    };
+    together.check(node.line, report);
     Some(MqttConfig {
         url: url?,
         client_id: client_id.unwrap_or_default(),
@@ -441,154 +341,157 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<MqttConfig> {
         reconnect_max: reconnect_max.unwrap_or(DEFAULT_RECONNECT_MAX),
         sparkplug,
         json,
-        report: report_config,
-        buffer,
+        report: report_config.unwrap_or_default(),
+        buffer: buffer.unwrap_or_default(),
         writes: writes.unwrap_or(false),
         line: node.line,
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+/// What the section's keys must agree on together.
+struct Together<'a> {
+    url: Option<&'a BrokerUrl>,
+    tls: &'a MqttTls,
+    sparkplug: bool,
+    json: bool,
+    client_id: Option<&'a str>,
+    clean_start: Option<bool>,
+    clean_line: u64,
+}
 
-    fn read_text(text: &str) -> (Option<MqttConfig>, Vec<String>) {
-        crate::config::read_section(text, "mqtt", read)
-    }
-
-    #[test]
-    fn the_documented_section_reads() {
-        let (config, problems) = read_text(
-            "mqtt:
-  url: mqtts://broker.example:8883
-  client_id: iogate-line1
-  username: gw1
-  password_file: /etc/iogate/mqtt-password
-  tls: { ca: ca.pem, cert: client.pem, key: client.key }
-  sparkplug: { group_id: plant1, edge_node_id: line1, primary_host: scada }
-  json: { prefix: iogate/line1, qos: 1, retain: true }
-  report: { deadband: 0, min_interval: 100ms, max_interval: 60s }
-  buffer: { dir: /var/lib/iogate/mqtt, max_bytes: 256MiB, max_age: 7d, replay_rate: 500/s }
-  writes: true
-",
-        );
-        assert_eq!(problems, Vec::<String>::new());
-        let c = config.expect("config");
-        assert_eq!(c.url.to_string(), "mqtts://broker.example:8883");
-        assert_eq!(c.client_id, "iogate-line1");
-        assert_eq!(
-            c.password,
-            Some(Password::File("/etc/iogate/mqtt-password".into()))
-        );
-        assert_eq!(c.tls.ca, Some("ca.pem".into()));
-        let sp = c.sparkplug.expect("sparkplug");
-        assert_eq!(
-            (sp.group_id.as_str(), sp.edge_node_id.as_str()),
-            ("plant1", "line1")
-        );
-        assert_eq!(sp.primary_host.as_deref(), Some("scada"));
-        let json = c.json.expect("json");
-        assert_eq!(
-            (json.prefix.as_str(), json.qos, json.retain),
-            ("iogate/line1", 1, true)
-        );
-        assert_eq!(c.report.deadband, Deadband::None);
-        assert_eq!(c.report.min_interval, Duration::from_millis(100));
-        assert_eq!(c.report.max_interval, Duration::from_secs(60));
-        assert_eq!(c.buffer.max_bytes, 256 << 20);
-        assert_eq!(c.buffer.max_age, Duration::from_secs(7 * 86_400));
-        assert_eq!(c.buffer.replay_rate, 500);
-        assert!(c.writes);
-    }
-
-    #[test]
-    fn every_problem_is_named_at_its_line() {
-        let (_, problems) = read_text(
-            "mqtt:
-  url: http://broker
-  sparkplug: { group_id: plant/1, edge_node_id: 'line+1' }
-  json: { prefix: /iogate, qos: 2 }
-  report: { deadband: lots, min_interval: 2s, max_interval: 1s }
-  buffer: { max_bytes: 12 parsecs, replay_rate: fast, fsync: sometimes }
-  colour: blue
-",
-        );
-        let expect = [
-            "2: mqtt.url: `http://broker` is not an MQTT URL",
-            "3: mqtt.sparkplug.group_id: `plant/1` must not contain",
-            "3: mqtt.sparkplug.edge_node_id: `line+1` must not contain",
-            "4: mqtt.json.prefix: `/iogate` must not contain",
-            "4: mqtt.json.qos: 2 is outside the allowed range 0-1",
-            "5: mqtt.report.deadband: `lots` is not a deadband",
-            "5: mqtt.report.max_interval: must not be shorter than min_interval",
-            "6: mqtt.buffer.max_bytes: `12 parsecs` is not a size",
-            "6: mqtt.buffer.replay_rate: is not a rate",
-            "6: mqtt.buffer.fsync: unknown choice `sometimes`",
-            "7: mqtt: unknown key `colour`",
-        ];
-        for e in expect {
-            assert!(
-                problems.iter().any(|p| p.starts_with(e)),
-                "missing {e:?} in {problems:#?}"
+impl Together<'_> {
+    fn check(&self, line: u64, report: &mut Report) {
+        if !self.sparkplug && !self.json {
+            report.push(
+                line,
+                "mqtt",
+                "publishes nothing: give `sparkplug:`, `json:` or both",
             );
         }
-    }
-
-    #[test]
-    fn a_sparkplug_node_keeps_no_session_and_the_reconnect_cap_is_bounded() {
-        let (_, problems) = read_text(
-            "mqtt:
-  url: mqtt://broker
-  client_id: gw
-  clean_start: false
-  reconnect_max: 2h
-  sparkplug: { group_id: plant1, edge_node_id: line1 }
-",
-        );
-        for e in [
-            "4: mqtt.clean_start: a Sparkplug B edge node connects with a clean session",
-            "5: mqtt.reconnect_max: must be from 500ms to 1h",
-        ] {
-            assert!(
-                problems.iter().any(|p| p.starts_with(e)),
-                "missing {e:?} in {problems:#?}"
+        if self.url.is_some_and(|u| !u.tls) && *self.tls != MqttTls::default() {
+            report.push(
+                line,
+                "mqtt.tls",
+                "TLS files are given but the URL is mqtt://; write mqtts://",
             );
         }
-        let (config, problems) = read_text("mqtt:\n  url: mqtt://broker\n  json: { prefix: a }\n");
-        assert_eq!(problems, Vec::<String>::new());
-        assert_eq!(config.expect("config").reconnect_max, DEFAULT_RECONNECT_MAX);
-    }
-
-    #[test]
-    fn urls_parse_with_their_default_ports() {
-        let url = |t| BrokerUrl::parse(t).map(|u| (u.tls, u.host, u.port));
-        assert_eq!(
-            url("mqtt://127.0.0.1"),
-            Ok((false, "127.0.0.1".into(), 1883))
-        );
-        assert_eq!(
-            url("mqtts://b.example"),
-            Ok((true, "b.example".into(), 8883))
-        );
-        assert_eq!(url("mqtt://[::1]:1884"), Ok((false, "::1".into(), 1884)));
-        assert!(matches!(url("mqtt://h:0"), Err(UrlError::Port(_))));
-        assert!(matches!(url("mqtt://u@h"), Err(UrlError::Extra(_))));
-        assert!(matches!(url("mqtt://"), Err(UrlError::NoHost(_))));
-        assert!(matches!(url("tcp://h"), Err(UrlError::Scheme(_))));
-    }
-
-    #[test]
-    fn sizes_and_deadbands_read() {
-        assert_eq!(parse_size("256MiB"), Some(256 << 20));
-        assert_eq!(parse_size("10MB"), Some(10_000_000));
-        assert_eq!(parse_size("4096"), Some(4096));
-        assert_eq!(parse_size("1 GiB"), Some(1 << 30));
-        assert_eq!(parse_size("MiB"), None);
-        assert_eq!(parse_size("99999999999999GiB"), None);
-        let (c, p) = read_text(
-            "mqtt:\n  url: mqtt://h\n  json: { prefix: a/b }\n  report: { deadband: 2.5% }\n",
-        );
-        assert_eq!(p, Vec::<String>::new());
-        assert_eq!(c.expect("config").report.deadband, Deadband::Percent(2.5));
+        if self.tls.cert.is_some() != self.tls.key.is_some() {
+            report.push(
+                line,
+                "mqtt.tls",
+                "a client certificate needs its key, and a key its certificate",
+            );
+        }
+        if self.sparkplug && self.clean_start == Some(false) {
+            report.push(
+                self.clean_line,
+                "mqtt.clean_start",
+                "a Sparkplug B edge node connects with a clean session (Sparkplug 3.0: Clean Session, with MQTT 5 Clean Start and no session expiry): remove clean_start: false",
+            );
+        }
+        if self.client_id == Some("") && self.clean_start == Some(false) {
+            report.push(
+                line,
+                "mqtt.clean_start",
+                "a session kept across connections (clean_start: false) needs a client_id",
+            );
+        }
     }
 }
+
+/// `url`: `mqtt://` or `mqtts://` with a host.
+fn broker_url(n: &Node, report: &mut Report) -> Option<BrokerUrl> {
+    let text = n.scalar_text(report, "mqtt.url")?;
+    BrokerUrl::parse(&text)
+        .map_err(|e| report.push(n.line, "mqtt.url", e))
+        .ok()
+}
+
+/// `client_id`: at most 65,535 bytes, no NUL.
+fn client_id(n: &Node, report: &mut Report) -> Option<String> {
+    let t = n.scalar_text(report, "mqtt.client_id")?;
+    if t.len() > 65_535 || t.contains('\0') {
+        report.push(n.line, "mqtt.client_id", "is not a valid MQTT client id");
+        return None;
+    }
+    Some(t)
+}
+
+/// `password_file` or `password_env`, not both.
+fn password(
+    map: &mut crate::yaml::MapReader<'_>,
+    line: u64,
+    report: &mut Report,
+) -> Option<Password> {
+    let password_file = map
+        .get("password_file")
+        .and_then(|n| path_at(n, report, "mqtt.password_file"));
+    let password_env = map.get("password_env").and_then(|n| {
+        let name = n.scalar_text(report, "mqtt.password_env")?;
+        if name.is_empty() || name.contains(['=', '\0']) {
+            report.push(
+                n.line,
+                "mqtt.password_env",
+                "is not an environment variable name",
+            );
+            return None;
+        }
+        Some(name)
+    });
+    match (password_file, password_env) {
+        (Some(_), Some(_)) => {
+            report.push(
+                line,
+                "mqtt",
+                "give the password in password_file or password_env, not both",
+            );
+            None
+        }
+        (Some(f), None) => Some(Password::File(f)),
+        (None, Some(e)) => Some(Password::Env(e)),
+        (None, None) => None,
+    }
+}
+
+/// `version`: 3.1.1 (or 4) or 5.
+fn version(text: &str, line: u64, report: &mut Report) -> Option<MqttVersion> {
+    match text {
+        "3.1.1" | "4" => Some(MqttVersion::V311),
+        "5" | "5.0" => Some(MqttVersion::V5),
+        other => {
+            report.push(
+                line,
+                "mqtt.version",
+                format!("unknown MQTT version `{other}` (expected 3.1.1 or 5)"),
+            );
+            None
+        }
+    }
+}
+
+/// `keep_alive`: 0 (off) or whole seconds up to 65535.
+fn keep_alive(n: &Node, report: &mut Report) -> Option<Duration> {
+    let d = duration_at(n, report, "mqtt.keep_alive")?;
+    if d.as_secs() > u64::from(u16::MAX) || (d > Duration::ZERO && d.as_secs() == 0) {
+        report.push(
+            n.line,
+            "mqtt.keep_alive",
+            "must be 0 (off) or whole seconds from 1s to 65535s",
+        );
+        return None;
+    }
+    Some(d)
+}
+
+/// `reconnect_max`: from 500 ms to an hour.
+fn reconnect_max(n: &Node, report: &mut Report) -> Option<Duration> {
+    let d = duration_at(n, report, "mqtt.reconnect_max")?;
+    if !(Duration::from_millis(500)..=Duration::from_secs(3600)).contains(&d) {
+        report.push(n.line, "mqtt.reconnect_max", "must be from 500ms to 1h");
+        return None;
+    }
+    Some(d)
+}
+
+#[cfg(test)]
+mod tests;

@@ -136,39 +136,11 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
     let at = |k: &str| format!("{ctx}.{k}");
     let listen = match map.get("listen") {
         None => DEFAULT_LISTEN.parse().ok(),
-        Some(n) => {
-            let text = n.scalar_text(report, &at("listen"))?;
-            text.parse::<SocketAddr>()
-                .map_err(|_| {
-                    report.push(
-                        n.line,
-                        at("listen"),
-                        format!("`{text}` is not an address (host:port, e.g. 0.0.0.0:4840)"),
-                    )
-                })
-                .ok()
-        }
+        Some(n) => address(&n.scalar_text(report, &at("listen"))?, n.line, report),
     };
     let application_uri = match map.get("application_uri") {
         None => Some(DEFAULT_APPLICATION_URI.to_owned()),
-        Some(n) => n.scalar_text(report, &at("application_uri")).and_then(|t| {
-            let scheme = t.split_once(':').map(|(s, _)| s);
-            let valid = scheme.is_some_and(|s| {
-                !s.is_empty()
-                    && s.chars()
-                        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '+' | '-' | '.'))
-            }) && !t.chars().any(|c| c.is_whitespace() || c.is_control());
-            if valid {
-                Some(t)
-            } else {
-                report.push(
-                    n.line,
-                    at("application_uri"),
-                    format!("`{t}` is not a URI (e.g. urn:iogate:line1)"),
-                );
-                None
-            }
-        }),
+        Some(n) => uri(n, report),
     };
     let security = match map.get("security") {
         None => None,
@@ -190,63 +162,16 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
     };
     let users = match map.get("users") {
         None => Some(Users::Tokens),
-        Some(n) => {
-            let text = n.scalar_text(report, &at("users"))?;
-            match text.as_str() {
-                "tokens" => Some(Users::Tokens),
-                other => {
-                    report.push(
-                        n.line,
-                        at("users"),
-                        format!("unknown user source `{other}` (expected tokens)"),
-                    );
-                    None
-                }
-            }
-        }
+        Some(n) => users(&n.scalar_text(report, &at("users"))?, n.line, report),
     };
     let anonymous = match map.get("anonymous") {
         None => Some(None),
         Some(n) => match n.kind {
             Kind::Bool(false) => Some(Some(Anonymous::Refused)),
-            _ => {
-                let text = n.scalar_text(report, &at("anonymous"))?;
-                match crate::auth::Role::parse(&text) {
-                    Some(role) => Some(Some(Anonymous::Role(role))),
-                    None => {
-                        report.push(
-                            n.line,
-                            at("anonymous"),
-                            format!(
-                                "`{text}` is not a role (read, write or admin; false refuses anonymous sessions)"
-                            ),
-                        );
-                        None
-                    }
-                }
-            }
+            _ => anonymous(&n.scalar_text(report, &at("anonymous"))?, n.line, report).map(Some),
         },
     };
-    let mut limit = |key: &str, default: usize, max: usize| match map.get(key) {
-        None => Some(default),
-        Some(n) => count(n, report, &at(key), max),
-    };
-    let max_sessions = limit("max_sessions", DEFAULT_MAX_SESSIONS, MAX_SESSIONS);
-    let max_subscriptions = limit(
-        "max_subscriptions_per_session",
-        DEFAULT_MAX_SUBSCRIPTIONS,
-        MAX_SUBSCRIPTIONS,
-    );
-    let max_items = limit(
-        "max_monitored_items_per_subscription",
-        DEFAULT_MAX_MONITORED_ITEMS,
-        MAX_MONITORED_ITEMS,
-    );
-    let max_items_total = limit(
-        "max_monitored_items",
-        DEFAULT_MAX_MONITORED_ITEMS_TOTAL,
-        MAX_MONITORED_ITEMS,
-    );
+    let [max_sessions, max_subscriptions, max_items, max_items_total] = limits(&mut map, report);
     map.finish(report, ctx, KEYS);
     if certificate.is_some() != private_key.is_some() {
         report.push(
@@ -272,6 +197,97 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_monitored_items_per_subscription: max_items?,
         max_monitored_items: max_items_total?,
         line: node.line,
+    })
+}
+
+/// `listen`: host:port.
+fn address(text: &str, line: u64, report: &mut Report) -> Option<SocketAddr> {
+    text.parse::<SocketAddr>()
+        .map_err(|_| {
+            report.push(
+                line,
+                "opcua.listen",
+                format!("`{text}` is not an address (host:port, e.g. 0.0.0.0:4840)"),
+            )
+        })
+        .ok()
+}
+
+/// `application_uri`: a URI (a scheme, no spaces).
+fn uri(n: &Node, report: &mut Report) -> Option<String> {
+    let t = n.scalar_text(report, "opcua.application_uri")?;
+    let scheme = t.split_once(':').map(|(s, _)| s);
+    let valid = scheme.is_some_and(|s| {
+        !s.is_empty()
+            && s.chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '+' | '-' | '.'))
+    }) && !t.chars().any(|c| c.is_whitespace() || c.is_control());
+    if !valid {
+        report.push(
+            n.line,
+            "opcua.application_uri",
+            format!("`{t}` is not a URI (e.g. urn:iogate:line1)"),
+        );
+        return None;
+    }
+    Some(t)
+}
+
+/// `users`: where users come from (`tokens`).
+fn users(text: &str, line: u64, report: &mut Report) -> Option<Users> {
+    match text {
+        "tokens" => Some(Users::Tokens),
+        other => {
+            report.push(
+                line,
+                "opcua.users",
+                format!("unknown user source `{other}` (expected tokens)"),
+            );
+            None
+        }
+    }
+}
+
+/// `anonymous`: the role anonymous sessions have.
+fn anonymous(text: &str, line: u64, report: &mut Report) -> Option<Anonymous> {
+    match crate::auth::Role::parse(text) {
+        Some(role) => Some(Anonymous::Role(role)),
+        None => {
+            report.push(
+                line,
+                "opcua.anonymous",
+                format!(
+                    "`{text}` is not a role (read, write or admin; false refuses anonymous sessions)"
+                ),
+            );
+            None
+        }
+    }
+}
+
+/// The sessions', subscriptions' and monitored items' bounds, in that order.
+fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<usize>; 4] {
+    [
+        ("max_sessions", DEFAULT_MAX_SESSIONS, MAX_SESSIONS),
+        (
+            "max_subscriptions_per_session",
+            DEFAULT_MAX_SUBSCRIPTIONS,
+            MAX_SUBSCRIPTIONS,
+        ),
+        (
+            "max_monitored_items_per_subscription",
+            DEFAULT_MAX_MONITORED_ITEMS,
+            MAX_MONITORED_ITEMS,
+        ),
+        (
+            "max_monitored_items",
+            DEFAULT_MAX_MONITORED_ITEMS_TOTAL,
+            MAX_MONITORED_ITEMS,
+        ),
+    ]
+    .map(|(key, default, max)| match map.get(key) {
+        None => Some(default),
+        Some(n) => count(n, report, &format!("opcua.{key}"), max),
     })
 }
 
