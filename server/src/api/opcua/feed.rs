@@ -146,30 +146,7 @@ impl Feed {
         let now = DateTime::now();
         let devices = self.service.devices();
         let links = self.service.links();
-        // Items monitoring a field that goes are told so (Bad_NodeIdUnknown) before its
-        // node is deleted; a re-planned device's kept fields are not.
-        let mut gone = Vec::new();
-        for (name, (old, fields)) in &shown.devices {
-            if devices.iter().any(|d| Arc::ptr_eq(d, old)) {
-                continue;
-            }
-            let next = devices.iter().find(|d| d.name() == name.as_str());
-            for field in fields {
-                if next.is_none_or(|d| d.field_index(field).is_err()) {
-                    gone.push((
-                        self.ids.field(name, field),
-                        DataValue {
-                            value: Some(opcua::types::Variant::Empty),
-                            status: Some(opcua::types::StatusCode::BadNodeIdUnknown),
-                            server_timestamp: Some(now),
-                            ..DataValue::default()
-                        },
-                    ));
-                }
-            }
-        }
-        self.set(gone);
-        let mut added = Vec::new();
+        self.tell_gone(shown, &devices, now);
         let mut model = Vec::new();
         let mut space = self.manager.address_space().write();
         let ids = self.ids;
@@ -181,6 +158,7 @@ impl Feed {
             }
             kept
         });
+        let mut added = Vec::new();
         for device in &devices {
             if shown.devices.contains_key(device.name()) {
                 continue;
@@ -219,7 +197,38 @@ impl Feed {
             }
         }
         drop(space);
-        // Items that monitored a re-planned device's fields see its values now.
+        self.show_values(&added, now);
+        model
+    }
+
+    /// Items monitoring a field that goes are told so (Bad_NodeIdUnknown) before its node
+    /// is deleted; a re-planned device's kept fields are not.
+    fn tell_gone(&self, shown: &Shown, devices: &[Arc<Device>], now: DateTime) {
+        let mut gone = Vec::new();
+        for (name, (old, fields)) in &shown.devices {
+            if devices.iter().any(|d| Arc::ptr_eq(d, old)) {
+                continue;
+            }
+            let next = devices.iter().find(|d| d.name() == name.as_str());
+            for field in fields {
+                if next.is_none_or(|d| d.field_index(field).is_err()) {
+                    gone.push((
+                        self.ids.field(name, field),
+                        DataValue {
+                            value: Some(opcua::types::Variant::Empty),
+                            status: Some(opcua::types::StatusCode::BadNodeIdUnknown),
+                            server_timestamp: Some(now),
+                            ..DataValue::default()
+                        },
+                    ));
+                }
+            }
+        }
+        self.set(gone);
+    }
+
+    /// Items that monitored a re-planned device's fields see its values now.
+    fn show_values(&self, added: &[Arc<Device>], now: DateTime) {
         let values = added
             .iter()
             .flat_map(|d| {
@@ -232,7 +241,6 @@ impl Feed {
             })
             .collect();
         self.set(values);
-        model
     }
 
     /// A batch of changes to the items that monitor their variables; a value is rendered
