@@ -191,7 +191,43 @@ fn main() -> ExitCode {
             out.as_deref(),
         ));
     }
-    let (config, action) = match cli.command {
+    let Some((config, action)) = action_of(cli.command) else {
+        return ExitCode::SUCCESS;
+    };
+    let setup = match Setup::load(config.as_deref()) {
+        Ok(setup) => setup,
+        Err(problems) => {
+            eprintln!("{problems}");
+            eprintln!(
+                "{} problem{} found; nothing was started",
+                problems.len(),
+                if problems.len() == 1 { "" } else { "s" }
+            );
+            return ExitCode::from(iogate::EXIT_CONFIG as u8);
+        }
+    };
+    if matches!(action, Action::Check | Action::Serve(_) | Action::Diff(_)) {
+        for warning in setup.warnings() {
+            eprintln!("warning: {warning}");
+        }
+    }
+    match action {
+        Action::St(name) => st(&setup, &name),
+        Action::Map { st } => map(&setup, st),
+        Action::Diff(options) => diff(&setup, &options),
+        Action::Plan => {
+            print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
+            ExitCode::SUCCESS
+        }
+        Action::Check => check(&setup),
+        Action::Serve(listen) => serve(setup, &listen),
+    }
+}
+
+/// The config file named and what to do with the setup it makes; `None` for the commands
+/// that need none (done already).
+fn action_of(command: Option<Command>) -> Option<(Option<PathBuf>, Action)> {
+    Some(match command {
         None => (None, Action::Serve(ListenArgs::default())),
         Some(Command::Serve { config, listen }) => (config, Action::Serve(listen)),
         Some(Command::Check {
@@ -222,88 +258,70 @@ fn main() -> ExitCode {
             | Command::Profile {
                 command: ProfileCommand::Import { .. },
             },
-        ) => return ExitCode::SUCCESS,
+        ) => return None,
+    })
+}
+
+/// `profile st NAME`: the profile's ST declaration.
+fn st(setup: &Setup, name: &str) -> ExitCode {
+    match setup.catalog.get(name) {
+        Some(profile) => {
+            print!("{}", iogate::profile::st_declaration(profile));
+            ExitCode::SUCCESS
+        }
+        None => {
+            let known: Vec<_> = setup.catalog.iter().map(|p| p.name.as_str()).collect();
+            eprintln!("unknown profile `{name}` (known: {})", known.join(", "));
+            ExitCode::from(iogate::EXIT_CONFIG as u8)
+        }
+    }
+}
+
+/// `map [--st]`: the located addresses, as a table or as ST.
+fn map(setup: &Setup, st: bool) -> ExitCode {
+    match &setup.map {
+        Some(plan) if st => {
+            print!("{}", iogate::map::report::st(plan));
+            ExitCode::SUCCESS
+        }
+        Some(plan) => {
+            print!("{}", iogate::map::report::render(plan));
+            ExitCode::SUCCESS
+        }
+        None => {
+            eprintln!("no Modbus TCP server is configured (add `modbus_server:` to the config)");
+            ExitCode::from(iogate::EXIT_CONFIG as u8)
+        }
+    }
+}
+
+/// `check`: the plan's warnings and what was checked.
+fn check(setup: &Setup) -> ExitCode {
+    // `serve` says the same in its log, from each link's task.
+    for warning in iogate::plan::warnings(&setup.config, &setup.catalog) {
+        eprintln!("warning: {warning}");
+    }
+    let what = if setup.demo {
+        "built-in demo".to_owned()
+    } else {
+        setup.config.source.clone()
     };
-    let mut setup = match Setup::load(config.as_deref()) {
-        Ok(setup) => setup,
-        Err(problems) => {
-            eprintln!("{problems}");
-            eprintln!(
-                "{} problem{} found; nothing was started",
-                problems.len(),
-                if problems.len() == 1 { "" } else { "s" }
-            );
-            return ExitCode::from(iogate::EXIT_CONFIG as u8);
-        }
+    let count = |n: usize, one: &str| match n {
+        1 => format!("1 {one}"),
+        n => format!("{n} {one}s"),
     };
-    if matches!(action, Action::Check | Action::Serve(_) | Action::Diff(_)) {
-        for warning in setup.warnings() {
-            eprintln!("warning: {warning}");
-        }
-    }
-    if let Action::St(name) = &action {
-        return match setup.catalog.get(name) {
-            Some(profile) => {
-                print!("{}", iogate::profile::st_declaration(profile));
-                ExitCode::SUCCESS
-            }
-            None => {
-                let known: Vec<_> = setup.catalog.iter().map(|p| p.name.as_str()).collect();
-                eprintln!("unknown profile `{name}` (known: {})", known.join(", "));
-                ExitCode::from(iogate::EXIT_CONFIG as u8)
-            }
-        };
-    }
-    if let Action::Map { st } = action {
-        return match &setup.map {
-            Some(plan) if st => {
-                print!("{}", iogate::map::report::st(plan));
-                ExitCode::SUCCESS
-            }
-            Some(plan) => {
-                print!("{}", iogate::map::report::render(plan));
-                ExitCode::SUCCESS
-            }
-            None => {
-                eprintln!(
-                    "no Modbus TCP server is configured (add `modbus_server:` to the config)"
-                );
-                ExitCode::from(iogate::EXIT_CONFIG as u8)
-            }
-        };
-    }
-    if let Action::Diff(options) = &action {
-        return diff(&setup, options);
-    }
-    if let Action::Plan = action {
-        print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
-        return ExitCode::SUCCESS;
-    }
-    if let Action::Check = action {
-        // `serve` says the same in its log, from each link's task.
-        for warning in iogate::plan::warnings(&setup.config, &setup.catalog) {
-            eprintln!("warning: {warning}");
-        }
-        let what = if setup.demo {
-            "built-in demo".to_owned()
-        } else {
-            setup.config.source.clone()
-        };
-        let count = |n: usize, one: &str| match n {
-            1 => format!("1 {one}"),
-            n => format!("{n} {one}s"),
-        };
-        println!(
-            "{what}: ok ({}, {}, {})",
-            count(setup.catalog.len(), "profile"),
-            count(setup.config.links.len(), "link"),
-            count(setup.config.devices.len(), "device")
-        );
-        return ExitCode::SUCCESS;
-    }
-    if let Action::Serve(listen) = &action
-        && let Err(e) = setup.move_listeners(listen.listeners())
-    {
+    println!(
+        "{what}: ok ({}, {}, {})",
+        count(setup.catalog.len(), "profile"),
+        count(setup.config.links.len(), "link"),
+        count(setup.config.devices.len(), "device")
+    );
+    ExitCode::SUCCESS
+}
+
+/// `serve`: the gateway, on the listeners the command line moves, until a signal.
+fn serve(mut setup: Setup, listen: &ListenArgs) -> ExitCode {
+    if let Err(e) = setup.move_listeners(listen.listeners()) {
         eprintln!("iogate serve: {e}");
         return ExitCode::from(iogate::EXIT_CONFIG as u8);
     }
@@ -374,15 +392,12 @@ fn diff(setup: &Setup, options: &DiffOptions) -> ExitCode {
                 .server
                 .clone()
                 .unwrap_or_else(|| compare::gateway_url(setup));
-            let runtime = match tokio::runtime::Builder::new_current_thread()
+            let Ok(runtime) = tokio::runtime::Builder::new_current_thread()
                 .enable_all()
                 .build()
-            {
-                Ok(rt) => rt,
-                Err(e) => {
-                    eprintln!("cannot start the runtime: {e}");
-                    return ExitCode::FAILURE;
-                }
+                .inspect_err(|e| eprintln!("cannot start the runtime: {e}"))
+            else {
+                return ExitCode::FAILURE;
             };
             let answer = runtime.block_on(compare::against_gateway(
                 setup,
@@ -394,16 +409,7 @@ fn diff(setup: &Setup, options: &DiffOptions) -> ExitCode {
         }
     };
     match answer {
-        Ok(report) if options.json => match serde_json::to_string_pretty(&report) {
-            Ok(text) => {
-                println!("{text}");
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("{e}");
-                ExitCode::FAILURE
-            }
-        },
+        Ok(report) if options.json => json_report(&report),
         Ok(report) => {
             let count = report.changes.len();
             if count == 0 {
@@ -436,6 +442,20 @@ fn diff(setup: &Setup, options: &DiffOptions) -> ExitCode {
                 if problems.len() == 1 { "" } else { "s" }
             );
             ExitCode::from(iogate::EXIT_CONFIG as u8)
+        }
+        Err(e) => {
+            eprintln!("{e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// A comparison's report as JSON.
+fn json_report(report: &impl serde::Serialize) -> ExitCode {
+    match serde_json::to_string_pretty(report) {
+        Ok(text) => {
+            println!("{text}");
+            ExitCode::SUCCESS
         }
         Err(e) => {
             eprintln!("{e}");
