@@ -16,40 +16,55 @@ impl TransactionSpec {
     /// The checked transaction, or every configuration message that applies.
     pub(crate) fn check(&self) -> Result<Checked, Vec<ParamError>> {
         let mut errors: Vec<ParamError> = Vec::new();
-        let function = match self.function {
-            Some(1) => Some(Function::ReadCoils),
-            Some(2) => Some(Function::ReadDiscreteInputs),
-            Some(3) => Some(Function::ReadHoldingRegisters),
-            Some(4) => Some(Function::ReadInputRegisters),
-            Some(5) => Some(Function::WriteSingleCoil),
-            Some(6) => Some(Function::WriteSingleRegister),
-            Some(15) => Some(Function::WriteMultipleCoils),
-            Some(16) => Some(Function::WriteMultipleRegisters),
-            _ => {
-                errors.push(ParamError::Function);
-                None
+        let function = function_of(self.function);
+        if function.is_none() {
+            errors.push(ParamError::Function);
+        }
+        let keys = self.keys(&mut errors);
+        let plan = match function {
+            Some(f @ (Function::ReadCoils | Function::ReadDiscreteInputs)) => {
+                bit_read(f, &keys, &mut errors)
             }
+            Some(f @ (Function::ReadHoldingRegisters | Function::ReadInputRegisters)) => {
+                register_read(f, &keys, &mut errors)
+            }
+            Some(f) => {
+                write_request(self, f, keys.address, keys.order, &mut errors).and_then(|request| {
+                    Some(Plan::Write(WritePlan {
+                        slave: keys.slave?,
+                        request,
+                    }))
+                })
+            }
+            None => None,
         };
+        match (plan, keys.timeout) {
+            (Some(plan), Some(timeout)) if errors.is_empty() => Ok(Checked { plan, timeout }),
+            _ => Err(errors),
+        }
+    }
+
+    /// The keys every function reads, each checked whenever it is given (a value no
+    /// function could take is a mistake whether the function uses it or not).
+    fn keys(&self, errors: &mut Vec<ParamError>) -> Keys {
         let slave = self
             .slave
             .and_then(|s| u8::try_from(s).ok())
             .filter(|&s| s >= 1);
-        let slave = reported(slave, &mut errors, ParamError::Device);
+        let slave = reported(slave, errors, ParamError::Device);
         let address = self.address.and_then(|a| u16::try_from(a).ok());
-        let address = reported(address, &mut errors, ParamError::Register);
+        let address = reported(address, errors, ParamError::Register);
         let timeout = Some(self.timeout_ms.unwrap_or(DEFAULT_TIMEOUT_MS))
             .filter(|t| (10..=60_000).contains(t))
             .and_then(|t| u64::try_from(t).ok())
             .map(Duration::from_millis);
-        let timeout = reported(timeout, &mut errors, ParamError::Timeout);
+        let timeout = reported(timeout, errors, ParamError::Timeout);
         let order = self.byte_order.as_deref().map(parse_byte_order);
         // A read sends no values: any given would be kept and shown with its answers.
         let reads = matches!(self.function, Some(1..=4));
         if reads && self.values.is_some() {
             errors.push(ParamError::Values);
         }
-        // Keys checked whenever they are given, whether the function uses them or not: a
-        // value no function could take is a mistake either way.
         let value_type = self.value_type.as_deref().map(ValueType::parse);
         if matches!(value_type, Some(None)) {
             errors.push(ParamError::ValueType);
@@ -69,82 +84,107 @@ impl TransactionSpec {
         let divisor = u32::try_from(self.divisor.unwrap_or(1))
             .ok()
             .filter(|&d| d >= 1);
-        let divisor = reported(divisor, &mut errors, ParamError::Divisor);
+        let divisor = reported(divisor, errors, ParamError::Divisor);
         let precision = u8::try_from(self.precision.unwrap_or(3))
             .ok()
             .filter(|&p| p <= 3);
-        let precision = reported(precision, &mut errors, ParamError::Precision);
+        let precision = reported(precision, errors, ParamError::Precision);
         let bits = self
             .bit_count
             .map(|b| u8::try_from(b).ok().filter(|b| (1..=32).contains(b)));
         if matches!(bits, Some(None)) {
             errors.push(ParamError::BitCount);
         }
-        let plan = match function {
-            Some(f @ (Function::ReadCoils | Function::ReadDiscreteInputs)) => {
-                // Out of range was reported above; missing is reported here.
-                let bits = bits.unwrap_or_else(|| {
-                    errors.push(ParamError::BitCount);
-                    None
-                });
-                let order = match (bits, order) {
-                    (Some(b), None) if b > 8 => {
-                        errors.push(ParamError::Endianess);
-                        None
-                    }
-                    (_, Some(None)) => {
-                        errors.push(ParamError::Endianess);
-                        None
-                    }
-                    (_, Some(Some(o))) => Some(o),
-                    (_, None) => Some(ByteOrder::LittleEndian),
-                };
-                (|| {
-                    Some(Plan::Read(ReadPlan {
-                        function: f,
-                        slave: slave?,
-                        address: address?,
-                        bits: Some(bits?),
-                        value_type: None,
-                        divisor: divisor?,
-                        precision: precision?,
-                        order: order?,
-                    }))
-                })()
-            }
-            Some(f @ (Function::ReadHoldingRegisters | Function::ReadInputRegisters)) => {
-                // An unknown type was reported above; a missing one is reported here.
-                let value_type = value_type.unwrap_or_else(|| {
-                    errors.push(ParamError::ValueType);
-                    None
-                });
-                let order = reported(order.flatten(), &mut errors, ParamError::Endianess);
-                (|| {
-                    Some(Plan::Read(ReadPlan {
-                        function: f,
-                        slave: slave?,
-                        address: address?,
-                        bits: None,
-                        value_type: Some(value_type?),
-                        divisor: divisor?,
-                        precision: precision?,
-                        order: order?,
-                    }))
-                })()
-            }
-            Some(f) => write_request(self, f, address, order, &mut errors).and_then(|request| {
-                Some(Plan::Write(WritePlan {
-                    slave: slave?,
-                    request,
-                }))
-            }),
-            None => None,
-        };
-        match (plan, timeout) {
-            (Some(plan), Some(timeout)) if errors.is_empty() => Ok(Checked { plan, timeout }),
-            _ => Err(errors),
+        Keys {
+            slave,
+            address,
+            timeout,
+            order,
+            value_type,
+            divisor,
+            precision,
+            bits,
         }
     }
+}
+
+/// The keys of a transaction as read: `None` when absent or refused (reported), the inner
+/// `None` of a key given but refused.
+struct Keys {
+    slave: Option<u8>,
+    address: Option<u16>,
+    timeout: Option<Duration>,
+    order: Option<Option<ByteOrder>>,
+    value_type: Option<Option<ValueType>>,
+    divisor: Option<u32>,
+    precision: Option<u8>,
+    bits: Option<Option<u8>>,
+}
+
+/// The function of its code.
+fn function_of(code: Option<i64>) -> Option<Function> {
+    Some(match code? {
+        1 => Function::ReadCoils,
+        2 => Function::ReadDiscreteInputs,
+        3 => Function::ReadHoldingRegisters,
+        4 => Function::ReadInputRegisters,
+        5 => Function::WriteSingleCoil,
+        6 => Function::WriteSingleRegister,
+        15 => Function::WriteMultipleCoils,
+        16 => Function::WriteMultipleRegisters,
+        _ => return None,
+    })
+}
+
+/// A read of coils or discrete inputs: a bit count, and a byte order past 8 bits.
+fn bit_read(f: Function, keys: &Keys, errors: &mut Vec<ParamError>) -> Option<Plan> {
+    // Out of range was reported above; missing is reported here.
+    let bits = keys.bits.unwrap_or_else(|| {
+        errors.push(ParamError::BitCount);
+        None
+    });
+    let order = match (bits, keys.order) {
+        (Some(b), None) if b > 8 => {
+            errors.push(ParamError::Endianess);
+            None
+        }
+        (_, Some(None)) => {
+            errors.push(ParamError::Endianess);
+            None
+        }
+        (_, Some(Some(o))) => Some(o),
+        (_, None) => Some(ByteOrder::LittleEndian),
+    };
+    Some(Plan::Read(ReadPlan {
+        function: f,
+        slave: keys.slave?,
+        address: keys.address?,
+        bits: Some(bits?),
+        value_type: None,
+        divisor: keys.divisor?,
+        precision: keys.precision?,
+        order: order?,
+    }))
+}
+
+/// A read of registers: a value type and a byte order.
+fn register_read(f: Function, keys: &Keys, errors: &mut Vec<ParamError>) -> Option<Plan> {
+    // An unknown type was reported above; a missing one is reported here.
+    let value_type = keys.value_type.unwrap_or_else(|| {
+        errors.push(ParamError::ValueType);
+        None
+    });
+    let order = reported(keys.order.flatten(), errors, ParamError::Endianess);
+    Some(Plan::Read(ReadPlan {
+        function: f,
+        slave: keys.slave?,
+        address: keys.address?,
+        bits: None,
+        value_type: Some(value_type?),
+        divisor: keys.divisor?,
+        precision: keys.precision?,
+        order: order?,
+    }))
 }
 
 /// The write request of `spec` for function `f`, or its configuration messages.
@@ -163,35 +203,7 @@ fn write_request(
         }
     };
     if matches!(f, Function::WriteSingleCoil | Function::WriteMultipleCoils) {
-        let bits: Option<Vec<bool>> = values.map(|vs| {
-            vs.iter()
-                .map(|v| match v {
-                    serde_json::Value::Bool(b) => Some(*b),
-                    serde_json::Value::Number(n) => n.as_f64().map(|x| x != 0.0),
-                    _ => None,
-                })
-                .collect::<Option<Vec<bool>>>()
-        })?;
-        let Some(bits) = bits.filter(|b| f == Function::WriteMultipleCoils || b.len() == 1) else {
-            errors.push(ParamError::Values);
-            return None;
-        };
-        if bits.len() > 1968 {
-            errors.push(ParamError::Values);
-            return None;
-        }
-        let address = address?;
-        return Some(if f == Function::WriteSingleCoil {
-            Request::WriteSingleCoil {
-                address,
-                value: bits[0],
-            }
-        } else {
-            Request::WriteMultipleCoils {
-                address,
-                values: bits,
-            }
-        });
+        return coil_write(f, address, values?, errors);
     }
     let ty = spec.write_type.as_deref().and_then(WriteType::parse);
     let ty = reported(ty, errors, ParamError::WriteType);
@@ -241,6 +253,43 @@ fn write_request(
         }
     }
 }
+/// A write of one or more coils: each value a boolean or a number (not 0 is on).
+fn coil_write(
+    f: Function,
+    address: Option<u16>,
+    values: &[serde_json::Value],
+    errors: &mut Vec<ParamError>,
+) -> Option<Request> {
+    let bits = values
+        .iter()
+        .map(|v| match v {
+            serde_json::Value::Bool(b) => Some(*b),
+            serde_json::Value::Number(n) => n.as_f64().map(|x| x != 0.0),
+            _ => None,
+        })
+        .collect::<Option<Vec<bool>>>();
+    let Some(bits) = bits.filter(|b| f == Function::WriteMultipleCoils || b.len() == 1) else {
+        errors.push(ParamError::Values);
+        return None;
+    };
+    if bits.len() > 1968 {
+        errors.push(ParamError::Values);
+        return None;
+    }
+    let address = address?;
+    Some(if f == Function::WriteSingleCoil {
+        Request::WriteSingleCoil {
+            address,
+            value: bits[0],
+        }
+    } else {
+        Request::WriteMultipleCoils {
+            address,
+            values: bits,
+        }
+    })
+}
+
 /// `found`, or `error` added to the errors when there is nothing.
 fn reported<T>(found: Option<T>, errors: &mut Vec<ParamError>, error: ParamError) -> Option<T> {
     if found.is_none() {
