@@ -6,11 +6,14 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+mod device;
+
 use super::line::ruled;
 use super::rules;
 use super::{Config, DeviceConfig, Framing, LinkConfig, SerialSettings, Transport};
 use crate::duration;
 use crate::yaml::{self, Node, Report};
+use device::read_device;
 
 /// The top-level keys the config reader reads; every other one is kept for the
 /// front-ends, which name the keys they read.
@@ -34,7 +37,7 @@ const LISTEN_KEYS: &[&str] = &[
 ];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
-const DEVICE_KEYS: &[&str] = &[
+pub(super) const DEVICE_KEYS: &[&str] = &[
     "name",
     "profile",
     "link",
@@ -47,69 +50,6 @@ const DEVICE_KEYS: &[&str] = &[
     "write_mode",
     "on_client_loss",
 ];
-const CLIENT_LOSS_KEYS: &[&str] = &["after", "safe"];
-
-/// `on_client_loss`: `hold`, or `{ after: DURATION, safe: { FIELD: VALUE, ... } }`.
-fn read_client_loss(
-    node: &Node,
-    report: &mut Report,
-    ctx: &str,
-) -> Option<Option<super::ClientLoss>> {
-    if let yaml::Kind::Str(text) = &node.kind {
-        if text == "hold" {
-            return Some(None);
-        }
-        report.push(
-            node.line,
-            ctx,
-            format!(
-                "`{}` is not a client-loss policy: `hold`, or `{{ after: 2s, safe: {{ FIELD: value }} }}`",
-                crate::text::quote(text)
-            ),
-        );
-        return None;
-    }
-    let mut map = node.map(report, ctx)?;
-    let after = match map.require("after", report, ctx) {
-        Some(n) => duration_value(
-            n,
-            report,
-            &format!("{ctx}.after"),
-            Duration::from_millis(10),
-        ),
-        None => None,
-    };
-    let safe_ctx = format!("{ctx}.safe");
-    let safe = map
-        .require("safe", report, ctx)
-        .and_then(|n| match &n.kind {
-            yaml::Kind::Map(entries) if !entries.is_empty() => Some(
-                entries
-                    .iter()
-                    .filter_map(|(key, value)| {
-                        let text = match &value.kind {
-                            yaml::Kind::Bool(b) => Some(b.to_string()),
-                            _ => value.scalar_text(report, &format!("{safe_ctx}.{}", key.name)),
-                        };
-                        text.map(|v| (key.name.clone(), v))
-                    })
-                    .collect::<Vec<_>>(),
-            ),
-            _ => {
-                report.push(
-                    n.line,
-                    &safe_ctx,
-                    "expected a mapping of output fields to their safe values",
-                );
-                None
-            }
-        });
-    map.finish(report, ctx, CLIENT_LOSS_KEYS);
-    Some(Some(super::ClientLoss {
-        after: after?,
-        safe: safe?,
-    }))
-}
 
 pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     let mut config = Config::empty(report.file());
@@ -118,94 +58,17 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     }
     let mut map = root.map(report, "config")?;
     if let Some(listen) = map.get("listen").and_then(|n| n.map(report, "listen")) {
-        let mut listen = listen;
-        for (key, slot, line) in [
-            ("http", &mut config.http, &mut config.lines.http),
-            ("grpc", &mut config.grpc, &mut config.lines.grpc),
-        ] {
-            if let Some(node) = listen.get(key) {
-                *line = node.line;
-                let ctx = format!("listen.{key}");
-                if let Some(text) = node.scalar_text(report, &ctx) {
-                    match text.parse::<SocketAddr>() {
-                        Ok(addr) => *slot = addr,
-                        Err(_) => report.push(
-                            node.line,
-                            &ctx,
-                            format!(
-                                "`{text}` is not an address (write IP:port, e.g. 127.0.0.1:8080)"
-                            ),
-                        ),
-                    }
-                }
-            }
-        }
-        if let Some(node) = listen.get("header_timeout")
-            && let Some(d) = duration_value(
-                node,
-                report,
-                "listen.header_timeout",
-                Duration::from_millis(10),
-            )
-        {
-            config.header_timeout = d;
-        }
-        if let Some(node) = listen.get("body_timeout")
-            && let Some(d) = duration_value(
-                node,
-                report,
-                "listen.body_timeout",
-                Duration::from_millis(10),
-            )
-        {
-            config.body_timeout = d;
-        }
-        if let Some(n) = listen.get("max_streams").and_then(|node| {
-            node.int_in(
-                report,
-                "listen.max_streams",
-                1,
-                super::MAX_STREAMS_LIMIT as i128,
-            )
-        }) {
-            config.max_streams = usize::try_from(n).unwrap_or(super::DEFAULT_MAX_STREAMS);
-        }
-        listen.finish(report, "listen", LISTEN_KEYS);
+        read_listen(&mut config, listen, report);
     }
     if let Some(n) = map.get("profiles") {
         config.lines.profiles = n.line;
         config.profiles = n.scalar_text(report, "profiles").map(PathBuf::from);
     }
     if let Some(links) = map.get("links").and_then(|n| n.seq(report, "links")) {
-        check_unique(&entry_names(links), "link", report);
-        for (i, n) in links.iter().enumerate() {
-            match read_link(n, i, report) {
-                Some(link) => config.links.push(link),
-                None => config.unreadable.links.extend(
-                    entry_names(std::slice::from_ref(n))
-                        .into_iter()
-                        .map(|(name, _)| name),
-                ),
-            }
-        }
+        read_links(&mut config, links, report);
     }
     if let Some(devices) = map.get("devices").and_then(|n| n.seq(report, "devices")) {
-        check_unique(&entry_names(devices), "device", report);
-        for (i, n) in devices.iter().enumerate() {
-            match read_device(n, i, report) {
-                Some((device, slave_refused)) => {
-                    if slave_refused {
-                        config.unreadable.slave_ids.push(device.name.clone());
-                    }
-                    config.devices.push(device);
-                }
-                None => config.unreadable.devices.extend(
-                    entry_names(std::slice::from_ref(n))
-                        .into_iter()
-                        .map(|(name, _)| name),
-                ),
-            }
-        }
+        read_devices(&mut config, devices, report);
     }
     config.modbus_server = map
         .get("modbus_server")
@@ -217,29 +80,8 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
         .get("transactions")
         .map(|n| super::transactions::read(n, report))
         .unwrap_or_default();
-    if let Some(mut reload) = map.get("reload").and_then(|n| n.map(report, "reload")) {
-        if let Some(node) = reload.get("watch")
-            && let Some(watch) = yaml::boolean(node, report, "reload.watch")
-        {
-            config.reload.watch = watch;
-        }
-        if let Some(node) = reload.get("debounce")
-            && let Some(d) = duration_value(node, report, "reload.debounce", Duration::ZERO)
-        {
-            if d > super::MAX_DEBOUNCE {
-                report.push(
-                    node.line,
-                    "reload.debounce",
-                    format!(
-                        "{d:?} is longer than {} s: changes would wait too long",
-                        super::MAX_DEBOUNCE.as_secs()
-                    ),
-                );
-            } else {
-                config.reload.debounce = d;
-            }
-        }
-        reload.finish(report, "reload", RELOAD_KEYS);
+    if let Some(reload) = map.get("reload").and_then(|n| n.map(report, "reload")) {
+        read_reload(&mut config.reload, reload, report);
     }
     for (key, node) in map.rest() {
         config.sections.keep(&key.name, key.line, node);
@@ -249,7 +91,126 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     Some(config)
 }
 
-fn name_of(
+/// `listen:`: the HTTP and gRPC addresses, the request timeouts, the streams' bound.
+fn read_listen(config: &mut Config, mut listen: yaml::MapReader<'_>, report: &mut Report) {
+    for (key, slot, line) in [
+        ("http", &mut config.http, &mut config.lines.http),
+        ("grpc", &mut config.grpc, &mut config.lines.grpc),
+    ] {
+        if let Some(node) = listen.get(key) {
+            *line = node.line;
+            let ctx = format!("listen.{key}");
+            if let Some(text) = node.scalar_text(report, &ctx) {
+                match text.parse::<SocketAddr>() {
+                    Ok(addr) => *slot = addr,
+                    Err(_) => report.push(
+                        node.line,
+                        &ctx,
+                        format!("`{text}` is not an address (write IP:port, e.g. 127.0.0.1:8080)"),
+                    ),
+                }
+            }
+        }
+    }
+    if let Some(node) = listen.get("header_timeout")
+        && let Some(d) = duration_value(
+            node,
+            report,
+            "listen.header_timeout",
+            Duration::from_millis(10),
+        )
+    {
+        config.header_timeout = d;
+    }
+    if let Some(node) = listen.get("body_timeout")
+        && let Some(d) = duration_value(
+            node,
+            report,
+            "listen.body_timeout",
+            Duration::from_millis(10),
+        )
+    {
+        config.body_timeout = d;
+    }
+    if let Some(n) = listen.get("max_streams").and_then(|node| {
+        node.int_in(
+            report,
+            "listen.max_streams",
+            1,
+            super::MAX_STREAMS_LIMIT as i128,
+        )
+    }) {
+        config.max_streams = usize::try_from(n).unwrap_or(super::DEFAULT_MAX_STREAMS);
+    }
+    listen.finish(report, "listen", LISTEN_KEYS);
+}
+
+/// `links:`, each checked; one that cannot be read is named as unreadable.
+fn read_links(config: &mut Config, links: &[Node], report: &mut Report) {
+    check_unique(&entry_names(links), "link", report);
+    for (i, n) in links.iter().enumerate() {
+        match read_link(n, i, report) {
+            Some(link) => config.links.push(link),
+            None => config.unreadable.links.extend(
+                entry_names(std::slice::from_ref(n))
+                    .into_iter()
+                    .map(|(name, _)| name),
+            ),
+        }
+    }
+}
+
+/// `devices:`, each checked; one that cannot be read is named as unreadable.
+fn read_devices(config: &mut Config, devices: &[Node], report: &mut Report) {
+    check_unique(&entry_names(devices), "device", report);
+    for (i, n) in devices.iter().enumerate() {
+        match read_device(n, i, report) {
+            Some((device, slave_refused)) => {
+                if slave_refused {
+                    config.unreadable.slave_ids.push(device.name.clone());
+                }
+                config.devices.push(device);
+            }
+            None => config.unreadable.devices.extend(
+                entry_names(std::slice::from_ref(n))
+                    .into_iter()
+                    .map(|(name, _)| name),
+            ),
+        }
+    }
+}
+
+/// `reload: { watch, debounce }`.
+fn read_reload(
+    config: &mut super::ReloadConfig,
+    mut reload: yaml::MapReader<'_>,
+    report: &mut Report,
+) {
+    if let Some(node) = reload.get("watch")
+        && let Some(watch) = yaml::boolean(node, report, "reload.watch")
+    {
+        config.watch = watch;
+    }
+    if let Some(node) = reload.get("debounce")
+        && let Some(d) = duration_value(node, report, "reload.debounce", Duration::ZERO)
+    {
+        if d > super::MAX_DEBOUNCE {
+            report.push(
+                node.line,
+                "reload.debounce",
+                format!(
+                    "{d:?} is longer than {} s: changes would wait too long",
+                    super::MAX_DEBOUNCE.as_secs()
+                ),
+            );
+        } else {
+            config.debounce = d;
+        }
+    }
+    reload.finish(report, "reload", RELOAD_KEYS);
+}
+
+pub(super) fn name_of(
     map: &mut yaml::MapReader<'_>,
     report: &mut Report,
     what: &str,
@@ -344,7 +305,12 @@ fn read_tcp(node: &Node, link: &str, report: &mut Report) -> Option<Transport> {
 }
 
 /// A duration such as `50ms` or `T#1s`, at least `min`.
-fn duration_value(node: &Node, report: &mut Report, ctx: &str, min: Duration) -> Option<Duration> {
+pub(super) fn duration_value(
+    node: &Node,
+    report: &mut Report,
+    ctx: &str,
+    min: Duration,
+) -> Option<Duration> {
     let text = match &node.kind {
         yaml::Kind::Str(s) => s.clone(),
         yaml::Kind::Int(i) => {
@@ -379,87 +345,6 @@ fn duration_value(node: &Node, report: &mut Report, ctx: &str, min: Duration) ->
             None
         }
     }
-}
-
-/// A device as far as it can be read (with whether a written `slave_id` was refused):
-/// values that were refused (their problems reported) take their defaults, so that the
-/// device is still checked against its profile and links.
-fn read_device(node: &Node, index: usize, report: &mut Report) -> Option<(DeviceConfig, bool)> {
-    let mut map = node.map(report, &format!("devices[{index}]"))?;
-    let (name, ctx) = name_of(&mut map, report, "device", index);
-    let at = |k: &str| format!("{ctx}: {k}");
-    let profile = map
-        .require("profile", report, &ctx)
-        .and_then(|n| n.scalar_text(report, &at("profile")));
-    let link = map
-        .get("link")
-        .and_then(|n| n.scalar_text(report, &at("link")));
-    let slave_node = map.get("slave_id");
-    let slave_id = slave_node.and_then(|n| {
-        let id = n.int_in(report, &at("slave_id"), 0, i128::from(u32::MAX))?;
-        ruled(rules::slave_id(id as u64), n.line, &at("slave_id"), report)
-    });
-    let slave_refused = slave_node.is_some() && slave_id.is_none();
-    let mut duration_of = |key: &str, default: Duration, min: Duration| -> Option<Duration> {
-        map.get(key).map_or(Some(default), |node| {
-            duration_value(node, report, &at(key), min)
-        })
-    };
-    let refresh_rate = duration_of("refresh_rate", rules::DEFAULT_REFRESH, rules::MIN_PERIOD);
-    let timeout = duration_of("timeout", rules::DEFAULT_TIMEOUT, rules::MIN_PERIOD);
-    let retries = match map.get("retries") {
-        None => Some(rules::DEFAULT_RETRIES),
-        Some(n) => n
-            .int_in(report, &at("retries"), 0, i128::from(rules::MAX_RETRIES))
-            .map(|r| r as u32),
-    };
-    let mut registers = |key: &str, min: i128, report: &mut Report| {
-        map.get(key).map(|n| {
-            n.int_in(report, &at(key), min, i128::from(rules::MAX_READ_REGISTERS))
-                .map(|m| m as u16)
-        })
-    };
-    let max_batch = registers("max_batch", 1, report).unwrap_or(Some(rules::MAX_READ_REGISTERS));
-    let max_gap = registers("max_gap", 0, report).unwrap_or(Some(0));
-    let write_mode = match map.get("write_mode") {
-        None => Some(super::WriteMode::default()),
-        Some(n) => n.scalar_text(report, &at("write_mode")).and_then(|t| {
-            let mode = super::WriteMode::parse(&t);
-            if mode.is_none() {
-                report.push(
-                    n.line,
-                    at("write_mode"),
-                    format!(
-                        "`{}` is not a write mode (on_change or reconcile)",
-                        crate::text::quote(&t)
-                    ),
-                );
-            }
-            mode
-        }),
-    };
-    let on_client_loss = match map.get("on_client_loss") {
-        None => Some(None),
-        Some(n) => read_client_loss(n, report, &at("on_client_loss")),
-    };
-    map.finish(report, &ctx, DEVICE_KEYS);
-    Some((
-        DeviceConfig {
-            name: name?,
-            profile: profile?,
-            link,
-            slave_id,
-            refresh_rate: refresh_rate.unwrap_or(rules::DEFAULT_REFRESH),
-            timeout: timeout.unwrap_or(rules::DEFAULT_TIMEOUT),
-            retries: retries.unwrap_or(rules::DEFAULT_RETRIES),
-            max_batch: max_batch.unwrap_or(rules::MAX_READ_REGISTERS),
-            max_gap: max_gap.unwrap_or(0),
-            write_mode: write_mode.unwrap_or_default(),
-            on_client_loss: on_client_loss.flatten(),
-            line: node.line,
-        },
-        slave_refused,
-    ))
 }
 
 /// The `name` of every entry that has one, with its line, whatever else is wrong with it.
