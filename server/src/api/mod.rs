@@ -200,10 +200,33 @@ fn needs(service: &Arc<Service>, operation: Operation, method: Method) -> Method
 /// The HTTP routes, each request body to arrive within `body_timeout`. The API's routes
 /// each name their operation; health, metrics and the web page's files need no token.
 pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -> Router {
-    use Operation::*;
-    use axum::routing::{delete, patch, post};
     let s = &service;
-    let api = Router::new()
+    let api = link_routes(s)
+        .merge(device_routes(s))
+        .merge(transaction_routes(s));
+    Router::new()
+        .route("/livez", get(rest::livez))
+        .route("/readyz", get(rest::readyz))
+        .route("/metrics", get(metrics))
+        .nest(API_PREFIX, api)
+        .merge(ui::routes())
+        .fallback(not_found)
+        .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
+        .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
+            body_timeout,
+        ))
+        .layer(axum::middleware::from_fn(refuse_large_bodies))
+        .layer(axum::middleware::map_response(error::json_errors))
+        .layer(axum::middleware::map_response(error::json_newline))
+        .layer(TraceLayer::new_for_http())
+        .with_state(service)
+}
+
+/// The document, the configuration, links, their plans and scans.
+fn link_routes(s: &Arc<Service>) -> Router<Arc<Service>> {
+    use Operation::*;
+    use axum::routing::{delete, post};
+    Router::new()
         .route("/openapi.json", needs(s, Read, get(openapi_json)))
         .route("/links", needs(s, Read, get(rest::list_links)))
         .route("/config", needs(s, Read, get(config::get_config)))
@@ -229,6 +252,13 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
             "/links/{link}/transactions",
             needs(s, Transact, post(transactions::post_transaction)),
         )
+}
+
+/// Devices, their fields and writes, profiles, events and the located addresses.
+fn device_routes(s: &Arc<Service>) -> Router<Arc<Service>> {
+    use Operation::*;
+    use axum::routing::{delete, patch};
+    Router::new()
         .route("/devices", needs(s, Read, get(rest::list_devices)))
         .route(
             "/devices/{device}",
@@ -273,6 +303,13 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
             )),
         )
         .route("/memory", needs(s, Read, get(map::get_memory)))
+}
+
+/// Standing transactions.
+fn transaction_routes(s: &Arc<Service>) -> Router<Arc<Service>> {
+    use Operation::*;
+    use axum::routing::{delete, post};
+    Router::new()
         .route(
             "/transactions",
             needs(s, Read, get(transactions::list_standing)),
@@ -298,23 +335,7 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
         .route(
             "/transactions/{name}/values",
             needs(s, SwitchTransaction, put(transactions::put_standing_values)),
-        );
-    Router::new()
-        .route("/livez", get(rest::livez))
-        .route("/readyz", get(rest::readyz))
-        .route("/metrics", get(metrics))
-        .nest(API_PREFIX, api)
-        .merge(ui::routes())
-        .fallback(not_found)
-        .layer(axum::extract::DefaultBodyLimit::max(MAX_BODY))
-        .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
-            body_timeout,
-        ))
-        .layer(axum::middleware::from_fn(refuse_large_bodies))
-        .layer(axum::middleware::map_response(error::json_errors))
-        .layer(axum::middleware::map_response(error::json_newline))
-        .layer(TraceLayer::new_for_http())
-        .with_state(service)
+        )
 }
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, within the limits of

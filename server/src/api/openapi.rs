@@ -62,6 +62,22 @@ fn merge(doc: &mut Value, pointer: &str, extra: Value) {
 }
 
 fn refine(doc: &mut Value, secured: bool) {
+    values(doc);
+    declarations(doc);
+    transactions(doc);
+    path_parameters(doc);
+    // A reload's 400: an invalid configuration, or a malformed query.
+    set(
+        doc,
+        "/paths/~1api~1v1~1config~1reload/post/responses/400/content/application~1json/schema",
+        json!({"anyOf": [{"$ref": "#/components/schemas/InvalidConfig"},
+                         {"$ref": "#/components/schemas/ErrorBody"}]}),
+    );
+    security(doc, secured);
+}
+
+/// Values: JSON scalars, never objects; a write's body `{"value": X}` or X alone.
+fn values(doc: &mut Value) {
     let schemas = "/components/schemas";
     // Values: JSON scalars, never objects.
     for (pointer, description, nullable) in [
@@ -121,7 +137,11 @@ fn refine(doc: &mut Value, secured: bool) {
             write.clone(),
         );
     }
-    // Declarations: ranges and integers as the checks have them.
+}
+
+/// Declarations: ranges and integers as the checks have them.
+fn declarations(doc: &mut Value) {
+    let schemas = "/components/schemas";
     use crate::config::rules;
     let ms = |d: std::time::Duration| u64::try_from(d.as_millis()).unwrap_or(u64::MAX);
     let timeouts = crate::declare::TIMEOUTS;
@@ -182,8 +202,10 @@ fn refine(doc: &mut Value, secured: bool) {
     ] {
         merge(doc, &format!("{schemas}/{pointer}"), extra);
     }
-    transactions(doc);
-    // Path parameters: names and located addresses have a grammar.
+}
+
+/// Path parameters: names and located addresses have a grammar.
+fn path_parameters(doc: &mut Value) {
     if let Some(Value::Object(paths)) = doc.get_mut("paths") {
         for operation in paths.values_mut().filter_map(Value::as_object_mut) {
             for op in operation.values_mut() {
@@ -201,14 +223,6 @@ fn refine(doc: &mut Value, secured: bool) {
             }
         }
     }
-    // A reload's 400: an invalid configuration, or a malformed query.
-    set(
-        doc,
-        "/paths/~1api~1v1~1config~1reload/post/responses/400/content/application~1json/schema",
-        json!({"anyOf": [{"$ref": "#/components/schemas/InvalidConfig"},
-                         {"$ref": "#/components/schemas/ErrorBody"}]}),
-    );
-    security(doc, secured);
 }
 
 /// A transaction's keys by function: reads of bits (FC01/02, `bit_count`), of registers
@@ -316,9 +330,34 @@ fn by_function() -> Vec<Value> {
                               "values": {"type": "array", "minItems": 1, "maxItems": 1968}},
                "required": ["values"]}),
     ];
+    for (name, item, registers, ordered) in write_types() {
+        let required: Vec<&str> = ["type", "values"]
+            .into_iter()
+            .chain(ordered.then_some("byte_order"))
+            .collect();
+        let byte_order = if ordered {
+            json!({"type": "string"})
+        } else {
+            json!({})
+        };
+        if registers == 1 {
+            branches.push(json!({"properties": {"function": {"const": 6}, "type": {"const": name},
+                "byte_order": byte_order, "values": {"type": "array", "minItems": 1, "maxItems": 1, "items": item}},
+                "required": required}));
+        }
+        branches.push(json!({"properties": {"function": {"const": 16}, "type": {"const": name},
+            "byte_order": byte_order, "values": {"type": "array", "minItems": 1, "maxItems": 123 / registers, "items": item}},
+            "required": required}));
+    }
+    branches
+}
+
+/// The register writes' types: the JSON of a value, the registers one takes, and whether
+/// it needs a byte order.
+fn write_types() -> [(&'static str, Value, u32, bool); 7] {
     // Within f32's range, a little inside so that no rounding of the bound leaves it.
     let f32_max = 3.4e38_f64;
-    let types: [(&str, Value, u32, bool); 7] = [
+    [
         (
             "uint8",
             json!({"type": "integer", "minimum": 0, "maximum": 255}),
@@ -361,27 +400,7 @@ fn by_function() -> Vec<Value> {
             2,
             true,
         ),
-    ];
-    for (name, item, registers, ordered) in types {
-        let required: Vec<&str> = ["type", "values"]
-            .into_iter()
-            .chain(ordered.then_some("byte_order"))
-            .collect();
-        let byte_order = if ordered {
-            json!({"type": "string"})
-        } else {
-            json!({})
-        };
-        if registers == 1 {
-            branches.push(json!({"properties": {"function": {"const": 6}, "type": {"const": name},
-                "byte_order": byte_order, "values": {"type": "array", "minItems": 1, "maxItems": 1, "items": item}},
-                "required": required}));
-        }
-        branches.push(json!({"properties": {"function": {"const": 16}, "type": {"const": name},
-            "byte_order": byte_order, "values": {"type": "array", "minItems": 1, "maxItems": 123 / registers, "items": item}},
-            "required": required}));
-    }
-    branches
+    ]
 }
 
 /// Bearer tokens: the scheme always; required by every API operation (not the health and
