@@ -83,6 +83,70 @@ impl<S: Stream<Item = Bytes> + Unpin> Stream for KeptAlive<S> {
     }
 }
 
+/// The query's `values` (true unless `false`); any parameter but `device` and `values` is
+/// refused.
+fn with_values(query: &HashMap<String, String>) -> Result<bool, ApiError> {
+    if let Some(unknown) = query
+        .keys()
+        .find(|k| !matches!(k.as_str(), "device" | "values"))
+    {
+        return Err(ApiError::bad_request(
+            "invalid_query",
+            format!("unknown query parameter `{unknown}` (expected: device, values)"),
+        ));
+    }
+    match query.get("values").map(String::as_str) {
+        None | Some("true") => Ok(true),
+        Some("false") => Ok(false),
+        Some(other) => Err(ApiError::bad_request(
+            "invalid_query",
+            format!("values must be true or false, not `{other}`"),
+        )),
+    }
+}
+
+/// A change as its event; a value's made once for every stream that sends it.
+fn change_event(viewer: &Service, change: Change) -> Bytes {
+    match change {
+        Change::Value {
+            device,
+            idx,
+            sample,
+            forms,
+        } => forms.get_or_make(SSE_FORM, || {
+            event(
+                EVENT_VALUE,
+                &field_value(&viewer.field_view(&device, idx, &sample)),
+            )
+        }),
+        Change::Diagnostics {
+            device,
+            diagnostics: d,
+        } => event(
+            EVENT_DIAGNOSTICS,
+            &DiagnosticsEvent {
+                device: device.name().to_owned(),
+                connected: d.connected,
+                error_code: d.error_code.code(),
+                io_cycles: d.io_cycles,
+                last_response_ms: d.last_response_ms,
+            },
+        ),
+        Change::Removed {
+            device,
+            field,
+            reason,
+        } => event(
+            EVENT_REMOVED,
+            &RemovedEvent {
+                device,
+                field,
+                reason,
+            },
+        ),
+    }
+}
+
 /// Changes of values and diagnostics, as `value` and `diagnostics` events whose data is
 /// the JSON of `GET .../fields/{field}` and of a device's diagnostics; without `device`,
 /// also `transaction` events (the JSON of `GET /api/v1/transactions/{name}`). With
@@ -97,25 +161,7 @@ pub(crate) async fn events(
     query: Result<Query<HashMap<String, String>>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|e| ApiError::bad_request("invalid_query", e.body_text()))?;
-    if let Some(unknown) = query
-        .keys()
-        .find(|k| !matches!(k.as_str(), "device" | "values"))
-    {
-        return Err(ApiError::bad_request(
-            "invalid_query",
-            format!("unknown query parameter `{unknown}` (expected: device, values)"),
-        ));
-    }
-    let values = match query.get("values").map(String::as_str) {
-        None | Some("true") => true,
-        Some("false") => false,
-        Some(other) => {
-            return Err(ApiError::bad_request(
-                "invalid_query",
-                format!("values must be true or false, not `{other}`"),
-            ));
-        }
-    };
+    let values = with_values(&query)?;
     let devices: Vec<&String> = query.get("device").into_iter().collect();
     let mut selection = service.select::<_, &str>(&devices, &[])?;
     if !values {
@@ -136,44 +182,7 @@ pub(crate) async fn events(
     let viewer = service.clone();
     let stream = service
         .subscribe(selection, true)?
-        .map(move |change| match change {
-            Change::Value {
-                device,
-                idx,
-                sample,
-                forms,
-            } => forms.get_or_make(SSE_FORM, || {
-                event(
-                    EVENT_VALUE,
-                    &field_value(&viewer.field_view(&device, idx, &sample)),
-                )
-            }),
-            Change::Diagnostics {
-                device,
-                diagnostics: d,
-            } => event(
-                EVENT_DIAGNOSTICS,
-                &DiagnosticsEvent {
-                    device: device.name().to_owned(),
-                    connected: d.connected,
-                    error_code: d.error_code.code(),
-                    io_cycles: d.io_cycles,
-                    last_response_ms: d.last_response_ms,
-                },
-            ),
-            Change::Removed {
-                device,
-                field,
-                reason,
-            } => event(
-                EVENT_REMOVED,
-                &RemovedEvent {
-                    device,
-                    field,
-                    reason,
-                },
-            ),
-        });
+        .map(move |change| change_event(&viewer, change));
     let stream = KeptAlive {
         events: futures_util::stream::select(stream, transactions),
         quiet: Box::pin(tokio::time::sleep(KEEP_ALIVE)),
