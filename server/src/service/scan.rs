@@ -114,26 +114,7 @@ impl Service {
         timeout: Option<Duration>,
     ) -> Result<ScanState, ServiceError> {
         let link = self.link(link)?;
-        let config = link.config();
-        let setting = match &config.transport {
-            Transport::Serial(s) if s.framing == Framing::Rtu => Setting {
-                baud: s.baud,
-                parity: s.parity,
-            },
-            Transport::Tcp {
-                framing: Framing::Rtu,
-                ..
-            } => Setting {
-                baud: 0,
-                parity: crate::config::Parity::None,
-            },
-            _ => {
-                return Err(ServiceError::Scan(format!(
-                    "link {} does not carry RTU frames: a scan probes serial RTU lines (and RTU over TCP)",
-                    link.name()
-                )));
-            }
-        };
+        let setting = rtu_setting(&link)?;
         let plan = Plan {
             settings: vec![setting],
             ids: crate::scan::parse_ids(ids.unwrap_or("1-247")).map_err(ServiceError::Scan)?,
@@ -184,40 +165,18 @@ impl Service {
         });
         drop(records);
         let profiles: Vec<_> = self.cache.catalog().iter().cloned().collect();
-        let mut prober = LinkProber {
+        let prober = LinkProber {
             link: link.clone(),
             slot: plan.timeout,
         };
-        let name = link.name().to_owned();
-        self.tasks().spawn(async move {
-            let started = std::time::Instant::now();
-            let mut on_progress = |p: Progress| {
-                state.send_modify(|s| {
-                    s.elapsed_ms = started.elapsed().as_millis() as u64;
-                    match p {
-                        Progress::Tried { done, .. } => s.probed = done,
-                        Progress::Found(d) => s.result.devices.push(*d),
-                        Progress::Setting { .. } => {}
-                    }
-                });
-            };
-            let result =
-                crate::scan::run(&mut prober, &plan, &profiles, &mut on_progress, &cancel).await;
-            state.send_modify(|s| {
-                s.elapsed_ms = started.elapsed().as_millis() as u64;
-                match result {
-                    Ok(devices) => {
-                        s.result = Summary::new(&plan, devices, None, &name);
-                        s.state = "done";
-                    }
-                    Err(ScanError::Cancelled) => s.state = "cancelled",
-                    Err(e) => {
-                        s.state = "failed";
-                        s.error = Some(e.to_string());
-                    }
-                }
-            });
-        });
+        self.tasks().spawn(run_scan(
+            prober,
+            plan,
+            profiles,
+            state,
+            cancel,
+            link.name().to_owned(),
+        ));
         Ok(first)
     }
 
@@ -238,4 +197,63 @@ impl Service {
             .map(|r| r.cancel.cancel())
             .ok_or(ServiceError::UnknownScan(id))
     }
+}
+
+/// The line setting a scan of `link` probes at: its own, for a link that carries RTU
+/// frames (serial, or RTU over TCP).
+fn rtu_setting(link: &Link) -> Result<Setting, ServiceError> {
+    match &link.config().transport {
+        Transport::Serial(s) if s.framing == Framing::Rtu => Ok(Setting {
+            baud: s.baud,
+            parity: s.parity,
+        }),
+        Transport::Tcp {
+            framing: Framing::Rtu,
+            ..
+        } => Ok(Setting {
+            baud: 0,
+            parity: crate::config::Parity::None,
+        }),
+        _ => Err(ServiceError::Scan(format!(
+            "link {} does not carry RTU frames: a scan probes serial RTU lines (and RTU over TCP)",
+            link.name()
+        ))),
+    }
+}
+
+/// A scan's run, its progress and its end in its state.
+async fn run_scan(
+    mut prober: LinkProber,
+    plan: Plan,
+    profiles: Vec<Arc<crate::profile::Profile>>,
+    state: watch::Sender<ScanState>,
+    cancel: tokio_util::sync::CancellationToken,
+    name: String,
+) {
+    let started = std::time::Instant::now();
+    let mut on_progress = |p: Progress| {
+        state.send_modify(|s| {
+            s.elapsed_ms = started.elapsed().as_millis() as u64;
+            match p {
+                Progress::Tried { done, .. } => s.probed = done,
+                Progress::Found(d) => s.result.devices.push(*d),
+                Progress::Setting { .. } => {}
+            }
+        });
+    };
+    let result = crate::scan::run(&mut prober, &plan, &profiles, &mut on_progress, &cancel).await;
+    state.send_modify(|s| {
+        s.elapsed_ms = started.elapsed().as_millis() as u64;
+        match result {
+            Ok(devices) => {
+                s.result = Summary::new(&plan, devices, None, &name);
+                s.state = "done";
+            }
+            Err(ScanError::Cancelled) => s.state = "cancelled",
+            Err(e) => {
+                s.state = "failed";
+                s.error = Some(e.to_string());
+            }
+        }
+    });
 }

@@ -117,20 +117,14 @@ impl Service {
             }
         );
         let request = checked.request();
-        let slave = checked.slave();
-        let request_frame = frame(rtu, slave, &request_pdu(&request));
-        let started = Instant::now();
-        let outcome = |actual, state, value, error, response| Outcome {
-            actual,
-            state,
-            value,
-            error,
-            request: request_frame.clone(),
-            response,
-            elapsed_ms: (started.elapsed().as_secs_f64() * 1e6).round() / 1e3,
+        let said = Said {
+            rtu,
+            slave: checked.slave(),
+            request: frame(rtu, checked.slave(), &request_pdu(&request)),
+            started: Instant::now(),
         };
         if !config.transport.is_configured() {
-            return Ok(outcome(
+            return Ok(said.outcome(
                 false,
                 state::INTERFACE_UNAVAILABLE,
                 None,
@@ -140,17 +134,66 @@ impl Service {
         }
         // The request waits at most its timeout plus a second in the link's inbox; one the
         // link cannot send by then is dropped (busy), never sent late.
-        let deadline = started + checked.timeout * 2 + Duration::from_secs(1);
+        let deadline = said.started + checked.timeout * 2 + Duration::from_secs(1);
         let answered = self
-            .pass_through(&link, slave, &request, checked.timeout, deadline, stage)
+            .pass_through(
+                &link,
+                said.slave,
+                &request,
+                checked.timeout,
+                deadline,
+                stage,
+            )
             .await;
+        said.answered(answered, &checked.plan, &request)
+            .map_err(|()| ServiceError::Busy(link.name().to_owned()))
+    }
+}
+
+/// A transaction's request as sent, and when: what its outcome says with it.
+struct Said {
+    rtu: bool,
+    slave: u8,
+    request: String,
+    started: Instant,
+}
+
+impl Said {
+    fn outcome(
+        &self,
+        actual: bool,
+        state: i32,
+        value: Option<f64>,
+        error: Option<&'static str>,
+        response: Option<String>,
+    ) -> Outcome {
+        Outcome {
+            actual,
+            state,
+            value,
+            error,
+            request: self.request.clone(),
+            response,
+            elapsed_ms: (self.started.elapsed().as_secs_f64() * 1e6).round() / 1e3,
+        }
+    }
+
+    /// The outcome of the link's answer; `Err` when the link was too busy to send it.
+    fn answered(
+        &self,
+        answered: Result<Response, PassthroughError>,
+        plan: &Plan,
+        request: &Request,
+    ) -> Result<Outcome, ()> {
+        let (rtu, slave) = (self.rtu, self.slave);
+        let outcome = |actual, state, value, error, response| {
+            self.outcome(actual, state, value, error, response)
+        };
         Ok(match answered {
-            Err(PassthroughError::Busy | PassthroughError::Expired) => {
-                return Err(ServiceError::Busy(link.name().to_owned()));
-            }
+            Err(PassthroughError::Busy | PassthroughError::Expired) => return Err(()),
             Ok(response) => {
-                let response_frame = Some(frame(rtu, slave, &response.to_pdu(&request)));
-                match &checked.plan {
+                let response_frame = Some(frame(rtu, slave, &response.to_pdu(request)));
+                match plan {
                     Plan::Read(read) => match codec::read_value(read, &response) {
                         Ok(v) => outcome(true, state::DONE, Some(v), None, response_frame),
                         Err(_) => outcome(
