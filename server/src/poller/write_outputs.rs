@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use super::bus::Bus;
 use super::{LinkTask, Step, connection_fault};
-use crate::cache::WriteError;
+use crate::cache::{Device, WriteError};
 use crate::link::TxError;
 use crate::link::frame::Exception;
 use crate::plan::{self, WriteItem, WriteOp};
@@ -54,6 +54,46 @@ async fn send(
     }
 }
 
+/// The requested values again, after a reconnect or the device's return: each a write of
+/// its own in the log (origin `replay`), never an unrecorded one.
+fn replayed(device: &Device, items: &mut Vec<WriteItem>) {
+    for (field, value) in device.outputs().latest_requested() {
+        if !items.iter().any(|it| it.field == field) {
+            let name = &device.field(field).name;
+            let generation = device
+                .outputs()
+                .replay(device.name(), name, field, value.clone());
+            items.push(WriteItem {
+                field,
+                value,
+                generation: Some(generation),
+                registers: None,
+            });
+        }
+    }
+}
+
+impl From<crate::cache::TakenWrite> for WriteItem {
+    fn from(w: crate::cache::TakenWrite) -> Self {
+        WriteItem {
+            field: w.field,
+            value: w.value,
+            generation: Some(w.generation),
+            registers: w.registers,
+        }
+    }
+}
+
+/// The items of `op` as single writes, before the rest of `ops`.
+fn one_by_one(device: &Device, items: &[WriteItem], op: &WriteOp, ops: &mut VecDeque<WriteOp>) {
+    let subset = op.items().to_vec();
+    let sub: Vec<WriteItem> = subset.iter().map(|&n| items[n].clone()).collect();
+    let (singles, _) = plan::write_ops(&device.profile, &sub, true);
+    for single in singles.into_iter().rev() {
+        ops.push_front(single.remap(&subset));
+    }
+}
+
 impl LinkTask {
     pub(super) async fn write_device(&mut self, i: usize, bus: &mut Bus) -> Step {
         let p = &mut self.devices[i];
@@ -65,33 +105,9 @@ impl LinkTask {
             }
             return Ok(());
         }
-        let mut items: Vec<WriteItem> = taken
-            .into_iter()
-            .map(|w| WriteItem {
-                field: w.field,
-                value: w.value,
-                generation: Some(w.generation),
-                registers: w.registers,
-            })
-            .collect();
+        let mut items: Vec<WriteItem> = taken.into_iter().map(WriteItem::from).collect();
         if p.rewrite {
-            // The requested values again, after a reconnect or the device's return: each a
-            // write of its own in the log (origin `replay`), never an unrecorded one.
-            for (field, value) in device.outputs().latest_requested() {
-                if !items.iter().any(|it| it.field == field) {
-                    let name = &device.field(field).name;
-                    let generation =
-                        device
-                            .outputs()
-                            .replay(device.name(), name, field, value.clone());
-                    items.push(WriteItem {
-                        field,
-                        value,
-                        generation: Some(generation),
-                        registers: None,
-                    });
-                }
-            }
+            replayed(&device, &mut items);
             p.rewrite = false;
         }
         let finish = |item: &WriteItem, result: Result<(), WriteError>, attempts: u32| {
@@ -121,12 +137,7 @@ impl LinkTask {
                     // The device has no FC15/FC16: write these (and later ones) one by one.
                     tracing::info!(device = %device.name(), slave = p.slave, "device refused FC15/FC16; writing items one at a time");
                     p.single_writes = true;
-                    let subset = op.items().to_vec();
-                    let sub: Vec<WriteItem> = subset.iter().map(|&n| items[n].clone()).collect();
-                    let (singles, _) = plan::write_ops(&device.profile, &sub, true);
-                    for single in singles.into_iter().rev() {
-                        ops.push_front(single.remap(&subset));
-                    }
+                    one_by_one(&device, &items, &op, &mut ops);
                 }
                 Err(e) => {
                     let failed = WriteError::from(e.clone());
