@@ -307,68 +307,10 @@ impl Metrics {
         self.device_error_code.clear();
         self.device_mismatched.clear();
         for link in &cache.links() {
-            let labels = LinkLabels {
-                link: link.name().to_owned(),
-            };
-            let d = link.diagnostics();
-            // Counters exist at zero from the first scrape, so rates and alerts work at once.
-            let _ = self.link_reconnects.get_or_create(&labels);
-            let _ = self.link_sent.get_or_create(&labels);
-            let _ = self.link_received.get_or_create(&labels);
-            let _ = self.link_discarded.get_or_create(&labels);
-            let _ = self.link_utilisation.get_or_create(&labels);
-            let (depth, oldest) = link.inbox();
-            self.inbox_depth
-                .get_or_create(&labels)
-                .set(i64::try_from(depth).unwrap_or(i64::MAX));
-            self.inbox_oldest
-                .get_or_create(&labels)
-                .set(oldest.as_secs_f64());
-            for reason in ["busy", "expired", "abandoned"] {
-                let _ = self.inbox_dropped.get_or_create(&DroppedLabels {
-                    link: labels.link.clone(),
-                    reason: reason.to_owned(),
-                });
-            }
-            self.link_up
-                .get_or_create(&labels)
-                .set(i64::from(d.connected));
-            self.link_error_code
-                .get_or_create(&labels)
-                .set(i64::from(d.error_code.code()));
-            self.link_stalled
-                .get_or_create(&labels)
-                .set(i64::from(link.stalled().is_some()));
+            self.link_state(link);
         }
         for device in &cache.devices() {
-            let labels = DeviceLabels {
-                device: device.name().to_owned(),
-            };
-            let d = device.diagnostics();
-            self.device_connected
-                .get_or_create(&labels)
-                .set(i64::from(d.connected));
-            self.device_error_code
-                .get_or_create(&labels)
-                .set(i64::from(d.error_code.code()));
-            let mismatched = (0..device.profile.fields.len())
-                .filter(|&idx| device.mismatch(idx).is_some())
-                .count();
-            self.device_mismatched
-                .get_or_create(&labels)
-                .set(i64::try_from(mismatched).unwrap_or(i64::MAX));
-            let cycles = self.device_io_cycles.get_or_create(&labels);
-            cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
-            if !device.is_simulated() {
-                let _ = self.timeouts.get_or_create(&labels);
-                let _ = self.crc_errors.get_or_create(&labels);
-            }
-            for outcome in ["written", "superseded", "failed"] {
-                let _ = self.writes.get_or_create(&WriteLabels {
-                    device: device.name().to_owned(),
-                    outcome: outcome.to_owned(),
-                });
-            }
+            self.device_state(device);
         }
         for (device, outcome, n) in cache.writes.outcome_counts() {
             let counter = self.writes.get_or_create(&WriteLabels {
@@ -390,6 +332,75 @@ impl Metrics {
         match format {
             Format::OpenMetrics => out,
             Format::Prometheus => format::to_prometheus(&out),
+        }
+    }
+
+    /// A link's state gauges, and its counters at zero from its first scrape (so rates
+    /// and alerts work at once).
+    fn link_state(&self, link: &crate::cache::Link) {
+        let labels = LinkLabels {
+            link: link.name().to_owned(),
+        };
+        let d = link.diagnostics();
+        // Counters exist at zero from the first scrape, so rates and alerts work at once.
+        let _ = self.link_reconnects.get_or_create(&labels);
+        let _ = self.link_sent.get_or_create(&labels);
+        let _ = self.link_received.get_or_create(&labels);
+        let _ = self.link_discarded.get_or_create(&labels);
+        let _ = self.link_utilisation.get_or_create(&labels);
+        let (depth, oldest) = link.inbox();
+        self.inbox_depth
+            .get_or_create(&labels)
+            .set(i64::try_from(depth).unwrap_or(i64::MAX));
+        self.inbox_oldest
+            .get_or_create(&labels)
+            .set(oldest.as_secs_f64());
+        for reason in ["busy", "expired", "abandoned"] {
+            let _ = self.inbox_dropped.get_or_create(&DroppedLabels {
+                link: labels.link.clone(),
+                reason: reason.to_owned(),
+            });
+        }
+        self.link_up
+            .get_or_create(&labels)
+            .set(i64::from(d.connected));
+        self.link_error_code
+            .get_or_create(&labels)
+            .set(i64::from(d.error_code.code()));
+        self.link_stalled
+            .get_or_create(&labels)
+            .set(i64::from(link.stalled().is_some()));
+    }
+
+    /// A device's state gauges and counters.
+    fn device_state(&self, device: &crate::cache::Device) {
+        let labels = DeviceLabels {
+            device: device.name().to_owned(),
+        };
+        let d = device.diagnostics();
+        self.device_connected
+            .get_or_create(&labels)
+            .set(i64::from(d.connected));
+        self.device_error_code
+            .get_or_create(&labels)
+            .set(i64::from(d.error_code.code()));
+        let mismatched = (0..device.profile.fields.len())
+            .filter(|&idx| device.mismatch(idx).is_some())
+            .count();
+        self.device_mismatched
+            .get_or_create(&labels)
+            .set(i64::try_from(mismatched).unwrap_or(i64::MAX));
+        let cycles = self.device_io_cycles.get_or_create(&labels);
+        cycles.inc_by(d.io_cycles.saturating_sub(cycles.get()));
+        if !device.is_simulated() {
+            let _ = self.timeouts.get_or_create(&labels);
+            let _ = self.crc_errors.get_or_create(&labels);
+        }
+        for outcome in ["written", "superseded", "failed"] {
+            let _ = self.writes.get_or_create(&WriteLabels {
+                device: device.name().to_owned(),
+                outcome: outcome.to_owned(),
+            });
         }
     }
 }
