@@ -106,25 +106,7 @@ pub fn run(options: &Options) -> u8 {
     );
     let terminal = std::io::stderr().is_terminal();
     let started = std::time::Instant::now();
-    let mut on_progress = |p: Progress| match p {
-        Progress::Setting { setting, index, of } => {
-            if terminal {
-                eprint!("\r\x1b[K");
-            }
-            eprintln!("{} ({} of {of})", setting.label(), index + 1);
-        }
-        Progress::Tried { done, total } if terminal => {
-            eprint!("\r\x1b[K  {done} of {total} probed");
-            let _ = std::io::stderr().flush();
-        }
-        Progress::Tried { .. } => {}
-        Progress::Found(device) => {
-            if terminal {
-                eprint!("\r\x1b[K");
-            }
-            eprintln!("{}", device_line(&device));
-        }
-    };
+    let mut on_progress = |p: Progress| progress(p, terminal);
     let cancel = CancellationToken::new();
     let mut prober = PortProber::new(&options.port, plan.timeout);
     let scanned = runtime.block_on(async {
@@ -155,8 +137,38 @@ pub fn run(options: &Options) -> u8 {
         started.elapsed().as_secs_f64()
     );
     let summary = Summary::new(&plan, devices, Some(&options.port), "line");
-    if options.json {
-        match serde_json::to_string_pretty(&summary) {
+    print_summary(&summary, options.json)
+}
+
+/// A scan's progress on standard error: a line per setting and device found, the probes
+/// counted on a terminal.
+fn progress(p: Progress, terminal: bool) {
+    match p {
+        Progress::Setting { setting, index, of } => {
+            if terminal {
+                eprint!("\r\x1b[K");
+            }
+            eprintln!("{} ({} of {of})", setting.label(), index + 1);
+        }
+        Progress::Tried { done, total } if terminal => {
+            eprint!("\r\x1b[K  {done} of {total} probed");
+            let _ = std::io::stderr().flush();
+        }
+        Progress::Tried { .. } => {}
+        Progress::Found(device) => {
+            if terminal {
+                eprint!("\r\x1b[K");
+            }
+            eprintln!("{}", device_line(&device));
+        }
+    }
+}
+
+/// What was found, on standard output: as JSON, or a line per device and the config
+/// entries to paste; the exit code.
+fn print_summary(summary: &Summary, json: bool) -> u8 {
+    if json {
+        match serde_json::to_string_pretty(summary) {
             Ok(text) => println!("{text}"),
             Err(e) => {
                 eprintln!("{e}");
