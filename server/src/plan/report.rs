@@ -82,7 +82,25 @@ pub fn link_plan<'a>(
 }
 
 fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>) {
-    let timing = match &link.transport {
+    let timing = render_line(out, link);
+    for (d, profile, batches) in devices {
+        render_device(out, link, timing.as_ref(), d, profile, batches);
+    }
+    if let Some(u) = link_utilisation(link, devices) {
+        let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
+        if u > 1.0 {
+            let _ = writeln!(
+                out,
+                "  WARNING: the refresh rates need {:.0}% of what the line can carry; devices will be polled less often than configured",
+                u * 100.0
+            );
+        }
+    }
+}
+
+/// The link's line: its settings, and for a serial line its timing (returned).
+fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
+    match &link.transport {
         Transport::Serial(s) => {
             let t = LineTiming::new(s);
             let _ = writeln!(
@@ -118,57 +136,56 @@ fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>) {
             );
             None
         }
-    };
-    for (d, profile, batches) in devices {
+    }
+}
+
+/// A device's transactions per cycle, each with its wire time on a serial line.
+fn render_device(
+    out: &mut String,
+    link: &LinkConfig,
+    timing: Option<&LineTiming>,
+    d: &DeviceConfig,
+    profile: &Profile,
+    batches: &[ReadBatch],
+) {
+    let _ = writeln!(
+        out,
+        "  device {} (profile {}, slave {}, every {} ms): {} transaction(s) per cycle",
+        d.name,
+        profile.name,
+        d.slave_id.unwrap_or(0),
+        d.refresh_rate.as_millis(),
+        batches.len()
+    );
+    for b in batches {
+        let request = b.request();
+        let names: Vec<&str> = b
+            .fields
+            .iter()
+            .map(|&i| profile.fields[i].name.as_str())
+            .collect();
+        let wire = timing
+            .map(|t| {
+                let time = transaction_time(&request, t, link.guard_time);
+                format!(" {:>8.3} ms", ms(time))
+            })
+            .unwrap_or_default();
         let _ = writeln!(
             out,
-            "  device {} (profile {}, slave {}, every {} ms): {} transaction(s) per cycle",
-            d.name,
-            profile.name,
+            "    {} slave {:>3} address {:>5} count {:>4}{wire}  {}",
+            request.function(),
             d.slave_id.unwrap_or(0),
-            d.refresh_rate.as_millis(),
-            batches.len()
+            b.address,
+            b.count,
+            names.join(", ")
         );
-        for b in batches {
-            let request = b.request();
-            let names: Vec<&str> = b
-                .fields
-                .iter()
-                .map(|&i| profile.fields[i].name.as_str())
-                .collect();
-            let wire = timing
-                .map(|t| {
-                    let time = transaction_time(&request, &t, link.guard_time);
-                    format!(" {:>8.3} ms", ms(time))
-                })
-                .unwrap_or_default();
-            let _ = writeln!(
-                out,
-                "    {} slave {:>3} address {:>5} count {:>4}{wire}  {}",
-                request.function(),
-                d.slave_id.unwrap_or(0),
-                b.address,
-                b.count,
-                names.join(", ")
-            );
-        }
-        if let Some(t) = timing {
-            let _ = writeln!(
-                out,
-                "    cycle: {:.3} ms of bus time",
-                ms(cycle_time(batches, &t, link.guard_time))
-            );
-        }
     }
-    if let Some(u) = link_utilisation(link, devices) {
-        let _ = writeln!(out, "  bus utilisation: {:.1}% of the line", u * 100.0);
-        if u > 1.0 {
-            let _ = writeln!(
-                out,
-                "  WARNING: the refresh rates need {:.0}% of what the line can carry; devices will be polled less often than configured",
-                u * 100.0
-            );
-        }
+    if let Some(t) = timing {
+        let _ = writeln!(
+            out,
+            "    cycle: {:.3} ms of bus time",
+            ms(cycle_time(batches, t, link.guard_time))
+        );
     }
 }
 
