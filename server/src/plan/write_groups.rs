@@ -105,12 +105,26 @@ pub(crate) fn write_ops(
             (kind, _, _) => refused.push((n, WriteError::ReadOnly(kind))),
         }
     }
+    let mut ops = coil_ops(coils, group_limit(MAX_WRITE_BITS));
+    ops.extend(register_ops(registers, group_limit(MAX_WRITE_REGISTERS)));
+    for (address, (bits, items)) in bits {
+        ops.push(WriteOp::Bits {
+            address,
+            bits,
+            items,
+        });
+    }
+    (ops, refused)
+}
+
+/// Adjacent coils in one FC15 (at most `limit`), a single one with FC05.
+fn coil_ops(mut coils: Vec<(u16, bool, usize)>, limit: usize) -> Vec<WriteOp> {
     let mut ops = Vec::new();
     coils.sort_by_key(|c| c.0);
     for group in runs(
         &coils,
         |prev, next| next.0 == prev.0.wrapping_add(1),
-        group_limit(MAX_WRITE_BITS),
+        limit,
         |_| 1,
     ) {
         let address = group[0].0;
@@ -128,11 +142,17 @@ pub(crate) fn write_ops(
         };
         ops.push(WriteOp::Direct { request, items });
     }
+    ops
+}
+
+/// Adjacent registers in one FC16 (at most `limit` values), a single one with FC06.
+fn register_ops(mut registers: Vec<(u16, Vec<u16>, usize)>, limit: usize) -> Vec<WriteOp> {
+    let mut ops = Vec::new();
     registers.sort_by_key(|r| r.0);
     for group in runs(
         &registers,
         |prev, next| u32::from(next.0) == u32::from(prev.0) + prev.1.len() as u32,
-        group_limit(MAX_WRITE_REGISTERS),
+        limit,
         |r| r.1.len(),
     ) {
         let address = group[0].0;
@@ -148,14 +168,7 @@ pub(crate) fn write_ops(
         };
         ops.push(WriteOp::Direct { request, items });
     }
-    for (address, (bits, items)) in bits {
-        ops.push(WriteOp::Bits {
-            address,
-            bits,
-            items,
-        });
-    }
-    (ops, refused)
+    ops
 }
 
 /// Splits sorted `items` into runs where each follows its predecessor and the run's size
