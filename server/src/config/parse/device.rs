@@ -114,20 +114,7 @@ pub(super) fn read_device(
     let max_gap = registers("max_gap", 0, report).unwrap_or(Some(0));
     let write_mode = match map.get("write_mode") {
         None => Some(crate::config::WriteMode::default()),
-        Some(n) => n.scalar_text(report, &at("write_mode")).and_then(|t| {
-            let mode = crate::config::WriteMode::parse(&t);
-            if mode.is_none() {
-                report.push(
-                    n.line,
-                    at("write_mode"),
-                    format!(
-                        "`{}` is not a write mode (on_change or reconcile)",
-                        crate::text::quote(&t)
-                    ),
-                );
-            }
-            mode
-        }),
+        Some(n) => write_mode(n, report, &at("write_mode")),
     };
     let on_client_loss = match map.get("on_client_loss") {
         None => Some(None),
@@ -151,4 +138,21 @@ pub(super) fn read_device(
         },
         slave_refused,
     ))
+}
+
+/// `write_mode`: `on_change` or `reconcile`.
+fn write_mode(n: &Node, report: &mut Report, ctx: &str) -> Option<crate::config::WriteMode> {
+    let t = n.scalar_text(report, ctx)?;
+    let mode = crate::config::WriteMode::parse(&t);
+    if mode.is_none() {
+        report.push(
+            n.line,
+            ctx,
+            format!(
+                "`{}` is not a write mode (on_change or reconcile)",
+                crate::text::quote(&t)
+            ),
+        );
+    }
+    mode
 }
