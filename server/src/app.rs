@@ -10,12 +10,10 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use crate::api;
 use crate::cache::Cache;
 use crate::config;
 use crate::metrics::Metrics;
 use crate::runtime::Tasks;
-use crate::servers::Servers;
 use crate::service::Service;
 
 pub use crate::setup::{Listeners, Setup};
@@ -29,8 +27,6 @@ pub struct Running {
     pub grpc_addr: SocketAddr,
     /// The Modbus TCP server's address, when one is configured.
     pub modbus_addr: Option<SocketAddr>,
-    /// Whether HTTP and gRPC are served over TLS.
-    pub(crate) secure: bool,
     tracker: TaskTracker,
 }
 
@@ -70,10 +66,11 @@ impl Running {
     }
 }
 
-/// Binds the listeners and starts every task. The HTTP listener's address (port 0 picks a
-/// free port) is in the result. Every listener is bound (and the access configuration and
-/// the Modbus memory read) before any link is opened or any device polled, so a gateway
-/// that cannot serve stops without having touched a bus.
+/// Prepares every front-end (its listener bound, what its section names read) and starts
+/// every task. The HTTP listener's address (port 0 picks a free port) is in the result.
+/// Every front-end is prepared (and the access configuration and the Modbus memory read)
+/// before any link is opened or any device polled, so a gateway that cannot serve stops
+/// without having touched a bus.
 pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let source = (!setup.demo).then(|| PathBuf::from(&setup.config.source));
     let demo = setup.demo;
@@ -88,8 +85,13 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
     let config::Access { tokens, tls } =
         config::check_security(&config).map_err(|p| anyhow::anyhow!("{p}"))?;
     let reload_tokens = tokens.clone();
-    let bound = bind_listeners(&config).await?;
-    let (http_addr, grpc_addr) = (bound.http.local_addr()?, bound.grpc.local_addr()?);
+    let base = Path::new(&config.source)
+        .parent()
+        .unwrap_or_else(|| Path::new("."))
+        .to_owned();
+    let prepared = crate::front_ends::prepare_all(&config, &base)
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
 
     // The demo's simulated field devices answer before its link first asks.
     let field = match demo {
@@ -119,45 +121,23 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         );
     }
     let service = build_service(&config, cache.clone(), tasks, tokens, image)?;
-    let servers = Arc::new(Servers::new(token.clone(), tracker.clone(), tls.clone()));
-    let limits = api::http::Limits {
-        header_timeout: config.header_timeout,
-        body_timeout: config.body_timeout,
-    };
-    let secure = tls.is_some();
-    // The serial ports of the Modbus server (none until a config names them).
-    tracker.spawn(api::modbus_serial::serve_serial(
-        service.clone(),
-        token.clone(),
-    ));
-    let modbus_addr = match bound.modbus {
-        Some(listener) => Some(servers.serve_modbus(&service, listener).await?),
-        None => None,
-    };
-    // The front-ends with a section of their own (MQTT, OPC UA), as one list.
-    let base = Path::new(&config.source)
-        .parent()
-        .unwrap_or_else(|| Path::new("."));
-    let front_ends = api::front_end::start_all(&service, &config, base)
+    let front_ends = crate::front_ends::start_all(&service, prepared, tls.clone())
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    servers.serve_grpc(&service, bound.grpc, limits).await?;
-    servers.serve_http(&service, bound.http, limits).await?;
+    let bound = |name: &str| service.listening.bound(name);
+    let (Some(http_addr), Some(grpc_addr)) = (bound("http"), bound("grpc")) else {
+        anyhow::bail!("the HTTP and gRPC listeners did not start");
+    };
+    let modbus_addr = bound("modbus");
     if let Some(path) = source {
-        crate::reload::Reloader::start(
-            &service,
-            path,
-            Setup {
-                config: config.clone(),
-                catalog: reload_catalog,
-                profiles_dir,
-                demo: false,
-                map: reload_map,
-            },
-            reload_tokens,
-            servers.clone(),
-            front_ends,
-        );
+        let setup = Setup {
+            config: config.clone(),
+            catalog: reload_catalog,
+            profiles_dir,
+            demo: false,
+            map: reload_map,
+        };
+        crate::reload::Reloader::start(&service, path, setup, reload_tokens, tls, front_ends);
     }
     service.set_ready(true);
     Ok(Running {
@@ -165,34 +145,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         http_addr,
         grpc_addr,
         modbus_addr,
-        secure,
         tracker,
-    })
-}
-
-/// The listeners `start` binds before anything else.
-struct Bound {
-    modbus: Option<TcpListener>,
-    http: TcpListener,
-    grpc: TcpListener,
-}
-
-/// Binds the Modbus TCP, HTTP and gRPC listeners; one that cannot be bound says how to
-/// move it.
-async fn bind_listeners(config: &config::Config) -> anyhow::Result<Bound> {
-    let bind = |addr: std::net::SocketAddr, key: &'static str, option: &'static str| async move {
-        TcpListener::bind(addr).await.map_err(|e| {
-            anyhow::anyhow!("cannot listen on {addr} ({key}, or serve {option} ADDR; port 0 takes any free one): {e}")
-        })
-    };
-    let modbus = match config.modbus_server.as_ref().and_then(|s| s.listen) {
-        Some(listen) => Some(bind(listen, "modbus_server.listen", "--modbus").await?),
-        None => None,
-    };
-    Ok(Bound {
-        modbus,
-        http: bind(config.http, "listen.http", "--http").await?,
-        grpc: bind(config.grpc, "listen.grpc", "--grpc").await?,
     })
 }
 
@@ -235,6 +188,7 @@ fn build_service(
     let mut service = Service::new(cache, tasks)
         .with_policy(config.security.declare.clone())
         .with_max_streams(config.max_streams)
+        .with_section_keys(crate::front_ends::section_keys())
         .with_access(tokens, config.security.read_only);
     if let Some(image) = image {
         service = service.with_modbus(image);
@@ -262,8 +216,6 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
     let demo = setup.demo;
     let signal = shutdown_signal();
     let running = start(setup).await?;
-    let scheme = if running.secure { "https" } else { "http" };
-    let base = format!("{scheme}://{}", running.http_addr);
     if demo {
         say!("iogate is running its built-in demo: the simulated devices sim and plant,");
         if let Ok(link) = running.service.cache.link(crate::demo::field::LINK)
@@ -275,22 +227,9 @@ pub async fn run(setup: Setup) -> anyhow::Result<()> {
             );
         }
     }
-    say!("Web page:  {base}/ui");
-    say!("REST API:  {base}/api/v1/devices");
-    say!(
-        "gRPC:      {} (iogate.v1.Gateway, reflection, health)",
-        running.grpc_addr
-    );
-    if let Some(addr) = running.modbus_addr {
-        say!("Modbus TCP: {addr} (iogate map prints the located addresses)");
-    }
-    for line in api::front_end::banners(&running.service) {
+    for line in crate::front_ends::banners(&running.service) {
         say!("{line}");
     }
-    say!("Events:    {base}/api/v1/events");
-    say!("OpenAPI:   {base}/api/v1/openapi.json");
-    say!("Metrics:   {base}/metrics");
-    say!("Health:    {base}/livez  {base}/readyz");
     tracing::info!(http = %running.http_addr, "iogate started");
     if demo {
         let token = running.service.tasks().token().clone();

@@ -78,7 +78,7 @@ impl Setup {
 
     pub fn demo() -> Result<Setup, Problems> {
         let (mut config, catalog) = crate::demo::load()?;
-        let problems = crate::api::front_end::read_sections(&mut config);
+        let problems = crate::front_ends::read_sections(&mut config);
         if !problems.is_empty() {
             return Err(problems);
         }
@@ -148,7 +148,7 @@ impl Setup {
     /// `base` or up to six parents) and checks its devices, security, standing transactions
     /// and Modbus map: every problem of every stage at once.
     pub fn from_config(mut config: Config, base: &Path) -> Result<Setup, Problems> {
-        let mut problems = crate::api::front_end::read_sections(&mut config);
+        let mut problems = crate::front_ends::read_sections(&mut config);
         let dir = profile::find_dir(config.profiles.as_deref(), base);
         let catalog = match &dir {
             Some(dir) => {
@@ -180,7 +180,7 @@ impl Setup {
             crate::transaction::check_standing(&config).err(),
         ];
         problems.extend_all(checks.into_iter().flatten());
-        problems.extend(crate::api::front_end::check_prepare(&config, base));
+        problems.extend(crate::front_ends::check_files(&config, base));
         let map = if dir.is_none() && !config.devices.is_empty() {
             None // the map's fields are the profiles' (checked once they load)
         } else {

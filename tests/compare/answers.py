@@ -1,13 +1,16 @@
 #!/usr/bin/env python3
 """The demo's REST and gRPC answers at two revisions, side by side.
 
-    python3 tests/compare/answers.py [BEFORE [AFTER]]      (default: 7e2aca6 and the work tree)
+    python3 tests/compare/answers.py [BEFORE [AFTER]]      (default: b2147a7 and the work tree)
 
 Each revision is built in its own git worktree (its own target directory, under
 target/compare/), runs `iogate serve` on the demo configuration with free loopback ports,
-and is asked the same questions over REST (curl-like, urllib) and gRPC (that revision's own
-`iogatectl --json`): lists, devices, fields, located addresses, writes, simulated inputs,
-refusals, the first events of the SSE stream. Times and the demo's simulated process
+and is asked the same questions over REST (curl-like, urllib: every route the demo
+answers, the OpenAPI document and the metrics' names), gRPC (that revision's own
+`iogatectl --json`), Modbus TCP (pymodbus: every located address of the map) and OPC UA
+(asyncua: every node of the address space, its class, name, type and status): lists,
+devices, fields, located addresses, writes, simulated inputs, refusals, the first events of
+the SSE stream. The demo has no MQTT section, so no MQTT topic is asked. Times and the demo's simulated process
 values are masked; the answers are written to target/compare/<rev>/ and compared; every
 difference is printed. Exit status 0 when the answers are the same, 1 when they differ.
 """
@@ -28,7 +31,7 @@ ROOT = subprocess.run(
 WORK = os.path.join(ROOT, "target", "compare")
 
 # Keys whose values are times or measurements that differ between any two runs.
-MASKED = {"timestamp", "timestamp_ms", "requested", "finished", "at", "since", "uptime_seconds", "last_response_ms", "response_time_ms",
+MASKED = {"hash", "loaded_at_unix_ms", "file", "config_hash", "timestamp", "timestamp_ms", "requested", "finished", "at", "since", "uptime_seconds", "last_response_ms", "response_time_ms",
           "age_seconds", "cycle_ms", "utilisation", "measured", "requested_at", "written_at",
           "sample_age_ms", "last_cycle_ms", "io_cycles", "requests", "ok", "timeouts"}
 
@@ -70,11 +73,13 @@ def masked(value, key=None):
 class Gateway:
     def __init__(self, src, bins):
         self.http, self.grpc, self.modbus = free_port(), free_port(), free_port()
+        self.opcua = free_port()
         with open(os.path.join(src, "examples", "demo.yaml")) as f:
             config = f.read()
         config = (config.replace("127.0.0.1:8080", f"127.0.0.1:{self.http}")
                   .replace("127.0.0.1:50051", f"127.0.0.1:{self.grpc}")
-                  .replace("127.0.0.1:5020", f"127.0.0.1:{self.modbus}"))
+                  .replace("127.0.0.1:5020", f"127.0.0.1:{self.modbus}")
+                  .replace("127.0.0.1:4840", f"127.0.0.1:{self.opcua}"))
         self.config = os.path.join(WORK, f"demo-{self.http}.yaml")
         with open(self.config, "w") as f:
             f.write(config)
@@ -195,7 +200,97 @@ def answers(gw):
     a["grpc get nosuch"] = gw.ctl("get", "nosuch")
     a["grpc set an input"] = gw.ctl("set", "sim.DI_0", "true")
     a["grpc set out of range"] = gw.ctl("set", "plant.Recipe", "300")
+    more_rest(rest)
+    a["openapi"] = json.loads(gw.rest("GET", "/api/v1/openapi.json")[1])
+    a["metric names"] = metric_names(gw.rest("GET", "/metrics")[1])
+    a["modbus reads"] = modbus_reads(gw)
+    a["opcua nodes"] = opcua_nodes(gw)
     return a
+
+
+def more_rest(rest):
+    """The other routes the demo answers."""
+    rest("config", "GET", "/api/v1/config")
+    rest("livez", "GET", "/livez")
+    rest("link field", "GET", "/api/v1/links/field")
+    rest("link field plan", "GET", "/api/v1/links/field/plan")
+    rest("profile SimIo st", "GET", "/api/v1/profiles/SimIo/st")
+    rest("memory", "GET", "/api/v1/memory")
+    rest("transactions", "GET", "/api/v1/transactions")
+    rest("mqtt", "GET", "/api/v1/mqtt")
+    rest("unknown route", "GET", "/api/v1/nosuch")
+    rest("unknown query", "GET", "/api/v1/events?colour=red")
+    rest("device meter", "GET", "/api/v1/devices/meter")
+    rest("device io", "GET", "/api/v1/devices/io")
+
+
+def metric_names(text):
+    """The metrics' names and label names, values left out."""
+    names = set()
+    for line in text.splitlines():
+        if line and not line.startswith("#"):
+            series = line.rsplit(" ", 1)[0]
+            name, _, labels = series.partition("{")
+            keys = sorted(kv.split("=")[0] for kv in labels.rstrip("}").split(",") if kv)
+            names.add(name + "{" + ",".join(keys) + "}")
+    return sorted(names)
+
+
+def modbus_reads(gw):
+    """Every located address of the map read over Modbus TCP: its answer or exception;
+    values only for the `sim` device (the plant and the field devices move)."""
+    from pymodbus.client import ModbusTcpClient
+    info = json.loads(gw.rest("GET", "/api/v1/map")[1])
+    unit = info.get("unit_id", 1)
+    client = ModbusTcpClient("127.0.0.1", port=gw.modbus)
+    client.connect()
+    out = {}
+    try:
+        for e in info.get("bindings", []):
+            at, table, address = e["at"], e["table"], e["address"]
+            size = at[2].upper() if len(at) > 2 else "X"
+            count = {"X": 1, "B": 1, "W": 1, "D": 2, "L": 4}.get(size, 1)
+            read = {"coil": client.read_coils, "discrete input": client.read_discrete_inputs,
+                    "holding register": client.read_holding_registers,
+                    "input register": client.read_input_registers}[table]
+            r = read(address, count=count, device_id=unit)
+            if r.isError():
+                out[at] = {"exception": getattr(r, "exception_code", str(r))}
+                continue
+            value = r.bits[:count] if table in ("coil", "discrete input") else r.registers
+            out[at] = {"ok": True, "value": value if e["device"] == "sim" else "<masked>"}
+    finally:
+        client.close()
+    return out
+
+
+def opcua_nodes(gw):
+    """Every node under Objects: its id, class, browse name, data type and status."""
+    import asyncio
+    from asyncua import Client, ua
+
+    async def walk():
+        out = {}
+        async with Client(f"opc.tcp://127.0.0.1:{gw.opcua}/") as client:
+            todo = [client.nodes.objects]
+            while todo and len(out) < 5000:
+                node = todo.pop()
+                for child in await node.get_children():
+                    key = child.nodeid.to_string()
+                    if key in out or child.nodeid.NamespaceIndex == 0:
+                        continue
+                    cls = await child.read_node_class()
+                    entry = {"class": cls.name,
+                             "name": (await child.read_browse_name()).to_string()}
+                    if cls == ua.NodeClass.Variable:
+                        dv = await child.read_data_value(raise_on_bad_status=False)
+                        entry["type"] = (await child.read_data_type()).to_string()
+                        entry["status"] = dv.StatusCode.name
+                    out[key] = entry
+                    todo.append(child)
+        return out
+
+    return asyncio.run(walk())
 
 
 def run(rev):
@@ -234,7 +329,7 @@ def differences(a, b, path=""):
 
 
 def main():
-    before = sys.argv[1] if len(sys.argv) > 1 else "7e2aca6"
+    before = sys.argv[1] if len(sys.argv) > 1 else "b2147a7"
     after = sys.argv[2] if len(sys.argv) > 2 else "WORKTREE"
     os.makedirs(WORK, exist_ok=True)
     a, b = run(before), run(after)

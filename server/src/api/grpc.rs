@@ -26,6 +26,7 @@ use crate::service::ReloadError;
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 use crate::transaction::TransactionSpec;
 
+pub(crate) mod front_end;
 mod helpers;
 mod routes;
 

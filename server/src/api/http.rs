@@ -17,6 +17,8 @@ use tokio_stream::StreamExt;
 
 use crate::service::Service;
 
+pub(crate) mod front_end;
+
 /// Connections served at once; more are closed as soon as they are accepted.
 pub(crate) const MAX_CONNECTIONS: usize = 4096;
 

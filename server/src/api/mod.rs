@@ -82,7 +82,10 @@ pub(crate) struct ApiDoc;
 #[utoipa::path(get, path = "/api/v1/openapi.json", tag = "health",
     responses((status = 200, description = "the OpenAPI document", content_type = "application/json")))]
 async fn openapi_json(State(service): State<Arc<Service>>) -> Json<&'static serde_json::Value> {
-    Json(openapi::document(!service.tokens.current().is_empty()))
+    Json(openapi::document(
+        !service.tokens.current().is_empty(),
+        &service.section_keys,
+    ))
 }
 
 /// Prometheus metrics: the Prometheus text format 0.0.4, or OpenMetrics 1.0 when the

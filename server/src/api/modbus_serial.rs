@@ -14,6 +14,8 @@
 //!   in `GET /api/v1/map` and the metrics. A reload that changes the ports restarts the
 //!   changed ones within a second.
 
+pub(crate) mod front_end;
+
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;

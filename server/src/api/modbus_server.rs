@@ -9,6 +9,8 @@
 //! closed. A connection is closed after `idle_timeout` without a request, and when its
 //! master does not take an answer within the write timeout.
 
+pub(crate) mod front_end;
+
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};

@@ -64,17 +64,6 @@ impl Diff {
         self.items.is_empty()
     }
 
-    /// What the listeners' servers are told of it.
-    pub(crate) fn listeners(&self) -> crate::servers::ListenerChanges {
-        crate::servers::ListenerChanges {
-            http: self.http_listen,
-            grpc: self.grpc_listen,
-            modbus: self.modbus_listen,
-            tls: self.tls,
-            limits: self.limits,
-        }
-    }
-
     fn push(&mut self, kind: Kind, name: impl Into<String>, action: Action, details: Vec<String>) {
         self.items.push(Item {
             kind,
@@ -448,10 +437,15 @@ fn transactions(d: &mut Diff, old: &Setup, new: &Setup) {
 /// The front-ends restarted when their section changes, and the reload section.
 fn front_ends(d: &mut Diff, old: &Setup, new: &Setup) {
     let (a, b) = (&old.config, &new.config);
-    for front_end in crate::api::front_end::all() {
+    for front_end in crate::front_ends::all() {
         if let Some((action, details)) = front_end.changed(a, b) {
             d.front_ends.push(front_end.name());
-            d.push(front_end.kind(), front_end.name(), action, details);
+            d.push(
+                Kind::Section(front_end.name()),
+                front_end.name(),
+                action,
+                details,
+            );
         }
     }
     if a.reload != b.reload {

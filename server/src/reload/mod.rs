@@ -17,9 +17,9 @@ use std::time::SystemTime;
 
 use futures_util::future::BoxFuture;
 
+use crate::api::front_end::{Prepare, Starting};
 use crate::auth::Tokens;
 use crate::config;
-use crate::servers::Servers;
 use crate::service::{ConfigStatus, ModbusImage, ReloadError, Reloading, Report, Service, Trigger};
 use crate::setup::Setup;
 use crate::yaml::Problems;
@@ -98,7 +98,8 @@ pub(crate) struct Reloader {
     path: PathBuf,
     in_force: tokio::sync::Mutex<InForce>,
     status: Mutex<ConfigStatus>,
-    servers: Arc<Servers>,
+    /// The certificate HTTP and gRPC present, when TLS is on.
+    tls: Mutex<Option<Arc<crate::tls::Tls>>>,
     /// Counts the reloads applied, whatever started them: the watch looks at its settings
     /// (and the files it watches) again after each.
     applied: tokio::sync::watch::Sender<u64>,
@@ -120,7 +121,7 @@ impl Reloader {
         path: PathBuf,
         setup: Setup,
         tokens: Tokens,
-        servers: Arc<Servers>,
+        tls: Option<Arc<crate::tls::Tls>>,
         front_ends: Vec<crate::api::front_end::Held>,
     ) -> Arc<Reloader> {
         let hash = hash_files(&path, setup.profiles_dir.as_deref());
@@ -143,7 +144,7 @@ impl Reloader {
                 front_ends,
             }),
             status: Mutex::new(status),
-            servers,
+            tls: Mutex::new(tls),
             applied: tokio::sync::watch::Sender::new(0),
         });
         service.attach_reloader(reloader.clone());
@@ -277,18 +278,9 @@ impl Reloader {
         diff: &Diff,
     ) -> Result<(), String> {
         let new = &loaded.setup;
-        // What the changed front-ends' sections name (passwords, certificates) is read
-        // before anything changes.
-        let base = Path::new(&new.config.source)
-            .parent()
-            .unwrap_or_else(|| Path::new("."));
-        let mut starting = Vec::new();
-        for front_end in crate::api::front_end::all() {
-            if diff.front_ends.contains(&front_end.name()) {
-                starting.push((front_end.name(), front_end.prepare(&new.config, base)?));
-            }
-        }
-        let bound = self.servers.bind(&new.config, diff.listeners()).await?;
+        // The front-ends that restart are prepared before anything changes: their
+        // listeners bound, what their sections name read.
+        let starting = self.prepare(in_force, &new.config).await?;
         let tls = match (&new.config.security.tls, diff.tls) {
             (Some(files), true) => Some(
                 crate::tls::Tls::load(files.clone())
@@ -413,42 +405,70 @@ impl Reloader {
         {
             service.set_modbus(None);
         }
-        self.servers
-            .apply(service, &new.config, diff.listeners(), bound, tls)
-            .await;
+        let tls = self.swap_tls(service, &new.config, diff.tls, tls);
         for (name, starting) in starting {
-            restart(service, &mut in_force.front_ends, name, starting).await;
+            let held = &mut in_force.front_ends;
+            crate::api::front_end::restart(service, held, name, starting, tls.clone()).await;
         }
         Ok(())
     }
 }
 
-/// Stops the front-end `name` (MQTT: NDEATH, offline state, its buffer kept on disk; OPC
-/// UA: its sessions end) and starts it again with its new section, carrying on what it
-/// hands over (MQTT's next `bdSeq`).
-async fn restart(
-    service: &Arc<Service>,
-    held: &mut Vec<crate::api::front_end::Held>,
-    name: &'static str,
-    starting: Option<Box<dyn crate::api::front_end::Starting>>,
-) {
-    let mut carried = None;
-    if let Some(at) = held.iter().position(|h| h.name == name) {
-        let old = held.remove(at);
-        match old.running.stop(service.clone()).await {
-            Ok(c) => carried = c,
-            Err(e) => {
-                tracing::warn!(front_end = name, error = %e, "restarted before the old one ended")
+impl Reloader {
+    /// Prepares every front-end a reload to `new` restarts, in the list's order.
+    async fn prepare(
+        &self,
+        in_force: &InForce,
+        new: &config::Config,
+    ) -> Result<Vec<(&'static str, Option<Box<dyn Starting>>)>, String> {
+        let base = Path::new(&new.source)
+            .parent()
+            .unwrap_or_else(|| Path::new("."));
+        let old = &in_force.setup.config;
+        let mut starting = Vec::new();
+        for front_end in crate::front_ends::all() {
+            if !front_end.restarts(old, new) {
+                continue;
             }
+            let now = in_force
+                .front_ends
+                .iter()
+                .find(|h| h.name == front_end.name())
+                .and_then(|h| h.running.address());
+            let prepare = Prepare {
+                config: new,
+                old: Some(old),
+                now,
+                base,
+            };
+            starting.push((front_end.name(), front_end.prepare(&prepare).await?));
         }
+        Ok(starting)
     }
-    if let Some(starting) = starting {
-        match starting.start(service.clone(), carried).await {
-            Ok(running) => held.push(crate::api::front_end::Held { name, running }),
-            Err(e) => {
-                tracing::error!(front_end = name, error = %e, "could not start with the reloaded section")
+
+    /// The certificate from now on: new files (TLS still on) serve the next connections;
+    /// TLS turned on or off is served by HTTP and gRPC started again with it.
+    fn swap_tls(
+        &self,
+        service: &Service,
+        config: &config::Config,
+        changed: bool,
+        loaded: Option<Arc<crate::tls::Tls>>,
+    ) -> Option<Arc<crate::tls::Tls>> {
+        let mut tls = self.tls.lock().unwrap_or_else(|e| e.into_inner());
+        let toggled = changed && tls.is_some() != config.security.tls.is_some();
+        match (tls.as_ref(), loaded) {
+            (Some(current), Some(new)) if !toggled => current.replace(&new),
+            (_, new) if toggled => {
+                if let Some(new) = &new {
+                    let token = service.tasks().token().clone();
+                    service.tasks().spawn(new.clone().watch(token));
+                }
+                *tls = new;
             }
+            _ => {}
         }
+        tls.clone()
     }
 }
 

@@ -39,6 +39,15 @@ impl Listening {
             .map(|(addr, _)| *addr)
     }
 
+    /// How a client reaches `server`, while it listens.
+    pub(crate) fn address(&self, server: &str) -> Option<String> {
+        self.0
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(server)
+            .map(|(_, address)| address.clone())
+    }
+
     /// `server` no longer listens.
     pub(crate) fn remove(&self, server: &str) {
         self.0

@@ -140,6 +140,9 @@ pub struct Service {
     scans: scan::Scans,
     /// Where the servers listen.
     pub(crate) listening: listening::Listening,
+    /// The keys of the front-ends' own sections (a reload report's kinds beside the
+    /// core's).
+    pub(crate) section_keys: Vec<&'static str>,
 }
 
 /// A place among the open change streams; dropping it frees the place.
@@ -173,6 +176,7 @@ impl Service {
             serial_ports: serial_ports::SerialPorts::default(),
             scans: scan::Scans::default(),
             listening: listening::Listening::default(),
+            section_keys: Vec::new(),
         }
     }
 
@@ -232,6 +236,12 @@ impl Service {
     /// The service with a declaration policy other than the default.
     pub(crate) fn with_policy(self, policy: crate::config::security::DeclarePolicy) -> Self {
         self.set_policy(policy);
+        self
+    }
+
+    /// The service with the keys of the front-ends' own sections.
+    pub(crate) fn with_section_keys(mut self, keys: Vec<&'static str>) -> Self {
+        self.section_keys = keys;
         self
     }
 

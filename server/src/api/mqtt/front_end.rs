@@ -9,9 +9,9 @@ use futures_util::future::BoxFuture;
 
 use super::config::MqttConfig;
 use super::{Prepared, changed_keys, prepare, spawn};
-use crate::api::front_end::{Carried, FrontEnd, Running, Starting};
+use crate::api::front_end::{Carried, FrontEnd, Prepare, Running, Start, Starting};
 use crate::config::{Config, Section};
-use crate::service::{Action, Kind, Service, restarted_section};
+use crate::service::{Action, Service, restarted_section};
 use crate::yaml::{Node, Report};
 
 pub(crate) struct MqttFrontEnd;
@@ -21,8 +21,8 @@ impl FrontEnd for MqttFrontEnd {
         "mqtt"
     }
 
-    fn kind(&self) -> Kind {
-        Kind::Section("mqtt")
+    fn has_section(&self) -> bool {
+        true
     }
 
     fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {
@@ -49,11 +49,23 @@ impl FrontEnd for MqttFrontEnd {
         })
     }
 
-    fn prepare(&self, config: &Config, base: &Path) -> Result<Option<Box<dyn Starting>>, String> {
-        let Some(section) = section(config) else {
-            return Ok(None);
+    fn check_files(&self, config: &Config, base: &Path) -> Result<(), String> {
+        match section(config) {
+            Some(section) => prepare(section, base).map(drop),
+            None => Ok(()),
+        }
+    }
+
+    fn prepare<'a>(
+        &'a self,
+        p: &'a Prepare<'a>,
+    ) -> BoxFuture<'a, Result<Option<Box<dyn Starting>>, String>> {
+        let prepared = match section(p.config) {
+            None => Ok(None),
+            Some(section) => prepare(section, p.base)
+                .map(|prepared| Some(Box::new(MqttStarting(prepared)) as Box<dyn Starting>)),
         };
-        Ok(Some(Box::new(MqttStarting(prepare(section, base)?))))
+        Box::pin(std::future::ready(prepared))
     }
 }
 
@@ -73,9 +85,11 @@ struct MqttStarting(Prepared);
 impl Starting for MqttStarting {
     fn start(
         self: Box<Self>,
-        service: Arc<Service>,
-        carried: Carried,
+        start: Start,
     ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
+        let Start {
+            service, carried, ..
+        } = start;
         // The Sparkplug `bdSeq` goes on from the stopped session's.
         let bd_seq = carried
             .and_then(|c| c.downcast::<u8>().ok())

@@ -75,7 +75,16 @@ mod tests {
     use crate::config::check_security;
 
     fn problems(text: &str) -> String {
-        let config = crate::api::front_end::parse_config(text);
+        let mut config = crate::config::parse("iogate.yaml", text).expect("parses");
+        let mut report = crate::yaml::Report::new("iogate.yaml");
+        let node = config
+            .sections
+            .written()
+            .find(|(key, _, _)| *key == "opcua")
+            .map(|(_, _, node)| node.clone())
+            .expect("an opcua section");
+        let section = super::super::config::read(&node, &mut report).expect("reads");
+        config.sections.set("opcua", Box::new(section));
         match check_security(&config) {
             Ok(_) => String::new(),
             Err(p) => p.to_string(),

@@ -1,16 +1,16 @@
 //! The OPC UA server as one of the list of front-ends (`api::front_end`): its section
 //! compared, started on its address, stopped (its sessions end).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use futures_util::future::BoxFuture;
 
 use super::changed_keys;
 use super::config::OpcUaConfig;
-use crate::api::front_end::{Carried, FrontEnd, Running, Starting};
+use crate::api::front_end::{Carried, FrontEnd, Prepare, Running, Start, Starting};
 use crate::config::{Config, Section};
-use crate::service::{Action, Kind, Service, restarted_section};
+use crate::service::{Action, Service, restarted_section};
 use crate::yaml::{Node, Report};
 
 pub(crate) struct OpcUaFrontEnd;
@@ -20,20 +20,22 @@ impl FrontEnd for OpcUaFrontEnd {
         "opcua"
     }
 
-    fn kind(&self) -> Kind {
-        Kind::Section("opcua")
+    fn has_section(&self) -> bool {
+        true
     }
 
     fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {
         super::config::read(node, report).map(|s| Box::new(s) as Box<dyn Section>)
     }
 
-    fn banner(&self, service: &Service) -> Option<String> {
-        let addr = service.listening.bound("opcua")?;
-        Some(format!(
+    fn banner(&self, service: &Service) -> Vec<String> {
+        let Some(addr) = service.listening.bound("opcua") else {
+            return Vec::new();
+        };
+        vec![format!(
             "OPC UA:    opc.tcp://{addr}/ (namespace {})",
             super::NAMESPACE
-        ))
+        )]
     }
 
     fn changed(&self, old: &Config, new: &Config) -> Option<(Action, Vec<String>)> {
@@ -56,13 +58,17 @@ impl FrontEnd for OpcUaFrontEnd {
         })
     }
 
-    fn prepare(&self, config: &Config, base: &Path) -> Result<Option<Box<dyn Starting>>, String> {
-        Ok(section(config).cloned().map(|section| {
+    fn prepare<'a>(
+        &'a self,
+        p: &'a Prepare<'a>,
+    ) -> BoxFuture<'a, Result<Option<Box<dyn Starting>>, String>> {
+        let starting = section(p.config).cloned().map(|section| {
             Box::new(OpcUaStarting {
                 section,
-                base: base.to_owned(),
+                base: p.base.to_owned(),
             }) as Box<dyn Starting>
-        }))
+        });
+        Box::pin(std::future::ready(Ok(starting)))
     }
 }
 
@@ -79,9 +85,9 @@ struct OpcUaStarting {
 impl Starting for OpcUaStarting {
     fn start(
         self: Box<Self>,
-        service: Arc<Service>,
-        _carried: Carried,
+        start: Start,
     ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
+        let service = start.service;
         Box::pin(async move {
             super::start(&service, &self.section, &self.base)
                 .await

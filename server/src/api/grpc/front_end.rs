@@ -1,0 +1,81 @@
+//! gRPC as one of the front-ends: `listen.grpc` bound when prepared, served again when it
+//! moves, when TLS is turned on or off or when the timeouts change.
+
+use futures_util::future::BoxFuture;
+
+use crate::api::front_end::{FrontEnd, Listen, Listening, Prepare, Running, Start, Starting};
+use crate::api::http::front_end::{limits, served_again};
+use crate::config::Config;
+use crate::service::Service;
+
+pub(crate) struct GrpcFrontEnd;
+
+impl FrontEnd for GrpcFrontEnd {
+    fn name(&self) -> &'static str {
+        "grpc"
+    }
+
+    fn banner(&self, service: &Service) -> Vec<String> {
+        service
+            .listening
+            .bound("grpc")
+            .map(|addr| format!("gRPC:      {addr} (iogate.v1.Gateway, reflection, health)"))
+            .into_iter()
+            .collect()
+    }
+
+    fn restarts(&self, old: &Config, new: &Config) -> bool {
+        old.grpc != new.grpc || served_again(old, new)
+    }
+
+    fn prepare<'a>(
+        &'a self,
+        prepare: &'a Prepare<'a>,
+    ) -> BoxFuture<'a, Result<Option<Box<dyn Starting>>, String>> {
+        Box::pin(async move {
+            let config = prepare.config;
+            let was = prepare.old.map(|o| o.grpc);
+            let listen =
+                Listen::prepare(prepare, config.grpc, was, "listen.grpc", "--grpc").await?;
+            Ok(Some(Box::new(GrpcStarting {
+                listen,
+                header_timeout: limits(config).header_timeout,
+            }) as Box<dyn Starting>))
+        })
+    }
+}
+
+struct GrpcStarting {
+    listen: Listen,
+    header_timeout: std::time::Duration,
+}
+
+impl Starting for GrpcStarting {
+    fn start(
+        self: Box<Self>,
+        start: Start,
+    ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
+        Box::pin(async move {
+            let listener = self.listen.listener("listen.grpc").await?;
+            let addr = listener.local_addr().map_err(|e| e.to_string())?;
+            let Start { service, tls, .. } = start;
+            service.listening.set("grpc", addr, addr.to_string());
+            let stop = service.tasks().token().child_token();
+            let shutdown = stop.clone().cancelled_owned();
+            let header_timeout = self.header_timeout;
+            let tasks = service.tasks().clone();
+            tasks.spawn(async move {
+                let served =
+                    crate::api::serve_grpc(listener, service, header_timeout, tls, shutdown).await;
+                if let Err(e) = served {
+                    tracing::error!(error = %e, "gRPC server failed");
+                }
+            });
+            Ok(Box::new(Listening {
+                name: "grpc",
+                addr,
+                stop,
+            }) as Box<dyn Running>)
+        })
+    }
+}
