@@ -6,6 +6,7 @@
 //! Reloads come one at a time (SIGHUP, `POST /api/v1/config/reload`, gRPC `ReloadConfig`,
 //! the file watch in `watch.rs`).
 
+mod apply;
 mod clash;
 pub mod compare;
 pub(crate) mod diff;
@@ -20,7 +21,7 @@ use futures_util::future::BoxFuture;
 use crate::api::front_end::{Prepare, Starting};
 use crate::auth::Tokens;
 use crate::config;
-use crate::service::{ConfigStatus, ModbusImage, ReloadError, Reloading, Report, Service, Trigger};
+use crate::service::{ConfigStatus, ReloadError, Reloading, Report, Service, Trigger};
 use crate::setup::Setup;
 use crate::yaml::Problems;
 use diff::Diff;
@@ -197,17 +198,8 @@ impl Reloader {
         };
         let loaded = match result {
             Ok(loaded) => loaded,
-            Err(e) => {
-                if !dry_run {
-                    service.metrics.config_reload("invalid");
-                    tracing::error!(trigger = trigger.name(), problems = %e, "configuration not reloaded; the gateway runs on what it had");
-                    if let ReloadError::Invalid(problems) = &e {
-                        let lines = problems.0.iter().map(ToString::to_string).collect();
-                        self.set_status(|s| s.last_problems = lines);
-                    }
-                }
-                return Err(e);
-            }
+            Err(e) if dry_run => return Err(e),
+            Err(e) => return Err(self.refused(&service, trigger, e)),
         };
         let diff = diff::diff(
             &in_force.setup,
@@ -241,14 +233,28 @@ impl Reloader {
         in_force.hash = loaded.hash.clone();
         drop(in_force);
         self.applied.send_modify(|n| *n = n.wrapping_add(1));
-        let result = if diff.is_empty() {
-            "unchanged"
-        } else {
-            "applied"
-        };
+        self.said(&service, &report, diff.is_empty(), loaded.hash, watch);
+        Ok(report)
+    }
+
+    /// A configuration refused: counted, logged and kept in the status.
+    fn refused(&self, service: &Service, trigger: Trigger, e: ReloadError) -> ReloadError {
+        service.metrics.config_reload("invalid");
+        tracing::error!(trigger = trigger.name(), problems = %e, "configuration not reloaded; the gateway runs on what it had");
+        if let ReloadError::Invalid(problems) = &e {
+            let lines = problems.0.iter().map(ToString::to_string).collect();
+            self.set_status(|s| s.last_problems = lines);
+        }
+        e
+    }
+
+    /// A reload applied: counted, logged a line per change, and its report and files'
+    /// hash kept in the status.
+    fn said(&self, service: &Service, report: &Report, unchanged: bool, hash: String, watch: bool) {
+        let result = if unchanged { "unchanged" } else { "applied" };
         service.metrics.config_reload(result);
         tracing::info!(
-            trigger = trigger.name(),
+            trigger = report.trigger.name(),
             changes = report.changes.len(),
             reopened = ?report.reopened,
             took_ms = report.took_ms,
@@ -259,13 +265,12 @@ impl Reloader {
         }
         let kept = report.clone();
         self.set_status(move |s| {
-            s.hash = loaded.hash;
+            s.hash = hash;
             s.loaded_at_unix_ms = kept.at_unix_ms;
             s.watch = watch;
             s.last_report = Some(kept);
             s.last_problems.clear();
         });
-        Ok(report)
     }
 
     /// Applies `diff` (from `in_force` to `loaded`). Listeners that move are bound first,
@@ -295,93 +300,8 @@ impl Reloader {
             }
             _ => None,
         };
-        let cache = &service.cache;
-        let tasks = service.tasks();
-        if diff.profiles {
-            cache.set_catalog(new.catalog.clone());
-        }
-        // Links first (a device may move to a new link), devices, then links let go.
-        for name in &diff.links.added {
-            if let Some(config) = new.config.links.iter().find(|l| &l.name == name) {
-                let link = cache.change(|r| cache.insert_link(r, config.clone()));
-                tasks.spawn_link(link);
-            }
-        }
-        for name in &diff.links.changed {
-            if let (Ok(link), Some(config)) = (
-                cache.link(name),
-                new.config.links.iter().find(|l| &l.name == name),
-            ) {
-                link.reconfigure(config.clone());
-            }
-        }
-        for name in &diff.devices.removed {
-            cache.change(|r| {
-                if let Some(device) = r.device(name).cloned() {
-                    cache.remove_device(
-                        r,
-                        &device,
-                        "the device was removed from the configuration",
-                    );
-                }
-            });
-        }
-        for name in &diff.devices.changed {
-            let (Some(config), Ok(old_device)) = (
-                new.config.devices.iter().find(|d| &d.name == name),
-                cache.device(name),
-            ) else {
-                continue;
-            };
-            let Some(profile) = new.catalog.get(&config.profile).cloned() else {
-                continue;
-            };
-            let next =
-                cache.change(|r| cache.replace_device(r, &old_device, config.clone(), profile));
-            if next.is_simulated() {
-                tasks.spawn_sim(next);
-            }
-        }
-        for name in &diff.devices.added {
-            let Some(config) = new.config.devices.iter().find(|d| &d.name == name) else {
-                continue;
-            };
-            let Some(profile) = new.catalog.get(&config.profile).cloned() else {
-                continue;
-            };
-            let device = cache.change(|r| cache.insert_device(r, config.clone(), profile));
-            if device.is_simulated() {
-                tasks.spawn_sim(device);
-            }
-        }
-        for name in &diff.links.removed {
-            cache.change(|r| {
-                if let Some(link) = r.link(name).cloned() {
-                    cache.remove_link(r, &link);
-                }
-            });
-        }
-        // Standing transactions.
-        for name in diff
-            .transactions
-            .removed
-            .iter()
-            .chain(&diff.transactions.changed)
-        {
-            service.drop_transaction(name);
-        }
-        for name in diff
-            .transactions
-            .changed
-            .iter()
-            .chain(&diff.transactions.added)
-        {
-            if let Some(config) = new.config.transactions.iter().find(|t| &t.name == name)
-                && let Err(e) = service.ensure_transaction(config.clone())
-            {
-                tracing::error!(transaction = %name, error = %e, "standing transaction not started");
-            }
-        }
+        apply::registry(service, new, diff);
+        apply::transactions(service, new, diff);
         if diff.max_streams {
             service.set_max_streams(new.config.max_streams);
         }
@@ -390,21 +310,7 @@ impl Reloader {
             service.set_access(loaded.tokens.clone(), new.config.security.read_only);
             service.set_policy(new.config.security.declare.clone());
         }
-        // The Modbus server's image: rebuilt over the devices now in the cache.
-        if let Some((server, plan)) = modbus {
-            let image = match service.modbus() {
-                Some(image) => image.reloaded(&server, &plan, cache),
-                None => ModbusImage::new(&server, &plan, cache),
-            };
-            match image {
-                Ok(image) => service.set_modbus(Some(image)),
-                Err(e) => tracing::error!(error = %e, "Modbus server memory not carried over"),
-            }
-        } else if new.config.modbus_server.is_none()
-            && in_force.setup.config.modbus_server.is_some()
-        {
-            service.set_modbus(None);
-        }
+        apply::image(service, modbus, &in_force.setup, new);
         let tls = self.swap_tls(service, &new.config, diff.tls, tls);
         for (name, starting) in starting {
             let held = &mut in_force.front_ends;
