@@ -133,37 +133,10 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
     let ctx = "modbus_server";
     let mut map = node.map(report, ctx)?;
     let at = |k: &str| format!("{ctx}.{k}");
-    let listen = map.get("listen").and_then(|n| {
-        let text = n.scalar_text(report, &at("listen"))?;
-        text.parse::<SocketAddr>()
-            .map_err(|_| {
-                report.push(
-                    n.line,
-                    at("listen"),
-                    format!("`{text}` is not an address (write IP:port, e.g. 127.0.0.1:5020)"),
-                )
-            })
-            .ok()
-    });
+    let listen = map.get("listen").and_then(|n| address(n, report));
     let address_space = match map.get("address_space") {
         None => Some(AddressSpace::Linux),
-        Some(n) => n
-            .scalar_text(report, &at("address_space"))
-            .and_then(|t| match t.as_str() {
-                "linux" => Some(AddressSpace::Linux),
-                "esp32" => Some(AddressSpace::Esp32),
-                "atmega" => Some(AddressSpace::Atmega),
-                other => {
-                    report.push(
-                        n.line,
-                        at("address_space"),
-                        format!(
-                            "unknown address space `{other}` (expected linux, esp32 or atmega)"
-                        ),
-                    );
-                    None
-                }
-            }),
+        Some(n) => address_space(n, report),
     };
     let unit_id = match map.get("unit_id") {
         None => Some(1),
@@ -196,55 +169,12 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         .map(PathBuf::from);
     let on_bad_quality = match map.get("on_bad_quality") {
         None => Some(OnBadQuality::LastValue),
-        Some(n) => n
-            .scalar_text(report, &at("on_bad_quality"))
-            .and_then(|t| match t.as_str() {
-                "last_value" => Some(OnBadQuality::LastValue),
-                "exception" => Some(OnBadQuality::Exception),
-                other => {
-                    report.push(
-                        n.line,
-                        at("on_bad_quality"),
-                        format!("unknown choice `{other}` (expected last_value or exception)"),
-                    );
-                    None
-                }
-            }),
+        Some(n) => on_bad_quality(n, report),
     };
-    let entries = map
-        .get("map")
-        .and_then(|n| n.seq(report, &at("map")))
-        .map(|items| {
-            items
-                .iter()
-                .enumerate()
-                .filter_map(|(i, n)| read_entry(n, i, report))
-                .collect()
-        })
-        .unwrap_or_default();
-    let forward: Vec<Forward> = map
-        .get("forward")
-        .and_then(|n| n.seq(report, &at("forward")))
-        .map(|items| {
-            items
-                .iter()
-                .enumerate()
-                .filter_map(|(i, n)| read_forward(n, i, report))
-                .collect()
-        })
-        .unwrap_or_default();
+    let entries = list(map.get("map"), report, "map", read_entry);
+    let forward: Vec<Forward> = list(map.get("forward"), report, "forward", read_forward);
     forward_overlaps(&forward, report);
-    let serial: Vec<SerialServer> = map
-        .get("serial")
-        .and_then(|n| n.seq(report, &at("serial")))
-        .map(|items| {
-            items
-                .iter()
-                .enumerate()
-                .filter_map(|(i, n)| read_serial(n, i, report))
-                .collect()
-        })
-        .unwrap_or_default();
+    let serial: Vec<SerialServer> = list(map.get("serial"), report, "serial", read_serial);
     if map.get("listen").is_none() && map.get("serial").is_none() {
         report.push(
             node.line,
@@ -252,19 +182,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
             "missing `listen` (the Modbus TCP address) or `serial` (ports to serve as a slave): give one or both",
         );
     }
-    for (i, s) in serial.iter().enumerate() {
-        if let Some(j) = serial[..i].iter().position(|e| e.line.port == s.line.port) {
-            report.push(
-                s.at,
-                format!("modbus_server.serial[{i}].port"),
-                format!(
-                    "{} is served by modbus_server.serial[{j}] already (line {}): a port is served once",
-                    crate::text::quote(&s.line.port),
-                    serial[j].at
-                ),
-            );
-        }
-    }
+    served_once(&serial, report);
     map.finish(report, ctx, KEYS);
     // A setting that was refused (and reported) takes its default, so that the map is
     // still checked against the devices.
@@ -284,6 +202,90 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         on_bad_quality: on_bad_quality.unwrap_or_default(),
         line: node.line,
     })
+}
+
+/// A list of the section (`key`), each entry read by `read`.
+fn list<T>(
+    node: Option<&Node>,
+    report: &mut Report,
+    key: &str,
+    read: fn(&Node, usize, &mut Report) -> Option<T>,
+) -> Vec<T> {
+    node.and_then(|n| n.seq(report, &format!("modbus_server.{key}")))
+        .map(|items| {
+            items
+                .iter()
+                .enumerate()
+                .filter_map(|(i, n)| read(n, i, report))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// `listen`: IP:port.
+fn address(n: &Node, report: &mut Report) -> Option<SocketAddr> {
+    let text = n.scalar_text(report, "modbus_server.listen")?;
+    text.parse::<SocketAddr>()
+        .map_err(|_| {
+            report.push(
+                n.line,
+                "modbus_server.listen",
+                format!("`{text}` is not an address (write IP:port, e.g. 127.0.0.1:5020)"),
+            )
+        })
+        .ok()
+}
+
+/// `address_space`: linux, esp32 or atmega.
+fn address_space(n: &Node, report: &mut Report) -> Option<AddressSpace> {
+    let t = n.scalar_text(report, "modbus_server.address_space")?;
+    match t.as_str() {
+        "linux" => Some(AddressSpace::Linux),
+        "esp32" => Some(AddressSpace::Esp32),
+        "atmega" => Some(AddressSpace::Atmega),
+        other => {
+            report.push(
+                n.line,
+                "modbus_server.address_space",
+                format!("unknown address space `{other}` (expected linux, esp32 or atmega)"),
+            );
+            None
+        }
+    }
+}
+
+/// `on_bad_quality`: last_value or exception.
+fn on_bad_quality(n: &Node, report: &mut Report) -> Option<OnBadQuality> {
+    let t = n.scalar_text(report, "modbus_server.on_bad_quality")?;
+    match t.as_str() {
+        "last_value" => Some(OnBadQuality::LastValue),
+        "exception" => Some(OnBadQuality::Exception),
+        other => {
+            report.push(
+                n.line,
+                "modbus_server.on_bad_quality",
+                format!("unknown choice `{other}` (expected last_value or exception)"),
+            );
+            None
+        }
+    }
+}
+
+/// A serial port is served once.
+fn served_once(serial: &[SerialServer], report: &mut Report) {
+    for (i, s) in serial.iter().enumerate() {
+        if let Some(j) = serial[..i].iter().position(|e| e.line.port == s.line.port) {
+            report.push(
+                s.at,
+                format!("modbus_server.serial[{i}].port"),
+                format!(
+                    "{} is served by modbus_server.serial[{j}] already (line {}): a port is served once",
+                    crate::text::quote(&s.line.port),
+                    serial[j].at
+                ),
+            );
+        }
+    }
 }
 
 fn read_serial(node: &Node, index: usize, report: &mut Report) -> Option<SerialServer> {
