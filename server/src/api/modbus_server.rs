@@ -261,30 +261,41 @@ async fn connection(
         mbap::start_frame(&mut frame);
         answer_into(service, Some(unit), &pdu, &mut counters, &mut frame).await;
         mbap::finish_frame(&mut frame, header.transaction, unit);
-        // Usually the socket takes the whole answer at once; otherwise the connection waits
-        // on its master to take the rest.
-        let sent = match stream.get_ref().try_write(&frame) {
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => 0,
-            Err(e) => return Err(Closed::Io(e)),
-        };
-        if sent < frame.len() {
-            slot.wait_on_master();
-            let written = tokio::select! {
-                biased;
-                w = tokio::time::timeout(write_wait, stream.write_all(&frame[sent..])) => w,
-                _ = &mut evicted => return Err(Closed::Evicted),
-            };
-            match written {
-                Ok(Ok(())) => {}
-                Ok(Err(e)) => return Err(Closed::Io(e)),
-                Err(_) => return Err(Closed::WriteTimeout(write_wait)),
-            }
-        }
+        send(&mut stream, &frame, slot, write_wait, evicted.as_mut()).await?;
         // Waiting for the next request from now (so an active master is not taken for an
         // idle one, and its idle time runs from its answer).
         slot.wait_on_master();
         last = tokio::time::Instant::now();
+    }
+}
+
+/// Writes an answer: usually the socket takes it whole at once; otherwise the connection
+/// waits on its master to take the rest, at most `write_wait`, unless it is evicted.
+async fn send(
+    stream: &mut BufReader<TcpStream>,
+    frame: &[u8],
+    slot: &Slot,
+    write_wait: Duration,
+    evicted: std::pin::Pin<&mut tokio_util::sync::WaitForCancellationFuture<'_>>,
+) -> Result<(), Closed> {
+    let sent = match stream.get_ref().try_write(frame) {
+        Ok(n) => n,
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => 0,
+        Err(e) => return Err(Closed::Io(e)),
+    };
+    if sent == frame.len() {
+        return Ok(());
+    }
+    slot.wait_on_master();
+    let written = tokio::select! {
+        biased;
+        w = tokio::time::timeout(write_wait, stream.write_all(&frame[sent..])) => w,
+        _ = evicted => return Err(Closed::Evicted),
+    };
+    match written {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => Err(Closed::Io(e)),
+        Err(_) => Err(Closed::WriteTimeout(write_wait)),
     }
 }
 
