@@ -5,10 +5,9 @@
 //! first unknown key or wrong type; walking the tree lets validation report every problem of a
 //! file at once, each with its line.
 
-use std::fmt;
+mod de;
 
-use serde::de::{Deserialize, Deserializer, MapAccess, SeqAccess, Visitor};
-use serde_saphyr::Spanned;
+use std::fmt;
 
 /// One problem found in a YAML file: where it is, what it concerns, what is wrong.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -410,88 +409,6 @@ impl<'a> MapReader<'a> {
     }
 }
 
-impl<'de> Deserialize<'de> for Node {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let spanned = Spanned::<Kind>::deserialize(d)?;
-        Ok(Node {
-            line: spanned.referenced.line(),
-            kind: spanned.value,
-        })
-    }
-}
-
-impl<'de> Deserialize<'de> for Key {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let spanned = Spanned::<String>::deserialize(d)?;
-        Ok(Key {
-            line: spanned.referenced.line(),
-            name: spanned.value,
-        })
-    }
-}
-
-impl<'de> Deserialize<'de> for Kind {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct KindVisitor;
-        impl<'de> Visitor<'de> for KindVisitor {
-            type Value = Kind;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-                f.write_str("a YAML value")
-            }
-            fn visit_unit<E>(self) -> Result<Kind, E> {
-                Ok(Kind::Null)
-            }
-            fn visit_none<E>(self) -> Result<Kind, E> {
-                Ok(Kind::Null)
-            }
-            fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<Kind, D::Error> {
-                Kind::deserialize(d)
-            }
-            fn visit_bool<E>(self, v: bool) -> Result<Kind, E> {
-                Ok(Kind::Bool(v))
-            }
-            fn visit_i64<E>(self, v: i64) -> Result<Kind, E> {
-                Ok(Kind::Int(v.into()))
-            }
-            fn visit_u64<E>(self, v: u64) -> Result<Kind, E> {
-                Ok(Kind::Int(v.into()))
-            }
-            fn visit_i128<E>(self, v: i128) -> Result<Kind, E> {
-                Ok(Kind::Int(v))
-            }
-            fn visit_u128<E: serde::de::Error>(self, v: u128) -> Result<Kind, E> {
-                i128::try_from(v)
-                    .map(Kind::Int)
-                    .map_err(|_| E::custom("integer too large"))
-            }
-            fn visit_f64<E>(self, v: f64) -> Result<Kind, E> {
-                Ok(Kind::Float(v))
-            }
-            fn visit_str<E>(self, v: &str) -> Result<Kind, E> {
-                Ok(Kind::Str(v.to_owned()))
-            }
-            fn visit_string<E>(self, v: String) -> Result<Kind, E> {
-                Ok(Kind::Str(v))
-            }
-            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Kind, A::Error> {
-                let mut items = Vec::new();
-                while let Some(item) = seq.next_element()? {
-                    items.push(item);
-                }
-                Ok(Kind::Seq(items))
-            }
-            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Kind, A::Error> {
-                let mut entries = Vec::new();
-                while let Some(entry) = map.next_entry()? {
-                    entries.push(entry);
-                }
-                Ok(Kind::Map(entries))
-            }
-        }
-        d.deserialize_any(KindVisitor)
-    }
-}
-
 /// Replaces `cut` characters at `at` of `text` with `insert`: the mutation the loaders'
 /// never-panic properties apply to valid files.
 #[cfg(test)]
@@ -504,70 +421,5 @@ pub(crate) fn mutate(text: &str, at: proptest::sample::Index, insert: &str, cut:
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn parse_ok(text: &str) -> Node {
-        let mut report = Report::new("t.yaml");
-        let node = parse(text, &mut report);
-        assert!(!report.has_problems(), "{}", report.into_problems());
-        node.expect("parsed")
-    }
-
-    #[test]
-    fn values_keep_their_lines() {
-        let node = parse_ok("a: 1\nb:\n  - x\n  - { c: 2.5 }\n");
-        let Kind::Map(entries) = &node.kind else {
-            panic!("not a map")
-        };
-        assert_eq!(entries[0].0.name, "a");
-        assert_eq!(entries[0].1.kind, Kind::Int(1));
-        assert_eq!(entries[1].0.line, 2);
-        let Kind::Seq(items) = &entries[1].1.kind else {
-            panic!("not a seq")
-        };
-        assert_eq!(items[1].line, 4);
-    }
-
-    #[test]
-    fn syntax_error_names_its_line() {
-        let mut report = Report::new("bad.yaml");
-        assert!(parse("a: 1\nb: [1, 2\nc: d\n", &mut report).is_none());
-        let problems = report.into_problems();
-        assert_eq!(problems.len(), 1);
-        assert!(problems.0[0].line >= 2, "{problems}");
-        assert!(problems.0[0].message.starts_with("invalid YAML"));
-    }
-
-    #[test]
-    fn duplicate_keys_are_an_error() {
-        let mut report = Report::new("dup.yaml");
-        assert!(parse("a: 1\na: 2\n", &mut report).is_none());
-        let problems = report.into_problems();
-        assert_eq!(problems.0[0].line, 2);
-        assert_eq!(
-            problems.0[0].message,
-            "duplicate key `a`: a key may appear once in a mapping (keep one)"
-        );
-    }
-
-    #[test]
-    fn unknown_keys_are_reported_with_their_lines() {
-        let node = parse_ok("name: x\ncolour: red\nsize: 3\n");
-        let mut report = Report::new("t.yaml");
-        let mut map = node.map(&mut report, "").expect("map");
-        assert!(map.get("name").is_some());
-        map.finish(&mut report, "profile", &["name"]);
-        let problems = report.into_problems();
-        assert_eq!(problems.len(), 2);
-        assert_eq!(problems.0[0].line, 2);
-        assert!(problems.0[0].message.contains("`colour`"));
-        assert_eq!(problems.0[1].line, 3);
-    }
-
-    #[test]
-    fn empty_document_is_null() {
-        assert_eq!(parse_ok("").kind, Kind::Null);
-        assert_eq!(parse_ok("# only a comment\n").kind, Kind::Null);
-    }
-}
+#[path = "yaml_tests.rs"]
+mod tests;
