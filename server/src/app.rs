@@ -188,7 +188,7 @@ fn build_service(
     let mut service = Service::new(cache, tasks)
         .with_policy(config.security.declare.clone())
         .with_max_streams(config.max_streams)
-        .with_section_keys(crate::front_ends::section_keys())
+        .with_described(crate::front_ends::described())
         .with_access(tokens, config.security.read_only);
     if let Some(image) = image {
         service = service.with_modbus(image);

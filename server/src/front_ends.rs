@@ -34,13 +34,21 @@ pub(crate) fn banners(service: &Service) -> Vec<String> {
     lines.chain(end).collect()
 }
 
-/// The keys of the front-ends' own sections, in the list's order.
-pub(crate) fn section_keys() -> Vec<&'static str> {
-    all()
-        .iter()
-        .filter(|f| f.has_section())
-        .map(|f| f.name())
-        .collect()
+/// What the front-ends add to the API's description, in the list's order.
+pub(crate) fn described() -> crate::service::doors::Described {
+    let front_ends = all();
+    crate::service::doors::Described {
+        section_keys: front_ends
+            .iter()
+            .filter(|f| f.has_section())
+            .map(|f| f.name())
+            .collect(),
+        listeners: front_ends.iter().filter_map(|f| f.listener()).collect(),
+        health: front_ends
+            .iter()
+            .filter_map(|f| f.health_schema())
+            .collect(),
+    }
 }
 
 /// Reads the sections the config reader kept (`Config::sections`), each by the front-end

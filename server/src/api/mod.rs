@@ -84,7 +84,7 @@ pub(crate) struct ApiDoc;
 async fn openapi_json(State(service): State<Arc<Service>>) -> Json<&'static serde_json::Value> {
     Json(openapi::document(
         !service.tokens.current().is_empty(),
-        &service.section_keys,
+        &service.described,
     ))
 }
 

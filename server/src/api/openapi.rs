@@ -9,6 +9,8 @@ use std::sync::OnceLock;
 use serde_json::{Value, json};
 use utoipa::OpenApi;
 
+use crate::service::doors::Described;
+
 /// Names of links, devices and standing transactions (as declarations check them).
 pub(crate) const NAME_PATTERN: &str = "^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$";
 
@@ -28,23 +30,49 @@ fn scalar(description: &str, nullable: bool) -> Value {
 
 /// The document for a gateway with (`secured`) or without bearer tokens; each is made
 /// once.
-pub(crate) fn document(secured: bool, section_keys: &[&str]) -> &'static Value {
+pub(crate) fn document(secured: bool, described: &Described) -> &'static Value {
     static DOCUMENTS: [OnceLock<Value>; 2] = [OnceLock::new(), OnceLock::new()];
     DOCUMENTS[usize::from(secured)].get_or_init(|| {
         let mut doc = serde_json::to_value(super::ApiDoc::openapi()).unwrap_or(Value::Null);
         refine(&mut doc, secured);
-        section_kinds(&mut doc, section_keys);
+        front_ends(&mut doc, described);
         doc
     })
 }
 
-/// A reload report's kinds: the core's, each front-end's section key before `reload`.
-fn section_kinds(doc: &mut Value, keys: &[&str]) {
+/// What the front-ends add: a reload report's kinds (the core's, each front-end's section
+/// key before `reload`), the servers that listen, and each front-end's `/readyz` detail.
+fn front_ends(doc: &mut Value, described: &Described) {
     if let Some(Value::Array(kinds)) = doc.pointer_mut("/components/schemas/Kind/enum") {
         let at = kinds.len().saturating_sub(1);
-        for (i, key) in keys.iter().enumerate() {
+        for (i, key) in described.section_keys.iter().enumerate() {
             kinds.insert(at + i, (*key).into());
         }
+    }
+    let schemas = "/components/schemas";
+    merge(
+        doc,
+        schemas,
+        json!({"Server": {"description": "A server of the gateway that listens on a TCP port.",
+                          "enum": described.listeners, "type": "string"}}),
+    );
+    set(
+        doc,
+        &format!("{schemas}/Listener/properties/server"),
+        json!({"$ref": "#/components/schemas/Server"}),
+    );
+    if let Some(Value::Object(health)) = doc.pointer_mut(&format!("{schemas}/Health")) {
+        health.remove("additionalProperties");
+    }
+    for h in &described.health {
+        merge(doc, schemas, json!({ h.schema_name: h.schema }));
+        let reference = format!("#/components/schemas/{}", h.schema_name);
+        merge(
+            doc,
+            &format!("{schemas}/Health/properties"),
+            json!({ h.name: {"oneOf": [{"$ref": reference, "description": h.description},
+                                       {"type": "null"}]} }),
+        );
     }
 }
 
@@ -451,7 +479,7 @@ mod tests {
     /// would leave it out silently.
     #[test]
     fn every_refinement_lands() {
-        let doc = document(true, &[]);
+        let doc = document(true, &Described::default());
         let has = |pointer: &str| doc.pointer(pointer).is_some();
         for pointer in [
             "/components/schemas/FieldValue/properties/value/type/4",
@@ -481,7 +509,7 @@ mod tests {
             Some(&json!(10))
         );
         // Without tokens, no operation asks for one; health endpoints never do.
-        let open = document(false, &[]);
+        let open = document(false, &Described::default());
         assert!(
             open.pointer("/paths/~1api~1v1~1devices/get/security")
                 .is_none()

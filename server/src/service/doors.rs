@@ -24,6 +24,27 @@ pub(crate) trait Door: Any + Send + Sync {
     }
 }
 
+/// What the front-ends add to the API's description, made once by the composition root
+/// from their list: the keys of their own sections (a reload report's kinds), the names
+/// their listeners have in `GET /api/v1/config`, and the schemas of their `/readyz`
+/// details.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Described {
+    pub(crate) section_keys: Vec<&'static str>,
+    pub(crate) listeners: Vec<&'static str>,
+    pub(crate) health: Vec<HealthSchema>,
+}
+
+/// A front-end's `/readyz` detail as the OpenAPI document describes it: under its name,
+/// a schema of its own (`schema_name`), with what it means.
+#[derive(Debug, Clone)]
+pub(crate) struct HealthSchema {
+    pub(crate) name: &'static str,
+    pub(crate) schema_name: &'static str,
+    pub(crate) schema: serde_json::Value,
+    pub(crate) description: &'static str,
+}
+
 /// The front-ends running now, by name.
 #[derive(Default)]
 pub(crate) struct Doors(RwLock<BTreeMap<&'static str, Arc<dyn Door>>>);

@@ -1,7 +1,6 @@
 //! Where the gateway's servers listen, as bound (a port 0 resolved), so that the overview
 //! can say how to reach each of them.
 
-use std::collections::BTreeMap;
 use std::net::SocketAddr;
 
 use serde::Serialize;
@@ -16,44 +15,47 @@ pub struct Listener {
     pub address: String,
 }
 
-/// The servers listening now.
+/// The servers listening now, in the order they first listened (a server that stops and
+/// listens again keeps its place).
 #[derive(Debug, Default)]
-pub(crate) struct Listening(std::sync::RwLock<BTreeMap<&'static str, (SocketAddr, String)>>);
+pub(crate) struct Listening(std::sync::RwLock<Vec<(&'static str, Option<Bound>)>>);
+
+/// Where a server is bound, and how a client reaches it.
+type Bound = (SocketAddr, String);
 
 impl Listening {
     /// `server` listens on `addr`: a client reaches it at `address` (each server says its
     /// own form).
     pub(crate) fn set(&self, server: &'static str, addr: SocketAddr, address: String) {
-        self.0
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(server, (addr, address));
+        let mut servers = self.0.write().unwrap_or_else(|e| e.into_inner());
+        match servers.iter_mut().find(|(name, _)| *name == server) {
+            Some((_, at)) => *at = Some((addr, address)),
+            None => servers.push((server, Some((addr, address)))),
+        }
     }
 
     /// Where `server` listens, while it does.
     pub(crate) fn bound(&self, server: &str) -> Option<SocketAddr> {
-        self.0
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(server)
-            .map(|(addr, _)| *addr)
+        self.find(server).map(|(addr, _)| addr)
     }
 
     /// How a client reaches `server`, while it listens.
     pub(crate) fn address(&self, server: &str) -> Option<String> {
-        self.0
-            .read()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(server)
-            .map(|(_, address)| address.clone())
+        self.find(server).map(|(_, address)| address)
     }
 
     /// `server` no longer listens.
     pub(crate) fn remove(&self, server: &str) {
-        self.0
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(server);
+        let mut servers = self.0.write().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, at)) = servers.iter_mut().find(|(name, _)| *name == server) {
+            *at = None;
+        }
+    }
+
+    fn find(&self, server: &str) -> Option<Bound> {
+        let servers = self.0.read().unwrap_or_else(|e| e.into_inner());
+        let (_, at) = servers.iter().find(|(name, _)| *name == server)?;
+        at.clone()
     }
 
     pub(crate) fn list(&self) -> Vec<Listener> {
@@ -61,9 +63,11 @@ impl Listening {
             .read()
             .unwrap_or_else(|e| e.into_inner())
             .iter()
-            .map(|(server, (_, address))| Listener {
-                server: (*server).to_owned(),
-                address: address.clone(),
+            .filter_map(|(server, at)| {
+                at.as_ref().map(|(_, address)| Listener {
+                    server: (*server).to_owned(),
+                    address: address.clone(),
+                })
             })
             .collect()
     }

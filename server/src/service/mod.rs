@@ -140,9 +140,8 @@ pub struct Service {
     scans: scan::Scans,
     /// Where the servers listen.
     pub(crate) listening: listening::Listening,
-    /// The keys of the front-ends' own sections (a reload report's kinds beside the
-    /// core's).
-    pub(crate) section_keys: Vec<&'static str>,
+    /// What the front-ends add to the API's description.
+    pub(crate) described: doors::Described,
 }
 
 /// A place among the open change streams; dropping it frees the place.
@@ -176,7 +175,7 @@ impl Service {
             serial_ports: serial_ports::SerialPorts::default(),
             scans: scan::Scans::default(),
             listening: listening::Listening::default(),
-            section_keys: Vec::new(),
+            described: doors::Described::default(),
         }
     }
 
@@ -239,9 +238,9 @@ impl Service {
         self
     }
 
-    /// The service with the keys of the front-ends' own sections.
-    pub(crate) fn with_section_keys(mut self, keys: Vec<&'static str>) -> Self {
-        self.section_keys = keys;
+    /// The service with what the front-ends add to the API's description.
+    pub(crate) fn with_described(mut self, described: doors::Described) -> Self {
+        self.described = described;
         self
     }
 

@@ -140,6 +140,7 @@ impl utoipa::PartialSchema for Kind {
         use utoipa::openapi::schema::{ObjectBuilder, Type};
         ObjectBuilder::new()
             .schema_type(Type::String)
+            .description(Some("What kind of thing a reload changed."))
             .enum_values(Some(Kind::CORE.iter().map(|k| k.name())))
             .into()
     }

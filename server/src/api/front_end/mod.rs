@@ -15,6 +15,7 @@ use std::sync::Arc;
 use futures_util::future::BoxFuture;
 
 use crate::config::{Config, Section};
+use crate::service::doors::HealthSchema;
 use crate::service::{Action, Service};
 use crate::tls::Tls;
 use crate::yaml::{Node, Report};
@@ -29,6 +30,16 @@ pub(crate) trait FrontEnd: Send + Sync {
     /// Its name: its section's key when it has a section of its own, else the name its
     /// listener has in `GET /api/v1/config`.
     fn name(&self) -> &'static str;
+
+    /// Its name in the listening table (`GET /api/v1/config`), when it listens on a port.
+    fn listener(&self) -> Option<&'static str> {
+        None
+    }
+
+    /// Its `/readyz` detail as the OpenAPI document describes it, when it gives one.
+    fn health_schema(&self) -> Option<HealthSchema> {
+        None
+    }
 
     /// Whether it reads a top-level section named as it is ([`FrontEnd::read`]).
     fn has_section(&self) -> bool {

@@ -15,6 +15,10 @@ impl FrontEnd for GrpcFrontEnd {
         "grpc"
     }
 
+    fn listener(&self) -> Option<&'static str> {
+        Some("grpc")
+    }
+
     fn banner(&self, service: &Service) -> Vec<String> {
         service
             .listening

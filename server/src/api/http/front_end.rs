@@ -32,6 +32,10 @@ impl FrontEnd for HttpFrontEnd {
         "http"
     }
 
+    fn listener(&self) -> Option<&'static str> {
+        Some("http")
+    }
+
     fn banner(&self, service: &Service) -> Vec<String> {
         let Some(base) = service.listening.address("http") else {
             return Vec::new();

@@ -20,6 +20,10 @@ impl FrontEnd for ModbusTcpFrontEnd {
         "modbus"
     }
 
+    fn listener(&self) -> Option<&'static str> {
+        Some("modbus")
+    }
+
     fn banner(&self, service: &Service) -> Vec<String> {
         service
             .listening

@@ -11,6 +11,7 @@ use super::config::MqttConfig;
 use super::{Prepared, changed_keys, prepare, spawn};
 use crate::api::front_end::{Carried, FrontEnd, Prepare, Running, Start, Starting};
 use crate::config::{Config, Section};
+use crate::service::doors::HealthSchema;
 use crate::service::{Action, Service, restarted_section};
 use crate::yaml::{Node, Report};
 
@@ -19,6 +20,25 @@ pub(crate) struct MqttFrontEnd;
 impl FrontEnd for MqttFrontEnd {
     fn name(&self) -> &'static str {
         "mqtt"
+    }
+
+    fn health_schema(&self) -> Option<HealthSchema> {
+        Some(HealthSchema {
+            name: "mqtt",
+            schema_name: "MqttHealth",
+            schema: serde_json::json!({
+                "description": "The MQTT front-end in `/readyz`.",
+                "properties": {
+                    "buffered": {"description": "Messages waiting in the buffer for the broker.",
+                                 "format": "int64", "minimum": 0, "type": "integer"},
+                    "connected": {"type": "boolean"},
+                    "last_error": {"type": ["string", "null"]}
+                },
+                "required": ["connected", "buffered"],
+                "type": "object"
+            }),
+            description: "The MQTT front-end, when one is configured: a broker away does not make the gateway\nunready (its messages wait in the buffer), so this is detail only.",
+        })
     }
 
     fn has_section(&self) -> bool {

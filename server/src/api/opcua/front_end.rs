@@ -20,6 +20,10 @@ impl FrontEnd for OpcUaFrontEnd {
         "opcua"
     }
 
+    fn listener(&self) -> Option<&'static str> {
+        Some("opcua")
+    }
+
     fn has_section(&self) -> bool {
         true
     }
