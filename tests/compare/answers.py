@@ -260,7 +260,7 @@ def modbus_reads(gw):
                 out[at] = {"exception": getattr(r, "exception_code", str(r))}
                 continue
             value = r.bits[:count] if table in ("coil", "discrete input") else r.registers
-            out[at] = {"ok": True, "value": value if e["device"] == "sim" else "<masked>"}
+            out[at] = {"answered": True, "value": value if e["device"] == "sim" else "<masked>"}
     finally:
         client.close()
     return out
