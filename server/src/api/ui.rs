@@ -42,6 +42,11 @@ const ASSETS: &[Asset] = &[
     asset!("/ui/api.js", "api.js", JS),
     asset!("/ui/dom.js", "dom.js", JS),
     asset!("/ui/sections.js", "sections.js", JS),
+    asset!("/ui/connection.js", "connection.js", JS),
+    asset!("/ui/view.js", "view.js", JS),
+    asset!("/ui/overview.js", "overview.js", JS),
+    asset!("/ui/device.js", "device.js", JS),
+    asset!("/ui/link.js", "link.js", JS),
     asset!("/ui/style.css", "style.css", "text/css; charset=utf-8"),
     asset!("/ui/icon.svg", "icon.svg", "image/svg+xml"),
 ];
