@@ -17,7 +17,6 @@ use tonic::codegen::{BoxFuture, StdError};
 use tonic::server::{NamedService, ServerStreamingService};
 use tonic::{Request, Response, Status, Streaming};
 
-use super::pb as to_pb;
 use crate::auth::Operation;
 use crate::codec::{Value, ValueError};
 use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration};
@@ -26,9 +25,12 @@ use crate::service::ReloadError;
 use crate::service::{Accepted, Change, Prepared, ScanCycle, Service, ServiceError};
 use crate::transaction::TransactionSpec;
 
+pub(crate) mod burst;
 pub(crate) mod front_end;
 mod helpers;
 mod routes;
+pub(crate) mod serve;
+pub(crate) mod to_pb;
 
 use helpers::*;
 pub(crate) use routes::GatewayRoutes;
@@ -475,5 +477,4 @@ impl Gateway for GrpcApi {
 }
 
 #[cfg(test)]
-#[path = "grpc_tests.rs"]
 mod tests;

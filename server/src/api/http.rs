@@ -17,7 +17,22 @@ use tokio_stream::StreamExt;
 
 use crate::service::Service;
 
+pub(crate) mod accept;
+pub(crate) mod config;
+pub(crate) mod declare;
+pub(crate) mod error;
+pub(crate) mod events;
 pub(crate) mod front_end;
+pub(crate) mod limit;
+pub(crate) mod map;
+pub(crate) mod openapi;
+pub(crate) mod rest;
+mod router;
+pub(crate) mod scan;
+pub(crate) mod transactions;
+pub(crate) mod ui;
+
+pub(crate) use router::{ApiDoc, router, serve_http};
 
 /// Connections served at once; more are closed as soon as they are accepted.
 pub(crate) const MAX_CONNECTIONS: usize = 4096;
@@ -28,7 +43,7 @@ pub(crate) struct Limits {
     /// For the TLS handshake or first byte, then for each request's headers (and the wait
     /// for the next request on a kept-alive connection).
     pub(crate) header_timeout: Duration,
-    /// For a request's body (at most [`super::MAX_BODY`]).
+    /// For a request's body (at most [`router::MAX_BODY`]).
     pub(crate) body_timeout: Duration,
 }
 
@@ -41,8 +56,8 @@ pub(crate) async fn serve(
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    let router = super::router(service, limits.body_timeout);
-    let incoming = super::accept::ready(listener, MAX_CONNECTIONS, tls, limits.header_timeout);
+    let router = router(service, limits.body_timeout);
+    let incoming = accept::ready(listener, MAX_CONNECTIONS, tls, limits.header_timeout);
     tokio::pin!(incoming);
     let graceful = GracefulShutdown::new();
     let mut builder = Builder::new(TokioExecutor::new());

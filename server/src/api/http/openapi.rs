@@ -33,7 +33,7 @@ fn scalar(description: &str, nullable: bool) -> Value {
 pub(crate) fn document(secured: bool, described: &Described) -> &'static Value {
     static DOCUMENTS: [OnceLock<Value>; 2] = [OnceLock::new(), OnceLock::new()];
     DOCUMENTS[usize::from(secured)].get_or_init(|| {
-        let mut doc = serde_json::to_value(super::ApiDoc::openapi()).unwrap_or(Value::Null);
+        let mut doc = serde_json::to_value(crate::api::ApiDoc::openapi()).unwrap_or(Value::Null);
         refine(&mut doc, secured);
         front_ends(&mut doc, described);
         doc

@@ -11,8 +11,8 @@ use serde::Serialize;
 use serde_json::Value as Json_;
 use utoipa::ToSchema;
 
-use super::convert::{self, *};
 use super::error::{ApiError, ErrorBody};
+use crate::api::convert::{self, *};
 use crate::cache::Device;
 use crate::service::{Accepted, Service};
 
@@ -257,7 +257,7 @@ fn accepted(a: Accepted) -> WriteAccepted {
 }
 
 /// The value of a body `{"value": X}`; a bare JSON value is accepted too.
-pub(super) fn value_of(body: Json_) -> Json_ {
+pub(crate) fn value_of(body: Json_) -> Json_ {
     match body {
         Json_::Object(mut map) if map.len() == 1 && map.contains_key("value") => {
             map.remove("value").unwrap_or(Json_::Null)

@@ -12,8 +12,8 @@ use axum::http::StatusCode;
 use serde::Serialize;
 use utoipa::ToSchema;
 
-use super::convert::{self, FieldValue, WriteAccepted};
 use super::error::{ApiError, ErrorBody};
+use crate::api::convert::{self, FieldValue, WriteAccepted};
 use crate::map::{Binding, Table};
 use crate::service::Service;
 

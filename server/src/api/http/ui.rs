@@ -29,7 +29,7 @@ macro_rules! asset {
         Asset {
             path: $path,
             content_type: $content_type,
-            body: include_str!(concat!("../../ui/", $file)),
+            body: include_str!(concat!("../../../ui/", $file)),
         }
     };
 }

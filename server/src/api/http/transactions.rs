@@ -114,7 +114,7 @@ pub(crate) fn standing_info(s: &Standing, status: &StandingStatus) -> StandingIn
         elapsed_ms: last.map(|o| o.elapsed_ms),
         runs: status.runs,
         failures: status.failures,
-        timestamp: status.updated.map(super::convert::rfc3339),
+        timestamp: status.updated.map(crate::api::convert::rfc3339),
         parameters: s.spec(),
     }
 }

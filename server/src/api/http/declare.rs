@@ -13,8 +13,8 @@ use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use super::convert::{DeviceInfo, LinkInfo, device_info, link_info};
 use super::error::{ApiError, ErrorBody};
+use crate::api::convert::{DeviceInfo, LinkInfo, device_info, link_info};
 use crate::config::rules;
 use crate::declare::{DeviceDeclaration, Endpoint, LinkDeclaration};
 use crate::service::Service;

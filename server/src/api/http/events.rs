@@ -19,8 +19,8 @@ use bytes::Bytes;
 use futures_util::{Stream, StreamExt};
 use serde::Serialize;
 
-use super::convert::{DiagnosticsEvent, field_value};
 use super::error::{ApiError, ErrorBody};
+use crate::api::convert::{DiagnosticsEvent, field_value};
 use crate::service::{Change, Service};
 
 pub(crate) const EVENT_VALUE: &str = "value";
