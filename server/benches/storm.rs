@@ -83,6 +83,14 @@ struct Seen {
     changes: AtomicU64,
 }
 
+impl Seen {
+    /// Fields whose last quality told was not good.
+    fn not_good(&self) -> usize {
+        let quality = self.quality.lock().unwrap_or_else(|e| e.into_inner());
+        quality.values().filter(|q| *q != "good").count()
+    }
+}
+
 async fn sse(addr: SocketAddr, seen: Option<Arc<Seen>>) -> anyhow::Result<()> {
     let mut stream = TcpStream::connect(addr).await?;
     stream
@@ -134,6 +142,74 @@ async fn run() -> anyhow::Result<()> {
         ports.push(slave(flag).await?);
     }
     let dir = common::temp_dir("storm")?;
+    let config = storm_files(&dir, &ports)?;
+    let gw = common::start(&dir, &config)?;
+    let addr = gw.http;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let seen = Arc::new(Seen::default());
+    tokio::spawn(sse(addr, Some(seen.clone())));
+    for _ in 1..SSE_CLIENTS {
+        tokio::spawn(sse(addr, None));
+    }
+    // Both cores busy besides the gateway.
+    let spinning = spin_cores();
+    println!(
+        "{LINKS} links x {DEVICES_PER_LINK} devices x {REGISTERS} registers at 100 ms, {SSE_CLIENTS} SSE clients, 2 spinning threads; link l0's slave silent from {BEFORE} s to {} s",
+        BEFORE + FAULT
+    );
+    println!(
+        "| s | phase | cycles/s per device, l0 | cycles/s per device, others | fields not good | quality changes told |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- |");
+    let mut before = cycles(&get_json(addr, "/api/v1/devices").await?);
+    let mut changes_before = seen.changes.load(Ordering::Relaxed);
+    let start = Instant::now();
+    let mut baseline = (0.0, 0.0);
+    let mut recovered: Option<u64> = None;
+    for s in 1..=(BEFORE + FAULT + AFTER) {
+        if s == BEFORE + 1 {
+            silent.store(true, Ordering::Relaxed);
+        }
+        if s == BEFORE + FAULT + 1 {
+            silent.store(false, Ordering::Relaxed);
+        }
+        tokio::time::sleep_until((start + Duration::from_secs(s)).into()).await;
+        let now = cycles(&get_json(addr, "/api/v1/devices").await?);
+        let (l0, others) = (rate(&now, &before, false), rate(&now, &before, true));
+        before = now;
+        let not_good = seen.not_good();
+        let changes = seen.changes.load(Ordering::Relaxed);
+        let told = changes - changes_before;
+        changes_before = changes;
+        let phase = phase_of(s);
+        if s == BEFORE {
+            baseline = (l0, others);
+        }
+        if phase == "after"
+            && recovered.is_none()
+            && not_good == 0
+            && l0 >= 0.8 * baseline.0
+            && others >= 0.8 * baseline.1
+        {
+            recovered = Some(s - BEFORE - FAULT);
+        }
+        println!("| {s} | {phase} | {l0:.1} | {others:.1} | {not_good} | {told} |");
+    }
+    spinning.store(false, Ordering::Relaxed);
+    match recovered {
+        Some(s) => println!(
+            "recovered {s} s after the fault cleared (every field good, polling at >= 80 % of its rate before the fault: {:.1} and {:.1} cycles/s per device)",
+            baseline.0, baseline.1
+        ),
+        None => println!("not recovered within {AFTER} s after the fault cleared"),
+    }
+    drop(gw);
+    Ok(())
+}
+
+/// The profile (ten registers) and the config (every link and device) in `dir`; the
+/// config's text.
+fn storm_files(dir: &std::path::Path, ports: &[u16]) -> anyhow::Result<String> {
     std::fs::create_dir_all(dir.join("profiles"))?;
     let mut profile = String::from("name: Ten\nfields:\n");
     for r in 0..REGISTERS {
@@ -159,15 +235,11 @@ async fn run() -> anyhow::Result<()> {
             ));
         }
     }
-    let gw = common::start(&dir, &config)?;
-    let addr = gw.http;
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    let seen = Arc::new(Seen::default());
-    tokio::spawn(sse(addr, Some(seen.clone())));
-    for _ in 1..SSE_CLIENTS {
-        tokio::spawn(sse(addr, None));
-    }
-    // Both cores busy besides the gateway.
+    Ok(config)
+}
+
+/// Two threads that keep both cores busy until the flag is cleared.
+fn spin_cores() -> Arc<AtomicBool> {
     let spinning = Arc::new(AtomicBool::new(true));
     for _ in 0..2 {
         let spinning = spinning.clone();
@@ -179,92 +251,42 @@ async fn run() -> anyhow::Result<()> {
             }
         });
     }
-    println!(
-        "{LINKS} links x {DEVICES_PER_LINK} devices x {REGISTERS} registers at 100 ms, {SSE_CLIENTS} SSE clients, 2 spinning threads; link l0's slave silent from {BEFORE} s to {} s",
-        BEFORE + FAULT
-    );
-    println!(
-        "| s | phase | cycles/s per device, l0 | cycles/s per device, others | fields not good | quality changes told |"
-    );
-    println!("| --- | --- | --- | --- | --- | --- |");
-    let cycles = |devices: &serde_json::Value| -> HashMap<String, u64> {
-        devices["devices"]
-            .as_array()
-            .map(|ds| {
-                ds.iter()
-                    .filter_map(|d| {
-                        Some((d["name"].as_str()?.to_owned(), d["io_cycles"].as_u64()?))
-                    })
-                    .collect()
-            })
-            .unwrap_or_default()
-    };
-    let mut before = cycles(&get_json(addr, "/api/v1/devices").await?);
-    let mut changes_before = seen.changes.load(Ordering::Relaxed);
-    let start = Instant::now();
-    let mut baseline = (0.0, 0.0);
-    let mut recovered: Option<u64> = None;
-    for s in 1..=(BEFORE + FAULT + AFTER) {
-        if s == BEFORE + 1 {
-            silent.store(true, Ordering::Relaxed);
-        }
-        if s == BEFORE + FAULT + 1 {
-            silent.store(false, Ordering::Relaxed);
-        }
-        tokio::time::sleep_until((start + Duration::from_secs(s)).into()).await;
-        let now = cycles(&get_json(addr, "/api/v1/devices").await?);
-        let rate = |link: &str, other: bool| {
-            let (sum, n) = now
-                .iter()
-                .filter(|(name, _)| name.starts_with(link) != other)
-                .fold((0u64, 0u64), |(sum, n), (name, c)| {
-                    (
-                        sum + c.saturating_sub(*before.get(name).unwrap_or(c)),
-                        n + 1,
-                    )
-                });
-            sum as f64 / n.max(1) as f64
-        };
-        let (l0, others) = (rate("d0_", false), rate("d0_", true));
-        before = now;
-        let not_good = seen
-            .quality
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .values()
-            .filter(|q| *q != "good")
-            .count();
-        let changes = seen.changes.load(Ordering::Relaxed);
-        let told = changes - changes_before;
-        changes_before = changes;
-        let phase = if s <= BEFORE {
-            "before"
-        } else if s <= BEFORE + FAULT {
-            "fault"
-        } else {
-            "after"
-        };
-        if s == BEFORE {
-            baseline = (l0, others);
-        }
-        if phase == "after"
-            && recovered.is_none()
-            && not_good == 0
-            && l0 >= 0.8 * baseline.0
-            && others >= 0.8 * baseline.1
-        {
-            recovered = Some(s - BEFORE - FAULT);
-        }
-        println!("| {s} | {phase} | {l0:.1} | {others:.1} | {not_good} | {told} |");
+    spinning
+}
+
+/// Each device's I/O cycles in `GET /api/v1/devices`.
+fn cycles(devices: &serde_json::Value) -> HashMap<String, u64> {
+    devices["devices"]
+        .as_array()
+        .map(|ds| {
+            ds.iter()
+                .filter_map(|d| Some((d["name"].as_str()?.to_owned(), d["io_cycles"].as_u64()?)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The phase second `s` is in.
+fn phase_of(s: u64) -> &'static str {
+    if s <= BEFORE {
+        "before"
+    } else if s <= BEFORE + FAULT {
+        "fault"
+    } else {
+        "after"
     }
-    spinning.store(false, Ordering::Relaxed);
-    match recovered {
-        Some(s) => println!(
-            "recovered {s} s after the fault cleared (every field good, polling at >= 80 % of its rate before the fault: {:.1} and {:.1} cycles/s per device)",
-            baseline.0, baseline.1
-        ),
-        None => println!("not recovered within {AFTER} s after the fault cleared"),
-    }
-    drop(gw);
-    Ok(())
+}
+
+/// The cycles a second per device of link l0's devices (or, `other`, of the others').
+fn rate(now: &HashMap<String, u64>, before: &HashMap<String, u64>, other: bool) -> f64 {
+    let (sum, n) = now
+        .iter()
+        .filter(|(name, _)| name.starts_with("d0_") != other)
+        .fold((0u64, 0u64), |(sum, n), (name, c)| {
+            (
+                sum + c.saturating_sub(*before.get(name).unwrap_or(c)),
+                n + 1,
+            )
+        });
+    sum as f64 / n.max(1) as f64
 }

@@ -190,43 +190,7 @@ pub fn run(runtime: &tokio::runtime::Runtime) -> anyhow::Result<Vec<Row>> {
                     }
                 }
                 let figures: Vec<_> = rounds.iter().map(|r| medians(r)).collect();
-                let best = figures[1..].iter().map(|f| f.0).fold(0.0f64, f64::max);
-                let best_peer = servers[1..]
-                    .iter()
-                    .zip(&figures[1..])
-                    .find(|(_, f)| f.0 == best);
-                rows.push(Row {
-                    measure: format!(
-                        "Modbus TCP server, FC03 x {count}, {masters} master{} (req/s, p99)",
-                        if masters == 1 { "" } else { "s" }
-                    ),
-                    iogate: format!(
-                        "{:.0}, {:.0} µs",
-                        figures[0].0,
-                        figures[0].2.as_secs_f64() * 1e6
-                    ),
-                    peer: best_peer.map_or_else(
-                        || "no peer built".to_owned(),
-                        |(s, f)| format!("{} {:.0}, {:.0} µs", s.name, f.0, f.2.as_secs_f64() * 1e6),
-                    ),
-                    ratio: if best > 0.0 { figures[0].0 / best } else { 0.0 },
-                    goal: ">= 1.00".into(),
-                });
-                println!(
-                    "| FC03 x {count} | {masters} | {} | {} | {} |",
-                    cell("", figures[0]).trim(),
-                    servers[1..]
-                        .iter()
-                        .zip(&figures[1..])
-                        .map(|(s, f)| cell(s.name, *f))
-                        .collect::<Vec<_>>()
-                        .join("; "),
-                    if best > 0.0 {
-                        format!("{:.2}", figures[0].0 / best)
-                    } else {
-                        "-".to_owned()
-                    }
-                );
+                rows.push(row(count, masters, &servers, &figures));
             }
         }
         for (mut child, _) in [libmodbus, rodbus].into_iter().flatten() {
@@ -237,4 +201,51 @@ pub fn run(runtime: &tokio::runtime::Runtime) -> anyhow::Result<Vec<Row>> {
     })?;
     println!();
     Ok(rows)
+}
+
+/// One row: iogate's medians against the best peer's, printed and answered.
+fn row(
+    count: u16,
+    masters: usize,
+    servers: &[&Server],
+    figures: &[(f64, Duration, Duration, f64)],
+) -> Row {
+    let best = figures[1..].iter().map(|f| f.0).fold(0.0f64, f64::max);
+    let best_peer = servers[1..]
+        .iter()
+        .zip(&figures[1..])
+        .find(|(_, f)| f.0 == best);
+    let row = Row {
+        measure: format!(
+            "Modbus TCP server, FC03 x {count}, {masters} master{} (req/s, p99)",
+            if masters == 1 { "" } else { "s" }
+        ),
+        iogate: format!(
+            "{:.0}, {:.0} µs",
+            figures[0].0,
+            figures[0].2.as_secs_f64() * 1e6
+        ),
+        peer: best_peer.map_or_else(
+            || "no peer built".to_owned(),
+            |(s, f)| format!("{} {:.0}, {:.0} µs", s.name, f.0, f.2.as_secs_f64() * 1e6),
+        ),
+        ratio: if best > 0.0 { figures[0].0 / best } else { 0.0 },
+        goal: ">= 1.00".into(),
+    };
+    println!(
+        "| FC03 x {count} | {masters} | {} | {} | {} |",
+        cell("", figures[0]).trim(),
+        servers[1..]
+            .iter()
+            .zip(&figures[1..])
+            .map(|(s, f)| cell(s.name, *f))
+            .collect::<Vec<_>>()
+            .join("; "),
+        if best > 0.0 {
+            format!("{:.2}", figures[0].0 / best)
+        } else {
+            "-".to_owned()
+        }
+    );
+    row
 }

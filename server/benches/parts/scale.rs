@@ -78,80 +78,9 @@ fn measure(
         tokio::time::sleep(Duration::from_secs(10)).await;
         let cpu = (common::cpu_seconds(pid) - cpu_before) / window.elapsed().as_secs_f64();
         let rss = common::rss_kib(pid);
-        let mut answers = Vec::new();
-        for path in ["/api/v1/devices", "/api/v1/links"] {
-            let mut times = Vec::new();
-            let mut bytes = 0;
-            for _ in 0..30 {
-                let (status, took, len) = get(gateway.http, path).await?;
-                anyhow::ensure!(status == 200, "{path}: {status}");
-                times.push(took);
-                bytes = len;
-            }
-            times.sort();
-            answers.push((
-                path,
-                percentile(&times, 0.5),
-                percentile(&times, 0.99),
-                bytes,
-            ));
-        }
+        let answers = answer_times(gateway.http).await?;
         let connected = connected(gateway.http).await?;
-        println!("{title}:");
-        println!("| measure | iogate | goal |");
-        println!("| --- | --- | --- |");
-        println!("| devices connected while measured | {connected} | all |");
-        println!(
-            "| start to ready | {:.0} ms | < 1 s |",
-            ready.as_secs_f64() * 1e3
-        );
-        println!("| resident | {:.1} MiB | < 64 MB |", rss as f64 / 1024.0);
-        println!("| CPU | {:.1} % of a core | < 15 % |", cpu * 100.0);
-        let row = |measure: String, iogate: String, ratio: f64, goal: &str| Row {
-            measure: format!("{short}: {measure}"),
-            iogate,
-            peer: format!("goal {goal}"),
-            ratio,
-            goal: "< 1.00".into(),
-        };
-        let mut rows = vec![
-            row(
-                "resident (MiB)".into(),
-                format!("{:.1}", rss as f64 / 1024.0),
-                rss as f64 * 1024.0 / 64e6,
-                "64 MB",
-            ),
-            row(
-                "CPU (% of a core)".into(),
-                format!("{:.1} ({connected} devices connected)", cpu * 100.0),
-                cpu / 0.15,
-                "15 %",
-            ),
-            row(
-                "start to ready (ms)".into(),
-                format!("{:.0}", ready.as_secs_f64() * 1e3),
-                ready.as_secs_f64(),
-                "1 s",
-            ),
-        ];
-        for (path, p50, p99, bytes) in answers {
-            println!(
-                "| `GET {path}` ({:.0} KiB) | p50 {:.1} ms, p99 {:.1} ms | < 50 ms |",
-                bytes as f64 / 1024.0,
-                p50.as_secs_f64() * 1e3,
-                p99.as_secs_f64() * 1e3
-            );
-            rows.push(row(
-                format!("`GET {path}` p99 (ms)"),
-                format!(
-                    "{:.1} (p50 {:.1})",
-                    p99.as_secs_f64() * 1e3,
-                    p50.as_secs_f64() * 1e3
-                ),
-                p99.as_secs_f64() / 0.05,
-                "50 ms",
-            ));
-        }
+        let rows = report(title, short, (connected, ready, rss, cpu), answers);
         println!();
         anyhow::Ok(rows)
     })?;
@@ -230,4 +159,94 @@ pub fn run(runtime: &tokio::runtime::Runtime) -> anyhow::Result<Vec<Row>> {
         &config,
     )?);
     Ok(rows)
+}
+
+/// What the API's lists take: each path asked 30 times, its p50, p99 and size.
+async fn answer_times(
+    http: std::net::SocketAddr,
+) -> anyhow::Result<Vec<(&'static str, Duration, Duration, usize)>> {
+    let mut answers = Vec::new();
+    for path in ["/api/v1/devices", "/api/v1/links"] {
+        let mut times = Vec::new();
+        let mut bytes = 0;
+        for _ in 0..30 {
+            let (status, took, len) = get(http, path).await?;
+            anyhow::ensure!(status == 200, "{path}: {status}");
+            times.push(took);
+            bytes = len;
+        }
+        times.sort();
+        answers.push((
+            path,
+            percentile(&times, 0.5),
+            percentile(&times, 0.99),
+            bytes,
+        ));
+    }
+    Ok(answers)
+}
+
+/// Prints the rows under `title` and answers them, each figure against its goal.
+fn report(
+    title: &str,
+    short: &str,
+    (connected, ready, rss, cpu): (usize, Duration, u64, f64),
+    answers: Vec<(&'static str, Duration, Duration, usize)>,
+) -> Vec<Row> {
+    println!("{title}:");
+    println!("| measure | iogate | goal |");
+    println!("| --- | --- | --- |");
+    println!("| devices connected while measured | {connected} | all |");
+    println!(
+        "| start to ready | {:.0} ms | < 1 s |",
+        ready.as_secs_f64() * 1e3
+    );
+    println!("| resident | {:.1} MiB | < 64 MB |", rss as f64 / 1024.0);
+    println!("| CPU | {:.1} % of a core | < 15 % |", cpu * 100.0);
+    let row = |measure: String, iogate: String, ratio: f64, goal: &str| Row {
+        measure: format!("{short}: {measure}"),
+        iogate,
+        peer: format!("goal {goal}"),
+        ratio,
+        goal: "< 1.00".into(),
+    };
+    let mut rows = vec![
+        row(
+            "resident (MiB)".into(),
+            format!("{:.1}", rss as f64 / 1024.0),
+            rss as f64 * 1024.0 / 64e6,
+            "64 MB",
+        ),
+        row(
+            "CPU (% of a core)".into(),
+            format!("{:.1} ({connected} devices connected)", cpu * 100.0),
+            cpu / 0.15,
+            "15 %",
+        ),
+        row(
+            "start to ready (ms)".into(),
+            format!("{:.0}", ready.as_secs_f64() * 1e3),
+            ready.as_secs_f64(),
+            "1 s",
+        ),
+    ];
+    for (path, p50, p99, bytes) in answers {
+        println!(
+            "| `GET {path}` ({:.0} KiB) | p50 {:.1} ms, p99 {:.1} ms | < 50 ms |",
+            bytes as f64 / 1024.0,
+            p50.as_secs_f64() * 1e3,
+            p99.as_secs_f64() * 1e3
+        );
+        rows.push(row(
+            format!("`GET {path}` p99 (ms)"),
+            format!(
+                "{:.1} (p50 {:.1})",
+                p99.as_secs_f64() * 1e3,
+                p50.as_secs_f64() * 1e3
+            ),
+            p99.as_secs_f64() / 0.05,
+            "50 ms",
+        ));
+    }
+    rows
 }
