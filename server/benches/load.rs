@@ -103,21 +103,9 @@ async fn answered_while_flooded(gw: &Gateway) -> anyhow::Result<()> {
         idle.extend(open_idle(grpc_addr, IDLE_PER_LISTENER).await);
         idle
     });
-    let mut slow = Vec::new();
-    for _ in 0..SLOW {
-        let addr = gw.http;
-        slow.push(tokio::spawn(async move {
-            let Ok(mut s) = TcpStream::connect(addr).await else {
-                return;
-            };
-            for b in get("/livez").bytes() {
-                if s.write_all(&[b]).await.is_err() {
-                    return;
-                }
-                tokio::time::sleep(Duration::from_secs(1)).await;
-            }
-        }));
-    }
+    let slow: Vec<_> = (0..SLOW)
+        .map(|_| tokio::spawn(slow_client(gw.http)))
+        .collect();
     let mut rest = Vec::new();
     let mut rest_failed = 0;
     let channel = tonic::transport::Channel::from_shared(format!("http://{}", gw.grpc))?
@@ -168,19 +156,15 @@ async fn answered_while_flooded(gw: &Gateway) -> anyhow::Result<()> {
             grpc_failed += 1;
         }
     }
-    rest.sort();
-    grpc.sort();
-    println!(
-        "REST GET /api/v1/devices on new connections during the flood: {} answered, {rest_failed} not; p50 {:.2} ms, p99 {:.2} ms",
-        rest.len(),
-        percentile(&rest, 0.5).as_secs_f64() * 1e3,
-        percentile(&rest, 0.99).as_secs_f64() * 1e3
+    said(
+        "REST GET /api/v1/devices on new connections during the flood",
+        rest,
+        rest_failed,
     );
-    println!(
-        "gRPC ListDevices on a channel opened during the flood: {} answered, {grpc_failed} not; p50 {:.2} ms, p99 {:.2} ms",
-        grpc.len(),
-        percentile(&grpc, 0.5).as_secs_f64() * 1e3,
-        percentile(&grpc, 0.99).as_secs_f64() * 1e3
+    said(
+        "gRPC ListDevices on a channel opened during the flood",
+        grpc,
+        grpc_failed,
     );
     drop(idle);
     for s in slow {
@@ -200,37 +184,7 @@ async fn sse_memory(gw: &Gateway) -> anyhow::Result<()> {
     for _ in 0..SSE_CLIENTS {
         let (addr, accepted, refused, events) =
             (gw.http, accepted.clone(), refused.clone(), events.clone());
-        clients.push(tokio::spawn(async move {
-            let Ok(mut s) = TcpStream::connect(addr).await else {
-                return;
-            };
-            let request = "GET /api/v1/events?device=sim HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n";
-            if s.write_all(request.as_bytes()).await.is_err() {
-                return;
-            }
-            let mut reader = BufReader::new(s);
-            let mut status = String::new();
-            if reader.read_line(&mut status).await.is_err() {
-                return;
-            }
-            if status.contains(" 200") {
-                accepted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            } else if status.contains(" 429") {
-                refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                return;
-            } else {
-                eprintln!("SSE answered: {}", status.trim());
-                return;
-            }
-            let mut buf = vec![0u8; 4096];
-            while let Ok(n) = reader.read(&mut buf).await {
-                if n == 0 {
-                    break;
-                }
-                let seen = buf[..n].windows(6).filter(|w| w == b"event:").count();
-                events.fetch_add(seen, std::sync::atomic::Ordering::Relaxed);
-            }
-        }));
+        clients.push(tokio::spawn(sse_client(addr, accepted, refused, events)));
     }
     // Changes for every stream: an output toggled every 50 ms for 10 s.
     let mut peak = 0;
@@ -257,6 +211,81 @@ async fn sse_memory(gw: &Gateway) -> anyhow::Result<()> {
         let _ = c.await;
     }
     let left = Instant::now();
+    let after = settle(pid).await;
+    println!(
+        "resident memory: {} KiB before, {} KiB peak with the streams, {} KiB {:.0} s after they left ({:.2} of before)",
+        before,
+        peak,
+        after,
+        left.elapsed().as_secs_f64(),
+        after as f64 / before.max(1) as f64
+    );
+    Ok(())
+}
+
+/// A client that sends its request one byte a second.
+async fn slow_client(addr: std::net::SocketAddr) {
+    let Ok(mut s) = TcpStream::connect(addr).await else {
+        return;
+    };
+    for b in get("/livez").bytes() {
+        if s.write_all(&[b]).await.is_err() {
+            return;
+        }
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    }
+}
+
+/// How many of `what` were answered, how many not, and their p50 and p99.
+fn said(what: &str, mut times: Vec<Duration>, failed: usize) {
+    times.sort();
+    println!(
+        "{what}: {} answered, {failed} not; p50 {:.2} ms, p99 {:.2} ms",
+        times.len(),
+        percentile(&times, 0.5).as_secs_f64() * 1e3,
+        percentile(&times, 0.99).as_secs_f64() * 1e3
+    );
+}
+
+type Count = std::sync::Arc<std::sync::atomic::AtomicUsize>;
+
+/// One SSE client: counted as accepted or refused (429), then its events counted.
+async fn sse_client(addr: std::net::SocketAddr, accepted: Count, refused: Count, events: Count) {
+    let Ok(mut s) = TcpStream::connect(addr).await else {
+        return;
+    };
+    let request =
+        "GET /api/v1/events?device=sim HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n";
+    if s.write_all(request.as_bytes()).await.is_err() {
+        return;
+    }
+    let mut reader = BufReader::new(s);
+    let mut status = String::new();
+    if reader.read_line(&mut status).await.is_err() {
+        return;
+    }
+    if status.contains(" 200") {
+        accepted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    } else if status.contains(" 429") {
+        refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        return;
+    } else {
+        eprintln!("SSE answered: {}", status.trim());
+        return;
+    }
+    let mut buf = vec![0u8; 4096];
+    while let Ok(n) = reader.read(&mut buf).await {
+        if n == 0 {
+            break;
+        }
+        let seen = buf[..n].windows(6).filter(|w| w == b"event:").count();
+        events.fetch_add(seen, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// The resident memory over the 30 s after the streams left, said every 5 s with the open
+/// files; the last.
+async fn settle(pid: u32) -> u64 {
     let mut after = 0;
     for i in 0..30 {
         tokio::time::sleep(Duration::from_secs(1)).await;
@@ -269,15 +298,7 @@ async fn sse_memory(gw: &Gateway) -> anyhow::Result<()> {
             );
         }
     }
-    println!(
-        "resident memory: {} KiB before, {} KiB peak with the streams, {} KiB {:.0} s after they left ({:.2} of before)",
-        before,
-        peak,
-        after,
-        left.elapsed().as_secs_f64(),
-        after as f64 / before.max(1) as f64
-    );
-    Ok(())
+    after
 }
 
 fn main() -> anyhow::Result<()> {
