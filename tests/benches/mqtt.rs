@@ -88,6 +88,50 @@ async fn buffered(gw: &iogate_tests::TestGateway) -> (u64, bool) {
 async fn run() -> anyhow::Result<()> {
     let mut broker = Broker::start().await?;
     let dir = temp_dir("bench-mqtt");
+    let (config, devices, servers) = bench_config(&dir, broker.port).await?;
+    let gateway =
+        GatewayProcess::start(env!("CARGO_BIN_EXE_gateway"), Path::new(&dir), &config).await?;
+    let pid = gateway.pid().ok_or_else(|| anyhow::anyhow!("no pid"))?;
+    let gw = &gateway.gateway;
+
+    let mut sub = tokio::process::Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("mqtt/bench_sub.py"))
+        .arg(broker.port.to_string())
+        .arg("bench/+/+")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()?;
+    let mut sub_in = sub.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
+    let mut sub_out =
+        BufReader::new(sub.stdout.take().ok_or_else(|| anyhow::anyhow!("stdout"))?).lines();
+    sub_out.next_line().await?;
+
+    steady_state(pid, &devices, &mut sub_in, &mut sub_out).await?;
+
+    // The broker goes away; the fields change ten times a second until the buffer holds a
+    // million messages.
+    broker.pause().await;
+    broker_away(pid, gw, &devices, &dir).await?;
+    let depth = buffered(gw).await.0;
+    broker.resume().await?;
+    broker_back(pid, gw, depth).await;
+    gateway.kill().await?;
+    drop(sub_in);
+    let _ = sub.kill().await;
+    broker.stop().await;
+    for s in servers {
+        s.abort();
+    }
+    Ok(())
+}
+
+/// The profile, and the config of `DEVICES` links each with its Modbus TCP device (started
+/// here) and the MQTT section; the devices and their servers' tasks.
+async fn bench_config(
+    dir: &Path,
+    port: u16,
+) -> anyhow::Result<(String, Vec<ModbusDevice>, Vec<tokio::task::JoinHandle<()>>)> {
     let profiles = dir.join("profiles");
     std::fs::create_dir_all(&profiles)?;
     std::fs::write(profiles.join("bench.yaml"), profile())?;
@@ -116,30 +160,21 @@ async fn run() -> anyhow::Result<()> {
   json: {{ prefix: bench, qos: 1, retain: false }}
   buffer: {{ dir: {}, max_bytes: 1GiB, replay_rate: 1000000/s, fsync: second }}
 ",
-        broker.port,
+        port,
         dir.join("buffer").display()
     ));
-    let gateway =
-        GatewayProcess::start(env!("CARGO_BIN_EXE_gateway"), Path::new(&dir), &config).await?;
-    let pid = gateway.pid().ok_or_else(|| anyhow::anyhow!("no pid"))?;
-    let gw = &gateway.gateway;
+    Ok((config, devices, servers))
+}
 
-    let mut sub = tokio::process::Command::new("python3")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("mqtt/bench_sub.py"))
-        .arg(broker.port.to_string())
-        .arg("bench/+/+")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .kill_on_drop(true)
-        .spawn()?;
-    let mut sub_in = sub.stdin.take().ok_or_else(|| anyhow::anyhow!("stdin"))?;
-    let mut sub_out =
-        BufReader::new(sub.stdout.take().ok_or_else(|| anyhow::anyhow!("stdout"))?).lines();
-    sub_out.next_line().await?;
-
-    // Steady state: 10,000 changes a second.
+/// Steady state: 10,000 changes a second, delivered to the subscriber; what it measured.
+async fn steady_state(
+    pid: u32,
+    devices: &[ModbusDevice],
+    sub_in: &mut tokio::process::ChildStdin,
+    sub_out: &mut tokio::io::Lines<BufReader<tokio::process::ChildStdout>>,
+) -> anyhow::Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
-    let changer = change(devices.clone(), 1, stop.clone());
+    let changer = change(devices.to_vec(), 1, stop.clone());
     tokio::time::sleep(Duration::from_secs(5)).await;
     sub_in.write_all(b"reset\n").await?;
     let (cpu0, t0) = (cpu_seconds(pid), Instant::now());
@@ -165,12 +200,19 @@ async fn run() -> anyhow::Result<()> {
     );
     stop.store(true, Ordering::Relaxed);
     changer.await?;
+    Ok(())
+}
 
-    // The broker goes away; the fields change ten times a second until the buffer holds a
-    // million messages.
-    broker.pause().await;
+/// The broker away: the fields change ten times a second until the buffer holds a million
+/// messages; what it took.
+async fn broker_away(
+    pid: u32,
+    gw: &iogate_tests::TestGateway,
+    devices: &[ModbusDevice],
+    dir: &Path,
+) -> anyhow::Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
-    let changer = change(devices.clone(), 10, stop.clone());
+    let changer = change(devices.to_vec(), 10, stop.clone());
     let (cpu0, t0) = (cpu_seconds(pid), Instant::now());
     let start_depth = buffered(gw).await.0;
     let depth = loop {
@@ -196,8 +238,11 @@ async fn run() -> anyhow::Result<()> {
         disk as f64 / (1 << 20) as f64,
         rss_mib(pid)
     );
-    let depth = buffered(gw).await.0;
-    broker.resume().await?;
+    Ok(())
+}
+
+/// The broker back: the buffer replayed; how fast.
+async fn broker_back(pid: u32, gw: &iogate_tests::TestGateway, depth: u64) {
     let (cpu0, t0) = (cpu_seconds(pid), Instant::now());
     let mut connected_at = None;
     loop {
@@ -218,14 +263,6 @@ async fn run() -> anyhow::Result<()> {
         (cpu_seconds(pid) - cpu0) / t0.elapsed().as_secs_f64() * 100.0,
         rss_mib(pid)
     );
-    gateway.kill().await?;
-    drop(sub_in);
-    let _ = sub.kill().await;
-    broker.stop().await;
-    for s in servers {
-        s.abort();
-    }
-    Ok(())
 }
 
 fn main() -> anyhow::Result<()> {
