@@ -59,10 +59,12 @@ pub(crate) fn read_sections(config: &mut Config) -> Problems {
     let front_ends: Vec<_> = all().into_iter().filter(|f| f.has_section()).collect();
     let mut read = Vec::new();
     for (key, line, node) in config.sections.written() {
-        if config.sections.section(key).is_some() || node.kind == crate::yaml::Kind::Null {
+        if config.sections.section(key).is_some() {
             continue;
         }
         match front_ends.iter().find(|f| f.name() == key) {
+            // A section written without a value is absent, as the config reader has it.
+            Some(_) if node.kind == crate::yaml::Kind::Null => {}
             Some(front_end) => {
                 if let Some(section) = front_end.read(node, &mut report) {
                     read.push((key.to_owned(), section));
@@ -146,4 +148,30 @@ pub(crate) async fn start_all(
         });
     }
     Ok(held)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn problems(text: &str) -> (Config, String) {
+        let mut config = crate::config::parse("iogate.yaml", text).expect("parses");
+        let problems = read_sections(&mut config).to_string();
+        (config, problems)
+    }
+
+    #[test]
+    fn a_key_no_front_end_reads_is_named_with_or_without_a_value() {
+        let (_, p) = problems("mqqt:\n");
+        assert!(
+            p.contains("iogate.yaml:1: config: unknown key `mqqt`"),
+            "{p}"
+        );
+        let (_, p) = problems("mqqt: { url: mqtt://x }\n");
+        assert!(p.contains("unknown key `mqqt`"), "{p}");
+        // A front-end's section written without a value is absent.
+        let (config, p) = problems("mqtt:\n");
+        assert_eq!(p, "");
+        assert!(config.sections.section("mqtt").is_none());
+    }
 }

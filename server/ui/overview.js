@@ -11,23 +11,24 @@ import {
   linkState, deviceState, endpointOf,
 } from './view.js';
 
-/** A titled section around a table (`columns` its head, when it has one). */
-function tableSection(id, title, columns, attrs = {}) {
+/** A titled section around a table (`columns` its head, when it has one); the section
+ * has `id` when given, the table `tableId`. */
+function tableSection(key, title, columns, { id, tableId } = {}) {
   const body = h('tbody');
-  const table = columns ? h('table', { class: 'list', ...attrs }, head(...columns), body)
-    : h('table', { class: 'list', ...attrs }, body);
-  const section = h('section', { 'aria-labelledby': `${id}-title`, id },
-    h('h2', { id: `${id}-title` }, title), h('div', { class: 'scroll' }, table));
+  const table = h('table', { class: 'list', id: tableId }, columns ? head(...columns) : null, body);
+  const section = h('section', { 'aria-labelledby': `${key}-title`, id },
+    h('h2', { id: `${key}-title` }, title), h('div', { class: 'scroll' }, table));
   return { section, body };
 }
 
 /** The status sections (serial ports, configuration and servers, MQTT), each hidden while
  * the gateway has none, and what shows a fresh status in them. */
 function statusSections() {
-  const serial = tableSection('serial', 'Modbus server on serial lines', ['Port', 'Unit id', 'State', 'Frames']);
-  const config = tableSection('config', 'Configuration');
-  const servers = tableSection('servers', 'Servers');
-  const mqtt = tableSection('mqtt', 'MQTT');
+  const serial = tableSection('serial', 'Modbus server on serial lines', ['Port', 'Unit id', 'State', 'Frames'],
+    { id: 'serial' });
+  const config = tableSection('config', 'Configuration', null, { id: 'config' });
+  const servers = tableSection('servers', 'Servers', null, { id: 'servers' });
+  const mqtt = tableSection('mqtt', 'MQTT', null, { id: 'mqtt' });
   servers.section.hidden = true;
   function render(ports, m, c) {
     serial.section.hidden = !ports;
@@ -105,10 +106,10 @@ function transactionRows(transactionBody, transactions) {
 
 /** What the overview holds: links and devices by name, the devices' rows. */
 class Board {
-  constructor(links, devices) {
+  constructor(links, devices, linkBody, deviceBody) {
     this.summary = h('p', { class: 'summary', id: 'summary' });
-    this.linkBody = h('tbody');
-    this.deviceBody = h('tbody');
+    this.linkBody = linkBody;
+    this.deviceBody = deviceBody;
     this.deviceRows = new Map();
     this.linksByName = new Map(links.links.map((l) => [l.name, l]));
     this.devicesByName = new Map(devices.devices.map((d) => [d.name, d]));
@@ -160,18 +161,13 @@ function statuses(signal) {
 export async function overview(signal) {
   const [links, devices, mqtt, config, serial] = await statuses(signal);
   const status = statusSections();
-  const board = new Board(links, devices);
   const tx = tableSection('tx', 'Standing transactions',
     ['Name', 'Link', 'Kind', 'State', 'Value', 'Runs', 'Failures', 'Last run']);
   tx.section.hidden = true;
-  tx.section.removeAttribute('id');
   const linksSection = tableSection('links', 'Links', ['Link', 'Endpoint', 'State', 'Utilisation', 'Devices']);
-  linksSection.section.removeAttribute('id');
   const devicesSection = tableSection('devices', 'Devices',
-    ['Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response'], { id: 'devices' });
-  devicesSection.section.removeAttribute('id');
-  board.linkBody = linksSection.body;
-  board.deviceBody = devicesSection.body;
+    ['Device', 'Profile', 'Link', 'State', 'I/O cycles', 'Last response'], { tableId: 'devices' });
+  const board = new Board(links, devices, linksSection.body, devicesSection.body);
   fill(main, h('h1', {}, 'Overview'), board.summary, linksSection.section, devicesSection.section,
     status.servers, status.serial, status.mqtt, tx.section, status.config);
   status.render(serial, mqtt, config);

@@ -127,11 +127,6 @@ impl Sections {
         }
     }
 
-    /// Drops the section `key`, as if it had not been written.
-    pub fn remove(&mut self, key: &str) {
-        self.0.retain(|e| e.key != key);
-    }
-
     /// What the front-end made of its section `key`, as its type `T`.
     pub fn get<T: 'static>(&self, key: &str) -> Option<&T> {
         let entry = self.0.iter().find(|e| e.key == key)?;

@@ -51,8 +51,6 @@ pub(crate) struct Diff {
     pub(crate) modbus_listen: bool,
     pub(crate) http_listen: bool,
     pub(crate) grpc_listen: bool,
-    /// `listen.header_timeout` or `body_timeout`: HTTP and gRPC are served again.
-    pub(crate) limits: bool,
     /// `listen.max_streams`: in force for the streams opened from now on.
     pub(crate) max_streams: bool,
     /// The front-ends with a section of their own whose section changed (restarted).
@@ -120,7 +118,6 @@ fn listeners(d: &mut Diff, old: &Setup, new: &Setup) {
     .into_iter()
     .flatten()
     .collect();
-    d.limits = !limits.is_empty();
     let mut listen = limits;
     if let Some(change) = changed_text("max_streams", a.max_streams, b.max_streams) {
         d.max_streams = true;

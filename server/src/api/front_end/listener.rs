@@ -3,7 +3,9 @@
 //! running there has stopped (TLS turned on or off, timeouts changed); and, running, the
 //! address and the token that stops them.
 
+use std::future::Future;
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::Duration;
 
 use futures_util::future::BoxFuture;
@@ -45,8 +47,31 @@ impl Listen {
         }
     }
 
+    /// Serves on it: the listener bound (or bound again), recorded as `name` in the
+    /// listening table, reached at `address(addr)`, and `serve` spawned on it with the
+    /// token that stops it.
+    pub(crate) async fn serve<F, Fut>(
+        self,
+        key: &str,
+        name: &'static str,
+        service: &Arc<Service>,
+        address: impl FnOnce(SocketAddr) -> String,
+        serve: F,
+    ) -> Result<Box<dyn Running>, String>
+    where
+        F: FnOnce(TcpListener, CancellationToken) -> Fut,
+        Fut: Future<Output = ()> + Send + 'static,
+    {
+        let listener = self.listener(key).await?;
+        let addr = listener.local_addr().map_err(|e| e.to_string())?;
+        service.listening.set(name, addr, address(addr));
+        let stop = service.tasks().token().child_token();
+        service.tasks().spawn(serve(listener, stop.clone()));
+        Ok(Box::new(Listening { name, addr, stop }))
+    }
+
     /// The listener to serve on; one bound again is retried while the old one closes.
-    pub(crate) async fn listener(self, key: &str) -> Result<TcpListener, String> {
+    async fn listener(self, key: &str) -> Result<TcpListener, String> {
         let addr = match self {
             Listen::Bound(listener) => return Ok(listener),
             Listen::Again(addr) => addr,
@@ -64,10 +89,10 @@ impl Listen {
 
 /// A listening front-end that runs: its name in the listening table, its address, and
 /// what stops it.
-pub(crate) struct Listening {
-    pub(crate) name: &'static str,
-    pub(crate) addr: SocketAddr,
-    pub(crate) stop: CancellationToken,
+struct Listening {
+    name: &'static str,
+    addr: SocketAddr,
+    stop: CancellationToken,
 }
 
 impl Running for Listening {

@@ -20,7 +20,7 @@ use crate::service::{Action, Service};
 use crate::tls::Tls;
 use crate::yaml::{Node, Report};
 
-pub(crate) use listener::{Listen, Listening};
+pub(crate) use listener::Listen;
 
 /// What a stopped front-end hands to the one started after it (MQTT's next `bdSeq`).
 pub(crate) type Carried = Option<Box<dyn Any + Send>>;

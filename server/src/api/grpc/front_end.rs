@@ -3,7 +3,9 @@
 
 use futures_util::future::BoxFuture;
 
-use crate::api::front_end::{FrontEnd, Listen, Listening, Prepare, Running, Start, Starting};
+use tokio_util::sync::CancellationToken;
+
+use crate::api::front_end::{FrontEnd, Listen, Prepare, Running, Start, Starting};
 use crate::api::http::front_end::{limits, served_again};
 use crate::config::Config;
 use crate::service::Service;
@@ -60,26 +62,26 @@ impl Starting for GrpcStarting {
         start: Start,
     ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
         Box::pin(async move {
-            let listener = self.listen.listener("listen.grpc").await?;
-            let addr = listener.local_addr().map_err(|e| e.to_string())?;
             let Start { service, tls, .. } = start;
-            service.listening.set("grpc", addr, addr.to_string());
-            let stop = service.tasks().token().child_token();
-            let shutdown = stop.clone().cancelled_owned();
-            let header_timeout = self.header_timeout;
-            let tasks = service.tasks().clone();
-            tasks.spawn(async move {
+            let (header_timeout, serving) = (self.header_timeout, service.clone());
+            let serve = move |listener, stop: CancellationToken| async move {
+                let shutdown = stop.cancelled_owned();
                 let served =
-                    crate::api::serve_grpc(listener, service, header_timeout, tls, shutdown).await;
+                    crate::api::serve_grpc(listener, serving, header_timeout, tls, shutdown).await;
                 if let Err(e) = served {
                     tracing::error!(error = %e, "gRPC server failed");
                 }
-            });
-            Ok(Box::new(Listening {
-                name: "grpc",
-                addr,
-                stop,
-            }) as Box<dyn Running>)
+            };
+            let this = *self;
+            this.listen
+                .serve(
+                    "listen.grpc",
+                    "grpc",
+                    &service,
+                    |addr| addr.to_string(),
+                    serve,
+                )
+                .await
         })
     }
 }

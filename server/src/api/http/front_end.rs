@@ -5,7 +5,9 @@
 use futures_util::future::BoxFuture;
 
 use super::Limits;
-use crate::api::front_end::{FrontEnd, Listen, Listening, Prepare, Running, Start, Starting};
+use tokio_util::sync::CancellationToken;
+
+use crate::api::front_end::{FrontEnd, Listen, Prepare, Running, Start, Starting};
 use crate::config::Config;
 use crate::service::Service;
 
@@ -90,28 +92,21 @@ impl Starting for HttpStarting {
         start: Start,
     ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
         Box::pin(async move {
-            let listener = self.listen.listener("listen.http").await?;
-            let addr = listener.local_addr().map_err(|e| e.to_string())?;
             let Start { service, tls, .. } = start;
             let scheme = if tls.is_some() { "https" } else { "http" };
-            service
-                .listening
-                .set("http", addr, format!("{scheme}://{addr}"));
-            let stop = service.tasks().token().child_token();
-            let shutdown = stop.clone().cancelled_owned();
-            let limits = self.limits;
-            let tasks = service.tasks().clone();
-            tasks.spawn(async move {
-                let served = crate::api::serve_http(listener, service, limits, tls, shutdown).await;
+            let (limits, serving) = (self.limits, service.clone());
+            let address = move |addr| format!("{scheme}://{addr}");
+            let serve = move |listener, stop: CancellationToken| async move {
+                let shutdown = stop.cancelled_owned();
+                let served = crate::api::serve_http(listener, serving, limits, tls, shutdown).await;
                 if let Err(e) = served {
                     tracing::error!(error = %e, "HTTP server failed");
                 }
-            });
-            Ok(Box::new(Listening {
-                name: "http",
-                addr,
-                stop,
-            }) as Box<dyn Running>)
+            };
+            let this = *self;
+            this.listen
+                .serve("listen.http", "http", &service, address, serve)
+                .await
         })
     }
 }

@@ -4,7 +4,7 @@
 
 use futures_util::future::BoxFuture;
 
-use crate::api::front_end::{FrontEnd, Listen, Listening, Prepare, Running, Start, Starting};
+use crate::api::front_end::{FrontEnd, Listen, Prepare, Running, Start, Starting};
 use crate::config::Config;
 use crate::service::Service;
 
@@ -63,19 +63,14 @@ impl Starting for ModbusTcpStarting {
         start: Start,
     ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
         Box::pin(async move {
-            let listener = self.0.listener("modbus_server.listen").await?;
-            let addr = listener.local_addr().map_err(|e| e.to_string())?;
             let service = start.service;
-            let stop = service.tasks().token().child_token();
-            service
-                .tasks()
-                .spawn(super::serve_modbus(listener, service.clone(), stop.clone()));
-            service.listening.set("modbus", addr, addr.to_string());
-            Ok(Box::new(Listening {
-                name: "modbus",
-                addr,
-                stop,
-            }) as Box<dyn Running>)
+            let serving = service.clone();
+            let serve = move |listener, stop| super::serve_modbus(listener, serving, stop);
+            let key = "modbus_server.listen";
+            (*self)
+                .0
+                .serve(key, "modbus", &service, |addr| addr.to_string(), serve)
+                .await
         })
     }
 }

@@ -26,17 +26,10 @@ impl FrontEnd for MqttFrontEnd {
         Some(HealthSchema {
             name: "mqtt",
             schema_name: "MqttHealth",
-            schema: serde_json::json!({
-                "description": "The MQTT front-end in `/readyz`.",
-                "properties": {
-                    "buffered": {"description": "Messages waiting in the buffer for the broker.",
-                                 "format": "int64", "minimum": 0, "type": "integer"},
-                    "connected": {"type": "boolean"},
-                    "last_error": {"type": ["string", "null"]}
-                },
-                "required": ["connected", "buffered"],
-                "type": "object"
-            }),
+            schema: serde_json::to_value(
+                <super::state::MqttHealth as utoipa::PartialSchema>::schema(),
+            )
+            .unwrap_or_default(),
             description: "The MQTT front-end, when one is configured: a broker away does not make the gateway\nunready (its messages wait in the buffer), so this is detail only.",
         })
     }

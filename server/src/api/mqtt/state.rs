@@ -17,8 +17,7 @@ pub(crate) struct MqttState {
     pub(crate) metrics: Arc<MqttMetrics>,
 }
 
-/// The front-end in `/readyz`: a broker away does not make the gateway unready (its
-/// messages wait in the buffer), so this is detail only.
+/// The MQTT front-end in `/readyz`.
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub(crate) struct MqttHealth {
     pub(crate) connected: bool,
