@@ -143,7 +143,7 @@ impl DeviceInfo {
 pub struct LinkInfo {
     /// The link's name.
     pub name: String,
-    /// `serial PORT BAUD 8N1` or `tcp HOST:PORT (framing)`.
+    /// `serial PORT BAUD 8N1`, `tcp HOST:PORT (framing)` or `opcua URL`.
     pub endpoint: String,
     /// TRUE while its port or connection is open.
     pub connected: bool,
@@ -163,6 +163,7 @@ impl LinkInfo {
             Some(pb::link::Transport::Tcp(t)) => {
                 format!("tcp {}:{} ({})", t.host, t.port, t.framing)
             }
+            Some(pb::link::Transport::Endpoint(e)) => format!("{} {}", e.protocol, e.url),
             None => String::new(),
         };
         LinkInfo {

@@ -56,6 +56,9 @@ pub enum PassthroughError {
     Busy,
     #[error("the request waited past its caller's deadline; nothing was sent")]
     Expired,
+    /// The link speaks another field protocol than Modbus: nothing was sent.
+    #[error("the link does not speak Modbus; nothing was sent")]
+    NotModbus,
     /// The link's task gave no answer in time (it stopped, or is stalled).
     #[error("the link's task gave no answer")]
     NoAnswer,

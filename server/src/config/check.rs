@@ -110,6 +110,7 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
         }
         if profile.protocol != crate::profile::Protocol::Simulated {
             unknown_link(config, d, &mut report);
+            wrong_link(config, d, profile, &mut report);
         }
         for (field, text) in d.on_client_loss.iter().flat_map(|l| &l.safe) {
             if let Err(why) = safe_value(profile, field, text) {
@@ -122,6 +123,40 @@ pub(crate) fn check_devices(config: &Config, catalog: &Catalog) -> Result<(), Pr
         Ok(())
     } else {
         Err(problems)
+    }
+}
+
+/// A device's `link` of another protocol than its profile's: a Modbus device on an OPC UA
+/// link, or the other way round.
+fn wrong_link(
+    config: &Config,
+    d: &super::DeviceConfig,
+    profile: &crate::profile::Profile,
+    report: &mut Report,
+) {
+    let Some(link) = d
+        .link
+        .as_deref()
+        .and_then(|l| config.links.iter().find(|c| c.name == l))
+    else {
+        return;
+    };
+    let speaks = match &link.transport {
+        super::Transport::Driver(x) => Some(x.protocol),
+        _ => None,
+    };
+    if speaks != profile.protocol.link_key() {
+        let link_is = speaks.map_or("a Modbus link".to_owned(), |p| format!("an {p} link"));
+        report.push(
+            d.line,
+            format!("device {}: link", d.name),
+            format!(
+                "profile {} is {}, but link {} is {link_is}",
+                profile.name,
+                profile.protocol.name(),
+                link.name
+            ),
+        );
     }
 }
 

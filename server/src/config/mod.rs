@@ -143,7 +143,27 @@ pub enum Transport {
         port: u16,
         framing: Framing,
     },
+    /// A link of a protocol other than Modbus, read and checked by its driver.
+    Driver(DriverLink),
 }
+
+/// A link of another field protocol: its settings as written, for its driver to read
+/// (`crate::drivers`); the core knows only where it goes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriverLink {
+    /// The link's key for them, the protocol's (`opcua`).
+    pub(crate) protocol: &'static str,
+    /// Where it goes, as written (an OPC UA endpoint URL).
+    pub(crate) endpoint: String,
+    /// The settings' YAML tree.
+    pub(crate) settings: crate::yaml::Node,
+    /// The directory relative paths in the settings start from (the config file's).
+    pub(crate) base: PathBuf,
+}
+
+/// The keys of the link settings of the protocols besides Modbus, each with the key of
+/// the settings that say where the link goes.
+pub(crate) const DRIVER_LINK_KEYS: &[(&str, &str)] = &[("opcua", "url")];
 
 impl SerialSettings {
     /// Whether a port is given (a declaration may leave it empty, for now).
@@ -158,7 +178,7 @@ impl Transport {
     pub(crate) fn is_configured(&self) -> bool {
         match self {
             Transport::Serial(s) => !s.port.trim().is_empty(),
-            Transport::Tcp { .. } => true,
+            Transport::Tcp { .. } | Transport::Driver(_) => true,
         }
     }
 
@@ -177,6 +197,9 @@ impl Transport {
                     host: h2, port: p2, ..
                 },
             ) => h1 == h2 && p1 == p2,
+            (Transport::Driver(a), Transport::Driver(b)) => {
+                a.protocol == b.protocol && a.endpoint == b.endpoint
+            }
             _ => false,
         }
     }
@@ -193,6 +216,7 @@ impl std::fmt::Display for Transport {
                 port,
                 framing,
             } => write!(f, "tcp {host}:{port} ({})", framing.name()),
+            Transport::Driver(d) => write!(f, "{} {}", d.protocol, d.endpoint),
         }
     }
 }

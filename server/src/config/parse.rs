@@ -35,7 +35,7 @@ const LISTEN_KEYS: &[&str] = &[
     "body_timeout",
     "max_streams",
 ];
-const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
+const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "opcua", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 pub(super) const DEVICE_KEYS: &[&str] = &[
     "name",
@@ -233,21 +233,33 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     let (name, ctx) = name_of(&mut map, report, "link", index);
     let serial = map.get("serial");
     let tcp = map.get("tcp");
+    let driver = super::DRIVER_LINK_KEYS
+        .iter()
+        .find_map(|&(key, at)| map.get(key).map(|n| (key, at, n)));
     let guard_time = map.get("guard_time").map_or(Some(Duration::ZERO), |n| {
         let at = format!("{ctx}: guard_time");
         duration_value(n, report, &at, Duration::ZERO)
             .and_then(|d| ruled(rules::guard_time(d), n.line, &at, report))
     });
     map.finish(report, &ctx, LINK_KEYS);
-    let transport = match (serial, tcp) {
-        (Some(s), None) => read_serial(s, &ctx, report).map(Transport::Serial),
-        (None, Some(t)) => read_tcp(t, &ctx, report),
-        (Some(_), Some(t)) => {
-            report.push(t.line, &ctx, "a link is either `serial` or `tcp`, not both");
+    let transport = match (serial, tcp, driver) {
+        (Some(s), None, None) => read_serial(s, &ctx, report).map(Transport::Serial),
+        (None, Some(t), None) => read_tcp(t, &ctx, report),
+        (None, None, Some((key, at, n))) => read_driver(key, at, n, &ctx, report),
+        (None, None, None) => {
+            report.push(
+                node.line,
+                &ctx,
+                "a link needs `serial`, `tcp` or `opcua` settings",
+            );
             None
         }
-        (None, None) => {
-            report.push(node.line, &ctx, "a link needs `serial` or `tcp` settings");
+        (_, _, _) => {
+            report.push(
+                node.line,
+                &ctx,
+                "a link is one of `serial`, `tcp` or `opcua`, not several",
+            );
             None
         }
     };
@@ -257,6 +269,41 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
         guard_time: guard_time?,
         line: node.line,
     })
+}
+
+/// The settings of a link of another protocol, kept for its driver: they must say where
+/// the link goes (`at`: `url`).
+fn read_driver(
+    protocol: &'static str,
+    at: &str,
+    node: &Node,
+    link: &str,
+    report: &mut Report,
+) -> Option<Transport> {
+    let ctx = format!("{link}: {protocol}");
+    let yaml::Kind::Map(entries) = &node.kind else {
+        report.push(
+            node.line,
+            &ctx,
+            format!("expected a mapping, found {}", node.describe()),
+        );
+        return None;
+    };
+    let Some((_, value)) = entries.iter().find(|(k, _)| k.name == at) else {
+        report.push(node.line, &ctx, format!("missing required key `{at}`"));
+        return None;
+    };
+    let endpoint = value.scalar_text(report, &format!("{ctx}.{at}"))?;
+    let base = std::path::Path::new(report.file())
+        .parent()
+        .map(std::path::Path::to_path_buf)
+        .unwrap_or_default();
+    Some(Transport::Driver(super::DriverLink {
+        protocol,
+        endpoint,
+        settings: node.clone(),
+        base,
+    }))
 }
 
 fn read_serial(node: &Node, link: &str, report: &mut Report) -> Option<SerialSettings> {

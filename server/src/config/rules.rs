@@ -77,6 +77,11 @@ pub enum RuleError {
     },
     #[error("no slave configured: set slave_id (1-247)")]
     NoSlave,
+    #[error("profile {profile} is {protocol}: its devices have no slave_id (remove it)")]
+    SlaveOfOther {
+        profile: String,
+        protocol: &'static str,
+    },
     #[error("{0} is outside the allowed range 1-247")]
     SlaveId(u64),
     #[error(
@@ -100,9 +105,10 @@ impl RuleError {
             RuleError::GuardTime(_) => "guard_time",
             RuleError::TooShort(key) => key,
             RuleError::SimulatedWithLink(_) | RuleError::NoLink { .. } => "link",
-            RuleError::SimulatedWithSlave | RuleError::NoSlave | RuleError::SlaveId(_) => {
-                "slave_id"
-            }
+            RuleError::SimulatedWithSlave
+            | RuleError::NoSlave
+            | RuleError::SlaveId(_)
+            | RuleError::SlaveOfOther { .. } => "slave_id",
             RuleError::Name(_) => "name",
         }
     }
@@ -283,6 +289,15 @@ pub(crate) fn binding(
             profile: profile.name.clone(),
             protocol: profile.protocol.name(),
         });
+    }
+    if !profile.protocol.is_modbus() {
+        if slave_id.is_some() {
+            errors.push(RuleError::SlaveOfOther {
+                profile: profile.name.clone(),
+                protocol: profile.protocol.name(),
+            });
+        }
+        return errors;
     }
     match slave_id.map(self::slave_id) {
         None => errors.push(RuleError::NoSlave),

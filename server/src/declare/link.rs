@@ -7,6 +7,7 @@ fn default_name(transport: &Transport) -> String {
     let raw = match transport {
         Transport::Serial(s) => s.port.trim_start_matches('/').to_owned(),
         Transport::Tcp { host, port, .. } => format!("{host}_{port}"),
+        Transport::Driver(d) => d.endpoint.clone(),
     };
     raw.chars()
         .map(|c| {
@@ -23,6 +24,10 @@ fn default_name(transport: &Transport) -> String {
 /// that, if it exists, is a character device; a TCP endpoint in the allowed list.
 fn allowed(policy: &DeclarePolicy, transport: &Transport) -> Result<(), DeclareError> {
     match transport {
+        Transport::Driver(d) => Err(DeclareError::NotAllowed(format!(
+            "{} links are configured in the config file, not declared",
+            d.protocol
+        ))),
         Transport::Serial(s) if !s.is_configured_port() => Ok(()),
         Transport::Serial(s) => {
             // A `..` could lead a pattern such as /dev/serial/by-id/* anywhere in /dev.

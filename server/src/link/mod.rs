@@ -156,6 +156,10 @@ impl Connection {
 /// Opens the link's port or socket.
 pub(crate) async fn open(config: &LinkConfig, guard: Duration) -> Result<Connection, LinkFault> {
     match &config.transport {
+        Transport::Driver(d) => Err(LinkFault::OpenFailed {
+            port: d.endpoint.clone(),
+            reason: format!("a {} link carries no Modbus", d.protocol),
+        }),
         Transport::Serial(s) => {
             let stream = open_serial(s)?;
             let transport = RtuTransport::new(Box::new(stream), Some(LineTiming::new(s)), guard);

@@ -25,7 +25,7 @@ pub(crate) fn read_request(kind: RegisterKind, address: u16, count: u16) -> Requ
         RegisterKind::Coil => Request::ReadCoils { address, count },
         RegisterKind::DiscreteInput => Request::ReadDiscreteInputs { address, count },
         RegisterKind::InputRegister => Request::ReadInputRegisters { address, count },
-        RegisterKind::HoldingRegister | RegisterKind::Virtual => {
+        RegisterKind::HoldingRegister | RegisterKind::Virtual | RegisterKind::Point => {
             Request::ReadHoldingRegisters { address, count }
         }
     }
@@ -102,11 +102,12 @@ fn end_of(field: &Field) -> u32 {
 
 /// The read batches of a device: the fields of each register kind in address order, merged
 /// while they are consecutive (or at most `max_gap` apart) and fit the Modbus limit and
-/// `max_batch` registers. Virtual fields are not on the bus.
+/// `max_batch` registers. Virtual fields and points of other protocols are not on a Modbus
+/// bus.
 pub(crate) fn read_batches(profile: &Profile, max_batch: u16, max_gap: u16) -> Vec<ReadBatch> {
     let mut by_kind: BTreeMap<RegisterKind, Vec<usize>> = BTreeMap::new();
     for (i, f) in profile.fields.iter().enumerate() {
-        if f.register.kind != RegisterKind::Virtual {
+        if !matches!(f.register.kind, RegisterKind::Virtual | RegisterKind::Point) {
             by_kind.entry(f.register.kind).or_default().push(i);
         }
     }

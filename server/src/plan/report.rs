@@ -136,6 +136,14 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
             );
             None
         }
+        Transport::Driver(d) => {
+            let _ = writeln!(
+                out,
+                "link {}: {} {}; no wire-time budget",
+                link.name, d.protocol, d.endpoint
+            );
+            None
+        }
     }
 }
 

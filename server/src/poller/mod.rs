@@ -1,12 +1,13 @@
-//! The task that owns a link: it opens (and reopens) the port, then polls the link's devices,
-//! each at its `refresh_rate`, the most overdue first; pending writes go before reads. A
-//! device that stops answering is backed off: until it answers again it costs the link one
-//! probe transaction (one timeout) per backoff period, and the other devices keep their rates.
+//! The task that owns a link, whatever its field protocol (`crate::drivers`): it opens (and
+//! reopens) the link, then polls the link's devices, each at its `refresh_rate`, the most
+//! overdue first; pending writes go before reads. A device that stops answering is backed
+//! off: until it answers again it costs the link one probe (one timeout) per backoff period,
+//! and the other devices keep their rates.
 //!
-//! `bus` holds the connection and its measurements, `read` a device's poll cycle, `write`
-//! putting its requested outputs on the bus.
+//! `poll_cycle` is a device's poll cycle, `write_outputs` putting its requested outputs on
+//! the link, `watchdog` the look at every link's progress. [`LinkTask::run`] lists the
+//! drivers.
 
-mod bus;
 mod poll_cycle;
 pub(crate) mod watchdog;
 mod write_outputs;
@@ -21,14 +22,13 @@ use tokio::sync::watch;
 
 use crate::cache::{
     Device, FieldError, Inbox, Link, LinkDiagnostics, LinkState, Passthrough, PassthroughError,
-    Probe, WriteError,
+    WriteError,
 };
-use crate::config::{LinkConfig, Transport};
-use crate::link::timing::LineTiming;
-use crate::link::{self, LinkCode, LinkFault, TxError};
+use crate::config::LinkConfig;
+use crate::drivers::modbus::Modbus;
+use crate::drivers::{Driver, Session};
+use crate::link::{LinkCode, LinkFault};
 use crate::metrics::Metrics;
-use crate::plan::{self, ReadBatch};
-use bus::Bus;
 
 /// Waits between attempts to open a link: doubling from the first to the last.
 pub(crate) const REOPEN_MIN: Duration = Duration::from_millis(250);
@@ -42,22 +42,20 @@ pub(crate) const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 /// A step of the task ends the connection only when the port or socket failed.
 type Step = Result<(), LinkFault>;
 
-struct Polled {
+struct Polled<P> {
     device: Arc<Device>,
-    slave: u8,
-    reads: Vec<ReadBatch>,
+    /// What the driver keeps of the device.
+    plan: P,
     next_due: Instant,
     /// Set while the device does not answer: when to probe it next, and the period.
     backoff: Option<(Instant, Duration)>,
     /// Write the latest requested outputs again (after a reconnect).
     rewrite: bool,
-    /// The device refused FC15/FC16 (exception 01): write items one at a time.
-    single_writes: bool,
     /// When each output was last written again by `write_mode: reconcile`.
     reconciled: std::collections::HashMap<usize, Instant>,
 }
 
-impl Polled {
+impl<P> Polled<P> {
     fn due(&self) -> Instant {
         self.backoff.map_or(self.next_due, |(until, _)| until)
     }
@@ -72,9 +70,9 @@ impl Polled {
 
     /// The device stopped answering (`error` after the retries): it is disconnected, its
     /// fields are bad, it is backed off, and its outputs are written again when it is back.
-    fn lost(&mut self, error: TxError, cycle: Duration) {
+    fn lost(&mut self, error: &FieldError, cycle: Duration) {
         self.device.record_cycle(false, cycle);
-        self.device.fail_reads(&FieldError::NoResponse(error));
+        self.device.fail_reads(error);
         self.backoff = None;
         self.back_off();
         self.rewrite = true;
@@ -97,31 +95,56 @@ enum Ended {
     Reconfigured,
 }
 
-/// Whether a transaction's failure ends the connection.
-fn connection_fault(e: &TxError) -> Option<LinkFault> {
-    match e {
-        TxError::Io(io) => Some(LinkFault::Lost(io.clone())),
-        _ => None,
+/// A link's task: it runs the link with the driver of its protocol, and with another one
+/// when a reload gives the link another protocol.
+pub(crate) struct LinkTask {
+    link: Arc<Link>,
+    metrics: Arc<Metrics>,
+}
+
+impl LinkTask {
+    pub(crate) fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
+        LinkTask { link, metrics }
+    }
+
+    /// Runs the link until `token` is cancelled. The drivers are listed here.
+    pub(crate) async fn run(self, token: CancellationToken) {
+        loop {
+            let config = self.link.config();
+            let (link, metrics) = (self.link.clone(), self.metrics.clone());
+            let ended = if Modbus::serves(&config) {
+                Driven::<Modbus>::new(link, metrics).run(&token).await
+            } else {
+                tracing::error!(link = %self.link.name(), "no driver serves this link");
+                token.cancelled().await;
+                Ended::Shutdown
+            };
+            if matches!(ended, Ended::Shutdown) {
+                break;
+            }
+        }
+        tracing::debug!(link = %self.link.name(), "link task stopped");
     }
 }
 
-pub(crate) struct LinkTask {
+/// A link run with the driver `D`.
+pub(crate) struct Driven<D: Driver> {
     link: Arc<Link>,
     /// The link's settings and members as published; taken in between transactions.
     state: watch::Receiver<LinkState>,
     /// The settings taken in last.
     config: LinkConfig,
-    devices: Vec<Polled>,
+    devices: Vec<Polled<D::Plan>>,
     metrics: Arc<Metrics>,
     /// Round-robin position for writes.
     cursor: usize,
 }
 
-impl LinkTask {
+impl<D: Driver> Driven<D> {
     pub(crate) fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
         let state = link.subscribe();
         let config = link.config();
-        let mut task = LinkTask {
+        let mut task = Driven {
             link,
             state,
             config,
@@ -157,32 +180,19 @@ impl LinkTask {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
             let rewrite = device.rewrite_first();
             self.devices.push(Polled {
-                slave: device.slave_id().unwrap_or(0),
-                reads: plan::read_batches(
-                    &device.profile,
-                    device.config.max_batch,
-                    device.config.max_gap,
-                ),
+                plan: D::plan(&device),
                 device,
                 next_due: now,
                 backoff: None,
                 rewrite,
-                single_writes: false,
                 reconciled: std::collections::HashMap::new(),
             });
         }
-        let config = &self.config;
         // The bus utilisation the refresh rates demand (serial links), kept with the link.
-        let planned = match &config.transport {
-            Transport::Serial(s) => Some(plan::utilisation(
-                self.devices
-                    .iter()
-                    .map(|p| (&p.device.config, p.reads.as_slice())),
-                &LineTiming::new(s),
-                config.guard_time,
-            )),
-            Transport::Tcp { .. } => None,
-        };
+        let planned = D::planned_utilisation(
+            &self.config,
+            self.devices.iter().map(|p| (p.device.as_ref(), &p.plan)),
+        );
         self.link.utilisation.set_planned(planned);
         if let Some(u) = planned {
             self.metrics
@@ -200,7 +210,8 @@ impl LinkTask {
         });
     }
 
-    pub(crate) async fn run(mut self, token: CancellationToken) {
+    /// Runs the link until shutdown (or until it is given a protocol of another driver).
+    async fn run(mut self, token: &CancellationToken) -> Ended {
         let name = self.link.name().to_owned();
         let mut reopen = REOPEN_MIN;
         let mut lost = false;
@@ -208,10 +219,14 @@ impl LinkTask {
         let mut down: Option<LinkFault> = None;
         'reopen: loop {
             self.sync_members();
+            if !D::serves(&self.config) {
+                // Given another protocol: its driver takes over.
+                return Ended::Reconfigured;
+            }
             let tried = self.config.clone();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
-                r = tokio::time::timeout(CONNECT_TIMEOUT, link::open(&tried, tried.guard_time)) => r,
+                r = tokio::time::timeout(CONNECT_TIMEOUT, D::open(&tried, &self.link, &self.metrics)) => r,
             };
             match opened.unwrap_or(Err(LinkFault::ConnectTimeout(CONNECT_TIMEOUT))) {
                 Err(fault) => {
@@ -224,8 +239,8 @@ impl LinkTask {
                 }
                 Ok(conn) => {
                     reopen = REOPEN_MIN;
-                    let bus = self.opened(conn, lost);
-                    match self.serve(bus, &token, &tried).await {
+                    self.opened(lost);
+                    match self.serve(conn, token, &tried).await {
                         Ended::Shutdown => break,
                         Ended::Reconfigured => {
                             tracing::info!(link = %name, "link settings changed: reopening");
@@ -247,7 +262,7 @@ impl LinkTask {
                 }
             }
             match self
-                .wait_down(&token, Instant::now() + reopen, down.as_ref(), &tried)
+                .wait_down(token, Instant::now() + reopen, down.as_ref(), &tried)
                 .await
             {
                 Waited::Shutdown => break 'reopen,
@@ -260,17 +275,17 @@ impl LinkTask {
             reopen = (reopen * 2).min(REOPEN_MAX);
         }
         self.set_state(false, self.link.diagnostics().error_code);
-        tracing::debug!(link = %name, "link task stopped");
+        Ended::Shutdown
     }
 
     /// The link just opened: its state and metrics say so, every device is due now and has
     /// its outputs written again.
-    fn opened(&mut self, conn: link::Connection, lost: bool) -> Bus {
-        let name = self.link.name().to_owned();
+    fn opened(&mut self, lost: bool) {
+        let name = self.link.name();
         if lost {
-            self.metrics.link_reconnected(&name);
+            self.metrics.link_reconnected(name);
         }
-        tracing::info!(link = %name, "link open");
+        tracing::info!(link = %name, protocol = D::NAME, "link open");
         self.set_state(true, LinkCode::Ok);
         let now = Instant::now();
         for p in &mut self.devices {
@@ -278,13 +293,6 @@ impl LinkTask {
             p.next_due = now;
             p.backoff = None;
         }
-        Bus::new(
-            conn,
-            self.metrics.clone(),
-            name,
-            self.link.progress.clone(),
-            self.link.utilisation.clone(),
-        )
     }
 
     /// Waits for the next attempt to open the link (`retry_at`). While the link is down,
@@ -334,36 +342,20 @@ impl LinkTask {
         Some(queued)
     }
 
-    /// Sends a queued request as it is, and answers it.
-    async fn pass_through(&mut self, queued: Passthrough, bus: &mut Bus) -> Step {
+    /// Sends a queued request as it is (a Modbus request to a unit), and answers it.
+    async fn pass_through(&mut self, queued: Passthrough, session: &mut D::Session) -> Step {
         if let Some(stage) = &queued.stage {
             stage.send_replace(crate::cache::Stage::Taken);
         }
         let label = self
             .devices
             .iter()
-            .find(|p| p.slave == queued.slave)
+            .find(|p| p.device.slave_id().unwrap_or(0) == queued.slave)
             .map_or_else(
                 || format!("unit{}", queued.slave),
                 |p| p.device.name().to_owned(),
             );
-        if let Some(stage) = &queued.stage {
-            stage.send_replace(crate::cache::Stage::Sent);
-        }
-        let (result, _) = bus
-            .transact_as(&label, queued.slave, queued.timeout, &queued.request, 0)
-            .await;
-        let fault = result.as_ref().err().and_then(connection_fault);
-        let _ = queued.reply.send(result.map_err(PassthroughError::from));
-        fault.map_or(Ok(()), Err)
-    }
-
-    /// Sends a scan's probe between polls; a link that is not RTU answers it unsent.
-    async fn probe(&mut self, queued: Probe, bus: &mut Bus) -> Step {
-        let result = bus.probe(&queued).await;
-        let fault = result.as_ref().err().and_then(connection_fault);
-        let _ = queued.reply.send(result.map_err(PassthroughError::from));
-        fault.map_or(Ok(()), Err)
+        session.pass_through(queued, &label).await
     }
 
     fn all_unreachable(&self, fault: &LinkFault) {
@@ -382,7 +374,7 @@ impl LinkTask {
 
     async fn serve(
         &mut self,
-        mut bus: Bus,
+        mut session: D::Session,
         token: &CancellationToken,
         opened: &LinkConfig,
     ) -> Ended {
@@ -407,14 +399,14 @@ impl LinkTask {
             after_request = request.is_some();
             let step = if let Some(queued) = request {
                 match self.admit(queued) {
-                    Some(Inbox::Request(r)) => self.pass_through(r, &mut bus).await,
-                    Some(Inbox::Probe(p)) => self.probe(p, &mut bus).await,
+                    Some(Inbox::Request(r)) => self.pass_through(r, &mut session).await,
+                    Some(Inbox::Probe(p)) => session.scan_probe(p).await,
                     None => Ok(()),
                 }
             } else if let Some(i) = self.next_writer() {
-                self.write_device(i, &mut bus).await
+                self.write_device(i, &mut session).await
             } else if let Some(i) = due {
-                self.poll_device(i, &mut bus).await
+                self.poll_device(i, &mut session).await
             } else {
                 let until = self
                     .devices
@@ -427,6 +419,7 @@ impl LinkTask {
                     _ = sleep_until(until) => {}
                     _ = self.link.wake.notified() => {}
                     Ok(()) = self.state.changed() => self.take_state(),
+                    fault = session.lost() => return Ended::Lost(fault),
                 }
                 Ok(())
             };

@@ -1,90 +1,49 @@
-//! A device's poll cycle: each read batch with its retries, decoded and published; a probe
-//! while the device is backed off; a batch the device refuses is split.
+//! A device's poll cycle: a probe while the device is backed off, then its driver's read;
+//! the next poll on the device's grid; outputs written again where the device holds other
+//! values (`write_mode: reconcile`).
 
 use std::time::Duration;
 
 use tokio::time::Instant;
 
-use super::bus::Bus;
-use super::{LinkTask, Step, connection_fault};
-use crate::cache::FieldError;
+use super::{Driven, Step};
 use crate::config::WriteMode;
-use crate::link::TxError;
-use crate::link::frame::Exception;
+use crate::drivers::{Driver, Probed, Read, Session};
 
-impl LinkTask {
-    pub(super) async fn poll_device(&mut self, i: usize, bus: &mut Bus) -> Step {
+impl<D: Driver> Driven<D> {
+    pub(super) async fn poll_device(&mut self, i: usize, session: &mut D::Session) -> Step {
         let p = &mut self.devices[i];
         let device = p.device.clone();
         let started = Instant::now();
         if p.backoff.is_some() {
-            // A probe: one transaction, no retries.
-            let Some(first) = p.reads.first() else {
-                p.backoff = None;
-                return Ok(());
-            };
-            let (result, _) = bus.transact(&device, &first.request(), 0).await;
-            match result {
-                Ok(_) | Err(TxError::Exception(_)) => {
-                    tracing::info!(device = %device.name(), slave = p.slave, "device answers again");
+            // A probe: one request, no retries.
+            match session.probe(&device, &mut p.plan).await? {
+                Probed::Answers => {
+                    tracing::info!(device = %device.name(), "device answers again");
                     p.backoff = None;
                     p.rewrite = true;
                 }
-                Err(e) => {
-                    if let Some(fault) = connection_fault(&e) {
-                        return Err(fault);
-                    }
+                Probed::Silent(e) => {
                     p.back_off();
-                    device.fail_reads(&FieldError::NoResponse(e));
+                    device.fail_reads(&e);
+                    return Ok(());
+                }
+                Probed::Nothing => {
+                    p.backoff = None;
                     return Ok(());
                 }
             }
         }
-        let mut k = 0;
-        let mut last_response = Duration::ZERO;
-        while k < p.reads.len() {
-            let batch = p.reads[k].clone();
-            let (result, elapsed) = bus
-                .transact(&device, &batch.request(), device.config.retries)
-                .await;
-            match result {
-                Ok(response) => {
-                    last_response = elapsed;
-                    for (field, value) in batch.decode(&device.profile, &response) {
-                        device.publish(field, value);
-                    }
-                    k += 1;
+        match session.read(&device, &mut p.plan).await? {
+            Read::Answered(last_response) => device.record_cycle(true, last_response),
+            Read::Silent(e) => {
+                if device.diagnostics().connected || p.backoff.is_none() {
+                    tracing::warn!(device = %device.name(), error = %e, backoff = ?super::BACKOFF_MIN, "device does not answer");
                 }
-                Err(TxError::Exception(x))
-                    if (x == Exception::ILLEGAL_DATA_ADDRESS
-                        || x == Exception::ILLEGAL_DATA_VALUE)
-                        && batch.fields.len() > 1 =>
-                {
-                    if let Some((a, b)) = batch.split(&device.profile) {
-                        tracing::info!(device = %device.name(), address = batch.address, count = batch.count, exception = %x, "device refused a batch; splitting it");
-                        p.reads.splice(k..=k, [a, b]);
-                    }
-                }
-                Err(TxError::Exception(x)) => {
-                    last_response = elapsed;
-                    for &field in &batch.fields {
-                        device.publish(field, Err(FieldError::Exception(x)));
-                    }
-                    k += 1;
-                }
-                Err(e) => {
-                    if let Some(fault) = connection_fault(&e) {
-                        return Err(fault);
-                    }
-                    if device.diagnostics().connected || p.backoff.is_none() {
-                        tracing::warn!(device = %device.name(), slave = p.slave, error = %e, backoff = ?super::BACKOFF_MIN, "device does not answer");
-                    }
-                    p.lost(e, started.elapsed());
-                    return Ok(());
-                }
+                p.lost(&e, started.elapsed());
+                return Ok(());
             }
         }
-        device.record_cycle(true, last_response);
         p.next_due = next_on_grid(p.next_due, device.config.refresh_rate, started);
         if device.config.write_mode == WriteMode::Reconcile {
             p.reconcile();
@@ -106,7 +65,7 @@ pub(crate) fn next_on_grid(due: Instant, period: Duration, started: Instant) -> 
 /// The least time between two reconciling writes of one output.
 pub(crate) const RECONCILE_MIN: Duration = Duration::from_millis(100);
 
-impl super::Polled {
+impl<P> super::Polled<P> {
     /// Requests the desired value of every output the device was just read holding another
     /// value in (origin `reconcile`), each at most once per refresh period and 100 ms.
     fn reconcile(&mut self) {

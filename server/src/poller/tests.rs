@@ -2,9 +2,11 @@ use super::*;
 use crate::cache::Cache;
 use crate::codec::Value;
 use crate::config::{Parity, SerialSettings};
+use crate::drivers::modbus::Bus;
 use crate::link::Connection;
 use crate::link::rtu::RtuTransport;
 use crate::link::rtu_frame::crc16;
+use crate::link::timing::LineTiming;
 use crate::profile::Catalog;
 use crate::write_log::{Lookup, WriteStatus};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -80,7 +82,7 @@ async fn a_dead_device_costs_one_probe_per_backoff_period_and_the_other_keeps_it
     let cache = Cache::new(&config, Catalog::new([profile]));
     let metrics = Arc::new(Metrics::new());
     let link = cache.links()[0].clone();
-    let mut task = LinkTask::new(link, metrics.clone());
+    let mut task = Driven::<Modbus>::new(link, metrics.clone());
 
     let (gateway, device_end) = tokio::io::duplex(4096);
     let asked: Arc<[AtomicU32; 3]> = Arc::new(Default::default());

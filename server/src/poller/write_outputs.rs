@@ -1,58 +1,13 @@
-//! Putting a device's requested outputs on the bus: grouped into as few transactions as
-//! the device allows, each outcome reported; a device without FC15/FC16 is written item by
-//! item from then on.
+//! Putting a device's requested outputs on its link: the writes taken (last value wins),
+//! refused at once while the device is backed off, the latest values written again after a
+//! reconnect, and the rest left to the driver, which finishes each with its outcome.
 
-use std::collections::VecDeque;
 use std::time::Duration;
 
-use super::bus::Bus;
-use super::{LinkTask, Step, connection_fault};
+use super::{Driven, Step};
 use crate::cache::{Device, WriteError};
-use crate::link::TxError;
-use crate::link::frame::Exception;
-use crate::plan::{self, WriteItem, WriteOp};
-
-/// The first wait before a write answered "busy" (06) or "acknowledge" (05) is sent again;
-/// it doubles with each try, up to [`BUSY_BACKOFF_MAX`].
-pub(crate) const BUSY_BACKOFF: Duration = Duration::from_millis(20);
-pub(crate) const BUSY_BACKOFF_MAX: Duration = Duration::from_millis(320);
-
-/// Whether an exception says "later", not "no".
-fn transient(e: &TxError) -> bool {
-    matches!(e, TxError::Exception(x) if *x == Exception::ACKNOWLEDGE || *x == Exception::SERVER_DEVICE_BUSY)
-}
-
-/// Sends one write operation; a device that answers busy or acknowledge gets it again after
-/// a short backoff, within the device's `retries` (timeouts are retried by the bus). Answers
-/// the result and how many transactions it took.
-async fn send(
-    bus: &mut Bus,
-    device: &crate::cache::Device,
-    op: &WriteOp,
-) -> (Result<(), TxError>, u32) {
-    let mut again = 0;
-    let mut backoff = BUSY_BACKOFF;
-    let _ = bus.take_sent();
-    loop {
-        let result = match op {
-            WriteOp::Direct { request, .. } => bus
-                .transact(device, request, device.config.retries)
-                .await
-                .0
-                .map(drop),
-            WriteOp::Bits { address, bits, .. } => bus.write_bits(device, *address, bits).await,
-        };
-        match result {
-            Err(e) if transient(&e) && again < device.config.retries => {
-                tracing::debug!(device = %device.name(), error = %e, retry_in = ?backoff, "write refused for now; sending it again");
-                again += 1;
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(BUSY_BACKOFF_MAX);
-            }
-            result => return (result, bus.take_sent()),
-        }
-    }
-}
+use crate::drivers::{Driver, Session};
+use crate::plan::WriteItem;
 
 /// The requested values again, after a reconnect or the device's return: each a write of
 /// its own in the log (origin `replay`), never an unrecorded one.
@@ -84,18 +39,8 @@ impl From<crate::cache::TakenWrite> for WriteItem {
     }
 }
 
-/// The items of `op` as single writes, before the rest of `ops`.
-fn one_by_one(device: &Device, items: &[WriteItem], op: &WriteOp, ops: &mut VecDeque<WriteOp>) {
-    let subset = op.items().to_vec();
-    let sub: Vec<WriteItem> = subset.iter().map(|&n| items[n].clone()).collect();
-    let (singles, _) = plan::write_ops(&device.profile, &sub, true);
-    for single in singles.into_iter().rev() {
-        ops.push_front(single.remap(&subset));
-    }
-}
-
-impl LinkTask {
-    pub(super) async fn write_device(&mut self, i: usize, bus: &mut Bus) -> Step {
+impl<D: Driver> Driven<D> {
+    pub(super) async fn write_device(&mut self, i: usize, session: &mut D::Session) -> Step {
         let p = &mut self.devices[i];
         let device = p.device.clone();
         let taken = device.take_writes();
@@ -110,61 +55,13 @@ impl LinkTask {
             replayed(&device, &mut items);
             p.rewrite = false;
         }
-        let finish = |item: &WriteItem, result: Result<(), WriteError>, attempts: u32| {
-            if let Some(g) = item.generation {
-                device.finish_write_after(g, result, attempts);
-            }
-        };
-        let (ops, refused) = plan::write_ops(&device.profile, &items, p.single_writes);
-        for (n, reason) in refused {
-            finish(&items[n], Err(reason), 0);
+        let written = session.write(&device, &mut p.plan, items).await;
+        if written.is_err() {
+            p.rewrite = true;
         }
-        let mut ops: VecDeque<WriteOp> = ops.into();
-        while let Some(op) = ops.pop_front() {
-            let (result, attempts) = send(bus, &device, &op).await;
-            match result {
-                Ok(()) => {
-                    for &n in op.items() {
-                        // The value first, then the outcome: never a moment that shows the
-                        // write done and the old value.
-                        device.publish(items[n].field, Ok(items[n].value.clone()));
-                        finish(&items[n], Ok(()), attempts);
-                    }
-                }
-                Err(TxError::Exception(Exception::ILLEGAL_FUNCTION))
-                    if op.is_multiple() && op.items().len() > 1 =>
-                {
-                    // The device has no FC15/FC16: write these (and later ones) one by one.
-                    tracing::info!(device = %device.name(), slave = p.slave, "device refused FC15/FC16; writing items one at a time");
-                    p.single_writes = true;
-                    one_by_one(&device, &items, &op, &mut ops);
-                }
-                Err(e) => {
-                    let failed = WriteError::from(e.clone());
-                    for &n in op.items() {
-                        finish(&items[n], Err(failed.clone()), attempts);
-                    }
-                    if matches!(e, TxError::Exception(_)) {
-                        continue;
-                    }
-                    // The device or the link is gone: the rest cannot be written now.
-                    for rest in ops.drain(..) {
-                        for &n in rest.items() {
-                            finish(
-                                &items[n],
-                                Err(WriteError::NotSent(Box::new(failed.clone()))),
-                                0,
-                            );
-                        }
-                    }
-                    p.rewrite = true;
-                    if let Some(fault) = connection_fault(&e) {
-                        return Err(fault);
-                    }
-                    tracing::warn!(device = %device.name(), slave = p.slave, error = %e, "write got no answer; backing off");
-                    p.lost(e, Duration::ZERO);
-                }
-            }
+        if let Some(e) = written? {
+            p.rewrite = true;
+            p.lost(&e, Duration::ZERO);
         }
         Ok(())
     }

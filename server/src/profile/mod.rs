@@ -5,6 +5,7 @@ pub mod import;
 pub(crate) mod keywords;
 mod layout;
 mod load;
+pub(crate) mod point;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -24,13 +25,16 @@ pub enum Protocol {
     ModbusRtu,
     ModbusTcp,
     Simulated,
+    /// An OPC UA server's variables (the `opcua` driver).
+    Opcua,
 }
 
 impl Protocol {
-    pub(crate) const ALL: [Protocol; 3] = [
+    pub(crate) const ALL: [Protocol; 4] = [
         Protocol::ModbusRtu,
         Protocol::ModbusTcp,
         Protocol::Simulated,
+        Protocol::Opcua,
     ];
 
     pub(crate) fn name(self) -> &'static str {
@@ -38,6 +42,30 @@ impl Protocol {
             Protocol::ModbusRtu => "modbus-rtu",
             Protocol::ModbusTcp => "modbus-tcp",
             Protocol::Simulated => "simulated",
+            Protocol::Opcua => "opcua",
+        }
+    }
+
+    /// Whether a device of this protocol is a Modbus unit (a link and a slave id).
+    pub(crate) fn is_modbus(self) -> bool {
+        matches!(self, Protocol::ModbusRtu | Protocol::ModbusTcp)
+    }
+
+    /// The key of a field's point for a protocol whose fields are addressed by name (an
+    /// OPC UA node), and the key of the link settings its devices need.
+    pub(crate) fn point_key(self) -> Option<&'static str> {
+        match self {
+            Protocol::Opcua => Some("node"),
+            _ => None,
+        }
+    }
+
+    /// The key of the link settings a device of this protocol needs (`serial`/`tcp` for
+    /// Modbus).
+    pub(crate) fn link_key(self) -> Option<&'static str> {
+        match self {
+            Protocol::Opcua => Some("opcua"),
+            _ => None,
         }
     }
 }
@@ -51,9 +79,13 @@ pub enum RegisterKind {
     HoldingRegister,
     InputRegister,
     Virtual,
+    /// A point of a protocol that addresses fields by name (an OPC UA node):
+    /// [`Field::point`] says which.
+    Point,
 }
 
 impl RegisterKind {
+    /// The kinds a profile's `register.kind` may say.
     pub(crate) const ALL: [RegisterKind; 5] = [
         RegisterKind::Coil,
         RegisterKind::DiscreteInput,
@@ -69,6 +101,7 @@ impl RegisterKind {
             RegisterKind::HoldingRegister => "holding_register",
             RegisterKind::InputRegister => "input_register",
             RegisterKind::Virtual => "virtual",
+            RegisterKind::Point => "point",
         }
     }
 
@@ -115,15 +148,34 @@ pub struct Field {
     /// How much the value must change before MQTT reports it (else the section's).
     pub(crate) deadband: Option<deadband::Deadband>,
     pub(crate) encoding: Encoding,
+    /// Where the field is on a device of a protocol that addresses fields by name (an OPC
+    /// UA node id, as the profile writes it); `None` for a Modbus or simulated field.
+    pub(crate) point: Option<Point>,
     /// The line of the profile file the field starts on.
     pub(crate) line: u64,
+}
+
+/// A field's point on a device whose protocol addresses fields by name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Point {
+    /// As the profile writes it (`ns=3;s=Line1.Speed`, or a browse path).
+    pub(crate) address: String,
+    /// Whether `address` is a browse path from the Objects folder rather than an id.
+    pub(crate) browse_path: bool,
+    /// How often the device samples it, where the profile says (else its refresh rate).
+    pub(crate) sampling: Option<std::time::Duration>,
 }
 
 impl Field {
     /// The registers (or coils) the field takes, from its address. A virtual field is one
     /// value at its address.
     pub(crate) fn span(&self) -> u32 {
-        if self.register.kind.is_bit() || self.register.kind == RegisterKind::Virtual {
+        if self.register.kind.is_bit()
+            || matches!(
+                self.register.kind,
+                RegisterKind::Virtual | RegisterKind::Point
+            )
+        {
             1
         } else {
             u32::from(self.register.word_count)

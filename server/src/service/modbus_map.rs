@@ -324,7 +324,9 @@ impl Service {
                 {
                     Ok(response) => Ok(response),
                     Err(PassthroughError::Tx(TxError::Exception(x))) => Err(x),
-                    Err(PassthroughError::LinkDown(_)) => Err(Exception::GATEWAY_PATH_UNAVAILABLE),
+                    Err(PassthroughError::LinkDown(_) | PassthroughError::NotModbus) => {
+                        Err(Exception::GATEWAY_PATH_UNAVAILABLE)
+                    }
                     Err(PassthroughError::Busy | PassthroughError::Expired) => {
                         Err(Exception::SERVER_DEVICE_BUSY)
                     }

@@ -217,7 +217,7 @@ impl Said {
                 };
                 outcome(false, code, None, Some(message), response_frame)
             }
-            Err(PassthroughError::LinkDown(_)) => outcome(
+            Err(PassthroughError::LinkDown(_) | PassthroughError::NotModbus) => outcome(
                 false,
                 state::INTERFACE_UNAVAILABLE,
                 None,

@@ -5,8 +5,11 @@ use super::*;
 #[derive(Debug, Serialize, ToSchema)]
 pub(crate) struct LinkInfo {
     pub(crate) name: String,
-    /// `serial` or `tcp`.
+    /// `serial`, `tcp`, or the protocol of a link of another field protocol (`opcua`).
     pub(crate) kind: String,
+    /// Where a link of another field protocol goes (an OPC UA endpoint URL).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) endpoint: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(crate) port: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -46,6 +49,7 @@ pub(crate) fn link_info(link: &Link) -> LinkInfo {
         utilisation,
         name: link.name().to_owned(),
         kind: String::new(),
+        endpoint: None,
         port: None,
         baud: None,
         parity: None,
@@ -77,6 +81,10 @@ pub(crate) fn link_info(link: &Link) -> LinkInfo {
             info.host = Some(host);
             info.tcp_port = Some(port);
             info.framing = Some(framing.name().into());
+        }
+        Transport::Driver(d) => {
+            info.kind = d.protocol.into();
+            info.endpoint = Some(d.endpoint);
         }
     }
     info

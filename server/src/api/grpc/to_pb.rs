@@ -108,6 +108,10 @@ pub(crate) fn link(link: &Link) -> pb::Link {
             port: port.into(),
             framing: framing.name().to_owned(),
         }),
+        Transport::Driver(d) => pb::link::Transport::Endpoint(pb::EndpointSettings {
+            protocol: d.protocol.to_owned(),
+            url: d.endpoint,
+        }),
     };
     pb::Link {
         name: link.name().to_owned(),

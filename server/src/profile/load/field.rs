@@ -1,6 +1,7 @@
 //! One entry of a profile's `fields`: name, type, direction, description, deadband and register,
 //! with the encoding that follows from them.
 
+use super::point::{POINT_KEYS, read_point};
 use super::register::read_register;
 use super::{FIELD_KEYS, identifier, iec_type, one_of};
 use crate::codec::Encoding;
@@ -37,11 +38,32 @@ pub(super) fn read_field(
     let deadband = map.get("deadband").and_then(|n| {
         crate::profile::deadband::read_deadband(n, report, &format!("{ctx}: deadband"))
     });
-    let register = map
-        .require("register", report, &ctx)
-        .and_then(|n| read_register(n, &ctx, ty, direction, protocol, report));
-    map.finish(report, &ctx, FIELD_KEYS);
-    let (name, ty, direction, register) = (name?, ty?, direction?, register?);
+    let (register, point) = if protocol.and_then(|p| p.point_key()).is_some() {
+        if let Some(n) = map.get("register") {
+            report.push(
+                n.line,
+                &ctx,
+                "a field of this protocol names its `node`, not a Modbus `register`",
+            );
+        }
+        let read = read_point(&mut map, &ctx, ty, report);
+        let allowed: Vec<&str> = FIELD_KEYS[..]
+            .iter()
+            .filter(|k| **k != "register")
+            .chain(POINT_KEYS)
+            .copied()
+            .collect();
+        map.finish(report, &ctx, &allowed);
+        let (register, point) = read?;
+        (register, Some(point))
+    } else {
+        let register = map
+            .require("register", report, &ctx)
+            .and_then(|n| read_register(n, &ctx, ty, direction, protocol, report));
+        map.finish(report, &ctx, FIELD_KEYS);
+        (register?, None)
+    };
+    let (name, ty, direction) = (name?, ty?, direction?);
     let encoding = Encoding {
         ty,
         raw: raw_of(ty, &register),
@@ -58,6 +80,7 @@ pub(super) fn read_field(
         description,
         deadband,
         encoding,
+        point,
         line: node.line,
     })
 }

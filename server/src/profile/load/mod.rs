@@ -4,6 +4,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 mod field;
+mod point;
 mod register;
 
 use super::{Field, ProbeRead, Profile, Protocol, RegisterKind};
@@ -364,6 +365,17 @@ fn check_overlaps(fields: &[Field], report: &mut Report) {
     for (i, a) in fields.iter().enumerate() {
         for b in &fields[..i] {
             if a.register.kind != b.register.kind {
+                continue;
+            }
+            if let (Some(x), Some(y)) = (&a.point, &b.point) {
+                if x.address == y.address {
+                    report.push(
+                        a.line,
+                        format!("field {}", a.name),
+                        format!("names the same point as field {} (line {})", b.name, b.line),
+                    );
+                    break;
+                }
                 continue;
             }
             let (a0, b0) = (u32::from(a.register.address), u32::from(b.register.address));

@@ -14,7 +14,7 @@ use crate::metrics::Metrics;
 const UTILISATION_WINDOW: Duration = Duration::from_secs(1);
 
 /// The connection and what is measured on it.
-pub(super) struct Bus {
+pub(crate) struct Bus {
     conn: Connection,
     metrics: Arc<Metrics>,
     link: String,
@@ -35,7 +35,7 @@ pub(super) struct Bus {
 const WIRE_BOUND: Duration = Duration::from_secs(5);
 
 impl Bus {
-    pub(super) fn new(
+    pub(crate) fn new(
         conn: Connection,
         metrics: Arc<Metrics>,
         link: String,
@@ -56,7 +56,7 @@ impl Bus {
     }
 
     /// One transaction, tried `1 + retries` times when the device does not answer properly.
-    pub(super) async fn transact(
+    pub(crate) async fn transact(
         &mut self,
         device: &Device,
         request: &Request,
@@ -70,7 +70,10 @@ impl Bus {
 
     /// A scan's probe: the bytes heard within its slot. Only an RTU connection carries one
     /// (an MBAP or ASCII link answers with an invalid-response error, nothing sent).
-    pub(super) async fn probe(&mut self, probe: &crate::cache::Probe) -> Result<Vec<u8>, TxError> {
+    pub(crate) async fn probe_slot(
+        &mut self,
+        probe: &crate::cache::Probe,
+    ) -> Result<Vec<u8>, TxError> {
         let crate::link::Connection::Rtu(rtu) = &mut self.conn else {
             return Err(TxError::Invalid(crate::link::frame::Malformed::NotRtu));
         };
@@ -87,7 +90,7 @@ impl Bus {
     }
 
     /// One transaction to `slave`, counted in the metrics under `label` (a device name).
-    pub(super) async fn transact_as(
+    pub(crate) async fn transact_as(
         &mut self,
         label: &str,
         slave: u8,
@@ -120,12 +123,12 @@ impl Bus {
     }
 
     /// Transactions sent since the last call (retries included).
-    pub(super) fn take_sent(&mut self) -> u32 {
+    pub(crate) fn take_sent(&mut self) -> u32 {
         std::mem::take(&mut self.sent)
     }
 
     /// Sets bits of a holding register, keeping the others: FC03 read, then FC06 write.
-    pub(super) async fn write_bits(
+    pub(crate) async fn write_bits(
         &mut self,
         device: &Device,
         address: u16,

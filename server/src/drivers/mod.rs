@@ -1,0 +1,136 @@
+//! Field protocols. A driver is one folder behind one contract: [`Driver`] opens a link
+//! and plans each device's reads; the open [`Session`] reads a device, probes one that
+//! stopped answering, writes its outputs and answers what waits in the link's inbox. The
+//! link's task (`crate::poller`) does the rest, whatever the protocol: the schedule (writes
+//! first, the most overdue device next, each on the drift-free grid of its refresh rate),
+//! reopening with back-off, backing off a silent device, the bounded inbox, the watchdog,
+//! write outcomes, quality and staleness. The task lists the drivers
+//! (`poller::LinkTask::run`): adding one is its folder here and its line there.
+//!
+//! A driver reports what it reads into the cache itself (`Device::publish`, one value or
+//! field error per field) and finishes each write it takes with its outcome
+//! (`Device::finish_write_after`); it maps its protocol's failures onto the link codes
+//! (`LinkFault`, through the `Result` of each call: an error ends the session) and the
+//! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
+
+pub(crate) mod modbus;
+
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+
+use crate::cache::{Device, FieldError, Link, Passthrough, PassthroughError, Probe};
+use crate::config::LinkConfig;
+use crate::link::LinkFault;
+use crate::metrics::Metrics;
+use crate::plan::WriteItem;
+
+/// A field protocol: how its links open and how a device's reads are planned.
+pub(crate) trait Driver: Send + Sized + 'static {
+    /// What the driver keeps of a device between cycles and across reconnects (its
+    /// planned reads, what it learned of the device).
+    type Plan: Send;
+    /// An open link.
+    type Session: Session<Plan = Self::Plan>;
+
+    /// The protocol's name, as logs say it.
+    const NAME: &'static str;
+
+    /// Whether this driver serves a link configured so.
+    fn serves(config: &LinkConfig) -> bool;
+
+    /// Plans a device's reads from its profile.
+    fn plan(device: &Device) -> Self::Plan;
+
+    /// The share of its line the devices' refresh rates need, where the protocol knows it
+    /// (a serial line).
+    fn planned_utilisation<'a>(
+        config: &LinkConfig,
+        devices: impl Iterator<Item = (&'a Device, &'a Self::Plan)>,
+    ) -> Option<f64> {
+        let _ = (config, devices.count());
+        None
+    }
+
+    /// Opens the link (bounded by the task's connect timeout).
+    fn open(
+        config: &LinkConfig,
+        link: &Arc<Link>,
+        metrics: &Arc<Metrics>,
+    ) -> impl Future<Output = Result<Self::Session, LinkFault>> + Send;
+}
+
+/// How a device's read ended.
+#[derive(Debug)]
+pub(crate) enum Read {
+    /// The device answered (each field published, good or with its field error); the
+    /// time its last answer took.
+    Answered(Duration),
+    /// The device did not answer (after the retries): it is disconnected and backed off.
+    Silent(FieldError),
+}
+
+/// How probing a device that stopped answering ended.
+#[derive(Debug)]
+pub(crate) enum Probed {
+    /// It answers again.
+    Answers,
+    /// Still nothing.
+    Silent(FieldError),
+    /// There is nothing to ask it (no fields to read).
+    Nothing,
+}
+
+/// An open link of a driver. Every call's `Err` means the link itself failed: the task
+/// reopens it.
+pub(crate) trait Session: Send {
+    type Plan: Send;
+
+    /// Reads the device's fields (one cycle) and publishes each.
+    fn read(
+        &mut self,
+        device: &Device,
+        plan: &mut Self::Plan,
+    ) -> impl Future<Output = Result<Read, LinkFault>> + Send;
+
+    /// One request, no retries: whether a device that stopped answering is back.
+    fn probe(
+        &mut self,
+        device: &Device,
+        plan: &mut Self::Plan,
+    ) -> impl Future<Output = Result<Probed, LinkFault>> + Send;
+
+    /// Writes `items` (clients' writes and the latest values written again), finishing
+    /// each write with its outcome; a written value is published before its outcome.
+    /// `Some` when the device stopped answering (the items not sent are finished).
+    fn write(
+        &mut self,
+        device: &Device,
+        plan: &mut Self::Plan,
+        items: Vec<WriteItem>,
+    ) -> impl Future<Output = Result<Option<FieldError>, LinkFault>> + Send;
+
+    /// Sends a request queued by another master as it is (a Modbus request), and answers
+    /// it; `label` names the device it goes to, in the metrics.
+    fn pass_through(
+        &mut self,
+        queued: Passthrough,
+        label: &str,
+    ) -> impl Future<Output = Result<(), LinkFault>> + Send {
+        let _ = label;
+        let _ = queued.reply.send(Err(PassthroughError::NotModbus));
+        std::future::ready(Ok(()))
+    }
+
+    /// Sends a scan's probe (an RTU line's).
+    fn scan_probe(&mut self, queued: Probe) -> impl Future<Output = Result<(), LinkFault>> + Send {
+        let _ = queued.reply.send(Err(PassthroughError::NotModbus));
+        std::future::ready(Ok(()))
+    }
+
+    /// Resolves when the link is lost between requests (a session kept alive by the
+    /// protocol); a driver that only talks when asked never resolves it.
+    fn lost(&mut self) -> impl Future<Output = LinkFault> + Send {
+        std::future::pending()
+    }
+}
