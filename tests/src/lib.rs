@@ -11,6 +11,7 @@ pub mod line;
 pub mod mqtt;
 pub mod opcua;
 pub mod pki;
+pub mod plc;
 mod started;
 
 pub use started::{

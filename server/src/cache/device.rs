@@ -74,12 +74,13 @@ impl Binding {
     /// The device's error code for this binding before its first answer: 1 or 2 for what is
     /// missing, else 10 (not responding yet), so `error_code` is 0 exactly when `connected`
     /// is true. A simulated device needs no binding and answers from the start.
-    fn code(&self, simulated: bool) -> DeviceCode {
+    fn code(&self, protocol: Protocol) -> DeviceCode {
+        let simulated = protocol == Protocol::Simulated;
         match (simulated, &self.link, self.slave_id) {
             (true, _, _) => DeviceCode::Ok,
             (false, None, _) => DeviceCode::NoLink,
-            (false, _, None) => DeviceCode::NoSlave,
-            (false, Some(_), Some(_)) => DeviceCode::CommError,
+            (false, _, None) if protocol.is_modbus() => DeviceCode::NoSlave,
+            (false, Some(_), _) => DeviceCode::CommError,
         }
     }
 }
@@ -97,7 +98,7 @@ impl Device {
             link: config.link.clone(),
             slave_id: config.slave_id,
         };
-        let error_code = binding.code(simulated);
+        let error_code = binding.code(profile.protocol);
         Device {
             samples: (0..n).map(|_| Slot::new(Sample::never_read())).collect(),
             diagnostics: Arc::new(watch::Sender::new(Diagnostics {
@@ -176,7 +177,7 @@ impl Device {
         }
         if next.is_simulated() == old.is_simulated() {
             next.diagnostics = old.diagnostics.clone();
-            let code = next.binding().code(next.is_simulated());
+            let code = next.binding().code(next.profile.protocol);
             if next.binding() != old.binding() {
                 next.diagnostics.send_if_modified(|d| {
                     let changed = d.connected != next.is_simulated() || d.error_code != code;
@@ -285,7 +286,7 @@ impl Device {
 
     /// Binds a device declared without a link or slave id; `wake` is its link's.
     pub(crate) fn bind(&self, binding: Binding, wake: Arc<Notify>) {
-        let code = binding.code(self.is_simulated());
+        let code = binding.code(self.profile.protocol);
         *self.binding.write().unwrap_or_else(|e| e.into_inner()) = binding;
         *lock(&self.wake) = wake;
         self.diagnostics.send_if_modified(|d| {
@@ -380,14 +381,31 @@ impl Device {
     /// Stores a freshly read value (or why it could not be read). Subscribers are woken only
     /// when the value or its quality changes.
     pub(crate) fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
-        let now = (Instant::now(), SystemTime::now());
+        self.publish_from(idx, read, None, None);
+    }
+
+    /// Stores a value as its source reported it: `doubt` when the source vouches for it
+    /// only in part (the value is kept, stale, with the reason), `at` the source's own
+    /// timestamp of it (else now).
+    pub(crate) fn publish_from(
+        &self,
+        idx: usize,
+        read: Result<Value, FieldError>,
+        doubt: Option<FieldError>,
+        at: Option<SystemTime>,
+    ) {
+        let now = (Instant::now(), at.unwrap_or_else(SystemTime::now));
         self.samples[idx].send_if_modified(|s| {
             let before = (s.value.clone(), s.quality, s.stale_told);
             match read {
                 Ok(v) => {
                     s.value = Some(v);
-                    s.quality = Quality::Good;
-                    s.error = None;
+                    s.quality = if doubt.is_some() {
+                        Quality::Stale
+                    } else {
+                        Quality::Good
+                    };
+                    s.error = doubt.map(Box::new);
                 }
                 Err(e) => {
                     s.quality = Quality::Bad;
@@ -443,6 +461,28 @@ impl Device {
             if field.register.kind != RegisterKind::Virtual {
                 self.publish(idx, Err(reason.clone()));
             }
+        }
+    }
+
+    /// Marks every field read from the device as stale with `reason`, keeping its value and
+    /// its timestamp (a field never read is bad with it).
+    pub(crate) fn doubt_reads(&self, reason: &FieldError) {
+        for (idx, field) in self.profile.fields.iter().enumerate() {
+            if field.register.kind == RegisterKind::Virtual {
+                continue;
+            }
+            self.samples[idx].send_if_modified(|s| {
+                let quality = if s.value.is_some() {
+                    Quality::Stale
+                } else {
+                    Quality::Bad
+                };
+                let changed = s.quality != quality;
+                s.quality = quality;
+                s.error = Some(Box::new(reason.clone()));
+                s.stale_told = false;
+                changed
+            });
         }
     }
 

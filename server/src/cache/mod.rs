@@ -171,7 +171,7 @@ impl Cache {
         profile: Arc<Profile>,
     ) -> Arc<Device> {
         let (link, wake) = link_of(registry, &config);
-        let bound = config.slave_id.is_some();
+        let bound = config.slave_id.is_some() || !profile.protocol.is_modbus();
         let device = Arc::new(Device::new(config, profile, self.writes.clone(), wake));
         registry.devices.push(device.clone());
         self.device_set.send_modify(|n| *n += 1);
@@ -186,7 +186,9 @@ impl Cache {
     pub(crate) fn bind_device(&self, registry: &Registry, device: &Arc<Device>, binding: Binding) {
         let link = binding.link.as_ref().and_then(|name| registry.link(name));
         let wake = link.map_or_else(|| Arc::new(Notify::new()), |l| l.wake.clone());
-        let member = link.filter(|_| binding.slave_id.is_some()).cloned();
+        let member = link
+            .filter(|_| binding.slave_id.is_some() || !device.profile.protocol.is_modbus())
+            .cloned();
         device.bind(binding, wake);
         if let Some(link) = member {
             link.add_member(device.clone());
@@ -238,8 +240,9 @@ impl Cache {
             .binding()
             .link
             .and_then(|l| registry.link(&l).cloned())
-            .filter(|_| old.slave_id().is_some());
-        let new_link = link.filter(|_| next.slave_id().is_some());
+            .filter(|_| old.slave_id().is_some() || !old.profile.protocol.is_modbus());
+        let new_link =
+            link.filter(|_| next.slave_id().is_some() || !next.profile.protocol.is_modbus());
         match (old_link, new_link) {
             (Some(a), Some(b)) if Arc::ptr_eq(&a, &b) => a.replace_member(old, next.clone()),
             (a, b) => {

@@ -34,6 +34,9 @@ pub(crate) enum WriteError {
     DeviceDown,
     #[error("the device was removed before the value was written")]
     Removed,
+    /// The device refused the value, in its own words (an OPC UA status code's name).
+    #[error("the device refused it: {0}")]
+    Refused(String),
 }
 
 impl From<TxError> for WriteError {

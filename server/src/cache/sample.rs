@@ -30,6 +30,9 @@ pub(crate) enum FieldError {
     /// The link is down.
     #[error("{0}")]
     Unreachable(LinkFault),
+    /// The device's own word on the value (an OPC UA status code's name and what it says).
+    #[error("{0}")]
+    Device(String),
 }
 
 /// A field's latest value.

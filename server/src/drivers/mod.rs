@@ -4,8 +4,8 @@
 //! link's task (`crate::poller`) does the rest, whatever the protocol: the schedule (writes
 //! first, the most overdue device next, each on the drift-free grid of its refresh rate),
 //! reopening with back-off, backing off a silent device, the bounded inbox, the watchdog,
-//! write outcomes, quality and staleness. The task lists the drivers
-//! (`poller::LinkTask::run`): adding one is its folder here and its line there.
+//! write outcomes, quality and staleness. [`with_driver`] lists the drivers: adding one is
+//! its folder here and its line there.
 //!
 //! A driver reports what it reads into the cache itself (`Device::publish`, one value or
 //! field error per field) and finishes each write it takes with its outcome
@@ -14,6 +14,7 @@
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
 pub(crate) mod modbus;
+pub(crate) mod opcua;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -24,6 +25,39 @@ use crate::config::LinkConfig;
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::plan::WriteItem;
+
+/// Something done with the driver of a link, whichever it is.
+pub(crate) trait ForDriver {
+    type Output;
+    fn with<D: Driver>(self) -> Self::Output;
+}
+
+/// The drivers: `f` done with the one that serves a link configured so.
+pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::Output> {
+    if modbus::Modbus::serves(config) {
+        return Some(f.with::<modbus::Modbus>());
+    }
+    if opcua::OpcUa::serves(config) {
+        return Some(f.with::<opcua::OpcUa>());
+    }
+    None
+}
+
+/// What `check` finds wrong with the links' settings that their drivers read.
+pub(crate) fn check_links(config: &crate::config::Config) -> crate::yaml::Problems {
+    struct Check<'a>(&'a LinkConfig, &'a mut crate::yaml::Report);
+    impl ForDriver for Check<'_> {
+        type Output = ();
+        fn with<D: Driver>(self) {
+            D::check(self.0, self.1);
+        }
+    }
+    let mut report = crate::yaml::Report::new(&config.source);
+    for link in &config.links {
+        with_driver(link, Check(link, &mut report));
+    }
+    report.into_problems()
+}
 
 /// A field protocol: how its links open and how a device's reads are planned.
 pub(crate) trait Driver: Send + Sized + 'static {
@@ -36,8 +70,18 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// The protocol's name, as logs say it.
     const NAME: &'static str;
 
+    /// Whether the values of a device whose link is down stay, stale, until they are read
+    /// again (a server that vouches for its values when it is back), rather than turn bad.
+    const STALE_WHILE_AWAY: bool = false;
+
     /// Whether this driver serves a link configured so.
     fn serves(config: &LinkConfig) -> bool;
+
+    /// Reports what is wrong with a link's settings, as `check` does (the settings the
+    /// config reader left to the driver, the files they name).
+    fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
+        let _ = (config, report);
+    }
 
     /// Plans a device's reads from its profile.
     fn plan(device: &Device) -> Self::Plan;
@@ -89,14 +133,14 @@ pub(crate) trait Session: Send {
     /// Reads the device's fields (one cycle) and publishes each.
     fn read(
         &mut self,
-        device: &Device,
+        device: &Arc<Device>,
         plan: &mut Self::Plan,
     ) -> impl Future<Output = Result<Read, LinkFault>> + Send;
 
     /// One request, no retries: whether a device that stopped answering is back.
     fn probe(
         &mut self,
-        device: &Device,
+        device: &Arc<Device>,
         plan: &mut Self::Plan,
     ) -> impl Future<Output = Result<Probed, LinkFault>> + Send;
 
@@ -105,7 +149,7 @@ pub(crate) trait Session: Send {
     /// `Some` when the device stopped answering (the items not sent are finished).
     fn write(
         &mut self,
-        device: &Device,
+        device: &Arc<Device>,
         plan: &mut Self::Plan,
         items: Vec<WriteItem>,
     ) -> impl Future<Output = Result<Option<FieldError>, LinkFault>> + Send;

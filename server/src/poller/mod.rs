@@ -25,8 +25,7 @@ use crate::cache::{
     WriteError,
 };
 use crate::config::LinkConfig;
-use crate::drivers::modbus::Modbus;
-use crate::drivers::{Driver, Session};
+use crate::drivers::{Driver, ForDriver, Session, with_driver};
 use crate::link::{LinkCode, LinkFault};
 use crate::metrics::Metrics;
 
@@ -107,23 +106,47 @@ impl LinkTask {
         LinkTask { link, metrics }
     }
 
-    /// Runs the link until `token` is cancelled. The drivers are listed here.
+    /// Runs the link with its driver until `token` is cancelled.
     pub(crate) async fn run(self, token: CancellationToken) {
         loop {
             let config = self.link.config();
-            let (link, metrics) = (self.link.clone(), self.metrics.clone());
-            let ended = if Modbus::serves(&config) {
-                Driven::<Modbus>::new(link, metrics).run(&token).await
-            } else {
-                tracing::error!(link = %self.link.name(), "no driver serves this link");
-                token.cancelled().await;
-                Ended::Shutdown
+            let start = Start {
+                link: self.link.clone(),
+                metrics: self.metrics.clone(),
+                token: token.clone(),
+            };
+            let ended = match with_driver(&config, start) {
+                Some(running) => running.await,
+                None => {
+                    tracing::error!(link = %self.link.name(), "no driver serves this link");
+                    token.cancelled().await;
+                    Ended::Shutdown
+                }
             };
             if matches!(ended, Ended::Shutdown) {
                 break;
             }
         }
         tracing::debug!(link = %self.link.name(), "link task stopped");
+    }
+}
+
+/// A link's task started with the driver of its protocol.
+struct Start {
+    link: Arc<Link>,
+    metrics: Arc<Metrics>,
+    token: CancellationToken,
+}
+
+impl ForDriver for Start {
+    type Output = std::pin::Pin<Box<dyn std::future::Future<Output = Ended> + Send>>;
+
+    fn with<D: Driver>(self) -> Self::Output {
+        Box::pin(async move {
+            Driven::<D>::new(self.link, self.metrics)
+                .run(&self.token)
+                .await
+        })
     }
 }
 
@@ -364,7 +387,12 @@ impl<D: Driver> Driven<D> {
         }
         for p in &self.devices {
             p.device.set_unreachable();
-            p.device.fail_reads(&FieldError::Unreachable(fault.clone()));
+            let why = FieldError::Unreachable(fault.clone());
+            if D::STALE_WHILE_AWAY {
+                p.device.doubt_reads(&why);
+            } else {
+                p.device.fail_reads(&why);
+            }
             for w in p.device.take_writes() {
                 p.device
                     .finish_write(w.generation, Err(WriteError::LinkDown(fault.clone())));

@@ -2,7 +2,7 @@ use super::*;
 use crate::cache::Cache;
 use crate::codec::Value;
 use crate::config::{Parity, SerialSettings};
-use crate::drivers::modbus::Bus;
+use crate::drivers::modbus::{Bus, Modbus};
 use crate::link::Connection;
 use crate::link::rtu::RtuTransport;
 use crate::link::rtu_frame::crc16;

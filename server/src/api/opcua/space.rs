@@ -35,7 +35,8 @@ use opcua::types::{
 };
 
 use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics};
-use crate::codec::{IecType, Value};
+use crate::codec::IecType;
+pub(crate) use crate::drivers::opcua::variant::{data_type, value_of, variant};
 use crate::profile::{Direction, Field};
 use crate::service::{FieldView, Service};
 use iogate_types::Quality;
@@ -133,70 +134,6 @@ pub(crate) enum Live {
     Field(String, String),
     DeviceDiagnostic(String, String),
     LinkDiagnostic(String, String),
-}
-
-/// The OPC UA built-in type of an IEC type.
-pub(crate) fn data_type(ty: IecType) -> DataTypeId {
-    match ty {
-        IecType::Bool => DataTypeId::Boolean,
-        IecType::Sint => DataTypeId::SByte,
-        IecType::Int => DataTypeId::Int16,
-        IecType::Dint => DataTypeId::Int32,
-        IecType::Lint => DataTypeId::Int64,
-        IecType::Usint | IecType::Byte => DataTypeId::Byte,
-        IecType::Uint | IecType::Word => DataTypeId::UInt16,
-        IecType::Udint | IecType::Dword => DataTypeId::UInt32,
-        IecType::Ulint | IecType::Lword => DataTypeId::UInt64,
-        IecType::Real => DataTypeId::Float,
-        IecType::Lreal => DataTypeId::Double,
-        IecType::String => DataTypeId::String,
-        IecType::Time => DataTypeId::Duration,
-    }
-}
-
-/// A value as the variant of its field's type.
-pub(crate) fn variant(ty: IecType, value: &Value) -> Variant {
-    match (ty, value) {
-        (_, Value::Bool(b)) => Variant::Boolean(*b),
-        (IecType::Sint, Value::Int(n)) => Variant::SByte(*n as i8),
-        (IecType::Int, Value::Int(n)) => Variant::Int16(*n as i16),
-        (IecType::Dint, Value::Int(n)) => Variant::Int32(*n as i32),
-        (_, Value::Int(n)) => Variant::Int64(*n),
-        (IecType::Usint | IecType::Byte, Value::UInt(n)) => Variant::Byte(*n as u8),
-        (IecType::Uint | IecType::Word, Value::UInt(n)) => Variant::UInt16(*n as u16),
-        (IecType::Udint | IecType::Dword, Value::UInt(n)) => Variant::UInt32(*n as u32),
-        (_, Value::UInt(n)) => Variant::UInt64(*n),
-        (_, Value::Real(x)) => Variant::Float(*x),
-        (_, Value::LReal(x)) => Variant::Double(*x),
-        (_, Value::String(s)) => Variant::String(UAString::from(s.as_str())),
-        (_, Value::Time(ms)) => Variant::Double(*ms as f64),
-    }
-}
-
-/// A client's variant as a value of `ty`: numbers of any numeric variant (checked against
-/// the type's range by the service), booleans for BOOL, strings for STRING.
-pub(crate) fn value_of(ty: IecType, v: &Variant) -> Result<Value, iogate_types::ValueError> {
-    use iogate_types::ValueError;
-    let wrong = |found| ValueError::WrongType { ty, found };
-    match v {
-        Variant::Boolean(b) if ty == IecType::Bool => Ok(Value::Bool(*b)),
-        Variant::Boolean(_) => Err(wrong("a Boolean")),
-        Variant::String(s) if ty == IecType::String => Ok(Value::String(s.as_ref().to_owned())),
-        Variant::String(_) => Err(wrong("a String")),
-        _ if ty == IecType::Bool || ty == IecType::String => Err(wrong("a number")),
-        Variant::SByte(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::Byte(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::Int16(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::UInt16(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::Int32(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::UInt32(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::Int64(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::UInt64(n) => Value::from_int(ty, i128::from(*n)),
-        Variant::Float(x) => Value::from_real(ty, f64::from(*x)),
-        Variant::Double(x) => Value::from_real(ty, *x),
-        Variant::Empty => Err(ValueError::Missing { ty }),
-        _ => Err(wrong("this kind of value")),
-    }
 }
 
 /// The status code of a field's quality as of now, as the service tells it.

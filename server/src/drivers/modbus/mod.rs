@@ -97,11 +97,11 @@ pub(crate) fn connection_fault(e: &TxError) -> Option<LinkFault> {
 impl Session for Bus {
     type Plan = Plan;
 
-    async fn read(&mut self, device: &Device, plan: &mut Plan) -> Result<Read, LinkFault> {
+    async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
         read::cycle(self, device, plan).await
     }
 
-    async fn probe(&mut self, device: &Device, plan: &mut Plan) -> Result<Probed, LinkFault> {
+    async fn probe(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Probed, LinkFault> {
         let Some(first) = plan.reads.first() else {
             return Ok(Probed::Nothing);
         };
@@ -117,7 +117,7 @@ impl Session for Bus {
 
     async fn write(
         &mut self,
-        device: &Device,
+        device: &Arc<Device>,
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {

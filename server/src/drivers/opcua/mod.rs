@@ -1,0 +1,208 @@
+//! OPC UA servers as devices (`protocol: opcua`): a link is an endpoint (`opcua:` with its
+//! `url`), a device's fields are the server's variables (`node:` or `browse_path:`). Each
+//! device is a subscription whose publishing interval is its refresh rate, one monitored
+//! item per field; a server without subscriptions (or `subscribe: false`) is read every
+//! refresh instead. Writes are Write service calls, the server's status code their
+//! outcome. Namespace indexes the profile writes are resolved through their URIs, learned
+//! from the first session: a server that restarts with its namespaces in another order
+//! still gets the right nodes.
+
+pub(crate) mod config;
+mod resolve;
+mod session;
+mod subscribe;
+pub(crate) mod variant;
+mod write;
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use opcua::types::{NodeId, VariantScalarTypeId};
+
+use super::{Driver, Probed, Read, Session};
+use crate::cache::{Device, FieldError, Link};
+use crate::config::{LinkConfig, Transport};
+use crate::link::LinkFault;
+use crate::metrics::Metrics;
+use crate::plan::WriteItem;
+pub(crate) use session::Connection;
+
+/// The OPC UA client driver.
+pub(crate) struct OpcUa;
+
+/// The key of its links' settings and the word of its profiles' `protocol`.
+pub(crate) const PROTOCOL: &str = "opcua";
+
+/// What is kept of a device between sessions.
+pub(crate) struct Plan {
+    /// Each field's node on the server in the session `generation` (or why it has none).
+    nodes: Vec<Result<NodeId, String>>,
+    /// Which session `nodes` and `watched` belong to (0: none yet).
+    generation: u64,
+    /// The URI of each namespace index the profile writes, from the first session.
+    uris: HashMap<u16, String>,
+    /// The device's subscription in session `generation`.
+    watched: Option<subscribe::Watched>,
+    /// Whether the device is read by subscription (else by reads every refresh).
+    subscribe: bool,
+    /// The variant type the server holds each field's value in, as last seen.
+    types: Arc<Mutex<Vec<Option<VariantScalarTypeId>>>>,
+}
+
+impl Driver for OpcUa {
+    type Plan = Plan;
+    type Session = Connection;
+    const NAME: &'static str = PROTOCOL;
+    const STALE_WHILE_AWAY: bool = true;
+
+    fn serves(config: &LinkConfig) -> bool {
+        matches!(&config.transport, Transport::Driver(d) if d.protocol == PROTOCOL)
+    }
+
+    fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
+        let Transport::Driver(d) = &config.transport else {
+            return;
+        };
+        if let Some(settings) = config::read(&config.name, d, report) {
+            for problem in config::check_files(&config.name, &settings) {
+                report.push(d.settings.line, format!("link {}", config.name), problem);
+            }
+        }
+    }
+
+    fn plan(device: &Device) -> Plan {
+        let n = device.profile.fields.len();
+        Plan {
+            nodes: Vec::new(),
+            generation: 0,
+            uris: HashMap::new(),
+            watched: None,
+            subscribe: true,
+            types: Arc::new(Mutex::new(vec![None; n])),
+        }
+    }
+
+    async fn open(
+        config: &LinkConfig,
+        link: &Arc<Link>,
+        _metrics: &Arc<Metrics>,
+    ) -> Result<Connection, LinkFault> {
+        let Transport::Driver(d) = &config.transport else {
+            return Err(LinkFault::NoPort);
+        };
+        let mut report = crate::yaml::Report::new("config");
+        let Some(settings) = config::read(&config.name, d, &mut report) else {
+            let why = report.into_problems().to_string();
+            return Err(LinkFault::OpenFailed {
+                port: d.endpoint.clone(),
+                reason: why,
+            });
+        };
+        session::open(settings, link).await
+    }
+}
+
+/// The server's word on a field, published.
+fn refuse(device: &Device, idx: usize, why: impl Into<String>) {
+    device.publish(idx, Err(FieldError::Device(why.into())));
+}
+
+impl Session for Connection {
+    type Plan = Plan;
+
+    async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
+        let started = tokio::time::Instant::now();
+        if plan.generation != self.generation {
+            resolve::nodes(self, device, plan).await?;
+            plan.watched = None;
+            plan.subscribe = self.settings.subscribe;
+        }
+        if plan.subscribe {
+            let healthy = plan.watched.as_ref().is_some_and(subscribe::Watched::alive);
+            if healthy {
+                // The subscription vouches for every value it has not changed.
+                self.ended();
+            } else {
+                subscribe::watch(self, device, plan).await?;
+            }
+        }
+        if !plan.subscribe {
+            self.read_all(device, plan).await?;
+        }
+        Ok(Read::Answered(started.elapsed()))
+    }
+
+    async fn probe(
+        &mut self,
+        _device: &Arc<Device>,
+        _plan: &mut Plan,
+    ) -> Result<Probed, LinkFault> {
+        // A server answers for all its devices: the session is the probe.
+        Ok(Probed::Answers)
+    }
+
+    async fn write(
+        &mut self,
+        device: &Arc<Device>,
+        plan: &mut Plan,
+        items: Vec<WriteItem>,
+    ) -> Result<Option<FieldError>, LinkFault> {
+        if plan.generation != self.generation {
+            resolve::nodes(self, device, plan).await?;
+            plan.watched = None;
+            plan.subscribe = self.settings.subscribe;
+        }
+        write::items(self, device, plan, items).await?;
+        Ok(None)
+    }
+
+    async fn lost(&mut self) -> LinkFault {
+        let why = self.lost_now().await;
+        LinkFault::Lost(Arc::new(std::io::Error::other(why)))
+    }
+}
+
+impl Connection {
+    /// Reads every resolved field of the device once (the fallback without subscriptions).
+    async fn read_all(&self, device: &Device, plan: &Plan) -> Result<(), LinkFault> {
+        use opcua::types::{ReadValueId, TimestampsToReturn};
+        let wanted: Vec<(usize, ReadValueId)> = plan
+            .nodes
+            .iter()
+            .enumerate()
+            .filter_map(|(i, n)| n.as_ref().ok().map(|n| (i, ReadValueId::from(n.clone()))))
+            .collect();
+        if wanted.is_empty() {
+            return Ok(());
+        }
+        let ids: Vec<ReadValueId> = wanted.iter().map(|(_, r)| r.clone()).collect();
+        self.started();
+        let answered = self
+            .session
+            .read(&ids, TimestampsToReturn::Source, 0.0)
+            .await;
+        self.ended();
+        let values = match answered {
+            Ok(values) => values,
+            Err(e) => {
+                if let Some(fault) = self.fault(&e) {
+                    return Err(fault);
+                }
+                for (i, _) in &wanted {
+                    refuse(device, *i, e.status().to_string());
+                }
+                return Ok(());
+            }
+        };
+        for ((idx, _), dv) in wanted.iter().zip(values.iter()) {
+            subscribe::publish(device, &plan.types, *idx, dv);
+        }
+        Ok(())
+    }
+}
+
+/// How long a subscription may go without a publish response before it counts as lost.
+pub(crate) fn silence_allowed(keep_alive: Duration) -> Duration {
+    keep_alive * 3 + session::REQUEST_TIMEOUT
+}

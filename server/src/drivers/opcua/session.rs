@@ -1,0 +1,241 @@
+//! An open OPC UA link: one session on the server, its event loop driven by a task of the
+//! link's own. The library's own reconnecting is off: a lost connection ends the session
+//! (`Connection::lost`), and the link's task opens a new one with its back-off, so every
+//! link reconnects the same way. Any publish response (data or keep-alive) and every
+//! answered keep-alive counts as the link making progress.
+
+use std::io;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use futures_util::StreamExt;
+use opcua::client::{ClientBuilder, IdentityToken, Session, SessionPollResult};
+use opcua::types::{MessageSecurityMode, StatusCode};
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+use super::config::{self, Settings, User};
+use crate::cache::{Link, Progress};
+use crate::link::LinkFault;
+
+/// How long one request to the server may take.
+pub(crate) const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long a session lives on the server without a request.
+const SESSION_TIMEOUT_MS: u32 = 60_000;
+
+/// Every session opened gets the next number, so a device's plan knows whether its
+/// subscription belongs to the session it is read in.
+static OPENED: AtomicU64 = AtomicU64::new(1);
+
+/// An open session and the task that drives it.
+pub(crate) struct Connection {
+    pub(crate) session: Arc<Session>,
+    /// Which session this is.
+    pub(crate) generation: u64,
+    /// The server's namespace array as read when the session opened.
+    pub(crate) namespaces: Vec<String>,
+    pub(crate) settings: Settings,
+    pub(crate) progress: Arc<Progress>,
+    /// Set once the connection is lost, with why.
+    lost: watch::Receiver<Option<String>>,
+    pump: JoinHandle<()>,
+}
+
+impl Drop for Connection {
+    /// Closes the session on the server (bounded), then stops its task.
+    fn drop(&mut self) {
+        let session = self.session.clone();
+        let pump = self.pump.abort_handle();
+        tokio::spawn(async move {
+            let _ = tokio::time::timeout(Duration::from_secs(1), session.disconnect()).await;
+            pump.abort();
+        });
+    }
+}
+
+fn failed(endpoint: &str, reason: impl std::fmt::Display) -> LinkFault {
+    LinkFault::ConnectFailed {
+        endpoint: endpoint.to_owned(),
+        reason: Arc::new(io::Error::other(reason.to_string())),
+    }
+}
+
+/// Who the gateway is, from the user settings.
+fn identity(user: &User) -> Result<IdentityToken, String> {
+    Ok(match user {
+        User::Anonymous => IdentityToken::Anonymous,
+        User::Password { username, file } => {
+            IdentityToken::new_user_name(username.clone(), config::password(file)?)
+        }
+        User::Certificate { certificate, key } => {
+            IdentityToken::new_x509_path(certificate, key).map_err(|e| e.to_string())?
+        }
+    })
+}
+
+/// The client, its certificate made (or read) in the PKI directory and the trusted server
+/// certificates put in its `trusted` folder.
+fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
+    let trusted_dir = settings.pki_dir.join("trusted");
+    if !settings.trusted.is_empty() {
+        std::fs::create_dir_all(&trusted_dir)
+            .map_err(|e| format!("pki_dir {}: {e}", trusted_dir.display()))?;
+    }
+    for file in &settings.trusted {
+        let name = file
+            .file_name()
+            .map_or_else(|| "server.der".into(), |n| n.to_os_string());
+        std::fs::copy(file, trusted_dir.join(name))
+            .map_err(|e| format!("trusted {}: {e}", file.display()))?;
+    }
+    let secure = settings.policy != "None" || matches!(settings.user, User::Certificate { .. });
+    let mut builder = ClientBuilder::new()
+        .application_name("iogate")
+        .application_uri("urn:iogate:client")
+        .product_uri("urn:iogate")
+        .session_name("iogate")
+        .pki_dir(&settings.pki_dir)
+        .create_sample_keypair(secure && settings.certificate.is_none())
+        .trust_server_certs(false)
+        .session_retry_limit(0)
+        .session_timeout(SESSION_TIMEOUT_MS)
+        .request_timeout(REQUEST_TIMEOUT)
+        .recreate_subscriptions(false);
+    if let (Some(c), Some(k)) = (&settings.certificate, &settings.private_key) {
+        builder = builder.certificate_path(c).private_key_path(k);
+    }
+    builder.client().map_err(|errors| errors.join("; "))
+}
+
+/// Opens a session on the link's server and reads its namespace array.
+pub(crate) async fn open(settings: Settings, link: &Arc<Link>) -> Result<Connection, LinkFault> {
+    let url = settings.url.clone();
+    let identity = identity(&settings.user).map_err(|e| failed(&url, e))?;
+    let made = settings.clone();
+    // Making a key pair the first time takes a while: not on the runtime's threads.
+    let mut client = tokio::task::spawn_blocking(move || client(&made))
+        .await
+        .map_err(|e| failed(&url, e))?
+        .map_err(|e| failed(&url, e))?;
+    let mode = match settings.mode {
+        "Sign" => MessageSecurityMode::Sign,
+        "SignAndEncrypt" => MessageSecurityMode::SignAndEncrypt,
+        _ => MessageSecurityMode::None,
+    };
+    let (session, event_loop) = client
+        .connect_to_matching_endpoint((url.as_str(), settings.policy, mode), identity)
+        .await
+        .map_err(|e| failed(&url, e))?;
+    session.disable_reconnects();
+    let (tell, lost) = watch::channel(None);
+    let progress = link.progress.clone();
+    let pump = tokio::spawn(drive(event_loop, tell, progress.clone()));
+    let mut conn = Connection {
+        session,
+        generation: OPENED.fetch_add(1, Ordering::Relaxed),
+        namespaces: Vec::new(),
+        settings,
+        progress,
+        lost,
+        pump,
+    };
+    let session = conn.session.clone();
+    let connected = tokio::select! {
+        ok = session.wait_for_connection() => ok,
+        why = conn.lost_now() => return Err(failed(&url, why)),
+    };
+    if !connected {
+        return Err(failed(&url, "the session did not open"));
+    }
+    let namespaces = conn
+        .session
+        .read_namespace_array()
+        .await
+        .map_err(|e| failed(&url, format!("reading the namespace array: {e}")))?;
+    let mut uris: Vec<(u16, String)> = namespaces
+        .known_namespaces()
+        .iter()
+        .map(|(uri, i)| (*i, uri.clone()))
+        .collect();
+    uris.sort();
+    conn.namespaces = uris.into_iter().map(|(_, uri)| uri).collect();
+    Ok(conn)
+}
+
+/// Drives the session's event loop until the connection is lost, telling why.
+async fn drive(
+    event_loop: opcua::client::SessionEventLoop<opcua::client::transport::TcpConnector>,
+    tell: watch::Sender<Option<String>>,
+    progress: Arc<Progress>,
+) {
+    use opcua::client::{SessionActivity, SubscriptionActivity};
+    let stream = event_loop.enter();
+    tokio::pin!(stream);
+    let why = loop {
+        match stream.next().await {
+            None => break "the session closed".to_owned(),
+            Some(Err(code)) => break format!("the session ended: {code}"),
+            Some(Ok(event)) => match event {
+                SessionPollResult::Subscription(SubscriptionActivity::Publish)
+                | SessionPollResult::SessionActivity(SessionActivity::KeepAliveSucceeded) => {
+                    progress.ended();
+                }
+                SessionPollResult::ConnectionLost(code) => {
+                    break format!("connection lost: {code}");
+                }
+                SessionPollResult::ReconnectFailed(code) => {
+                    break format!("cannot connect: {code}");
+                }
+                SessionPollResult::Subscription(SubscriptionActivity::FatalFailure(code)) => {
+                    break format!("publishing failed: {code}");
+                }
+                _ => {}
+            },
+        }
+    };
+    tell.send_replace(Some(why));
+}
+
+impl Connection {
+    /// Resolves when the connection is lost, with why.
+    pub(crate) async fn lost_now(&mut self) -> String {
+        match self.lost.wait_for(Option::is_some).await {
+            Ok(why) => why.clone().unwrap_or_default(),
+            Err(_) => "the session's task ended".to_owned(),
+        }
+    }
+
+    /// A service call's failure as the link's: a status that says the session or its
+    /// connection is gone ends the link; anything else is the request's own.
+    pub(crate) fn fault(&self, e: &opcua::types::Error) -> Option<LinkFault> {
+        let code = e.status();
+        let gone = [
+            StatusCode::BadTimeout,
+            StatusCode::BadConnectionClosed,
+            StatusCode::BadNotConnected,
+            StatusCode::BadSessionIdInvalid,
+            StatusCode::BadSessionClosed,
+            StatusCode::BadSessionNotActivated,
+            StatusCode::BadSecureChannelClosed,
+            StatusCode::BadSecureChannelIdInvalid,
+            StatusCode::BadCommunicationError,
+            StatusCode::BadServerHalted,
+            StatusCode::BadShutdown,
+            StatusCode::BadRequestTimeout,
+        ];
+        gone.iter()
+            .any(|g| g.sub_code() == code.sub_code())
+            .then(|| LinkFault::Lost(Arc::new(io::Error::other(e.to_string()))))
+    }
+
+    /// Marks a request to the server in progress, for the watchdog.
+    pub(crate) fn started(&self) {
+        self.progress
+            .started(tokio::time::Instant::now() + REQUEST_TIMEOUT);
+    }
+
+    pub(crate) fn ended(&self) {
+        self.progress.ended();
+    }
+}

@@ -1,0 +1,98 @@
+//! A device's outputs written with one Write request: each value in the variant type the
+//! server holds it in (checked against that type's range), each outcome the server's status
+//! for it; a value the server takes is published before its outcome.
+
+use std::sync::Arc;
+
+use opcua::types::{AttributeId, DataValue, NumericRange, WriteValue};
+
+use super::variant::write_variant;
+use super::{Connection, Plan};
+use crate::cache::{Device, WriteError};
+use crate::link::LinkFault;
+use crate::plan::WriteItem;
+
+fn finish(device: &Device, item: &WriteItem, result: Result<(), WriteError>) {
+    if let Some(g) = item.generation {
+        device.finish_write_after(g, result, 1);
+    }
+}
+
+pub(super) async fn items(
+    conn: &Connection,
+    device: &Arc<Device>,
+    plan: &Plan,
+    items: Vec<WriteItem>,
+) -> Result<(), LinkFault> {
+    let mut sent = Vec::new();
+    let mut values = Vec::new();
+    for item in items {
+        let field = device.field(item.field);
+        let node = match plan.nodes.get(item.field) {
+            Some(Ok(node)) => node.clone(),
+            Some(Err(why)) => {
+                finish(device, &item, Err(WriteError::Refused(why.clone())));
+                continue;
+            }
+            None => {
+                finish(
+                    device,
+                    &item,
+                    Err(WriteError::Refused("no node".to_owned())),
+                );
+                continue;
+            }
+        };
+        let server_type = plan
+            .types
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get(item.field)
+            .copied()
+            .flatten();
+        match write_variant(field.ty, &item.value, server_type) {
+            Ok(v) => {
+                values.push(WriteValue {
+                    node_id: node,
+                    attribute_id: AttributeId::Value as u32,
+                    index_range: NumericRange::None,
+                    value: DataValue::value_only(v),
+                });
+                sent.push(item);
+            }
+            Err(why) => finish(device, &item, Err(WriteError::Refused(why))),
+        }
+    }
+    if values.is_empty() {
+        return Ok(());
+    }
+    conn.started();
+    let answered = conn.session.write(&values).await;
+    conn.ended();
+    let statuses = match answered {
+        Ok(s) => s,
+        Err(e) => {
+            let fault = conn.fault(&e);
+            let why = WriteError::Refused(e.status().to_string());
+            for item in &sent {
+                finish(device, item, Err(why.clone()));
+            }
+            return fault.map_or(Ok(()), Err);
+        }
+    };
+    for (n, item) in sent.iter().enumerate() {
+        match statuses.get(n) {
+            Some(s) if s.is_good() => {
+                device.publish(item.field, Ok(item.value.clone()));
+                finish(device, item, Ok(()));
+            }
+            Some(s) => finish(device, item, Err(WriteError::Refused(s.to_string()))),
+            None => finish(
+                device,
+                item,
+                Err(WriteError::Refused("no answer for it".to_owned())),
+            ),
+        }
+    }
+    Ok(())
+}
