@@ -91,7 +91,9 @@ export function deviceState(d) {
 }
 
 export function endpointOf(l) {
-  return l.kind === 'serial'
-    ? `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}${l.framing === 'ascii' ? ' · ASCII' : ''}`
-    : `${l.host}:${l.tcp_port} (${l.framing})`;
+  if (l.kind === 'serial') {
+    return `${l.port} · ${l.baud} ${l.data_bits}${l.parity}${l.stop_bits}${l.framing === 'ascii' ? ' · ASCII' : ''}`;
+  }
+  if (l.kind === 'tcp') return `${l.host}:${l.tcp_port} (${l.framing})`;
+  return `${l.kind} ${l.endpoint}`;
 }

@@ -3,11 +3,13 @@
 gateway's code): a PLC with a variable of every IEC type.
 
     plc.py [--port P] [--reorder] [--no-subscriptions] [--security CERT KEY TRUSTED_DIR]
+    plc.py --client-cert CERT KEY
 
 Serves opc.tcp://127.0.0.1:P/plc (P a free port when not given) with the namespace
 urn:iogate:test:plc (behind two other namespaces with --reorder, so its index changes);
 with --security only Basic256Sha256 SignAndEncrypt, its certificate CERT (DER, made when
-missing) and key KEY (PEM), trusting the client certificates in TRUSTED_DIR. Prints
+missing) and key KEY (PEM), trusting the client certificates in TRUSTED_DIR (--client-cert
+makes one, for the application urn:iogate:client, and ends). Prints
 {"url": URL, "ns": N} when it listens. Then each JSON line on standard input is a command,
 answered by one JSON line:
 
@@ -57,14 +59,12 @@ def free_port():
         return s.getsockname()[1]
 
 
-async def make_cert(cert, key):
+async def make_cert(cert, key, uri="urn:iogate:test:plc-server", use="server"):
     from asyncua.crypto.cert_gen import setup_self_signed_certificate
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    await setup_self_signed_certificate(
-        key, cert, "urn:iogate:test:plc", "127.0.0.1",
-        [ExtendedKeyUsageOID.SERVER_AUTH], {"commonName": "plc"},
-    )
+    usage = ExtendedKeyUsageOID.SERVER_AUTH if use == "server" else ExtendedKeyUsageOID.CLIENT_AUTH
+    await setup_self_signed_certificate(key, cert, uri, "127.0.0.1", [usage], {"commonName": use})
 
 
 async def start(args):
@@ -74,6 +74,7 @@ async def start(args):
     url = f"opc.tcp://127.0.0.1:{port}/plc"
     server.set_endpoint(url)
     server.set_server_name("iogate test PLC")
+    await server.set_application_uri("urn:iogate:test:plc-server")
     if args.security:
         from pathlib import Path
         from asyncua.crypto.truststore import TrustStore
@@ -145,7 +146,14 @@ async def main():
     parser.add_argument("--reorder", action="store_true")
     parser.add_argument("--no-subscriptions", action="store_true")
     parser.add_argument("--security", nargs=3, metavar=("CERT", "KEY", "TRUSTED"))
+    parser.add_argument("--client-cert", nargs=2, metavar=("CERT", "KEY"))
     args = parser.parse_args()
+    if args.client_cert:
+        from pathlib import Path
+        cert, key = (Path(p) for p in args.client_cert)
+        await make_cert(cert, key, "urn:iogate:client", "client")
+        print(json.dumps({"made": str(cert)}), flush=True)
+        return
     server, nodes = await start(args)
     loop = asyncio.get_running_loop()
     try:

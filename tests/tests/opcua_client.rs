@@ -276,3 +276,64 @@ async fn a_subscription_the_server_drops_is_made_again() -> anyhow::Result<()> {
     gw.shutdown().await;
     plc.kill().await
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sign_and_encrypt_connects_once_each_side_trusts_the_others_certificate()
+-> anyhow::Result<()> {
+    let dir = temp_dir("uaclient-secure");
+    let trusted = dir.join("plc-trusted");
+    std::fs::create_dir_all(&trusted)?;
+    let (cert, key) = (dir.join("plc.der"), dir.join("plc.pem"));
+    let security = |plc_args: &mut Vec<String>| {
+        plc_args.extend(["--security".into(), cert.display().to_string()]);
+        plc_args.extend([key.display().to_string(), trusted.display().to_string()]);
+    };
+    let mut args = Vec::new();
+    security(&mut args);
+    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+    let plc = UaPlc::start(&refs).await?;
+    // The gateway's application certificate, made by the PLC's library.
+    let (own, own_key) = (dir.join("iogate.der"), dir.join("iogate.pem"));
+    let made = std::process::Command::new("python3")
+        .arg(iogate_tests::repo_file("opcua/plc.py"))
+        .args(["--client-cert", &own.display().to_string()])
+        .arg(&own_key)
+        .output()?;
+    anyhow::ensure!(made.status.success(), "{made:?}");
+    // The gateway trusts the PLC's certificate; the PLC does not know the gateway's yet.
+    let extra = format!(
+        ", security_policy: Basic256Sha256, certificate: {}, private_key: {}, trusted: [{}]",
+        own.display(),
+        own_key.display(),
+        cert.display()
+    );
+    let gw = gateway(&dir, &plc, &extra).await?;
+    let refused = gw
+        .until("/api/v1/links/plc", "refused", |l| l["error_code"] == 2)
+        .await?;
+    assert_eq!(refused["connected"], false, "{refused}");
+    // Named in the server's words where users look: the field and the link.
+    let untrusted = until_field(&gw, "I", "the refusal", |f| {
+        f["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("BadCertificateUntrusted"))
+    })
+    .await?;
+    assert_eq!(untrusted["quality"], "bad", "{untrusted}");
+    // Trusted by the PLC (restarted, on the same port), the gateway's next attempt gets in.
+    std::fs::copy(&own, trusted.join("iogate.der"))?;
+    let port = plc.port();
+    plc.kill().await?;
+    let mut args = vec!["--port".to_owned(), port];
+    security(&mut args);
+    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+    let mut plc = UaPlc::start(&refs).await?;
+    until_field(&gw, "I", "read over a secure channel", |f| {
+        f["quality"] == "good"
+    })
+    .await?;
+    plc.set("Int", json!(5)).await?;
+    until_field(&gw, "I", "a change over it", |f| f["value"] == json!(5)).await?;
+    gw.shutdown().await;
+    plc.kill().await
+}

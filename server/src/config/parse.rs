@@ -246,19 +246,23 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
         (Some(s), None, None) => read_serial(s, &ctx, report).map(Transport::Serial),
         (None, Some(t), None) => read_tcp(t, &ctx, report),
         (None, None, Some((key, at, n))) => read_driver(key, at, n, &ctx, report),
+        (Some(_), Some(t), None) => {
+            report.push(t.line, &ctx, "a link is either `serial` or `tcp`, not both");
+            None
+        }
         (None, None, None) => {
             report.push(
                 node.line,
                 &ctx,
-                "a link needs `serial`, `tcp` or `opcua` settings",
+                "a link needs `serial` or `tcp` settings (or `opcua` for an OPC UA server)",
             );
             None
         }
-        (_, _, _) => {
+        (_, _, Some((key, _, n))) => {
             report.push(
-                node.line,
+                n.line,
                 &ctx,
-                "a link is one of `serial`, `tcp` or `opcua`, not several",
+                format!("a link is `serial`, `tcp` or `{key}`, not several"),
             );
             None
         }

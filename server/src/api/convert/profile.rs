@@ -51,7 +51,14 @@ pub(crate) struct FieldInfo {
     #[serde(rename = "type")]
     pub(crate) ty: String,
     pub(crate) direction: String,
+    /// Where a Modbus field is (for a field of another protocol: kind `point`, its unit).
     pub(crate) register: RegisterInfo,
+    /// The node id of a field of an OPC UA profile, as the profile writes it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) node: Option<String>,
+    /// The browse path of a field of an OPC UA profile, where it names one instead.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) browse_path: Option<String>,
     pub(crate) description: Option<String>,
 }
 
@@ -100,6 +107,16 @@ pub(crate) fn profile_detail(p: &Profile) -> ProfileDetail {
                 ty: f.ty.name().to_owned(),
                 direction: f.direction.name().to_owned(),
                 description: f.description.clone(),
+                node: f
+                    .point
+                    .as_ref()
+                    .filter(|p| !p.browse_path)
+                    .map(|p| p.address.clone()),
+                browse_path: f
+                    .point
+                    .as_ref()
+                    .filter(|p| p.browse_path)
+                    .map(|p| p.address.clone()),
                 register: RegisterInfo {
                     address: f.register.address,
                     kind: f.register.kind.name().to_owned(),

@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use futures_util::StreamExt;
 use opcua::client::{ClientBuilder, IdentityToken, Session, SessionPollResult};
+use opcua::crypto::CertificateStore;
 use opcua::types::{MessageSecurityMode, StatusCode};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
@@ -83,26 +84,39 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
             .map_err(|e| format!("pki_dir {}: {e}", trusted_dir.display()))?;
     }
     for file in &settings.trusted {
-        let name = file
-            .file_name()
-            .map_or_else(|| "server.der".into(), |n| n.to_os_string());
-        std::fs::copy(file, trusted_dir.join(name))
+        // Under the name the certificate store looks it up by (its subject and thumbprint).
+        let cert = CertificateStore::read_cert(file)
             .map_err(|e| format!("trusted {}: {e}", file.display()))?;
+        let der = cert
+            .to_der()
+            .map_err(|e| format!("trusted {}: {e}", file.display()))?;
+        let path = trusted_dir.join(CertificateStore::cert_file_name(&cert));
+        std::fs::write(&path, der).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     let secure = settings.policy != "None" || matches!(settings.user, User::Certificate { .. });
+    // Made once in the PKI directory (own/cert.der, private/private.pem), then read.
+    let made = (
+        settings.pki_dir.join("own/cert.der"),
+        settings.pki_dir.join("private/private.pem"),
+    );
+    let given = match (&settings.certificate, &settings.private_key) {
+        (Some(c), Some(k)) => Some((c.clone(), k.clone())),
+        _ if made.0.exists() && made.1.exists() => Some(made),
+        _ => None,
+    };
     let mut builder = ClientBuilder::new()
         .application_name("iogate")
         .application_uri("urn:iogate:client")
         .product_uri("urn:iogate")
         .session_name("iogate")
         .pki_dir(&settings.pki_dir)
-        .create_sample_keypair(secure && settings.certificate.is_none())
+        .create_sample_keypair(secure && given.is_none())
         .trust_server_certs(false)
         .session_retry_limit(0)
         .session_timeout(SESSION_TIMEOUT_MS)
         .request_timeout(REQUEST_TIMEOUT)
         .recreate_subscriptions(false);
-    if let (Some(c), Some(k)) = (&settings.certificate, &settings.private_key) {
+    if let Some((c, k)) = given {
         builder = builder.certificate_path(c).private_key_path(k);
     }
     builder.client().map_err(|errors| errors.join("; "))
