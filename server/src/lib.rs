@@ -12,7 +12,7 @@ pub(crate) mod codec;
 pub mod config;
 pub(crate) mod declare;
 pub(crate) mod demo;
-pub(crate) mod drivers;
+pub mod drivers;
 pub(crate) mod duration;
 pub(crate) mod front_ends;
 pub mod link;

@@ -104,11 +104,16 @@ enum FbCommand {
 #[derive(Subcommand)]
 enum ProfileCommand {
     /// Convert wb-mqtt-serial device templates (JSON) and EdgeX device profiles (YAML) into
-    /// iogate profiles; what cannot be mapped is reported with its source line.
+    /// iogate profiles, or browse an OPC UA server (`--from opcua opc.tcp://HOST:PORT`) for
+    /// one; what cannot be mapped is reported with its source line or node.
     Import {
-        /// The source format; default: by the file name (.json wb, .yaml/.yml edgex).
+        /// The source format; default: by the file name (.json wb, .yaml/.yml edgex); `opcua`
+        /// takes a server's endpoint URL instead of files.
         #[arg(long)]
         from: Option<String>,
+        /// With `--from opcua`: the node to browse from (default: the Objects folder).
+        #[arg(long)]
+        node: Option<String>,
         /// Where to write the profiles (one file each); default: standard output.
         #[arg(long)]
         out: Option<PathBuf>,
@@ -145,8 +150,10 @@ enum Action {
 
 /// What is logged when `RUST_LOG` is unset: the gateway's information, and only warnings
 /// and errors of the OPC UA library (its information is a start-up inventory).
-const DEFAULT_LOG: &str =
-    "info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_nodes=warn,opcua_types=warn";
+/// The OPC UA library's own lines: warnings and errors, less those the client driver tells
+/// itself (a failed connection, in the link's state and the log) or that are no fault (no
+/// application certificate on a link without security).
+const DEFAULT_LOG: &str = "info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_nodes=warn,opcua_types=warn,opcua_client=error,opcua_client::session::client=off,opcua_client::transport=off,opcua_crypto::certificate_store=off";
 
 /// The log filter from `RUST_LOG` ([`DEFAULT_LOG`] when unset). A filter that does not
 /// parse is a configuration error, not a silent fallback.
@@ -182,9 +189,30 @@ fn main() -> ExitCode {
         return ExitCode::from(iogate::scan::cli::run(options));
     }
     if let Some(Command::Profile {
-        command: ProfileCommand::Import { from, out, files },
+        command:
+            ProfileCommand::Import {
+                from,
+                node,
+                out,
+                files,
+            },
     }) = &cli.command
     {
+        if from.as_deref() == Some("opcua") {
+            let [url] = files.as_slice() else {
+                eprintln!("iogate profile import --from opcua: give one endpoint URL");
+                return ExitCode::from(iogate::EXIT_CONFIG as u8);
+            };
+            return ExitCode::from(iogate::drivers::opcua::import::run(
+                &url.to_string_lossy(),
+                node.as_deref(),
+                out.as_deref(),
+            ));
+        }
+        if node.is_some() {
+            eprintln!("iogate profile import: --node is for --from opcua");
+            return ExitCode::from(iogate::EXIT_CONFIG as u8);
+        }
         return ExitCode::from(iogate::profile::import::run(
             files,
             from.as_deref(),

@@ -23,7 +23,8 @@ answered by one JSON line:
 
 Variables (string ids `Line1.NAME`): Bool, SInt, Int, DInt, LInt, USInt, UInt, UDInt,
 ULInt, Real, LReal, Str (each of the matching OPC UA type, writable), Big (Int32 40000),
-Locked (Int16, read-only), Speed (Double).
+Locked (Int16, read-only), Speed (Double, EngineeringUnits rpm); Started (a DateTime) and
+Counts (an array) have no IEC field.
 """
 import argparse
 import asyncio
@@ -103,6 +104,11 @@ async def start(args):
         if name != "Locked":
             await node.set_writable()
         nodes[name] = (node, vt)
+    unit = ua.EUInformation(NamespaceUri="http://www.opcfoundation.org/UA/units/un/cefact", UnitId=4740434, DisplayName=ua.LocalizedText("rpm"), Description=ua.LocalizedText("revolutions per minute"))
+    await nodes["Speed"][0].add_property(ua.NodeId("Line1.Speed.EU", ns), ua.QualifiedName("EngineeringUnits", 0), ua.Variant(unit, ua.VariantType.ExtensionObject))
+    when = await line.add_variable(ua.NodeId("Line1.Started", ns), ua.QualifiedName("Started", ns), ua.Variant(datetime.now(timezone.utc), ua.VariantType.DateTime))
+    await line.add_variable(ua.NodeId("Line1.Counts", ns), ua.QualifiedName("Counts", ns), ua.Variant([1, 2, 3], ua.VariantType.Int32))
+    del when
     if args.no_subscriptions:
         async def refuse(*_a, **_k):
             raise ua.UaStatusCodeError(ua.StatusCodes.BadServiceUnsupported)

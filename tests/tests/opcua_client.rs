@@ -337,3 +337,45 @@ async fn sign_and_encrypt_connects_once_each_side_trusts_the_others_certificate(
     gw.shutdown().await;
     plc.kill().await
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_profile_imported_from_the_server_reads_it() -> anyhow::Result<()> {
+    let dir = temp_dir("uaclient-import");
+    let plc = UaPlc::start(&[]).await?;
+    let profiles = dir.join("profiles");
+    let (url, out) = (plc.url.clone(), profiles.clone());
+    let code = tokio::task::spawn_blocking(move || {
+        iogate::drivers::opcua::import::run(&url, Some("ns=2;s=Line1"), Some(&out))
+    })
+    .await?;
+    assert_eq!(code, 0);
+    let text = std::fs::read_to_string(profiles.join("Line1.yaml"))?;
+    // Units from EngineeringUnits, directions from access levels, nodes by namespace URI;
+    // a DateTime and an array are reported, not made fields.
+    assert!(
+        text.contains(
+            "name: Speed, type: LREAL, direction: inout, node: \"nsu=urn:iogate:test:plc;s=Line1.Speed\", unit: \"rpm\""
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("name: Locked, type: INT, direction: input"),
+        "{text}"
+    );
+    assert!(
+        !text.contains("Started") && !text.contains("Counts"),
+        "{text}"
+    );
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: plc\n    opcua: {{ url: \"{}\", pki_dir: {} }}\ndevices:\n  - {{ name: line1, profile: Line1, link: plc, refresh_rate: 100ms }}\n",
+        profiles.display(),
+        plc.url,
+        dir.join("pki").display()
+    );
+    let gw = TestGateway::start(&config).await?;
+    let device = gw.all_read("line1").await?;
+    assert_eq!(field(&device, "Locked")["value"], json!(7), "{device}");
+    assert_eq!(field(&device, "Speed")["unit"], "rpm", "{device}");
+    gw.shutdown().await;
+    plc.kill().await
+}

@@ -14,7 +14,7 @@
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
 pub(crate) mod modbus;
-pub(crate) mod opcua;
+pub mod opcua;
 
 use std::future::Future;
 use std::sync::Arc;

@@ -8,6 +8,7 @@
 //! still gets the right nodes.
 
 pub(crate) mod config;
+pub mod import;
 mod resolve;
 mod session;
 mod subscribe;

@@ -124,6 +124,14 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
 
 /// Opens a session on the link's server and reads its namespace array.
 pub(crate) async fn open(settings: Settings, link: &Arc<Link>) -> Result<Connection, LinkFault> {
+    connect(settings, link.progress.clone()).await
+}
+
+/// Opens a session on a server, telling `progress` of every answer.
+pub(crate) async fn connect(
+    settings: Settings,
+    progress: Arc<Progress>,
+) -> Result<Connection, LinkFault> {
     let url = settings.url.clone();
     let identity = identity(&settings.user).map_err(|e| failed(&url, e))?;
     let made = settings.clone();
@@ -143,7 +151,6 @@ pub(crate) async fn open(settings: Settings, link: &Arc<Link>) -> Result<Connect
         .map_err(|e| failed(&url, e))?;
     session.disable_reconnects();
     let (tell, lost) = watch::channel(None);
-    let progress = link.progress.clone();
     let pump = tokio::spawn(drive(event_loop, tell, progress.clone()));
     let mut conn = Connection {
         session,

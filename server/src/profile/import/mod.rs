@@ -139,7 +139,7 @@ impl Draft {
 
 /// A source name made an IEC identifier: letters, digits and single underscores, not
 /// starting with a digit, not a keyword or a name the device's block already has.
-fn identifier(source: &str) -> String {
+pub(crate) fn identifier(source: &str) -> String {
     let mut out = String::new();
     for c in source.chars() {
         if c.is_ascii_alphanumeric() {
@@ -183,7 +183,7 @@ fn number(x: f64) -> String {
 }
 
 /// A YAML double-quoted string.
-fn quoted(text: &str) -> String {
+pub(crate) fn quoted(text: &str) -> String {
     let mut out = String::from("\"");
     for c in text.chars() {
         match c {
