@@ -84,6 +84,10 @@ pub fn link_plan<'a>(
 fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>) {
     let timing = render_line(out, link);
     for (d, profile, batches) in devices {
+        if profile.protocol.point_key().is_some() {
+            render_points(out, d, profile);
+            continue;
+        }
         render_device(out, link, timing.as_ref(), d, profile, batches);
     }
     if let Some(u) = link_utilisation(link, devices) {
@@ -143,6 +147,30 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
                 link.name, d.protocol, d.endpoint
             );
             None
+        }
+    }
+}
+
+/// A device of a protocol that names its points: one subscription, a monitored item per
+/// field (the server samples each; the gateway asks nothing per cycle).
+fn render_points(out: &mut String, d: &DeviceConfig, profile: &Profile) {
+    let _ = writeln!(
+        out,
+        "  device {} (profile {}, {}): a subscription publishing every {} ms, {} monitored item(s); read every refresh where the server has no subscriptions",
+        d.name,
+        profile.name,
+        profile.protocol.name(),
+        d.refresh_rate.as_millis(),
+        profile.fields.iter().filter(|f| f.point.is_some()).count()
+    );
+    for f in &profile.fields {
+        if let Some(p) = &f.point {
+            let sampling = p.sampling.unwrap_or(d.refresh_rate).as_millis();
+            let _ = writeln!(
+                out,
+                "    {} {} ({}, sampled every {sampling} ms)",
+                f.name, p.address, f.ty
+            );
         }
     }
 }

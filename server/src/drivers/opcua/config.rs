@@ -286,3 +286,7 @@ pub(crate) fn check_files(link: &str, s: &Settings) -> Vec<String> {
         })
         .collect()
 }
+
+#[cfg(test)]
+#[path = "config_tests.rs"]
+mod tests;

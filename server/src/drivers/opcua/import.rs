@@ -165,12 +165,11 @@ async fn browse(conn: &Connection, root: &NodeId) -> Result<Vec<Found>, String> 
             .browse(&[description], 1000, None)
             .await
             .map_err(|e| e.to_string())?;
-        loop {
-            let Some(result) = results.pop() else { break };
+        while let Some(result) = results.pop() {
             for r in result.references.iter().flatten() {
                 // Properties are no fields; the server's own object is not the device.
                 let server: NodeId = ObjectId::Server.into();
-                if r.reference_type_id == NodeId::from(ReferenceTypeId::HasProperty)
+                if r.reference_type_id == ReferenceTypeId::HasProperty
                     || r.node_id.node_id == server
                 {
                     continue;
@@ -191,7 +190,7 @@ async fn browse(conn: &Connection, root: &NodeId) -> Result<Vec<Found>, String> 
             }
             results = conn
                 .session
-                .browse_next(false, &[result.continuation_point.clone()])
+                .browse_next(false, std::slice::from_ref(&result.continuation_point))
                 .await
                 .map_err(|e| e.to_string())?;
         }
