@@ -174,30 +174,29 @@ impl Connection {
             .enumerate()
             .filter_map(|(i, n)| n.as_ref().ok().map(|n| (i, ReadValueId::from(n.clone()))))
             .collect();
-        if wanted.is_empty() {
-            return Ok(());
-        }
-        let ids: Vec<ReadValueId> = wanted.iter().map(|(_, r)| r.clone()).collect();
-        self.started();
-        let answered = self
-            .session
-            .read(&ids, TimestampsToReturn::Source, 0.0)
-            .await;
-        self.ended();
-        let values = match answered {
-            Ok(values) => values,
-            Err(e) => {
-                if let Some(fault) = self.fault(&e) {
-                    return Err(fault);
+        for wanted in wanted.chunks(subscribe::PER_CALL) {
+            let ids: Vec<ReadValueId> = wanted.iter().map(|(_, r)| r.clone()).collect();
+            self.started();
+            let answered = self
+                .session
+                .read(&ids, TimestampsToReturn::Source, 0.0)
+                .await;
+            self.ended();
+            let values = match answered {
+                Ok(values) => values,
+                Err(e) => {
+                    if let Some(fault) = self.fault(&e) {
+                        return Err(fault);
+                    }
+                    for (i, _) in wanted {
+                        refuse(device, *i, e.status().to_string());
+                    }
+                    continue;
                 }
-                for (i, _) in &wanted {
-                    refuse(device, *i, e.status().to_string());
-                }
-                return Ok(());
+            };
+            for ((idx, _), dv) in wanted.iter().zip(values.iter()) {
+                subscribe::publish(device, &plan.types, *idx, dv);
             }
-        };
-        for ((idx, _), dv) in wanted.iter().zip(values.iter()) {
-            subscribe::publish(device, &plan.types, *idx, dv);
         }
         Ok(())
     }

@@ -128,8 +128,10 @@ pub(super) async fn nodes(
         };
         nodes.push(resolved);
     }
-    if !paths.is_empty() {
-        translate(conn, &mut nodes, paths).await?;
+    let mut paths = paths.into_iter().peekable();
+    while paths.peek().is_some() {
+        let chunk: Vec<_> = paths.by_ref().take(super::subscribe::PER_CALL).collect();
+        translate(conn, &mut nodes, chunk).await?;
     }
     for (idx, n) in nodes.iter().enumerate() {
         if let Err(why) = n {

@@ -23,6 +23,14 @@ use crate::cache::Device;
 use crate::link::LinkFault;
 use crate::profile::deadband::Deadband;
 
+/// The most items (monitored items, nodes read or written, paths translated) one request
+/// carries: within the operation limits servers commonly set and their message sizes.
+pub(crate) const PER_CALL: usize = 500;
+
+/// The most notifications one publish response carries (the client's decoding limit on
+/// arrays is 1,000): more changes come in more responses.
+const PER_PUBLISH: u32 = 1000;
+
 /// About how often a quiet subscription says it is alive.
 const KEEP_ALIVE: Duration = Duration::from_secs(2);
 
@@ -159,7 +167,7 @@ pub(super) async fn watch(
             refresh,
             keep_alive_count * 3,
             keep_alive_count,
-            0,
+            PER_PUBLISH,
             0,
             true,
             callback,
@@ -222,31 +230,30 @@ async fn items(conn: &Connection, device: &Device, plan: &Plan, id: u32) -> Resu
             ))
         })
         .unzip();
-    if requests.is_empty() {
-        return Ok(());
-    }
-    conn.started();
-    let created = conn
-        .session
-        .create_monitored_items(id, TimestampsToReturn::Both, requests)
-        .await;
-    conn.ended();
-    let results = match created {
-        Ok(r) => r,
-        Err(e) => {
-            if let Some(fault) = conn.fault(&e) {
-                return Err(fault);
+    for (handles, requests) in handles.chunks(PER_CALL).zip(requests.chunks(PER_CALL)) {
+        conn.started();
+        let created = conn
+            .session
+            .create_monitored_items(id, TimestampsToReturn::Both, requests.to_vec())
+            .await;
+        conn.ended();
+        let results = match created {
+            Ok(r) => r,
+            Err(e) => {
+                if let Some(fault) = conn.fault(&e) {
+                    return Err(fault);
+                }
+                for &idx in handles {
+                    refuse(device, idx, e.status().to_string());
+                }
+                continue;
             }
-            for idx in handles {
-                refuse(device, idx, e.status().to_string());
+        };
+        for (idx, r) in handles.iter().zip(results.iter()) {
+            if r.result.status_code.is_bad() {
+                tracing::warn!(device = %device.name(), field = %device.field(*idx).name, status = %r.result.status_code, "the server refused to monitor the field");
+                refuse(device, *idx, r.result.status_code.to_string());
             }
-            return Ok(());
-        }
-    };
-    for (idx, r) in handles.iter().zip(results.iter()) {
-        if r.result.status_code.is_bad() {
-            tracing::warn!(device = %device.name(), field = %device.field(*idx).name, status = %r.result.status_code, "the server refused to monitor the field");
-            refuse(device, *idx, r.result.status_code.to_string());
         }
     }
     Ok(())

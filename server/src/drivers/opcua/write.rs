@@ -63,35 +63,45 @@ pub(super) async fn items(
             Err(why) => finish(device, &item, Err(WriteError::Refused(why))),
         }
     }
-    if values.is_empty() {
-        return Ok(());
-    }
-    conn.started();
-    let answered = conn.session.write(&values).await;
-    conn.ended();
-    let statuses = match answered {
-        Ok(s) => s,
-        Err(e) => {
-            let fault = conn.fault(&e);
-            let why = WriteError::Refused(e.status().to_string());
-            for item in &sent {
-                finish(device, item, Err(why.clone()));
+    for (sent, values) in sent
+        .chunks(super::subscribe::PER_CALL)
+        .zip(values.chunks(super::subscribe::PER_CALL))
+    {
+        conn.started();
+        let answered = conn.session.write(values).await;
+        conn.ended();
+        let statuses = match answered {
+            Ok(s) => s,
+            Err(e) => {
+                // The connection failed: the latest values are written again once it is
+                // back; a refused request is the server's word on each item.
+                let fault = conn.fault(&e);
+                let why = match &fault {
+                    Some(f) => WriteError::LinkDown(f.clone()),
+                    None => WriteError::Refused(e.status().to_string()),
+                };
+                for item in sent {
+                    finish(device, item, Err(why.clone()));
+                }
+                match fault {
+                    Some(f) => return Err(f),
+                    None => continue,
+                }
             }
-            return fault.map_or(Ok(()), Err);
-        }
-    };
-    for (n, item) in sent.iter().enumerate() {
-        match statuses.get(n) {
-            Some(s) if s.is_good() => {
-                device.publish(item.field, Ok(item.value.clone()));
-                finish(device, item, Ok(()));
+        };
+        for (n, item) in sent.iter().enumerate() {
+            match statuses.get(n) {
+                Some(s) if s.is_good() => {
+                    device.publish(item.field, Ok(item.value.clone()));
+                    finish(device, item, Ok(()));
+                }
+                Some(s) => finish(device, item, Err(WriteError::Refused(s.to_string()))),
+                None => finish(
+                    device,
+                    item,
+                    Err(WriteError::Refused("no answer for it".to_owned())),
+                ),
             }
-            Some(s) => finish(device, item, Err(WriteError::Refused(s.to_string()))),
-            None => finish(
-                device,
-                item,
-                Err(WriteError::Refused("no answer for it".to_owned())),
-            ),
         }
     }
     Ok(())
