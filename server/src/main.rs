@@ -168,6 +168,31 @@ fn log_filter() -> Result<tracing_subscriber::EnvFilter, String> {
     }
 }
 
+/// `iogate profile import`: files, or an OPC UA server (`--from opcua URL [--node ROOT]`).
+fn import(
+    from: Option<&str>,
+    node: Option<&str>,
+    out: Option<&std::path::Path>,
+    files: &[PathBuf],
+) -> ExitCode {
+    if from == Some("opcua") {
+        let [url] = files else {
+            eprintln!("iogate profile import --from opcua: give one endpoint URL");
+            return ExitCode::from(iogate::EXIT_CONFIG as u8);
+        };
+        return ExitCode::from(iogate::drivers::opcua::import::run(
+            &url.to_string_lossy(),
+            node,
+            out,
+        ));
+    }
+    if node.is_some() {
+        eprintln!("iogate profile import: --node is for --from opcua");
+        return ExitCode::from(iogate::EXIT_CONFIG as u8);
+    }
+    ExitCode::from(iogate::profile::import::run(files, from, out))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let filter = match log_filter() {
@@ -198,26 +223,7 @@ fn main() -> ExitCode {
             },
     }) = &cli.command
     {
-        if from.as_deref() == Some("opcua") {
-            let [url] = files.as_slice() else {
-                eprintln!("iogate profile import --from opcua: give one endpoint URL");
-                return ExitCode::from(iogate::EXIT_CONFIG as u8);
-            };
-            return ExitCode::from(iogate::drivers::opcua::import::run(
-                &url.to_string_lossy(),
-                node.as_deref(),
-                out.as_deref(),
-            ));
-        }
-        if node.is_some() {
-            eprintln!("iogate profile import: --node is for --from opcua");
-            return ExitCode::from(iogate::EXIT_CONFIG as u8);
-        }
-        return ExitCode::from(iogate::profile::import::run(
-            files,
-            from.as_deref(),
-            out.as_deref(),
-        ));
+        return import(from.as_deref(), node.as_deref(), out.as_deref(), files);
     }
     let Some((config, action)) = action_of(cli.command) else {
         return ExitCode::SUCCESS;

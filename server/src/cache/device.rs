@@ -1,6 +1,7 @@
 //! One device: its profile, the latest sample of every field, its diagnostics, its
 //! requested outputs and, for a simulated device, the memory that stands for the device.
 
+mod reads;
 mod writes;
 
 use std::sync::{Arc, Mutex, RwLock};
@@ -378,63 +379,6 @@ impl Device {
         self.diagnostics.subscribe()
     }
 
-    /// Stores a freshly read value (or why it could not be read). Subscribers are woken only
-    /// when the value or its quality changes.
-    pub(crate) fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
-        self.publish_from(idx, read, None, None);
-    }
-
-    /// Stores a value as its source reported it: `doubt` when the source vouches for it
-    /// only in part (the value is kept, stale, with the reason), `at` the source's own
-    /// timestamp of it (else now).
-    pub(crate) fn publish_from(
-        &self,
-        idx: usize,
-        read: Result<Value, FieldError>,
-        doubt: Option<FieldError>,
-        at: Option<SystemTime>,
-    ) {
-        let now = (Instant::now(), at.unwrap_or_else(SystemTime::now));
-        self.samples[idx].send_if_modified(|s| {
-            let before = (s.value.clone(), s.quality, s.stale_told);
-            match read {
-                Ok(v) => {
-                    s.value = Some(v);
-                    s.quality = if doubt.is_some() {
-                        Quality::Stale
-                    } else {
-                        Quality::Good
-                    };
-                    s.error = doubt.map(Box::new);
-                }
-                Err(e) => {
-                    s.quality = Quality::Bad;
-                    s.error = Some(Box::new(e));
-                }
-            }
-            s.updated = Some(now);
-            s.stale_told = false;
-            before != (s.value.clone(), s.quality, s.stale_told)
-        });
-    }
-
-    /// Wakes the subscribers of every field whose good value went stale as of `now` (once
-    /// per stale spell), so that streams show `stale` without waiting for another change.
-    pub(crate) fn tell_stale(&self, now: Instant) {
-        let went_stale = |s: &Sample| !s.stale_told && self.quality(s, now) == Quality::Stale;
-        for sample in &self.samples {
-            // A read lock first: most fields are fresh, or stale and told.
-            if !went_stale(&sample.borrow()) {
-                continue;
-            }
-            sample.send_if_modified(|s| {
-                let tell = went_stale(s);
-                s.stale_told |= tell;
-                tell
-            });
-        }
-    }
-
     /// Records the end of an I/O cycle. Subscribers are woken when `connected` or
     /// `error_code` change, not on every cycle.
     pub(crate) fn record_cycle(&self, ok: bool, response: Duration) {
@@ -453,37 +397,6 @@ impl Device {
             d.last_response_ms = (response.as_secs_f64() * 1e6).round() / 1000.0;
             before != (d.connected, d.error_code)
         });
-    }
-
-    /// Marks every field read from the bus as bad, keeping the last good values.
-    pub(crate) fn fail_reads(&self, reason: &FieldError) {
-        for (idx, field) in self.profile.fields.iter().enumerate() {
-            if field.register.kind != RegisterKind::Virtual {
-                self.publish(idx, Err(reason.clone()));
-            }
-        }
-    }
-
-    /// Marks every field read from the device as stale with `reason`, keeping its value and
-    /// its timestamp (a field never read is bad with it).
-    pub(crate) fn doubt_reads(&self, reason: &FieldError) {
-        for (idx, field) in self.profile.fields.iter().enumerate() {
-            if field.register.kind == RegisterKind::Virtual {
-                continue;
-            }
-            self.samples[idx].send_if_modified(|s| {
-                let quality = if s.value.is_some() {
-                    Quality::Stale
-                } else {
-                    Quality::Bad
-                };
-                let changed = s.quality != quality;
-                s.quality = quality;
-                s.error = Some(Box::new(reason.clone()));
-                s.stale_told = false;
-                changed
-            });
-        }
     }
 
     /// Records that the device could not be reached at all (its link is down).

@@ -41,38 +41,7 @@ async fn every_iec_type_is_read_and_written_through_an_independent_server() -> a
     let missing = until_field(&gw, "Missing", "Missing bad", |f| f["quality"] == "bad").await?;
     assert_eq!(missing["error"], "BadNodeIdUnknown", "{missing}");
 
-    let writes = [
-        ("B", "Bool", json!(true)),
-        ("SI", "SInt", json!(-128)),
-        ("I", "Int", json!(32767)),
-        ("DI", "DInt", json!(-7)),
-        ("LI", "LInt", json!(i64::MIN)),
-        ("USI", "USInt", json!(255)),
-        ("UI", "UInt", json!(1)),
-        ("UDI", "UDInt", json!(u32::MAX)),
-        ("ULI", "ULInt", json!(u64::MAX)),
-        ("R", "Real", json!(-3.25)),
-        ("LR", "LReal", json!(1e300)),
-        ("S", "Str", json!("world")),
-    ];
-    for (field_name, var, value) in &writes {
-        let (status, body) = gw
-            .send(
-                reqwest::Method::PUT,
-                &format!("/api/v1/devices/line1/fields/{field_name}"),
-                json!({ "value": value }).to_string(),
-            )
-            .await?;
-        assert!(status < 300, "{field_name}: {status} {body}");
-        let generation = body["generation"].as_u64().unwrap_or_default();
-        let outcome = gw
-            .until(&format!("/api/v1/writes/{generation}"), "written", |w| {
-                w["status"] != "pending"
-            })
-            .await?;
-        assert_eq!(outcome["status"], "written", "{field_name}: {outcome}");
-        assert_eq!(&plc.get(var).await?, value, "{var} on the server");
-    }
+    writes_of_every_type(&gw, &mut plc).await?;
     // The server's refusal is the write's failure reason.
     let (_, body) = gw
         .send(
@@ -181,4 +150,41 @@ async fn a_profile_imported_from_the_server_reads_it() -> anyhow::Result<()> {
     assert_eq!(field(&device, "Speed")["unit"], "rpm", "{device}");
     gw.shutdown().await;
     plc.kill().await
+}
+
+/// Each type written through REST reaches the server as that type's value.
+async fn writes_of_every_type(gw: &TestGateway, plc: &mut UaPlc) -> anyhow::Result<()> {
+    let writes = [
+        ("B", "Bool", json!(true)),
+        ("SI", "SInt", json!(-128)),
+        ("I", "Int", json!(32767)),
+        ("DI", "DInt", json!(-7)),
+        ("LI", "LInt", json!(i64::MIN)),
+        ("USI", "USInt", json!(255)),
+        ("UI", "UInt", json!(1)),
+        ("UDI", "UDInt", json!(u32::MAX)),
+        ("ULI", "ULInt", json!(u64::MAX)),
+        ("R", "Real", json!(-3.25)),
+        ("LR", "LReal", json!(1e300)),
+        ("S", "Str", json!("world")),
+    ];
+    for (field_name, var, value) in &writes {
+        let (status, body) = gw
+            .send(
+                reqwest::Method::PUT,
+                &format!("/api/v1/devices/line1/fields/{field_name}"),
+                json!({ "value": value }).to_string(),
+            )
+            .await?;
+        assert!(status < 300, "{field_name}: {status} {body}");
+        let generation = body["generation"].as_u64().unwrap_or_default();
+        let outcome = gw
+            .until(&format!("/api/v1/writes/{generation}"), "written", |w| {
+                w["status"] != "pending"
+            })
+            .await?;
+        assert_eq!(outcome["status"], "written", "{field_name}: {outcome}");
+        assert_eq!(&plc.get(var).await?, value, "{var} on the server");
+    }
+    Ok(())
 }

@@ -65,22 +65,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
     let at = |k: &str| format!("{ctx}.{k}");
     let mut map = d.settings.map(report, &ctx)?;
     let base = &d.base;
-    let url = map.get("url").and_then(|n| {
-        let text = n.scalar_text(report, &at("url"))?;
-        if text.starts_with("opc.tcp://") && text.len() > "opc.tcp://".len() {
-            Some(text)
-        } else {
-            report.push(
-                n.line,
-                at("url"),
-                format!(
-                    "`{}` is not an OPC UA endpoint (write opc.tcp://HOST:PORT[/PATH])",
-                    crate::text::quote(&text)
-                ),
-            );
-            None
-        }
-    });
+    let url = map.get("url").and_then(|n| endpoint(n, report, &at("url")));
     let policy = word(
         &mut map,
         "security_policy",
@@ -126,27 +111,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
     };
     map.finish(report, &ctx, KEYS);
     let (policy, mode) = (policy?, mode?);
-    let mode = match (policy, mode) {
-        ("None", None | Some("None")) => "None",
-        ("None", Some(m)) => {
-            report.push(
-                d.settings.line,
-                &ctx,
-                format!("security_mode {m} needs a security_policy other than None"),
-            );
-            return None;
-        }
-        (_, None) => "SignAndEncrypt",
-        (_, Some("None")) => {
-            report.push(
-                d.settings.line,
-                &ctx,
-                format!("security_policy {policy} needs security_mode Sign or SignAndEncrypt"),
-            );
-            return None;
-        }
-        (_, Some(m)) => m,
-    };
+    let mode = secured(policy, mode, d.settings.line, &ctx, report)?;
     if certificate.is_some() != private_key.is_some() {
         report.push(
             d.settings.line,
@@ -165,6 +130,54 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         trusted: trusted?,
         user: user?,
         subscribe: subscribe?,
+    })
+}
+
+/// An endpoint URL: `opc.tcp://` and where.
+fn endpoint(n: &Node, report: &mut Report, ctx: &str) -> Option<String> {
+    let text = n.scalar_text(report, ctx)?;
+    if text.starts_with("opc.tcp://") && text.len() > "opc.tcp://".len() {
+        return Some(text);
+    }
+    report.push(
+        n.line,
+        ctx,
+        format!(
+            "`{}` is not an OPC UA endpoint (write opc.tcp://HOST:PORT[/PATH])",
+            crate::text::quote(&text)
+        ),
+    );
+    None
+}
+
+/// The security mode a policy goes with: none without one, SignAndEncrypt unless said.
+fn secured(
+    policy: &'static str,
+    mode: Option<&'static str>,
+    line: u64,
+    ctx: &str,
+    report: &mut Report,
+) -> Option<&'static str> {
+    Some(match (policy, mode) {
+        ("None", None | Some("None")) => "None",
+        ("None", Some(m)) => {
+            report.push(
+                line,
+                ctx,
+                format!("security_mode {m} needs a security_policy other than None"),
+            );
+            return None;
+        }
+        (_, None) => "SignAndEncrypt",
+        (_, Some("None")) => {
+            report.push(
+                line,
+                ctx,
+                format!("security_policy {policy} needs security_mode Sign or SignAndEncrypt"),
+            );
+            return None;
+        }
+        (_, Some(m)) => m,
     })
 }
 

@@ -18,12 +18,12 @@ fn finish(device: &Device, item: &WriteItem, result: Result<(), WriteError>) {
     }
 }
 
-pub(super) async fn items(
-    conn: &Connection,
-    device: &Arc<Device>,
+/// The items that can be sent, each with its write value; the others finished with why.
+fn prepare(
+    device: &Device,
     plan: &Plan,
     items: Vec<WriteItem>,
-) -> Result<(), LinkFault> {
+) -> (Vec<WriteItem>, Vec<WriteValue>) {
     let mut sent = Vec::new();
     let mut values = Vec::new();
     for item in items {
@@ -63,6 +63,17 @@ pub(super) async fn items(
             Err(why) => finish(device, &item, Err(WriteError::Refused(why))),
         }
     }
+    (sent, values)
+}
+
+/// Writes `items` in requests of at most [`super::subscribe::PER_CALL`], finishing each.
+pub(super) async fn items(
+    conn: &Connection,
+    device: &Arc<Device>,
+    plan: &Plan,
+    items: Vec<WriteItem>,
+) -> Result<(), LinkFault> {
+    let (sent, values) = prepare(device, plan, items);
     for (sent, values) in sent
         .chunks(super::subscribe::PER_CALL)
         .zip(values.chunks(super::subscribe::PER_CALL))

@@ -24,42 +24,7 @@ pub(super) fn read_point(
     report: &mut Report,
 ) -> Option<(Register, Point)> {
     let at = |k: &str| format!("{ctx}: {k}");
-    let node = map.get("node");
-    let path = map.get("browse_path");
-    let (address, browse_path) = match (node, path) {
-        (Some(n), None) => {
-            let text = n.scalar_text(report, &at("node"))?;
-            if let Err(why) = parse_node(&text) {
-                report.push(n.line, at("node"), why);
-                return None;
-            }
-            (text, false)
-        }
-        (None, Some(n)) => {
-            let text = n.scalar_text(report, &at("browse_path"))?;
-            if let Err(why) = parse_browse_path(&text) {
-                report.push(n.line, at("browse_path"), why);
-                return None;
-            }
-            (text, true)
-        }
-        (Some(_), Some(p)) => {
-            report.push(
-                p.line,
-                ctx,
-                "a field has a `node` or a `browse_path`, not both",
-            );
-            return None;
-        }
-        (None, None) => {
-            report.push(
-                map.line,
-                ctx,
-                "missing `node` (the variable's node id, e.g. `ns=3;s=Line1.Speed`) or `browse_path`",
-            );
-            return None;
-        }
-    };
+    let (address, browse_path) = address(map, ctx, report)?;
     let unit = map
         .get("unit")
         .and_then(|n| n.scalar_text(report, &at("unit")));
@@ -110,4 +75,45 @@ pub(super) fn read_point(
         sampling,
     };
     Some((register, point))
+}
+
+/// The field's `node` or `browse_path`, checked: the text and whether it is a path.
+fn address(map: &mut MapReader<'_>, ctx: &str, report: &mut Report) -> Option<(String, bool)> {
+    let at = |k: &str| format!("{ctx}: {k}");
+    let node = map.get("node");
+    let path = map.get("browse_path");
+    match (node, path) {
+        (Some(n), None) => {
+            let text = n.scalar_text(report, &at("node"))?;
+            if let Err(why) = parse_node(&text) {
+                report.push(n.line, at("node"), why);
+                return None;
+            }
+            Some((text, false))
+        }
+        (None, Some(n)) => {
+            let text = n.scalar_text(report, &at("browse_path"))?;
+            if let Err(why) = parse_browse_path(&text) {
+                report.push(n.line, at("browse_path"), why);
+                return None;
+            }
+            Some((text, true))
+        }
+        (Some(_), Some(p)) => {
+            report.push(
+                p.line,
+                ctx,
+                "a field has a `node` or a `browse_path`, not both",
+            );
+            None
+        }
+        (None, None) => {
+            report.push(
+                map.line,
+                ctx,
+                "missing `node` (the variable's node id, e.g. `ns=3;s=Line1.Speed`) or `browse_path`",
+            );
+            None
+        }
+    }
 }
