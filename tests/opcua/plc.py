@@ -3,13 +3,15 @@
 gateway's code): a PLC with a variable of every IEC type.
 
     plc.py [--port P] [--reorder] [--no-subscriptions] [--security CERT KEY TRUSTED_DIR]
+           [--user USER PASSWORD]
     plc.py --client-cert CERT KEY
 
 Serves opc.tcp://127.0.0.1:P/plc (P a free port when not given) with the namespace
 urn:iogate:test:plc (behind two other namespaces with --reorder, so its index changes);
 with --security only Basic256Sha256 SignAndEncrypt, its certificate CERT (DER, made when
 missing) and key KEY (PEM), trusting the client certificates in TRUSTED_DIR (--client-cert
-makes one, for the application urn:iogate:client, and ends). Prints
+makes one, for the application urn:iogate:client, and ends); with --user only that user
+with that password gets a session. Prints
 {"url": URL, "ns": N} when it listens. Then each JSON line on standard input is a command,
 answered by one JSON line:
 
@@ -68,8 +70,21 @@ async def make_cert(cert, key, uri="urn:iogate:test:plc-server", use="server"):
     await setup_self_signed_certificate(key, cert, uri, "127.0.0.1", [usage], {"commonName": use})
 
 
+class Users:
+    """Only USER with PASSWORD gets in (`--user USER PASSWORD`)."""
+
+    def __init__(self, user, password):
+        self.user, self.password = user, password
+
+    def get_user(self, iserver, username=None, password=None, certificate=None):
+        from asyncua.server.user_managers import User, UserRole
+        if username == self.user and password == self.password:
+            return User(role=UserRole.User)
+        return None
+
+
 async def start(args):
-    server = Server()
+    server = Server(user_manager=Users(*args.user) if args.user else None)
     await server.init()
     port = args.port or free_port()
     url = f"opc.tcp://127.0.0.1:{port}/plc"
@@ -93,6 +108,8 @@ async def start(args):
         )
     else:
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+    if args.user:
+        server.set_security_IDs(["Username"])
     if args.reorder:
         await server.register_namespace("urn:iogate:test:other-a")
         await server.register_namespace("urn:iogate:test:other-b")
@@ -153,6 +170,7 @@ async def main():
     parser.add_argument("--no-subscriptions", action="store_true")
     parser.add_argument("--security", nargs=3, metavar=("CERT", "KEY", "TRUSTED"))
     parser.add_argument("--client-cert", nargs=2, metavar=("CERT", "KEY"))
+    parser.add_argument("--user", nargs=2, metavar=("USER", "PASSWORD"))
     args = parser.parse_args()
     if args.client_cert:
         from pathlib import Path

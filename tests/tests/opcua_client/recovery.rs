@@ -147,3 +147,33 @@ async fn sign_and_encrypt_connects_once_each_side_trusts_the_others_certificate(
     gw.shutdown().await;
     plc.kill().await
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_that_wants_a_user_gets_the_one_in_the_password_file() -> anyhow::Result<()> {
+    let dir = temp_dir("uaclient-user");
+    let plc = UaPlc::start(&["--user", "operator", "s3cret"]).await?;
+    let wrong = dir.join("wrong.pw");
+    std::fs::write(&wrong, "guess\n")?;
+    let extra = format!(
+        ", user: {{ username: operator, password_file: {} }}",
+        wrong.display()
+    );
+    let gw = gateway(&dir, &plc, &extra).await?;
+    let refused = until_field(&gw, "I", "refused", |f| {
+        f["error"].as_str().is_some_and(|e| e.contains("Bad"))
+    })
+    .await?;
+    assert_eq!(refused["quality"], "bad", "{refused}");
+    gw.shutdown().await;
+
+    let right = dir.join("right.pw");
+    std::fs::write(&right, "s3cret\n")?;
+    let extra = format!(
+        ", user: {{ username: operator, password_file: {} }}",
+        right.display()
+    );
+    let gw = gateway(&dir, &plc, &extra).await?;
+    until_field(&gw, "I", "read as the user", |f| f["quality"] == "good").await?;
+    gw.shutdown().await;
+    plc.kill().await
+}
