@@ -30,7 +30,7 @@ fields:
   - { name: UDI, type: UDINT, direction: inout, node: "ns=2;s=Line1.UDInt" }
   - { name: ULI, type: ULINT, direction: inout, node: "ns=2;s=Line1.ULInt" }
   - { name: R, type: REAL, direction: inout, node: "ns=2;s=Line1.Real" }
-  - { name: LR, type: LREAL, direction: inout, node: "ns=2;s=Line1.LReal" }
+  - { name: LR, type: LREAL, direction: inout, node: "ns=2;s=Line1.LReal", deadband: 0.5 }
   - { name: S, type: STRING, direction: inout, node: "ns=2;s=Line1.Str", length: 20 }
   - { name: Big, type: INT, direction: input, node: "ns=2;s=Line1.Big" }
   - { name: Locked, type: INT, direction: inout, node: "ns=2;s=Line1.Locked" }

@@ -177,3 +177,37 @@ async fn a_server_that_wants_a_user_gets_the_one_in_the_password_file() -> anyho
     gw.shutdown().await;
     plc.kill().await
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_moves_an_opcua_link_to_another_server() -> anyhow::Result<()> {
+    let mut a = UaPlc::start(&[]).await?;
+    let mut b = UaPlc::start(&[]).await?;
+    a.set("Int", json!(1)).await?;
+    b.set("Int", json!(2)).await?;
+    let config = |url: &str| {
+        format!(
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: profiles\nlinks:\n  - name: plc\n    opcua: {{ url: \"{url}\", pki_dir: pki }}\ndevices:\n  - {{ name: line1, profile: TestPlc, link: plc, refresh_rate: 100ms }}\n"
+        )
+    };
+    let (_, path) = iogate_tests::config_files(
+        "uaclient-reload",
+        &[("plc.yaml", super::PROFILE)],
+        &config(&a.url),
+    );
+    let gw = iogate_tests::start_file(&path).await;
+    until_field(&gw, "I", "server A's value", |f| f["value"] == json!(1)).await?;
+    std::fs::write(&path, config(&b.url))?;
+    let (status, report) = gw
+        .send(reqwest::Method::POST, "/api/v1/config/reload", "")
+        .await?;
+    assert_eq!(status, 200, "{report}");
+    until_field(&gw, "I", "server B's value", |f| {
+        f["value"] == json!(2) && f["quality"] == "good"
+    })
+    .await?;
+    let link = gw.get("/api/v1/links/plc").await?.1;
+    assert_eq!(link["endpoint"], b.url.as_str(), "{link}");
+    gw.shutdown().await;
+    a.kill().await?;
+    b.kill().await
+}

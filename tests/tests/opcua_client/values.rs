@@ -91,11 +91,35 @@ async fn a_change_on_the_server_is_seen_once_with_its_source_timestamp_and_its_s
     plc.set("Speed", json!(13.5)).await?;
     let next = events.until(|_, e| e["field"] == "Speed").await?;
     assert_eq!(next["value"], json!(13.5), "{next}");
+    // A change within a field's deadband (LR's, 0.5) is not reported by the server.
+    plc.set("LReal", json!(20.0)).await?;
+    events
+        .until(|_, e| e["field"] == "LR" && e["value"] == json!(20.0))
+        .await?;
+    plc.set("LReal", json!(20.3)).await?;
+    // Two publishing cycles pass (Speed's changes told) before the next change of LR; no
+    // event of LR comes meanwhile.
+    let mut told = Vec::new();
+    for speed in [31.0, 32.0] {
+        plc.set("Speed", json!(speed)).await?;
+        events
+            .until(|_, e| {
+                if e["field"] == "LR" {
+                    told.push(e["value"].clone());
+                }
+                e["field"] == "Speed" && e["value"] == json!(speed)
+            })
+            .await?;
+    }
+    assert!(told.is_empty(), "told within the deadband: {told:?}");
+    plc.set("LReal", json!(21.0)).await?;
+    let next = events.until(|_, e| e["field"] == "LR").await?;
+    assert_eq!(next["value"], json!(21.0), "{next}");
 
     plc.cmd(json!({"cmd": "status", "name": "Speed", "status": "UncertainLastUsableValue"}))
         .await?;
     let doubt = until_field(&gw, "Speed", "uncertain", |f| f["quality"] == "stale").await?;
-    assert_eq!(doubt["value"], json!(13.5), "{doubt}");
+    assert_eq!(doubt["value"], json!(32.0), "{doubt}");
     assert_eq!(doubt["error"], "UncertainLastUsableValue", "{doubt}");
     plc.cmd(json!({"cmd": "status", "name": "Speed", "status": "BadSensorFailure"}))
         .await?;
