@@ -161,10 +161,6 @@ pub struct DriverLink {
     pub(crate) base: PathBuf,
 }
 
-/// The keys of the link settings of the protocols besides Modbus, each with the key of
-/// the settings that say where the link goes.
-pub(crate) const DRIVER_LINK_KEYS: &[(&str, &str)] = &[("opcua", "url")];
-
 impl SerialSettings {
     /// Whether a port is given (a declaration may leave it empty, for now).
     pub(crate) fn is_configured_port(&self) -> bool {

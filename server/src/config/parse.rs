@@ -35,7 +35,7 @@ const LISTEN_KEYS: &[&str] = &[
     "body_timeout",
     "max_streams",
 ];
-const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "opcua", "guard_time"];
+const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
 pub(super) const DEVICE_KEYS: &[&str] = &[
     "name",
@@ -233,15 +233,20 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     let (name, ctx) = name_of(&mut map, report, "link", index);
     let serial = map.get("serial");
     let tcp = map.get("tcp");
-    let driver = super::DRIVER_LINK_KEYS
+    let driver = crate::profile::DRIVERS
         .iter()
-        .find_map(|&(key, at)| map.get(key).map(|n| (key, at, n)));
+        .find_map(|w| map.get(w.link_key).map(|n| (w.link_key, w.link_at, n)));
     let guard_time = map.get("guard_time").map_or(Some(Duration::ZERO), |n| {
         let at = format!("{ctx}: guard_time");
         duration_value(n, report, &at, Duration::ZERO)
             .and_then(|d| ruled(rules::guard_time(d), n.line, &at, report))
     });
-    map.finish(report, &ctx, LINK_KEYS);
+    let keys: Vec<&str> = LINK_KEYS
+        .iter()
+        .copied()
+        .chain(crate::profile::DRIVERS.iter().map(|w| w.link_key))
+        .collect();
+    map.finish(report, &ctx, &keys);
     let transport = match (serial, tcp, driver) {
         (Some(s), None, None) => read_serial(s, &ctx, report).map(Transport::Serial),
         (None, Some(t), None) => read_tcp(t, &ctx, report),
@@ -254,7 +259,14 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
             report.push(
                 node.line,
                 &ctx,
-                "a link needs `serial` or `tcp` settings (or `opcua` for an OPC UA server)",
+                format!(
+                    "a link needs `serial` or `tcp` settings (or {})",
+                    crate::profile::DRIVERS
+                        .iter()
+                        .map(|w| format!("`{}` for a {} device", w.link_key, w.protocol))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
             );
             None
         }

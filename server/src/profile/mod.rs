@@ -25,24 +25,70 @@ pub enum Protocol {
     ModbusRtu,
     ModbusTcp,
     Simulated,
-    /// An OPC UA server's variables (the `opcua` driver).
-    Opcua,
+    /// A protocol of a driver besides Modbus (`crate::drivers`), by its words.
+    Driver(&'static Words),
 }
 
+/// The words configuration uses for a field protocol besides Modbus: its profiles'
+/// `protocol`, its fields' point key, its links' settings key and the key in them that
+/// says where the link goes.
+#[derive(Debug)]
+pub struct Words {
+    pub(crate) protocol: &'static str,
+    /// The key a field names its point by (`node`), and another it may use instead.
+    pub(crate) point_key: &'static str,
+    pub(crate) point_alternative: Option<&'static str>,
+    pub(crate) link_key: &'static str,
+    pub(crate) link_at: &'static str,
+    /// Checks a point as written under `key` (one of the two point keys): why not, if not.
+    pub(crate) check_point: fn(key: &str, text: &str) -> Result<(), String>,
+}
+
+/// A protocol is its word.
+impl PartialEq for Words {
+    fn eq(&self, other: &Words) -> bool {
+        self.protocol == other.protocol
+    }
+}
+
+impl Eq for Words {}
+
+impl std::hash::Hash for Words {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.protocol.hash(state);
+    }
+}
+
+/// The protocols of the drivers besides Modbus (the drivers themselves are listed in
+/// `drivers::with_driver`).
+pub(crate) const DRIVERS: &[Words] = &[Words {
+    protocol: "opcua",
+    point_key: "node",
+    point_alternative: Some("browse_path"),
+    link_key: "opcua",
+    link_at: "url",
+    check_point: point::check_opcua,
+}];
+
 impl Protocol {
-    pub(crate) const ALL: [Protocol; 4] = [
-        Protocol::ModbusRtu,
-        Protocol::ModbusTcp,
-        Protocol::Simulated,
-        Protocol::Opcua,
-    ];
+    /// Every protocol a profile may say.
+    pub(crate) fn all() -> Vec<Protocol> {
+        [
+            Protocol::ModbusRtu,
+            Protocol::ModbusTcp,
+            Protocol::Simulated,
+        ]
+        .into_iter()
+        .chain(DRIVERS.iter().map(Protocol::Driver))
+        .collect()
+    }
 
     pub(crate) fn name(self) -> &'static str {
         match self {
             Protocol::ModbusRtu => "modbus-rtu",
             Protocol::ModbusTcp => "modbus-tcp",
             Protocol::Simulated => "simulated",
-            Protocol::Opcua => "opcua",
+            Protocol::Driver(w) => w.protocol,
         }
     }
 
@@ -51,22 +97,23 @@ impl Protocol {
         matches!(self, Protocol::ModbusRtu | Protocol::ModbusTcp)
     }
 
-    /// The key of a field's point for a protocol whose fields are addressed by name (an
-    /// OPC UA node), and the key of the link settings its devices need.
-    pub(crate) fn point_key(self) -> Option<&'static str> {
+    /// The words of a protocol whose fields name their points (an OPC UA node).
+    pub(crate) fn words(self) -> Option<&'static Words> {
         match self {
-            Protocol::Opcua => Some("node"),
+            Protocol::Driver(w) => Some(w),
             _ => None,
         }
     }
 
-    /// The key of the link settings a device of this protocol needs (`serial`/`tcp` for
-    /// Modbus).
+    /// The key of a field's point for a protocol whose fields name their points.
+    pub(crate) fn point_key(self) -> Option<&'static str> {
+        self.words().map(|w| w.point_key)
+    }
+
+    /// The key of the link settings a device of this protocol needs (none: `serial` or
+    /// `tcp`, Modbus).
     pub(crate) fn link_key(self) -> Option<&'static str> {
-        match self {
-            Protocol::Opcua => Some("opcua"),
-            _ => None,
-        }
+        self.words().map(|w| w.link_key)
     }
 }
 

@@ -103,6 +103,15 @@ fn identifier(text: &str) -> Result<Identifier, String> {
     }
 }
 
+/// An OPC UA field's `node` (a node id) or `browse_path`, checked.
+pub(crate) fn check_opcua(key: &str, text: &str) -> Result<(), String> {
+    if key == "browse_path" {
+        parse_browse_path(text).map(drop)
+    } else {
+        parse_node(text).map(drop)
+    }
+}
+
 /// One step of a browse path: a browse name and its namespace index.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub(crate) struct Step {

@@ -38,20 +38,25 @@ pub(super) fn read_field(
     let deadband = map.get("deadband").and_then(|n| {
         crate::profile::deadband::read_deadband(n, report, &format!("{ctx}: deadband"))
     });
-    let (register, point) = if protocol.and_then(|p| p.point_key()).is_some() {
+    let (register, point) = if let Some(words) = protocol.and_then(Protocol::words) {
         if let Some(n) = map.get("register") {
             report.push(
                 n.line,
                 &ctx,
-                "a field of this protocol names its `node`, not a Modbus `register`",
+                format!(
+                    "a field of this protocol names its `{}`, not a Modbus `register`",
+                    words.point_key
+                ),
             );
         }
-        let read = read_point(&mut map, &ctx, ty, report);
+        let read = read_point(&mut map, words, &ctx, ty, report);
         let allowed: Vec<&str> = FIELD_KEYS[..]
             .iter()
             .filter(|k| **k != "register")
-            .chain(POINT_KEYS)
             .copied()
+            .chain([words.point_key])
+            .chain(words.point_alternative)
+            .chain(POINT_KEYS.iter().copied())
             .collect();
         map.finish(report, &ctx, &allowed);
         let (register, point) = read?;

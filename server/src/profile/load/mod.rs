@@ -189,7 +189,7 @@ fn read_profile(root: &Node, report: &mut Report) -> Option<Profile> {
             n,
             report,
             &format!("{ctx}: protocol"),
-            &Protocol::ALL,
+            &Protocol::all(),
             |p| p.name(),
         ),
     };

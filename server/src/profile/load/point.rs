@@ -1,30 +1,30 @@
-//! A field of a protocol that addresses fields by name (an OPC UA server's variable): its
-//! `node` (or `browse_path`), `unit`, `sampling_interval` and, for a STRING, `length`. No
-//! register: its value comes typed from the device, checked against the field's type.
+//! A field of a protocol that names its points (an OPC UA server's variable): its point
+//! under the protocol's key (`node`, or `browse_path`), `unit`, `sampling_interval` and,
+//! for a STRING, `length`. No register: its value comes typed from the device, checked
+//! against the field's type.
 
 use crate::codec::{ByteOrder, IecType, full_words};
-use crate::profile::point::{parse_browse_path, parse_node};
-use crate::profile::{Point, Register, RegisterKind};
+use crate::profile::{Point, Register, RegisterKind, Words};
 use crate::yaml::{MapReader, Report};
 
-/// The keys a point field may have besides the common ones.
-pub(super) const POINT_KEYS: &[&str] =
-    &["node", "browse_path", "unit", "sampling_interval", "length"];
+/// The keys a point field may have besides the common ones and its point's.
+pub(super) const POINT_KEYS: &[&str] = &["unit", "sampling_interval", "length"];
 
 /// The longest STRING a point field holds, in characters.
 const MAX_LENGTH: i128 = 250;
 /// A STRING point's length when the profile does not say.
 const DEFAULT_LENGTH: u16 = 64;
 
-/// Reads a point field's own keys (`key` is the protocol's point key, `node`).
+/// Reads a point field's own keys.
 pub(super) fn read_point(
     map: &mut MapReader<'_>,
+    words: &Words,
     ctx: &str,
     ty: Option<IecType>,
     report: &mut Report,
 ) -> Option<(Register, Point)> {
     let at = |k: &str| format!("{ctx}: {k}");
-    let (address, browse_path) = address(map, ctx, report)?;
+    let (address, browse_path) = address(map, words, ctx, report)?;
     let unit = map
         .get("unit")
         .and_then(|n| n.scalar_text(report, &at("unit")));
@@ -77,43 +77,50 @@ pub(super) fn read_point(
     Some((register, point))
 }
 
-/// The field's `node` or `browse_path`, checked: the text and whether it is a path.
-fn address(map: &mut MapReader<'_>, ctx: &str, report: &mut Report) -> Option<(String, bool)> {
+/// The field's point under the protocol's key (or its alternative), checked: the text and
+/// whether it is under the alternative key (a browse path).
+fn address(
+    map: &mut MapReader<'_>,
+    words: &Words,
+    ctx: &str,
+    report: &mut Report,
+) -> Option<(String, bool)> {
     let at = |k: &str| format!("{ctx}: {k}");
-    let node = map.get("node");
-    let path = map.get("browse_path");
-    match (node, path) {
-        (Some(n), None) => {
-            let text = n.scalar_text(report, &at("node"))?;
-            if let Err(why) = parse_node(&text) {
-                report.push(n.line, at("node"), why);
-                return None;
-            }
-            Some((text, false))
-        }
-        (None, Some(n)) => {
-            let text = n.scalar_text(report, &at("browse_path"))?;
-            if let Err(why) = parse_browse_path(&text) {
-                report.push(n.line, at("browse_path"), why);
-                return None;
-            }
-            Some((text, true))
-        }
-        (Some(_), Some(p)) => {
+    let main = map.get(words.point_key);
+    let other = words
+        .point_alternative
+        .and_then(|k| map.get(k).map(|n| (k, n)));
+    let (key, node, alternative) = match (main, other) {
+        (Some(n), None) => (words.point_key, n, false),
+        (None, Some((k, n))) => (k, n, true),
+        (Some(_), Some((k, n))) => {
             report.push(
-                p.line,
+                n.line,
                 ctx,
-                "a field has a `node` or a `browse_path`, not both",
+                format!("a field has a `{}` or a `{k}`, not both", words.point_key),
             );
-            None
+            return None;
         }
         (None, None) => {
+            let or = words
+                .point_alternative
+                .map(|k| format!(" or `{k}`"))
+                .unwrap_or_default();
             report.push(
                 map.line,
                 ctx,
-                "missing `node` (the variable's node id, e.g. `ns=3;s=Line1.Speed`) or `browse_path`",
+                format!(
+                    "missing `{}` (the point it reads, e.g. `ns=3;s=Line1.Speed`){or}",
+                    words.point_key
+                ),
             );
-            None
+            return None;
         }
+    };
+    let text = node.scalar_text(report, &at(key))?;
+    if let Err(why) = (words.check_point)(key, &text) {
+        report.push(node.line, at(key), why);
+        return None;
     }
+    Some((text, alternative))
 }
