@@ -194,8 +194,9 @@ impl Connection {
                     continue;
                 }
             };
+            let mut types = subscribe::lock(&plan.types);
             for ((idx, _), dv) in wanted.iter().zip(values.iter()) {
-                subscribe::publish(device, &plan.types, *idx, dv);
+                subscribe::publish(device, &mut types, *idx, dv);
             }
         }
         Ok(())

@@ -55,10 +55,11 @@ impl Watched {
     }
 }
 
-/// Publishes a data value of field `idx` into the cache, remembering its variant type.
+/// Publishes a data value of field `idx` into the cache, remembering its variant type in
+/// `types` (the device's, locked by the caller once for many values).
 pub(super) fn publish(
     device: &Device,
-    types: &Mutex<Vec<Option<VariantScalarTypeId>>>,
+    types: &mut [Option<VariantScalarTypeId>],
     idx: usize,
     dv: &DataValue,
 ) {
@@ -68,14 +69,20 @@ pub(super) fn publish(
     let max_len = usize::from(field.register.word_count) * 2;
     let r = reading(field.ty, max_len, dv);
     if let Some(t) = dv.value.as_ref().and_then(|v| v.scalar_type_id())
-        && let Some(slot) = types
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .get_mut(idx)
+        && let Some(slot) = types.get_mut(idx)
     {
         *slot = Some(t);
     }
     device.publish_from(idx, r.value, r.doubt, r.at);
+}
+
+/// The device's variant types, locked.
+pub(super) fn lock(
+    types: &Mutex<Vec<Option<VariantScalarTypeId>>>,
+) -> std::sync::MutexGuard<'_, Vec<Option<VariantScalarTypeId>>> {
+    types
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// What a subscription's publish responses do.
@@ -95,9 +102,10 @@ impl OnSubscriptionNotificationCore for Notifications {
         for obj in n.notification_data.into_iter().flatten() {
             match_extension_object_owned!(obj,
                 v: DataChangeNotification => {
+                    let mut types = lock(&self.types);
                     for item in v.monitored_items.into_iter().flatten() {
                         let idx = item.client_handle.wrapping_sub(1) as usize;
-                        publish(&self.device, &self.types, idx, &item.value);
+                        publish(&self.device, &mut types, idx, &item.value);
                     }
                 },
                 v: StatusChangeNotification => {
@@ -234,7 +242,7 @@ async fn items(conn: &Connection, device: &Device, plan: &Plan, id: u32) -> Resu
         conn.started();
         let created = conn
             .session
-            .create_monitored_items(id, TimestampsToReturn::Both, requests.to_vec())
+            .create_monitored_items(id, TimestampsToReturn::Source, requests.to_vec())
             .await;
         conn.ended();
         let results = match created {
