@@ -70,6 +70,9 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// The protocol's name, as logs say it.
     const NAME: &'static str;
 
+    /// How long opening a link may take before the attempt counts as failed.
+    const OPEN_TIMEOUT: Duration = crate::poller::CONNECT_TIMEOUT;
+
     /// Whether the values of a device whose link is down stay, stale, until they are read
     /// again (a server that vouches for its values when it is back), rather than turn bad.
     const STALE_WHILE_AWAY: bool = false;

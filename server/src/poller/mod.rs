@@ -249,9 +249,9 @@ impl<D: Driver> Driven<D> {
             let tried = self.config.clone();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
-                r = tokio::time::timeout(CONNECT_TIMEOUT, D::open(&tried, &self.link, &self.metrics)) => r,
+                r = tokio::time::timeout(D::OPEN_TIMEOUT, D::open(&tried, &self.link, &self.metrics)) => r,
             };
-            match opened.unwrap_or(Err(LinkFault::ConnectTimeout(CONNECT_TIMEOUT))) {
+            match opened.unwrap_or(Err(LinkFault::ConnectTimeout(D::OPEN_TIMEOUT))) {
                 Err(fault) => {
                     self.set_state(false, if lost { LinkCode::Lost } else { fault.code() });
                     if down.as_ref().map(ToString::to_string) != Some(fault.to_string()) {

@@ -56,6 +56,10 @@ impl Driver for OpcUa {
     type Session = Connection;
     const NAME: &'static str = PROTOCOL;
     const STALE_WHILE_AWAY: bool = true;
+    /// A session takes several requests (endpoints, secure channel, session, activation,
+    /// the namespace array) and, with security, asymmetric cryptography; the first secure
+    /// one makes the application's key pair.
+    const OPEN_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(15);
 
     fn serves(config: &LinkConfig) -> bool {
         matches!(&config.transport, Transport::Driver(d) if d.protocol == PROTOCOL)

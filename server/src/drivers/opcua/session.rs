@@ -48,10 +48,16 @@ impl Drop for Connection {
     fn drop(&mut self) {
         let session = self.session.clone();
         let pump = self.pump.abort_handle();
-        tokio::spawn(async move {
-            let _ = tokio::time::timeout(Duration::from_secs(1), session.disconnect()).await;
-            pump.abort();
-        });
+        match tokio::runtime::Handle::try_current() {
+            Ok(runtime) => {
+                runtime.spawn(async move {
+                    let _ =
+                        tokio::time::timeout(Duration::from_secs(1), session.disconnect()).await;
+                    pump.abort();
+                });
+            }
+            Err(_) => pump.abort(),
+        }
     }
 }
 
