@@ -19,8 +19,11 @@ export async function linkView(name, signal) {
       h('dt', {}, 'Error code'), h('dd', {}, `${l.error_code} — ${LINK_CODES[l.error_code] ?? ''}`),
       h('dt', {}, 'Utilisation'), h('dd', {}, `${percent(l.utilisation)} measured, ${percent(l.planned_utilisation)} planned`));
     fill(devices, ...l.devices.map((d) => h('li', {}, h('a', { href: `#/devices/${enc(d)}` }, d))));
+    return l;
   }
-  await refresh();
+  const first = await refresh();
+  // A scan probes Modbus slave ids: links of other protocols have none.
+  const modbus = first.kind === 'serial' || first.kind === 'tcp';
   text(plan, await api('GET', `/links/${enc(name)}/plan`, undefined, { signal, text: true }));
   fill(main,
     h('p', { class: 'crumbs' }, h('a', { href: '#/' }, 'Overview'), ' › ', name),
@@ -28,9 +31,9 @@ export async function linkView(name, signal) {
     facts,
     h('h2', {}, 'Devices'), devices,
     h('h2', {}, 'Poll plan'),
-    h('p', { class: 'meaning' }, 'Each device\'s read transactions with their wire time, as `iogate plan` prints them.'),
+    h('p', { class: 'meaning' }, 'How each device is read (on a Modbus line, its transactions with their wire time), as `iogate plan` prints it.'),
     plan,
-    scanSection(name, signal));
+    ...(modbus ? [scanSection(name, signal)] : []));
   const poll = setInterval(() => refresh().catch(() => { /* shown by the overview's stream */ }), REFRESH_MS);
   signal.addEventListener('abort', () => clearInterval(poll), { once: true });
   follow('/events?values=false', (event) => {

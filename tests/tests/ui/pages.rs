@@ -262,3 +262,48 @@ async fn a_link_is_scanned_from_its_page_with_progress_and_the_devices_found() -
     gw.shutdown().await;
     Ok(())
 }
+
+#[tokio::test]
+async fn an_opcua_links_page_shows_its_endpoint_state_and_subscriptions() -> anyhow::Result<()> {
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    let plc = iogate_tests::plc::UaPlc::start(&[]).await?;
+    let dir = iogate_tests::devices::temp_dir("ui-opcua");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(
+        dir.join("profiles/press.yaml"),
+        "name: Press\nprotocol: opcua\nfields:\n  - { name: Speed, type: LREAL, direction: input, node: \"ns=2;s=Line1.Speed\" }\n",
+    )?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: press\n    opcua: {{ url: \"{}\", pki_dir: {} }}\ndevices:\n  - {{ name: press1, profile: Press, link: press, refresh_rate: 250ms }}\n",
+        dir.join("profiles").display(),
+        plc.url,
+        dir.join("pki").display()
+    );
+    let gw = TestGateway::start(&config).await?;
+    gw.until("/api/v1/devices/press1", "read", |d| {
+        d["fields"]["Speed"]["quality"] == "good"
+    })
+    .await?;
+    browser.goto(&gw.url("/ui#/links/press")).await?;
+    let facts = browser
+        .until_text("dl.facts", Duration::from_secs(10), |t| t.contains("opcua"))
+        .await?;
+    assert!(facts.contains(&format!("opcua {}", plc.url)), "{facts}");
+    assert!(facts.contains("0 —"), "{facts}");
+    let plan = browser
+        .until_text("#plan", Duration::from_secs(10), |t| {
+            t.contains("subscription")
+        })
+        .await?;
+    assert!(
+        plan.contains("a subscription publishing every 250 ms, 1 monitored item(s)"),
+        "{plan}"
+    );
+    assert!(
+        browser.find("#scan-ids").await?.is_none(),
+        "no scan on an OPC UA link"
+    );
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    gw.shutdown().await;
+    plc.kill().await
+}
