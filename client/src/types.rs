@@ -188,10 +188,17 @@ pub struct FieldInfo {
     pub direction: Direction,
     /// Its register address.
     pub address: u32,
-    /// `coil`, `discrete_input`, `holding_register`, `input_register` or `virtual`.
+    /// `coil`, `discrete_input`, `holding_register`, `input_register`, `virtual`, or
+    /// `point` for a field of another protocol.
     pub kind: String,
     /// Its engineering unit; empty when none.
     pub unit: String,
+    /// A field of another protocol: its point (an OPC UA node id or browse path); empty
+    /// for a Modbus field.
+    pub point: String,
+    /// The key the point is written under (`node`, `browse_path`); empty for a Modbus
+    /// field.
+    pub point_key: String,
 }
 
 /// A member of a profile's generated function block.
@@ -246,6 +253,8 @@ impl ProfileInfo {
                         .unwrap_or_default(),
                     unit: f.register.map(|r| r.unit).unwrap_or_default(),
                     name: f.name,
+                    point: f.point,
+                    point_key: f.point_key,
                 })
                 .collect(),
             layout: p

@@ -207,6 +207,8 @@ pub struct Field {
 pub struct Point {
     /// As the profile writes it (`ns=3;s=Line1.Speed`, or a browse path).
     pub(crate) address: String,
+    /// The key it is written under (`node`, `browse_path`).
+    pub(crate) key: &'static str,
     /// Whether `address` is a browse path from the Objects folder rather than an id.
     pub(crate) browse_path: bool,
     /// How often the device samples it, where the profile says (else its refresh rate).

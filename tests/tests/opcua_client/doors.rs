@@ -23,6 +23,20 @@ async fn grpc_and_the_modbus_server_serve_an_opcua_device_as_any_other() -> anyh
         Some(iogate_client::Value::Int(-300)),
         "{read:?}"
     );
+    let profile = grpc.profile("TestPlc").await?;
+    let speed = profile
+        .fields
+        .iter()
+        .find(|f| f.name == "Speed")
+        .ok_or_else(|| anyhow::anyhow!("no Speed in {profile:?}"))?;
+    assert_eq!(
+        (
+            speed.point.as_str(),
+            speed.point_key.as_str(),
+            speed.kind.as_str()
+        ),
+        ("2:Line1/2:Speed", "browse_path", "point")
+    );
     let links = grpc.links().await?;
     assert_eq!(links[0].endpoint, format!("opcua {}", plc.url), "{links:?}");
 

@@ -144,6 +144,16 @@ pub(crate) fn profile(p: &Profile, full: bool) -> pb::Profile {
                 r#type: iec_type(f.ty).into(),
                 direction: f.direction.to_pb().into(),
                 description: f.description.clone().unwrap_or_default(),
+                point: f
+                    .point
+                    .as_ref()
+                    .map(|p| p.address.clone())
+                    .unwrap_or_default(),
+                point_key: f
+                    .point
+                    .as_ref()
+                    .map(|p| p.key.to_owned())
+                    .unwrap_or_default(),
                 register: Some(pb::Register {
                     address: f.register.address.into(),
                     kind: f.register.kind.name().to_owned(),

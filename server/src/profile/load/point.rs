@@ -25,6 +25,10 @@ pub(super) fn read_point(
 ) -> Option<(Register, Point)> {
     let at = |k: &str| format!("{ctx}: {k}");
     let (address, browse_path) = address(map, words, ctx, report)?;
+    let key = match (browse_path, words.point_alternative) {
+        (true, Some(k)) => k,
+        _ => words.point_key,
+    };
     let unit = map
         .get("unit")
         .and_then(|n| n.scalar_text(report, &at("unit")));
@@ -70,6 +74,7 @@ pub(super) fn read_point(
         switch: None,
     };
     let point = Point {
+        key,
         address,
         browse_path,
         sampling,
