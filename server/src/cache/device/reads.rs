@@ -7,20 +7,21 @@ impl Device {
     /// Stores a freshly read value (or why it could not be read). Subscribers are woken only
     /// when the value or its quality changes.
     pub(crate) fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
-        self.publish_from(idx, read, None, None);
+        self.publish_from(idx, read, None, None, Instant::now());
     }
 
     /// Stores a value as its source reported it: `doubt` when the source vouches for it
     /// only in part (the value is kept, stale, with the reason), `at` the source's own
-    /// timestamp of it (else now).
+    /// timestamp of it (else now); `now` when it came (one clock reading for a batch).
     pub(crate) fn publish_from(
         &self,
         idx: usize,
         read: Result<Value, FieldError>,
         doubt: Option<FieldError>,
         at: Option<SystemTime>,
+        now: Instant,
     ) {
-        let now = (Instant::now(), at.unwrap_or_else(SystemTime::now));
+        let now = (now, at.unwrap_or_else(SystemTime::now));
         self.samples[idx].send_if_modified(|s| {
             let before = (s.value.clone(), s.quality, s.stale_told);
             match read {

@@ -199,8 +199,9 @@ impl Connection {
                 }
             };
             let mut types = subscribe::lock(&plan.types);
+            let now = tokio::time::Instant::now();
             for ((idx, _), dv) in wanted.iter().zip(values.iter()) {
-                subscribe::publish(device, &mut types, *idx, dv);
+                subscribe::publish(device, &mut types, *idx, dv, now);
             }
         }
         Ok(())

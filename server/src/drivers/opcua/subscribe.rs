@@ -62,6 +62,7 @@ pub(super) fn publish(
     types: &mut [Option<VariantScalarTypeId>],
     idx: usize,
     dv: &DataValue,
+    now: Instant,
 ) {
     let Some(field) = device.profile.fields.get(idx) else {
         return;
@@ -73,7 +74,7 @@ pub(super) fn publish(
     {
         *slot = Some(t);
     }
-    device.publish_from(idx, r.value, r.doubt, r.at);
+    device.publish_from(idx, r.value, r.doubt, r.at, now);
 }
 
 /// The device's variant types, locked.
@@ -95,17 +96,18 @@ struct Notifications {
 
 impl OnSubscriptionNotificationCore for Notifications {
     fn on_subscription_notification(&mut self, n: NotificationMessage, _: MonitoredItemMap<'_>) {
+        let now = Instant::now();
         *self
             .heard
             .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner) = Instant::now();
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = now;
         for obj in n.notification_data.into_iter().flatten() {
             match_extension_object_owned!(obj,
                 v: DataChangeNotification => {
                     let mut types = lock(&self.types);
                     for item in v.monitored_items.into_iter().flatten() {
                         let idx = item.client_handle.wrapping_sub(1) as usize;
-                        publish(&self.device, &mut types, idx, &item.value);
+                        publish(&self.device, &mut types, idx, &item.value, now);
                     }
                 },
                 v: StatusChangeNotification => {
