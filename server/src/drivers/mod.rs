@@ -15,6 +15,7 @@
 
 pub(crate) mod modbus;
 pub mod opcua;
+pub(crate) mod s7;
 
 use std::future::Future;
 use std::sync::Arc;
