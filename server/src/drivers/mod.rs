@@ -41,6 +41,9 @@ pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::
     if opcua::OpcUa::serves(config) {
         return Some(f.with::<opcua::OpcUa>());
     }
+    if s7::S7::serves(config) {
+        return Some(f.with::<s7::S7>());
+    }
     None
 }
 

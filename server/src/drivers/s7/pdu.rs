@@ -3,29 +3,7 @@
 //! only: every answer is checked strictly (lengths, function, item count) and a malformed
 //! one is an error naming what was wrong, never a panic.
 
-/// A memory area of the PLC.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub(crate) enum Area {
-    Inputs,
-    Outputs,
-    Merkers,
-    DataBlock,
-    Counters,
-    Timers,
-}
-
-impl Area {
-    pub(crate) fn code(self) -> u8 {
-        match self {
-            Area::Inputs => 0x81,
-            Area::Outputs => 0x82,
-            Area::Merkers => 0x83,
-            Area::DataBlock => 0x84,
-            Area::Counters => 0x1C,
-            Area::Timers => 0x1D,
-        }
-    }
-}
+pub(crate) use crate::profile::s7_address::Area;
 
 /// One item of a Read Var or Write Var: bytes (or one bit) of an area.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -5,7 +5,35 @@
 //! Only the syntax and the size it names; the field's type decides how many bytes a
 //! byte-addressed item takes where the address does not say (`DB10.DBB2` of a LREAL).
 
-use super::pdu::Area;
+/// A memory area of the PLC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub(crate) enum Area {
+    Inputs,
+    Outputs,
+    Merkers,
+    DataBlock,
+    Counters,
+    Timers,
+}
+
+impl Area {
+    /// The area's code in S7comm.
+    pub(crate) fn code(self) -> u8 {
+        match self {
+            Area::Inputs => 0x81,
+            Area::Outputs => 0x82,
+            Area::Merkers => 0x83,
+            Area::DataBlock => 0x84,
+            Area::Counters => 0x1C,
+            Area::Timers => 0x1D,
+        }
+    }
+}
+
+/// An S7 field's `address`, checked.
+pub(crate) fn check(_key: &str, text: &str) -> Result<(), String> {
+    parse(text).map(drop)
+}
 
 /// What an address names: an area, its block, a byte offset, and a bit or a width.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
