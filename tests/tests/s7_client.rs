@@ -17,6 +17,7 @@ impl Drop for Snap7 {
 
 fn snap7() -> anyhow::Result<Snap7> {
     use std::io::BufRead;
+    iogate_tests::run_installer("s7/install.sh")?;
     let script = r#"
 import ctypes, struct, sys, socket
 from snap7.server import Server

@@ -44,6 +44,11 @@ fn int(n: &Node, report: &mut Report, ctx: &str, max: i128) -> Option<i128> {
     }
 }
 
+/// The remote TSAP of rack and slot for a connection type (1 PG, 2 OP, 3 S7 basic).
+pub(crate) fn remote_tsap(kind: i128, rack: i128, slot: i128) -> i128 {
+    (kind << 8) | (rack * 0x20 + slot)
+}
+
 /// Reads a link's settings; `None` after reporting every problem.
 pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Settings> {
     let ctx = format!("link {link}: s7");
@@ -99,7 +104,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
     let (rack, slot, kind) = (rack?, slot?, kind?);
     let remote = match remote {
         Some(r) => r?,
-        None => (kind << 8) | (rack * 0x20 + slot),
+        None => remote_tsap(kind, rack, slot),
     };
     let local = match local {
         Some(l) => l?,

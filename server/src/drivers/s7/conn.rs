@@ -10,9 +10,6 @@ use tokio::net::TcpStream;
 
 use super::pdu::{self, Item, Malformed};
 
-/// A connection type: PG, OP or S7 basic (the high byte of the remote TSAP).
-pub(crate) const S7_BASIC: u8 = 3;
-
 /// Why a job failed.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum S7Error {
@@ -31,11 +28,6 @@ pub(crate) struct Connection {
     pub(crate) pdu: u16,
     reference: u16,
     timeout: Duration,
-}
-
-/// The remote TSAP of rack and slot for a connection type.
-pub(crate) fn remote_tsap(kind: u8, rack: u8, slot: u8) -> u16 {
-    u16::from(kind) << 8 | u16::from(rack) * 0x20 + u16::from(slot)
 }
 
 impl Connection {

@@ -238,7 +238,7 @@ pub(crate) fn read_items(
         }
         // Bit and byte/word sizes count bits; octet strings and reals count bytes.
         let len = match size {
-            0x03 | 0x04 | 0x05 => raw.div_ceil(8),
+            0x03..=0x05 => raw.div_ceil(8),
             _ => raw,
         };
         let bytes = a.data.get(at..at + len).ok_or(Malformed::Truncated)?;

@@ -55,6 +55,10 @@ pub(crate) fn places(profile: &Profile) -> Vec<Result<Place, String>> {
         .collect()
 }
 
+/// A range of one block: its area, block, first and past-last byte, and the fields in it
+/// with their offsets.
+type Range = (Area, u16, u32, u32, Vec<(usize, u32)>);
+
 /// One read job: its items and, per item, the fields it carries with their offsets.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Batch {
@@ -65,7 +69,7 @@ pub(crate) struct Batch {
 /// The fields' ranges merged where they touch and packed into jobs: at most
 /// `(pdu - 19) / 12` items a request, answers within `pdu - 14` bytes.
 pub(crate) fn batches(places: &[Result<Place, String>], pdu: u16) -> Vec<Batch> {
-    let mut ranges: Vec<(Area, u16, u32, u32, Vec<(usize, u32)>)> = Vec::new();
+    let mut ranges: Vec<Range> = Vec::new();
     let mut order: Vec<(usize, Place)> = places
         .iter()
         .enumerate()

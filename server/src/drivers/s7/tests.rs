@@ -1,6 +1,7 @@
 use std::time::Duration;
 
-use super::conn::{Connection, S7_BASIC, remote_tsap};
+use super::config::remote_tsap;
+use super::conn::Connection;
 use super::pdu::{Area, Item};
 
 /// Snap7's server (python-snap7) with DB1 of 64 bytes (0x12 0x34 0xAB at 0) and 16 merker
@@ -51,7 +52,7 @@ async fn reads_and_writes_bytes_and_bits_of_snap7s_server() {
     let mut c = Connection::open(
         ("127.0.0.1", server.1),
         0x0100,
-        remote_tsap(S7_BASIC, 0, 1),
+        remote_tsap(3, 0, 1) as u16,
         960,
         Duration::from_secs(3),
     )
