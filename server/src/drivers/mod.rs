@@ -15,6 +15,7 @@
 
 pub(crate) mod modbus;
 pub mod opcua;
+pub(crate) mod s7;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -39,6 +40,9 @@ pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::
     }
     if opcua::OpcUa::serves(config) {
         return Some(f.with::<opcua::OpcUa>());
+    }
+    if s7::S7::serves(config) {
+        return Some(f.with::<s7::S7>());
     }
     None
 }

@@ -6,6 +6,7 @@ pub(crate) mod keywords;
 mod layout;
 mod load;
 pub(crate) mod point;
+pub(crate) mod s7_address;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -61,14 +62,24 @@ impl std::hash::Hash for Words {
 
 /// The protocols of the drivers besides Modbus (the drivers themselves are listed in
 /// `drivers::with_driver`).
-pub(crate) const DRIVERS: &[Words] = &[Words {
-    protocol: "opcua",
-    point_key: "node",
-    point_alternative: Some("browse_path"),
-    link_key: "opcua",
-    link_at: "url",
-    check_point: point::check_opcua,
-}];
+pub(crate) const DRIVERS: &[Words] = &[
+    Words {
+        protocol: "opcua",
+        point_key: "node",
+        point_alternative: Some("browse_path"),
+        link_key: "opcua",
+        link_at: "url",
+        check_point: point::check_opcua,
+    },
+    Words {
+        protocol: "s7",
+        point_key: "address",
+        point_alternative: None,
+        link_key: "s7",
+        link_at: "host",
+        check_point: s7_address::check,
+    },
+];
 
 impl Protocol {
     /// Every protocol a profile may say.

@@ -1,0 +1,114 @@
+//! A connection to a PLC: TCP, the COTP connection (TSAPs from rack and slot, or given),
+//! the S7 communication set up with its PDU size; jobs sent one at a time, each answer
+//! matched to its job by reference.
+
+use std::io;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use super::pdu::{self, Item, Malformed};
+
+/// Why a job failed.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum S7Error {
+    #[error("{0}")]
+    Io(#[from] io::Error),
+    #[error("{0}")]
+    Malformed(#[from] Malformed),
+    #[error("no answer within {0:?}")]
+    Timeout(Duration),
+}
+
+/// An open connection.
+pub(crate) struct Connection {
+    stream: TcpStream,
+    /// The PDU size the PLC granted.
+    pub(crate) pdu: u16,
+    reference: u16,
+    timeout: Duration,
+}
+
+impl Connection {
+    /// Connects, opens the COTP connection and sets up communication asking for `pdu`.
+    pub(crate) async fn open(
+        addr: (&str, u16),
+        local: u16,
+        remote: u16,
+        pdu: u16,
+        timeout: Duration,
+    ) -> Result<Connection, S7Error> {
+        let stream = tokio::time::timeout(timeout, TcpStream::connect(addr))
+            .await
+            .map_err(|_| S7Error::Timeout(timeout))??;
+        let _ = stream.set_nodelay(true);
+        let mut conn = Connection {
+            stream,
+            pdu: 0,
+            reference: 0,
+            timeout,
+        };
+        conn.stream
+            .write_all(&pdu::connect_request(local, remote))
+            .await?;
+        let confirm = conn.frame().await?;
+        pdu::connect_confirm(&confirm)?;
+        let reference = conn.next_reference();
+        let answer = conn.job(&pdu::setup(reference, pdu)).await?;
+        conn.pdu = pdu::granted(&pdu::answer(&answer)?)?;
+        Ok(conn)
+    }
+
+    fn next_reference(&mut self) -> u16 {
+        self.reference = self.reference.wrapping_add(1);
+        self.reference
+    }
+
+    /// One TPKT frame's payload, by the deadline.
+    async fn frame(&mut self) -> Result<Vec<u8>, S7Error> {
+        let timeout = self.timeout;
+        let read = async {
+            let mut head = [0u8; 4];
+            self.stream.read_exact(&mut head).await?;
+            if head[0] != 3 {
+                return Err(S7Error::Malformed(Malformed::Tpkt(head[0])));
+            }
+            let len = usize::from(u16::from_be_bytes([head[2], head[3]]));
+            if len < 7 {
+                return Err(S7Error::Malformed(Malformed::Short(len)));
+            }
+            let mut payload = vec![0u8; len - 4];
+            self.stream.read_exact(&mut payload).await?;
+            Ok(payload)
+        };
+        tokio::time::timeout(timeout, read)
+            .await
+            .map_err(|_| S7Error::Timeout(timeout))?
+    }
+
+    async fn job(&mut self, request: &[u8]) -> Result<Vec<u8>, S7Error> {
+        self.stream.write_all(request).await?;
+        self.frame().await
+    }
+
+    /// Reads `items` in one job: each item's bytes or its return code.
+    pub(crate) async fn read(
+        &mut self,
+        items: &[Item],
+    ) -> Result<Vec<Result<Vec<u8>, u8>>, S7Error> {
+        let reference = self.next_reference();
+        let answer = self.job(&pdu::read(reference, items)).await?;
+        Ok(pdu::read_items(&pdu::answer(&answer)?, items.len())?)
+    }
+
+    /// Writes `items` in one job: each item's outcome.
+    pub(crate) async fn write(
+        &mut self,
+        items: &[(Item, Vec<u8>)],
+    ) -> Result<Vec<Result<(), u8>>, S7Error> {
+        let reference = self.next_reference();
+        let answer = self.job(&pdu::write(reference, items)).await?;
+        Ok(pdu::write_items(&pdu::answer(&answer)?, items.len())?)
+    }
+}

@@ -1,0 +1,285 @@
+//! S7comm over ISO-on-TCP (RFC 1006): TPKT and COTP framing, the S7 header, the setup of
+//! communication (PDU size negotiation), Read Var and Write Var with several items. Bytes
+//! only: every answer is checked strictly (lengths, function, item count) and a malformed
+//! one is an error naming what was wrong, never a panic.
+
+pub(crate) use crate::profile::s7_address::Area;
+
+/// One item of a Read Var or Write Var: bytes (or one bit) of an area.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Item {
+    pub(crate) area: Area,
+    pub(crate) db: u16,
+    pub(crate) byte: u32,
+    /// `Some(bit)` for a single bit (length 1).
+    pub(crate) bit: Option<u8>,
+    /// Bytes (or 1 for a bit).
+    pub(crate) length: u16,
+}
+
+/// Why an answer is not one.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub(crate) enum Malformed {
+    #[error("not a TPKT frame (version {0})")]
+    Tpkt(u8),
+    #[error("a frame of {0} bytes is too short")]
+    Short(usize),
+    #[error("COTP: expected {expected:#04x}, got {got:#04x}")]
+    Cotp { expected: u8, got: u8 },
+    #[error("not an S7 header (protocol id {0:#04x})")]
+    Protocol(u8),
+    #[error("the PLC refused the job: error class {class:#04x}, code {code:#04x}")]
+    Refused { class: u8, code: u8 },
+    #[error("an answer for function {got:#04x} to a request of {expected:#04x}")]
+    Function { expected: u8, got: u8 },
+    #[error("{got} items answered for {expected} asked")]
+    Items { expected: usize, got: usize },
+    #[error("an item's data runs past the answer")]
+    Truncated,
+}
+
+const TPKT_VERSION: u8 = 3;
+const COTP_CR: u8 = 0xE0;
+const COTP_CC: u8 = 0xD0;
+const COTP_DT: u8 = 0xF0;
+const S7_ID: u8 = 0x32;
+const JOB: u8 = 0x01;
+const ACK_DATA: u8 = 0x03;
+pub(crate) const SETUP: u8 = 0xF0;
+pub(crate) const READ: u8 = 0x04;
+pub(crate) const WRITE: u8 = 0x05;
+
+/// The bytes of a PDU of the S7 header and payload, in a COTP data frame and TPKT.
+fn tpkt(payload: &[u8]) -> Vec<u8> {
+    let len = (payload.len() + 4) as u16;
+    let mut out = vec![TPKT_VERSION, 0, (len >> 8) as u8, len as u8];
+    out.extend_from_slice(payload);
+    out
+}
+
+/// COTP connection request from `local` to `remote` TSAP, TPDU size 1024.
+pub(crate) fn connect_request(local: u16, remote: u16) -> Vec<u8> {
+    let [lh, ll] = local.to_be_bytes();
+    let [rh, rl] = remote.to_be_bytes();
+    tpkt(&[
+        17, COTP_CR, 0, 0, 0, 1, 0, 0xC0, 1, 0x0A, 0xC1, 2, lh, ll, 0xC2, 2, rh, rl,
+    ])
+}
+
+/// Checks a COTP connection confirm (the TPKT payload).
+pub(crate) fn connect_confirm(payload: &[u8]) -> Result<(), Malformed> {
+    let got = *payload.get(1).ok_or(Malformed::Short(payload.len()))?;
+    if got & 0xF0 != COTP_CC {
+        return Err(Malformed::Cotp {
+            expected: COTP_CC,
+            got,
+        });
+    }
+    Ok(())
+}
+
+/// An S7 job in a COTP data frame.
+fn job(reference: u16, params: &[u8], data: &[u8]) -> Vec<u8> {
+    let mut p = vec![2, COTP_DT, 0x80, S7_ID, JOB, 0, 0];
+    p.extend_from_slice(&reference.to_be_bytes());
+    p.extend_from_slice(&(params.len() as u16).to_be_bytes());
+    p.extend_from_slice(&(data.len() as u16).to_be_bytes());
+    p.extend_from_slice(params);
+    p.extend_from_slice(data);
+    tpkt(&p)
+}
+
+/// Setup communication, asking for a PDU of `pdu` bytes.
+pub(crate) fn setup(reference: u16, pdu: u16) -> Vec<u8> {
+    let [h, l] = pdu.to_be_bytes();
+    job(reference, &[SETUP, 0, 0, 1, 0, 1, h, l], &[])
+}
+
+fn item_spec(item: &Item) -> [u8; 12] {
+    let (size, bits) = match item.bit {
+        Some(b) => (0x01, item.byte * 8 + u32::from(b)),
+        None => (0x02, item.byte * 8),
+    };
+    let [lh, ll] = item.length.to_be_bytes();
+    let [dh, dl] = item.db.to_be_bytes();
+    [
+        0x12,
+        0x0A,
+        0x10,
+        size,
+        lh,
+        ll,
+        dh,
+        dl,
+        item.area.code(),
+        (bits >> 16) as u8,
+        (bits >> 8) as u8,
+        bits as u8,
+    ]
+}
+
+/// Read Var of `items`.
+pub(crate) fn read(reference: u16, items: &[Item]) -> Vec<u8> {
+    let mut params = vec![READ, items.len() as u8];
+    for item in items {
+        params.extend_from_slice(&item_spec(item));
+    }
+    job(reference, &params, &[])
+}
+
+/// Write Var of `items` with their `values` (a bit's value is one byte, 0 or 1).
+pub(crate) fn write(reference: u16, items: &[(Item, Vec<u8>)]) -> Vec<u8> {
+    let mut params = vec![WRITE, items.len() as u8];
+    let mut data = Vec::new();
+    for (n, (item, value)) in items.iter().enumerate() {
+        params.extend_from_slice(&item_spec(item));
+        let (size, length) = match item.bit {
+            Some(_) => (0x03, 1u16),
+            None => (0x04, (value.len() * 8) as u16),
+        };
+        data.extend_from_slice(&[0, size]);
+        data.extend_from_slice(&length.to_be_bytes());
+        data.extend_from_slice(value);
+        if value.len() % 2 == 1 && n + 1 < items.len() {
+            data.push(0);
+        }
+    }
+    job(reference, &params, &data)
+}
+
+/// An S7 answer: its function's parameters and its data.
+#[derive(Debug, PartialEq, Eq)]
+pub(crate) struct Answer<'a> {
+    pub(crate) reference: u16,
+    pub(crate) params: &'a [u8],
+    pub(crate) data: &'a [u8],
+}
+
+/// Splits a TPKT payload (COTP data frame) into the S7 answer, checking every length.
+pub(crate) fn answer(payload: &[u8]) -> Result<Answer<'_>, Malformed> {
+    let short = || Malformed::Short(payload.len());
+    let cotp_len = usize::from(*payload.first().ok_or_else(short)?);
+    let kind = *payload.get(1).ok_or_else(short)?;
+    if kind != COTP_DT {
+        return Err(Malformed::Cotp {
+            expected: COTP_DT,
+            got: kind,
+        });
+    }
+    let s7 = payload.get(cotp_len + 1..).ok_or_else(short)?;
+    if s7.len() < 12 {
+        return Err(Malformed::Short(payload.len()));
+    }
+    if s7[0] != S7_ID {
+        return Err(Malformed::Protocol(s7[0]));
+    }
+    if s7[1] != ACK_DATA {
+        return Err(Malformed::Function {
+            expected: ACK_DATA,
+            got: s7[1],
+        });
+    }
+    let reference = u16::from_be_bytes([s7[4], s7[5]]);
+    let plen = usize::from(u16::from_be_bytes([s7[6], s7[7]]));
+    let dlen = usize::from(u16::from_be_bytes([s7[8], s7[9]]));
+    let (class, code) = (s7[10], s7[11]);
+    if class != 0 || code != 0 {
+        return Err(Malformed::Refused { class, code });
+    }
+    let params = s7.get(12..12 + plen).ok_or_else(short)?;
+    let data = s7.get(12 + plen..12 + plen + dlen).ok_or_else(short)?;
+    Ok(Answer {
+        reference,
+        params,
+        data,
+    })
+}
+
+/// The PDU size the PLC granted in its answer to setup communication.
+pub(crate) fn granted(a: &Answer<'_>) -> Result<u16, Malformed> {
+    if a.params.first() != Some(&SETUP) {
+        return Err(Malformed::Function {
+            expected: SETUP,
+            got: a.params.first().copied().unwrap_or(0),
+        });
+    }
+    let b = a.params.get(6..8).ok_or(Malformed::Truncated)?;
+    Ok(u16::from_be_bytes([b[0], b[1]]))
+}
+
+/// Each item's bytes, or its return code when not 0xFF (success).
+pub(crate) fn read_items(
+    a: &Answer<'_>,
+    asked: usize,
+) -> Result<Vec<Result<Vec<u8>, u8>>, Malformed> {
+    if a.params.first() != Some(&READ) {
+        return Err(Malformed::Function {
+            expected: READ,
+            got: a.params.first().copied().unwrap_or(0),
+        });
+    }
+    let count = usize::from(*a.params.get(1).ok_or(Malformed::Truncated)?);
+    if count != asked {
+        return Err(Malformed::Items {
+            expected: asked,
+            got: count,
+        });
+    }
+    let mut out = Vec::with_capacity(count);
+    let mut at = 0;
+    for n in 0..count {
+        let head = a.data.get(at..at + 4).ok_or(Malformed::Truncated)?;
+        let (code, size) = (head[0], head[1]);
+        let raw = usize::from(u16::from_be_bytes([head[2], head[3]]));
+        at += 4;
+        if code != 0xFF {
+            out.push(Err(code));
+            continue;
+        }
+        // Bit and byte/word sizes count bits; octet strings and reals count bytes.
+        let len = match size {
+            0x03..=0x05 => raw.div_ceil(8),
+            _ => raw,
+        };
+        let bytes = a.data.get(at..at + len).ok_or(Malformed::Truncated)?;
+        out.push(Ok(bytes.to_vec()));
+        at += len;
+        if len % 2 == 1 && n + 1 < count {
+            at += 1;
+        }
+    }
+    Ok(out)
+}
+
+/// Each written item's return code: `Ok` for 0xFF.
+pub(crate) fn write_items(a: &Answer<'_>, asked: usize) -> Result<Vec<Result<(), u8>>, Malformed> {
+    if a.params.first() != Some(&WRITE) {
+        return Err(Malformed::Function {
+            expected: WRITE,
+            got: a.params.first().copied().unwrap_or(0),
+        });
+    }
+    if a.data.len() != asked {
+        return Err(Malformed::Items {
+            expected: asked,
+            got: a.data.len(),
+        });
+    }
+    Ok(a.data
+        .iter()
+        .map(|&c| if c == 0xFF { Ok(()) } else { Err(c) })
+        .collect())
+}
+
+/// What an item's return code says.
+pub(crate) fn item_error(code: u8) -> &'static str {
+    match code {
+        0x01 => "hardware fault",
+        0x03 => "access denied (PUT/GET not allowed, or a protected or optimised block)",
+        0x05 => "address out of range",
+        0x06 => "data type not supported",
+        0x07 => "data type inconsistent",
+        0x0A => "object does not exist (no such data block or area)",
+        _ => "refused",
+    }
+}

@@ -1,0 +1,100 @@
+use std::time::Duration;
+
+use super::config::remote_tsap;
+use super::conn::Connection;
+use super::pdu::{Area, Item};
+
+/// Snap7's server (python-snap7) with DB1 of 64 bytes (0x12 0x34 0xAB at 0) and 16 merker
+/// bytes, on a free port; killed when dropped.
+struct Snap7(std::process::Child, u16);
+
+impl Drop for Snap7 {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn snap7() -> Option<Snap7> {
+    use std::io::BufRead;
+    let script = r#"
+import ctypes, sys, time, socket
+from snap7.server import Server
+from snap7.type import SrvArea
+s = socket.socket(); s.bind(("127.0.0.1", 0)); port = s.getsockname()[1]; s.close()
+srv = Server(log=False)
+db1 = (ctypes.c_uint8 * 64)(); db1[0] = 0x12; db1[1] = 0x34; db1[2] = 0xAB
+mk = (ctypes.c_uint8 * 16)()
+srv.register_area(SrvArea.DB, 1, db1); srv.register_area(SrvArea.MK, 0, mk)
+srv.start(tcp_port=port)
+print(port, flush=True)
+while sys.stdin.read(1): pass
+"#;
+    let mut child = std::process::Command::new("python3")
+        .args(["-c", script])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .ok()?;
+    let out = child.stdout.take()?;
+    let mut line = String::new();
+    std::io::BufReader::new(out).read_line(&mut line).ok()?;
+    let port = line.trim().parse().ok()?;
+    Some(Snap7(child, port))
+}
+
+#[tokio::test]
+async fn reads_and_writes_bytes_and_bits_of_snap7s_server() {
+    let Some(server) = snap7() else {
+        eprintln!("python-snap7 is not installed: skipped");
+        return;
+    };
+    let mut c = Connection::open(
+        ("127.0.0.1", server.1),
+        0x0100,
+        remote_tsap(3, 0, 1) as u16,
+        960,
+        Duration::from_secs(3),
+    )
+    .await
+    .expect("connected");
+    assert!(c.pdu >= 240, "PDU {}", c.pdu);
+    let db = |byte, length| Item {
+        area: Area::DataBlock,
+        db: 1,
+        byte,
+        bit: None,
+        length,
+    };
+    let read = c.read(&[db(0, 3), db(1, 1)]).await.expect("read");
+    assert_eq!(read, vec![Ok(vec![0x12, 0x34, 0xAB]), Ok(vec![0x34])]);
+    // A data block that does not exist is that item's error, the others are read.
+    let missing = Item { db: 9, ..db(0, 2) };
+    let read = c.read(&[missing, db(0, 1)]).await.expect("read");
+    assert_eq!(read[1], Ok(vec![0x12]));
+    assert!(read[0].is_err(), "{read:?}");
+    // A bit written alone leaves its neighbours.
+    let bit = Item {
+        bit: Some(3),
+        ..db(2, 1)
+    };
+    let written = c.write(&[(bit, vec![0])]).await.expect("write");
+    assert_eq!(written, vec![Ok(())]);
+    let read = c.read(&[db(2, 1)]).await.expect("read");
+    assert_eq!(read, vec![Ok(vec![0xAB & !0x08])]);
+    let m = Item {
+        area: Area::Merkers,
+        db: 0,
+        byte: 4,
+        bit: None,
+        length: 2,
+    };
+    assert_eq!(
+        c.write(&[(m, vec![0xBE, 0xEF])]).await.expect("write"),
+        vec![Ok(())]
+    );
+    assert_eq!(
+        c.read(&[m]).await.expect("read"),
+        vec![Ok(vec![0xBE, 0xEF])]
+    );
+}
