@@ -154,14 +154,24 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
 /// A device of a protocol that names its points: one subscription, a monitored item per
 /// field (the server samples each; the gateway asks nothing per cycle).
 fn render_points(out: &mut String, d: &DeviceConfig, profile: &Profile) {
+    let count = profile.fields.iter().filter(|f| f.point.is_some()).count();
+    let how = if profile.protocol.name() == "opcua" {
+        format!(
+            "a subscription publishing every {} ms, {count} monitored item(s); read every refresh where the server has no subscriptions",
+            d.refresh_rate.as_millis()
+        )
+    } else {
+        format!(
+            "{count} field(s) read every {} ms, in the fewest jobs the PLC's PDU allows",
+            d.refresh_rate.as_millis()
+        )
+    };
     let _ = writeln!(
         out,
-        "  device {} (profile {}, {}): a subscription publishing every {} ms, {} monitored item(s); read every refresh where the server has no subscriptions",
+        "  device {} (profile {}, {}): {how}",
         d.name,
         profile.name,
         profile.protocol.name(),
-        d.refresh_rate.as_millis(),
-        profile.fields.iter().filter(|f| f.point.is_some()).count()
     );
     for f in &profile.fields {
         if let Some(p) = &f.point {
