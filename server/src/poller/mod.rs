@@ -35,8 +35,6 @@ pub(crate) const REOPEN_MAX: Duration = Duration::from_secs(8);
 /// How long a device that stopped answering is left alone: doubling up to the maximum.
 pub(crate) const BACKOFF_MIN: Duration = Duration::from_secs(1);
 pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(16);
-/// Connecting to a TCP endpoint gives up after this long.
-pub(crate) const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// A step of the task ends the connection only when the port or socket failed.
 type Step = Result<(), LinkFault>;

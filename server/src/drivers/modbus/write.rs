@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use super::{Bus, Plan, connection_fault};
 use crate::cache::{Device, FieldError, WriteError};
+use crate::drivers::{finish, written};
 use crate::link::frame::Exception;
 use crate::link::{LinkFault, TxError};
 use crate::plan::{self, WriteItem, WriteOp};
@@ -67,14 +68,9 @@ pub(super) async fn outputs(
     plan: &mut Plan,
     items: Vec<WriteItem>,
 ) -> Result<Option<FieldError>, LinkFault> {
-    let finish = |item: &WriteItem, result: Result<(), WriteError>, attempts: u32| {
-        if let Some(g) = item.generation {
-            device.finish_write_after(g, result, attempts);
-        }
-    };
     let (ops, refused) = plan::write_ops(&device.profile, &items, plan.single_writes);
     for (n, reason) in refused {
-        finish(&items[n], Err(reason), 0);
+        finish(device, &items[n], Err(reason), 0);
     }
     let mut ops: VecDeque<WriteOp> = ops.into();
     while let Some(op) = ops.pop_front() {
@@ -82,10 +78,7 @@ pub(super) async fn outputs(
         match result {
             Ok(()) => {
                 for &n in op.items() {
-                    // The value first, then the outcome: never a moment that shows the
-                    // write done and the old value.
-                    device.publish(items[n].field, Ok(items[n].value.clone()));
-                    finish(&items[n], Ok(()), attempts);
+                    written(device, &items[n], attempts);
                 }
             }
             Err(TxError::Exception(Exception::ILLEGAL_FUNCTION))
@@ -99,7 +92,7 @@ pub(super) async fn outputs(
             Err(e) => {
                 let failed = WriteError::from(e.clone());
                 for &n in op.items() {
-                    finish(&items[n], Err(failed.clone()), attempts);
+                    finish(device, &items[n], Err(failed.clone()), attempts);
                 }
                 if matches!(e, TxError::Exception(_)) {
                     continue;
@@ -108,6 +101,7 @@ pub(super) async fn outputs(
                 for rest in ops.drain(..) {
                     for &n in rest.items() {
                         finish(
+                            device,
                             &items[n],
                             Err(WriteError::NotSent(Box::new(failed.clone()))),
                             0,

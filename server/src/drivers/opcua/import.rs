@@ -20,9 +20,11 @@ use super::config::{DEFAULT_PKI_DIR, Settings, User};
 use crate::codec::IecType;
 use crate::profile::import::{identifier, quoted};
 
-/// How deep the browse goes below the root, and how many variables it takes at most.
+/// How deep the browse goes below the root, how many variables it takes and how many nodes
+/// it visits at most (a server with more is reported as cut short).
 const MAX_DEPTH: usize = 12;
 const MAX_VARIABLES: usize = 20_000;
+const MAX_NODES: usize = 100_000;
 
 /// A variable found, with the browse names that lead to it.
 struct Found {
@@ -149,7 +151,15 @@ async fn browse(conn: &Connection, root: &NodeId) -> Result<Vec<Found>, String> 
     let mut seen = HashSet::new();
     let mut queue = VecDeque::from([(root.clone(), Vec::<String>::new())]);
     while let Some((node, path)) = queue.pop_front() {
-        if found.len() >= MAX_VARIABLES || path.len() > MAX_DEPTH || !seen.insert(node.clone()) {
+        if found.len() >= MAX_VARIABLES || seen.len() >= MAX_NODES {
+            eprintln!(
+                "browse cut short after {} nodes and {} variables: give --node a narrower root",
+                seen.len(),
+                found.len()
+            );
+            break;
+        }
+        if path.len() > MAX_DEPTH || !seen.insert(node.clone()) {
             continue;
         }
         let description = BrowseDescription {
@@ -183,7 +193,9 @@ async fn browse(conn: &Connection, root: &NodeId) -> Result<Vec<Found>, String> 
                         path: child.clone(),
                     });
                 }
-                queue.push_back((id, child));
+                if queue.len() < MAX_NODES {
+                    queue.push_back((id, child));
+                }
             }
             if result.continuation_point.is_null() {
                 break;

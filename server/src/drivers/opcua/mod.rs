@@ -21,7 +21,7 @@ use std::time::Duration;
 
 use opcua::types::{NodeId, VariantScalarTypeId};
 
-use super::{Driver, Probed, Read, Session};
+use super::{Driver, Read, Session};
 use crate::cache::{Device, FieldError, Link};
 use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
@@ -118,11 +118,7 @@ impl Session for Connection {
 
     async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
         let started = tokio::time::Instant::now();
-        if plan.generation != self.generation {
-            resolve::nodes(self, device, plan).await?;
-            plan.watched = None;
-            plan.subscribe = self.settings.subscribe;
-        }
+        self.fresh(device, plan).await?;
         if plan.subscribe {
             let healthy = plan.watched.as_ref().is_some_and(subscribe::Watched::alive);
             if healthy {
@@ -138,26 +134,13 @@ impl Session for Connection {
         Ok(Read::Answered(started.elapsed()))
     }
 
-    async fn probe(
-        &mut self,
-        _device: &Arc<Device>,
-        _plan: &mut Plan,
-    ) -> Result<Probed, LinkFault> {
-        // A server answers for all its devices: the session is the probe.
-        Ok(Probed::Answers)
-    }
-
     async fn write(
         &mut self,
         device: &Arc<Device>,
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {
-        if plan.generation != self.generation {
-            resolve::nodes(self, device, plan).await?;
-            plan.watched = None;
-            plan.subscribe = self.settings.subscribe;
-        }
+        self.fresh(device, plan).await?;
         write::items(self, device, plan, items).await?;
         Ok(None)
     }
@@ -169,6 +152,17 @@ impl Session for Connection {
 }
 
 impl Connection {
+    /// Resolves the device's nodes in this session, the first time it is asked of it (a new
+    /// session: a new subscription too).
+    async fn fresh(&self, device: &Arc<Device>, plan: &mut Plan) -> Result<(), LinkFault> {
+        if plan.generation != self.generation {
+            resolve::nodes(self, device, plan).await?;
+            plan.watched = None;
+            plan.subscribe = self.settings.subscribe;
+        }
+        Ok(())
+    }
+
     /// Reads every resolved field of the device once (the fallback without subscriptions).
     async fn read_all(&self, device: &Device, plan: &Plan) -> Result<(), LinkFault> {
         use opcua::types::{ReadValueId, TimestampsToReturn};

@@ -9,14 +9,9 @@ use opcua::types::{AttributeId, DataValue, NumericRange, WriteValue};
 use super::variant::write_variant;
 use super::{Connection, Plan};
 use crate::cache::{Device, WriteError};
+use crate::drivers::{finish, written};
 use crate::link::LinkFault;
 use crate::plan::WriteItem;
-
-fn finish(device: &Device, item: &WriteItem, result: Result<(), WriteError>) {
-    if let Some(g) = item.generation {
-        device.finish_write_after(g, result, 1);
-    }
-}
 
 /// The items that can be sent, each with its write value; the others finished with why.
 fn prepare(
@@ -31,7 +26,7 @@ fn prepare(
         let node = match plan.nodes.get(item.field) {
             Some(Ok(node)) => node.clone(),
             Some(Err(why)) => {
-                finish(device, &item, Err(WriteError::Refused(why.clone())));
+                finish(device, &item, Err(WriteError::Refused(why.clone())), 0);
                 continue;
             }
             None => {
@@ -39,6 +34,7 @@ fn prepare(
                     device,
                     &item,
                     Err(WriteError::Refused("no node".to_owned())),
+                    0,
                 );
                 continue;
             }
@@ -60,7 +56,7 @@ fn prepare(
                 });
                 sent.push(item);
             }
-            Err(why) => finish(device, &item, Err(WriteError::Refused(why))),
+            Err(why) => finish(device, &item, Err(WriteError::Refused(why)), 0),
         }
     }
     (sent, values)
@@ -92,7 +88,7 @@ pub(super) async fn items(
                     None => WriteError::Refused(e.status().to_string()),
                 };
                 for item in sent {
-                    finish(device, item, Err(why.clone()));
+                    finish(device, item, Err(why.clone()), 1);
                 }
                 match fault {
                     Some(f) => return Err(f),
@@ -103,14 +99,14 @@ pub(super) async fn items(
         for (n, item) in sent.iter().enumerate() {
             match statuses.get(n) {
                 Some(s) if s.is_good() => {
-                    device.publish(item.field, Ok(item.value.clone()));
-                    finish(device, item, Ok(()));
+                    written(device, item, 1);
                 }
-                Some(s) => finish(device, item, Err(WriteError::Refused(s.to_string()))),
+                Some(s) => finish(device, item, Err(WriteError::Refused(s.to_string())), 1),
                 None => finish(
                     device,
                     item,
                     Err(WriteError::Refused("no answer for it".to_owned())),
+                    1,
                 ),
             }
         }

@@ -30,6 +30,18 @@ pub(crate) struct Connection {
     timeout: Duration,
 }
 
+/// The S7 answer in a frame, which must be the one to job `reference`.
+fn answered(frame: &[u8], reference: u16) -> Result<pdu::Answer<'_>, Malformed> {
+    let a = pdu::answer(frame)?;
+    if a.reference != reference {
+        return Err(Malformed::Reference {
+            expected: reference,
+            got: a.reference,
+        });
+    }
+    Ok(a)
+}
+
 impl Connection {
     /// Connects, opens the COTP connection and sets up communication asking for `pdu`.
     pub(crate) async fn open(
@@ -56,7 +68,7 @@ impl Connection {
         pdu::connect_confirm(&confirm)?;
         let reference = conn.next_reference();
         let answer = conn.job(&pdu::setup(reference, pdu)).await?;
-        conn.pdu = pdu::granted(&pdu::answer(&answer)?)?;
+        conn.pdu = pdu::granted(&answered(&answer, reference)?)?;
         Ok(conn)
     }
 
@@ -99,7 +111,10 @@ impl Connection {
     ) -> Result<Vec<Result<Vec<u8>, u8>>, S7Error> {
         let reference = self.next_reference();
         let answer = self.job(&pdu::read(reference, items)).await?;
-        Ok(pdu::read_items(&pdu::answer(&answer)?, items.len())?)
+        Ok(pdu::read_items(
+            &answered(&answer, reference)?,
+            items.len(),
+        )?)
     }
 
     /// Writes `items` in one job: each item's outcome.
@@ -109,6 +124,9 @@ impl Connection {
     ) -> Result<Vec<Result<(), u8>>, S7Error> {
         let reference = self.next_reference();
         let answer = self.job(&pdu::write(reference, items)).await?;
-        Ok(pdu::write_items(&pdu::answer(&answer)?, items.len())?)
+        Ok(pdu::write_items(
+            &answered(&answer, reference)?,
+            items.len(),
+        )?)
     }
 }

@@ -12,7 +12,7 @@ mod plan;
 use std::sync::Arc;
 use std::time::Duration;
 
-use super::{Driver, Probed, Read, Session};
+use super::{Driver, Read, Session, finish, written};
 use crate::cache::{Device, FieldError, Link, Progress, WriteError};
 use crate::codec::IecType;
 use crate::config::{LinkConfig, Transport};
@@ -144,10 +144,17 @@ impl Session for Plc {
         if plan.pdu != self.conn.pdu {
             plan.batches = plan::batches(&plan.places, self.conn.pdu);
             plan.pdu = self.conn.pdu;
+            let room = plan::max_item(plan.pdu);
             for (idx, p) in plan.places.iter().enumerate() {
-                if let Err(why) = p {
-                    device.publish(idx, Err(FieldError::Device(why.clone())));
-                }
+                let why = match p {
+                    Err(why) => why.clone(),
+                    Ok(p) if u32::from(p.bytes) > room => format!(
+                        "{} bytes do not fit one item of the PLC's PDU ({room} bytes)",
+                        p.bytes
+                    ),
+                    Ok(_) => continue,
+                };
+                device.publish(idx, Err(FieldError::Device(why)));
             }
         }
         let started = tokio::time::Instant::now();
@@ -163,32 +170,19 @@ impl Session for Plc {
         Ok(Read::Answered(started.elapsed()))
     }
 
-    async fn probe(
-        &mut self,
-        _device: &Arc<Device>,
-        _plan: &mut Plan,
-    ) -> Result<Probed, LinkFault> {
-        Ok(Probed::Answers)
-    }
-
     async fn write(
         &mut self,
         device: &Arc<Device>,
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {
-        let finish = |item: &WriteItem, result: Result<(), WriteError>| {
-            if let Some(g) = item.generation {
-                device.finish_write_after(g, result, 1);
-            }
-        };
         let mut jobs = Vec::new();
         for item in items {
             let ty = device.field(item.field).ty;
             let place = match plan.places.get(item.field) {
                 Some(Ok(p)) => *p,
                 Some(Err(why)) => {
-                    finish(&item, Err(WriteError::Refused(why.clone())));
+                    finish(device, &item, Err(WriteError::Refused(why.clone())), 0);
                     continue;
                 }
                 None => continue,
@@ -221,7 +215,7 @@ impl Session for Plc {
                     };
                     jobs.push((item, target, bytes));
                 }
-                Err(why) => finish(&item, Err(WriteError::Refused(why))),
+                Err(why) => finish(device, &item, Err(WriteError::Refused(why)), 0),
             }
         }
         for chunk in jobs.chunks(8) {
@@ -235,7 +229,7 @@ impl Session for Plc {
                 Err(e) => {
                     let fault = lost(&e);
                     for (item, _, _) in chunk {
-                        finish(item, Err(WriteError::LinkDown(fault.clone())));
+                        finish(device, item, Err(WriteError::LinkDown(fault.clone())), 1);
                     }
                     return Err(fault);
                 }
@@ -243,12 +237,13 @@ impl Session for Plc {
             for ((item, _, _), outcome) in chunk.iter().zip(outcomes) {
                 match outcome {
                     Ok(()) => {
-                        device.publish(item.field, Ok(item.value.clone()));
-                        finish(item, Ok(()));
+                        written(device, item, 1);
                     }
                     Err(code) => finish(
+                        device,
                         item,
                         Err(WriteError::Refused(pdu::item_error(code).to_owned())),
+                        1,
                     ),
                 }
             }

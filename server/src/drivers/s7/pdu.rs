@@ -36,6 +36,8 @@ pub(crate) enum Malformed {
     Items { expected: usize, got: usize },
     #[error("an item's data runs past the answer")]
     Truncated,
+    #[error("an answer to job {got} while job {expected} waits")]
+    Reference { expected: u16, got: u16 },
 }
 
 const TPKT_VERSION: u8 = 3;

@@ -66,17 +66,24 @@ pub(crate) struct Batch {
     pub(crate) fields: Vec<Vec<(usize, u32)>>,
 }
 
+/// The most bytes one item's answer carries in a PDU of `pdu` bytes (a field larger is not
+/// read: its error says so).
+pub(crate) fn max_item(pdu: u16) -> u32 {
+    u32::from(pdu.saturating_sub(18 + 4)).max(1)
+}
+
 /// The fields' ranges merged where they touch and packed into jobs: at most
 /// `(pdu - 19) / 12` items a request, answers within `pdu - 14` bytes.
 pub(crate) fn batches(places: &[Result<Place, String>], pdu: u16) -> Vec<Batch> {
     let mut ranges: Vec<Range> = Vec::new();
+    let max_item = max_item(pdu);
     let mut order: Vec<(usize, Place)> = places
         .iter()
         .enumerate()
         .filter_map(|(i, p)| p.as_ref().ok().map(|p| (i, *p)))
+        .filter(|(_, p)| u32::from(p.bytes) <= max_item)
         .collect();
     order.sort_by_key(|(_, p)| (p.address.area, p.address.db, p.address.byte));
-    let max_item = u32::from(pdu.saturating_sub(18 + 4)).max(1);
     for (i, p) in order {
         let a = p.address;
         let end = a.byte + u32::from(p.bytes);
