@@ -6,6 +6,12 @@ import { h, fill, text } from './dom.js';
 import { main, follow } from './connection.js';
 import { LINK_CODES, REFRESH_MS, enc, percent, linkState, endpointOf } from './view.js';
 
+/** What a driver tells of the device at the other end, by its key. */
+const PEER = {
+  order_number: 'Order number', module: 'Module', serial_number: 'Serial number',
+  pdu_size: 'PDU size', cpu_state: 'CPU state',
+};
+
 export async function linkView(name, signal) {
   const facts = h('dl', { class: 'facts' });
   const state = h('span', {});
@@ -17,7 +23,8 @@ export async function linkView(name, signal) {
     fill(facts,
       h('dt', {}, 'Endpoint'), h('dd', {}, endpointOf(l)),
       h('dt', {}, 'Error code'), h('dd', {}, `${l.error_code} — ${LINK_CODES[l.error_code] ?? ''}`),
-      h('dt', {}, 'Utilisation'), h('dd', {}, `${percent(l.utilisation)} measured, ${percent(l.planned_utilisation)} planned`));
+      h('dt', {}, 'Utilisation'), h('dd', {}, `${percent(l.utilisation)} measured, ${percent(l.planned_utilisation)} planned`),
+      ...Object.entries(l.peer ?? {}).flatMap(([k, v]) => [h('dt', {}, PEER[k] ?? k), h('dd', { 'data-peer': k }, v)]));
     fill(devices, ...l.devices.map((d) => h('li', {}, h('a', { href: `#/devices/${enc(d)}` }, d))));
     return l;
   }

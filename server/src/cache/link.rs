@@ -216,6 +216,9 @@ pub struct Link {
     /// Whether the link's task keeps within its transactions' bounds.
     pub progress: Arc<Progress>,
     pub(crate) utilisation: Arc<Utilisation>,
+    /// What the driver learned of the device at the other end (a PLC's order number, the
+    /// PDU size it granted, its operating state), in the order told.
+    peer: Mutex<Vec<(&'static str, String)>>,
 }
 
 impl Link {
@@ -235,6 +238,21 @@ impl Link {
             task: Mutex::new(None),
             progress: Arc::new(Progress::default()),
             utilisation: Arc::new(Utilisation::default()),
+            peer: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// What is known of the device at the other end.
+    pub(crate) fn peer(&self) -> Vec<(&'static str, String)> {
+        super::lock(&self.peer).clone()
+    }
+
+    /// Tells one fact of the device at the other end (replacing the one before).
+    pub(crate) fn set_peer(&self, key: &'static str, value: String) {
+        let mut peer = super::lock(&self.peer);
+        match peer.iter_mut().find(|(k, _)| *k == key) {
+            Some(slot) => slot.1 = value,
+            None => peer.push((key, value)),
         }
     }
 

@@ -7,6 +7,7 @@ mod layout;
 mod load;
 pub(crate) mod point;
 pub(crate) mod s7_address;
+pub(crate) mod s7_form;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -41,9 +42,16 @@ pub struct Words {
     pub(crate) point_alternative: Option<&'static str>,
     pub(crate) link_key: &'static str,
     pub(crate) link_at: &'static str,
-    /// Checks a point as written under `key` (one of the two point keys): why not, if not.
-    pub(crate) check_point: fn(key: &str, text: &str) -> Result<(), String>,
+    /// Checks a point as written under `key` (one of the two point keys) for a field of a
+    /// type (and a STRING's length): why not, if not.
+    pub(crate) check_point: CheckPoint,
+    /// A point as a profile writes it, for messages.
+    pub(crate) example: &'static str,
 }
+
+/// Checks a point as written under a key, for a field's type and length.
+pub(crate) type CheckPoint =
+    fn(key: &str, text: &str, ty: Option<IecType>, length: Option<u16>) -> Result<(), String>;
 
 /// A protocol is its word.
 impl PartialEq for Words {
@@ -70,6 +78,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_key: "opcua",
         link_at: "url",
         check_point: point::check_opcua,
+        example: "ns=3;s=Line1.Speed",
     },
     Words {
         protocol: "s7",
@@ -77,7 +86,8 @@ pub(crate) const DRIVERS: &[Words] = &[
         point_alternative: None,
         link_key: "s7",
         link_at: "host",
-        check_point: s7_address::check,
+        check_point: s7_form::check,
+        example: "DB10.DBD6",
     },
 ];
 
@@ -224,6 +234,8 @@ pub struct Point {
     pub(crate) browse_path: bool,
     /// How often the device samples it, where the profile says (else its refresh rate).
     pub(crate) sampling: Option<std::time::Duration>,
+    /// A STRING's maximum length in characters, where the profile says.
+    pub(crate) length: Option<u16>,
 }
 
 impl Field {

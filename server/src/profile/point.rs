@@ -3,6 +3,8 @@
 //! `ns=2;b=<base64>`) and browse paths from the Objects folder (`2:Line1/2:Speed`, each
 //! step `[namespace:]BrowseName`). Only the syntax here; the driver resolves them.
 
+use crate::codec::IecType;
+
 /// A namespace as written: its index on the server, or its URI (stable across restarts).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub(crate) enum Namespace {
@@ -104,7 +106,12 @@ fn identifier(text: &str) -> Result<Identifier, String> {
 }
 
 /// An OPC UA field's `node` (a node id) or `browse_path`, checked.
-pub(crate) fn check_opcua(key: &str, text: &str) -> Result<(), String> {
+pub(crate) fn check_opcua(
+    key: &str,
+    text: &str,
+    _ty: Option<IecType>,
+    _length: Option<u16>,
+) -> Result<(), String> {
     if key == "browse_path" {
         parse_browse_path(text).map(drop)
     } else {

@@ -5,6 +5,8 @@
 //! Only the syntax and the size it names; the field's type decides how many bytes a
 //! byte-addressed item takes where the address does not say (`DB10.DBB2` of a LREAL).
 
+use crate::codec::IecType;
+
 /// A memory area of the PLC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub(crate) enum Area {
@@ -30,11 +32,6 @@ impl Area {
     }
 }
 
-/// An S7 field's `address`, checked.
-pub(crate) fn check(_key: &str, text: &str) -> Result<(), String> {
-    parse(text).map(drop)
-}
-
 /// What an address names: an area, its block, a byte offset, and a bit or a width.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Address {
@@ -55,6 +52,39 @@ pub(crate) enum Width {
     Cell,
     /// A data block offset without a width (`DB10.6`): the field's type says it.
     Unsized,
+    /// A data block offset with its S7 type (`DB10.REAL6`, `DB10.DTL20`, `DB10.STRING40`).
+    Typed(S7Type),
+}
+
+/// The S7 types an address may name (`DB10.<TYPE><offset>`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum S7Type {
+    /// An elementary type stored as the IEC type of the same name (BYTE…LREAL, TIME).
+    Elementary(IecType),
+    Char,
+    WChar,
+    String,
+    WString,
+    /// DATE_AND_TIME (8 bytes of BCD).
+    Dt,
+    /// DTL (12 bytes).
+    Dtl,
+}
+
+impl S7Type {
+    /// The type named by a word of a typed address.
+    fn named(word: &str) -> Option<S7Type> {
+        Some(match word {
+            "CHAR" => S7Type::Char,
+            "WCHAR" => S7Type::WChar,
+            "STRING" => S7Type::String,
+            "WSTRING" => S7Type::WString,
+            "DT" | "DATE_AND_TIME" => S7Type::Dt,
+            "DTL" => S7Type::Dtl,
+            "BOOL" | "STR" => return None,
+            other => S7Type::Elementary(IecType::parse(other)?),
+        })
+    }
 }
 
 impl Width {
@@ -64,7 +94,7 @@ impl Width {
             Width::Bit(_) | Width::Byte => Some(1),
             Width::Word | Width::Cell => Some(2),
             Width::DWord => Some(4),
-            Width::Unsized => None,
+            Width::Unsized | Width::Typed(_) => None,
         }
     }
 }
@@ -151,6 +181,20 @@ pub(crate) fn parse(text: &str) -> Result<Address, String> {
             return Err(fail("data blocks are numbered from 1".into()));
         }
         let rest = rest.strip_prefix("DB").unwrap_or(rest);
+        let word_end = rest
+            .find(|c: char| c.is_ascii_digit())
+            .unwrap_or(rest.len());
+        if word_end > 1 {
+            let (word, at) = rest.split_at(word_end);
+            let ty = S7Type::named(word)
+                .ok_or_else(|| fail(format!("`{word}` is not an S7 type of a typed address")))?;
+            return Ok(Address {
+                area: Area::DataBlock,
+                db,
+                byte: byte_offset(at).map_err(fail)?,
+                width: Width::Typed(ty),
+            });
+        }
         if rest.bytes().all(|b| b.is_ascii_digit()) {
             let byte = byte_offset(rest).map_err(fail)?;
             return Ok(Address {
@@ -221,6 +265,23 @@ mod tests {
             ("T5", a(Area::Timers, 0, 5, Width::Cell)),
             ("C3", a(Area::Counters, 0, 3, Width::Cell)),
             ("Z3", a(Area::Counters, 0, 3, Width::Cell)),
+            (
+                "DB10.LREAL8",
+                a(
+                    Area::DataBlock,
+                    10,
+                    8,
+                    Width::Typed(S7Type::Elementary(IecType::Lreal)),
+                ),
+            ),
+            (
+                "DB2.DTL12",
+                a(Area::DataBlock, 2, 12, Width::Typed(S7Type::Dtl)),
+            ),
+            (
+                "DB2.WSTRING0",
+                a(Area::DataBlock, 2, 0, Width::Typed(S7Type::WString)),
+            ),
         ] {
             assert_eq!(parse(text), Ok(want), "{text}");
         }
@@ -237,6 +298,8 @@ mod tests {
             ("X5", "unknown area"),
             ("DB70000.DBW0", "too large"),
             ("MD99999999", "past"),
+            ("DB1.FLOAT4", "not an S7 type"),
+            ("DB1.REAL", "not a byte offset"),
         ] {
             let e = parse(text).expect_err(text);
             assert!(e.contains(says), "{text}: {e}");

@@ -38,6 +38,11 @@ pub(crate) struct LinkInfo {
     /// second); absent before the first window ends.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(crate) utilisation: Option<f64>,
+    /// What the gateway learned of the device at the other end of a link of another field
+    /// protocol (an S7 PLC's `order_number`, `module`, `serial_number`, `pdu_size`,
+    /// `cpu_state`).
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub(crate) peer: std::collections::BTreeMap<String, String>,
 }
 
 pub(crate) fn link_info(link: &Link) -> LinkInfo {
@@ -61,6 +66,11 @@ pub(crate) fn link_info(link: &Link) -> LinkInfo {
         connected: diag.connected,
         error_code: diag.error_code.code(),
         devices,
+        peer: link
+            .peer()
+            .into_iter()
+            .map(|(k, v)| (k.to_owned(), v))
+            .collect(),
     };
     match link.config().transport {
         Transport::Serial(s) => {

@@ -120,6 +120,11 @@ pub(crate) fn link(link: &Link) -> pb::Link {
         error_code: d.error_code.code().into(),
         devices: link.members().iter().map(|d| d.name().to_owned()).collect(),
         guard_time_ms: millis(config.guard_time),
+        peer: link
+            .peer()
+            .into_iter()
+            .map(|(k, v)| (k.to_owned(), v))
+            .collect(),
     }
 }
 

@@ -9,6 +9,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use super::pdu::{self, Item, Malformed};
+use super::szl;
 
 /// Why a job failed.
 #[derive(Debug, thiserror::Error)]
@@ -19,6 +20,10 @@ pub(crate) enum S7Error {
     Malformed(#[from] Malformed),
     #[error("no answer within {0:?}")]
     Timeout(Duration),
+    #[error(
+        "the PLC refused the connection to TSAP {remote:#06x} ({why}): check rack and slot (S7-300/400: the CPU's slot, often 2; S7-1200/1500: rack 0, slot 1) or, for S7-200 and LOGO!, local_tsap and remote_tsap"
+    )]
+    Refused { remote: u16, why: String },
 }
 
 /// An open connection.
@@ -64,8 +69,12 @@ impl Connection {
         conn.stream
             .write_all(&pdu::connect_request(local, remote))
             .await?;
-        let confirm = conn.frame().await?;
-        pdu::connect_confirm(&confirm)?;
+        let confirmed = match conn.frame().await {
+            Ok(confirm) => pdu::connect_confirm(&confirm).map_err(|e| e.to_string()),
+            Err(S7Error::Timeout(t)) => return Err(S7Error::Timeout(t)),
+            Err(e) => Err(e.to_string()),
+        };
+        confirmed.map_err(|why| S7Error::Refused { remote, why })?;
         let reference = conn.next_reference();
         let answer = conn.job(&pdu::setup(reference, pdu)).await?;
         conn.pdu = pdu::granted(&answered(&answer, reference)?)?;
@@ -115,6 +124,13 @@ impl Connection {
             &answered(&answer, reference)?,
             items.len(),
         )?)
+    }
+
+    /// Reads SZL `id` at `index`: its records.
+    pub(crate) async fn szl(&mut self, id: u16, index: u16) -> Result<Vec<Vec<u8>>, S7Error> {
+        let reference = self.next_reference();
+        let answer = self.job(&szl::request(reference, id, index)).await?;
+        Ok(szl::records(&answered(&answer, reference)?)?)
     }
 
     /// Writes `items` in one job: each item's outcome.

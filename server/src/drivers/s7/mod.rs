@@ -4,25 +4,29 @@
 //! fields are read in the fewest jobs the negotiated PDU allows; a BOOL is written as a
 //! bit, never by rewriting its byte.
 
+mod clock;
 mod config;
 mod conn;
 pub(crate) mod pdu;
 mod plan;
+mod szl;
+mod value;
+mod write;
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use super::{Driver, Read, Session, finish, written};
-use crate::cache::{Device, FieldError, Link, Progress, WriteError};
-use crate::codec::IecType;
+use tokio::time::Instant;
+
+use super::{Driver, Read, Session};
+use crate::cache::{Device, FieldError, Link, Progress};
 use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::plan::WriteItem;
-use crate::profile::s7_address::Width;
 use conn::{Connection, S7Error};
-use pdu::Item;
 use plan::{Batch, Place};
+use szl::Mode;
 
 /// The S7 driver.
 pub(crate) struct S7;
@@ -41,12 +45,31 @@ pub(crate) struct Plan {
 /// An open PLC connection.
 pub(crate) struct Plc {
     conn: Connection,
+    link: Arc<Link>,
     progress: Arc<Progress>,
     timeout: Duration,
+    /// The PLC's operating state as last read, and when to read it again.
+    mode: Option<Mode>,
+    next_mode: Instant,
+    /// The PLC's last refusal of a whole job, told once in the log.
+    refused: Option<String>,
 }
 
-fn lost(e: &S7Error) -> LinkFault {
-    LinkFault::Lost(Arc::new(std::io::Error::other(e.to_string())))
+/// How often the operating state is read while the PLC is polled.
+const MODE_EVERY: Duration = Duration::from_secs(10);
+
+/// What a PLC in STOP does to its values.
+const IN_STOP: &str =
+    "the PLC is in STOP: its program does not run and these values do not change; switch it to RUN";
+
+/// An error of a job: the connection's end, or (`Ok`) the PLC's refusal of the job.
+fn fault(e: S7Error) -> Result<String, LinkFault> {
+    match e {
+        S7Error::Malformed(m @ pdu::Malformed::Refused { .. }) => Ok(m.to_string()),
+        e => Err(LinkFault::Lost(Arc::new(std::io::Error::other(
+            e.to_string(),
+        )))),
+    }
 }
 
 impl Driver for S7 {
@@ -99,27 +122,113 @@ impl Driver for S7 {
             endpoint: format!("{}:{}", s.host, s.port),
             reason: Arc::new(std::io::Error::other(e.to_string())),
         })?;
-        Ok(Plc {
+        let mut plc = Plc {
             conn,
+            link: link.clone(),
             progress: link.progress.clone(),
             timeout: s.timeout,
-        })
+            mode: None,
+            next_mode: Instant::now(),
+            refused: None,
+        };
+        link.set_peer("pdu_size", plc.conn.pdu.to_string());
+        plc.identify().await.map_err(|e| LinkFault::ConnectFailed {
+            endpoint: format!("{}:{}", s.host, s.port),
+            reason: Arc::new(std::io::Error::other(e.to_string())),
+        })?;
+        Ok(plc)
     }
 }
 
 impl Plc {
     fn started(&self) {
-        self.progress
-            .started(tokio::time::Instant::now() + self.timeout);
+        self.progress.started(Instant::now() + self.timeout);
+    }
+
+    /// One SZL record's text: `None` where the PLC does not answer it (a refusal), an error
+    /// where the connection failed.
+    async fn szl_text(
+        &mut self,
+        (id, index, len): (u16, u16, usize),
+    ) -> Result<Option<String>, S7Error> {
+        self.started();
+        let answered = self.conn.szl(id, index).await;
+        self.progress.ended();
+        match answered {
+            Ok(records) => Ok(records.first().and_then(|r| szl::text(r, len))),
+            Err(S7Error::Malformed(e)) => {
+                tracing::debug!(link = %self.link.name(), "SZL {id:#06x}/{index}: {e}");
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Reads the PLC's identity and operating state into the link's state.
+    async fn identify(&mut self) -> Result<(), S7Error> {
+        let facts = [
+            ("order_number", (szl::MODULE_ID, 1, szl::ORDER_LEN)),
+            (
+                "module",
+                (szl::COMPONENT_ID, szl::MODULE_NAME, szl::NAME_LEN),
+            ),
+            (
+                "serial_number",
+                (szl::COMPONENT_ID, szl::SERIAL, szl::NAME_LEN),
+            ),
+        ];
+        for (key, record) in facts {
+            if let Some(text) = self.szl_text(record).await? {
+                self.link.set_peer(key, text);
+            }
+        }
+        self.read_mode().await
+    }
+
+    /// Reads the operating state; a change is told in the link's state and the log.
+    async fn read_mode(&mut self) -> Result<(), S7Error> {
+        self.next_mode = Instant::now() + MODE_EVERY;
+        self.started();
+        let answered = self.conn.szl(szl::CPU_STATE, 0).await;
+        self.progress.ended();
+        let mode = match answered {
+            Ok(records) => records.first().and_then(|r| szl::mode(r)),
+            Err(S7Error::Malformed(_)) => None,
+            Err(e) => return Err(e),
+        };
+        if mode != self.mode {
+            let name = self.link.name();
+            match mode {
+                Some(Mode::Stop) => tracing::warn!(link = %name, "{IN_STOP}"),
+                Some(m) => tracing::info!(link = %name, "the PLC is in {m}"),
+                None => {}
+            }
+            if let Some(m) = mode {
+                self.link.set_peer("cpu_state", m.to_string());
+            }
+            self.mode = mode;
+        }
+        Ok(())
+    }
+
+    /// Tells a refusal of a whole job in the log once (until another comes).
+    fn tell_refused(&mut self, why: &str) {
+        if self.refused.as_deref() != Some(why) {
+            tracing::warn!(link = %self.link.name(), "{why}");
+            self.refused = Some(why.to_owned());
+        }
     }
 }
 
-/// Publishes one answered item's fields.
+/// Publishes one answered item's fields (stale with `doubt` where the PLC vouches for them
+/// only in part).
 fn publish_item(
     device: &Device,
     plan: &Plan,
     fields: &[(usize, u32)],
     answer: &Result<Vec<u8>, u8>,
+    doubt: Option<&FieldError>,
+    now: Instant,
 ) {
     for &(idx, offset) in fields {
         let Some(Ok(place)) = plan.places.get(idx) else {
@@ -129,11 +238,30 @@ fn publish_item(
             Ok(bytes) => {
                 let at = usize::try_from(offset).unwrap_or(usize::MAX);
                 let mine = bytes.get(at..).unwrap_or_default();
-                plan::decode(device.field(idx).ty, &place.address, mine).map_err(FieldError::Device)
+                value::decode(place.form, device.field(idx).ty, mine).map_err(FieldError::Device)
             }
             Err(code) => Err(FieldError::Device(pdu::item_error(*code).to_owned())),
         };
-        device.publish(idx, value);
+        device.publish_from(idx, value, doubt.cloned(), None, now);
+    }
+}
+
+/// Plans the device's jobs for the PDU the PLC granted, telling each field that has no place
+/// (or does not fit one item) why.
+fn replan(device: &Device, plan: &mut Plan, pdu: u16) {
+    plan.batches = plan::batches(&plan.places, pdu);
+    plan.pdu = pdu;
+    let room = plan::max_item(pdu);
+    for (idx, p) in plan.places.iter().enumerate() {
+        let why = match p {
+            Err(why) => why.clone(),
+            Ok(p) if u32::from(p.bytes) > room => format!(
+                "{} bytes do not fit one item of the PLC's PDU ({room} bytes)",
+                p.bytes
+            ),
+            Ok(_) => continue,
+        };
+        device.publish(idx, Err(FieldError::Device(why)));
     }
 }
 
@@ -142,29 +270,33 @@ impl Session for Plc {
 
     async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
         if plan.pdu != self.conn.pdu {
-            plan.batches = plan::batches(&plan.places, self.conn.pdu);
-            plan.pdu = self.conn.pdu;
-            let room = plan::max_item(plan.pdu);
-            for (idx, p) in plan.places.iter().enumerate() {
-                let why = match p {
-                    Err(why) => why.clone(),
-                    Ok(p) if u32::from(p.bytes) > room => format!(
-                        "{} bytes do not fit one item of the PLC's PDU ({room} bytes)",
-                        p.bytes
-                    ),
-                    Ok(_) => continue,
-                };
-                device.publish(idx, Err(FieldError::Device(why)));
-            }
+            replan(device, plan, self.conn.pdu);
         }
-        let started = tokio::time::Instant::now();
+        let started = Instant::now();
+        if started >= self.next_mode
+            && let Err(e) = self.read_mode().await
+        {
+            fault(e)?;
+        }
+        let doubt = (self.mode == Some(Mode::Stop)).then(|| FieldError::Device(IN_STOP.into()));
         for batch in &plan.batches {
             self.started();
             let answered = self.conn.read(&batch.items).await;
             self.progress.ended();
-            let answers = answered.map_err(|e| lost(&e))?;
-            for (fields, answer) in batch.fields.iter().zip(&answers) {
-                publish_item(device, plan, fields, answer);
+            let now = Instant::now();
+            match answered {
+                Ok(answers) => {
+                    for (fields, answer) in batch.fields.iter().zip(&answers) {
+                        publish_item(device, plan, fields, answer, doubt.as_ref(), now);
+                    }
+                }
+                Err(e) => {
+                    let why = fault(e)?;
+                    self.tell_refused(&why);
+                    for &(idx, _) in batch.fields.iter().flatten() {
+                        device.publish(idx, Err(FieldError::Device(why.clone())));
+                    }
+                }
             }
         }
         Ok(Read::Answered(started.elapsed()))
@@ -176,79 +308,7 @@ impl Session for Plc {
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {
-        let mut jobs = Vec::new();
-        for item in items {
-            let ty = device.field(item.field).ty;
-            let place = match plan.places.get(item.field) {
-                Some(Ok(p)) => *p,
-                Some(Err(why)) => {
-                    finish(device, &item, Err(WriteError::Refused(why.clone())), 0);
-                    continue;
-                }
-                None => continue,
-            };
-            match plan::encode(ty, &item.value) {
-                Ok(bytes) => {
-                    let a = place.address;
-                    let target = match (a.width, ty) {
-                        (Width::Bit(b), _) => Item {
-                            area: a.area,
-                            db: a.db,
-                            byte: a.byte,
-                            bit: Some(b),
-                            length: 1,
-                        },
-                        (_, IecType::String) => Item {
-                            area: a.area,
-                            db: a.db,
-                            byte: a.byte + 1,
-                            bit: None,
-                            length: bytes.len() as u16,
-                        },
-                        _ => Item {
-                            area: a.area,
-                            db: a.db,
-                            byte: a.byte,
-                            bit: None,
-                            length: bytes.len() as u16,
-                        },
-                    };
-                    jobs.push((item, target, bytes));
-                }
-                Err(why) => finish(device, &item, Err(WriteError::Refused(why)), 0),
-            }
-        }
-        for chunk in jobs.chunks(8) {
-            let request: Vec<(Item, Vec<u8>)> =
-                chunk.iter().map(|(_, t, b)| (*t, b.clone())).collect();
-            self.started();
-            let answered = self.conn.write(&request).await;
-            self.progress.ended();
-            let outcomes = match answered {
-                Ok(o) => o,
-                Err(e) => {
-                    let fault = lost(&e);
-                    for (item, _, _) in chunk {
-                        finish(device, item, Err(WriteError::LinkDown(fault.clone())), 1);
-                    }
-                    return Err(fault);
-                }
-            };
-            for ((item, _, _), outcome) in chunk.iter().zip(outcomes) {
-                match outcome {
-                    Ok(()) => {
-                        written(device, item, 1);
-                    }
-                    Err(code) => finish(
-                        device,
-                        item,
-                        Err(WriteError::Refused(pdu::item_error(code).to_owned())),
-                        1,
-                    ),
-                }
-            }
-        }
-        Ok(None)
+        write::write(self, device, plan, items).await
     }
 }
 

@@ -5,16 +5,25 @@
 
 pub(crate) use crate::profile::s7_address::Area;
 
-/// One item of a Read Var or Write Var: bytes (or one bit) of an area.
+/// One item of a Read Var or Write Var: bytes (or one bit) of an area, or timers and
+/// counters by number.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Item {
     pub(crate) area: Area,
     pub(crate) db: u16,
+    /// The first byte (a timer's or counter's number).
     pub(crate) byte: u32,
     /// `Some(bit)` for a single bit (length 1).
     pub(crate) bit: Option<u8>,
-    /// Bytes (or 1 for a bit).
+    /// Bytes (1 for a bit; timers and counters: how many).
     pub(crate) length: u16,
+}
+
+impl Item {
+    /// Whether it counts timers or counters (two bytes each) rather than bytes.
+    fn cells(&self) -> bool {
+        matches!(self.area, Area::Timers | Area::Counters)
+    }
 }
 
 /// Why an answer is not one.
@@ -28,7 +37,7 @@ pub(crate) enum Malformed {
     Cotp { expected: u8, got: u8 },
     #[error("not an S7 header (protocol id {0:#04x})")]
     Protocol(u8),
-    #[error("the PLC refused the job: error class {class:#04x}, code {code:#04x}")]
+    #[error("{}", refusal(*class, *code))]
     Refused { class: u8, code: u8 },
     #[error("an answer for function {got:#04x} to a request of {expected:#04x}")]
     Function { expected: u8, got: u8 },
@@ -47,6 +56,7 @@ const COTP_DT: u8 = 0xF0;
 const S7_ID: u8 = 0x32;
 const JOB: u8 = 0x01;
 const ACK_DATA: u8 = 0x03;
+pub(crate) const USER_DATA: u8 = 0x07;
 pub(crate) const SETUP: u8 = 0xF0;
 pub(crate) const READ: u8 = 0x04;
 pub(crate) const WRITE: u8 = 0x05;
@@ -82,7 +92,12 @@ pub(crate) fn connect_confirm(payload: &[u8]) -> Result<(), Malformed> {
 
 /// An S7 job in a COTP data frame.
 fn job(reference: u16, params: &[u8], data: &[u8]) -> Vec<u8> {
-    let mut p = vec![2, COTP_DT, 0x80, S7_ID, JOB, 0, 0];
+    message(JOB, reference, params, data)
+}
+
+/// An S7 message of a kind (a job, user data) in a COTP data frame.
+pub(crate) fn message(kind: u8, reference: u16, params: &[u8], data: &[u8]) -> Vec<u8> {
+    let mut p = vec![2, COTP_DT, 0x80, S7_ID, kind, 0, 0];
     p.extend_from_slice(&reference.to_be_bytes());
     p.extend_from_slice(&(params.len() as u16).to_be_bytes());
     p.extend_from_slice(&(data.len() as u16).to_be_bytes());
@@ -99,6 +114,7 @@ pub(crate) fn setup(reference: u16, pdu: u16) -> Vec<u8> {
 
 fn item_spec(item: &Item) -> [u8; 12] {
     let (size, bits) = match item.bit {
+        _ if item.cells() => (item.area.code(), item.byte),
         Some(b) => (0x01, item.byte * 8 + u32::from(b)),
         None => (0x02, item.byte * 8),
     };
@@ -136,6 +152,7 @@ pub(crate) fn write(reference: u16, items: &[(Item, Vec<u8>)]) -> Vec<u8> {
     for (n, (item, value)) in items.iter().enumerate() {
         params.extend_from_slice(&item_spec(item));
         let (size, length) = match item.bit {
+            _ if item.cells() => (0x09, value.len() as u16),
             Some(_) => (0x03, 1u16),
             None => (0x04, (value.len() * 8) as u16),
         };
@@ -169,27 +186,34 @@ pub(crate) fn answer(payload: &[u8]) -> Result<Answer<'_>, Malformed> {
         });
     }
     let s7 = payload.get(cotp_len + 1..).ok_or_else(short)?;
-    if s7.len() < 12 {
+    if s7.len() < 10 {
         return Err(Malformed::Short(payload.len()));
     }
     if s7[0] != S7_ID {
         return Err(Malformed::Protocol(s7[0]));
     }
-    if s7[1] != ACK_DATA {
-        return Err(Malformed::Function {
-            expected: ACK_DATA,
-            got: s7[1],
-        });
-    }
+    // An acknowledgement carries an error class and code; user data (SZL) does not.
+    let head = match s7[1] {
+        ACK_DATA if s7.len() >= 12 => 12,
+        USER_DATA => 10,
+        got => {
+            return Err(Malformed::Function {
+                expected: ACK_DATA,
+                got,
+            });
+        }
+    };
     let reference = u16::from_be_bytes([s7[4], s7[5]]);
     let plen = usize::from(u16::from_be_bytes([s7[6], s7[7]]));
     let dlen = usize::from(u16::from_be_bytes([s7[8], s7[9]]));
-    let (class, code) = (s7[10], s7[11]);
-    if class != 0 || code != 0 {
-        return Err(Malformed::Refused { class, code });
+    if head == 12 && (s7[10] != 0 || s7[11] != 0) {
+        return Err(Malformed::Refused {
+            class: s7[10],
+            code: s7[11],
+        });
     }
-    let params = s7.get(12..12 + plen).ok_or_else(short)?;
-    let data = s7.get(12 + plen..12 + plen + dlen).ok_or_else(short)?;
+    let params = s7.get(head..head + plen).ok_or_else(short)?;
+    let data = s7.get(head + plen..head + plen + dlen).ok_or_else(short)?;
     Ok(Answer {
         reference,
         params,
@@ -273,15 +297,44 @@ pub(crate) fn write_items(a: &Answer<'_>, asked: usize) -> Result<Vec<Result<(),
         .collect())
 }
 
+/// What the PLC's refusal of a whole job says, and what to change on the PLC.
+pub(crate) fn refusal(class: u8, code: u8) -> String {
+    let what = match (class, code) {
+        (0x81, 0x04) => {
+            "function not available: on an S7-1200/1500 tick \"Permit access with PUT/GET communication from remote partner\" in the CPU's Protection & Security settings and download"
+        }
+        (0x80, 0x01) => "not allowed in the PLC's operating state (switch it to RUN)",
+        (0x81, 0x03) => {
+            "access not allowed: allow PUT/GET in the CPU's Protection & Security settings and lower its protection level"
+        }
+        (0x83, 0x04) => {
+            "the PLC has no resource left for another connection: close others or give it more in the CPU's connection resources"
+        }
+        (0x85, 0x00) => "the job does not fit the PDU size the PLC granted",
+        (0xD6, _) => {
+            "the CPU's protection refuses it: lower its protection level (or set the access password) in the hardware configuration"
+        }
+        (0x87, _) => "access error: check the area and the address",
+        _ => "refused",
+    };
+    format!("the PLC refused the job (error {class:02X}{code:02X}): {what}")
+}
+
 /// What an item's return code says.
 pub(crate) fn item_error(code: u8) -> &'static str {
     match code {
         0x01 => "hardware fault",
-        0x03 => "access denied (PUT/GET not allowed, or a protected or optimised block)",
-        0x05 => "address out of range",
+        0x03 => {
+            "access denied: allow PUT/GET in the CPU's Protection & Security settings, and the block must not be know-how protected"
+        }
+        0x05 => {
+            "address out of range: past the end of the block or area, or (S7-1200/1500) the DB has \"Optimized block access\" on; turn it off in the DB's attributes so its variables have offsets"
+        }
         0x06 => "data type not supported",
         0x07 => "data type inconsistent",
-        0x0A => "object does not exist (no such data block or area)",
+        0x0A => {
+            "object does not exist: no such data block (or area) in the PLC; download it or correct the address"
+        }
         _ => "refused",
     }
 }

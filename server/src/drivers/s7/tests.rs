@@ -3,6 +3,7 @@ use std::time::Duration;
 use super::config::remote_tsap;
 use super::conn::Connection;
 use super::pdu::{Area, Item};
+use super::szl;
 
 /// Snap7's server (python-snap7) with DB1 of 64 bytes (0x12 0x34 0xAB at 0) and 16 merker
 /// bytes, on a free port; killed when dropped.
@@ -25,7 +26,10 @@ s = socket.socket(); s.bind(("127.0.0.1", 0)); port = s.getsockname()[1]; s.clos
 srv = Server(log=False)
 db1 = (ctypes.c_uint8 * 64)(); db1[0] = 0x12; db1[1] = 0x34; db1[2] = 0xAB
 mk = (ctypes.c_uint8 * 16)()
+tm = (ctypes.c_uint8 * 16)(); tm[4] = 0x21; tm[5] = 0x25
+ct = (ctypes.c_uint8 * 16)(); ct[3] = 0x01; ct[4] = 0x23
 srv.register_area(SrvArea.DB, 1, db1); srv.register_area(SrvArea.MK, 0, mk)
+srv.register_area(SrvArea.TM, 0, tm); srv.register_area(SrvArea.CT, 0, ct)
 srv.start(tcp_port=port)
 print(port, flush=True)
 while sys.stdin.read(1): pass
@@ -97,4 +101,51 @@ async fn reads_and_writes_bytes_and_bits_of_snap7s_server() {
         c.read(&[m]).await.expect("read"),
         vec![Ok(vec![0xBE, 0xEF])]
     );
+}
+
+#[tokio::test]
+async fn the_plcs_identity_state_timers_and_counters_are_read() {
+    let Some(server) = snap7() else {
+        eprintln!("python-snap7 is not installed: skipped");
+        return;
+    };
+    let mut c = Connection::open(
+        ("127.0.0.1", server.1),
+        0x0100,
+        remote_tsap(1, 0, 1) as u16,
+        240,
+        Duration::from_secs(3),
+    )
+    .await
+    .expect("connected");
+    assert_eq!(c.pdu, 240, "the PDU size asked is granted");
+    let name = c
+        .szl(szl::COMPONENT_ID, szl::MODULE_NAME)
+        .await
+        .expect("SZL");
+    assert_eq!(
+        szl::text(&name[0], szl::NAME_LEN).as_deref(),
+        Some("CPU 315-2 PN/DP")
+    );
+    let order = c.szl(szl::MODULE_ID, 1).await.expect("SZL");
+    assert_eq!(
+        szl::text(&order[0], szl::ORDER_LEN).as_deref(),
+        Some("6ES7 315-2EH14-0AB0")
+    );
+    let state = c.szl(szl::CPU_STATE, 0).await.expect("SZL");
+    assert_eq!(szl::mode(&state[0]), Some(szl::Mode::Run));
+    let cell = |area, byte, length| Item {
+        area,
+        db: 0,
+        byte,
+        bit: None,
+        length,
+    };
+    // Timers and counters go by number (Snap7's server keeps timer or counter n at byte
+    // n / 2 of its buffer, where a PLC has word n; its own client reads them the same).
+    let read = c
+        .read(&[cell(Area::Timers, 4, 2), cell(Area::Counters, 6, 1)])
+        .await
+        .expect("read");
+    assert_eq!(read, vec![Ok(vec![0, 0, 0x21, 0x25]), Ok(vec![0x01, 0x23])]);
 }

@@ -11,7 +11,7 @@ use crate::yaml::{MapReader, Report};
 pub(super) const POINT_KEYS: &[&str] = &["unit", "sampling_interval", "length"];
 
 /// The longest STRING a point field holds, in characters.
-const MAX_LENGTH: i128 = 250;
+const MAX_LENGTH: i128 = 254;
 /// A STRING point's length when the profile does not say.
 const DEFAULT_LENGTH: u16 = 64;
 
@@ -24,7 +24,17 @@ pub(super) fn read_point(
     report: &mut Report,
 ) -> Option<(Register, Point)> {
     let at = |k: &str| format!("{ctx}: {k}");
-    let (address, browse_path) = address(map, words, ctx, report)?;
+    let length = match map.get("length") {
+        Some(n) if ty != Some(IecType::String) => {
+            report.push(n.line, at("length"), "only a STRING field has a length");
+            None
+        }
+        Some(n) => n
+            .int_in(report, &at("length"), 1, MAX_LENGTH)
+            .map(|l| l as u16),
+        None => None,
+    };
+    let (address, browse_path) = address(map, words, ctx, (ty, length), report)?;
     let key = match (browse_path, words.point_alternative) {
         (true, Some(k)) => k,
         _ => words.point_key,
@@ -44,16 +54,6 @@ pub(super) fn read_point(
                 }
             }
         }
-    };
-    let length = match map.get("length") {
-        Some(n) if ty != Some(IecType::String) => {
-            report.push(n.line, at("length"), "only a STRING field has a length");
-            None
-        }
-        Some(n) => n
-            .int_in(report, &at("length"), 1, MAX_LENGTH)
-            .map(|l| l as u16),
-        None => None,
     };
     let ty = ty?;
     let word_count = match ty {
@@ -78,6 +78,7 @@ pub(super) fn read_point(
         address,
         browse_path,
         sampling,
+        length,
     };
     Some((register, point))
 }
@@ -88,6 +89,7 @@ fn address(
     map: &mut MapReader<'_>,
     words: &Words,
     ctx: &str,
+    (ty, length): (Option<IecType>, Option<u16>),
     report: &mut Report,
 ) -> Option<(String, bool)> {
     let at = |k: &str| format!("{ctx}: {k}");
@@ -115,15 +117,15 @@ fn address(
                 map.line,
                 ctx,
                 format!(
-                    "missing `{}` (the point it reads, e.g. `ns=3;s=Line1.Speed`){or}",
-                    words.point_key
+                    "missing `{}` (the point it reads, e.g. `{}`){or}",
+                    words.point_key, words.example
                 ),
             );
             return None;
         }
     };
     let text = node.scalar_text(report, &at(key))?;
-    if let Err(why) = (words.check_point)(key, &text) {
+    if let Err(why) = (words.check_point)(key, &text, ty, length) {
         report.push(node.line, at(key), why);
         return None;
     }
