@@ -12,6 +12,7 @@ pub mod mqtt;
 pub mod opcua;
 pub mod pki;
 pub mod plc;
+pub mod s7;
 mod started;
 
 pub use started::{

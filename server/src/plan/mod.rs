@@ -4,6 +4,7 @@
 mod budget;
 mod read_batches;
 mod report;
+pub(crate) mod s7;
 mod write_groups;
 
 pub(crate) use budget::{cycle_time, transaction_time, utilisation};

@@ -61,29 +61,42 @@ pub fn render(config: &Config, catalog: &Catalog) -> String {
         out.push_str("No links configured: nothing is polled on a bus.\n");
     }
     for link in &config.links {
-        render_link(&mut out, link, &devices_of(config, catalog, link));
+        render_link(&mut out, link, &devices_of(config, catalog, link), None);
     }
     out
 }
 
 /// The poll plan of one link and its devices (each with its profile), as `iogate plan`
 /// prints it: for a running gateway's links, with the devices declared since it started.
+///
+/// `granted` is the PDU size an S7 PLC granted, where it did (else the size asked).
 pub fn link_plan<'a>(
     link: &LinkConfig,
     devices: impl IntoIterator<Item = (&'a DeviceConfig, &'a Profile)>,
+    granted: Option<u16>,
 ) -> String {
     let planned: Planned<'a> = devices
         .into_iter()
         .map(|(d, p)| (d, p, read_batches(p, d.max_batch, d.max_gap)))
         .collect();
     let mut out = String::new();
-    render_link(&mut out, link, &planned);
+    render_link(&mut out, link, &planned, granted);
     out
 }
 
-fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>) {
+fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>, granted: Option<u16>) {
     let timing = render_line(out, link);
     for (d, profile, batches) in devices {
+        if profile.protocol.name() == "s7"
+            && let Transport::Driver(s) = &link.transport
+        {
+            let pdu = granted.map_or_else(
+                || (super::s7::asked_pdu(&s.settings), "asked"),
+                |g| (g, "granted"),
+            );
+            render_s7(out, d, profile, pdu);
+            continue;
+        }
         if profile.protocol.point_key().is_some() {
             render_points(out, d, profile);
             continue;
@@ -151,21 +164,60 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
     }
 }
 
+/// An S7 device's jobs per cycle for a PDU size (and whether the PLC granted it or it is
+/// the size asked): each item's area and bytes with the fields it carries.
+fn render_s7(out: &mut String, d: &DeviceConfig, profile: &Profile, (pdu, how): (u16, &str)) {
+    let places = super::s7::places(profile);
+    let batches = super::s7::batches(&places, pdu);
+    let _ = writeln!(
+        out,
+        "  device {} (profile {}, s7, every {} ms): {} job(s) per cycle for a PDU of {pdu} bytes ({how})",
+        d.name,
+        profile.name,
+        d.refresh_rate.as_millis(),
+        batches.len(),
+    );
+    for (n, b) in batches.iter().enumerate() {
+        let _ = writeln!(out, "    job {}: {} item(s)", n + 1, b.items.len());
+        for (item, fields) in b.items.iter().zip(&b.fields) {
+            let names: Vec<&str> = fields
+                .iter()
+                .map(|(i, _)| profile.fields[*i].name.as_str())
+                .collect();
+            let _ = writeln!(
+                out,
+                "      {}: {}",
+                super::s7::describe(item),
+                names.join(", ")
+            );
+        }
+    }
+    let room = super::s7::max_item(pdu);
+    for (f, p) in profile.fields.iter().zip(&places) {
+        match p {
+            Err(why) => {
+                let _ = writeln!(out, "    {} not read: {why}", f.name);
+            }
+            Ok(p) if u32::from(p.bytes) > room => {
+                let _ = writeln!(
+                    out,
+                    "    {} not read: {} bytes do not fit one item ({room} bytes)",
+                    f.name, p.bytes
+                );
+            }
+            Ok(_) => {}
+        }
+    }
+}
+
 /// A device of a protocol that names its points: one subscription, a monitored item per
 /// field (the server samples each; the gateway asks nothing per cycle).
 fn render_points(out: &mut String, d: &DeviceConfig, profile: &Profile) {
     let count = profile.fields.iter().filter(|f| f.point.is_some()).count();
-    let how = if profile.protocol.name() == "opcua" {
-        format!(
-            "a subscription publishing every {} ms, {count} monitored item(s); read every refresh where the server has no subscriptions",
-            d.refresh_rate.as_millis()
-        )
-    } else {
-        format!(
-            "{count} field(s) read every {} ms, in the fewest jobs the PLC's PDU allows",
-            d.refresh_rate.as_millis()
-        )
-    };
+    let how = format!(
+        "a subscription publishing every {} ms, {count} monitored item(s); read every refresh where the server has no subscriptions",
+        d.refresh_rate.as_millis()
+    );
     let _ = writeln!(
         out,
         "  device {} (profile {}, {}): {how}",

@@ -137,9 +137,15 @@ pub(crate) async fn get_link_plan(
 ) -> Result<([(axum::http::HeaderName, &'static str); 1], String), ApiError> {
     let link = service.link(&name)?;
     let members = link.members();
+    let granted = link
+        .peer()
+        .iter()
+        .find(|(k, _)| *k == "pdu_size")
+        .and_then(|(_, v)| v.parse().ok());
     let text = crate::plan::link_plan(
         &link.config(),
         members.iter().map(|d| (&d.config, d.profile.as_ref())),
+        granted,
     );
     Ok((
         [(

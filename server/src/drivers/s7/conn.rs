@@ -58,7 +58,17 @@ impl Connection {
     ) -> Result<Connection, S7Error> {
         let stream = tokio::time::timeout(timeout, TcpStream::connect(addr))
             .await
-            .map_err(|_| S7Error::Timeout(timeout))??;
+            .map_err(|_| S7Error::Timeout(timeout))?
+            .map_err(|e| match e.kind() {
+                io::ErrorKind::ConnectionRefused => io::Error::new(
+                    e.kind(),
+                    format!(
+                        "connection refused: nothing listens on port {} there (is it the PLC's address, and its port 102 open?)",
+                        addr.1
+                    ),
+                ),
+                _ => e,
+            })?;
         let _ = stream.set_nodelay(true);
         let mut conn = Connection {
             stream,

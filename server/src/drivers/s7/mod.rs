@@ -8,7 +8,6 @@ mod clock;
 mod config;
 mod conn;
 pub(crate) mod pdu;
-mod plan;
 mod szl;
 mod value;
 mod write;
@@ -24,8 +23,8 @@ use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::plan::WriteItem;
+use crate::plan::s7::{self as plan, Batch, Place};
 use conn::{Connection, S7Error};
-use plan::{Batch, Place};
 use szl::Mode;
 
 /// The S7 driver.
@@ -56,7 +55,7 @@ pub(crate) struct Plc {
 }
 
 /// How often the operating state is read while the PLC is polled.
-const MODE_EVERY: Duration = Duration::from_secs(10);
+const MODE_EVERY: Duration = Duration::from_secs(2);
 
 /// What a PLC in STOP does to its values.
 const IN_STOP: &str =

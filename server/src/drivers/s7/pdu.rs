@@ -3,28 +3,7 @@
 //! only: every answer is checked strictly (lengths, function, item count) and a malformed
 //! one is an error naming what was wrong, never a panic.
 
-pub(crate) use crate::profile::s7_address::Area;
-
-/// One item of a Read Var or Write Var: bytes (or one bit) of an area, or timers and
-/// counters by number.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct Item {
-    pub(crate) area: Area,
-    pub(crate) db: u16,
-    /// The first byte (a timer's or counter's number).
-    pub(crate) byte: u32,
-    /// `Some(bit)` for a single bit (length 1).
-    pub(crate) bit: Option<u8>,
-    /// Bytes (1 for a bit; timers and counters: how many).
-    pub(crate) length: u16,
-}
-
-impl Item {
-    /// Whether it counts timers or counters (two bytes each) rather than bytes.
-    fn cells(&self) -> bool {
-        matches!(self.area, Area::Timers | Area::Counters)
-    }
-}
+pub(crate) use crate::plan::s7::Item;
 
 /// Why an answer is not one.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -2,8 +2,9 @@ use std::time::Duration;
 
 use super::config::remote_tsap;
 use super::conn::Connection;
-use super::pdu::{Area, Item};
+use super::pdu::Item;
 use super::szl;
+use crate::profile::s7_address::Area;
 
 /// Snap7's server (python-snap7) with DB1 of 64 bytes (0x12 0x34 0xAB at 0) and 16 merker
 /// bytes, on a free port; killed when dropped.

@@ -1,4 +1,4 @@
-//! A device's reads: each field an area range (its address, its form's size), ranges of one
+//! An S7 device's reads: each field an area range (its address, its form's size), ranges of one
 //! block merged where they touch, packed into jobs within the negotiated PDU (items per
 //! request, answer bytes). Timers and counters count cells of two bytes.
 
@@ -6,7 +6,26 @@ use crate::profile::Profile;
 use crate::profile::s7_address::{Address, Area, parse};
 use crate::profile::s7_form::{Form, form};
 
-use super::pdu::Item;
+/// One item of a Read Var or Write Var: bytes (or one bit) of an area, or timers and
+/// counters by number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Item {
+    pub(crate) area: Area,
+    pub(crate) db: u16,
+    /// The first byte (a timer's or counter's number).
+    pub(crate) byte: u32,
+    /// `Some(bit)` for a single bit (length 1).
+    pub(crate) bit: Option<u8>,
+    /// Bytes (1 for a bit; timers and counters: how many).
+    pub(crate) length: u16,
+}
+
+impl Item {
+    /// Whether it counts timers or counters (two bytes each) rather than bytes.
+    pub(crate) fn cells(&self) -> bool {
+        matches!(self.area, Area::Timers | Area::Counters)
+    }
+}
 
 /// A field's place: its address, how its value is stored and the bytes it takes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -122,4 +141,35 @@ pub(crate) fn batches(places: &[Result<Place, String>], pdu: u16) -> Vec<Batch> 
         }
     }
     out
+}
+
+/// The PDU size a link's settings ask for (960 unless they say).
+pub(crate) fn asked_pdu(settings: &crate::yaml::Node) -> u16 {
+    let mut quiet = crate::yaml::Report::new("plan");
+    settings
+        .map(&mut quiet, "s7")
+        .and_then(|mut m| m.get("pdu_size").cloned())
+        .and_then(|n| n.int_in(&mut quiet, "pdu_size", 240, 960))
+        .map_or(960, |v| v as u16)
+}
+
+/// An item as S7 users read it: its area, block and bytes (timers and counters by number).
+pub(crate) fn describe(item: &Item) -> String {
+    let (first, last) = (item.byte, item.byte + u32::from(item.length.max(1)) - 1);
+    let bytes = |area: &str| match first == last {
+        true => format!("{area} byte {first}"),
+        false => format!("{area} bytes {first}-{last}"),
+    };
+    let cells = |letter: &str| match first == last {
+        true => format!("{letter}{first}"),
+        false => format!("{letter}{first}-{letter}{last}"),
+    };
+    match item.area {
+        Area::DataBlock => bytes(&format!("DB{}", item.db)),
+        Area::Merkers => bytes("M"),
+        Area::Inputs => bytes("I"),
+        Area::Outputs => bytes("Q"),
+        Area::Timers => cells("T"),
+        Area::Counters => cells("C"),
+    }
 }
