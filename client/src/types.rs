@@ -151,6 +151,9 @@ pub struct LinkInfo {
     pub error_code: i32,
     /// The devices on it.
     pub devices: Vec<String>,
+    /// What the gateway learned of the device at the other end (an S7 PLC's
+    /// `order_number`, `module`, `serial_number`, `pdu_size`, `cpu_state`).
+    pub peer: std::collections::BTreeMap<String, String>,
 }
 
 impl LinkInfo {
@@ -172,6 +175,7 @@ impl LinkInfo {
             connected: l.connected,
             error_code: l.error_code,
             devices: l.devices,
+            peer: l.peer.into_iter().collect(),
         }
     }
 }

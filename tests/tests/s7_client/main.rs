@@ -3,6 +3,7 @@
 //! its neighbours), item errors per field, the PLC in STOP and a server stopped and started
 //! again.
 
+mod doors;
 mod failures;
 mod values;
 mod writes;
@@ -55,6 +56,11 @@ fields:
 /// A gateway with the PLC at `port` on two links: one asking for a PDU of 240 bytes
 /// (`press240`), one of 960 (`press960`).
 async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
+    gateway_with(name, port, "").await
+}
+
+/// The same, with more configuration (other front-ends).
+async fn gateway_with(name: &str, port: u16, more: &str) -> anyhow::Result<TestGateway> {
     let dir = temp_dir(name);
     std::fs::create_dir_all(dir.join("profiles"))?;
     std::fs::write(dir.join("profiles/press.yaml"), PROFILE)?;
@@ -70,6 +76,7 @@ async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
             "  - {{ name: press{pdu}, profile: Press, link: plc{pdu}, refresh_rate: 100ms }}\n"
         ));
     }
+    config.push_str(more);
     TestGateway::start(&config).await
 }
 

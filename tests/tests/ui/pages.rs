@@ -307,3 +307,52 @@ async fn an_opcua_links_page_shows_its_endpoint_state_and_subscriptions() -> any
     gw.shutdown().await;
     plc.kill().await
 }
+
+#[tokio::test]
+async fn an_s7_links_page_shows_the_plcs_identity_and_its_jobs() -> anyhow::Result<()> {
+    let browser = Browser::start(DESKTOP.0, DESKTOP.1).await?;
+    let plc = iogate_tests::s7::S7Plc::start(None).await?;
+    let dir = iogate_tests::devices::temp_dir("ui-s7");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(
+        dir.join("profiles/press.yaml"),
+        "name: Press\nprotocol: s7\nfields:\n  - { name: Count, type: INT, direction: input, address: DB1.DBW2 }\n",
+    )?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: press\n    s7: {{ host: 127.0.0.1, port: {} }}\ndevices:\n  - {{ name: press1, profile: Press, link: press, refresh_rate: 250ms }}\n",
+        dir.join("profiles").display(),
+        plc.port,
+    );
+    let gw = TestGateway::start(&config).await?;
+    gw.until("/api/v1/devices/press1", "read", |d| {
+        d["fields"]["Count"]["quality"] == "good"
+    })
+    .await?;
+    browser.goto(&gw.url("/ui#/links/press")).await?;
+    let facts = browser
+        .until_text("dl.facts", Duration::from_secs(10), |t| {
+            t.contains("Order number")
+        })
+        .await?;
+    for shown in [
+        "s7 127.0.0.1",
+        "6ES7 315-2EH14-0AB0",
+        "CPU 315-2 PN/DP",
+        "PDU size",
+        "960",
+        "run",
+    ] {
+        assert!(facts.contains(shown), "{shown}: {facts}");
+    }
+    let plan = browser
+        .until_text("#plan", Duration::from_secs(10), |t| t.contains("job"))
+        .await?;
+    assert!(plan.contains("DB1 bytes 2-3: Count"), "{plan}");
+    assert!(
+        browser.find("#scan-ids").await?.is_none(),
+        "no scan on an S7 link"
+    );
+    assert_eq!(console_errors(&browser).await?, Vec::<String>::new());
+    gw.shutdown().await;
+    plc.kill().await
+}
