@@ -43,6 +43,7 @@ def db1():
     put(b, 62, "Ω".encode("utf-16-be"))
     put(b, 64, bytes([20, 5]) + b"press")
     put(b, 100, bytes([100, 4]) + b"tail")
+    put(b, 254, struct.pack(">h", 258))
     return b
 
 

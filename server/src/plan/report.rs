@@ -168,7 +168,7 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
 /// the size asked): each item's area and bytes with the fields it carries.
 fn render_s7(out: &mut String, d: &DeviceConfig, profile: &Profile, (pdu, how): (u16, &str)) {
     let places = super::s7::places(profile);
-    let batches = super::s7::batches(&places, pdu);
+    let batches = super::s7::batches(&places, pdu, &Default::default());
     let _ = writeln!(
         out,
         "  device {} (profile {}, s7, every {} ms): {} job(s) per cycle for a PDU of {pdu} bytes ({how})",

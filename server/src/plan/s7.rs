@@ -75,6 +75,9 @@ pub(crate) struct Batch {
     pub(crate) fields: Vec<Vec<(usize, u32)>>,
 }
 
+/// The most items of one request: what S7-300/400 CPUs and Snap7 take (more are cut off).
+pub(crate) const MAX_ITEMS: usize = 20;
+
 /// The most bytes one item's answer carries in a PDU of `pdu` bytes (a field larger is not
 /// read: its error says so).
 pub(crate) fn max_item(pdu: u16) -> u32 {
@@ -83,7 +86,11 @@ pub(crate) fn max_item(pdu: u16) -> u32 {
 
 /// The fields' ranges merged where they touch and packed into jobs: at most
 /// `(pdu - 19) / 12` items a request, answers within `pdu - 14` bytes.
-pub(crate) fn batches(places: &[Result<Place, String>], pdu: u16) -> Vec<Batch> {
+pub(crate) fn batches(
+    places: &[Result<Place, String>],
+    pdu: u16,
+    alone: &std::collections::BTreeSet<usize>,
+) -> Vec<Batch> {
     let mut ranges: Vec<Range> = Vec::new();
     let max_item = max_item(pdu);
     let mut order: Vec<(usize, Place)> = places
@@ -98,7 +105,12 @@ pub(crate) fn batches(places: &[Result<Place, String>], pdu: u16) -> Vec<Batch> 
         let end = first + u32::from(p.bytes);
         match ranges.last_mut() {
             Some((area, db, start, stop, fields))
-                if *area == a.area && *db == a.db && first <= *stop && end - *start <= max_item =>
+                if *area == a.area
+                    && *db == a.db
+                    && first <= *stop
+                    && end - *start <= max_item
+                    && !alone.contains(&i)
+                    && !fields.iter().any(|(f, _)| alone.contains(f)) =>
             {
                 *stop = (*stop).max(end);
                 fields.push((i, first - *start));
@@ -106,7 +118,7 @@ pub(crate) fn batches(places: &[Result<Place, String>], pdu: u16) -> Vec<Batch> 
             _ => ranges.push((a.area, a.db, first, end, vec![(i, 0)])),
         }
     }
-    let per_request = usize::from(pdu.saturating_sub(19) / 12).max(1);
+    let per_request = usize::from(pdu.saturating_sub(19) / 12).clamp(1, MAX_ITEMS);
     let answer_room = u32::from(pdu.saturating_sub(14));
     let mut out: Vec<Batch> = Vec::new();
     let mut used = u32::MAX;

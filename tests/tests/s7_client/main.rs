@@ -51,6 +51,8 @@ fields:
   - { name: Missing, type: INT, direction: inout, address: DB9.DBW0 }
   - { name: Tail, type: STRING, direction: input, address: DB1.STRING100, length: 100 }
   - { name: Past, type: INT, direction: input, address: DB1.DBW300 }
+  - { name: Edge, type: INT, direction: input, address: DB1.DBW254 }
+  - { name: Over, type: DINT, direction: input, address: DB1.DBD256 }
 "#;
 
 /// A gateway with the PLC at `port` on two links: one asking for a PDU of 240 bytes

@@ -11,6 +11,12 @@ use tokio::net::TcpStream;
 use super::pdu::{self, Item, Malformed};
 use super::szl;
 
+/// The most jobs asked to be sent before their answers.
+const PARALLEL: u16 = 8;
+
+/// Each job's items (bytes or return codes), or the PLC's refusal of the job.
+pub(crate) type Answers = Vec<Result<Vec<Result<Vec<u8>, u8>>, Malformed>>;
+
 /// Why a job failed.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum S7Error {
@@ -31,6 +37,8 @@ pub(crate) struct Connection {
     stream: TcpStream,
     /// The PDU size the PLC granted.
     pub(crate) pdu: u16,
+    /// How many jobs the PLC takes before answering the first (its AmQ).
+    pub(crate) parallel: u16,
     reference: u16,
     timeout: Duration,
 }
@@ -73,6 +81,7 @@ impl Connection {
         let mut conn = Connection {
             stream,
             pdu: 0,
+            parallel: 1,
             reference: 0,
             timeout,
         };
@@ -86,8 +95,10 @@ impl Connection {
         };
         confirmed.map_err(|why| S7Error::Refused { remote, why })?;
         let reference = conn.next_reference();
-        let answer = conn.job(&pdu::setup(reference, pdu)).await?;
-        conn.pdu = pdu::granted(&answered(&answer, reference)?)?;
+        let answer = conn.job(&pdu::setup(reference, pdu, PARALLEL)).await?;
+        let (granted, parallel) = pdu::granted(&answered(&answer, reference)?)?;
+        conn.pdu = granted;
+        conn.parallel = parallel.clamp(1, PARALLEL);
         Ok(conn)
     }
 
@@ -124,6 +135,7 @@ impl Connection {
     }
 
     /// Reads `items` in one job: each item's bytes or its return code.
+    #[cfg(test)]
     pub(crate) async fn read(
         &mut self,
         items: &[Item],
@@ -134,6 +146,46 @@ impl Connection {
             &answered(&answer, reference)?,
             items.len(),
         )?)
+    }
+
+    /// Reads several jobs of items, as many at a time as the PLC takes: each job's answer,
+    /// or the PLC's refusal of it. `started` is told before each answer is awaited.
+    pub(crate) async fn read_jobs(
+        &mut self,
+        jobs: &[&[Item]],
+        started: impl Fn(),
+    ) -> Result<Answers, S7Error> {
+        let mut out: Answers = vec![Err(Malformed::Truncated); jobs.len()];
+        let mut waiting: std::collections::VecDeque<(u16, usize)> = Default::default();
+        let mut next = 0;
+        while next < jobs.len() || !waiting.is_empty() {
+            while next < jobs.len() && waiting.len() < usize::from(self.parallel) {
+                let reference = self.next_reference();
+                self.stream
+                    .write_all(&pdu::read(reference, jobs[next]))
+                    .await?;
+                waiting.push_back((reference, next));
+                next += 1;
+            }
+            started();
+            let frame = self.frame().await?;
+            let answer = pdu::answer(&frame)?;
+            let at = waiting
+                .iter()
+                .position(|(r, _)| *r == answer.reference)
+                .ok_or(Malformed::Reference {
+                    expected: waiting.front().map_or(0, |w| w.0),
+                    got: answer.reference,
+                })?;
+            let Some((_, job)) = waiting.remove(at) else {
+                continue;
+            };
+            out[job] = match pdu::read_items(&answer, jobs[job].len()) {
+                Err(refused @ Malformed::Refused { .. }) => Err(refused),
+                answered => Ok(answered?),
+            };
+        }
+        Ok(out)
     }
 
     /// Reads SZL `id` at `index`: its records.

@@ -39,6 +39,8 @@ pub(crate) struct Plan {
     batches: Vec<Batch>,
     /// The PDU size the batches were planned for (0: not yet).
     pdu: u16,
+    /// Fields read in items of their own (their range, merged, was out of range).
+    alone: std::collections::BTreeSet<usize>,
 }
 
 /// An open PLC connection.
@@ -61,13 +63,16 @@ const MODE_EVERY: Duration = Duration::from_secs(2);
 const IN_STOP: &str =
     "the PLC is in STOP: its program does not run and these values do not change; switch it to RUN";
 
+/// The connection's end.
+fn lost(e: S7Error) -> LinkFault {
+    LinkFault::Lost(Arc::new(std::io::Error::other(e.to_string())))
+}
+
 /// An error of a job: the connection's end, or (`Ok`) the PLC's refusal of the job.
 fn fault(e: S7Error) -> Result<String, LinkFault> {
     match e {
         S7Error::Malformed(m @ pdu::Malformed::Refused { .. }) => Ok(m.to_string()),
-        e => Err(LinkFault::Lost(Arc::new(std::io::Error::other(
-            e.to_string(),
-        )))),
+        e => Err(lost(e)),
     }
 }
 
@@ -91,6 +96,7 @@ impl Driver for S7 {
             places: plan::places(&device.profile),
             batches: Vec::new(),
             pdu: 0,
+            alone: Default::default(),
         }
     }
 
@@ -248,7 +254,7 @@ fn publish_item(
 /// Plans the device's jobs for the PDU the PLC granted, telling each field that has no place
 /// (or does not fit one item) why.
 fn replan(device: &Device, plan: &mut Plan, pdu: u16) {
-    plan.batches = plan::batches(&plan.places, pdu);
+    plan.batches = plan::batches(&plan.places, pdu, &plan.alone);
     plan.pdu = pdu;
     let room = plan::max_item(pdu);
     for (idx, p) in plan.places.iter().enumerate() {
@@ -278,25 +284,40 @@ impl Session for Plc {
             fault(e)?;
         }
         let doubt = (self.mode == Some(Mode::Stop)).then(|| FieldError::Device(IN_STOP.into()));
-        for batch in &plan.batches {
-            self.started();
-            let answered = self.conn.read(&batch.items).await;
-            self.progress.ended();
-            let now = Instant::now();
-            match answered {
-                Ok(answers) => {
-                    for (fields, answer) in batch.fields.iter().zip(&answers) {
-                        publish_item(device, plan, fields, answer, doubt.as_ref(), now);
+        let jobs: Vec<&[pdu::Item]> = plan.batches.iter().map(|b| b.items.as_slice()).collect();
+        let (progress, timeout) = (self.progress.clone(), self.timeout);
+        let answered = self
+            .conn
+            .read_jobs(&jobs, || progress.started(Instant::now() + timeout))
+            .await;
+        self.progress.ended();
+        let answers = answered.map_err(lost)?;
+        let now = Instant::now();
+        let mut split = Vec::new();
+        for (batch, answer) in plan.batches.iter().zip(answers) {
+            match answer {
+                Ok(items) => {
+                    for (fields, item) in batch.fields.iter().zip(&items) {
+                        publish_item(device, plan, fields, item, doubt.as_ref(), now);
+                        if fields.len() > 1 && *item == Err(pdu::OUT_OF_RANGE) {
+                            split.extend(fields.iter().map(|&(idx, _)| idx));
+                        }
                     }
                 }
-                Err(e) => {
-                    let why = fault(e)?;
+                Err(refused) => {
+                    let why = refused.to_string();
                     self.tell_refused(&why);
                     for &(idx, _) in batch.fields.iter().flatten() {
                         device.publish(idx, Err(FieldError::Device(why.clone())));
                     }
                 }
             }
+        }
+        if !split.is_empty() {
+            // A range past the end of its block: its fields are read alone from now on, so
+            // that those within it are read.
+            plan.alone.extend(split);
+            plan.pdu = 0;
         }
         Ok(Read::Answered(started.elapsed()))
     }

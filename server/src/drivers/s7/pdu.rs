@@ -85,10 +85,11 @@ pub(crate) fn message(kind: u8, reference: u16, params: &[u8], data: &[u8]) -> V
     tpkt(&p)
 }
 
-/// Setup communication, asking for a PDU of `pdu` bytes.
-pub(crate) fn setup(reference: u16, pdu: u16) -> Vec<u8> {
+/// Setup communication, asking for a PDU of `pdu` bytes and `parallel` jobs at a time.
+pub(crate) fn setup(reference: u16, pdu: u16, parallel: u16) -> Vec<u8> {
     let [h, l] = pdu.to_be_bytes();
-    job(reference, &[SETUP, 0, 0, 1, 0, 1, h, l], &[])
+    let [ph, pl] = parallel.to_be_bytes();
+    job(reference, &[SETUP, 0, ph, pl, ph, pl, h, l], &[])
 }
 
 fn item_spec(item: &Item) -> [u8; 12] {
@@ -151,6 +152,18 @@ pub(crate) struct Answer<'a> {
     pub(crate) reference: u16,
     pub(crate) params: &'a [u8],
     pub(crate) data: &'a [u8],
+    /// The PLC's refusal of the whole job (its error class and code), if it refused it.
+    pub(crate) refused: Option<Malformed>,
+}
+
+impl Answer<'_> {
+    /// The answer, unless the PLC refused the job.
+    fn accepted(&self) -> Result<&Self, Malformed> {
+        match &self.refused {
+            Some(why) => Err(why.clone()),
+            None => Ok(self),
+        }
+    }
 }
 
 /// Splits a TPKT payload (COTP data frame) into the S7 answer, checking every length.
@@ -185,31 +198,39 @@ pub(crate) fn answer(payload: &[u8]) -> Result<Answer<'_>, Malformed> {
     let reference = u16::from_be_bytes([s7[4], s7[5]]);
     let plen = usize::from(u16::from_be_bytes([s7[6], s7[7]]));
     let dlen = usize::from(u16::from_be_bytes([s7[8], s7[9]]));
-    if head == 12 && (s7[10] != 0 || s7[11] != 0) {
-        return Err(Malformed::Refused {
-            class: s7[10],
-            code: s7[11],
-        });
+    let refused = (head == 12 && (s7[10] != 0 || s7[11] != 0)).then_some(Malformed::Refused {
+        class: s7[10],
+        code: s7[11],
+    });
+    // A refusal may come without the parameters and data it announces.
+    let params = s7.get(head..head + plen).unwrap_or_default();
+    let data = s7.get(head + plen..head + plen + dlen).unwrap_or_default();
+    if refused.is_none() && (params.len() != plen || data.len() != dlen) {
+        return Err(short());
     }
-    let params = s7.get(head..head + plen).ok_or_else(short)?;
-    let data = s7.get(head + plen..head + plen + dlen).ok_or_else(short)?;
     Ok(Answer {
         reference,
         params,
         data,
+        refused,
     })
 }
 
-/// The PDU size the PLC granted in its answer to setup communication.
-pub(crate) fn granted(a: &Answer<'_>) -> Result<u16, Malformed> {
+/// The PDU size and the jobs at a time (sent before their answers) the PLC granted in its
+/// answer to setup communication.
+pub(crate) fn granted(a: &Answer<'_>) -> Result<(u16, u16), Malformed> {
+    let a = a.accepted()?;
     if a.params.first() != Some(&SETUP) {
         return Err(Malformed::Function {
             expected: SETUP,
             got: a.params.first().copied().unwrap_or(0),
         });
     }
-    let b = a.params.get(6..8).ok_or(Malformed::Truncated)?;
-    Ok(u16::from_be_bytes([b[0], b[1]]))
+    let b = a.params.get(2..8).ok_or(Malformed::Truncated)?;
+    Ok((
+        u16::from_be_bytes([b[4], b[5]]),
+        u16::from_be_bytes([b[0], b[1]]),
+    ))
 }
 
 /// Each item's bytes, or its return code when not 0xFF (success).
@@ -217,6 +238,7 @@ pub(crate) fn read_items(
     a: &Answer<'_>,
     asked: usize,
 ) -> Result<Vec<Result<Vec<u8>, u8>>, Malformed> {
+    let a = a.accepted()?;
     if a.params.first() != Some(&READ) {
         return Err(Malformed::Function {
             expected: READ,
@@ -258,6 +280,7 @@ pub(crate) fn read_items(
 
 /// Each written item's return code: `Ok` for 0xFF.
 pub(crate) fn write_items(a: &Answer<'_>, asked: usize) -> Result<Vec<Result<(), u8>>, Malformed> {
+    let a = a.accepted()?;
     if a.params.first() != Some(&WRITE) {
         return Err(Malformed::Function {
             expected: WRITE,
@@ -298,6 +321,9 @@ pub(crate) fn refusal(class: u8, code: u8) -> String {
     };
     format!("the PLC refused the job (error {class:02X}{code:02X}): {what}")
 }
+
+/// An item's return code for an address past the end of its block or area.
+pub(crate) const OUT_OF_RANGE: u8 = 0x05;
 
 /// What an item's return code says.
 pub(crate) fn item_error(code: u8) -> &'static str {

@@ -20,6 +20,9 @@ pub(crate) fn request(reference: u16, id: u16, index: u16) -> Vec<u8> {
 
 /// The records of an SZL answer: each record's bytes.
 pub(crate) fn records(a: &Answer<'_>) -> Result<Vec<Vec<u8>>, Malformed> {
+    if let Some(why) = &a.refused {
+        return Err(why.clone());
+    }
     let p = a.params;
     if p.len() < 12 {
         return Err(Malformed::Truncated);
