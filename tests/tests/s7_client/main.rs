@@ -98,8 +98,14 @@ async fn until_device(
         .await
 }
 
-/// Writes a field through the REST API and waits for its outcome.
-async fn write(gw: &TestGateway, device: &str, name: &str, value: Value) -> anyhow::Result<Value> {
+/// Asks for a write through the REST API: the API's refusal (`Err`, its answer), or the
+/// write's outcome once it has one.
+async fn put(
+    gw: &TestGateway,
+    device: &str,
+    name: &str,
+    value: Value,
+) -> anyhow::Result<Result<Value, String>> {
     let (status, w) = gw
         .send(
             reqwest::Method::PUT,
@@ -107,12 +113,23 @@ async fn write(gw: &TestGateway, device: &str, name: &str, value: Value) -> anyh
             json!({ "value": value }).to_string(),
         )
         .await?;
-    anyhow::ensure!((200..300).contains(&status), "{name}: {status} {w}");
+    if !(200..300).contains(&status) {
+        return Ok(Err(format!("{status} {w}")));
+    }
     let generation = w["generation"].as_u64().unwrap_or_default();
-    gw.until(&format!("/api/v1/writes/{generation}"), "an outcome", |w| {
-        w["status"] != "pending"
-    })
-    .await
+    let outcome = gw
+        .until(&format!("/api/v1/writes/{generation}"), "an outcome", |w| {
+            w["status"] != "pending"
+        })
+        .await?;
+    Ok(Ok(outcome))
+}
+
+/// Writes a field through the REST API and waits for its outcome.
+async fn write(gw: &TestGateway, device: &str, name: &str, value: Value) -> anyhow::Result<Value> {
+    put(gw, device, name, value)
+        .await?
+        .map_err(|refused| anyhow::anyhow!("{name}: {refused}"))
 }
 
 /// Why a write is refused: by the API at once, or by the driver as its outcome.
@@ -122,22 +139,11 @@ async fn refused(
     name: &str,
     value: Value,
 ) -> anyhow::Result<String> {
-    let (status, w) = gw
-        .send(
-            reqwest::Method::PUT,
-            &format!("/api/v1/devices/{device}/fields/{name}"),
-            json!({ "value": value }).to_string(),
-        )
-        .await?;
-    if !(200..300).contains(&status) {
-        return Ok(w.to_string());
+    match put(gw, device, name, value).await? {
+        Err(refused) => Ok(refused),
+        Ok(outcome) => {
+            anyhow::ensure!(outcome["status"] == "failed", "{name}: {outcome}");
+            Ok(outcome["error"].as_str().unwrap_or_default().to_owned())
+        }
     }
-    let generation = w["generation"].as_u64().unwrap_or_default();
-    let outcome = gw
-        .until(&format!("/api/v1/writes/{generation}"), "an outcome", |w| {
-            w["status"] != "pending"
-        })
-        .await?;
-    anyhow::ensure!(outcome["status"] == "failed", "{name}: {outcome}");
-    Ok(outcome["error"].as_str().unwrap_or_default().to_owned())
 }

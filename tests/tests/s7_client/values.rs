@@ -3,6 +3,7 @@
 
 use super::*;
 use iogate_tests::s7::S7Plc;
+use serde_json::Value;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_type_and_area_is_read_at_both_pdu_sizes() -> anyhow::Result<()> {
@@ -18,42 +19,7 @@ async fn every_type_and_area_is_read_at_both_pdu_sizes() -> anyhow::Result<()> {
         })
         .await?;
         let v = |n: &str| field(&d, n)["value"].clone();
-        for (name, want) in [
-            ("Flags", json!(0b10101010)),
-            ("B1", json!(true)),
-            ("B2", json!(false)),
-            ("Si", json!(-5)),
-            ("In", json!(-300)),
-            ("Di", json!(100000)),
-            ("Li", json!(-(1i64 << 40))),
-            ("Re", json!(1.5)),
-            ("LR", json!(2.25)),
-            ("Us", json!(200)),
-            ("Ch", json!("Z")),
-            ("Ui", json!(60000)),
-            ("Ud", json!(4000000000u64)),
-            ("Ul", json!((1u64 << 63) + 5)),
-            ("Wd", json!(0xBEEF)),
-            ("Dw", json!(0xDEADBEEFu32)),
-            ("Lw", json!(0x0123456789ABCDEFu64)),
-            ("Tdint", json!(-1500)),
-            ("Wc", json!("Ω")),
-            ("Str", json!("press")),
-            ("Stamp", json!("2026-11-26T16:50:45.123")),
-            ("StampL", json!("2026-11-26T16:50:45.123456789")),
-            ("Ws", json!("Grüße")),
-            ("DtlMs", json!(1_795_711_845_123i64)),
-            ("M3", json!(true)),
-            ("Mw", json!(1234)),
-            ("I7", json!(true)),
-            ("Iw", json!(0x1234)),
-            ("Qb", json!(0x5A)),
-            ("Q6", json!(true)),
-            ("Tm", json!(2500)),
-            ("Ct", json!(123)),
-            ("Tail", json!("tail")),
-            ("Edge", json!(258)),
-        ] {
+        for (name, want) in expected() {
             assert_eq!(v(name), want, "{device} {name}: {}", field(&d, name));
             assert_eq!(field(&d, name)["quality"], "good", "{device} {name}");
         }
@@ -94,4 +60,44 @@ async fn every_type_and_area_is_read_at_both_pdu_sizes() -> anyhow::Result<()> {
     );
     gw.shutdown().await;
     plc.kill().await
+}
+
+/// Each field's value as `tests/s7/plc.py` holds it.
+fn expected() -> Vec<(&'static str, Value)> {
+    vec![
+        ("Flags", json!(0b10101010)),
+        ("B1", json!(true)),
+        ("B2", json!(false)),
+        ("Si", json!(-5)),
+        ("In", json!(-300)),
+        ("Di", json!(100000)),
+        ("Li", json!(-(1i64 << 40))),
+        ("Re", json!(1.5)),
+        ("LR", json!(2.25)),
+        ("Us", json!(200)),
+        ("Ch", json!("Z")),
+        ("Ui", json!(60000)),
+        ("Ud", json!(4000000000u64)),
+        ("Ul", json!((1u64 << 63) + 5)),
+        ("Wd", json!(0xBEEF)),
+        ("Dw", json!(0xDEADBEEFu32)),
+        ("Lw", json!(0x0123456789ABCDEFu64)),
+        ("Tdint", json!(-1500)),
+        ("Wc", json!("Ω")),
+        ("Str", json!("press")),
+        ("Stamp", json!("2026-11-26T16:50:45.123")),
+        ("StampL", json!("2026-11-26T16:50:45.123456789")),
+        ("Ws", json!("Grüße")),
+        ("DtlMs", json!(1_795_711_845_123i64)),
+        ("M3", json!(true)),
+        ("Mw", json!(1234)),
+        ("I7", json!(true)),
+        ("Iw", json!(0x1234)),
+        ("Qb", json!(0x5A)),
+        ("Q6", json!(true)),
+        ("Tm", json!(2500)),
+        ("Ct", json!(123)),
+        ("Tail", json!("tail")),
+        ("Edge", json!(258)),
+    ]
 }

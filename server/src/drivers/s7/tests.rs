@@ -48,21 +48,24 @@ while sys.stdin.read(1): pass
     Some(Snap7(child, port))
 }
 
-#[tokio::test]
-async fn reads_and_writes_bytes_and_bits_of_snap7s_server() {
-    let Some(server) = snap7() else {
-        eprintln!("python-snap7 is not installed: skipped");
-        return;
-    };
-    let mut c = Connection::open(
+/// Snap7's server and a connection to it of a kind (1 PG, 3 S7 basic) asking for `pdu`.
+async fn connect(kind: i128, pdu: u16) -> (Snap7, Connection) {
+    let server = snap7().expect("python-snap7 is needed: bash tests/s7/install.sh");
+    let c = Connection::open(
         ("127.0.0.1", server.1),
         0x0100,
-        remote_tsap(3, 0, 1) as u16,
-        960,
+        remote_tsap(kind, 0, 1) as u16,
+        pdu,
         Duration::from_secs(3),
     )
     .await
     .expect("connected");
+    (server, c)
+}
+
+#[tokio::test]
+async fn reads_and_writes_bytes_and_bits_of_snap7s_server() {
+    let (_server, mut c) = connect(3, 960).await;
     assert!(c.pdu >= 240, "PDU {}", c.pdu);
     let db = |byte, length| Item {
         area: Area::DataBlock,
@@ -106,19 +109,7 @@ async fn reads_and_writes_bytes_and_bits_of_snap7s_server() {
 
 #[tokio::test]
 async fn the_plcs_identity_state_timers_and_counters_are_read() {
-    let Some(server) = snap7() else {
-        eprintln!("python-snap7 is not installed: skipped");
-        return;
-    };
-    let mut c = Connection::open(
-        ("127.0.0.1", server.1),
-        0x0100,
-        remote_tsap(1, 0, 1) as u16,
-        240,
-        Duration::from_secs(3),
-    )
-    .await
-    .expect("connected");
+    let (_server, mut c) = connect(1, 240).await;
     assert_eq!(c.pdu, 240, "the PDU size asked is granted");
     let name = c
         .szl(szl::COMPONENT_ID, szl::MODULE_NAME)
