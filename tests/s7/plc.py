@@ -42,6 +42,7 @@ def db1():
     put(b, 44, struct.pack(">HIQi", 0xBEEF, 0xDEADBEEF, 0x0123456789ABCDEF, -1500))
     put(b, 62, "Ω".encode("utf-16-be"))
     put(b, 64, bytes([20, 5]) + b"press")
+    put(b, 88, struct.pack(">h", 250))
     put(b, 100, bytes([100, 4]) + b"tail")
     put(b, 254, struct.pack(">h", 258))
     return b

@@ -32,6 +32,8 @@ impl Item {
 pub(crate) struct Place {
     pub(crate) address: Address,
     pub(crate) form: Form,
+    /// The type the PLC stores (the field's, or its `raw_type`).
+    pub(crate) stored: crate::codec::IecType,
     pub(crate) bytes: u16,
 }
 
@@ -54,11 +56,13 @@ pub(crate) fn places(profile: &Profile) -> Vec<Result<Place, String>> {
         .map(|f| {
             let point = f.point.as_ref().ok_or("the field has no address")?;
             let address = parse(&point.address)?;
-            let form = form(&address, f.ty, point.length)?;
+            let stored = f.register.raw_type.unwrap_or(f.ty);
+            let form = form(&address, stored, point.length)?;
             Ok(Place {
                 address,
                 form,
-                bytes: form.bytes(f.ty),
+                stored,
+                bytes: form.bytes(stored),
             })
         })
         .collect()

@@ -47,6 +47,9 @@ pub struct Words {
     pub(crate) check_point: CheckPoint,
     /// A point as a profile writes it, for messages.
     pub(crate) example: &'static str,
+    /// Whether its fields may be scaled (`scale`, `offset`, `raw_type`: the value the
+    /// device stores is raw, as for Modbus).
+    pub(crate) scaled: bool,
 }
 
 /// Checks a point as written under a key, for a field's type and length.
@@ -79,6 +82,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_at: "url",
         check_point: point::check_opcua,
         example: "ns=3;s=Line1.Speed",
+        scaled: false,
     },
     Words {
         protocol: "s7",
@@ -88,6 +92,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_at: "host",
         check_point: s7_form::check,
         example: "DB10.DBD6",
+        scaled: true,
     },
 ];
 

@@ -98,6 +98,7 @@ fn expected() -> Vec<(&'static str, Value)> {
         ("Tm", json!(2500)),
         ("Ct", json!(123)),
         ("Tail", json!("tail")),
+        ("Scaled", json!(25.0)),
         ("Edge", json!(258)),
     ]
 }

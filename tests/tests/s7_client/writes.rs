@@ -42,6 +42,7 @@ async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Resu
         ("Q6", json!(true)),
         ("Tm", json!(9990)),
         ("Ct", json!(42)),
+        ("Scaled", json!(12.5)),
     ];
     for (name, value) in &values {
         let outcome = write(&gw, "press240", name, value.clone()).await?;
@@ -66,11 +67,17 @@ async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Resu
     assert_eq!(plc.dump("DB 1", 64, 8).await?, "14066c696e652032");
     assert_eq!(plc.dump("DB 2", 8, 12).await?, "07ef02030204050600000007");
     assert_eq!(plc.dump("PA 0", 4, 1).await?, "4f");
+    assert_eq!(
+        plc.dump("DB 1", 88, 2).await?,
+        "007d",
+        "12.5 / 0.1 as an INT"
+    );
     // What the PLC cannot hold is refused and nothing is written.
     for (name, value, says) in [
         ("Str", json!("x".repeat(21)), "21"),
         ("Tm", json!(1234), "S5TIME cannot hold 1234 ms"),
         ("Ct", json!(1000), "0-999"),
+        ("Scaled", json!(4000.0), "40000"),
         ("Stamp", json!("2100-01-01T00:00:00"), "1990-2089"),
         ("Missing", json!(1), "object does not exist"),
     ] {

@@ -243,7 +243,10 @@ fn publish_item(
             Ok(bytes) => {
                 let at = usize::try_from(offset).unwrap_or(usize::MAX);
                 let mine = bytes.get(at..).unwrap_or_default();
-                value::decode(place.form, device.field(idx).ty, mine).map_err(FieldError::Device)
+                let field = device.field(idx);
+                value::decode(place.form, place.stored, mine)
+                    .and_then(|raw| value::scaled(field, raw))
+                    .map_err(FieldError::Device)
             }
             Err(code) => Err(FieldError::Device(pdu::item_error(*code).to_owned())),
         };

@@ -28,7 +28,8 @@ fn target(plan: &Plan, item: &WriteItem, device: &Device) -> Result<(Item, Vec<u
         Some(Err(why)) => return Err(why.clone()),
         None => return Err("no such field".to_owned()),
     };
-    let (skip, bytes) = value::encode(place.form, device.field(item.field).ty, &item.value)?;
+    let raw = value::unscaled(device.field(item.field), &item.value)?;
+    let (skip, bytes) = value::encode(place.form, place.stored, &raw)?;
     let a = place.address;
     let (bit, length) = match place.form {
         Form::Bit(b) => (Some(b), 1),

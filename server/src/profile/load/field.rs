@@ -1,7 +1,7 @@
 //! One entry of a profile's `fields`: name, type, direction, description, deadband and register,
 //! with the encoding that follows from them.
 
-use super::point::{POINT_KEYS, read_point};
+use super::point::{POINT_KEYS, SCALE_KEYS, read_point};
 use super::register::read_register;
 use super::{FIELD_KEYS, identifier, iec_type, one_of};
 use crate::codec::Encoding;
@@ -57,6 +57,7 @@ pub(super) fn read_field(
             .chain([words.point_key])
             .chain(words.point_alternative)
             .chain(POINT_KEYS.iter().copied())
+            .chain(SCALE_KEYS.iter().copied().filter(|_| words.scaled))
             .collect();
         map.finish(report, &ctx, &allowed);
         let (register, point) = read?;

@@ -9,6 +9,8 @@ use crate::yaml::{MapReader, Report};
 
 /// The keys a point field may have besides the common ones and its point's.
 pub(super) const POINT_KEYS: &[&str] = &["unit", "sampling_interval", "length"];
+/// The keys of a point field of a protocol whose devices store raw values.
+pub(super) const SCALE_KEYS: &[&str] = &["scale", "offset", "raw_type"];
 
 /// The longest STRING a point field holds, in characters.
 const MAX_LENGTH: i128 = 254;
@@ -34,7 +36,13 @@ pub(super) fn read_point(
             .map(|l| l as u16),
         None => None,
     };
-    let (address, browse_path) = address(map, words, ctx, (ty, length), report)?;
+    let (scale, offset, raw_type) = if words.scaled {
+        scaling(map, ctx, ty, report)?
+    } else {
+        (1.0, 0.0, None)
+    };
+    let stored = raw_type.or(ty);
+    let (address, browse_path) = address(map, words, ctx, (stored, length), report)?;
     let key = match (browse_path, words.point_alternative) {
         (true, Some(k)) => k,
         _ => words.point_key,
@@ -64,13 +72,13 @@ pub(super) fn read_point(
         address: 0,
         kind: RegisterKind::Point,
         bit: None,
-        scale: 1.0,
-        offset: 0.0,
+        scale,
+        offset,
         unit,
         byte_order: ByteOrder::BigEndian,
         word_count,
         word_count_set: true,
-        raw_type: None,
+        raw_type,
         switch: None,
     };
     let point = Point {
@@ -130,4 +138,75 @@ fn address(
         return None;
     }
     Some((text, alternative))
+}
+
+/// A field's `scale`, `offset` and `raw_type` (the type the device stores, where not the
+/// field's): numbers only, a scale other than zero.
+fn scaling(
+    map: &mut MapReader<'_>,
+    ctx: &str,
+    ty: Option<IecType>,
+    report: &mut Report,
+) -> Option<(f64, f64, Option<IecType>)> {
+    let at = |k: &str| format!("{ctx}: {k}");
+    let mut ok = true;
+    let mut number = |key: &str, default: f64, report: &mut Report| match map.get(key) {
+        None => default,
+        Some(n) if ty.is_some_and(|t| !t.is_numeric()) => {
+            report.push(
+                n.line,
+                at(key),
+                format!("{} values cannot be scaled", ty.map_or("", |t| t.name())),
+            );
+            ok = false;
+            default
+        }
+        Some(n) => match n.number(report, &at(key)) {
+            Some(0.0) if key == "scale" => {
+                report.push(
+                    n.line,
+                    at(key),
+                    "scale must not be zero (writes divide by it)",
+                );
+                ok = false;
+                default
+            }
+            Some(v) => v,
+            None => {
+                ok = false;
+                default
+            }
+        },
+    };
+    let scale = number("scale", 1.0, report);
+    let offset = number("offset", 0.0, report);
+    let raw_type = match map.get("raw_type") {
+        None => None,
+        Some(n) => {
+            let raw = n
+                .str(report, &at("raw_type"))
+                .map(|t| (t, IecType::parse(t)));
+            match (raw, ty) {
+                (Some((_, Some(r))), Some(t))
+                    if r.is_numeric() && r != IecType::Time && t.is_numeric() =>
+                {
+                    Some(r)
+                }
+                (Some((text, _)), _) => {
+                    report.push(
+                        n.line,
+                        at("raw_type"),
+                        format!("`{text}`: raw_type is the number type the device stores, for a number field"),
+                    );
+                    ok = false;
+                    None
+                }
+                (None, _) => {
+                    ok = false;
+                    None
+                }
+            }
+        }
+    };
+    ok.then_some((scale, offset, raw_type))
 }

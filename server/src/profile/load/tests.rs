@@ -194,3 +194,50 @@ fn duplicate_profile_names_across_files_are_rejected() {
     assert!(err.to_string().contains("b.yaml:1"), "{err}");
     assert!(err.to_string().contains("already used in a.yaml"), "{err}");
 }
+
+#[test]
+fn an_s7_fields_address_type_and_scaling_are_checked_with_their_lines() {
+    let head = "name: P\nprotocol: s7\nfields:\n";
+    for (field, needle) in [
+        (
+            "{ name: a, type: REAL, direction: input, address: MW2 }",
+            "the address is 2 byte(s); a REAL is 4",
+        ),
+        (
+            "{ name: a, type: STRING, direction: input, address: DB1.DBB0 }",
+            "needs its `length:`",
+        ),
+        (
+            "{ name: a, type: INT, direction: input, address: DB0.DBW0 }",
+            "numbered from 1",
+        ),
+        (
+            "{ name: a, type: STRING, direction: input, address: DB1.DBB0, length: 8, scale: 2 }",
+            "cannot be scaled",
+        ),
+        (
+            "{ name: a, type: REAL, direction: input, address: DB1.DBW0, raw_type: INT, scale: 0 }",
+            "must not be zero",
+        ),
+        (
+            "{ name: a, type: REAL, direction: input, address: DB1.DBW0, raw_type: BOOL }",
+            "raw_type is the number type",
+        ),
+        (
+            "{ name: a, type: REAL, direction: input, address: DB1.DBD0, raw_type: INT }",
+            "the address is 4 byte(s); a INT is 2",
+        ),
+    ] {
+        assert_problem(&format!("{head}  - {field}\n"), 4, needle);
+    }
+    let ok = load_str(
+        "p.yaml",
+        &format!("{head}  - {{ name: a, type: REAL, direction: input, address: DB1.DBW0, raw_type: INT, scale: 0.1, offset: -5 }}\n"),
+    )
+    .expect("a scaled field loads");
+    let r = &ok.fields[0].register;
+    assert_eq!(
+        (r.scale, r.offset, r.raw_type),
+        (0.1, -5.0, Some(IecType::Int))
+    );
+}
