@@ -141,3 +141,158 @@ async fn the_plcs_identity_state_timers_and_counters_are_read() {
         .expect("read");
     assert_eq!(read, vec![Ok(vec![0, 0, 0x21, 0x25]), Ok(vec![0x01, 0x23])]);
 }
+
+/// A PLC of our own that confirms the connection and the setup, then answers every job
+/// with `answer` (its S7 header's error class and code).
+async fn refusing_plc(cotp_refused: bool, class: u8, code: u8) -> u16 {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    tokio::spawn(async move {
+        let Ok((mut s, _)) = listener.accept().await else {
+            return;
+        };
+        let mut head = [0u8; 4];
+        while s.read_exact(&mut head).await.is_ok() {
+            let len = usize::from(u16::from_be_bytes([head[2], head[3]]));
+            let mut body = vec![0u8; len.saturating_sub(4)];
+            if s.read_exact(&mut body).await.is_err() {
+                return;
+            }
+            let answer: Vec<u8> = match body.get(1) {
+                // A COTP connection request: confirmed, or a disconnect request.
+                Some(0xE0) if cotp_refused => vec![3, 0, 0, 11, 6, 0x80, 0, 1, 0, 1, 0],
+                Some(0xE0) => vec![3, 0, 0, 11, 6, 0xD0, 0, 1, 0, 1, 0],
+                _ if body.get(13) == Some(&0xF0) => {
+                    // Setup: a PDU of 480, one job at a time.
+                    vec![
+                        3, 0, 0, 27, 2, 0xF0, 0x80, 0x32, 3, 0, 0, body[7], body[8], 0, 8, 0, 0, 0,
+                        0, 0xF0, 0, 0, 1, 0, 1, 1, 0xE0,
+                    ]
+                }
+                // Any other job: refused as a whole, with the reference asked.
+                _ => vec![
+                    3, 0, 0, 19, 2, 0xF0, 0x80, 0x32, 3, 0, 0, body[7], body[8], 0, 0, 0, 0, class,
+                    code,
+                ],
+            };
+            if s.write_all(&answer).await.is_err() {
+                return;
+            }
+        }
+    });
+    port
+}
+
+#[tokio::test]
+async fn refusals_name_what_to_change_on_the_plc() {
+    let open = |port| {
+        Connection::open(
+            ("127.0.0.1", port),
+            0x0100,
+            0x0102,
+            960,
+            Duration::from_secs(2),
+        )
+    };
+    // PUT/GET not allowed (an S7-1200/1500's 8104): the job's error, the connection kept.
+    let mut c = open(refusing_plc(false, 0x81, 0x04).await)
+        .await
+        .expect("connected");
+    assert_eq!((c.pdu, c.parallel), (480, 1));
+    let item = Item {
+        area: Area::DataBlock,
+        db: 1,
+        byte: 0,
+        bit: None,
+        length: 2,
+    };
+    let answers = c.read_jobs(&[&[item]], || {}).await.expect("answered");
+    let why = answers[0].as_ref().expect_err("refused").to_string();
+    assert!(why.contains("8104") && why.contains("PUT/GET"), "{why}");
+    let szl = c
+        .szl(szl::CPU_STATE, 0)
+        .await
+        .expect_err("refused")
+        .to_string();
+    assert!(szl.contains("8104"), "{szl}");
+    // A protection level: D602.
+    let mut c = open(refusing_plc(false, 0xD6, 0x02).await)
+        .await
+        .expect("connected");
+    let answers = c.read_jobs(&[&[item]], || {}).await.expect("answered");
+    let why = answers[0].as_ref().expect_err("refused").to_string();
+    assert!(why.contains("protection level"), "{why}");
+    // The COTP connection refused: rack and slot to check.
+    let e = open(refusing_plc(true, 0, 0).await)
+        .await
+        .err()
+        .map(|e| e.to_string());
+    assert!(
+        e.as_deref()
+            .is_some_and(|e| e.contains("0x0102") && e.contains("rack and slot")),
+        "{e:?}"
+    );
+    // Nothing listening.
+    let closed = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let port = closed.local_addr().expect("addr").port();
+    drop(closed);
+    let e = open(port).await.err().map(|e| e.to_string());
+    assert!(
+        e.as_deref().is_some_and(|e| e.contains("nothing listens")),
+        "{e:?}"
+    );
+}
+
+proptest::proptest! {
+    /// Whatever a PLC (or something posing as one) answers, it is an answer or an error
+    /// naming what is wrong, never a panic.
+    #[test]
+    fn any_answer_is_parsed_or_refused(
+        bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..300),
+        user_data: bool,
+        asked in 0usize..30,
+    ) {
+        // Mostly a plausible head (a data frame, the S7 id, an answer's kind), then anything.
+        let kind = if user_data { 7 } else { 3 };
+        let mut frame = vec![2, 0xF0, 0x80, 0x32, kind, 0, 0];
+        frame.extend_from_slice(&bytes);
+        for payload in [&bytes[..], &frame[..]] {
+            if let Ok(a) = super::pdu::answer(payload) {
+                let _ = super::pdu::read_items(&a, asked);
+                let _ = super::pdu::write_items(&a, asked);
+                let _ = super::pdu::granted(&a);
+                if let Ok(records) = szl::records(&a) {
+                    for r in &records {
+                        let _ = szl::text(r, szl::NAME_LEN);
+                        let _ = szl::mode(r);
+                    }
+                }
+            }
+            let _ = super::pdu::connect_confirm(payload);
+        }
+    }
+}
+
+proptest::proptest! {
+    /// Whatever bytes an item holds, every form decodes them to a value or an error.
+    #[test]
+    fn any_bytes_decode_or_fail_by_every_form(
+        bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..40),
+        n in 0u16..20,
+    ) {
+        use crate::codec::IecType;
+        use crate::profile::s7_form::Form;
+        let forms = [
+            Form::Bit(7), Form::Number, Form::Char, Form::WChar, Form::String(n),
+            Form::WString(n), Form::Dt, Form::Dtl, Form::Timer, Form::Counter,
+        ];
+        for form in forms {
+            for ty in IecType::ALL {
+                let _ = super::value::decode(form, ty, &bytes);
+            }
+        }
+    }
+}
