@@ -61,6 +61,13 @@ def db2():
     return b
 
 
+def db3():
+    b = (ctypes.c_uint8 * 300)()
+    text = bytes(ord("a") + i % 26 for i in range(200))
+    put(b, 0, bytes([254, len(text)]) + text)
+    return b
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--port", type=int, default=0)
@@ -69,6 +76,7 @@ def main():
     areas = {
         ("DB", 1): db1(),
         ("DB", 2): db2(),
+        ("DB", 3): db3(),
         ("MK", 0): (ctypes.c_uint8 * 32)(),
         ("PE", 0): (ctypes.c_uint8 * 16)(),
         ("PA", 0): (ctypes.c_uint8 * 16)(),

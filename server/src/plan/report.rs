@@ -168,44 +168,43 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
 /// the size asked): each item's area and bytes with the fields it carries.
 fn render_s7(out: &mut String, d: &DeviceConfig, profile: &Profile, (pdu, how): (u16, &str)) {
     let places = super::s7::places(profile);
-    let batches = super::s7::batches(&places, pdu, &Default::default());
+    let plan = super::s7::read_plan(&places, pdu, &Default::default());
     let _ = writeln!(
         out,
         "  device {} (profile {}, s7, every {} ms): {} job(s) per cycle for a PDU of {pdu} bytes ({how})",
         d.name,
         profile.name,
         d.refresh_rate.as_millis(),
-        batches.len(),
+        plan.jobs.len(),
     );
-    for (n, b) in batches.iter().enumerate() {
-        let _ = writeln!(out, "    job {}: {} item(s)", n + 1, b.items.len());
-        for (item, fields) in b.items.iter().zip(&b.fields) {
-            let names: Vec<&str> = fields
-                .iter()
-                .map(|(i, _)| profile.fields[*i].name.as_str())
-                .collect();
-            let _ = writeln!(
-                out,
-                "      {}: {}",
-                super::s7::describe(item),
-                names.join(", ")
-            );
+    // Each item's fields, and which piece of its span it is where the span has several.
+    let mut carried = std::collections::BTreeMap::new();
+    for span in &plan.spans {
+        let names: Vec<&str> = span
+            .fields
+            .iter()
+            .map(|(i, _)| profile.fields[*i].name.as_str())
+            .collect();
+        let n = span.pieces.len();
+        for (k, piece) in span.pieces.iter().enumerate() {
+            let part = if n > 1 {
+                format!(" (part {} of {n})", k + 1)
+            } else {
+                String::new()
+            };
+            carried.insert(*piece, format!("{}{part}", names.join(", ")));
         }
     }
-    let room = super::s7::max_item(pdu);
+    for (n, items) in plan.jobs.iter().enumerate() {
+        let _ = writeln!(out, "    job {}: {} item(s)", n + 1, items.len());
+        for (k, item) in items.iter().enumerate() {
+            let fields = carried.get(&(n, k)).map_or("", String::as_str);
+            let _ = writeln!(out, "      {}: {fields}", super::s7::describe(item));
+        }
+    }
     for (f, p) in profile.fields.iter().zip(&places) {
-        match p {
-            Err(why) => {
-                let _ = writeln!(out, "    {} not read: {why}", f.name);
-            }
-            Ok(p) if u32::from(p.bytes) > room => {
-                let _ = writeln!(
-                    out,
-                    "    {} not read: {} bytes do not fit one item ({room} bytes)",
-                    f.name, p.bytes
-                );
-            }
-            Ok(_) => {}
+        if let Err(why) = p {
+            let _ = writeln!(out, "    {} not read: {why}", f.name);
         }
     }
 }

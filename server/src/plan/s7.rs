@@ -72,36 +72,42 @@ pub(crate) fn places(profile: &Profile) -> Vec<Result<Place, String>> {
 /// with their offsets.
 type Range = (Area, u16, u32, u32, Vec<(usize, u32)>);
 
-/// One read job: its items and, per item, the fields it carries with their offsets.
+/// A range of one block, read as one item or (larger than an item's answer) several: the
+/// fields in it with their offsets, and where its pieces are (job, item), in order.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Batch {
-    pub(crate) items: Vec<Item>,
-    pub(crate) fields: Vec<Vec<(usize, u32)>>,
+pub(crate) struct Span {
+    pub(crate) fields: Vec<(usize, u32)>,
+    pub(crate) pieces: Vec<(usize, usize)>,
+}
+
+/// A device's reads: its jobs (each its items) and the spans they carry.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub(crate) struct ReadPlan {
+    pub(crate) jobs: Vec<Vec<Item>>,
+    pub(crate) spans: Vec<Span>,
 }
 
 /// The most items of one request: what S7-300/400 CPUs and Snap7 take (more are cut off).
 pub(crate) const MAX_ITEMS: usize = 20;
 
-/// The most bytes one item's answer carries in a PDU of `pdu` bytes (a field larger is not
-/// read: its error says so).
+/// The most bytes one item's answer carries in a PDU of `pdu` bytes (even, so that a piece
+/// of timers or counters holds whole ones).
 pub(crate) fn max_item(pdu: u16) -> u32 {
-    u32::from(pdu.saturating_sub(18 + 4)).max(1)
+    (u32::from(pdu.saturating_sub(18 + 4)) & !1).max(2)
 }
 
-/// The fields' ranges merged where they touch and packed into jobs: at most
-/// `(pdu - 19) / 12` items a request, answers within `pdu - 14` bytes.
-pub(crate) fn batches(
+/// The fields' ranges, merged where they touch up to one item's answer (a field never
+/// merged with `alone` ones), in area, block and address order.
+fn ranges(
     places: &[Result<Place, String>],
-    pdu: u16,
+    max_item: u32,
     alone: &std::collections::BTreeSet<usize>,
-) -> Vec<Batch> {
+) -> Vec<Range> {
     let mut ranges: Vec<Range> = Vec::new();
-    let max_item = max_item(pdu);
     let mut order: Vec<(usize, Place)> = places
         .iter()
         .enumerate()
         .filter_map(|(i, p)| p.as_ref().ok().map(|p| (i, *p)))
-        .filter(|(_, p)| u32::from(p.bytes) <= max_item)
         .collect();
     order.sort_by_key(|(_, p)| (p.address.area, p.address.db, p.start()));
     for (i, p) in order {
@@ -122,41 +128,56 @@ pub(crate) fn batches(
             _ => ranges.push((a.area, a.db, first, end, vec![(i, 0)])),
         }
     }
+    ranges
+}
+
+/// The fields' ranges packed into jobs: at most `(pdu - 19) / 12` (and 20) items a
+/// request, answers within `pdu - 14` bytes, a range larger than one item's answer split
+/// into pieces.
+pub(crate) fn read_plan(
+    places: &[Result<Place, String>],
+    pdu: u16,
+    alone: &std::collections::BTreeSet<usize>,
+) -> ReadPlan {
+    let max_item = max_item(pdu);
     let per_request = usize::from(pdu.saturating_sub(19) / 12).clamp(1, MAX_ITEMS);
     let answer_room = u32::from(pdu.saturating_sub(14));
-    let mut out: Vec<Batch> = Vec::new();
+    let mut plan = ReadPlan::default();
     let mut used = u32::MAX;
-    for (area, db, start, stop, fields) in ranges {
-        let len = stop - start;
-        let cost = 4 + len + len % 2;
-        let full =
-            out.last().is_none_or(|b| b.items.len() >= per_request) || used + cost > answer_room;
-        if full {
-            out.push(Batch {
-                items: Vec::new(),
-                fields: Vec::new(),
-            });
-            used = 0;
-        }
-        used += cost;
-        let cells = matches!(area, Area::Timers | Area::Counters);
-        let (byte, length) = if cells {
-            (start / 2, len / 2)
-        } else {
-            (start, len)
+    for (area, db, start, stop, fields) in ranges(places, max_item, alone) {
+        let mut span = Span {
+            fields,
+            pieces: Vec::new(),
         };
-        if let Some(b) = out.last_mut() {
-            b.items.push(Item {
-                area,
-                db,
-                byte,
-                bit: None,
-                length: length as u16,
-            });
-            b.fields.push(fields);
+        let mut at = start;
+        while at < stop {
+            let len = (stop - at).min(max_item);
+            let cost = 4 + len + len % 2;
+            let full = plan.jobs.last().is_none_or(|j| j.len() >= per_request)
+                || used + cost > answer_room;
+            if full {
+                plan.jobs.push(Vec::new());
+                used = 0;
+            }
+            used += cost;
+            let cells = matches!(area, Area::Timers | Area::Counters);
+            let (byte, length) = if cells { (at / 2, len / 2) } else { (at, len) };
+            let job = plan.jobs.len() - 1;
+            if let Some(items) = plan.jobs.last_mut() {
+                span.pieces.push((job, items.len()));
+                items.push(Item {
+                    area,
+                    db,
+                    byte,
+                    bit: None,
+                    length: length as u16,
+                });
+            }
+            at += len;
         }
+        plan.spans.push(span);
     }
-    out
+    plan
 }
 
 /// The PDU size a link's settings ask for (960 unless they say).
@@ -187,5 +208,58 @@ pub(crate) fn describe(item: &Item) -> String {
         Area::Outputs => bytes("Q"),
         Area::Timers => cells("T"),
         Area::Counters => cells("C"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn place(text: &str, bytes: u16) -> Result<Place, String> {
+        let address = parse(text)?;
+        Ok(Place {
+            address,
+            form: Form::Number,
+            stored: crate::codec::IecType::Byte,
+            bytes,
+        })
+    }
+
+    #[test]
+    fn touching_fields_merge_and_a_large_one_is_read_in_pieces() {
+        let places = [
+            place("DB1.DBW0", 2),
+            place("DB1.DBW2", 2),
+            place("DB1.DBB10", 256),
+            place("MW0", 2),
+            place("DB2.DBW0", 2),
+        ];
+        let plan = read_plan(&places, 240, &Default::default());
+        // M, DB1 0-3, DB1 10-265 (218 + 38 bytes), DB2 0-1.
+        let spans: Vec<usize> = plan.spans.iter().map(|s| s.pieces.len()).collect();
+        assert_eq!(spans, [1, 1, 2, 1]);
+        let pieces: Vec<(u32, u16)> = plan
+            .jobs
+            .iter()
+            .flatten()
+            .map(|i| (i.byte, i.length))
+            .collect();
+        assert!(
+            pieces.contains(&(10, 218)) && pieces.contains(&(228, 38)),
+            "{pieces:?}"
+        );
+        for job in &plan.jobs {
+            let answer: u32 = job
+                .iter()
+                .map(|i| 4 + u32::from(i.length) + u32::from(i.length) % 2)
+                .sum();
+            assert!(answer <= 240 - 14 && job.len() <= 18, "{job:?}");
+        }
+        // At 960 everything is one job of four items.
+        let plan = read_plan(&places, 960, &Default::default());
+        assert_eq!((plan.jobs.len(), plan.jobs[0].len()), (1, 4));
+        // A field read alone is not merged.
+        let plan = read_plan(&places, 960, &[1].into_iter().collect());
+        assert_eq!(plan.spans.len(), 5);
     }
 }

@@ -50,6 +50,7 @@ fields:
   - { name: Ct, type: INT, direction: inout, address: C6 }
   - { name: Missing, type: INT, direction: inout, address: DB9.DBW0 }
   - { name: Scaled, type: REAL, direction: inout, address: DB1.DBW88, raw_type: INT, scale: 0.1, unit: degC }
+  - { name: Long, type: STRING, direction: inout, address: DB3.STRING0, length: 254 }
   - { name: Tail, type: STRING, direction: input, address: DB1.STRING100, length: 100 }
   - { name: Past, type: INT, direction: input, address: DB1.DBW300 }
   - { name: Edge, type: INT, direction: input, address: DB1.DBW254 }

@@ -58,6 +58,15 @@ async fn every_type_and_area_is_read_at_both_pdu_sizes() -> anyhow::Result<()> {
         jobs(&small) > jobs(&large) && jobs(&large) >= 1,
         "{small}\n{large}"
     );
+    // STRING[254] (256 bytes) is more than one item of 240 carries: read in two pieces.
+    assert!(
+        small.contains("DB3 bytes 0-217: Long (part 1 of 2)"),
+        "{small}"
+    );
+    assert!(
+        small.contains("DB3 bytes 218-255: Long (part 2 of 2)"),
+        "{small}"
+    );
     gw.shutdown().await;
     plc.kill().await
 }
@@ -99,6 +108,14 @@ fn expected() -> Vec<(&'static str, Value)> {
         ("Ct", json!(123)),
         ("Tail", json!("tail")),
         ("Scaled", json!(25.0)),
+        (
+            "Long",
+            json!(
+                (0..200)
+                    .map(|i| char::from(b'a' + i % 26))
+                    .collect::<String>()
+            ),
+        ),
         ("Edge", json!(258)),
     ]
 }

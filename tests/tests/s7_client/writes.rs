@@ -4,6 +4,7 @@
 
 use super::*;
 use iogate_tests::s7::S7Plc;
+use serde_json::Value;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Result<()> {
@@ -13,37 +14,7 @@ async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Resu
         field(d, "Ct")["quality"] == "good"
     })
     .await?;
-    let values = [
-        ("B2", json!(true)),
-        ("Si", json!(-7)),
-        ("In", json!(1234)),
-        ("Di", json!(-100001)),
-        ("Li", json!(1i64 << 41)),
-        ("Re", json!(-2.5)),
-        ("LR", json!(0.125)),
-        ("Us", json!(7)),
-        ("Ch", json!("Q")),
-        ("Ui", json!(65000)),
-        ("Ud", json!(123456789)),
-        ("Ul", json!(u64::MAX)),
-        ("Wd", json!(0x1234)),
-        ("Dw", json!(7)),
-        ("Lw", json!(9)),
-        ("Tdint", json!(2500)),
-        ("Wc", json!("é")),
-        ("Str", json!("line 2")),
-        ("Stamp", json!("2030-01-02T03:04:05.678")),
-        ("StampL", json!("2031-02-03T04:05:06.000000007")),
-        ("Ws", json!("ÄÖÜ")),
-        ("DtlMs", json!(1_000_000_000_000i64)),
-        ("M3", json!(false)),
-        ("Mw", json!(-1)),
-        ("Qb", json!(0x0F)),
-        ("Q6", json!(true)),
-        ("Tm", json!(9990)),
-        ("Ct", json!(42)),
-        ("Scaled", json!(12.5)),
-    ];
+    let values = written();
     for (name, value) in &values {
         let outcome = write(&gw, "press240", name, value.clone()).await?;
         assert_eq!(outcome["status"], "written", "{name}: {outcome}");
@@ -87,4 +58,40 @@ async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Resu
     assert_eq!(plc.dump("DB 1", 64, 8).await?, "14066c696e652032");
     gw.shutdown().await;
     plc.kill().await
+}
+
+/// What is written, field by field, in this order.
+fn written() -> Vec<(&'static str, Value)> {
+    vec![
+        ("B2", json!(true)),
+        ("Si", json!(-7)),
+        ("In", json!(1234)),
+        ("Di", json!(-100001)),
+        ("Li", json!(1i64 << 41)),
+        ("Re", json!(-2.5)),
+        ("LR", json!(0.125)),
+        ("Us", json!(7)),
+        ("Ch", json!("Q")),
+        ("Ui", json!(65000)),
+        ("Ud", json!(123456789)),
+        ("Ul", json!(u64::MAX)),
+        ("Wd", json!(0x1234)),
+        ("Dw", json!(7)),
+        ("Lw", json!(9)),
+        ("Tdint", json!(2500)),
+        ("Wc", json!("é")),
+        ("Str", json!("line 2")),
+        ("Stamp", json!("2030-01-02T03:04:05.678")),
+        ("StampL", json!("2031-02-03T04:05:06.000000007")),
+        ("Ws", json!("ÄÖÜ")),
+        ("DtlMs", json!(1_000_000_000_000i64)),
+        ("M3", json!(false)),
+        ("Mw", json!(-1)),
+        ("Qb", json!(0x0F)),
+        ("Q6", json!(true)),
+        ("Tm", json!(9990)),
+        ("Ct", json!(42)),
+        ("Scaled", json!(12.5)),
+        ("Long", json!("z".repeat(230))),
+    ]
 }

@@ -11,6 +11,9 @@ use tokio::net::TcpStream;
 use super::pdu::{self, Item, Malformed};
 use super::szl;
 
+/// The most late answers (to jobs given up on) passed over while waiting for one.
+const STALE: usize = 8;
+
 /// The most jobs asked to be sent before their answers.
 const PARALLEL: u16 = 8;
 
@@ -95,7 +98,9 @@ impl Connection {
         };
         confirmed.map_err(|why| S7Error::Refused { remote, why })?;
         let reference = conn.next_reference();
-        let answer = conn.job(&pdu::setup(reference, pdu, PARALLEL)).await?;
+        let answer = conn
+            .job(reference, &pdu::setup(reference, pdu, PARALLEL))
+            .await?;
         let (granted, parallel) = pdu::granted(&answered(&answer, reference)?)?;
         conn.pdu = granted;
         conn.parallel = parallel.clamp(1, PARALLEL);
@@ -129,9 +134,23 @@ impl Connection {
             .map_err(|_| S7Error::Timeout(timeout))?
     }
 
-    async fn job(&mut self, request: &[u8]) -> Result<Vec<u8>, S7Error> {
+    /// Sends job `reference` and reads its answer, passing over late answers to jobs given
+    /// up on (a timeout) before it.
+    async fn job(&mut self, reference: u16, request: &[u8]) -> Result<Vec<u8>, S7Error> {
         self.stream.write_all(request).await?;
-        self.frame().await
+        let mut got = 0;
+        for _ in 0..=STALE {
+            let frame = self.frame().await?;
+            got = pdu::answer(&frame)?.reference;
+            if got == reference {
+                return Ok(frame);
+            }
+        }
+        Err(Malformed::Reference {
+            expected: reference,
+            got,
+        }
+        .into())
     }
 
     /// Reads `items` in one job: each item's bytes or its return code.
@@ -141,7 +160,7 @@ impl Connection {
         items: &[Item],
     ) -> Result<Vec<Result<Vec<u8>, u8>>, S7Error> {
         let reference = self.next_reference();
-        let answer = self.job(&pdu::read(reference, items)).await?;
+        let answer = self.job(reference, &pdu::read(reference, items)).await?;
         Ok(pdu::read_items(
             &answered(&answer, reference)?,
             items.len(),
@@ -157,7 +176,7 @@ impl Connection {
     ) -> Result<Answers, S7Error> {
         let mut out: Answers = vec![Err(Malformed::Truncated); jobs.len()];
         let mut waiting: std::collections::VecDeque<(u16, usize)> = Default::default();
-        let mut next = 0;
+        let (mut next, mut stale) = (0, 0);
         while next < jobs.len() || !waiting.is_empty() {
             while next < jobs.len() && waiting.len() < usize::from(self.parallel) {
                 let reference = self.next_reference();
@@ -170,13 +189,18 @@ impl Connection {
             started();
             let frame = self.frame().await?;
             let answer = pdu::answer(&frame)?;
-            let at = waiting
-                .iter()
-                .position(|(r, _)| *r == answer.reference)
-                .ok_or(Malformed::Reference {
-                    expected: waiting.front().map_or(0, |w| w.0),
-                    got: answer.reference,
-                })?;
+            let Some(at) = waiting.iter().position(|(r, _)| *r == answer.reference) else {
+                // A late answer to a job given up on: passed over, a few times at most.
+                stale += 1;
+                if stale > STALE {
+                    return Err(Malformed::Reference {
+                        expected: waiting.front().map_or(0, |w| w.0),
+                        got: answer.reference,
+                    }
+                    .into());
+                }
+                continue;
+            };
             let Some((_, job)) = waiting.remove(at) else {
                 continue;
             };
@@ -191,7 +215,9 @@ impl Connection {
     /// Reads SZL `id` at `index`: its records.
     pub(crate) async fn szl(&mut self, id: u16, index: u16) -> Result<Vec<Vec<u8>>, S7Error> {
         let reference = self.next_reference();
-        let answer = self.job(&szl::request(reference, id, index)).await?;
+        let answer = self
+            .job(reference, &szl::request(reference, id, index))
+            .await?;
         Ok(szl::records(&answered(&answer, reference)?)?)
     }
 
@@ -201,7 +227,7 @@ impl Connection {
         items: &[(Item, Vec<u8>)],
     ) -> Result<Vec<Result<(), u8>>, S7Error> {
         let reference = self.next_reference();
-        let answer = self.job(&pdu::write(reference, items)).await?;
+        let answer = self.job(reference, &pdu::write(reference, items)).await?;
         Ok(pdu::write_items(
             &answered(&answer, reference)?,
             items.len(),

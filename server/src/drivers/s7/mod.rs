@@ -8,6 +8,7 @@ mod clock;
 mod config;
 mod conn;
 pub(crate) mod pdu;
+mod read;
 mod szl;
 mod value;
 mod write;
@@ -23,7 +24,7 @@ use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::plan::WriteItem;
-use crate::plan::s7::{self as plan, Batch, Place};
+use crate::plan::s7::{Place, ReadPlan};
 use conn::{Connection, S7Error};
 use szl::Mode;
 
@@ -36,8 +37,8 @@ pub(crate) const PROTOCOL: &str = "s7";
 /// What is kept of a device: its fields' places and the jobs planned for a PDU size.
 pub(crate) struct Plan {
     places: Vec<Result<Place, String>>,
-    batches: Vec<Batch>,
-    /// The PDU size the batches were planned for (0: not yet).
+    reads: ReadPlan,
+    /// The PDU size the reads were planned for (0: not yet).
     pdu: u16,
     /// Fields read in items of their own (their range, merged, was out of range).
     alone: std::collections::BTreeSet<usize>,
@@ -54,6 +55,9 @@ pub(crate) struct Plc {
     next_mode: Instant,
     /// The PLC's last refusal of a whole job, told once in the log.
     refused: Option<String>,
+    /// Whether the PLC left an SZL read unanswered (S7-200, LOGO!): not asked again on this
+    /// connection.
+    szl_silent: bool,
 }
 
 /// How often the operating state is read while the PLC is polled.
@@ -93,8 +97,8 @@ impl Driver for S7 {
 
     fn plan(device: &Device) -> Plan {
         Plan {
-            places: plan::places(&device.profile),
-            batches: Vec::new(),
+            places: crate::plan::s7::places(&device.profile),
+            reads: ReadPlan::default(),
             pdu: 0,
             alone: Default::default(),
         }
@@ -135,6 +139,7 @@ impl Driver for S7 {
             mode: None,
             next_mode: Instant::now(),
             refused: None,
+            szl_silent: false,
         };
         link.set_peer("pdu_size", plc.conn.pdu.to_string());
         plc.identify().await.map_err(|e| LinkFault::ConnectFailed {
@@ -165,6 +170,11 @@ impl Plc {
                 tracing::debug!(link = %self.link.name(), "SZL {id:#06x}/{index}: {e}");
                 Ok(None)
             }
+            Err(S7Error::Timeout(_)) => {
+                tracing::debug!(link = %self.link.name(), "SZL {id:#06x}/{index}: no answer");
+                self.szl_silent = true;
+                Ok(None)
+            }
             Err(e) => Err(e),
         }
     }
@@ -183,6 +193,9 @@ impl Plc {
             ),
         ];
         for (key, record) in facts {
+            if self.szl_silent {
+                break;
+            }
             if let Some(text) = self.szl_text(record).await? {
                 self.link.set_peer(key, text);
             }
@@ -193,12 +206,19 @@ impl Plc {
     /// Reads the operating state; a change is told in the link's state and the log.
     async fn read_mode(&mut self) -> Result<(), S7Error> {
         self.next_mode = Instant::now() + MODE_EVERY;
+        if self.szl_silent {
+            return Ok(());
+        }
         self.started();
         let answered = self.conn.szl(szl::CPU_STATE, 0).await;
         self.progress.ended();
         let mode = match answered {
             Ok(records) => records.first().and_then(|r| szl::mode(r)),
             Err(S7Error::Malformed(_)) => None,
+            Err(S7Error::Timeout(_)) => {
+                self.szl_silent = true;
+                None
+            }
             Err(e) => return Err(e),
         };
         if mode != self.mode {
@@ -225,104 +245,11 @@ impl Plc {
     }
 }
 
-/// Publishes one answered item's fields (stale with `doubt` where the PLC vouches for them
-/// only in part).
-fn publish_item(
-    device: &Device,
-    plan: &Plan,
-    fields: &[(usize, u32)],
-    answer: &Result<Vec<u8>, u8>,
-    doubt: Option<&FieldError>,
-    now: Instant,
-) {
-    for &(idx, offset) in fields {
-        let Some(Ok(place)) = plan.places.get(idx) else {
-            continue;
-        };
-        let value = match answer {
-            Ok(bytes) => {
-                let at = usize::try_from(offset).unwrap_or(usize::MAX);
-                let mine = bytes.get(at..).unwrap_or_default();
-                let field = device.field(idx);
-                value::decode(place.form, place.stored, mine)
-                    .and_then(|raw| value::scaled(field, raw))
-                    .map_err(FieldError::Device)
-            }
-            Err(code) => Err(FieldError::Device(pdu::item_error(*code).to_owned())),
-        };
-        device.publish_from(idx, value, doubt.cloned(), None, now);
-    }
-}
-
-/// Plans the device's jobs for the PDU the PLC granted, telling each field that has no place
-/// (or does not fit one item) why.
-fn replan(device: &Device, plan: &mut Plan, pdu: u16) {
-    plan.batches = plan::batches(&plan.places, pdu, &plan.alone);
-    plan.pdu = pdu;
-    let room = plan::max_item(pdu);
-    for (idx, p) in plan.places.iter().enumerate() {
-        let why = match p {
-            Err(why) => why.clone(),
-            Ok(p) if u32::from(p.bytes) > room => format!(
-                "{} bytes do not fit one item of the PLC's PDU ({room} bytes)",
-                p.bytes
-            ),
-            Ok(_) => continue,
-        };
-        device.publish(idx, Err(FieldError::Device(why)));
-    }
-}
-
 impl Session for Plc {
     type Plan = Plan;
 
     async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
-        if plan.pdu != self.conn.pdu {
-            replan(device, plan, self.conn.pdu);
-        }
-        let started = Instant::now();
-        if started >= self.next_mode
-            && let Err(e) = self.read_mode().await
-        {
-            fault(e)?;
-        }
-        let doubt = (self.mode == Some(Mode::Stop)).then(|| FieldError::Device(IN_STOP.into()));
-        let jobs: Vec<&[pdu::Item]> = plan.batches.iter().map(|b| b.items.as_slice()).collect();
-        let (progress, timeout) = (self.progress.clone(), self.timeout);
-        let answered = self
-            .conn
-            .read_jobs(&jobs, || progress.started(Instant::now() + timeout))
-            .await;
-        self.progress.ended();
-        let answers = answered.map_err(lost)?;
-        let now = Instant::now();
-        let mut split = Vec::new();
-        for (batch, answer) in plan.batches.iter().zip(answers) {
-            match answer {
-                Ok(items) => {
-                    for (fields, item) in batch.fields.iter().zip(&items) {
-                        publish_item(device, plan, fields, item, doubt.as_ref(), now);
-                        if fields.len() > 1 && *item == Err(pdu::OUT_OF_RANGE) {
-                            split.extend(fields.iter().map(|&(idx, _)| idx));
-                        }
-                    }
-                }
-                Err(refused) => {
-                    let why = refused.to_string();
-                    self.tell_refused(&why);
-                    for &(idx, _) in batch.fields.iter().flatten() {
-                        device.publish(idx, Err(FieldError::Device(why.clone())));
-                    }
-                }
-            }
-        }
-        if !split.is_empty() {
-            // A range past the end of its block: its fields are read alone from now on, so
-            // that those within it are read.
-            plan.alone.extend(split);
-            plan.pdu = 0;
-        }
-        Ok(Read::Answered(started.elapsed()))
+        read::read(self, device, plan).await
     }
 
     async fn write(

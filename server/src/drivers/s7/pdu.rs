@@ -198,7 +198,7 @@ pub(crate) fn answer(payload: &[u8]) -> Result<Answer<'_>, Malformed> {
     let reference = u16::from_be_bytes([s7[4], s7[5]]);
     let plen = usize::from(u16::from_be_bytes([s7[6], s7[7]]));
     let dlen = usize::from(u16::from_be_bytes([s7[8], s7[9]]));
-    let refused = (head == 12 && (s7[10] != 0 || s7[11] != 0)).then_some(Malformed::Refused {
+    let refused = (head == 12 && (s7[10] != 0 || s7[11] != 0)).then(|| Malformed::Refused {
         class: s7[10],
         code: s7[11],
     });

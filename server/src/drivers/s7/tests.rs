@@ -142,9 +142,20 @@ async fn the_plcs_identity_state_timers_and_counters_are_read() {
     assert_eq!(read, vec![Ok(vec![0, 0, 0x21, 0x25]), Ok(vec![0x01, 0x23])]);
 }
 
-/// A PLC of our own that confirms the connection and the setup, then answers every job
-/// with `answer` (its S7 header's error class and code).
-async fn refusing_plc(cotp_refused: bool, class: u8, code: u8) -> u16 {
+/// How a PLC of our own behaves.
+#[derive(Clone, Copy)]
+enum Fake {
+    /// Refuses the COTP connection (a disconnect request).
+    CotpRefused,
+    /// Answers every job with this error class and code in its header.
+    Refuses(u8, u8),
+    /// Answers a user-data job (an SZL read) only after this long; a read with 0x1234.
+    LateSzl(Duration),
+}
+
+/// A PLC of our own that confirms the connection and the setup (a PDU of 480, one job at a
+/// time), then answers as `fake` says.
+async fn fake_plc(fake: Fake) -> u16 {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
         .await
@@ -161,21 +172,29 @@ async fn refusing_plc(cotp_refused: bool, class: u8, code: u8) -> u16 {
             if s.read_exact(&mut body).await.is_err() {
                 return;
             }
-            let answer: Vec<u8> = match body.get(1) {
-                // A COTP connection request: confirmed, or a disconnect request.
-                Some(0xE0) if cotp_refused => vec![3, 0, 0, 11, 6, 0x80, 0, 1, 0, 1, 0],
-                Some(0xE0) => vec![3, 0, 0, 11, 6, 0xD0, 0, 1, 0, 1, 0],
-                _ if body.get(13) == Some(&0xF0) => {
-                    // Setup: a PDU of 480, one job at a time.
+            let r = (
+                body.get(7).copied().unwrap_or(0),
+                body.get(8).copied().unwrap_or(0),
+            );
+            let answer: Vec<u8> = match (body.get(1), fake) {
+                (Some(0xE0), Fake::CotpRefused) => vec![3, 0, 0, 11, 6, 0x80, 0, 1, 0, 1, 0],
+                (Some(0xE0), _) => vec![3, 0, 0, 11, 6, 0xD0, 0, 1, 0, 1, 0],
+                _ if body.get(13) == Some(&0xF0) => vec![
+                    3, 0, 0, 27, 2, 0xF0, 0x80, 0x32, 3, 0, 0, r.0, r.1, 0, 8, 0, 0, 0, 0, 0xF0, 0,
+                    0, 1, 0, 1, 1, 0xE0,
+                ],
+                (_, Fake::Refuses(class, code)) => vec![
+                    3, 0, 0, 19, 2, 0xF0, 0x80, 0x32, 3, 0, 0, r.0, r.1, 0, 0, 0, 0, class, code,
+                ],
+                (_, Fake::LateSzl(after)) if body.get(4) == Some(&7) => {
+                    tokio::time::sleep(after).await;
                     vec![
-                        3, 0, 0, 27, 2, 0xF0, 0x80, 0x32, 3, 0, 0, body[7], body[8], 0, 8, 0, 0, 0,
-                        0, 0xF0, 0, 0, 1, 0, 1, 1, 0xE0,
+                        3, 0, 0, 19, 2, 0xF0, 0x80, 0x32, 3, 0, 0, r.0, r.1, 0, 0, 0, 0, 0x81, 4,
                     ]
                 }
-                // Any other job: refused as a whole, with the reference asked.
                 _ => vec![
-                    3, 0, 0, 19, 2, 0xF0, 0x80, 0x32, 3, 0, 0, body[7], body[8], 0, 0, 0, 0, class,
-                    code,
+                    3, 0, 0, 27, 2, 0xF0, 0x80, 0x32, 3, 0, 0, r.0, r.1, 0, 2, 0, 6, 0, 0, 4, 1,
+                    0xFF, 4, 0, 16, 0x12, 0x34,
                 ],
             };
             if s.write_all(&answer).await.is_err() {
@@ -198,7 +217,7 @@ async fn refusals_name_what_to_change_on_the_plc() {
         )
     };
     // PUT/GET not allowed (an S7-1200/1500's 8104): the job's error, the connection kept.
-    let mut c = open(refusing_plc(false, 0x81, 0x04).await)
+    let mut c = open(fake_plc(Fake::Refuses(0x81, 0x04)).await)
         .await
         .expect("connected");
     assert_eq!((c.pdu, c.parallel), (480, 1));
@@ -219,14 +238,14 @@ async fn refusals_name_what_to_change_on_the_plc() {
         .to_string();
     assert!(szl.contains("8104"), "{szl}");
     // A protection level: D602.
-    let mut c = open(refusing_plc(false, 0xD6, 0x02).await)
+    let mut c = open(fake_plc(Fake::Refuses(0xD6, 0x02)).await)
         .await
         .expect("connected");
     let answers = c.read_jobs(&[&[item]], || {}).await.expect("answered");
     let why = answers[0].as_ref().expect_err("refused").to_string();
     assert!(why.contains("protection level"), "{why}");
     // The COTP connection refused: rack and slot to check.
-    let e = open(refusing_plc(true, 0, 0).await)
+    let e = open(fake_plc(Fake::CotpRefused).await)
         .await
         .err()
         .map(|e| e.to_string());
@@ -244,6 +263,36 @@ async fn refusals_name_what_to_change_on_the_plc() {
         e.as_deref().is_some_and(|e| e.contains("nothing listens")),
         "{e:?}"
     );
+}
+
+#[tokio::test]
+async fn a_late_answer_to_a_job_given_up_on_is_passed_over() {
+    let port = fake_plc(Fake::LateSzl(Duration::from_millis(300))).await;
+    let mut c = Connection::open(
+        ("127.0.0.1", port),
+        0x0100,
+        0x0102,
+        960,
+        Duration::from_millis(150),
+    )
+    .await
+    .expect("connected");
+    let silent = c.szl(szl::CPU_STATE, 0).await;
+    assert!(
+        matches!(silent, Err(super::conn::S7Error::Timeout(_))),
+        "{silent:?}"
+    );
+    let item = Item {
+        area: Area::DataBlock,
+        db: 1,
+        byte: 0,
+        bit: None,
+        length: 2,
+    };
+    // The SZL's answer comes while this read waits: passed over, the read's own is taken.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let answers = c.read_jobs(&[&[item]], || {}).await.expect("read");
+    assert_eq!(answers[0], Ok(vec![Ok(vec![0x12, 0x34])]));
 }
 
 proptest::proptest! {
@@ -295,4 +344,14 @@ proptest::proptest! {
             }
         }
     }
+}
+
+#[test]
+fn a_user_data_answer_of_its_bare_header_is_short_not_a_panic() {
+    // Found by `any_answer_is_parsed_or_refused`: ten bytes of a user-data header and no
+    // more once made the parser look at an acknowledgement's error bytes.
+    let frame = [2, 0xF0, 0x80, 0x32, 7, 0, 0, 0, 1, 0, 0, 0, 0];
+    let a = super::pdu::answer(&frame).expect("a header");
+    assert!(a.refused.is_none());
+    assert!(szl::records(&a).is_err());
 }

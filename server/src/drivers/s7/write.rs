@@ -1,6 +1,7 @@
 //! A device's writes: each output's bytes as its form stores them (a BOOL as a bit item,
 //! a STRING's length byte and characters, a timer or counter by number), packed into jobs
-//! that fit the PDU the PLC granted; each item's return code is its write's outcome.
+//! that fit the PDU the PLC granted; a value larger than one item is written in pieces, the
+//! one with a string's length last. Each item's return code is its write's outcome.
 
 use std::sync::Arc;
 
@@ -10,10 +11,11 @@ use crate::cache::{Device, FieldError, WriteError};
 use crate::drivers::{finish, written};
 use crate::link::LinkFault;
 use crate::plan::WriteItem;
+use crate::plan::s7::MAX_ITEMS;
 use crate::profile::s7_form::Form;
 
-/// One output to write: what was asked, where, and its bytes.
-type Job = (WriteItem, Item, Vec<u8>);
+/// One piece of an output to write: which write it belongs to, where, and its bytes.
+type Piece = (usize, Item, Vec<u8>);
 
 /// The bytes an item takes in a Write Var request: its spec, its data header and data
 /// (padded to even).
@@ -21,8 +23,13 @@ fn cost(bytes: usize) -> usize {
     12 + 4 + bytes + bytes % 2
 }
 
-/// The item an output is written to.
-fn target(plan: &Plan, item: &WriteItem, device: &Device) -> Result<(Item, Vec<u8>), String> {
+/// The most data bytes one item of a request of `pdu` bytes carries (even).
+fn max_piece(pdu: u16) -> usize {
+    (usize::from(pdu).saturating_sub(12 + 16) & !1).max(2)
+}
+
+/// The items an output is written to, in the order to write them.
+fn pieces(plan: &Plan, item: &WriteItem, device: &Device) -> Result<Vec<(Item, Vec<u8>)>, String> {
     let place = match plan.places.get(item.field) {
         Some(Ok(p)) => *p,
         Some(Err(why)) => return Err(why.clone()),
@@ -31,37 +38,41 @@ fn target(plan: &Plan, item: &WriteItem, device: &Device) -> Result<(Item, Vec<u
     let raw = value::unscaled(device.field(item.field), &item.value)?;
     let (skip, bytes) = value::encode(place.form, place.stored, &raw)?;
     let a = place.address;
-    let (bit, length) = match place.form {
-        Form::Bit(b) => (Some(b), 1),
-        Form::Timer | Form::Counter => (None, 1),
-        _ => (None, bytes.len() as u16),
-    };
-    let room = usize::from(plan.pdu).saturating_sub(12);
-    if cost(bytes.len()) > room {
-        return Err(format!(
-            "{} bytes do not fit one write of the PLC's PDU ({} bytes)",
-            bytes.len(),
-            plan.pdu
-        ));
-    }
-    let item = Item {
+    let at = |byte: u32, bit: Option<u8>, length: u16| Item {
         area: a.area,
         db: a.db,
-        byte: a.byte + u32::from(skip),
+        byte,
         bit,
         length,
     };
-    Ok((item, bytes))
+    Ok(match place.form {
+        Form::Bit(b) => vec![(at(a.byte, Some(b), 1), bytes)],
+        Form::Timer | Form::Counter => vec![(at(a.byte, None, 1), bytes)],
+        _ => {
+            let start = a.byte + u32::from(skip);
+            let mut out: Vec<(Item, Vec<u8>)> = bytes
+                .chunks(max_piece(plan.pdu))
+                .scan(start, |next, chunk| {
+                    let item = at(*next, None, chunk.len() as u16);
+                    *next += chunk.len() as u32;
+                    Some((item, chunk.to_vec()))
+                })
+                .collect();
+            // The first piece holds a string's length: written last, after its characters.
+            out.reverse();
+            out
+        }
+    })
 }
 
-/// The jobs of one request each: as many outputs as the PDU holds.
-fn requests(jobs: Vec<Job>, pdu: u16) -> Vec<Vec<Job>> {
+/// The pieces of one request each: as many as the PDU holds.
+fn requests(pieces: Vec<Piece>, pdu: u16) -> Vec<Vec<Piece>> {
     let room = usize::from(pdu).saturating_sub(12);
-    let per_request = usize::from(pdu.saturating_sub(19) / 12).max(1);
-    let mut out: Vec<Vec<Job>> = Vec::new();
+    let per_request = usize::from(pdu.saturating_sub(19) / 12).clamp(1, MAX_ITEMS);
+    let mut out: Vec<Vec<Piece>> = Vec::new();
     let mut used = room;
-    for job in jobs {
-        let c = cost(job.2.len());
+    for piece in pieces {
+        let c = cost(piece.2.len());
         let full = out.last().is_none_or(|r| r.len() >= per_request) || used + c > room;
         if full {
             out.push(Vec::new());
@@ -69,7 +80,7 @@ fn requests(jobs: Vec<Job>, pdu: u16) -> Vec<Vec<Job>> {
         }
         used += c;
         if let Some(r) = out.last_mut() {
-            r.push(job);
+            r.push(piece);
         }
     }
     out
@@ -82,51 +93,68 @@ pub(super) async fn write(
     items: Vec<WriteItem>,
 ) -> Result<Option<FieldError>, LinkFault> {
     if plan.pdu != plc.conn.pdu {
-        super::replan(device, plan, plc.conn.pdu);
+        super::read::replan(device, plan, plc.conn.pdu);
     }
-    let mut jobs = Vec::new();
-    for item in items {
-        match target(plan, &item, device) {
-            Ok((to, bytes)) => jobs.push((item, to, bytes)),
-            Err(why) => finish(device, &item, Err(WriteError::Refused(why)), 0),
+    // Each write's pieces still to be written, and its first failure.
+    let mut left = vec![0usize; items.len()];
+    let mut failed: Vec<Option<String>> = vec![None; items.len()];
+    let mut all = Vec::new();
+    for (n, item) in items.iter().enumerate() {
+        match pieces(plan, item, device) {
+            Ok(p) => {
+                left[n] = p.len();
+                all.extend(p.into_iter().map(|(to, bytes)| (n, to, bytes)));
+            }
+            Err(why) => failed[n] = Some(why),
         }
     }
-    let mut requests = requests(jobs, plan.pdu).into_iter();
-    while let Some(request) = requests.next() {
+    for request in requests(all, plan.pdu) {
         let asked: Vec<(Item, Vec<u8>)> = request.iter().map(|(_, t, b)| (*t, b.clone())).collect();
         plc.started();
         let answered = plc.conn.write(&asked).await;
         plc.progress.ended();
-        let outcomes = match answered.map_err(fault) {
-            Ok(o) => o,
+        let results: Vec<Result<(), String>> = match answered.map_err(fault) {
+            Ok(o) => o
+                .into_iter()
+                .map(|r| r.map_err(|code| pdu::item_error(code).to_owned()))
+                .collect(),
             Err(Ok(why)) => {
                 plc.tell_refused(&why);
-                for (item, _, _) in &request {
-                    finish(device, item, Err(WriteError::Refused(why.clone())), 1);
-                }
-                continue;
+                vec![Err(why); request.len()]
             }
             Err(Err(lost)) => {
-                let rest: Vec<Job> = requests.flatten().collect();
-                for (item, _, _) in request.iter().chain(&rest) {
-                    finish(device, item, Err(WriteError::LinkDown(lost.clone())), 1);
+                // Writes with pieces not answered are replayed after the reconnect.
+                for (n, item) in items.iter().enumerate() {
+                    match (&failed[n], left[n]) {
+                        (Some(why), _) => finish_one(device, item, Err(why.clone())),
+                        (None, 0) => finish_one(device, item, Ok(())),
+                        (None, _) => {
+                            finish(device, item, Err(WriteError::LinkDown(lost.clone())), 1)
+                        }
+                    }
                 }
                 return Err(lost);
             }
         };
-        for ((item, _, _), outcome) in request.iter().zip(outcomes) {
-            match outcome {
-                Ok(()) => written(device, item, 1),
-                Err(code) => finish(
-                    device,
-                    item,
-                    Err(WriteError::Refused(pdu::item_error(code).to_owned())),
-                    1,
-                ),
+        for ((n, _, _), result) in request.iter().zip(results) {
+            left[*n] = left[*n].saturating_sub(1);
+            if let (Err(why), None) = (result, &failed[*n]) {
+                failed[*n] = Some(why);
             }
         }
     }
+    for (n, item) in items.iter().enumerate() {
+        finish_one(device, item, failed[n].clone().map_or(Ok(()), Err));
+    }
     Ok(None)
+}
+
+/// Finishes a write with its outcome.
+fn finish_one(device: &Device, item: &WriteItem, outcome: Result<(), String>) {
+    match outcome {
+        Ok(()) => written(device, item, 1),
+        Err(why) => finish(device, item, Err(WriteError::Refused(why)), 1),
+    }
 }
 
 #[cfg(test)]
@@ -143,31 +171,23 @@ mod tests {
             bit: None,
             length: 100,
         };
-        let job = |field| {
-            let w = WriteItem {
-                field,
-                value: crate::codec::Value::Int(0),
-                generation: None,
-                registers: None,
-            };
-            (w, item, vec![0u8; 100])
-        };
+        let piece = |n| (n, item, vec![0u8; 100]);
         // 116 bytes an item in a request's 12 + its items: one fits 240, eight fit 960.
         let sizes = |pdu, n| -> Vec<usize> {
-            requests((0..n).map(job).collect(), pdu)
+            requests((0..n).map(piece).collect(), pdu)
                 .iter()
                 .map(Vec::len)
                 .collect()
         };
         assert_eq!(sizes(240, 3), [1, 1, 1]);
         assert_eq!(sizes(960, 10), [8, 2]);
-        // Small items: as many as an answer's item count allows ((240 - 19) / 12 = 18).
+        // Small items: as many as the PDU and 20 a request allow (18 at 240).
         let bits = requests(
             (0..40)
-                .map(|f| {
-                    let (w, mut i, _) = job(f);
+                .map(|n| {
+                    let (_, mut i, _) = piece(n);
                     i.bit = Some(0);
-                    (w, i, vec![1u8])
+                    (n, i, vec![1u8])
                 })
                 .collect(),
             240,
@@ -179,5 +199,6 @@ mod tests {
             bits.iter().map(Vec::len).collect::<Vec<_>>()
         );
         assert_eq!(bits.iter().map(Vec::len).sum::<usize>(), 40);
+        assert_eq!(max_piece(240), 212);
     }
 }

@@ -5,7 +5,7 @@ use super::point::{POINT_KEYS, SCALE_KEYS, read_point};
 use super::register::read_register;
 use super::{FIELD_KEYS, identifier, iec_type, one_of};
 use crate::codec::Encoding;
-use crate::profile::{Direction, Field, Protocol, raw_of};
+use crate::profile::{Direction, Field, Protocol, Words, raw_of};
 use crate::yaml::{Node, Report};
 
 pub(super) fn read_field(
@@ -50,16 +50,7 @@ pub(super) fn read_field(
             );
         }
         let read = read_point(&mut map, words, &ctx, ty, report);
-        let allowed: Vec<&str> = FIELD_KEYS[..]
-            .iter()
-            .filter(|k| **k != "register")
-            .copied()
-            .chain([words.point_key])
-            .chain(words.point_alternative)
-            .chain(POINT_KEYS.iter().copied())
-            .chain(SCALE_KEYS.iter().copied().filter(|_| words.scaled))
-            .collect();
-        map.finish(report, &ctx, &allowed);
+        map.finish(report, &ctx, &point_field_keys(words));
         let (register, point) = read?;
         (register, Some(point))
     } else {
@@ -89,4 +80,17 @@ pub(super) fn read_field(
         point,
         line: node.line,
     })
+}
+
+/// The keys a field of a protocol that names its points may have.
+fn point_field_keys(words: &Words) -> Vec<&'static str> {
+    FIELD_KEYS[..]
+        .iter()
+        .filter(|k| **k != "register")
+        .copied()
+        .chain([words.point_key])
+        .chain(words.point_alternative)
+        .chain(POINT_KEYS.iter().copied())
+        .chain(SCALE_KEYS.iter().copied().filter(|_| words.scaled))
+        .collect()
 }
