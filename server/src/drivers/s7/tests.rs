@@ -142,6 +142,15 @@ async fn the_plcs_identity_state_timers_and_counters_are_read() {
     assert_eq!(read, vec![Ok(vec![0, 0, 0x21, 0x25]), Ok(vec![0x01, 0x23])]);
 }
 
+/// DBW0 of DB1.
+const DB1_WORD0: Item = Item {
+    area: Area::DataBlock,
+    db: 1,
+    byte: 0,
+    bit: None,
+    length: 2,
+};
+
 /// How a PLC of our own behaves.
 #[derive(Clone, Copy)]
 enum Fake {
@@ -221,13 +230,7 @@ async fn refusals_name_what_to_change_on_the_plc() {
         .await
         .expect("connected");
     assert_eq!((c.pdu, c.parallel), (480, 1));
-    let item = Item {
-        area: Area::DataBlock,
-        db: 1,
-        byte: 0,
-        bit: None,
-        length: 2,
-    };
+    let item = DB1_WORD0;
     let answers = c.read_jobs(&[&[item]], || {}).await.expect("answered");
     let why = answers[0].as_ref().expect_err("refused").to_string();
     assert!(why.contains("8104") && why.contains("PUT/GET"), "{why}");
@@ -282,13 +285,7 @@ async fn a_late_answer_to_a_job_given_up_on_is_passed_over() {
         matches!(silent, Err(super::conn::S7Error::Timeout(_))),
         "{silent:?}"
     );
-    let item = Item {
-        area: Area::DataBlock,
-        db: 1,
-        byte: 0,
-        bit: None,
-        length: 2,
-    };
+    let item = DB1_WORD0;
     // The SZL's answer comes while this read waits: passed over, the read's own is taken.
     tokio::time::sleep(Duration::from_millis(100)).await;
     let answers = c.read_jobs(&[&[item]], || {}).await.expect("read");
