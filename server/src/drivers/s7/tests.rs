@@ -352,3 +352,22 @@ fn a_user_data_answer_of_its_bare_header_is_short_not_a_panic() {
     assert!(a.refused.is_none());
     assert!(szl::records(&a).is_err());
 }
+
+#[test]
+fn an_s7_link_is_checked_with_each_problem_at_its_line() {
+    let yaml = "links:\n  - name: plc\n    s7:\n      host: 10.0.0.30\n      rack: 9\n      slot: 1\n      pdu_size: 100\n      connection_type: hmi\n      remote_tsap: 0x1G\n      speed: fast\n";
+    let config = crate::config::parse("c.yaml", yaml).expect("parses");
+    let text = crate::drivers::check_links(&config).to_string();
+    for expected in [
+        "c.yaml:5: link plc: s7.rack",
+        "c.yaml:7: link plc: s7.pdu_size",
+        "c.yaml:8: link plc: s7.connection_type: unknown `hmi` (expected pg, op or s7)",
+        "c.yaml:9: link plc: s7.remote_tsap: `0x1G` is not a number",
+        "c.yaml:10: link plc: s7: unknown key `speed`",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?} in:\n{text}");
+    }
+    let good = "links:\n  - name: plc\n    s7: { host: 10.0.0.30, rack: 0, slot: 2, connection_type: op }\n";
+    let config = crate::config::parse("c.yaml", good).expect("parses");
+    assert_eq!(crate::drivers::check_links(&config).to_string(), "");
+}
