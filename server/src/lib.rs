@@ -15,6 +15,8 @@ pub(crate) mod demo;
 pub mod drivers;
 pub(crate) mod duration;
 pub(crate) mod front_ends;
+#[cfg(any(fuzzing, test))]
+pub mod fuzz;
 pub mod link;
 pub mod logging;
 pub mod map;

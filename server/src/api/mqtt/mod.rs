@@ -429,6 +429,21 @@ fn state_payload(online: bool) -> Vec<u8> {
     .unwrap_or_default()
 }
 
+/// Packets from a broker, both versions, as the session takes them off its buffer.
+#[cfg(any(fuzzing, test))]
+pub(crate) fn fuzz_packets(data: &[u8]) {
+    for version in [config::MqttVersion::V311, config::MqttVersion::V5] {
+        let mut buf = data.to_vec();
+        while let Ok(Some(_)) = packet::decode(version, &mut buf) {}
+    }
+}
+
+/// A Sparkplug command's payload.
+#[cfg(any(fuzzing, test))]
+pub(crate) fn fuzz_command(data: &[u8]) {
+    let _ = sparkplug::commands(data);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -262,5 +262,39 @@ impl Session for Plc {
     }
 }
 
+/// An S7 PLC's answer as every parser meets it, and the bytes of an item by every form.
+#[cfg(any(fuzzing, test))]
+pub(crate) fn fuzz_answer(data: &[u8]) {
+    use crate::codec::IecType;
+    use crate::profile::s7_form::Form;
+    let asked = usize::from(data.first().copied().unwrap_or(0) % 24);
+    if let Ok(a) = pdu::answer(data) {
+        let _ = pdu::read_items(&a, asked);
+        let _ = pdu::write_items(&a, asked);
+        let _ = pdu::granted(&a);
+        for record in szl::records(&a).unwrap_or_default() {
+            let _ = (szl::text(&record, szl::NAME_LEN), szl::mode(&record));
+        }
+    }
+    let _ = pdu::connect_confirm(data);
+    let forms = [
+        Form::Bit(3),
+        Form::Number,
+        Form::Char,
+        Form::WChar,
+        Form::String(20),
+        Form::WString(10),
+        Form::Dt,
+        Form::Dtl,
+        Form::Timer,
+        Form::Counter,
+    ];
+    for form in forms {
+        for ty in IecType::ALL {
+            let _ = value::decode(form, ty, data);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests;

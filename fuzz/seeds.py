@@ -1,0 +1,131 @@
+"""Writes the seed corpora of the fuzz targets (fuzz/corpus/<target>/): valid inputs of each
+parser, from which the fuzzer mutates. Run from anywhere: python3 fuzz/seeds.py."""
+
+import pathlib
+import shutil
+import struct
+
+HERE = pathlib.Path(__file__).resolve().parent
+REPO = HERE.parent
+CORPUS = HERE / "corpus"
+
+
+def crc16(data):
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return struct.pack("<H", crc)
+
+
+def lrc(data):
+    return (-sum(data)) & 0xFF
+
+
+PDUS = [
+    bytes.fromhex("0300000002"),
+    bytes.fromhex("0100000008"),
+    bytes.fromhex("0200100010"),
+    bytes.fromhex("0400000004"),
+    bytes.fromhex("050000ff00"),
+    bytes.fromhex("0600010003"),
+    bytes.fromhex("0f0000000a02ff03"),
+    bytes.fromhex("100000000204000100020"[:-1]),
+    bytes.fromhex("2b0e0100"),
+    bytes.fromhex("17000000020000000204000a000b"),
+]
+
+ANSWERS = [
+    (bytes.fromhex("0300000002"), bytes.fromhex("030400010002")),
+    (bytes.fromhex("0100000008"), bytes.fromhex("0101a5")),
+    (bytes.fromhex("0600010003"), bytes.fromhex("0600010003")),
+    (bytes.fromhex("1000000002"), bytes.fromhex("1000000002")),
+    (bytes.fromhex("0300000002"), bytes.fromhex("8302")),
+]
+
+MQTT = [
+    bytes.fromhex("20020000"),
+    bytes.fromhex("2003000000"),
+    bytes.fromhex("d000"),
+    bytes.fromhex("40020001"),
+    bytes.fromhex("9003000100"),
+    b"\x30\x0e\x00\x07iogate/hi" + b"x",
+    b"\x32\x10\x00\x07iogate/\x00\x01{\"v\":1}",
+]
+
+
+def metric(name, datatype, field, value):
+    body = b"\x0a" + bytes([len(name)]) + name + b"\x20" + bytes([datatype])
+    return body + bytes([field << 3]) + value
+
+
+def sparkplug():
+    m1 = metric(b"Speed", 3, 10, b"\x05")
+    m2 = metric(b"Node Control/Rebirth", 11, 14, b"\x01")
+    m3 = b"\x10\x07\x20\x0c\x7a\x03abc"  # alias 7, a String
+    return [b"\x12" + bytes([len(m)]) + m for m in (m1, m2, m3)] + [
+        b"\x08\x01" + b"\x12" + bytes([len(m1)]) + m1 + b"\x18\x00"
+    ]
+
+
+S7 = [
+    # A Read Var answer of one item of two bytes.
+    bytes.fromhex("02f0803203000000010002000600000401ff0400101234"),
+    # Setup of communication: a PDU of 480.
+    bytes.fromhex("02f080320300000001000800000000f0000001000101e0"),
+    # A Write Var answer of two items.
+    bytes.fromhex("02f0803203000000010002000200000502ff0a"),
+    # A refusal (8104).
+    bytes.fromhex("02f0803203000000010000000081 04".replace(" ", "")),
+    # A user-data SZL answer of one record.
+    bytes.fromhex("02f080320700000001000c00160001120812840100000000" "ff09001204240000000400010008000000"),
+    # A COTP connection confirm.
+    bytes.fromhex("06d00001000100"),
+]
+
+
+def write(target, name, data):
+    d = CORPUS / target
+    d.mkdir(parents=True, exist_ok=True)
+    (d / name).write_bytes(data)
+
+
+def main():
+    if CORPUS.exists():
+        shutil.rmtree(CORPUS)
+    for i, pdu in enumerate(PDUS):
+        write("modbus_request", f"pdu{i}", pdu)
+        frame = bytes([1]) + pdu
+        write("modbus_rtu_request", f"rtu{i}", frame + crc16(frame))
+        write("modbus_ascii_request", f"ascii{i}", b":" + (frame + bytes([lrc(frame)])).hex().upper().encode() + b"\r\n")
+        write("modbus_tcp_request", f"tcp{i}", struct.pack(">HHHB", i, 0, len(pdu) + 1, 1) + pdu)
+    for i, (request, answer) in enumerate(ANSWERS):
+        write("modbus_answer", f"answer{i}", bytes([len(request)]) + request + answer)
+        rtu = bytes([1]) + answer
+        write("modbus_answer", f"rtu{i}", bytes([len(request)]) + request + rtu + crc16(rtu))
+    for i, packet in enumerate(MQTT):
+        write("mqtt_packets", f"packet{i}", packet)
+    write("mqtt_packets", "several", b"".join(MQTT))
+    for i, payload in enumerate(sparkplug()):
+        write("sparkplug_command", f"cmd{i}", payload)
+    for i, body in enumerate([b'{"value": 5}', b"5", b'"T#2s"', b"true", b'{"value": "abc"}', b"[1,2]", b"1e400", b'{"value": -1.5}']):
+        write("json_write", f"body{i}", body)
+    for path in sorted((REPO / "examples").glob("*.yaml")) + sorted((REPO / "tests/fixtures/bad_configs").glob("*.yaml")):
+        write("config_yaml", path.name, path.read_bytes())
+    profiles = sorted((REPO / "profiles").glob("*.yaml"))[:12] + sorted((REPO / "tests/fixtures/bad_profiles").glob("*.yaml"))
+    for path in profiles:
+        write("profile_yaml", path.name, path.read_bytes())
+    write("profile_yaml", "s7.yaml", b"name: P\nprotocol: s7\nfields:\n  - { name: a, type: REAL, direction: inout, address: DB1.DBW0, raw_type: INT, scale: 0.1 }\n  - { name: s, type: STRING, direction: input, address: DB1.STRING2, length: 20 }\n")
+    write("profile_yaml", "opcua.yaml", b'name: P\nprotocol: opcua\nfields:\n  - { name: a, type: LREAL, direction: input, node: "ns=2;s=Line1.Speed" }\n')
+    write("tokens", "tokens", b"# tokens\nread r3adr3adr3adr3ad\nwrite wr1tewr1tewr1te\nadmin 4dm1n4dm1n4dm1n\n")
+    for path in sorted((REPO / "tests/fixtures/import/wb").glob("*.json"))[:6]:
+        write("import", "wb-" + path.name, b"\x00" + path.read_bytes())
+    for path in sorted((REPO / "tests/fixtures/import/edgex").glob("*.yml")):
+        write("import", "edgex-" + path.name, b"\x01" + path.read_bytes())
+    for i, answer in enumerate(S7):
+        write("s7_answer", f"answer{i}", answer)
+
+
+if __name__ == "__main__":
+    main()
