@@ -23,12 +23,12 @@ for t in "${targets[@]}"; do
   mkdir -p "work/$t"
   cp -n "corpus/$t/"* "work/$t/" 2>/dev/null || true
   log=$(mktemp)
-  before=$(ls "artifacts/$t" 2>/dev/null | wc -l)
+  before=$(find "artifacts/$t" -type f 2>/dev/null | wc -l || true)
   cargo +nightly fuzz run -O "$t" "work/$t" -- -max_total_time="$secs" -print_final_stats=1 >"$log" 2>&1 || true
-  execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | awk '{print $2}' | tail -1)
-  rate=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$log" | awk '{print $2}' | tail -1)
-  cov=$(grep -o 'cov: [0-9]*' "$log" | tail -1 | awk '{print $2}')
-  after=$(ls "artifacts/$t" 2>/dev/null | wc -l)
+  execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | awk '{print $2}' | tail -1 || true)
+  rate=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$log" | awk '{print $2}' | tail -1 || true)
+  cov=$(grep -o 'cov: [0-9]*' "$log" | tail -1 | awk '{print $2}' || true)
+  after=$(find "artifacts/$t" -type f 2>/dev/null | wc -l || true)
   echo "| $t | $secs | ${execs:-?} | ${rate:-?} | ${cov:-?} | $((after - before)) |"
   if [ "$after" -gt "$before" ]; then
     grep -m1 -A3 'panicked at\|ERROR: libFuzzer' "$log" | sed 's/^/    /' || true

@@ -85,6 +85,42 @@ S7 = [
 ]
 
 
+def ld(field, payload):
+    """A length-delimited protobuf field."""
+    return bytes([field << 3 | 2, len(payload)]) + payload
+
+
+def grpc():
+    values = [b"\x18\x0a", b"\x10\x01", b"\x2d\x00\x00\xc0\x3f", b"\x3a\x03abc", b"\x40\xd0\x0f", b"\x20\xff\xff\xff\xff\x0f"]
+    writes = [ld(1, ld(1, b"d1") + ld(2, b"Speed") + ld(3, v)) for v in values]
+    return [b"\x00" + b"".join(writes), b"\x00" + writes[0], b"\x01" + ld(1, b"d1") + ld(2, ld(1, b"d1") + ld(2, b"f")), b"\x02" + ld(1, b"d1"), b"\x03", b"\x04" + ld(1, b"plc"), b"\x05" + ld(1, b"dev")]
+
+
+def opcua():
+    """OPC UA binary of the messages the targets decode, by asyncua (when installed)."""
+    try:
+        from asyncua import ua
+        from asyncua.ua.ua_binary import struct_to_binary, variant_to_binary
+    except ImportError:
+        return []
+    out = []
+    for v in [ua.Variant(5, ua.VariantType.Int32), ua.Variant(2.5, ua.VariantType.Double), ua.Variant("abc"), ua.Variant(True), ua.Variant([1, 2], ua.VariantType.Int16)]:
+        out.append(b"\x00" + struct_to_binary(ua.DataValue(v)))
+    read = ua.ReadRequest()
+    read.Parameters.NodesToRead = [ua.ReadValueId()]
+    out.append(b"\x01" + struct_to_binary(read))
+    write = ua.WriteRequest()
+    wv = ua.WriteValue()
+    wv.Value = ua.DataValue(ua.Variant(5, ua.VariantType.Int32))
+    write.Parameters.NodesToWrite = [wv]
+    out.append(b"\x02" + struct_to_binary(write))
+    out.append(b"\x03" + struct_to_binary(ua.CreateMonitoredItemsRequest()))
+    out.append(b"\x04" + struct_to_binary(ua.CreateSessionRequest()))
+    out.append(b"\x05" + struct_to_binary(ua.ActivateSessionRequest()))
+    out.append(b"\x06" + struct_to_binary(ua.BrowseRequest()))
+    return out
+
+
 def write(target, name, data):
     d = CORPUS / target
     d.mkdir(parents=True, exist_ok=True)
@@ -125,6 +161,10 @@ def main():
         write("import", "edgex-" + path.name, b"\x01" + path.read_bytes())
     for i, answer in enumerate(S7):
         write("s7_answer", f"answer{i}", answer)
+    for i, message in enumerate(grpc()):
+        write("grpc_request", f"message{i}", message)
+    for i, message in enumerate(opcua()):
+        write("opcua_binary", f"message{i}", message)
 
 
 if __name__ == "__main__":

@@ -124,6 +124,65 @@ pub fn s7_answer(data: &[u8]) {
 /// A fuzz target: bytes in, nothing out but a panic if it has one.
 pub type Target = fn(&[u8]);
 
+/// gRPC request messages as the service decodes them (the first byte says which), a
+/// write's values converted for every type.
+pub fn grpc_request(data: &[u8]) {
+    use iogate_proto::pb;
+    use prost::Message;
+    let Some((&kind, body)) = data.split_first() else {
+        return;
+    };
+    match kind % 6 {
+        0 => {
+            if let Ok(w) = pb::WriteRequest::decode(body) {
+                for write in &w.writes {
+                    for ty in IecType::ALL {
+                        if let Some(v) = &write.value {
+                            let _ = crate::codec::Value::from_pb_as(ty, v);
+                        }
+                    }
+                }
+            }
+        }
+        1 => drop(pb::ReadRequest::decode(body)),
+        2 => drop(pb::SubscribeRequest::decode(body)),
+        3 => drop(pb::ExchangeRequest::decode(body)),
+        4 => drop(pb::EnsureLinkRequest::decode(body)),
+        _ => drop(pb::EnsureDeviceRequest::decode(body)),
+    }
+}
+
+/// OPC UA binary as the server's socket and the client driver meet it (the first byte says
+/// which message): requests a client sends, and a server's DataValue converted for every
+/// type as the client driver reads it.
+pub fn opcua_binary(data: &[u8]) {
+    use opcua::types::{
+        ActivateSessionRequest, BinaryDecodable, BrowseRequest, ContextOwned,
+        CreateMonitoredItemsRequest, CreateSessionRequest, DataValue, ReadRequest, WriteRequest,
+    };
+    let Some((&kind, body)) = data.split_first() else {
+        return;
+    };
+    let owned = ContextOwned::default();
+    let ctx = owned.context();
+    let mut s = std::io::Cursor::new(body);
+    match kind % 7 {
+        0 => {
+            if let Ok(dv) = DataValue::decode(&mut s, &ctx) {
+                for ty in IecType::ALL {
+                    let _ = crate::drivers::opcua::variant::reading(ty, 64, &dv);
+                }
+            }
+        }
+        1 => drop(ReadRequest::decode(&mut s, &ctx)),
+        2 => drop(WriteRequest::decode(&mut s, &ctx)),
+        3 => drop(CreateMonitoredItemsRequest::decode(&mut s, &ctx)),
+        4 => drop(CreateSessionRequest::decode(&mut s, &ctx)),
+        5 => drop(ActivateSessionRequest::decode(&mut s, &ctx)),
+        _ => drop(BrowseRequest::decode(&mut s, &ctx)),
+    }
+}
+
 /// Every target by name, for the corpus tests.
 pub const TARGETS: &[(&str, Target)] = &[
     ("modbus_request", modbus_request),
@@ -139,6 +198,8 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("tokens", tokens),
     ("import", import),
     ("s7_answer", s7_answer),
+    ("grpc_request", grpc_request),
+    ("opcua_binary", opcua_binary),
 ];
 
 #[cfg(test)]
