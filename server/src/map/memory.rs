@@ -14,6 +14,10 @@ use serde::{Deserialize, Serialize};
 pub(crate) struct Memory {
     inner: Mutex<Image>,
     file: Option<PathBuf>,
+    /// Held from a change to its image being saved, so that saves are whole (one writer of
+    /// the temporary file at a time) and in the order of the changes (the file never goes
+    /// back to an older image).
+    saving: Mutex<()>,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -71,6 +75,7 @@ impl Memory {
         Ok(Memory {
             inner: Mutex::new(image),
             file,
+            saving: Mutex::new(()),
         })
     }
 
@@ -139,6 +144,10 @@ impl Memory {
         coils: &[(u16, bool)],
         registers: &[(u16, u16)],
     ) -> Result<(), MemoryError> {
+        let _saving = self
+            .file
+            .as_ref()
+            .map(|_| self.saving.lock().unwrap_or_else(|e| e.into_inner()));
         let snapshot = {
             let mut image = self.lock();
             for &(a, v) in coils {
@@ -228,5 +237,126 @@ mod tests {
             Memory::new(16, 100, Some(file)),
             Err(MemoryError::Read { .. })
         ));
+    }
+}
+
+/// `kill -9` at random moments while the memory file is written, 100 times, and writers
+/// racing each other: the file always loads, holds one whole change (every register a
+/// change set has the same value) and none older than the last one that returned.
+#[cfg(test)]
+mod crash_tests {
+    use std::io::BufRead;
+    use std::sync::mpsc;
+    use std::time::Duration;
+
+    use super::*;
+
+    const CHILD: &str = "IOGATE_MEMORY_CRASH_FILE";
+
+    /// Sets registers 0-63 to n, n + 1, ... until killed, telling each `n` once it returned.
+    #[test]
+    #[ignore = "run by the crash test in a process of its own"]
+    fn a_writer_until_killed() {
+        let Ok(file) = std::env::var(CHILD) else {
+            return;
+        };
+        let m = Memory::new(8, 64, Some(PathBuf::from(file))).expect("loads");
+        let mut n = m.register(0);
+        let until = std::time::Instant::now() + Duration::from_secs(5);
+        while std::time::Instant::now() < until {
+            n = n.wrapping_add(1);
+            let all: Vec<(u16, u16)> = (0..64).map(|a| (a, n)).collect();
+            m.set(&[(u16::from(n % 8 == 0), true)], &all)
+                .expect("saves");
+            println!("{n}");
+        }
+    }
+
+    #[test]
+    fn a_memory_file_killed_while_written_a_hundred_times_loads_whole() {
+        let dir = tempfile::tempdir().expect("a directory");
+        let file = dir.path().join("memory.json");
+        let exe = std::env::current_exe().expect("the test binary");
+        let mut seed = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(1, |d| d.as_nanos() as u64);
+        let mut last = None::<u16>;
+        for life in 0..100 {
+            let mut child = std::process::Command::new(&exe)
+                .args([
+                    "--exact",
+                    "map::memory::crash_tests::a_writer_until_killed",
+                    "--ignored",
+                    "--nocapture",
+                ])
+                .env(CHILD, &file)
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .expect("the writer starts");
+            let out = child.stdout.take().expect("its output");
+            let (tx, rx) = mpsc::channel();
+            let reader = std::thread::spawn(move || {
+                for line in std::io::BufReader::new(out).lines().map_while(Result::ok) {
+                    if tx.send(line).is_err() {
+                        break;
+                    }
+                }
+            });
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            let first = rx.recv_timeout(Duration::from_secs(10));
+            std::thread::sleep(Duration::from_micros(200 + (seed >> 33) % 10_000));
+            let _ = child.kill();
+            let _ = child.wait();
+            let _ = reader.join();
+            for line in first.into_iter().chain(rx.try_iter()) {
+                last = line.trim().parse().ok().or(last);
+            }
+            let m = Memory::new(8, 64, Some(file.clone()))
+                .unwrap_or_else(|e| panic!("life {life}: {e}"));
+            let (_, registers) = m.contents();
+            let values: Vec<u16> = registers.iter().map(|(_, v)| *v).collect();
+            assert!(
+                values.len() == 64 && values.windows(2).all(|w| w[0] == w[1]),
+                "life {life}: not one whole change: {values:?}"
+            );
+            if let Some(l) = last {
+                assert!(
+                    values[0] >= l,
+                    "life {life}: {l} was saved, the file holds {}",
+                    values[0]
+                );
+            }
+        }
+        assert!(last.is_some_and(|l| l > 100), "the writer wrote: {last:?}");
+    }
+
+    /// Writers racing: the file is whole and holds the last change.
+    #[test]
+    fn racing_writers_leave_the_last_change_whole() {
+        let dir = tempfile::tempdir().expect("a directory");
+        let file = dir.path().join("memory.json");
+        let m = std::sync::Arc::new(Memory::new(8, 64, Some(file.clone())).expect("new"));
+        let writers: Vec<_> = (0..4u16)
+            .map(|w| {
+                let m = m.clone();
+                std::thread::spawn(move || {
+                    for k in 0..200u16 {
+                        let v = w * 1000 + k + 1;
+                        let all: Vec<(u16, u16)> = (0..64).map(|a| (a, v)).collect();
+                        m.set(&[], &all).expect("saves");
+                    }
+                })
+            })
+            .collect();
+        for w in writers {
+            w.join().expect("a writer");
+        }
+        let again = Memory::new(8, 64, Some(file)).expect("loads");
+        assert_eq!(
+            again.contents(),
+            m.contents(),
+            "the file holds the last change"
+        );
     }
 }

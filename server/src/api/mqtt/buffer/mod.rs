@@ -456,4 +456,6 @@ impl Buffer {
 }
 
 #[cfg(test)]
+mod crash_tests;
+#[cfg(test)]
 mod tests;
