@@ -266,7 +266,7 @@ mod crash_tests {
         while std::time::Instant::now() < until {
             n = n.wrapping_add(1);
             let all: Vec<(u16, u16)> = (0..64).map(|a| (a, n)).collect();
-            m.set(&[(u16::from(n % 8 == 0), true)], &all)
+            m.set(&[(u16::from(n.is_multiple_of(8)), true)], &all)
                 .expect("saves");
             println!("{n}");
         }

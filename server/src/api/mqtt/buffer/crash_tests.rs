@@ -58,7 +58,7 @@ fn a_writer_until_killed() {
     while Instant::now() < until {
         b.append(&record(next)).expect("appends");
         println!("a {next}");
-        if next % 7 == 0 {
+        if next.is_multiple_of(7) {
             // Acknowledge all but the newest few.
             let mut acked = None;
             while let Ok(Some((r, end))) = b.next() {
@@ -71,7 +71,7 @@ fn a_writer_until_killed() {
                 let n = u64::from_le_bytes(r.payload[..8].try_into().unwrap_or([0; 8]));
                 println!("k {n}");
                 b.ack(end);
-                b.write_head(next % 21 == 0).expect("head");
+                b.write_head(next.is_multiple_of(21)).expect("head");
             }
             b.rewind();
         }
