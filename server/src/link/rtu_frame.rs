@@ -41,18 +41,36 @@ pub(crate) fn open(frame: &[u8]) -> Result<(u8, &[u8]), Unframed> {
 
 /// CRC-16/MODBUS of `data`, sent low byte first.
 pub fn crc16(data: &[u8]) -> u16 {
-    let mut crc: u16 = 0xFFFF;
-    for &byte in data {
-        crc ^= u16::from(byte);
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 {
-                (crc >> 1) ^ 0xA001
-            } else {
-                crc >> 1
-            };
-        }
+    data.iter().fold(0xFFFF, |crc, &byte| crc16_step(crc, byte))
+}
+
+/// The CRC-16/MODBUS `crc` so far with one more byte.
+fn crc16_step(crc: u16, byte: u8) -> u16 {
+    let mut crc = crc ^ u16::from(byte);
+    for _ in 0..8 {
+        crc = if crc & 1 != 0 {
+            (crc >> 1) ^ 0xA001
+        } else {
+            crc >> 1
+        };
     }
     crc
+}
+
+/// The shortest length (from the shortest frame to `rest`'s, at most the longest frame)
+/// whose last two bytes are the CRC of the ones before: the CRC grown a byte at a time, so
+/// that noise costs one pass over at most a frame's bytes, not one per length tried.
+fn shortest_sealed(rest: &[u8]) -> Option<usize> {
+    let max = rest.len().min(MAX_RTU_FRAME);
+    let mut crc = 0xFFFF;
+    let mut folded = 0;
+    (MIN_RTU_FRAME..=max).find(|&n| {
+        while folded < n - 2 {
+            crc = crc16_step(crc, rest[folded]);
+            folded += 1;
+        }
+        crc.to_le_bytes() == [rest[n - 2], rest[n - 1]]
+    })
 }
 
 /// Splits bytes heard on a line into RTU frames by their CRCs: at each position, the
@@ -74,9 +92,7 @@ pub(crate) fn split_frames(bytes: &[u8]) -> (Vec<&[u8]>, usize) {
         };
         let len = announced
             .filter(|&n| n <= rest.len() && crc_holds(&rest[..n]))
-            .or_else(|| {
-                (MIN_RTU_FRAME..=rest.len().min(MAX_RTU_FRAME)).find(|&n| crc_holds(&rest[..n]))
-            });
+            .or_else(|| shortest_sealed(rest));
         match len {
             Some(n) => {
                 frames.push(&rest[..n]);
@@ -134,5 +150,23 @@ mod tests {
         assert_eq!(open(&frame[..3]), Err(Unframed::Short));
         // The reference frame of the Modbus serial line guide: slave 1, FC 03, 0x0000, 1.
         assert_eq!(seal(1, &[3, 0, 0, 0, 1])[6..], [0x84, 0x0A]);
+    }
+
+    proptest::proptest! {
+        /// The CRC grown a byte at a time finds the length trying every one would.
+        #[test]
+        fn the_shortest_sealed_length_is_the_one_every_length_tried_finds(
+            noise in proptest::collection::vec(proptest::num::u8::ANY, 0..300),
+            frame in proptest::collection::vec(proptest::num::u8::ANY, 2..40),
+            at in 0usize..300,
+        ) {
+            let mut bytes = noise;
+            let sealed = seal(frame[0], &frame[1..]);
+            let at = at.min(bytes.len());
+            bytes.splice(at..at, sealed);
+            let tried = (MIN_RTU_FRAME..=bytes.len().min(MAX_RTU_FRAME))
+                .find(|&n| open(&bytes[..n]).is_ok());
+            proptest::prop_assert_eq!(shortest_sealed(&bytes), tried);
+        }
     }
 }
