@@ -247,6 +247,12 @@ impl Link {
         super::lock(&self.peer).clone()
     }
 
+    /// Forgets what was known of the device at the other end (a new connection, perhaps to
+    /// another device, is being opened).
+    pub(crate) fn clear_peer(&self) {
+        super::lock(&self.peer).clear();
+    }
+
     /// Tells one fact of the device at the other end (replacing the one before).
     pub(crate) fn set_peer(&self, key: &'static str, value: String) {
         let mut peer = super::lock(&self.peer);

@@ -245,6 +245,8 @@ impl<D: Driver> Driven<D> {
                 return Ended::Reconfigured;
             }
             let tried = self.config.clone();
+            // What the driver tells of the other end is of the connection it opens.
+            self.link.clear_peer();
             let opened = tokio::select! {
                 _ = token.cancelled() => break,
                 r = tokio::time::timeout(D::OPEN_TIMEOUT, D::open(&tried, &self.link, &self.metrics)) => r,

@@ -19,6 +19,9 @@ const KEYS: &[&str] = &[
     "timeout",
 ];
 
+/// The longest `timeout`: the open's three exchanges fit the driver's open timeout.
+const MAX_TIMEOUT: Duration = Duration::from_secs(4);
+
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Settings {
     pub(crate) host: String,
@@ -96,9 +99,21 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         .get("timeout")
         .map_or(Some(Duration::from_secs(2)), |n| {
             let text = n.scalar_text(report, &at("timeout"))?;
-            crate::duration::parse(&text)
-                .map_err(|e| report.push(n.line, at("timeout"), e.to_string()))
-                .ok()
+            match crate::duration::parse(&text) {
+                Ok(t) if t > MAX_TIMEOUT => {
+                    report.push(
+                        n.line,
+                        at("timeout"),
+                        "at most 4s (a job a PLC has not answered in 4 s is lost)",
+                    );
+                    None
+                }
+                Ok(t) => Some(t),
+                Err(e) => {
+                    report.push(n.line, at("timeout"), e.to_string());
+                    None
+                }
+            }
         });
     map.finish(report, &ctx, KEYS);
     let (rack, slot, kind) = (rack?, slot?, kind?);

@@ -58,6 +58,8 @@ pub(crate) struct Plc {
     /// Whether the PLC left an SZL read unanswered (S7-200, LOGO!): not asked again on this
     /// connection.
     szl_silent: bool,
+    /// Whether the PLC's identity was read on this connection.
+    identified: bool,
 }
 
 /// How often the operating state is read while the PLC is polled.
@@ -84,6 +86,10 @@ impl Driver for S7 {
     type Plan = Plan;
     type Session = Plc;
     const NAME: &'static str = PROTOCOL;
+    /// A connection, its COTP connection and its setup: three exchanges of at most the
+    /// link's `timeout` (4 s at most) each. The PLC's identity is read with the first read,
+    /// so that a PLC silent to SZL reads (S7-200, LOGO!) opens all the same.
+    const OPEN_TIMEOUT: Duration = Duration::from_secs(15);
 
     fn serves(config: &LinkConfig) -> bool {
         matches!(&config.transport, Transport::Driver(d) if d.protocol == PROTOCOL)
@@ -131,7 +137,7 @@ impl Driver for S7 {
             endpoint: format!("{}:{}", s.host, s.port),
             reason: Arc::new(std::io::Error::other(e.to_string())),
         })?;
-        let mut plc = Plc {
+        let plc = Plc {
             conn,
             link: link.clone(),
             progress: link.progress.clone(),
@@ -140,12 +146,9 @@ impl Driver for S7 {
             next_mode: Instant::now(),
             refused: None,
             szl_silent: false,
+            identified: false,
         };
         link.set_peer("pdu_size", plc.conn.pdu.to_string());
-        plc.identify().await.map_err(|e| LinkFault::ConnectFailed {
-            endpoint: format!("{}:{}", s.host, s.port),
-            reason: Arc::new(std::io::Error::other(e.to_string())),
-        })?;
         Ok(plc)
     }
 }
@@ -181,6 +184,7 @@ impl Plc {
 
     /// Reads the PLC's identity and operating state into the link's state.
     async fn identify(&mut self) -> Result<(), S7Error> {
+        self.identified = true;
         let facts = [
             ("order_number", (szl::MODULE_ID, 1, szl::ORDER_LEN)),
             (

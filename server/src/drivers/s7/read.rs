@@ -84,6 +84,11 @@ pub(super) async fn read(
     if plan.pdu != plc.conn.pdu {
         replan(device, plan, plc.conn.pdu);
     }
+    if !plc.identified
+        && let Err(e) = plc.identify().await
+    {
+        fault(e)?;
+    }
     let started = Instant::now();
     if started >= plc.next_mode
         && let Err(e) = plc.read_mode().await
