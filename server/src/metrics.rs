@@ -18,10 +18,12 @@ use crate::cache::Cache;
 use crate::link::TxError;
 use crate::link::frame::Function;
 
+mod bound;
 mod format;
 mod labels;
 mod names;
 mod register;
+pub(crate) use bound::{Bound, Held};
 pub(crate) use format::Format;
 pub(crate) use labels::*;
 pub use names::*;
@@ -68,6 +70,9 @@ pub struct Metrics {
     serial_up: Family<PortLabels, Gauge>,
     serial_reopens: Family<PortLabels, Counter>,
     serial_frames: Family<FrameLabels, Counter>,
+    bound_limit: Family<bound::BoundLabels, Gauge>,
+    bound_used: Family<bound::BoundLabels, Gauge>,
+    bound_refused: Family<bound::BoundLabels, Counter>,
     /// Metrics other parts keep here so that they outlive a restart of their owner (a
     /// front-end's, across reloads), one of each type.
     kept: std::sync::Mutex<Vec<std::sync::Arc<dyn std::any::Any + Send + Sync>>>,

@@ -132,6 +132,9 @@ async fn monitored_items_are_bounded_for_every_session_together() {
     for line in [
         "iogate_opcua_monitored_items 2500",
         "iogate_opcua_monitored_items_refused_total 1500",
+        "iogate_bound_limit{bound=\"opcua_monitored_items\"} 2500",
+        "iogate_bound_used{bound=\"opcua_monitored_items\"} 2500",
+        "iogate_bound_refused_total{bound=\"opcua_monitored_items\"} 1500",
     ] {
         assert!(metrics.contains(line), "{line}\n{metrics}");
     }
@@ -225,6 +228,38 @@ async fn diagnostics_count_on_and_links_follow_declarations() {
     })
     .await
     .expect("link gone");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn opcua_sessions_past_the_bound_are_refused_and_counted() {
+    let (gw, _) = plant("opcua-sessions", "  max_sessions: 2\n").await;
+    let mut first = client(&gw).await;
+    let mut second = client(&gw).await;
+    let third = UaClient::connect(&url(&gw), &Options::default()).await;
+    let refused = third.err().map(|e| format!("{e:#}")).unwrap_or_default();
+    assert!(refused.contains("TooManySessions"), "{refused}");
+    // The sessions in place are served as before.
+    for ua in [&mut first, &mut second] {
+        assert_eq!(
+            ua.read("plant.Level").await.expect("read")["status"],
+            "Good"
+        );
+    }
+    let metrics = gw.metrics().await.expect("metrics");
+    for line in [
+        "iogate_bound_limit{bound=\"opcua_sessions\"} 2\n",
+        "iogate_bound_used{bound=\"opcua_sessions\"} 2\n",
+        "iogate_bound_refused_total{bound=\"opcua_sessions\"} 1\n",
+    ] {
+        assert!(metrics.contains(line), "{line}\n{metrics}");
+    }
+    first.close().await.expect("closed");
+    let mut again = client(&gw).await;
+    assert_eq!(
+        again.read("plant.Level").await.expect("read")["status"],
+        "Good"
+    );
     gw.shutdown().await;
 }
 

@@ -1,5 +1,5 @@
 //! The HTTP listener: each accepted connection served by hyper with the router, within
-//! limits: at most [`MAX_CONNECTIONS`] at once (more are closed at once), TLS handshake or
+//! limits: at most `listen.max_connections` at once (more are closed at once), TLS handshake or
 //! first byte and then request headers read within `listen.header_timeout` (a client
 //! sending one byte a second is dropped), request bodies read within `listen.body_timeout`,
 //! TCP_NODELAY set; at shutdown the server stops accepting and finishes its requests.
@@ -34,9 +34,6 @@ pub(crate) mod ui;
 
 pub(crate) use router::{ApiDoc, router, serve_http};
 
-/// Connections served at once; more are closed as soon as they are accepted.
-pub(crate) const MAX_CONNECTIONS: usize = 4096;
-
 /// The HTTP listener's timeouts (`listen.header_timeout`, `listen.body_timeout`).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Limits {
@@ -45,6 +42,8 @@ pub(crate) struct Limits {
     pub(crate) header_timeout: Duration,
     /// For a request's body (at most [`router::MAX_BODY`]).
     pub(crate) body_timeout: Duration,
+    /// Connections served at once (`listen.max_connections`).
+    pub(crate) max_connections: usize,
 }
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
@@ -56,8 +55,9 @@ pub(crate) async fn serve(
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
+    let bounds = accept::Bounds::of(&service.metrics, false, limits.max_connections);
     let router = router(service, limits.body_timeout);
-    let incoming = accept::ready(listener, MAX_CONNECTIONS, tls, limits.header_timeout);
+    let incoming = accept::ready(listener, bounds, tls, limits.header_timeout);
     tokio::pin!(incoming);
     let graceful = GracefulShutdown::new();
     let mut builder = Builder::new(TokioExecutor::new());

@@ -39,6 +39,7 @@ pub(crate) async fn serve_modbus(
         return;
     };
     let slots = Arc::new(Slots::new(image.config.max_connections));
+    let bound = (service.metrics).bound("modbus_connections", image.config.max_connections);
     let idle = image.config.idle_timeout;
     loop {
         let accepted = tokio::select! {
@@ -59,18 +60,22 @@ pub(crate) async fn serve_modbus(
             Taken::Evicted { slot, evicted } => {
                 tracing::info!(%peer, closed = %evicted, "Modbus connection closed to make room for a new master (max_connections reached)");
                 service.metrics.server_evicted();
+                bound.refused();
                 slot
             }
             Taken::Full => {
                 tracing::info!(%peer, "Modbus connection refused: max_connections reached, every connection being answered");
                 service.metrics.server_refused();
+                bound.refused();
                 drop(stream);
                 continue;
             }
         };
         let _ = stream.set_nodelay(true);
         let (service, token, slots) = (service.clone(), shutdown.clone(), slots.clone());
+        let held = bound.hold();
         service.clone().tasks().spawn(async move {
+            let _held = held;
             service.metrics.server_connection(true);
             if let Err(reason) = connection(stream, &service, idle, &token, &slot).await {
                 tracing::debug!(%peer, %reason, "Modbus connection closed");

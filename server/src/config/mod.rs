@@ -31,7 +31,9 @@ pub(crate) const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 pub(crate) const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
 /// The most change streams (SSE, gRPC Subscribe and Exchange) open at once, by default.
 pub(crate) const DEFAULT_MAX_STREAMS: usize = 2048;
-/// The most `listen.max_streams` may be.
+/// The most connections each of the HTTP and gRPC listeners serves at once, by default.
+pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 4096;
+/// The most `listen.max_streams` and `listen.max_connections` may be.
 pub(crate) const MAX_STREAMS_LIMIT: usize = 100_000;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -44,6 +46,9 @@ pub struct Config {
     pub(crate) body_timeout: Duration,
     /// The most change streams open at once (`listen.max_streams`).
     pub(crate) max_streams: usize,
+    /// The most connections each of the HTTP and gRPC listeners serves at once
+    /// (`listen.max_connections`).
+    pub(crate) max_connections: usize,
     /// The `profiles` directory as configured, relative to the config file's directory.
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
@@ -333,6 +338,7 @@ impl Config {
             header_timeout: DEFAULT_HEADER_TIMEOUT,
             body_timeout: DEFAULT_BODY_TIMEOUT,
             max_streams: DEFAULT_MAX_STREAMS,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
             profiles: None,
             links: Vec::new(),
             devices: Vec::new(),

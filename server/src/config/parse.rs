@@ -34,6 +34,7 @@ const LISTEN_KEYS: &[&str] = &[
     "header_timeout",
     "body_timeout",
     "max_streams",
+    "max_connections",
 ];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
@@ -141,6 +142,12 @@ fn read_listen(config: &mut Config, mut listen: yaml::MapReader<'_>, report: &mu
         )
     }) {
         config.max_streams = usize::try_from(n).unwrap_or(super::DEFAULT_MAX_STREAMS);
+    }
+    if let Some(n) = listen.get("max_connections").and_then(|node| {
+        let most = super::MAX_STREAMS_LIMIT as i128;
+        node.int_in(report, "listen.max_connections", 1, most)
+    }) {
+        config.max_connections = usize::try_from(n).unwrap_or(super::DEFAULT_MAX_CONNECTIONS);
     }
     listen.finish(report, "listen", LISTEN_KEYS);
 }

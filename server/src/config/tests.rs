@@ -50,6 +50,17 @@ fn max_streams_is_read_and_bounded() {
     }
 }
 
+#[test]
+fn max_connections_is_read_and_bounded() {
+    let c = parse("c.yaml", "devices: []\n").expect("parses");
+    assert_eq!(c.max_connections, DEFAULT_MAX_CONNECTIONS);
+    let c = parse("c.yaml", "listen: { max_connections: 64 }\n").expect("parses");
+    assert_eq!(c.max_connections, 64);
+    let all = problems("listen: { max_connections: 0 }\n");
+    let needle = "c.yaml:1: listen.max_connections: 0 is outside the allowed range 1-100000";
+    assert!(all.contains(needle), "missing {needle:?} in\n{all}");
+}
+
 fn problems(text: &str) -> String {
     parse("c.yaml", text).expect_err("should fail").to_string()
 }

@@ -139,7 +139,8 @@ impl DeclareError {
             DeclareError::Rules(_)
             | DeclareError::BadName { .. }
             | DeclareError::OutOfBounds(_) => Refusal::Invalid,
-            DeclareError::NotAllowed(_) | DeclareError::TooMany(..) => Refusal::Forbidden,
+            DeclareError::NotAllowed(_) => Refusal::Forbidden,
+            DeclareError::TooMany(..) => Refusal::TooMany,
             DeclareError::UnknownProfile(_)
             | DeclareError::UnknownLink(_)
             | DeclareError::NotFound(_) => Refusal::NotFound,

@@ -35,3 +35,6 @@ pub const MODBUS_SERVER_EXCEPTIONS: &str = "iogate_modbus_server_exceptions";
 pub const MODBUS_SERIAL_PORT_UP: &str = "iogate_modbus_serial_port_up";
 pub const MODBUS_SERIAL_REOPENS: &str = "iogate_modbus_serial_port_reopens";
 pub const MODBUS_SERIAL_FRAMES: &str = "iogate_modbus_serial_frames";
+pub const BOUND_LIMIT: &str = "iogate_bound_limit";
+pub const BOUND_USED: &str = "iogate_bound_used";
+pub const BOUND_REFUSED: &str = "iogate_bound_refused";

@@ -45,6 +45,9 @@ impl Metrics {
             serial_up: Family::default(),
             serial_reopens: Family::default(),
             serial_frames: Family::default(),
+            bound_limit: Family::default(),
+            bound_used: Family::default(),
+            bound_refused: Family::default(),
             kept: std::sync::Mutex::default(),
             registry: Registry::default(),
         };
@@ -52,6 +55,7 @@ impl Metrics {
         register_link_traffic(&mut registry, &m);
         register_devices(&mut registry, &m);
         register_modbus_server(&mut registry, &m);
+        register_bounds(&mut registry, &m);
         Metrics { registry, ..m }
     }
 }
@@ -239,5 +243,24 @@ fn register_modbus_server(registry: &mut Registry, m: &Metrics) {
         MODBUS_SERIAL_FRAMES,
         "Frames a serial port of the Modbus server received, by outcome: answered, exception, broadcast (applied, not answered), other_unit (ignored), crc_error (CRC or LRC, ignored), malformed (ignored)",
         m.serial_frames.clone(),
+    );
+}
+
+/// The bounds on what clients can make the gateway hold.
+fn register_bounds(registry: &mut Registry, m: &Metrics) {
+    registry.register(
+        BOUND_LIMIT,
+        "The limit of a bound on what clients can make the gateway hold (the README's table of bounds)",
+        m.bound_limit.clone(),
+    );
+    registry.register(
+        BOUND_USED,
+        "How much of a bound clients hold now",
+        m.bound_used.clone(),
+    );
+    registry.register(
+        BOUND_REFUSED,
+        "Clients refused at a bound (or, where the bound makes room, the oldest closed)",
+        m.bound_refused.clone(),
     );
 }

@@ -114,6 +114,7 @@ fn listeners(d: &mut Diff, old: &Setup, new: &Setup) {
             duration(a.body_timeout),
             duration(b.body_timeout),
         ),
+        changed_text("max_connections", a.max_connections, b.max_connections),
     ]
     .into_iter()
     .flatten()

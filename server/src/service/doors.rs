@@ -22,6 +22,12 @@ pub(crate) trait Door: Any + Send + Sync {
         let _ = out;
         Ok(())
     }
+
+    /// Copies what its clients hold of its bounds into the gateway's metrics (before a
+    /// scrape), for bounds whose places only it counts.
+    fn count_bounds(&self, metrics: &crate::metrics::Metrics) {
+        let _ = metrics;
+    }
 }
 
 /// What the front-ends add to the API's description, made once by the composition root
@@ -91,6 +97,13 @@ impl Doors {
             door.encode_metrics(out)?;
         }
         Ok(())
+    }
+
+    /// Every running front-end's bounds, counted into `metrics`.
+    pub(crate) fn count_bounds(&self, metrics: &crate::metrics::Metrics) {
+        for door in self.all() {
+            door.count_bounds(metrics);
+        }
     }
 
     fn all(&self) -> Vec<Arc<dyn Door>> {

@@ -4,6 +4,7 @@
 //! over this layer: they parse their request, call one function here, and map the result
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
+mod bounds;
 pub(crate) mod doors;
 pub(crate) mod listening;
 mod modbus_map;
@@ -126,10 +127,8 @@ pub struct Service {
     pub(crate) tokens: crate::auth::TokenTable,
     /// `security.read_only`: every write is refused.
     read_only: AtomicBool,
-    /// Open change streams (SSE, Subscribe, Exchange), bounded by `max_streams`.
-    streams: Arc<std::sync::atomic::AtomicUsize>,
-    /// `listen.max_streams`.
-    max_streams: std::sync::atomic::AtomicUsize,
+    /// Open change streams (SSE, Subscribe, Exchange), bounded by `listen.max_streams`.
+    streams: crate::metrics::Bound,
     /// The front-ends that run, as the rest of the gateway sees them.
     pub(crate) doors: doors::Doors,
     /// What reloads the configuration, when it came from a file.
@@ -146,12 +145,8 @@ pub struct Service {
 
 /// A place among the open change streams; dropping it frees the place.
 #[derive(Debug)]
-pub(crate) struct StreamSlot(Arc<std::sync::atomic::AtomicUsize>);
-
-impl Drop for StreamSlot {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::AcqRel);
-    }
+pub(crate) struct StreamSlot {
+    _held: crate::metrics::Held,
 }
 
 impl Service {
@@ -159,6 +154,7 @@ impl Service {
     /// [`Service::set_ready`].
     pub(crate) fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
         Service {
+            streams: (tasks.metrics()).bound("streams", crate::config::DEFAULT_MAX_STREAMS),
             metrics: tasks.metrics().clone(),
             cache,
             tasks,
@@ -168,8 +164,6 @@ impl Service {
             policy: std::sync::RwLock::new(crate::config::security::DeclarePolicy::default()),
             tokens: crate::auth::TokenTable::default(),
             read_only: AtomicBool::new(false),
-            streams: Arc::new(std::sync::atomic::AtomicUsize::new(0)),
-            max_streams: std::sync::atomic::AtomicUsize::new(crate::config::DEFAULT_MAX_STREAMS),
             doors: doors::Doors::default(),
             reloader: std::sync::OnceLock::new(),
             serial_ports: serial_ports::SerialPorts::default(),
@@ -181,13 +175,10 @@ impl Service {
 
     /// A place for one more change stream, or `TooManyStreams`.
     pub(crate) fn stream_slot(&self) -> Result<StreamSlot, ServiceError> {
-        let before = self.streams.fetch_add(1, Ordering::AcqRel);
-        let slot = StreamSlot(self.streams.clone());
-        let max = self.max_streams.load(Ordering::Acquire);
-        if before >= max {
-            return Err(ServiceError::TooManyStreams(max));
+        match self.streams.take() {
+            Some(held) => Ok(StreamSlot { _held: held }),
+            None => Err(ServiceError::TooManyStreams(self.streams.limit())),
         }
-        Ok(slot)
     }
 
     /// The service with the tokens and the read-only switch of `security:`.
@@ -229,7 +220,7 @@ impl Service {
 
     /// Puts `listen.max_streams` in force for the streams opened from now on.
     pub(crate) fn set_max_streams(&self, max: usize) {
-        self.max_streams.store(max, Ordering::Release);
+        self.streams.set_limit(max);
     }
 
     /// The service with a declaration policy other than the default.
@@ -350,12 +341,12 @@ impl Service {
     /// Declares a link (idempotent); a new one starts polling at once.
     pub(crate) fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
         self.accepting()?;
-        Ok(declare::ensure_link(
+        self.counted(declare::ensure_link(
             &self.cache,
             &self.tasks,
             &self.policy.read().unwrap_or_else(|e| e.into_inner()),
             decl,
-        )?)
+        ))
     }
 
     /// Declares a device (idempotent); a new one is polled by its link at once.
@@ -364,7 +355,7 @@ impl Service {
         decl: DeviceDeclaration,
     ) -> Result<Ensured<Device>, ServiceError> {
         self.accepting()?;
-        Ok(declare::ensure_device(&self.cache, &self.tasks, decl)?)
+        self.counted(declare::ensure_device(&self.cache, &self.tasks, decl))
     }
 
     /// Removes a device declared at run time.

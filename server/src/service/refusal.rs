@@ -31,6 +31,7 @@ fn declare(e: &DeclareError) -> (Refusal, &'static str) {
                 Refusal::NotFound => "not_found",
                 Refusal::Conflict => "declaration_conflict",
                 Refusal::Forbidden => "not_allowed",
+                Refusal::TooMany => "too_many_declared",
                 _ => "invalid_declaration",
             };
             (kind, code)

@@ -63,6 +63,11 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 impl Standing {
+    /// The config file's line, 0 for one declared at run time.
+    pub(crate) fn line(&self) -> u64 {
+        self.line
+    }
+
     pub(crate) fn spec(&self) -> TransactionSpec {
         lock(&self.spec).clone()
     }
@@ -155,6 +160,15 @@ impl Service {
             } else {
                 Err(ServiceError::TransactionConflict(config.name))
             };
+        }
+        let declared = set.iter().filter(|s| s.line == 0).count();
+        if config.line == 0 && declared >= super::bounds::MAX_DECLARED_TRANSACTIONS {
+            drop(set);
+            let max = super::bounds::MAX_DECLARED_TRANSACTIONS;
+            return self.counted(Err(crate::declare::DeclareError::TooMany(
+                "transactions",
+                max,
+            )));
         }
         let standing = Arc::new(Standing {
             name: config.name,

@@ -7,7 +7,7 @@ fn alert_rules_and_the_compose_prometheus_config_pass_promtool() {
         "promtool",
         &["check", "rules", "deploy/prometheus/alerts.yml"],
     );
-    assert!(rules.contains("SUCCESS: 13 rules found"), "{rules}");
+    assert!(rules.contains("SUCCESS: 14 rules found"), "{rules}");
     run(
         "promtool",
         &["check", "config", "deploy/compose/prometheus.yml"],

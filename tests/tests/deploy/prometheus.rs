@@ -79,7 +79,7 @@ async fn a_real_prometheus_scrapes_the_gateway_and_evaluates_every_alert_rule() 
             .flatten()
             .flat_map(|g| g["rules"].as_array().cloned().unwrap_or_default())
             .collect();
-        let evaluated = all.len() == 13
+        let evaluated = all.len() == 14
             && all.iter().all(|r| {
                 r["lastEvaluation"]
                     .as_str()

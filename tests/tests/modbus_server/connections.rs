@@ -38,6 +38,12 @@ async fn a_new_master_closes_the_connection_idle_longest_and_is_served_at_once()
         metrics.contains("iogate_modbus_server_refused_connections_total 0"),
         "{metrics}"
     );
+    for line in [
+        "iogate_bound_limit{bound=\"modbus_connections\"} 3\n",
+        "iogate_bound_refused_total{bound=\"modbus_connections\"} 2\n",
+    ] {
+        assert!(metrics.contains(line), "{line}\n{metrics}");
+    }
     gw.shutdown().await;
 }
 

@@ -45,7 +45,7 @@ impl FrontEnd for GrpcFrontEnd {
                 Listen::prepare(prepare, config.grpc, was, "listen.grpc", "--grpc").await?;
             Ok(Some(Box::new(GrpcStarting {
                 listen,
-                header_timeout: limits(config).header_timeout,
+                limits: limits(config),
             }) as Box<dyn Starting>))
         })
     }
@@ -53,7 +53,7 @@ impl FrontEnd for GrpcFrontEnd {
 
 struct GrpcStarting {
     listen: Listen,
-    header_timeout: std::time::Duration,
+    limits: crate::api::http::Limits,
 }
 
 impl Starting for GrpcStarting {
@@ -63,11 +63,10 @@ impl Starting for GrpcStarting {
     ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
         Box::pin(async move {
             let Start { service, tls, .. } = start;
-            let (header_timeout, serving) = (self.header_timeout, service.clone());
+            let (limits, serving) = (self.limits, service.clone());
             let serve = move |listener, stop: CancellationToken| async move {
                 let shutdown = stop.cancelled_owned();
-                let served =
-                    crate::api::serve_grpc(listener, serving, header_timeout, tls, shutdown).await;
+                let served = crate::api::serve_grpc(listener, serving, limits, tls, shutdown).await;
                 if let Err(e) = served {
                     tracing::error!(error = %e, "gRPC server failed");
                 }

@@ -6,9 +6,9 @@ use std::sync::Arc;
 
 use tokio::net::TcpListener;
 
+use crate::api::grpc;
 use crate::api::grpc::burst;
 use crate::api::http::accept;
-use crate::api::{grpc, http};
 use crate::service::Service;
 
 /// Serves the gRPC API, with `grpc.health.v1` and server reflection, on `listener` until
@@ -16,7 +16,7 @@ use crate::service::Service;
 pub(crate) async fn serve_grpc(
     listener: TcpListener,
     service: Arc<Service>,
-    header_timeout: std::time::Duration,
+    limits: crate::api::http::Limits,
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
@@ -32,7 +32,8 @@ pub(crate) async fn serve_grpc(
         .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
-    let incoming = accept::ready(listener, http::MAX_CONNECTIONS, tls, header_timeout)
+    let bounds = accept::Bounds::of(&service.metrics, true, limits.max_connections);
+    let incoming = accept::ready(listener, bounds, tls, limits.header_timeout)
         .map(|conn| conn.map(burst::Burst::new));
     let tokens = service.tokens.clone();
     tonic::transport::Server::builder()

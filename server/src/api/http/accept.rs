@@ -19,6 +19,7 @@ use tokio_rustls::server::TlsStream;
 use tonic::transport::server::{Connected, TcpConnectInfo};
 
 use super::limit::{self, Limited};
+use crate::metrics::{Bound, Metrics};
 use crate::tls::Tls;
 
 /// Connections waiting for their first byte or TLS handshake at once, per listener.
@@ -40,17 +41,41 @@ impl Conn {
     }
 }
 
-/// The listener's connections, at most `max` open at once, each ready to serve: its TLS
-/// handshake done (when `tls` is given) or its first byte arrived, within `ready_within`.
+/// A listener's bounds: its open connections, and those waiting to be ready.
+#[derive(Clone, Debug)]
+pub(crate) struct Bounds {
+    pub(crate) connections: Bound,
+    pub(crate) waiting: Bound,
+}
+
+impl Bounds {
+    /// The bounds of the HTTP (`grpc` false) or gRPC listener, serving at most
+    /// `max_connections` at once.
+    pub(crate) fn of(metrics: &Metrics, grpc: bool, max_connections: usize) -> Self {
+        let (connections, waiting) = if grpc {
+            ("grpc_connections", "grpc_waiting_connections")
+        } else {
+            ("http_connections", "http_waiting_connections")
+        };
+        Bounds {
+            connections: metrics.bound(connections, max_connections),
+            waiting: metrics.bound(waiting, MAX_PREPARING),
+        }
+    }
+}
+
+/// The listener's connections, within `bounds`, each ready to serve: its TLS handshake done
+/// (when `tls` is given) or its first byte arrived, within `ready_within`.
 pub(crate) fn ready(
     listener: TcpListener,
-    max: usize,
+    bounds: Bounds,
     tls: Option<Arc<Tls>>,
     ready_within: Duration,
 ) -> impl Stream<Item = io::Result<Conn>> + Send + 'static {
     let (tx, rx) = tokio::sync::mpsc::channel::<Conn>(64);
     tokio::spawn(async move {
-        let incoming = limit::incoming(listener, max);
+        let incoming = limit::incoming(listener, bounds.connections);
+        let waiting = bounds.waiting;
         tokio::pin!(incoming);
         let mut preparing = std::collections::VecDeque::<tokio::task::AbortHandle>::new();
         loop {
@@ -63,22 +88,22 @@ pub(crate) fn ready(
                     None => return,
                 },
             };
-            if preparing.len() >= MAX_PREPARING {
-                preparing.retain(|h| !h.is_finished());
-                if preparing.len() >= MAX_PREPARING
-                    && let Some(oldest) = preparing.pop_front()
-                {
-                    tracing::debug!(
-                        "connection closed: the oldest of too many waiting to be ready"
-                    );
-                    oldest.abort();
-                }
+            preparing.retain(|h| !h.is_finished());
+            if preparing.len() >= waiting.limit()
+                && let Some(oldest) = preparing.pop_front()
+            {
+                tracing::debug!("connection closed: the oldest of too many waiting to be ready");
+                waiting.refused();
+                oldest.abort();
             }
             let (tx, tls) = (tx.clone(), tls.clone());
+            // Held while it waits: freed when it is ready, closed or evicted.
+            let held = waiting.hold();
             let task = tokio::spawn(async move {
                 let peer = connection.peer();
                 match tokio::time::timeout(ready_within, prepare(connection, tls)).await {
                     Ok(Ok(conn)) => {
+                        drop(held);
                         let _ = tx.send(conn).await;
                     }
                     Ok(Err(e)) => {
@@ -185,11 +210,19 @@ mod tests {
 
     use super::*;
 
+    fn bounds(connections: usize) -> Bounds {
+        let metrics = Metrics::new();
+        Bounds {
+            connections: metrics.bound("connections", connections),
+            waiting: metrics.bound("waiting", MAX_PREPARING),
+        }
+    }
+
     #[tokio::test]
     async fn a_silent_connection_is_closed_and_holds_no_other() {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("addr");
-        let mut ready = Box::pin(ready(listener, 8, None, Duration::from_millis(200)));
+        let mut ready = Box::pin(ready(listener, bounds(8), None, Duration::from_millis(200)));
         let mut silent = TcpStream::connect(addr).await.expect("silent");
         let mut talking = TcpStream::connect(addr).await.expect("talking");
         talking.write_all(b"G").await.expect("write");
@@ -215,7 +248,7 @@ mod tests {
         // can make room.
         let mut ready = Box::pin(ready(
             listener,
-            MAX_PREPARING + 16,
+            bounds(MAX_PREPARING + 16),
             None,
             Duration::from_secs(600),
         ));

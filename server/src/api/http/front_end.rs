@@ -18,15 +18,17 @@ pub(crate) fn limits(config: &Config) -> Limits {
     Limits {
         header_timeout: config.header_timeout,
         body_timeout: config.body_timeout,
+        max_connections: config.max_connections,
     }
 }
 
 /// Whether a reload from `old` to `new` serves HTTP and gRPC again where they are: TLS
-/// turned on or off, or their timeouts changed.
+/// turned on or off, or their timeouts or connection limit changed.
 pub(crate) fn served_again(old: &Config, new: &Config) -> bool {
     old.security.tls.is_some() != new.security.tls.is_some()
         || old.header_timeout != new.header_timeout
         || old.body_timeout != new.body_timeout
+        || old.max_connections != new.max_connections
 }
 
 impl FrontEnd for HttpFrontEnd {

@@ -1,31 +1,30 @@
-//! A listener's connections within a limit, for the HTTP and gRPC listeners: at most `max`
-//! at once (more are closed as soon as they are accepted), TCP_NODELAY set, accept errors
-//! (out of file descriptors) waited out.
+//! A listener's connections within a limit, for the HTTP and gRPC listeners: at most the
+//! bound's limit at once (more are closed as soon as they are accepted, each counted as a
+//! refusal), TCP_NODELAY set, accept errors (out of file descriptors) waited out.
 
 use std::io;
 use std::pin::Pin;
-use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
 use futures_util::Stream;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tonic::transport::server::{Connected, TcpConnectInfo};
 
-/// An accepted connection holding one of the listener's slots until it closes.
+use crate::metrics::{Bound, Held};
+
+/// An accepted connection holding one of the listener's places until it closes.
 pub(crate) struct Limited {
     stream: TcpStream,
-    _slot: OwnedSemaphorePermit,
+    _slot: Held,
 }
 
-/// The connections accepted on `listener`, at most `max` open at once.
+/// The connections accepted on `listener`, at most `slots`' limit open at once.
 pub(crate) fn incoming(
     listener: TcpListener,
-    max: usize,
+    slots: Bound,
 ) -> impl Stream<Item = io::Result<Limited>> + Send + 'static {
-    let slots = Arc::new(Semaphore::new(max));
     futures_util::stream::unfold((listener, slots), |(listener, slots)| async move {
         loop {
             let (stream, peer) = match listener.accept().await {
@@ -36,7 +35,7 @@ pub(crate) fn incoming(
                     continue;
                 }
             };
-            let Ok(slot) = slots.clone().try_acquire_owned() else {
+            let Some(slot) = slots.take() else {
                 tracing::debug!(%peer, "connection refused: too many connections");
                 continue;
             };
@@ -121,7 +120,10 @@ mod tests {
     async fn accepted_sockets_have_tcp_nodelay() {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("addr");
-        let mut accepted = Box::pin(incoming(listener, 2));
+        let mut accepted = Box::pin(incoming(
+            listener,
+            crate::metrics::Metrics::new().bound("test", 2),
+        ));
         let _client = TcpStream::connect(addr).await.expect("connect");
         let connection = accepted.next().await.expect("one").expect("ok");
         assert!(
@@ -134,7 +136,10 @@ mod tests {
     async fn connections_beyond_the_limit_are_closed_until_a_slot_frees() {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("addr");
-        let mut accepted = Box::pin(incoming(listener, 2));
+        let mut accepted = Box::pin(incoming(
+            listener,
+            crate::metrics::Metrics::new().bound("test", 2),
+        ));
         let _a = TcpStream::connect(addr).await.expect("a");
         let _b = TcpStream::connect(addr).await.expect("b");
         let first = accepted.next().await.expect("first").expect("ok");

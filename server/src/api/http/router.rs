@@ -74,6 +74,7 @@ async fn openapi_json(State(service): State<Arc<Service>>) -> Json<&'static serd
 async fn metrics(State(service): State<Arc<Service>>, headers: HeaderMap) -> impl IntoResponse {
     let accept = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok());
     let format = crate::metrics::Format::negotiate(accept);
+    service.count_bounds();
     (
         [(header::CONTENT_TYPE, format.content_type())],
         service.metrics.render(

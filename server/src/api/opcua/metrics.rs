@@ -14,6 +14,8 @@ use crate::metrics::OutcomeLabels;
 pub(crate) struct OpcUaStatus {
     pub(crate) sessions: u64,
     pub(crate) sessions_created: u64,
+    /// Sessions refused because the table was full (Bad_TooManySessions).
+    pub(crate) sessions_refused: u64,
     pub(crate) subscriptions: u64,
     pub(crate) monitored_items: u64,
     /// Monitored items refused because every session's together reached the bound.

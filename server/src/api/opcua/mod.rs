@@ -158,6 +158,9 @@ fn probe(handle: Arc<std::sync::OnceLock<ServerHandle>>, rejected: std::path::Pa
             s.sessions_created = count(
                 VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_CumulatedSessionCount,
             );
+            s.sessions_refused = count(
+                VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_RejectedSessionCount,
+            );
             s.subscriptions = count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_CurrentSubscriptionCount);
             s.security_rejected = count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedSessionCount)
                 + count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedRequestsCount);
@@ -228,7 +231,7 @@ pub(crate) async fn start(
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
     let counts = Arc::new(OpcUaState::new(
         probe(server_handle.clone(), pki.join("rejected")),
-        config.max_monitored_items,
+        [config.max_sessions, config.max_monitored_items],
         service.metrics.kept(metrics::OpcUaMetrics::new),
     ));
     let mut builder =

@@ -18,8 +18,12 @@ pub(crate) type Probe = Box<dyn Fn(&mut OpcUaStatus) + Send + Sync>;
 /// The front-end's shared counts.
 pub(crate) struct OpcUaState {
     monitored_items: AtomicI64,
+    /// Sessions at once, at most.
+    max_sessions: usize,
     /// Monitored items of every session together, at most.
     max_items: i64,
+    /// The refusals already counted into the gateway's bounds: sessions, monitored items.
+    counted: [AtomicU64; 2],
     /// Told when the first monitored item is made: the feed then follows changes again.
     watched: Notify,
     items_refused: AtomicU64,
@@ -39,6 +43,31 @@ impl Door for OpcUaState {
     fn encode_metrics(&self, out: &mut String) -> std::fmt::Result {
         self.metrics.encode(&self.status(), out)
     }
+
+    fn count_bounds(&self, metrics: &crate::metrics::Metrics) {
+        let status = self.status();
+        let max_items = usize::try_from(self.max_items).unwrap_or(usize::MAX);
+        let bounds = [
+            (
+                "opcua_sessions",
+                self.max_sessions,
+                status.sessions,
+                status.sessions_refused,
+            ),
+            (
+                "opcua_monitored_items",
+                max_items,
+                status.monitored_items,
+                status.monitored_items_refused,
+            ),
+        ];
+        for ((name, limit, used, refused), counted) in bounds.into_iter().zip(&self.counted) {
+            let bound = metrics.bound(name, limit);
+            bound.set_used(usize::try_from(used).unwrap_or(usize::MAX));
+            let before = counted.swap(refused, Ordering::AcqRel);
+            bound.refused_by(refused.saturating_sub(before));
+        }
+    }
 }
 
 impl std::fmt::Debug for OpcUaState {
@@ -48,10 +77,17 @@ impl std::fmt::Debug for OpcUaState {
 }
 
 impl OpcUaState {
-    pub(crate) fn new(probe: Probe, max_items: usize, metrics: Arc<OpcUaMetrics>) -> Self {
+    /// The state of a server with `max_sessions` and `max_items` monitored items in all.
+    pub(crate) fn new(
+        probe: Probe,
+        [max_sessions, max_items]: [usize; 2],
+        metrics: Arc<OpcUaMetrics>,
+    ) -> Self {
         OpcUaState {
             monitored_items: AtomicI64::new(0),
+            max_sessions,
             max_items: i64::try_from(max_items).unwrap_or(i64::MAX),
+            counted: Default::default(),
             watched: Notify::new(),
             items_refused: AtomicU64::new(0),
             value_updates: AtomicU64::new(0),

@@ -53,6 +53,26 @@ pub(crate) fn remote_tsap(kind: i128, rack: i128, slot: i128) -> i128 {
 }
 
 /// Reads a link's settings; `None` after reporting every problem.
+/// A job's `timeout`: at most [`MAX_TIMEOUT`].
+fn job_timeout(n: &crate::yaml::Node, report: &mut Report, ctx: &str) -> Option<Duration> {
+    let text = n.scalar_text(report, ctx)?;
+    match crate::duration::parse(&text) {
+        Ok(t) if t > MAX_TIMEOUT => {
+            report.push(
+                n.line,
+                ctx,
+                "at most 4s (a job a PLC has not answered in 4 s is lost)",
+            );
+            None
+        }
+        Ok(t) => Some(t),
+        Err(e) => {
+            report.push(n.line, ctx, e.to_string());
+            None
+        }
+    }
+}
+
 pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Settings> {
     let ctx = format!("link {link}: s7");
     let at = |k: &str| format!("{ctx}.{k}");
@@ -98,22 +118,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
     let timeout = map
         .get("timeout")
         .map_or(Some(Duration::from_secs(2)), |n| {
-            let text = n.scalar_text(report, &at("timeout"))?;
-            match crate::duration::parse(&text) {
-                Ok(t) if t > MAX_TIMEOUT => {
-                    report.push(
-                        n.line,
-                        at("timeout"),
-                        "at most 4s (a job a PLC has not answered in 4 s is lost)",
-                    );
-                    None
-                }
-                Ok(t) => Some(t),
-                Err(e) => {
-                    report.push(n.line, at("timeout"), e.to_string());
-                    None
-                }
-            }
+            job_timeout(n, report, &at("timeout"))
         });
     map.finish(report, &ctx, KEYS);
     let (rack, slot, kind) = (rack?, slot?, kind?);

@@ -73,6 +73,13 @@ impl ServerDiagnostics {
         }
     }
 
+    /// Increment the rejected session count.
+    pub fn inc_rejected_session_count(&self) {
+        if self.enabled {
+            self.summary.rejected_session_count.increment();
+        }
+    }
+
     /// Set the number of server-created views.
     pub fn set_server_view_count(&self, count: u32) {
         if self.enabled {

@@ -78,7 +78,10 @@ impl SessionManager {
                 .map(|(id, _)| id.clone());
             match oldest {
                 Some(id) => self.expire_session(&id),
-                None => return Err(StatusCode::BadTooManySessions),
+                None => {
+                    self.info.diagnostics.inc_rejected_session_count();
+                    return Err(StatusCode::BadTooManySessions);
+                }
             }
         }
 

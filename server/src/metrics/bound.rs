@@ -1,0 +1,133 @@
+//! Bounds on what clients can make the gateway hold, each counted for `/metrics`: its limit
+//! (`iogate_bound_limit`), how much of it is held (`iogate_bound_used`) and how many times a
+//! client was refused at it (`iogate_bound_refused_total`), by `bound` (the names in the
+//! README's table of bounds).
+
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::gauge::Gauge;
+
+use super::Metrics;
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub(crate) struct BoundLabels {
+    pub(crate) bound: &'static str,
+}
+
+/// One bound: a limit, what is held of it, the refusals. Clones share their counts.
+#[derive(Clone, Debug)]
+pub(crate) struct Bound {
+    limit: Gauge,
+    used: Gauge,
+    refused: Counter,
+}
+
+/// A place held within a [`Bound`]; dropping it frees the place.
+#[derive(Debug)]
+pub(crate) struct Held(Gauge);
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        self.0.dec();
+    }
+}
+
+impl Bound {
+    /// Takes a place, or counts a refusal and answers `None` when all are held.
+    pub(crate) fn take(&self) -> Option<Held> {
+        let limit = self.limit.get();
+        let before = self.used.inc();
+        let held = Held(self.used.clone());
+        if before >= limit {
+            drop(held);
+            self.refused.inc();
+            return None;
+        }
+        Some(held)
+    }
+
+    /// Holds a place that was granted elsewhere (where the bound's owner decides, such as a
+    /// server that closes an idle connection to make room).
+    pub(crate) fn hold(&self) -> Held {
+        self.used.inc();
+        Held(self.used.clone())
+    }
+
+    /// Counts a refusal decided elsewhere (a place evicted, a connection closed at once).
+    pub(crate) fn refused(&self) {
+        self.refused.inc();
+    }
+
+    /// Counts `n` refusals decided elsewhere.
+    pub(crate) fn refused_by(&self, n: u64) {
+        self.refused.inc_by(n);
+    }
+
+    /// Sets what is held, for bounds whose places are counted elsewhere.
+    pub(crate) fn set_used(&self, used: usize) {
+        self.used.set(to_i64(used));
+    }
+
+    /// Puts a new limit in force; places already held stay held.
+    pub(crate) fn set_limit(&self, limit: usize) {
+        self.limit.set(to_i64(limit));
+    }
+
+    pub(crate) fn limit(&self) -> usize {
+        usize::try_from(self.limit.get()).unwrap_or(0)
+    }
+
+    #[cfg(test)]
+    pub(crate) fn used(&self) -> usize {
+        usize::try_from(self.used.get()).unwrap_or(0)
+    }
+}
+
+fn to_i64(n: usize) -> i64 {
+    i64::try_from(n).unwrap_or(i64::MAX)
+}
+
+impl Metrics {
+    /// The bound named `name`, with `limit` in force (the same counts for every caller that
+    /// names it: a front-end restarted by a reload keeps its refusals).
+    pub(crate) fn bound(&self, name: &'static str, limit: usize) -> Bound {
+        let labels = BoundLabels { bound: name };
+        let bound = Bound {
+            limit: self.bound_limit.get_or_create(&labels).clone(),
+            used: self.bound_used.get_or_create(&labels).clone(),
+            refused: self.bound_refused.get_or_create(&labels).clone(),
+        };
+        bound.set_limit(limit);
+        bound
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn places_are_taken_up_to_the_limit_and_freed_when_dropped() {
+        let metrics = Metrics::new();
+        let bound = metrics.bound("streams", 2);
+        let a = bound.take().expect("first");
+        let _b = bound.take().expect("second");
+        assert!(bound.take().is_none(), "a third is refused");
+        assert_eq!((bound.used(), bound.refused.get()), (2, 1));
+        drop(a);
+        assert!(bound.take().is_some(), "a freed place is taken again");
+        let again = metrics.bound("streams", 3);
+        assert_eq!((again.used(), again.limit()), (1, 3), "one count per name");
+        let mut text = String::new();
+        prometheus_client::encoding::text::encode_registry(&mut text, &metrics.registry)
+            .expect("encoded");
+        assert!(
+            text.contains("iogate_bound_limit{bound=\"streams\"} 3"),
+            "{text}"
+        );
+        assert!(
+            text.contains("iogate_bound_refused_total{bound=\"streams\"} 1"),
+            "{text}"
+        );
+    }
+}
