@@ -7,6 +7,7 @@
 #
 #   bash fuzz/run.sh 600                 # every target, ten minutes each
 #   bash fuzz/run.sh 60 s7_answer tokens # two of them
+#   RUNS=10000000 bash fuzz/run.sh 3600  # each until 10 million executions or an hour
 set -euo pipefail
 secs=${1:-60}
 shift || true
@@ -24,7 +25,7 @@ for t in "${targets[@]}"; do
   cp -n "corpus/$t/"* "work/$t/" 2>/dev/null || true
   log=$(mktemp)
   before=$(find "artifacts/$t" -type f 2>/dev/null | wc -l || true)
-  cargo +nightly fuzz run -O "$t" "work/$t" -- -max_total_time="$secs" -print_final_stats=1 >"$log" 2>&1 || true
+  cargo +nightly fuzz run -O "$t" "work/$t" -- -max_total_time="$secs" ${RUNS:+-runs="$RUNS"} -print_final_stats=1 >"$log" 2>&1 || true
   execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | awk '{print $2}' | tail -1 || true)
   rate=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$log" | awk '{print $2}' | tail -1 || true)
   cov=$(grep -o 'cov: [0-9]*' "$log" | tail -1 | awk '{print $2}' || true)

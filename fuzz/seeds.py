@@ -121,6 +121,36 @@ def opcua():
     return out
 
 
+# The method's index (GET, PUT, POST, DELETE, PATCH, HEAD), the target, a newline, the body.
+HTTP = [
+    b"\x00/api/v1/devices",
+    b"\x00/api/v1/devices/sim/fields/DO_0",
+    b"\x00/api/v1/devices/sim?fields=DO_0,AI_0",
+    b"\x00/api/v1/values?devices=sim,plant&fields=plant.Level",
+    b"\x01/api/v1/devices/sim/fields/DO_0\n{\"value\": true}",
+    b"\x01/api/v1/devices/plant/fields/Recipe\n{\"value\": 300}",
+    b"\x02/api/v1/devices/sim/write\n{\"DO_0\": true, \"DO_1\": false}",
+    b"\x01/api/v1/devices/plant/fields/Level/simulate\n{\"value\": 42.5}",
+    b"\x00/api/v1/events?device=sim&diagnostics=true",
+    b"\x00/api/v1/writes/1",
+    b"\x00/api/v1/links",
+    b"\x01/api/v1/links/l1\n{\"tcp\": {\"host\": \"127.0.0.1\", \"port\": 502}}",
+    b"\x01/api/v1/devices/d1\n{\"profile\": \"SimIo\", \"link\": \"l1\", \"slave_id\": 1}",
+    b"\x03/api/v1/devices/d1",
+    b"\x00/api/v1/profiles/SimPlant/st",
+    b"\x00/api/v1/map/%25IW0",
+    b"\x00/api/v1/map",
+    b"\x01/api/v1/transactions/t1\n{\"link\": \"l1\", \"function\": 3, \"slave\": 1, \"address\": 0, \"refresh_interval_ms\": 1000}",
+    b"\x02/api/v1/links/l1/transactions\n{\"function\": 6, \"slave\": 1, \"address\": 1, \"type\": \"uint16\", \"values\": [3]}",
+    b"\x02/api/v1/links/l1/scan\n{\"ids\": \"1-247\", \"timeout\": \"50ms\"}",
+    b"\x00/api/v1/config",
+    b"\x00/readyz",
+    b"\x00/metrics",
+    b"\x00/api/v1/openapi.json",
+    b"\x00/api/v1/devices/%ZZ/fields/%C3%A9",
+]
+
+
 def write(target, name, data):
     d = CORPUS / target
     d.mkdir(parents=True, exist_ok=True)
@@ -165,6 +195,8 @@ def main():
         write("grpc_request", f"message{i}", message)
     for i, message in enumerate(opcua()):
         write("opcua_binary", f"message{i}", message)
+    for i, request in enumerate(HTTP):
+        write("http_request", f"request{i}", request)
 
 
 if __name__ == "__main__":

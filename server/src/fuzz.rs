@@ -183,6 +183,79 @@ pub fn opcua_binary(data: &[u8]) {
     }
 }
 
+/// An HTTP request to the REST API's router (paths, query strings, bodies): the first byte
+/// picks the method, the text to the first newline is the request's target, the rest its
+/// body. The router answers every request without a panic and without a 500; a stream's
+/// body is not waited for.
+pub fn http_request(data: &[u8]) {
+    use tower::ServiceExt;
+    let Some((&kind, rest)) = data.split_first() else {
+        return;
+    };
+    let methods = ["GET", "PUT", "POST", "DELETE", "PATCH", "HEAD"];
+    let method = methods[usize::from(kind) % methods.len()];
+    let split = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
+    let (target, body) = (&rest[..split], rest.get(split + 1..).unwrap_or_default());
+    let Ok(request) = axum::http::Request::builder()
+        .method(method)
+        .uri(target)
+        .header("content-type", "application/json")
+        .body(axum::body::Body::from(body.to_vec()))
+    else {
+        return;
+    };
+    let (runtime, router) = http_router();
+    runtime.block_on(async {
+        let answered = router.clone().oneshot(request);
+        let Ok(Ok(response)) = tokio::time::timeout(HTTP_PATIENCE, answered).await else {
+            return;
+        };
+        let status = response.status();
+        assert_ne!(status, axum::http::StatusCode::INTERNAL_SERVER_ERROR);
+        let streamed = response
+            .headers()
+            .get("content-type")
+            .is_some_and(|t| t.as_bytes().starts_with(b"text/event-stream"));
+        if !streamed {
+            let body = http_body_util::BodyExt::collect(response.into_body());
+            let _ = tokio::time::timeout(HTTP_PATIENCE, body).await;
+        }
+    });
+}
+
+/// How long a request of [`http_request`] may take.
+const HTTP_PATIENCE: std::time::Duration = std::time::Duration::from_millis(500);
+
+/// The router of a gateway with the demo's simulated devices, and the runtime it runs on,
+/// made once; declarations may reach no port and no host.
+fn http_router() -> &'static (tokio::runtime::Runtime, axum::Router) {
+    use std::sync::{Arc, OnceLock};
+    static ROUTER: OnceLock<(tokio::runtime::Runtime, axum::Router)> = OnceLock::new();
+    ROUTER.get_or_init(|| {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("a runtime");
+        let router = runtime.block_on(async {
+            let setup = crate::app::Setup::demo_simulated().expect("the demo");
+            let cache = Arc::new(crate::cache::Cache::new(&setup.config, setup.catalog));
+            let tasks = crate::runtime::Tasks::new(
+                tokio_util::task::TaskTracker::new(),
+                tokio_util::sync::CancellationToken::new(),
+                Arc::new(crate::metrics::Metrics::new()),
+            );
+            let service = crate::service::Service::new(cache, tasks);
+            service.set_policy(crate::config::security::DeclarePolicy {
+                serial_ports: Vec::new(),
+                tcp_hosts: Vec::new(),
+            });
+            service.set_ready(true);
+            crate::api::http::router(Arc::new(service), HTTP_PATIENCE)
+        });
+        (runtime, router)
+    })
+}
+
 /// Every target by name, for the corpus tests.
 pub const TARGETS: &[(&str, Target)] = &[
     ("modbus_request", modbus_request),
@@ -200,6 +273,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("s7_answer", s7_answer),
     ("grpc_request", grpc_request),
     ("opcua_binary", opcua_binary),
+    ("http_request", http_request),
 ];
 
 #[cfg(test)]
@@ -226,6 +300,42 @@ mod tests {
         assert!(
             ran >= super::TARGETS.len(),
             "only {ran} inputs: the seed corpora are missing"
+        );
+    }
+
+    /// The HTTP target's requests reach the API: the demo's devices are there to read and
+    /// write.
+    #[test]
+    fn the_http_targets_router_serves_the_api() {
+        use tower::ServiceExt;
+        let (runtime, router) = super::http_router();
+        let status = |method: &str, uri: &str, body: &str| {
+            let request = axum::http::Request::builder()
+                .method(method)
+                .uri(uri)
+                .header("content-type", "application/json")
+                .body(axum::body::Body::from(body.to_owned()))
+                .expect("request");
+            runtime
+                .block_on(router.clone().oneshot(request))
+                .expect("answered")
+                .status()
+                .as_u16()
+        };
+        assert_eq!(status("GET", "/api/v1/devices/sim", ""), 200);
+        assert_eq!(
+            status(
+                "PUT",
+                "/api/v1/devices/plant/fields/Recipe",
+                r#"{"value": 300}"#
+            ),
+            400
+        );
+        let declared = r#"{"tcp": {"host": "127.0.0.1", "port": 502}}"#;
+        assert_eq!(
+            status("PUT", "/api/v1/links/l1", declared),
+            403,
+            "no host is allowed"
         );
     }
 }
