@@ -132,11 +132,20 @@ impl GatewayProcess {
     /// Starts `bin` (the `gateway` binary's path) on `config_yaml`, written to `dir`, and
     /// waits until it is ready.
     pub async fn start(bin: &str, dir: &Path, config_yaml: &str) -> anyhow::Result<Self> {
-        use tokio::io::AsyncBufReadExt;
         let path = dir.join("iogate.yaml");
         std::fs::write(&path, config_yaml)?;
-        let mut child = tokio::process::Command::new(bin)
-            .arg(&path)
+        GatewayProcess::spawn(tokio::process::Command::new(bin).arg(&path)).await
+    }
+
+    /// Starts `bin` on the config file at `path` as it is (its own listeners; reloads
+    /// read it again), and waits until it is ready.
+    pub async fn start_file(bin: &str, path: &Path) -> anyhow::Result<Self> {
+        GatewayProcess::spawn(tokio::process::Command::new(bin).arg("--file").arg(path)).await
+    }
+
+    async fn spawn(command: &mut tokio::process::Command) -> anyhow::Result<Self> {
+        use tokio::io::AsyncBufReadExt;
+        let mut child = command
             .stdout(std::process::Stdio::piped())
             .kill_on_drop(true)
             .spawn()?;
