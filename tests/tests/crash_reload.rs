@@ -21,7 +21,7 @@ const MEMORY: u16 = 1024;
 /// The config of round `n`: odd and even rounds differ in a device (the Modbus map) and
 /// the MQTT topics (the front-end restarts).
 fn config(n: u16, broker_port: u16) -> String {
-    let extra = if n % 2 == 0 {
+    let extra = if n.is_multiple_of(2) {
         "  - { name: sim, profile: SimIo, refresh_rate: 20ms }\n"
     } else {
         ""
