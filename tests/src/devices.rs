@@ -48,6 +48,8 @@ fn range(address: u16, count: u16) -> Option<std::ops::Range<usize>> {
 #[derive(Debug, Clone, Default)]
 pub struct ModbusDevice {
     pub tables: Arc<Mutex<Tables>>,
+    /// Every register written (FC06, FC16), as (address, value), in the order they came.
+    pub writes: Arc<Mutex<Vec<(u16, u16)>>>,
 }
 
 impl tokio_modbus::server::Service for ModbusDevice {
@@ -81,6 +83,7 @@ impl tokio_modbus::server::Service for ModbusDevice {
             Request::WriteSingleRegister(a, v) => range(a, 1)
                 .map(|r| {
                     t.holding[r.start] = v;
+                    lock(&self.writes).push((a, v));
                     Response::WriteSingleRegister(a, v)
                 })
                 .ok_or(bad),
@@ -93,6 +96,8 @@ impl tokio_modbus::server::Service for ModbusDevice {
             Request::WriteMultipleRegisters(a, values) => range(a, values.len() as u16)
                 .map(|r| {
                     t.holding[r].copy_from_slice(&values);
+                    let mut log = lock(&self.writes);
+                    log.extend((a..).zip(values.iter().copied()));
                     Response::WriteMultipleRegisters(a, values.len() as u16)
                 })
                 .ok_or(bad),
@@ -202,7 +207,7 @@ pub struct Seen {
     pub function: u8,
     pub address: u16,
     pub count: u16,
-    /// FC06: the value written.
+    /// FC06: the value written; FC16: the first value written.
     pub value: Option<u16>,
     /// When the request was read.
     pub at: std::time::Instant,
@@ -243,6 +248,11 @@ impl RtuBus {
     /// Every request seen so far.
     pub fn seen(&self) -> Vec<Seen> {
         lock(&self.state).seen.clone()
+    }
+
+    /// Every request seen since the last call (and forgets them).
+    pub fn take_seen(&self) -> Vec<Seen> {
+        std::mem::take(&mut lock(&self.state).seen)
     }
 
     pub fn clear_seen(&self) {
@@ -289,7 +299,11 @@ impl RtuBus {
             function,
             address,
             count,
-            value: (function == 6).then(|| u16::from_be_bytes([frame[4], frame[5]])),
+            value: match function {
+                6 => Some(u16::from_be_bytes([frame[4], frame[5]])),
+                16 => frame.get(7..9).map(|v| u16::from_be_bytes([v[0], v[1]])),
+                _ => None,
+            },
             at: std::time::Instant::now(),
         });
         let slave = state.slaves.get_mut(&slave_id)?;

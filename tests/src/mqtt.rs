@@ -194,11 +194,20 @@ impl Peer {
         Peer::start(broker, filter, Some(id)).await
     }
 
+    /// A subscriber of the broker on `port` (one that another part starts and stops).
+    pub async fn subscribe_port(port: u16, filter: &str) -> anyhow::Result<Peer> {
+        Peer::start_on(port, filter, None).await
+    }
+
     async fn start(broker: &Broker, filter: &str, id: Option<&str>) -> anyhow::Result<Peer> {
+        Peer::start_on(broker.port, filter, id).await
+    }
+
+    async fn start_on(port: u16, filter: &str, id: Option<&str>) -> anyhow::Result<Peer> {
         let mut command = Command::new("python3");
         command
             .arg(repo_file("mqtt/client.py"))
-            .arg(broker.port.to_string())
+            .arg(port.to_string())
             .arg(filter);
         if let Some(id) = id {
             command.arg(id);

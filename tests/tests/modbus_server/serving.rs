@@ -168,6 +168,8 @@ async fn every_function_and_location_kind_serves_the_cache() {
     // The map over REST.
     let (status, map) = gw.get("/api/v1/map").await.expect("map");
     assert_eq!(status, 200);
+    // The address bound (the config asked for port 0).
+    assert_eq!(map["listen"], addr.to_string());
     let coil = map["bindings"]
         .as_array()
         .expect("bindings")

@@ -59,7 +59,8 @@ pub(crate) struct MapInfo {
     /// The unit id of the TCP server.
     pub(crate) unit_id: u8,
     pub(crate) read_only: bool,
-    /// The TCP address, when the server listens on one.
+    /// The TCP address it listens on (the port bound, when the config said 0), when it
+    /// listens on one.
     #[schema(nullable = true)]
     pub(crate) listen: Option<String>,
     /// The serial ports it answers on as a slave.
@@ -115,7 +116,9 @@ pub(crate) async fn get_map(
         address_space: image.space.kind.name().to_owned(),
         unit_id: image.config.unit_id,
         read_only: image.config.read_only,
-        listen: image.config.listen.map(|l| l.to_string()),
+        // Where it listens: the bound address (port 0 in the config takes a free one).
+        listen: (image.config.listen)
+            .map(|l| service.listening.bound("modbus").unwrap_or(l).to_string()),
         serial: service
             .serial_ports()
             .into_iter()
