@@ -23,7 +23,7 @@ mod format;
 mod labels;
 mod names;
 mod register;
-pub(crate) use bound::{Bound, Held};
+pub(crate) use bound::{Bound, ClientHeld, Held, PerClient};
 pub(crate) use format::Format;
 pub(crate) use labels::*;
 pub use names::*;

@@ -44,6 +44,16 @@ pub(crate) struct Limits {
     pub(crate) body_timeout: Duration,
     /// Connections served at once (`listen.max_connections`).
     pub(crate) max_connections: usize,
+    /// Connections served at once from one client address
+    /// (`listen.max_connections_per_client`).
+    pub(crate) max_connections_per_client: usize,
+}
+
+impl Limits {
+    /// Connections served at once: in all, and from one client address.
+    pub(crate) fn connections(&self) -> [usize; 2] {
+        [self.max_connections, self.max_connections_per_client]
+    }
 }
 
 /// Serves the HTTP API on `listener` until `shutdown` resolves, then finishes the requests
@@ -55,7 +65,7 @@ pub(crate) async fn serve(
     tls: Option<Arc<crate::tls::Tls>>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    let bounds = accept::Bounds::of(&service.metrics, false, limits.max_connections);
+    let bounds = accept::Bounds::of(&service.metrics, false, limits.connections());
     let router = router(service, limits.body_timeout);
     let incoming = accept::ready(listener, bounds, tls, limits.header_timeout);
     tokio::pin!(incoming);

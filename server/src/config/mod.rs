@@ -33,6 +33,8 @@ pub(crate) const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
 pub(crate) const DEFAULT_MAX_STREAMS: usize = 2048;
 /// The most connections each of the HTTP and gRPC listeners serves at once, by default.
 pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 4096;
+/// The most connections each listener serves from one client address, by default.
+pub(crate) const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = 1024;
 /// The most `listen.max_streams` and `listen.max_connections` may be.
 pub(crate) const MAX_STREAMS_LIMIT: usize = 100_000;
 
@@ -49,6 +51,9 @@ pub struct Config {
     /// The most connections each of the HTTP and gRPC listeners serves at once
     /// (`listen.max_connections`).
     pub(crate) max_connections: usize,
+    /// The most connections each listener serves from one client address
+    /// (`listen.max_connections_per_client`).
+    pub(crate) max_connections_per_client: usize,
     /// The `profiles` directory as configured, relative to the config file's directory.
     pub profiles: Option<PathBuf>,
     pub links: Vec<LinkConfig>,
@@ -339,6 +344,7 @@ impl Config {
             body_timeout: DEFAULT_BODY_TIMEOUT,
             max_streams: DEFAULT_MAX_STREAMS,
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            max_connections_per_client: DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
             profiles: None,
             links: Vec::new(),
             devices: Vec::new(),

@@ -35,6 +35,7 @@ const LISTEN_KEYS: &[&str] = &[
     "body_timeout",
     "max_streams",
     "max_connections",
+    "max_connections_per_client",
 ];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
@@ -148,6 +149,12 @@ fn read_listen(config: &mut Config, mut listen: yaml::MapReader<'_>, report: &mu
         node.int_in(report, "listen.max_connections", 1, most)
     }) {
         config.max_connections = usize::try_from(n).unwrap_or(super::DEFAULT_MAX_CONNECTIONS);
+    }
+    if let Some(n) = listen.get("max_connections_per_client").and_then(|node| {
+        let most = super::MAX_STREAMS_LIMIT as i128;
+        node.int_in(report, "listen.max_connections_per_client", 1, most)
+    }) {
+        config.max_connections_per_client = usize::try_from(n).unwrap_or(1);
     }
     listen.finish(report, "listen", LISTEN_KEYS);
 }

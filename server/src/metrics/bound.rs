@@ -3,6 +3,10 @@
 //! client was refused at it (`iogate_bound_refused_total`), by `bound` (the names in the
 //! README's table of bounds).
 
+use std::collections::HashMap;
+use std::net::IpAddr;
+use std::sync::{Arc, Mutex};
+
 use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::gauge::Gauge;
@@ -83,6 +87,59 @@ impl Bound {
     }
 }
 
+/// Places within a bound for each client (by its address): no one client holds more than
+/// the limit. `used` is what the client holding the most holds.
+#[derive(Clone, Debug)]
+pub(crate) struct PerClient {
+    bound: Bound,
+    held: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+/// A client's place within a [`PerClient`]; dropping it frees the place.
+#[derive(Debug)]
+pub(crate) struct ClientHeld {
+    of: PerClient,
+    client: IpAddr,
+}
+
+impl PerClient {
+    /// Takes a place for `client`, or counts a refusal and answers `None` when it holds
+    /// all its places.
+    pub(crate) fn take(&self, client: IpAddr) -> Option<ClientHeld> {
+        let limit = self.bound.limit();
+        let mut held = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        let n = held.entry(client).or_default();
+        if *n >= limit {
+            self.bound.refused();
+            return None;
+        }
+        *n += 1;
+        self.count(&held);
+        Some(ClientHeld {
+            of: self.clone(),
+            client,
+        })
+    }
+
+    fn count(&self, held: &HashMap<IpAddr, usize>) {
+        self.bound
+            .set_used(held.values().copied().max().unwrap_or(0));
+    }
+}
+
+impl Drop for ClientHeld {
+    fn drop(&mut self) {
+        let mut held = self.of.held.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = held.get_mut(&self.client) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                held.remove(&self.client);
+            }
+        }
+        self.of.count(&held);
+    }
+}
+
 fn to_i64(n: usize) -> i64 {
     i64::try_from(n).unwrap_or(i64::MAX)
 }
@@ -99,6 +156,15 @@ impl Metrics {
         };
         bound.set_limit(limit);
         bound
+    }
+
+    /// The bound named `name` for each client, `limit` places each; the clients' places are
+    /// this caller's own (each listener keeps its own), the counts are the name's.
+    pub(crate) fn per_client(&self, name: &'static str, limit: usize) -> PerClient {
+        PerClient {
+            bound: self.bound(name, limit),
+            held: Arc::default(),
+        }
     }
 }
 
@@ -129,5 +195,20 @@ mod tests {
             text.contains("iogate_bound_refused_total{bound=\"streams\"} 1"),
             "{text}"
         );
+    }
+
+    #[test]
+    fn each_client_holds_at_most_its_places() {
+        let metrics = Metrics::new();
+        let per = metrics.per_client("connections_per_client", 2);
+        let (a, b): (IpAddr, IpAddr) = ([10, 0, 0, 1].into(), [10, 0, 0, 2].into());
+        let first = per.take(a).expect("a's first");
+        let _second = per.take(a).expect("a's second");
+        assert!(per.take(a).is_none(), "a's third is refused");
+        let _other = per.take(b).expect("b is not held back by a");
+        assert_eq!((per.bound.used(), per.bound.refused.get()), (2, 1));
+        drop(first);
+        assert!(per.take(a).is_some(), "a freed place is a's again");
+        assert_eq!(per.held.lock().expect("held").len(), 2);
     }
 }

@@ -115,6 +115,11 @@ fn listeners(d: &mut Diff, old: &Setup, new: &Setup) {
             duration(b.body_timeout),
         ),
         changed_text("max_connections", a.max_connections, b.max_connections),
+        changed_text(
+            "max_connections_per_client",
+            a.max_connections_per_client,
+            b.max_connections_per_client,
+        ),
     ]
     .into_iter()
     .flatten()

@@ -32,7 +32,7 @@ pub(crate) async fn serve_grpc(
         .register_encoded_file_descriptor_set(iogate_proto::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
         .build_v1alpha()?;
-    let bounds = accept::Bounds::of(&service.metrics, true, limits.max_connections);
+    let bounds = accept::Bounds::of(&service.metrics, true, limits.connections());
     let incoming = accept::ready(listener, bounds, tls, limits.header_timeout)
         .map(|conn| conn.map(burst::Burst::new));
     let tokens = service.tokens.clone();

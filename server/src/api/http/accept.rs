@@ -19,7 +19,7 @@ use tokio_rustls::server::TlsStream;
 use tonic::transport::server::{Connected, TcpConnectInfo};
 
 use super::limit::{self, Limited};
-use crate::metrics::{Bound, Metrics};
+use crate::metrics::{Bound, Metrics, PerClient};
 use crate::tls::Tls;
 
 /// Connections waiting for their first byte or TLS handshake at once, per listener.
@@ -41,24 +41,35 @@ impl Conn {
     }
 }
 
-/// A listener's bounds: its open connections, and those waiting to be ready.
+/// A listener's bounds: its open connections, each client's, and those waiting to be
+/// ready.
 #[derive(Clone, Debug)]
 pub(crate) struct Bounds {
     pub(crate) connections: Bound,
+    pub(crate) per_client: PerClient,
     pub(crate) waiting: Bound,
 }
 
 impl Bounds {
     /// The bounds of the HTTP (`grpc` false) or gRPC listener, serving at most
-    /// `max_connections` at once.
-    pub(crate) fn of(metrics: &Metrics, grpc: bool, max_connections: usize) -> Self {
-        let (connections, waiting) = if grpc {
-            ("grpc_connections", "grpc_waiting_connections")
+    /// `[max, max_per_client]` connections at once, in all and from one client.
+    pub(crate) fn of(metrics: &Metrics, grpc: bool, [max, max_per_client]: [usize; 2]) -> Self {
+        let (connections, per_client, waiting) = if grpc {
+            (
+                "grpc_connections",
+                "grpc_connections_per_client",
+                "grpc_waiting_connections",
+            )
         } else {
-            ("http_connections", "http_waiting_connections")
+            (
+                "http_connections",
+                "http_connections_per_client",
+                "http_waiting_connections",
+            )
         };
         Bounds {
-            connections: metrics.bound(connections, max_connections),
+            connections: metrics.bound(connections, max),
+            per_client: metrics.per_client(per_client, max_per_client),
             waiting: metrics.bound(waiting, MAX_PREPARING),
         }
     }
@@ -74,7 +85,7 @@ pub(crate) fn ready(
 ) -> impl Stream<Item = io::Result<Conn>> + Send + 'static {
     let (tx, rx) = tokio::sync::mpsc::channel::<Conn>(64);
     tokio::spawn(async move {
-        let incoming = limit::incoming(listener, bounds.connections);
+        let incoming = limit::incoming(listener, bounds.connections, bounds.per_client);
         let waiting = bounds.waiting;
         tokio::pin!(incoming);
         let mut preparing = std::collections::VecDeque::<tokio::task::AbortHandle>::new();
@@ -214,6 +225,7 @@ mod tests {
         let metrics = Metrics::new();
         Bounds {
             connections: metrics.bound("connections", connections),
+            per_client: metrics.per_client("per_client", connections),
             waiting: metrics.bound("waiting", MAX_PREPARING),
         }
     }

@@ -19,6 +19,7 @@ pub(crate) fn limits(config: &Config) -> Limits {
         header_timeout: config.header_timeout,
         body_timeout: config.body_timeout,
         max_connections: config.max_connections,
+        max_connections_per_client: config.max_connections_per_client,
     }
 }
 
@@ -29,6 +30,7 @@ pub(crate) fn served_again(old: &Config, new: &Config) -> bool {
         || old.header_timeout != new.header_timeout
         || old.body_timeout != new.body_timeout
         || old.max_connections != new.max_connections
+        || old.max_connections_per_client != new.max_connections_per_client
 }
 
 impl FrontEnd for HttpFrontEnd {
