@@ -9,8 +9,8 @@
 //!    after they left; twice, to show nothing is left behind each time.
 //!
 //! Every client comes from this machine's one address, standing for many: the per-client
-//! bound (`listen.max_connections_per_client`) is lifted so that only the listeners'
-//! bounds are tried.
+//! bounds (`listen.max_connections_per_client`, `listen.max_streams_per_client`) are lifted
+//! so that only the gateway-wide bounds are tried.
 //!
 //! `cargo bench -p iogate --bench load` (needs 20,000 file descriptors: `ulimit -n`);
 //! `IOGATE_LOAD_SKIP_FLOOD=1` runs the second part only.
@@ -33,7 +33,7 @@ fn start() -> anyhow::Result<Gateway> {
     common::start(
         &dir,
         &format!(
-            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0, max_connections_per_client: 100000 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 20ms }}\n",
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0, max_connections_per_client: 100000, max_streams_per_client: 100000 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 20ms }}\n",
             common::profiles().display()
         ),
     )

@@ -187,7 +187,7 @@ fn build_service(
     }
     let mut service = Service::new(cache, tasks)
         .with_policy(config.security.declare.clone())
-        .with_max_streams(config.max_streams)
+        .with_max_streams([config.max_streams, config.max_streams_per_client])
         .with_described(crate::front_ends::described())
         .with_access(tokens, config.security.read_only);
     if let Some(image) = image {

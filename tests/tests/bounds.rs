@@ -184,6 +184,75 @@ async fn change_streams_past_the_bound_are_refused_and_the_open_ones_keep_their_
 }
 
 #[tokio::test]
+async fn one_client_at_its_streams_bound_leaves_the_others_theirs() {
+    let (gw, device) = polling(
+        "bounds-client-streams",
+        ", max_streams: 8, max_streams_per_client: 2",
+    )
+    .await;
+    let _first = SseReader::open(&gw, "/api/v1/events").await.expect("first");
+    let _second = SseReader::open(&gw, "/api/v1/events")
+        .await
+        .expect("second");
+    let third = gw
+        .client
+        .get(gw.url("/api/v1/events"))
+        .send()
+        .await
+        .expect("answered");
+    assert_eq!(third.status().as_u16(), 429);
+    let body: serde_json::Value = third.json().await.expect("the API's JSON");
+    assert_eq!(body["error"]["code"], "too_many_streams", "{body}");
+    assert!(
+        body["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("max_streams_per_client")),
+        "{body}"
+    );
+    // Another client (another address of this machine) gets its own places.
+    let other = reqwest::Client::builder()
+        .local_address(std::net::IpAddr::from([127, 0, 0, 2]))
+        .build()
+        .expect("client");
+    let response = other
+        .get(gw.url("/api/v1/events?device=meter"))
+        .send()
+        .await
+        .expect("answered");
+    assert_eq!(response.status().as_u16(), 200);
+    let mut events = response.bytes_stream();
+    device.tables.lock().expect("tables").input[0] = 5;
+    let told = async {
+        use futures_util::StreamExt;
+        let mut text = String::new();
+        while let Some(Ok(chunk)) = events.next().await {
+            text.push_str(&String::from_utf8_lossy(&chunk));
+            if text.contains("\"value\":5") {
+                return true;
+            }
+        }
+        false
+    };
+    assert!(
+        tokio::time::timeout(Duration::from_secs(30), told)
+            .await
+            .unwrap_or(false),
+        "the other client is told the change"
+    );
+    let metrics = gw.metrics().await.expect("metrics");
+    assert_eq!(
+        bound_metric(&metrics, "iogate_bound_refused_total", "streams_per_client"),
+        Some(1),
+        "{metrics}"
+    );
+    assert_eq!(
+        bound_metric(&metrics, "iogate_bound_used", "streams_per_client"),
+        Some(2)
+    );
+    gw.shutdown().await;
+}
+
+#[tokio::test]
 async fn declarations_past_the_bound_are_refused_429_and_change_nothing_else() {
     let (gw, device) = polling("bounds-declarations", "").await;
     let transaction = |n: usize| {

@@ -87,7 +87,7 @@ pub(crate) async fn fan_out(front: Front, subscribers: usize) -> anyhow::Result<
     let gateway = common::start(
         &dir,
         &format!(
-            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0, max_streams: {}, max_connections_per_client: 100000 }}\nprofiles: {}\ndevices:\n  - {{ name: fan, profile: SimIo, refresh_rate: 1ms }}\n",
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0, max_streams: {}, max_connections_per_client: 100000, max_streams_per_client: 100000 }}\nprofiles: {}\ndevices:\n  - {{ name: fan, profile: SimIo, refresh_rate: 1ms }}\n",
             subscribers + 16,
             common::profiles().display()
         ),

@@ -243,7 +243,8 @@ impl Gateway for GrpcApi {
         request: Request<Streaming<pb::ExchangeRequest>>,
     ) -> Result<Response<Self::ExchangeStream>, Status> {
         self.service.accepting().map_err(status)?;
-        let slot = self.service.stream_slot().map_err(status)?;
+        let client = request.remote_addr().map(|a| a.ip());
+        let slot = self.service.stream_slot_for(client).map_err(status)?;
         let mut inbound = request.into_inner();
         let service = self.service.clone();
         let token = service.tasks().token().clone();

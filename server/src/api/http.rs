@@ -49,6 +49,11 @@ pub(crate) struct Limits {
     pub(crate) max_connections_per_client: usize,
 }
 
+/// The address of the client a request came from, when its connection knows it (an
+/// extension of every request).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ClientAddr(pub(crate) Option<std::net::IpAddr>);
+
 impl Limits {
     /// Connections served at once: in all, and from one client address.
     pub(crate) fn connections(&self) -> [usize; 2] {
@@ -85,7 +90,14 @@ pub(crate) async fn serve(
             },
         };
         let peer = connection.peer();
-        let service = TowerToHyperService::new(router.clone());
+        let client = ClientAddr(peer.map(|p| p.ip()));
+        let tagged = tower::ServiceBuilder::new()
+            .map_request(move |mut r: axum::http::Request<hyper::body::Incoming>| {
+                r.extensions_mut().insert(client);
+                r
+            })
+            .service(router.clone());
+        let service = TowerToHyperService::new(tagged);
         let connection = builder
             .serve_connection_with_upgrades(TokioIo::new(connection), service)
             .into_owned();

@@ -31,6 +31,8 @@ pub(crate) const DEFAULT_HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 pub(crate) const DEFAULT_BODY_TIMEOUT: Duration = Duration::from_secs(30);
 /// The most change streams (SSE, gRPC Subscribe and Exchange) open at once, by default.
 pub(crate) const DEFAULT_MAX_STREAMS: usize = 2048;
+/// The most change streams one client address holds at once, by default.
+pub(crate) const DEFAULT_MAX_STREAMS_PER_CLIENT: usize = 512;
 /// The most connections each of the HTTP and gRPC listeners serves at once, by default.
 pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 4096;
 /// The most connections each listener serves from one client address, by default.
@@ -48,6 +50,9 @@ pub struct Config {
     pub(crate) body_timeout: Duration,
     /// The most change streams open at once (`listen.max_streams`).
     pub(crate) max_streams: usize,
+    /// The most change streams open at once from one client address
+    /// (`listen.max_streams_per_client`).
+    pub(crate) max_streams_per_client: usize,
     /// The most connections each of the HTTP and gRPC listeners serves at once
     /// (`listen.max_connections`).
     pub(crate) max_connections: usize,
@@ -343,6 +348,7 @@ impl Config {
             header_timeout: DEFAULT_HEADER_TIMEOUT,
             body_timeout: DEFAULT_BODY_TIMEOUT,
             max_streams: DEFAULT_MAX_STREAMS,
+            max_streams_per_client: DEFAULT_MAX_STREAMS_PER_CLIENT,
             max_connections: DEFAULT_MAX_CONNECTIONS,
             max_connections_per_client: DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
             profiles: None,

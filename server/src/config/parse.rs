@@ -36,6 +36,7 @@ const LISTEN_KEYS: &[&str] = &[
     "max_streams",
     "max_connections",
     "max_connections_per_client",
+    "max_streams_per_client",
 ];
 const LINK_KEYS: &[&str] = &["name", "serial", "tcp", "guard_time"];
 const TCP_KEYS: &[&str] = &["host", "port", "framing"];
@@ -155,6 +156,12 @@ fn read_listen(config: &mut Config, mut listen: yaml::MapReader<'_>, report: &mu
         node.int_in(report, "listen.max_connections_per_client", 1, most)
     }) {
         config.max_connections_per_client = usize::try_from(n).unwrap_or(1);
+    }
+    if let Some(n) = listen.get("max_streams_per_client").and_then(|node| {
+        let most = super::MAX_STREAMS_LIMIT as i128;
+        node.int_in(report, "listen.max_streams_per_client", 1, most)
+    }) {
+        config.max_streams_per_client = usize::try_from(n).unwrap_or(1);
     }
     listen.finish(report, "listen", LISTEN_KEYS);
 }

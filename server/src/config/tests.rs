@@ -60,8 +60,12 @@ fn max_connections_is_read_and_bounded() {
         c.max_connections_per_client,
         DEFAULT_MAX_CONNECTIONS_PER_CLIENT
     );
-    let c = parse("c.yaml", "listen: { max_connections_per_client: 8 }\n").expect("parses");
-    assert_eq!(c.max_connections_per_client, 8);
+    let text = "listen: { max_connections_per_client: 8, max_streams_per_client: 3 }\n";
+    let c = parse("c.yaml", text).expect("parses");
+    assert_eq!(
+        (c.max_connections_per_client, c.max_streams_per_client),
+        (8, 3)
+    );
     let all = problems("listen: { max_connections: 0 }\n");
     let needle = "c.yaml:1: listen.max_connections: 0 is outside the allowed range 1-100000";
     assert!(all.contains(needle), "missing {needle:?} in\n{all}");

@@ -121,6 +121,15 @@ impl PerClient {
         })
     }
 
+    /// Places for each client from now on; places held stay held.
+    pub(crate) fn set_limit(&self, limit: usize) {
+        self.bound.set_limit(limit);
+    }
+
+    pub(crate) fn limit(&self) -> usize {
+        self.bound.limit()
+    }
+
     fn count(&self, held: &HashMap<IpAddr, usize>) {
         self.bound
             .set_used(held.values().copied().max().unwrap_or(0));

@@ -125,6 +125,15 @@ fn listeners(d: &mut Diff, old: &Setup, new: &Setup) {
     .flatten()
     .collect();
     let mut listen = limits;
+    let per_client = changed_text(
+        "max_streams_per_client",
+        a.max_streams_per_client,
+        b.max_streams_per_client,
+    );
+    if let Some(change) = per_client {
+        d.max_streams = true;
+        listen.push(format!("{change} (streams already open stay)"));
+    }
     if let Some(change) = changed_text("max_streams", a.max_streams, b.max_streams) {
         d.max_streams = true;
         listen.push(format!(

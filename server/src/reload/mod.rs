@@ -303,7 +303,7 @@ impl Reloader {
         apply::registry(service, new, diff);
         apply::transactions(service, new, diff);
         if diff.max_streams {
-            service.set_max_streams(new.config.max_streams);
+            service.set_max_streams([new.config.max_streams, new.config.max_streams_per_client]);
         }
         // Access.
         if diff.access {

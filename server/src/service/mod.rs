@@ -65,6 +65,10 @@ pub enum ServiceError {
     ReadOnly,
     #[error("too many open change streams (at most {0}); try again later")]
     TooManyStreams(usize),
+    #[error(
+        "this client has {0} change streams open, its most (listen.max_streams_per_client); close one first"
+    )]
+    TooManyClientStreams(usize),
     /// A link's inbox was full, or could not reach the request by its deadline: nothing
     /// was sent.
     #[error(
@@ -129,6 +133,8 @@ pub struct Service {
     read_only: AtomicBool,
     /// Open change streams (SSE, Subscribe, Exchange), bounded by `listen.max_streams`.
     streams: crate::metrics::Bound,
+    /// The same, from each client address (`listen.max_streams_per_client`).
+    client_streams: crate::metrics::PerClient,
     /// The front-ends that run, as the rest of the gateway sees them.
     pub(crate) doors: doors::Doors,
     /// What reloads the configuration, when it came from a file.
@@ -147,6 +153,7 @@ pub struct Service {
 #[derive(Debug)]
 pub(crate) struct StreamSlot {
     _held: crate::metrics::Held,
+    _client: Option<crate::metrics::ClientHeld>,
 }
 
 impl Service {
@@ -155,6 +162,10 @@ impl Service {
     pub(crate) fn new(cache: Arc<Cache>, tasks: Tasks) -> Self {
         Service {
             streams: (tasks.metrics()).bound("streams", crate::config::DEFAULT_MAX_STREAMS),
+            client_streams: (tasks.metrics()).per_client(
+                "streams_per_client",
+                crate::config::DEFAULT_MAX_STREAMS_PER_CLIENT,
+            ),
             metrics: tasks.metrics().clone(),
             cache,
             tasks,
@@ -173,10 +184,24 @@ impl Service {
         }
     }
 
-    /// A place for one more change stream, or `TooManyStreams`.
-    pub(crate) fn stream_slot(&self) -> Result<StreamSlot, ServiceError> {
+    /// A place for one more change stream of `client` (its address, when known), or
+    /// `TooManyClientStreams` (it holds its most) or `TooManyStreams`.
+    pub(crate) fn stream_slot_for(
+        &self,
+        client: Option<std::net::IpAddr>,
+    ) -> Result<StreamSlot, ServiceError> {
+        let client =
+            match client {
+                Some(ip) => Some(self.client_streams.take(ip).ok_or_else(|| {
+                    ServiceError::TooManyClientStreams(self.client_streams.limit())
+                })?),
+                None => None,
+            };
         match self.streams.take() {
-            Some(held) => Ok(StreamSlot { _held: held }),
+            Some(held) => Ok(StreamSlot {
+                _held: held,
+                _client: client,
+            }),
             None => Err(ServiceError::TooManyStreams(self.streams.limit())),
         }
     }
@@ -213,13 +238,15 @@ impl Service {
     }
 
     /// The service with `listen.max_streams`.
-    pub(crate) fn with_max_streams(self, max: usize) -> Self {
+    pub(crate) fn with_max_streams(self, max: [usize; 2]) -> Self {
         self.set_max_streams(max);
         self
     }
 
-    /// Puts `listen.max_streams` in force for the streams opened from now on.
-    pub(crate) fn set_max_streams(&self, max: usize) {
+    /// Puts `listen.max_streams` and `listen.max_streams_per_client` in force for the
+    /// streams opened from now on.
+    pub(crate) fn set_max_streams(&self, [max, per_client]: [usize; 2]) {
+        self.client_streams.set_limit(per_client);
         self.streams.set_limit(max);
     }
 
@@ -428,20 +455,22 @@ mod tests {
         let service = demo_service();
         let default = crate::config::DEFAULT_MAX_STREAMS;
         let held: Vec<StreamSlot> = (0..default)
-            .map(|_| service.stream_slot().expect("a place"))
+            .map(|_| service.stream_slot_for(None).expect("a place"))
             .collect();
         assert!(matches!(
-            service.stream_slot(),
+            service.stream_slot_for(None),
             Err(ServiceError::TooManyStreams(n)) if n == default
         ));
         // `listen.max_streams` raised (a reload): more places.
-        service.set_max_streams(default + 1);
-        let one_more = service.stream_slot().expect("a place under the new limit");
-        assert!(service.stream_slot().is_err());
+        service.set_max_streams([default + 1, default + 1]);
+        let one_more = service
+            .stream_slot_for(None)
+            .expect("a place under the new limit");
+        assert!(service.stream_slot_for(None).is_err());
         drop(held);
         drop(one_more);
         assert!(
-            service.stream_slot().is_ok(),
+            service.stream_slot_for(None).is_ok(),
             "places come back when streams end"
         );
     }

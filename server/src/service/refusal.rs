@@ -52,7 +52,9 @@ impl ServiceError {
             ServiceError::Declare(d) => declare(d),
             ServiceError::ShuttingDown => (Refusal::Unavailable, "shutting_down"),
             ServiceError::ReadOnly => (Refusal::Forbidden, "read_only"),
-            ServiceError::TooManyStreams(_) => (Refusal::TooMany, "too_many_streams"),
+            ServiceError::TooManyStreams(_) | ServiceError::TooManyClientStreams(_) => {
+                (Refusal::TooMany, "too_many_streams")
+            }
             ServiceError::Busy(_) => (Refusal::Busy, "busy"),
             ServiceError::Location(_) => (Refusal::Invalid, "invalid_location"),
             // A well-formed transaction for a link that is not there: the link is what

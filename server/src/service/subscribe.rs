@@ -311,8 +311,18 @@ impl Service {
         selection: Selection,
         diagnostics: bool,
     ) -> Result<Changes, ServiceError> {
+        self.subscribe_for(selection, diagnostics, None)
+    }
+
+    /// [`Service::subscribe`] for the client at `client` (one of its streams).
+    pub(crate) fn subscribe_for(
+        &self,
+        selection: Selection,
+        diagnostics: bool,
+        client: Option<std::net::IpAddr>,
+    ) -> Result<Changes, ServiceError> {
         self.accepting()?;
-        let slot = self.stream_slot()?;
+        let slot = self.stream_slot_for(client)?;
         let mut subscription = Subscription {
             streams: StreamMap::new(),
             additions: None,

@@ -87,12 +87,13 @@ impl GrpcApi {
     pub(super) fn subscribe_encoded(
         &self,
         r: pb::SubscribeRequest,
+        client: Option<std::net::IpAddr>,
     ) -> Result<EncodedStream, Status> {
         self.service.accepting().map_err(status)?;
         let selection = self.select(&r.devices, &r.fields)?;
         let changes = self
             .service
-            .subscribe(selection, r.diagnostics)
+            .subscribe_for(selection, r.diagnostics, client)
             .map_err(status)?;
         let viewer = self.service.clone();
         let updates = changes.map(move |change| {

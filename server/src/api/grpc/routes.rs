@@ -27,7 +27,8 @@ impl ServerStreamingService<pb::SubscribeRequest> for SubscribeEncoded {
     fn call(&mut self, request: Request<pb::SubscribeRequest>) -> Self::Future {
         let api = self.0.clone();
         Box::pin(async move {
-            api.subscribe_encoded(request.into_inner())
+            let client = request.remote_addr().map(|a| a.ip());
+            api.subscribe_encoded(request.into_inner(), client)
                 .map(Response::new)
         })
     }

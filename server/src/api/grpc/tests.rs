@@ -25,7 +25,7 @@ async fn a_slow_subscriber_gets_the_newest_value_not_a_backlog() {
         diagnostics: false,
         transactions: false,
     };
-    let stream = api.subscribe_encoded(request).expect("subscribe");
+    let stream = api.subscribe_encoded(request, None).expect("subscribe");
     let mut stream =
         stream.map(|bytes| bytes.map(|b| pb::Update::decode(b).expect("an encoded Update")));
     let first = stream.next().await.expect("current value").expect("ok");

@@ -158,6 +158,7 @@ fn change_event(viewer: &Service, change: Change) -> Bytes {
               (status = 400, description = "an unknown query parameter", body = ErrorBody), (status = 404, description = "unknown device", body = ErrorBody)))]
 pub(crate) async fn events(
     State(service): State<Arc<Service>>,
+    client: Option<axum::Extension<super::ClientAddr>>,
     query: Result<Query<HashMap<String, String>>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|e| ApiError::bad_request("invalid_query", e.body_text()))?;
@@ -181,7 +182,7 @@ pub(crate) async fn events(
     });
     let viewer = service.clone();
     let stream = service
-        .subscribe(selection, true)?
+        .subscribe_for(selection, true, client.and_then(|c| c.0.0))?
         .map(move |change| change_event(&viewer, change));
     let stream = KeptAlive {
         events: futures_util::stream::select(stream, transactions),

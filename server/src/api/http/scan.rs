@@ -115,11 +115,12 @@ pub(crate) async fn delete_scan(
               (status = 429, description = "too many open streams (`listen.max_streams`)", body = ErrorBody)))]
 pub(crate) async fn scan_events(
     State(service): State<Arc<Service>>,
+    client: Option<axum::Extension<super::ClientAddr>>,
     Path(id): Path<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, axum::Error>>>, ApiError> {
     let states = service.scan(scan_id(&id)?)?;
     // An open stream holds one of the gateway's places for streams, as every stream does.
-    let slot = service.stream_slot()?;
+    let slot = service.stream_slot_for(client.and_then(|c| c.0.0))?;
     // The state now, then at each change, until a state that is not `running` has been sent.
     let events = futures_util::stream::unfold(Some((states, slot, true)), |next| async move {
         let (mut states, slot, first) = next?;
