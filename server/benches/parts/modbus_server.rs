@@ -96,7 +96,7 @@ fn iogate_server() -> anyhow::Result<(common::Gateway, SocketAddr)> {
     let gateway = common::start(
         &dir,
         &format!(
-            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\n  - {{ name: plant, profile: SimPlant, refresh_rate: 250ms }}\nmodbus_server:\n  listen: 127.0.0.1:{port}\n  auto: true\n  max_connections: 64\n",
+            "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\ndevices:\n  - {{ name: sim, profile: SimIo, refresh_rate: 100ms }}\n  - {{ name: plant, profile: SimPlant, refresh_rate: 250ms }}\nmodbus_server:\n  listen: 127.0.0.1:{port}\n  auto: true\n  max_connections: 64\n  max_connections_per_client: 64\n",
             common::profiles().display()
         ),
     )?;

@@ -10,10 +10,10 @@
 //! master does not take an answer within the write timeout.
 
 pub(crate) mod front_end;
+mod slots;
 
-use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use prometheus_client::metrics::counter::Counter;
@@ -24,6 +24,7 @@ use tokio_util::sync::CancellationToken;
 use crate::link::frame::{Exception, Request};
 use crate::link::mbap;
 use crate::service::Service;
+use slots::{Slot, Slots, Taken};
 
 /// The longest an answer may wait for its master to take it (the idle timeout when that
 /// is shorter): a master that stops reading loses its connection, not the gateway's memory.
@@ -38,8 +39,14 @@ pub(crate) async fn serve_modbus(
     let Some(image) = service.modbus() else {
         return;
     };
-    let slots = Arc::new(Slots::new(image.config.max_connections));
-    let bound = (service.metrics).bound("modbus_connections", image.config.max_connections);
+    let (max, per_client) = (
+        image.config.max_connections,
+        image.config.max_connections_per_client,
+    );
+    let per_client = per_client.min(max);
+    let slots = Arc::new(Slots::new(max, per_client));
+    let bound = (service.metrics).bound("modbus_connections", max);
+    let client_bound = (service.metrics).bound("modbus_connections_per_client", per_client);
     let idle = image.config.idle_timeout;
     loop {
         let accepted = tokio::select! {
@@ -57,11 +64,22 @@ pub(crate) async fn serve_modbus(
         };
         let slot = match slots.take(peer) {
             Taken::Free(slot) => slot,
-            Taken::Evicted { slot, evicted } => {
-                tracing::info!(%peer, closed = %evicted, "Modbus connection closed to make room for a new master (max_connections reached)");
+            Taken::Evicted { slot, evicted, own } => {
+                let (why, counted) = match own {
+                    true => ("max_connections_per_client", &client_bound),
+                    false => ("max_connections", &bound),
+                };
+                tracing::info!(%peer, closed = %evicted, "Modbus connection closed to make room for a new master ({why} reached)");
                 service.metrics.server_evicted();
-                bound.refused();
+                counted.refused();
                 slot
+            }
+            Taken::ClientFull => {
+                tracing::info!(%peer, "Modbus connection refused: max_connections_per_client reached from this address, every one being answered");
+                service.metrics.server_refused();
+                client_bound.refused();
+                drop(stream);
+                continue;
             }
             Taken::Full => {
                 tracing::info!(%peer, "Modbus connection refused: max_connections reached, every connection being answered");
@@ -72,7 +90,9 @@ pub(crate) async fn serve_modbus(
             }
         };
         let _ = stream.set_nodelay(true);
+        client_bound.set_used(slots.most_of_one_client());
         let (service, token, slots) = (service.clone(), shutdown.clone(), slots.clone());
+        let client_bound = client_bound.clone();
         let held = bound.hold();
         service.clone().tasks().spawn(async move {
             let _held = held;
@@ -82,99 +102,8 @@ pub(crate) async fn serve_modbus(
             }
             service.metrics.server_connection(false);
             slots.release(&slot);
+            client_bound.set_used(slots.most_of_one_client());
         });
-    }
-}
-
-/// Orders the moments connections begin to wait for their masters.
-static WAITS: AtomicU64 = AtomicU64::new(0);
-
-/// The open connections, and which one a new master closes when they are all taken.
-struct Slots {
-    max: usize,
-    open: Mutex<Vec<Arc<Slot>>>,
-}
-
-/// One connection as the listener sees it.
-struct Slot {
-    peer: SocketAddr,
-    /// Waiting for its master: for a request, or for it to take an answer.
-    on_master: AtomicBool,
-    /// Whether it has sent a whole request yet.
-    served: AtomicBool,
-    /// When it last began to wait for its master, as a tick of [`WAITS`] (strictly
-    /// ordered, unlike a clock's readings that may be equal).
-    since: AtomicU64,
-    /// Cancelled to close it for a new master.
-    evict: CancellationToken,
-}
-
-enum Taken {
-    Free(Arc<Slot>),
-    Evicted {
-        slot: Arc<Slot>,
-        evicted: SocketAddr,
-    },
-    Full,
-}
-
-impl Slots {
-    fn new(max: usize) -> Self {
-        Slots {
-            max,
-            open: Mutex::new(Vec::new()),
-        }
-    }
-
-    /// A slot for `peer`'s connection: a free one, or the one of the connection that has
-    /// waited longest on its master (never served first), which is closed.
-    fn take(&self, peer: SocketAddr) -> Taken {
-        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
-        let mut evicted = None;
-        if open.len() >= self.max {
-            let victim = open
-                .iter()
-                .enumerate()
-                .filter(|(_, s)| s.on_master.load(Ordering::Acquire))
-                .min_by_key(|(_, s)| {
-                    (
-                        s.served.load(Ordering::Relaxed),
-                        s.since.load(Ordering::Relaxed),
-                    )
-                })
-                .map(|(i, _)| i);
-            let Some(victim) = victim.map(|i| open.swap_remove(i)) else {
-                return Taken::Full;
-            };
-            victim.evict.cancel();
-            evicted = Some(victim.peer);
-        }
-        let slot = Arc::new(Slot {
-            peer,
-            on_master: AtomicBool::new(true),
-            served: AtomicBool::new(false),
-            since: AtomicU64::new(WAITS.fetch_add(1, Ordering::Relaxed)),
-            evict: CancellationToken::new(),
-        });
-        open.push(slot.clone());
-        match evicted {
-            None => Taken::Free(slot),
-            Some(evicted) => Taken::Evicted { slot, evicted },
-        }
-    }
-
-    fn release(&self, slot: &Arc<Slot>) {
-        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
-        open.retain(|s| !Arc::ptr_eq(s, slot));
-    }
-}
-
-impl Slot {
-    /// From now on it waits for its master.
-    fn wait_on_master(&self) {
-        self.since
-            .store(WAITS.fetch_add(1, Ordering::Relaxed), Ordering::Relaxed);
-        self.on_master.store(true, Ordering::Release);
     }
 }
 

@@ -21,6 +21,7 @@ const KEYS: &[&str] = &[
     "forward",
     "read_only",
     "max_connections",
+    "max_connections_per_client",
     "idle_timeout",
     "memory_file",
     "on_bad_quality",
@@ -34,6 +35,8 @@ const MAP_KEYS: &[&str] = &["at", "field"];
 const FORWARD_KEYS: &[&str] = &["unit_ids", "link"];
 
 pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 16;
+/// Connections from one master's address, by default (at most `max_connections`).
+pub(crate) const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = 8;
 pub(crate) const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 
 /// The three address maps of source document 001.
@@ -120,6 +123,9 @@ pub struct ModbusServerConfig {
     pub(crate) forward: Vec<Forward>,
     pub(crate) read_only: bool,
     pub(crate) max_connections: usize,
+    /// Connections from one address (`max_connections_per_client`; never more than
+    /// `max_connections` in effect).
+    pub(crate) max_connections_per_client: usize,
     pub(crate) idle_timeout: Duration,
     pub(crate) memory_file: Option<PathBuf>,
     /// Where `memory_file` is written (0 when it is not).
@@ -148,12 +154,16 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
     };
     let auto = flag("auto", report);
     let read_only = flag("read_only", report);
-    let max_connections = match map.get("max_connections") {
-        None => Some(DEFAULT_MAX_CONNECTIONS),
-        Some(n) => n
-            .int_in(report, &at("max_connections"), 1, 10_000)
-            .map(|m| m as usize),
+    let mut count = |key: &str, default: usize, report: &mut Report| match map.get(key) {
+        None => Some(default),
+        Some(n) => n.int_in(report, &at(key), 1, 10_000).map(|m| m as usize),
     };
+    let max_connections = count("max_connections", DEFAULT_MAX_CONNECTIONS, report);
+    let per_client = count(
+        "max_connections_per_client",
+        DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
+        report,
+    );
     let idle_timeout = match map.get("idle_timeout") {
         None => Some(DEFAULT_IDLE_TIMEOUT),
         Some(n) => n.scalar_text(report, &at("idle_timeout")).and_then(|t| {
@@ -196,6 +206,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<ModbusServerConfi
         forward,
         read_only: read_only.unwrap_or(false),
         max_connections: max_connections.unwrap_or(DEFAULT_MAX_CONNECTIONS),
+        max_connections_per_client: per_client.unwrap_or(DEFAULT_MAX_CONNECTIONS_PER_CLIENT),
         idle_timeout: idle_timeout.unwrap_or(DEFAULT_IDLE_TIMEOUT),
         memory_file,
         memory_file_line,

@@ -260,7 +260,7 @@ async fn masters_forwarding_to_a_slow_slave_never_get_each_others_registers() {
     let (device_end, _holder) = pty_at(&port).expect("pty");
     let task = bus.serve(device_end);
     let gw = TestGateway::start(&format!(
-        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 115200 }} }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  forward:\n    - {{ unit_ids: \"2\", link: rs485 }}\n",
+        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 115200 }} }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  max_connections_per_client: 16\n  forward:\n    - {{ unit_ids: \"2\", link: rs485 }}\n",
         port.display()
     ))
     .await
@@ -302,8 +302,9 @@ async fn a_flood_of_forwarded_writes_gets_busy_answers_and_never_starves_polling
     let port = dir.join("ttyFLOOD");
     let (device_end, _holder) = pty_at(&port).expect("pty");
     let task = bus.serve(device_end);
+    // Twelve masters, all from this machine's one address: its per-client bound lifted.
     let gw = TestGateway::start(&format!(
-        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 115200 }} }}\ndevices:\n  - {{ name: io, profile: MyIoModule, link: rs485, slave_id: 1, refresh_rate: 10ms }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  forward:\n    - {{ unit_ids: \"2\", link: rs485 }}\n",
+        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 115200 }} }}\ndevices:\n  - {{ name: io, profile: MyIoModule, link: rs485, slave_id: 1, refresh_rate: 10ms }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  max_connections_per_client: 16\n  forward:\n    - {{ unit_ids: \"2\", link: rs485 }}\n",
         port.display()
     ))
     .await
@@ -380,4 +381,49 @@ async fn a_flood_of_forwarded_writes_gets_busy_answers_and_never_starves_polling
     );
     gw.shutdown().await;
     task.abort();
+}
+
+#[tokio::test]
+async fn a_master_at_its_own_limit_closes_its_own_idle_connection_not_anothers() {
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo }\nmodbus_server:\n  listen: 127.0.0.1:0\n  max_connections: 4\n  max_connections_per_client: 2\n  auto: true\n",
+    )
+    .await
+    .expect("gateway");
+    let addr = gw.modbus.expect("server");
+    let request = |id: u8| [0, id, 0, 0, 0, 6, 1, 1, 0, 0, 0, 1];
+    // Another master (127.0.0.2), served once and then quiet: the longest waiting of all.
+    let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+    socket
+        .bind(([127, 0, 0, 2], 0).into())
+        .expect("bind 127.0.0.2");
+    let mut other = socket.connect(addr).await.expect("other");
+    assert_eq!(raw(&mut other, &request(1)).await.len(), 10);
+    // 127.0.0.1 holds its two: one quiet, one polling.
+    let mut quiet = TcpStream::connect(addr).await.expect("quiet");
+    assert_eq!(raw(&mut quiet, &request(2)).await.len(), 10);
+    let mut active = TcpStream::connect(addr).await.expect("active");
+    assert_eq!(raw(&mut active, &request(3)).await.len(), 10);
+    // Its third closes its own quiet one, not the other master's older one.
+    let mut third = TcpStream::connect(addr).await.expect("third");
+    assert_eq!(raw(&mut third, &request(4)).await.len(), 10);
+    assert!(
+        closed(&mut quiet).await,
+        "its own quiet connection is closed"
+    );
+    assert_eq!(
+        raw(&mut other, &request(5)).await.len(),
+        10,
+        "the other master keeps its"
+    );
+    assert_eq!(raw(&mut active, &request(6)).await.len(), 10);
+    let metrics = gw.metrics().await.expect("metrics");
+    for line in [
+        "iogate_bound_limit{bound=\"modbus_connections_per_client\"} 2\n",
+        "iogate_bound_refused_total{bound=\"modbus_connections_per_client\"} 1\n",
+        "iogate_bound_refused_total{bound=\"modbus_connections\"} 0\n",
+    ] {
+        assert!(metrics.contains(line), "{line}\n{metrics}");
+    }
+    gw.shutdown().await;
 }
