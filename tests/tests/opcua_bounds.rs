@@ -251,6 +251,9 @@ async fn opcua_sessions_past_the_bound_are_refused_and_counted() {
         "iogate_bound_limit{bound=\"opcua_sessions\"} 2\n",
         "iogate_bound_used{bound=\"opcua_sessions\"} 2\n",
         "iogate_bound_refused_total{bound=\"opcua_sessions\"} 1\n",
+        // Two sessions of ten subscriptions each, none made by plain reads.
+        "iogate_bound_limit{bound=\"opcua_subscriptions\"} 20\n",
+        "iogate_bound_used{bound=\"opcua_subscriptions\"} 0\n",
     ] {
         assert!(metrics.contains(line), "{line}\n{metrics}");
     }

@@ -231,7 +231,11 @@ pub(crate) async fn start(
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
     let counts = Arc::new(OpcUaState::new(
         probe(server_handle.clone(), pki.join("rejected")),
-        [config.max_sessions, config.max_monitored_items],
+        [
+            config.max_sessions,
+            config.max_sessions * config.max_subscriptions_per_session,
+            config.max_monitored_items,
+        ],
         service.metrics.kept(metrics::OpcUaMetrics::new),
     ));
     let mut builder =

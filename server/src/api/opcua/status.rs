@@ -20,6 +20,8 @@ pub(crate) struct OpcUaState {
     monitored_items: AtomicI64,
     /// Sessions at once, at most.
     max_sessions: usize,
+    /// Subscriptions of every session together, at most (sessions times each one's).
+    max_subscriptions: usize,
     /// Monitored items of every session together, at most.
     max_items: i64,
     /// The refusals already counted into the gateway's bounds: sessions, monitored items.
@@ -67,6 +69,9 @@ impl Door for OpcUaState {
             let before = counted.swap(refused, Ordering::AcqRel);
             bound.refused_by(refused.saturating_sub(before));
         }
+        // Refused subscriptions are the library's to count (each session's own bound).
+        let subscriptions = metrics.bound("opcua_subscriptions", self.max_subscriptions);
+        subscriptions.set_used(usize::try_from(status.subscriptions).unwrap_or(usize::MAX));
     }
 }
 
@@ -77,15 +82,17 @@ impl std::fmt::Debug for OpcUaState {
 }
 
 impl OpcUaState {
-    /// The state of a server with `max_sessions` and `max_items` monitored items in all.
+    /// The state of a server with `max_sessions`, `max_subscriptions` and `max_items`
+    /// monitored items in all.
     pub(crate) fn new(
         probe: Probe,
-        [max_sessions, max_items]: [usize; 2],
+        [max_sessions, max_subscriptions, max_items]: [usize; 3],
         metrics: Arc<OpcUaMetrics>,
     ) -> Self {
         OpcUaState {
             monitored_items: AtomicI64::new(0),
             max_sessions,
+            max_subscriptions,
             max_items: i64::try_from(max_items).unwrap_or(i64::MAX),
             counted: Default::default(),
             watched: Notify::new(),
