@@ -137,6 +137,11 @@ impl WriteLog {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Writes kept, every field's together.
+    pub(crate) fn kept(&self) -> usize {
+        self.lock().index.len()
+    }
+
     /// Records a new pending write from a client and returns its generation.
     #[cfg(test)]
     pub(crate) fn begin(&self, device: &str, field: &str, value: Value) -> u64 {

@@ -328,6 +328,9 @@ async fn declarations_past_the_bound_are_refused_429_and_change_nothing_else() {
         ("declared_transactions", 256, 256),
         ("declared_links", 64, 64),
         ("declared_devices", 0, 1024),
+        // One scan a link at a time; 128 outcomes kept for the meter's one field.
+        ("scans", 0, 65),
+        ("write_outcomes", 0, 128),
     ] {
         assert_eq!(
             bound_metric(&metrics, "iogate_bound_used", bound),

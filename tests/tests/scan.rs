@@ -265,6 +265,13 @@ async fn a_scan_of_a_configured_link_runs_between_polls_and_reports_over_rest() 
         .await
         .expect("post");
     assert_eq!(status, 409, "one scan a link at a time: {twice}");
+    let metrics = gw.metrics().await.expect("metrics");
+    for series in [
+        "iogate_bound_used{bound=\"scans\"} 1\n",
+        "iogate_bound_refused_total{bound=\"scans\"} 1\n",
+    ] {
+        assert!(metrics.contains(series), "{series}\n{metrics}");
+    }
     line.sent.lock().expect("sent").clear();
 
     // Its events: the state as it goes, the stream ending with the last one.

@@ -35,6 +35,17 @@ impl Service {
             let (name, limit) = bound_of(what);
             self.metrics.bound(name, limit).set_used(used);
         }
+        let fields: usize = self
+            .cache
+            .devices()
+            .iter()
+            .map(|d| d.profile.fields.len())
+            .sum();
+        let history = crate::write_log::FIELD_HISTORY;
+        let outcomes = self.metrics.bound("write_outcomes", fields * history);
+        outcomes.set_used(self.cache.writes.kept());
+        let scans = self.metrics.bound("scans", self.cache.links().len());
+        scans.set_used(self.running_scans());
         self.doors.count_bounds(&self.metrics);
     }
 

@@ -128,6 +128,9 @@ impl Service {
             .iter()
             .find(|r| r.link == link.name() && r.state.borrow().state == "running")
         {
+            self.metrics
+                .bound("scans", self.cache.links().len())
+                .refused();
             return Err(ServiceError::ScanRunning {
                 link: link.name().to_owned(),
                 id: running.id,
@@ -181,6 +184,14 @@ impl Service {
     }
 
     /// A scan's state, to read or follow.
+    /// Scans running now.
+    pub(crate) fn running_scans(&self) -> usize {
+        lock(&self.scans.records)
+            .iter()
+            .filter(|r| r.state.borrow().state == "running")
+            .count()
+    }
+
     pub(crate) fn scan(&self, id: u64) -> Result<watch::Receiver<ScanState>, ServiceError> {
         lock(&self.scans.records)
             .iter()
