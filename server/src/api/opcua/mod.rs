@@ -142,6 +142,16 @@ impl Running {
     }
 }
 
+/// The server's bounds: sessions, every session's subscriptions together, monitored items.
+fn limits(config: &OpcUaConfig) -> [usize; 3] {
+    let subscriptions = config.max_sessions * config.max_subscriptions_per_session;
+    [
+        config.max_sessions,
+        subscriptions,
+        config.max_monitored_items,
+    ]
+}
+
 /// Reads what only the library knows (its diagnostics summary) and counts the client
 /// certificates waiting in `rejected`.
 fn probe(handle: Arc<std::sync::OnceLock<ServerHandle>>, rejected: std::path::PathBuf) -> Probe {
@@ -231,11 +241,7 @@ pub(crate) async fn start(
     let server_handle: Arc<std::sync::OnceLock<ServerHandle>> = Arc::default();
     let counts = Arc::new(OpcUaState::new(
         probe(server_handle.clone(), pki.join("rejected")),
-        [
-            config.max_sessions,
-            config.max_sessions * config.max_subscriptions_per_session,
-            config.max_monitored_items,
-        ],
+        limits(config),
         service.metrics.kept(metrics::OpcUaMetrics::new),
     ));
     let mut builder =
