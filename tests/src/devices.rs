@@ -133,12 +133,23 @@ pub async fn modbus_tcp_server(device: ModbusDevice) -> (u16, tokio::task::JoinH
 /// Returns the device's end and a holder that keeps the gateway's end alive until the
 /// gateway opens it; dropping both unplugs the port.
 pub fn pty_at(path: &Path) -> anyhow::Result<(SerialStream, SerialStream)> {
-    let (device, holder) = SerialStream::pair()?;
+    let (device, holder) = pty_pair()?;
     let name = holder
         .name()
         .ok_or_else(|| anyhow::anyhow!("the pty has no name"))?;
     let _ = std::fs::remove_file(path);
     std::os::unix::fs::symlink(&name, path)?;
+    Ok((device, holder))
+}
+
+/// A pseudo-terminal pair whose descriptors are closed on exec: a broker or simulator
+/// started later by the same process does not inherit them, so dropping both ends still
+/// closes the line (an inherited device end would keep a pulled adapter plugged in forever).
+/// The pair is opened without the flag and copied with it; the originals are closed at once.
+pub fn pty_pair() -> anyhow::Result<(SerialStream, SerialStream)> {
+    let (device, holder) = serialport::TTYPort::pair()?;
+    let device = SerialStream::try_from(device.try_clone_native()?)?;
+    let holder = SerialStream::try_from(holder.try_clone_native()?)?;
     Ok((device, holder))
 }
 
