@@ -15,7 +15,6 @@
 //!
 //! `cargo bench -p iogate --bench opcua`
 
-use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -25,61 +24,12 @@ use opcua::types::{
     DataValue, MessageSecurityMode, MonitoredItemCreateRequest, NodeId, TimestampsToReturn,
     UserTokenPolicy,
 };
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::TcpStream;
 
 mod common;
 
 const DEVICES: usize = 100;
 const FIELDS: usize = 100;
 const RUN: Duration = Duration::from_secs(10);
-
-/// One kept-alive HTTP connection sending PATCHes.
-struct Patcher {
-    stream: TcpStream,
-    buf: Vec<u8>,
-}
-
-impl Patcher {
-    async fn connect(addr: SocketAddr) -> anyhow::Result<Patcher> {
-        let stream = TcpStream::connect(addr).await?;
-        stream.set_nodelay(true)?;
-        Ok(Patcher {
-            stream,
-            buf: vec![0; 64 * 1024],
-        })
-    }
-
-    async fn patch(&mut self, path: &str, body: &str) -> anyhow::Result<()> {
-        let request = format!(
-            "PATCH {path} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
-            body.len()
-        );
-        self.stream.write_all(request.as_bytes()).await?;
-        let mut have = 0;
-        let (head, length) = loop {
-            let read = self.stream.read(&mut self.buf[have..]).await?;
-            anyhow::ensure!(read > 0, "closed");
-            have += read;
-            if let Some(end) = self.buf[..have].windows(4).position(|w| w == b"\r\n\r\n") {
-                let head = String::from_utf8_lossy(&self.buf[..end]).to_lowercase();
-                anyhow::ensure!(head.starts_with("http/1.1 2"), "{head}");
-                let length: usize = head
-                    .lines()
-                    .find_map(|l| l.strip_prefix("content-length:"))
-                    .and_then(|v| v.trim().parse().ok())
-                    .unwrap_or(0);
-                break (end + 4, length);
-            }
-        };
-        while have < head + length {
-            let read = self.stream.read(&mut self.buf[have..]).await?;
-            anyhow::ensure!(read > 0, "closed");
-            have += read;
-        }
-        Ok(())
-    }
-}
 
 /// Latencies in ms seen by the clients' callbacks.
 type Seen = Arc<Mutex<Vec<f64>>>;
@@ -180,7 +130,7 @@ async fn scenario(
     seen.lock().map_err(|_| anyhow::anyhow!("lock"))?.clear();
     let mut patchers = Vec::new();
     for _ in 0..4 {
-        patchers.push(Patcher::connect(gw.http).await?);
+        patchers.push(common::http::Kept::connect(gw.http).await?);
     }
     let pid = gw.child.id();
     let cpu0 = common::cpu_seconds(pid);
@@ -206,7 +156,7 @@ async fn scenario(
                 .collect();
             sends.push(async move {
                 for (path, body) in bodies {
-                    patcher.patch(&path, &body).await?;
+                    patcher.send("PATCH", &path, &body).await?;
                 }
                 anyhow::Ok(())
             });

@@ -81,3 +81,59 @@ pub async fn get_once(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Vec<
         .unwrap_or(0);
     Ok((status, answer))
 }
+
+/// How many devices `GET /api/v1/devices` lists as connected.
+pub async fn connected_devices(addr: SocketAddr) -> anyhow::Result<usize> {
+    let (_, answer) = get_once(addr, "/api/v1/devices").await?;
+    Ok(String::from_utf8_lossy(&answer)
+        .matches("\"connected\":true")
+        .count())
+}
+
+/// One kept-alive HTTP connection sending requests with a JSON body, one at a time.
+pub struct Kept {
+    stream: TcpStream,
+    buf: Vec<u8>,
+}
+
+impl Kept {
+    pub async fn connect(addr: SocketAddr) -> anyhow::Result<Kept> {
+        let stream = TcpStream::connect(addr).await?;
+        stream.set_nodelay(true)?;
+        Ok(Kept {
+            stream,
+            buf: vec![0; 64 * 1024],
+        })
+    }
+
+    /// Sends `method path` with `body`; answers once the whole answer (a 2xx) is read.
+    pub async fn send(&mut self, method: &str, path: &str, body: &str) -> anyhow::Result<()> {
+        let request = format!(
+            "{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        );
+        self.stream.write_all(request.as_bytes()).await?;
+        let mut have = 0;
+        let (head, length) = loop {
+            let read = self.stream.read(&mut self.buf[have..]).await?;
+            anyhow::ensure!(read > 0, "closed");
+            have += read;
+            if let Some(end) = self.buf[..have].windows(4).position(|w| w == b"\r\n\r\n") {
+                let head = String::from_utf8_lossy(&self.buf[..end]).to_lowercase();
+                anyhow::ensure!(head.starts_with("http/1.1 2"), "{head}");
+                let length: usize = head
+                    .lines()
+                    .find_map(|l| l.strip_prefix("content-length:"))
+                    .and_then(|v| v.trim().parse().ok())
+                    .unwrap_or(0);
+                break (end + 4, length);
+            }
+        };
+        while have < head + length {
+            let read = self.stream.read(&mut self.buf[have..]).await?;
+            anyhow::ensure!(read > 0, "closed");
+            have += read;
+        }
+        Ok(())
+    }
+}

@@ -17,14 +17,6 @@ async fn get(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Duration, usi
     Ok((status, started.elapsed(), answer.len()))
 }
 
-/// How many devices `GET /api/v1/devices` lists as connected.
-async fn connected(addr: SocketAddr) -> anyhow::Result<usize> {
-    let (_, answer) = common::http::get_once(addr, "/api/v1/devices").await?;
-    Ok(String::from_utf8_lossy(&answer)
-        .matches("\"connected\":true")
-        .count())
-}
-
 fn percentile(sorted: &[Duration], q: f64) -> Duration {
     sorted[((sorted.len() as f64 * q) as usize).min(sorted.len() - 1)]
 }
@@ -79,7 +71,7 @@ fn measure(
         let cpu = (common::cpu_seconds(pid) - cpu_before) / window.elapsed().as_secs_f64();
         let rss = common::rss_kib(pid);
         let answers = answer_times(gateway.http).await?;
-        let connected = connected(gateway.http).await?;
+        let connected = common::http::connected_devices(gateway.http).await?;
         let rows = report(title, short, (connected, ready, rss, cpu), answers);
         println!();
         anyhow::Ok(rows)
