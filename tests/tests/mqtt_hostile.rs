@@ -265,3 +265,76 @@ async fn first_values_unconfirmed_when_a_connection_ends_are_not_kept_as_changes
     gw.shutdown().await;
     broker.stop().await;
 }
+
+/// A broker of our own speaking MQTT 5: its CONNACK says Receive Maximum 3, then it reads
+/// and never acknowledges. Answers its port and the QoS 1 publishes it has received.
+async fn receiving_three_at_most() -> (u16, std::sync::Arc<std::sync::atomic::AtomicUsize>) {
+    use std::sync::atomic::Ordering;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    let received = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let count = received.clone();
+    tokio::spawn(async move {
+        let Ok((mut client, _)) = listener.accept().await else {
+            return;
+        };
+        let mut buf = Vec::new();
+        let mut chunk = vec![0u8; 65536];
+        let mut answered = false;
+        while let Ok(n) = client.read(&mut chunk).await {
+            if n == 0 {
+                break;
+            }
+            buf.extend_from_slice(&chunk[..n]);
+            // Whole packets: the first byte, the remaining length, the body.
+            loop {
+                let (mut len, mut i) = (0usize, 1);
+                while let Some(b) = buf.get(i) {
+                    len |= usize::from(b & 0x7F) << (7 * (i - 1));
+                    i += 1;
+                    if b & 0x80 == 0 {
+                        break;
+                    }
+                }
+                if buf.len() < 2 || buf.len() < i + len {
+                    break;
+                }
+                let first = buf[0];
+                buf.drain(..i + len);
+                if first >> 4 == 1 && !answered {
+                    // CONNACK: accepted, properties: Receive Maximum 3.
+                    let _ = client.write_all(&[0x20, 6, 0, 0, 3, 0x21, 0, 3]).await;
+                    answered = true;
+                } else if first >> 4 == 3 && (first >> 1) & 3 == 1 {
+                    count.fetch_add(1, Ordering::SeqCst);
+                }
+            }
+        }
+    });
+    (port, received)
+}
+
+#[tokio::test]
+async fn an_mqtt_5_brokers_receive_maximum_is_never_exceeded() {
+    let (port, received) = receiving_three_at_most().await;
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: sim, profile: SimPlant, refresh_rate: 20ms }}\nmqtt:\n  url: mqtt://127.0.0.1:{port}\n  version: 5\n  client_id: iogate-receive-max\n  json: {{ prefix: iogate/line1, qos: 1, retain: true }}\n"
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/mqtt", "connected", |s| s["connected"] == true)
+        .await
+        .expect("connected");
+    // Nineteen fields' first values wait to be published: without the broker's maximum
+    // they would all be sent at once.
+    gw.until("/api/v1/devices/sim", "a second of changes", |d| {
+        d["io_cycles"].as_u64().is_some_and(|c| c > 50)
+    })
+    .await
+    .expect("cycles");
+    assert_eq!(received.load(std::sync::atomic::Ordering::SeqCst), 3);
+    gw.shutdown().await;
+}

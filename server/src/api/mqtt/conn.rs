@@ -16,8 +16,12 @@ use crate::api::mqtt::config::{MqttConfig, MqttVersion};
 
 /// How long connecting (TCP, TLS and the CONNACK) may take.
 pub(crate) const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
-/// QoS 1 publishes sent and not yet acknowledged, at most.
-pub(crate) const MAX_INFLIGHT: usize = 64;
+/// QoS 1 publishes sent and not yet acknowledged, at most (fewer when an MQTT 5 broker's
+/// Receive Maximum says so).
+pub(crate) const MAX_INFLIGHT: usize = 1024;
+/// Publishes are written together once this many bytes wait (else when the session has
+/// nothing more to send at once, [`Connection::flush`]).
+const WRITE_BATCH: usize = 64 * 1024;
 
 trait Io: AsyncRead + AsyncWrite + Send + Unpin {}
 impl<T: AsyncRead + AsyncWrite + Send + Unpin> Io for T {}
@@ -105,6 +109,10 @@ pub(crate) struct Connection {
     ping_covers: Vec<u64>,
     /// Tags confirmed, for the caller to take.
     confirmed: Vec<u64>,
+    /// Publishes encoded and not yet written.
+    out: Vec<u8>,
+    /// QoS 1 publishes in flight at most: [`MAX_INFLIGHT`] or the broker's maximum.
+    max_inflight: usize,
 }
 
 impl Connection {
@@ -158,10 +166,21 @@ impl Connection {
             unconfirmed: Vec::new(),
             ping_covers: Vec::new(),
             confirmed: Vec::new(),
+            out: Vec::new(),
+            max_inflight: MAX_INFLIGHT,
         };
         conn.send(&packet::connect(config.version, connect)).await?;
         match conn.read().await? {
-            Incoming::ConnAck { code: 0, .. } => Ok(conn),
+            Incoming::ConnAck {
+                code: 0,
+                receive_maximum,
+                ..
+            } => {
+                if let Some(most) = receive_maximum {
+                    conn.max_inflight = MAX_INFLIGHT.min(usize::from(most));
+                }
+                Ok(conn)
+            }
             Incoming::ConnAck { code, .. } => Err(ConnError::Refused(
                 packet::connack_reason(config.version, code),
                 code,
@@ -170,9 +189,23 @@ impl Connection {
         }
     }
 
+    /// Sends `bytes` now, after any publishes waiting.
     async fn send(&mut self, bytes: &[u8]) -> Result<(), ConnError> {
-        self.io.write_all(bytes).await?;
+        self.out.extend_from_slice(bytes);
+        self.flush().await
+    }
+
+    /// Writes the publishes waiting, if any.
+    pub(crate) async fn flush(&mut self) -> Result<(), ConnError> {
+        if self.out.is_empty() {
+            return Ok(());
+        }
+        self.io.write_all(&self.out).await?;
         self.io.flush().await?;
+        self.out.clear();
+        if self.out.capacity() > 4 * WRITE_BATCH {
+            self.out.shrink_to(WRITE_BATCH);
+        }
         self.last_sent = Instant::now();
         Ok(())
     }
@@ -258,10 +291,11 @@ impl Connection {
 
     /// Whether another QoS 1 publish may be sent now.
     pub(crate) fn can_publish(&self) -> bool {
-        self.inflight.len() < MAX_INFLIGHT
+        self.inflight.len() < self.max_inflight
     }
 
-    /// Publishes; a QoS 1 publish is remembered with `tag` until [`Self::acked`] gives it
+    /// Publishes (the bytes go out with the next [`Self::flush`], or at once past
+    /// [`WRITE_BATCH`] bytes); a QoS 1 publish is remembered with `tag` until [`Self::acked`] gives it
     /// back, a QoS 0 one (with a `tag` other than 0) until a ping confirms it
     /// ([`Self::take_confirmed`]).
     pub(crate) async fn publish(
@@ -288,7 +322,11 @@ impl Connection {
         } else if tag != 0 {
             self.unconfirmed.push(tag);
         }
-        self.send(&bytes).await
+        self.out.extend_from_slice(&bytes);
+        if self.out.len() >= WRITE_BATCH {
+            self.flush().await?;
+        }
+        Ok(())
     }
 
     /// The tag of the publish a PUBACK acknowledges.

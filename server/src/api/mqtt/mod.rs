@@ -75,7 +75,7 @@ const MAX_OUTBOX: usize = 4096;
 /// Live data messages published and not yet confirmed, at most.
 const MAX_UNCONFIRMED: usize = 8192;
 /// Replayed messages published and not yet confirmed, at most.
-const REPLAY_WINDOW: usize = 32;
+const REPLAY_WINDOW: usize = 512;
 /// How often the replay's budget is refilled.
 const REPLAY_EVERY: Duration = Duration::from_millis(10);
 

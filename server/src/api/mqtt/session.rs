@@ -245,7 +245,8 @@ impl Task {
             // Send what can be sent, then wait for the next event.
             let sent: Result<(), ConnError> = async {
                 self.drain(online).await?;
-                online.conn.barrier().await
+                online.conn.barrier().await?;
+                online.conn.flush().await
             }
             .await;
             if let Err(e) = sent {

@@ -39,6 +39,11 @@ const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1000;
 /// Nodes (or items) in one call of each service, at most, as advertised in
 /// ServerCapabilities/OperationLimits.
 const MAX_OPERATIONS: usize = 1000;
+/// The shortest publishing and sampling interval a client is granted, and how often the
+/// library's subscriptions are looked at: a change reaches a client asking for the
+/// shortest interval within about this long (the library's default is 100 ms). A look
+/// at subscriptions whose interval has not elapsed is a comparison each.
+const MIN_INTERVAL_MS: u64 = 10;
 /// Elements of an array in a message, at most (the message size bounds them too).
 const MAX_ARRAY_LENGTH: usize = 10_000;
 
@@ -324,6 +329,7 @@ fn builder(
         )))
         .with_node_manager(nodes::builder(NAMESPACE, Arc::downgrade(service), counts))
         .max_sessions(config.max_sessions)
+        .subscription_poll_interval_ms(MIN_INTERVAL_MS)
         // The library's counts (sessions, subscriptions, rejections) for the metrics; the
         // Server's diagnostics nodes stay unreadable to sessions (no diagnostics role).
         .diagnostics_enabled(true)
@@ -358,6 +364,8 @@ fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
         // thousands of changes at once go in several answers within the message size
         // instead of one the client cannot take.
         limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
+        limits.subscriptions.min_publishing_interval_ms = MIN_INTERVAL_MS as f64;
+        limits.subscriptions.min_sampling_interval_ms = MIN_INTERVAL_MS as f64;
         // The operation limits the server advertises are the ones it keeps: a request past
         // one is refused with Bad_TooManyOperations. Arrays may be longer than the limits
         // (within the message size), so that a request of 1,001 reads is that refusal and

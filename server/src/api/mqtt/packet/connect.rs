@@ -78,15 +78,62 @@ pub(crate) fn connect(version: MqttVersion, c: &Connect) -> Vec<u8> {
     frame(0x10, &body)
 }
 
-/// A CONNACK: whether the session was kept, and the return (3.1.1) or reason (5) code.
+/// A CONNACK: whether the session was kept, the return (3.1.1) or reason (5) code, and
+/// the broker's Receive Maximum (MQTT 5: QoS 1 publishes it takes unacknowledged at once).
 pub(super) fn connack(body: &[u8]) -> Result<Incoming, PacketError> {
     if body.len() < 2 {
         return Err(PacketError::Malformed("CONNACK"));
     }
+    let receive_maximum = match body.get(2..) {
+        Some(props) if !props.is_empty() => receive_maximum(props)?,
+        _ => None,
+    };
     Ok(Incoming::ConnAck {
         session_present: body[0] & 1 == 1,
         code: body[1],
+        receive_maximum,
     })
+}
+
+/// The Receive Maximum (0x21) of a CONNACK's properties block (its length first).
+fn receive_maximum(props: &[u8]) -> Result<Option<u16>, PacketError> {
+    const WHAT: &str = "CONNACK properties";
+    let end = super::skip_properties(props, 0, WHAT)?;
+    // Past the block's length (a variable byte integer).
+    let mut i = 1 + props.iter().take_while(|b| *b & 0x80 != 0).count();
+    let mut found = None;
+    while i < end {
+        let id = props[i];
+        i += 1;
+        let len = match id {
+            0x01 | 0x17 | 0x19 | 0x24 | 0x25 | 0x28 | 0x29 | 0x2A => 1,
+            0x13 | 0x21 | 0x22 | 0x23 => 2,
+            0x02 | 0x11 | 0x18 | 0x27 => 4,
+            0x0B => {
+                while props.get(i).is_some_and(|b| b & 0x80 != 0) {
+                    i += 1;
+                }
+                1
+            }
+            0x03 | 0x08 | 0x12 | 0x15 | 0x16 | 0x1A | 0x1C | 0x1F | 0x09 => {
+                2 + usize::from(super::u16_at(props, i, WHAT)?)
+            }
+            0x26 => {
+                let key = 2 + usize::from(super::u16_at(props, i, WHAT)?);
+                key + 2 + usize::from(super::u16_at(props, i + key, WHAT)?)
+            }
+            _ => return Err(PacketError::Malformed(WHAT)),
+        };
+        if id == 0x21 {
+            // Zero is a protocol error (MQTT 5, 3.2.2.3.3): taken as no maximum given.
+            found = Some(super::u16_at(props, i, WHAT)?).filter(|&m| m > 0);
+        }
+        i += len;
+        if i > end {
+            return Err(PacketError::Malformed(WHAT));
+        }
+    }
+    Ok(found)
 }
 
 /// What a CONNACK's return (3.1.1) or reason (5) code means.

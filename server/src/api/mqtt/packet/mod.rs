@@ -31,6 +31,7 @@ pub(crate) enum Incoming {
     ConnAck {
         session_present: bool,
         code: u8,
+        receive_maximum: Option<u16>,
     },
     Publish(Publish),
     PubAck {

@@ -81,7 +81,8 @@ fn acks_and_their_codes_decode() {
         decode(v, &mut b),
         Ok(Some(Incoming::ConnAck {
             session_present: false,
-            code: 0
+            code: 0,
+            receive_maximum: None,
         }))
     );
     assert_eq!(
@@ -192,5 +193,41 @@ proptest::proptest! {
             let mut b = bytes.clone();
             while let Ok(Some(_)) = decode(version, &mut b) {}
         }
+    }
+}
+
+#[test]
+fn an_mqtt_5_connack_gives_the_brokers_receive_maximum() {
+    let v = MqttVersion::V5;
+    // Properties: Assigned Client Identifier "ab", Topic Alias Maximum 10, Receive Maximum 20.
+    let props = [0x12, 0, 2, b'a', b'b', 0x22, 0, 10, 0x21, 0, 20];
+    let mut b = vec![0x20, 3 + props.len() as u8, 0, 0, props.len() as u8];
+    b.extend_from_slice(&props);
+    assert_eq!(
+        decode(v, &mut b),
+        Ok(Some(Incoming::ConnAck {
+            session_present: false,
+            code: 0,
+            receive_maximum: Some(20),
+        }))
+    );
+    // Zero is a protocol error: no maximum taken from it.
+    let mut b = vec![0x20, 6, 1, 0, 3, 0x21, 0, 0];
+    assert_eq!(
+        decode(v, &mut b),
+        Ok(Some(Incoming::ConnAck {
+            session_present: true,
+            code: 0,
+            receive_maximum: None,
+        }))
+    );
+    // A string property running past the block, and an unknown property: malformed.
+    for props in [vec![0x1F, 0, 9, b'x'], vec![0x7F, 1]] {
+        let mut b = vec![0x20, 3 + props.len() as u8, 0, 0, props.len() as u8];
+        b.extend_from_slice(&props);
+        assert!(matches!(
+            decode(v, &mut b),
+            Ok(Some(Incoming::Dropped { .. }))
+        ));
     }
 }
