@@ -17,6 +17,8 @@ pub(crate) mod duration;
 pub(crate) mod front_ends;
 #[cfg(any(fuzzing, test))]
 pub mod fuzz;
+#[cfg(test)]
+pub(crate) mod killed;
 pub mod link;
 pub mod logging;
 pub mod map;

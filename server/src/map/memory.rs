@@ -245,8 +245,6 @@ mod tests {
 /// change set has the same value) and none older than the last one that returned.
 #[cfg(test)]
 mod crash_tests {
-    use std::io::BufRead;
-    use std::sync::mpsc;
     use std::time::Duration;
 
     use super::*;
@@ -278,40 +276,16 @@ mod crash_tests {
     fn a_memory_file_killed_while_written_a_hundred_times_loads_whole() {
         let dir = tempfile::tempdir().expect("a directory");
         let file = dir.path().join("memory.json");
-        let exe = std::env::current_exe().expect("the test binary");
-        let mut seed = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(1, |d| d.as_nanos() as u64);
+        let mut moments = crate::killed::Moments::new();
         let mut last = None::<u16>;
         for life in 0..100 {
-            let mut child = std::process::Command::new(&exe)
-                .args([
-                    "--exact",
-                    "map::memory::crash_tests::a_writer_until_killed",
-                    "--ignored",
-                    "--nocapture",
-                ])
-                .env(CHILD, &file)
-                .stdout(std::process::Stdio::piped())
-                .stderr(std::process::Stdio::null())
-                .spawn()
-                .expect("the writer starts");
-            let out = child.stdout.take().expect("its output");
-            let (tx, rx) = mpsc::channel();
-            let reader = std::thread::spawn(move || {
-                for line in std::io::BufReader::new(out).lines().map_while(Result::ok) {
-                    if tx.send(line).is_err() {
-                        break;
-                    }
-                }
-            });
-            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-            let first = rx.recv_timeout(Duration::from_secs(10));
-            std::thread::sleep(Duration::from_micros(200 + (seed >> 33) % 10_000));
-            let _ = child.kill();
-            let _ = child.wait();
-            let _ = reader.join();
-            for line in first.into_iter().chain(rx.try_iter()) {
+            let lines = crate::killed::run_and_kill(
+                "map::memory::crash_tests::a_writer_until_killed",
+                (CHILD, &file),
+                &mut moments,
+                (Duration::from_micros(200), Duration::from_millis(10)),
+            );
+            for line in lines {
                 last = line.trim().parse().ok().or(last);
             }
             let m = Memory::new(8, 64, Some(file.clone()))

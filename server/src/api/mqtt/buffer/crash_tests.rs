@@ -5,8 +5,6 @@
 //! it; the fsync policy is about power cuts); records acknowledged just before the kill may
 //! come again (the head is written after them), never fewer.
 
-use std::io::BufRead;
-use std::sync::mpsc;
 use std::time::Duration;
 
 use super::*;
@@ -82,41 +80,17 @@ fn a_writer_until_killed() {
 #[test]
 fn a_writer_killed_a_hundred_times_loses_nothing_it_wrote() {
     let dir = tempfile::tempdir().expect("a directory");
-    let exe = std::env::current_exe().expect("the test binary");
-    let mut seed = now_ms();
+    let mut moments = crate::killed::Moments::new();
     let (mut appended, mut acked) = (None::<u64>, None::<u64>);
     for life in 0..100 {
-        let mut child = std::process::Command::new(&exe)
-            .args([
-                "--exact",
-                "api::mqtt::buffer::crash_tests::a_writer_until_killed",
-                "--ignored",
-                "--nocapture",
-                "--test-threads=1",
-            ])
-            .env(CHILD, dir.path())
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .expect("the writer starts");
-        let out = child.stdout.take().expect("its output");
-        let (tx, rx) = mpsc::channel();
-        let reader = std::thread::spawn(move || {
-            for line in std::io::BufReader::new(out).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        // Kill it once it has written a little, at a moment of its run that differs each life.
-        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-        let wait = Duration::from_micros(500 + (seed >> 33) % 20_000);
-        let first = rx.recv_timeout(Duration::from_secs(10));
-        std::thread::sleep(wait);
-        let _ = child.kill();
-        let _ = child.wait();
-        let _ = reader.join();
-        for line in first.into_iter().chain(rx.try_iter()) {
+        // Killed once it has written a little, at a moment of its run that differs each life.
+        let lines = crate::killed::run_and_kill(
+            "api::mqtt::buffer::crash_tests::a_writer_until_killed",
+            (CHILD, dir.path()),
+            &mut moments,
+            (Duration::from_micros(500), Duration::from_millis(20)),
+        );
+        for line in lines {
             match line.split_once(' ') {
                 Some(("a", n)) => appended = n.parse().ok().or(appended),
                 Some(("k", n)) => acked = n.parse().ok().or(acked),
