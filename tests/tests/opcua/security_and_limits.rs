@@ -238,3 +238,102 @@ async fn sessions_over_the_limit_are_refused_and_the_others_go_on() {
     assert!(metrics.contains("iogate_opcua_sessions 2\n"), "{metrics}");
     gw.shutdown().await;
 }
+
+/// A TCP connection from `from` that says Hello: the server's first answer's message type
+/// and, for an Error, its status code.
+async fn hello(
+    server: std::net::SocketAddr,
+    from: &str,
+) -> (tokio::net::TcpStream, String, Option<u32>) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+    socket
+        .bind(format!("{from}:0").parse().expect("address"))
+        .expect("bind");
+    let mut stream = socket.connect(server).await.expect("connects");
+    let url = format!("opc.tcp://{server}/");
+    let mut m = b"HELF\0\0\0\0".to_vec();
+    for n in [0u32, 65_536, 65_536, 0, 0] {
+        m.extend_from_slice(&n.to_le_bytes());
+    }
+    m.extend_from_slice(&(url.len() as i32).to_le_bytes());
+    m.extend_from_slice(url.as_bytes());
+    let len = (m.len() as u32).to_le_bytes();
+    m[4..8].copy_from_slice(&len);
+    stream.write_all(&m).await.expect("hello sent");
+    let mut head = [0u8; 12];
+    tokio::time::timeout(
+        std::time::Duration::from_secs(10),
+        stream.read_exact(&mut head),
+    )
+    .await
+    .expect("an answer in time")
+    .expect("an answer");
+    let kind = String::from_utf8_lossy(&head[..3]).to_string();
+    let code = (kind == "ERR").then(|| u32::from_le_bytes([head[8], head[9], head[10], head[11]]));
+    (stream, kind, code)
+}
+
+#[tokio::test]
+async fn connections_are_bounded_per_address_and_in_all_in_opcuas_own_terms() {
+    let dir = temp_dir("opcua-connections");
+    let gw = TestGateway::start(&format!(
+        "{PLANT}{}",
+        opcua(
+            &dir,
+            "  max_connections: 5\n  max_connections_per_client: 3\n"
+        )
+    ))
+    .await
+    .expect("gateway");
+    let server = gw.opcua.expect("an OPC UA server");
+    const TOO_BUSY: u32 = 0x807D_0000;
+    // Three from one address are taken; its fourth is Bad_TcpServerTooBusy.
+    let mut held = Vec::new();
+    for _ in 0..3 {
+        let (stream, kind, _) = hello(server, "127.0.0.1").await;
+        assert_eq!(kind, "ACK");
+        held.push(stream);
+    }
+    let (_, kind, code) = hello(server, "127.0.0.1").await;
+    assert_eq!((kind.as_str(), code), ("ERR", Some(TOO_BUSY)));
+    // Another address is served: two more fill the server, the next is refused.
+    for _ in 0..2 {
+        let (stream, kind, _) = hello(server, "127.0.0.2").await;
+        assert_eq!(kind, "ACK");
+        held.push(stream);
+    }
+    let (_, kind, code) = hello(server, "127.0.0.3").await;
+    assert_eq!((kind.as_str(), code), ("ERR", Some(TOO_BUSY)));
+    let metrics = gw.metrics().await.expect("metrics");
+    for line in [
+        "iogate_bound_limit{bound=\"opcua_connections\"} 5\n",
+        "iogate_bound_used{bound=\"opcua_connections\"} 5\n",
+        "iogate_bound_refused_total{bound=\"opcua_connections\"} 1\n",
+        "iogate_bound_limit{bound=\"opcua_connections_per_client\"} 3\n",
+        "iogate_bound_used{bound=\"opcua_connections_per_client\"} 3\n",
+        "iogate_bound_refused_total{bound=\"opcua_connections_per_client\"} 1\n",
+    ] {
+        assert!(metrics.contains(line), "{line}\n{metrics}");
+    }
+    // Polling went on; once connections close, an independent client is served again.
+    let (_, plant) = gw.get("/api/v1/devices/plant").await.expect("plant");
+    assert_eq!(plant["connected"], true, "{plant:#}");
+    held.clear();
+    eventually("the connections closed", || async {
+        gw.metrics()
+            .await
+            .is_ok_and(|m| m.contains("iogate_bound_used{bound=\"opcua_connections\"} 0\n"))
+    })
+    .await
+    .expect("closed");
+    let mut ua = UaClient::connect(&url(&gw), &Options::default())
+        .await
+        .expect("asyncua connects");
+    assert_eq!(
+        ua.read("plant.Level").await.expect("read")["status"],
+        "Good"
+    );
+    ua.close().await.expect("closed");
+    gw.shutdown().await;
+}

@@ -91,6 +91,28 @@ pub struct ServerInfo {
     pub type_loaders: RwLock<TypeLoaderCollection>,
     /// Current server diagnostics.
     pub diagnostics: ServerDiagnostics,
+    /// Open TCP connections and the ones refused at their bounds.
+    pub connections: ConnectionCounts,
+}
+
+/// Open TCP connections, by IP address, and the ones refused at
+/// `max_connections` and `max_connections_per_client`.
+#[derive(Debug, Default)]
+pub struct ConnectionCounts {
+    /// Open connections from each address.
+    pub open: parking_lot::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>,
+    /// Refused at `max_connections`.
+    pub refused: std::sync::atomic::AtomicU64,
+    /// Refused at `max_connections_per_client`.
+    pub refused_per_client: std::sync::atomic::AtomicU64,
+}
+
+impl ConnectionCounts {
+    /// Open connections in all, and from the address with the most.
+    pub fn open(&self) -> (usize, usize) {
+        let open = self.open.lock();
+        (open.values().sum(), open.values().copied().max().unwrap_or(0))
+    }
 }
 
 impl ServerInfo {

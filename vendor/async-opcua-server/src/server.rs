@@ -51,6 +51,30 @@ use super::{
 
 struct ConnectionInfo {
     command_send: tokio::sync::mpsc::Sender<ControllerCommand>,
+    /// The address it came from (none: a reverse connection).
+    ip: Option<std::net::IpAddr>,
+}
+
+/// The OPC UA Error message (Part 6, 7.1.2.5) a connection past a bound is answered with
+/// before it is closed: Bad_TcpServerTooBusy and its reason.
+fn too_busy(reason: &str) -> Vec<u8> {
+    let mut m = b"ERRF\0\0\0\0".to_vec();
+    m.extend_from_slice(&opcua_types::StatusCode::BadTcpServerTooBusy.bits().to_le_bytes());
+    m.extend_from_slice(&(reason.len() as i32).to_le_bytes());
+    m.extend_from_slice(reason.as_bytes());
+    let len = (m.len() as u32).to_le_bytes();
+    m[4..8].copy_from_slice(&len);
+    m
+}
+
+/// Answers a connection refused at a bound (after reading what it sent first, at most
+/// 2 seconds, so that its Hello is answered rather than reset) and closes it.
+async fn refuse(mut socket: tokio::net::TcpStream, reason: String) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut hello = [0u8; 1024];
+    let _ = tokio::time::timeout(Duration::from_secs(2), socket.read(&mut hello)).await;
+    let _ = tokio::time::timeout(Duration::from_secs(2), socket.write_all(&too_busy(&reason))).await;
+    let _ = socket.shutdown().await;
 }
 
 fn log_connection_panic(id: u32, payload: Box<dyn std::any::Any + Send>) {
@@ -93,6 +117,27 @@ pub struct Server {
 }
 
 impl Server {
+    /// Why a new connection from `ip` is refused, when the open ones are at
+    /// `max_connections` or that address's at `max_connections_per_client`; counted.
+    fn past_bounds(&self, ip: std::net::IpAddr) -> Option<String> {
+        let limits = &self.info.config.limits;
+        let counts = &self.info.connections;
+        let open = counts.open.lock();
+        let from = open.get(&ip).copied().unwrap_or(0);
+        if from >= limits.max_connections_per_client {
+            counts.refused_per_client.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            return Some(format!(
+                "{from} connections from {ip} are open, the most one address may have (max_connections_per_client)"
+            ));
+        }
+        let all: usize = open.values().sum();
+        if all >= limits.max_connections {
+            counts.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            return Some(format!("{all} connections are open, the most this server takes (max_connections)"));
+        }
+        None
+    }
+
     pub(crate) fn new_from_builder(builder: ServerBuilder) -> Result<(Self, ServerHandle), String> {
         if let Err(e) = builder.config.validate() {
             return Err(format!(
@@ -192,6 +237,7 @@ impl Server {
                 enabled: config.diagnostics,
                 ..Default::default()
             },
+            connections: Default::default(),
         };
 
         let certificate_store = Arc::new(RwLock::new(certificate_store));
@@ -371,7 +417,15 @@ impl Server {
                     match conn_res.unwrap() {
                         Ok(id) => {
                             info!("Connection {} terminated", id);
-                            self.connection_map.remove(&id);
+                            if let Some(ip) = self.connection_map.remove(&id).and_then(|c| c.ip) {
+                                let mut open = self.info.connections.open.lock();
+                                if let Some(n) = open.get_mut(&ip) {
+                                    *n -= 1;
+                                    if *n == 0 {
+                                        open.remove(&ip);
+                                    }
+                                }
+                            }
                         },
                         Err(e) => error!("Connection panic! {e}")
                     }
@@ -382,6 +436,11 @@ impl Server {
                 rs = listener.accept() => {
                     match rs {
                         Ok((socket, addr)) => {
+                            if let Some(reason) = self.past_bounds(addr.ip()) {
+                                tokio::spawn(refuse(socket, reason));
+                                continue;
+                            }
+                            *self.info.connections.open.lock().entry(addr.ip()).or_default() += 1;
                             info!("Accept new connection from {addr} ({connection_counter})");
                             let conn = SessionStarter::new(
                                 TcpConnector::new(socket, TransportConfig {
@@ -411,7 +470,8 @@ impl Server {
                             });
                             self.connections.push(handle);
                             self.connection_map.insert(connection_counter, ConnectionInfo {
-                                command_send: send
+                                command_send: send,
+                                ip: Some(addr.ip()),
                             });
                             connection_counter += 1;
                         }
@@ -461,7 +521,8 @@ impl Server {
                     });
                     self.connections.push(handle);
                     self.connection_map.insert(connection_counter, ConnectionInfo {
-                        command_send: send
+                        command_send: send,
+                        ip: None,
                     });
                     connection_counter += 1;
                 }

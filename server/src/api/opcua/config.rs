@@ -22,6 +22,8 @@ const KEYS: &[&str] = &[
     "max_subscriptions_per_session",
     "max_monitored_items_per_subscription",
     "max_monitored_items",
+    "max_connections",
+    "max_connections_per_client",
 ];
 
 pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:4840";
@@ -33,6 +35,10 @@ pub(crate) const DEFAULT_MAX_MONITORED_ITEMS: usize = 20_000;
 /// Monitored items of all sessions together, by default: what 10,000 fields watched by five
 /// clients need, bounding the memory every client together can make the server hold.
 pub(crate) const DEFAULT_MAX_MONITORED_ITEMS_TOTAL: usize = 50_000;
+/// TCP connections open at once, by default, and from one address: room for every session
+/// and for short discovery connections beside them.
+pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 256;
+pub(crate) const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = 64;
 /// The most sessions, subscriptions per session and items per subscription configurable.
 const MAX_SESSIONS: usize = 10_000;
 const MAX_SUBSCRIPTIONS: usize = 1_000;
@@ -113,6 +119,9 @@ pub struct OpcUaConfig {
     pub(crate) max_monitored_items_per_subscription: usize,
     /// Monitored items of every session together.
     pub(crate) max_monitored_items: usize,
+    /// TCP connections open at once, and from one IP address.
+    pub(crate) max_connections: usize,
+    pub(crate) max_connections_per_client: usize,
     pub(crate) line: u64,
 }
 
@@ -171,7 +180,14 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
             _ => anonymous(&n.scalar_text(report, &at("anonymous"))?, n.line, report).map(Some),
         },
     };
-    let [max_sessions, max_subscriptions, max_items, max_items_total] = limits(&mut map, report);
+    let [
+        max_sessions,
+        max_subscriptions,
+        max_items,
+        max_items_total,
+        max_connections,
+        max_per_client,
+    ] = limits(&mut map, report);
     map.finish(report, ctx, KEYS);
     if certificate.is_some() != private_key.is_some() {
         report.push(
@@ -196,6 +212,8 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_subscriptions_per_session: max_subscriptions?,
         max_monitored_items_per_subscription: max_items?,
         max_monitored_items: max_items_total?,
+        max_connections: max_connections?,
+        max_connections_per_client: max_per_client?,
         line: node.line,
     })
 }
@@ -265,8 +283,8 @@ fn anonymous(text: &str, line: u64, report: &mut Report) -> Option<Anonymous> {
     }
 }
 
-/// The sessions', subscriptions' and monitored items' bounds, in that order.
-fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<usize>; 4] {
+/// The sessions', subscriptions', monitored items' and connections' bounds, in that order.
+fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<usize>; 6] {
     [
         ("max_sessions", DEFAULT_MAX_SESSIONS, MAX_SESSIONS),
         (
@@ -283,6 +301,12 @@ fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<
             "max_monitored_items",
             DEFAULT_MAX_MONITORED_ITEMS_TOTAL,
             MAX_MONITORED_ITEMS,
+        ),
+        ("max_connections", DEFAULT_MAX_CONNECTIONS, 4 * MAX_SESSIONS),
+        (
+            "max_connections_per_client",
+            DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
+            4 * MAX_SESSIONS,
         ),
     ]
     .map(|(key, default, max)| match map.get(key) {

@@ -27,6 +27,12 @@ pub(crate) struct OpcUaStatus {
     pub(crate) security_rejected: u64,
     /// Client certificates refused and kept in the PKI directory's `rejected/`.
     pub(crate) rejected_certificates: u64,
+    /// TCP connections open, and from the address with the most.
+    pub(crate) connections: u64,
+    pub(crate) connections_most_from_one: u64,
+    /// Connections refused at `max_connections`, and at `max_connections_per_client`.
+    pub(crate) connections_refused: u64,
+    pub(crate) connections_refused_per_client: u64,
 }
 
 pub const OPCUA_SESSIONS: &str = "iogate_opcua_sessions";

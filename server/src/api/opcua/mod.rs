@@ -148,12 +148,14 @@ impl Running {
 }
 
 /// The server's bounds: sessions, every session's subscriptions together, monitored items.
-fn limits(config: &OpcUaConfig) -> [usize; 3] {
+fn limits(config: &OpcUaConfig) -> [usize; 5] {
     let subscriptions = config.max_sessions * config.max_subscriptions_per_session;
     [
         config.max_sessions,
         subscriptions,
         config.max_monitored_items,
+        config.max_connections,
+        config.max_connections_per_client,
     ]
 }
 
@@ -179,6 +181,16 @@ fn probe(handle: Arc<std::sync::OnceLock<ServerHandle>>, rejected: std::path::Pa
             s.subscriptions = count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_CurrentSubscriptionCount);
             s.security_rejected = count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedSessionCount)
                 + count(VariableId::Server_ServerDiagnostics_ServerDiagnosticsSummary_SecurityRejectedRequestsCount);
+            let connections = &handle.info().connections;
+            let (open, most) = connections.open();
+            s.connections = open as u64;
+            s.connections_most_from_one = most as u64;
+            s.connections_refused = connections
+                .refused
+                .load(std::sync::atomic::Ordering::Relaxed);
+            s.connections_refused_per_client = connections
+                .refused_per_client
+                .load(std::sync::atomic::Ordering::Relaxed);
         }
         s.rejected_certificates = std::fs::read_dir(&rejected)
             .map(|entries| {
@@ -363,6 +375,8 @@ fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
         // A publish answer carries at most this many notifications (about 30 KB), so that
         // thousands of changes at once go in several answers within the message size
         // instead of one the client cannot take.
+        limits.max_connections = config.max_connections;
+        limits.max_connections_per_client = config.max_connections_per_client;
         limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
         limits.subscriptions.min_publishing_interval_ms = MIN_INTERVAL_MS as f64;
         limits.subscriptions.min_sampling_interval_ms = MIN_INTERVAL_MS as f64;

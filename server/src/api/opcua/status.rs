@@ -24,8 +24,11 @@ pub(crate) struct OpcUaState {
     max_subscriptions: usize,
     /// Monitored items of every session together, at most.
     max_items: i64,
-    /// The refusals already counted into the gateway's bounds: sessions, monitored items.
-    counted: [AtomicU64; 2],
+    /// TCP connections at once, and from one address, at most.
+    max_connections: [usize; 2],
+    /// The refusals already counted into the gateway's bounds: sessions, monitored items,
+    /// connections, connections from one address.
+    counted: [AtomicU64; 4],
     /// Told when the first monitored item is made: the feed then follows changes again.
     watched: Notify,
     items_refused: AtomicU64,
@@ -62,6 +65,18 @@ impl Door for OpcUaState {
                 status.monitored_items,
                 status.monitored_items_refused,
             ),
+            (
+                "opcua_connections",
+                self.max_connections[0],
+                status.connections,
+                status.connections_refused,
+            ),
+            (
+                "opcua_connections_per_client",
+                self.max_connections[1],
+                status.connections_most_from_one,
+                status.connections_refused_per_client,
+            ),
         ];
         for ((name, limit, used, refused), counted) in bounds.into_iter().zip(&self.counted) {
             let bound = metrics.bound(name, limit);
@@ -82,11 +97,17 @@ impl std::fmt::Debug for OpcUaState {
 }
 
 impl OpcUaState {
-    /// The state of a server with `max_sessions`, `max_subscriptions` and `max_items`
-    /// monitored items in all.
+    /// The state of a server with `max_sessions`, `max_subscriptions`, `max_items`
+    /// monitored items in all, and its connections' bounds.
     pub(crate) fn new(
         probe: Probe,
-        [max_sessions, max_subscriptions, max_items]: [usize; 3],
+        [
+            max_sessions,
+            max_subscriptions,
+            max_items,
+            connections,
+            per_client,
+        ]: [usize; 5],
         metrics: Arc<OpcUaMetrics>,
     ) -> Self {
         OpcUaState {
@@ -94,6 +115,7 @@ impl OpcUaState {
             max_sessions,
             max_subscriptions,
             max_items: i64::try_from(max_items).unwrap_or(i64::MAX),
+            max_connections: [connections, per_client],
             counted: Default::default(),
             watched: Notify::new(),
             items_refused: AtomicU64::new(0),

@@ -42,6 +42,13 @@ pub struct Limits {
     /// Maximum number of registered sessions before new ones are rejected.
     #[serde(default = "defaults::max_sessions")]
     pub max_sessions: usize,
+    /// Maximum number of open TCP connections; a new one past it is answered
+    /// Bad_TcpServerTooBusy and closed.
+    #[serde(default = "defaults::max_connections")]
+    pub max_connections: usize,
+    /// Maximum number of open TCP connections from one IP address, likewise.
+    #[serde(default = "defaults::max_connections_per_client")]
+    pub max_connections_per_client: usize,
 }
 
 impl Default for Limits {
@@ -60,6 +67,8 @@ impl Default for Limits {
             max_query_continuation_points: defaults::max_query_continuation_points(),
             operational: OperationalLimits::default(),
             max_sessions: defaults::max_sessions(),
+            max_connections: defaults::max_connections(),
+            max_connections_per_client: defaults::max_connections_per_client(),
         }
     }
 }
@@ -241,6 +250,12 @@ mod defaults {
         constants::MAX_QUERY_CONTINUATION_POINTS
     }
     pub(super) fn max_sessions() -> usize {
+        constants::MAX_SESSIONS
+    }
+    pub(super) fn max_connections() -> usize {
+        4 * constants::MAX_SESSIONS
+    }
+    pub(super) fn max_connections_per_client() -> usize {
         constants::MAX_SESSIONS
     }
 
