@@ -93,6 +93,8 @@ pub struct Server {
     certificate_store: Arc<RwLock<CertificateStore>>,
     /// Session manager
     session_manager: Arc<RwLock<SessionManager>>,
+    /// Held by each connection being answered Bad_TcpServerTooBusy.
+    refusing: Arc<()>,
     /// Open connections.
     connections: FuturesUnordered<JoinHandle<u32>>,
     /// Map to metadata about each open connection
@@ -295,6 +297,7 @@ impl Server {
                 certificate_store,
                 session_manager,
                 connections: FuturesUnordered::new(),
+                refusing: Arc::new(()),
                 connection_map: HashMap::new(),
                 subscriptions,
                 config,
@@ -437,7 +440,14 @@ impl Server {
                     match rs {
                         Ok((socket, addr)) => {
                             if let Some(reason) = self.past_bounds(addr.ip()) {
-                                tokio::spawn(refuse(socket, reason));
+                                // At most 64 being answered at once; past that, closed.
+                                let refusing = self.refusing.clone();
+                                if Arc::strong_count(&refusing) <= 64 {
+                                    tokio::spawn(async move {
+                                        refuse(socket, reason).await;
+                                        drop(refusing);
+                                    });
+                                }
                                 continue;
                             }
                             *self.info.connections.open.lock().entry(addr.ip()).or_default() += 1;
