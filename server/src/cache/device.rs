@@ -2,6 +2,7 @@
 //! requested outputs and, for a simulated device, the memory that stands for the device.
 
 mod reads;
+pub(crate) use reads::Stamp;
 mod writes;
 
 use std::sync::{Arc, Mutex, RwLock};

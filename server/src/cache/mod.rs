@@ -21,7 +21,7 @@ use crate::profile::{Catalog, Profile};
 use crate::text::quote;
 use crate::write_log::WriteLog;
 
-pub(crate) use device::{Binding, Device, Fate};
+pub(crate) use device::{Binding, Device, Fate, Stamp};
 pub use link::{
     INBOX_CAPACITY, Inbox, Link, LinkState, Passthrough, PassthroughError, Probe, Progress, Stage,
     Utilisation,

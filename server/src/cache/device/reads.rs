@@ -3,45 +3,72 @@
 
 use super::*;
 
+/// When values came, read once for a batch of them: the monotonic clock (for quality) and
+/// the wall clock (their timestamp when the source gives none). Two clock readings a field
+/// were a sixth of the gateway's CPU at 100,000 fields a second.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Stamp {
+    pub(crate) instant: Instant,
+    pub(crate) system: SystemTime,
+}
+
+impl Stamp {
+    pub(crate) fn now() -> Stamp {
+        Stamp {
+            instant: Instant::now(),
+            system: SystemTime::now(),
+        }
+    }
+}
+
 impl Device {
     /// Stores a freshly read value (or why it could not be read). Subscribers are woken only
     /// when the value or its quality changes.
     pub(crate) fn publish(&self, idx: usize, read: Result<Value, FieldError>) {
-        self.publish_from(idx, read, None, None, Instant::now());
+        self.publish_from(idx, read, None, None, Stamp::now());
+    }
+
+    /// [`Self::publish`] for one of many values that came together at `now`.
+    pub(crate) fn publish_at(&self, idx: usize, read: Result<Value, FieldError>, now: Stamp) {
+        self.publish_from(idx, read, None, None, now);
     }
 
     /// Stores a value as its source reported it: `doubt` when the source vouches for it
     /// only in part (the value is kept, stale, with the reason), `at` the source's own
-    /// timestamp of it (else now); `now` when it came (one clock reading for a batch).
+    /// timestamp of it (else `now`'s); `now` when it came (one clock reading for a batch).
     pub(crate) fn publish_from(
         &self,
         idx: usize,
         read: Result<Value, FieldError>,
         doubt: Option<FieldError>,
         at: Option<SystemTime>,
-        now: Instant,
+        now: Stamp,
     ) {
-        let now = (now, at.unwrap_or_else(SystemTime::now));
+        let now = (now.instant, at.unwrap_or(now.system));
         self.samples[idx].send_if_modified(|s| {
-            let before = (s.value.clone(), s.quality, s.stale_told);
+            // Changed: another value or quality, or a stale spell told that now ends.
+            let mut changed = s.stale_told;
             match read {
                 Ok(v) => {
-                    s.value = Some(v);
-                    s.quality = if doubt.is_some() {
+                    let quality = if doubt.is_some() {
                         Quality::Stale
                     } else {
                         Quality::Good
                     };
+                    changed |= s.quality != quality || s.value.as_ref() != Some(&v);
+                    s.value = Some(v);
+                    s.quality = quality;
                     s.error = doubt.map(Box::new);
                 }
                 Err(e) => {
+                    changed |= s.quality != Quality::Bad;
                     s.quality = Quality::Bad;
                     s.error = Some(Box::new(e));
                 }
             }
             s.updated = Some(now);
             s.stale_told = false;
-            before != (s.value.clone(), s.quality, s.stale_told)
+            changed
         });
     }
 

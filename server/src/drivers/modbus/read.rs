@@ -25,8 +25,9 @@ pub(super) async fn cycle(
         match result {
             Ok(response) => {
                 last_response = elapsed;
+                let now = crate::cache::Stamp::now();
                 for (field, value) in batch.decode(&device.profile, &response) {
-                    device.publish(field, value);
+                    device.publish_at(field, value, now);
                 }
                 k += 1;
             }
@@ -41,8 +42,9 @@ pub(super) async fn cycle(
             }
             Err(TxError::Exception(x)) => {
                 last_response = elapsed;
+                let now = crate::cache::Stamp::now();
                 for &field in &batch.fields {
-                    device.publish(field, Err(FieldError::Exception(x)));
+                    device.publish_at(field, Err(FieldError::Exception(x)), now);
                 }
                 k += 1;
             }

@@ -193,7 +193,7 @@ impl Connection {
                 }
             };
             let mut types = subscribe::lock(&plan.types);
-            let now = tokio::time::Instant::now();
+            let now = crate::cache::Stamp::now();
             for ((idx, _), dv) in wanted.iter().zip(values.iter()) {
                 subscribe::publish(device, &mut types, *idx, dv, now);
             }

@@ -62,7 +62,7 @@ pub(super) fn publish(
     types: &mut [Option<VariantScalarTypeId>],
     idx: usize,
     dv: &DataValue,
-    now: Instant,
+    now: crate::cache::Stamp,
 ) {
     let Some(field) = device.profile.fields.get(idx) else {
         return;
@@ -96,11 +96,11 @@ struct Notifications {
 
 impl OnSubscriptionNotificationCore for Notifications {
     fn on_subscription_notification(&mut self, n: NotificationMessage, _: MonitoredItemMap<'_>) {
-        let now = Instant::now();
+        let now = crate::cache::Stamp::now();
         *self
             .heard
             .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner) = now;
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = now.instant;
         for obj in n.notification_data.into_iter().flatten() {
             match_extension_object_owned!(obj,
                 v: DataChangeNotification => {

@@ -56,7 +56,7 @@ fn publish_span(
     span: &Span,
     bytes: &Result<Vec<u8>, Failed>,
     doubt: Option<&FieldError>,
-    now: Instant,
+    now: crate::cache::Stamp,
 ) {
     for &(idx, offset) in &span.fields {
         let Some(Ok(place)) = plan.places.get(idx) else {
@@ -107,7 +107,7 @@ pub(super) async fn read(
     for refused in answers.iter().filter_map(|a| a.as_ref().err()) {
         plc.tell_refused(&refused.to_string());
     }
-    let now = Instant::now();
+    let now = crate::cache::Stamp::now();
     let mut split = Vec::new();
     for span in &plan.reads.spans {
         let bytes = span_bytes(span, &answers);
