@@ -303,6 +303,22 @@ mod tests {
         );
     }
 
+    /// A request header whose additional header is an Argument claiming a value rank of
+    /// 2^31 - 1: refused as malformed, not 8 GiB allocated to pad its dimensions (found by
+    /// the `opcua_binary` target; the input is kept in `fuzz/regressions/`).
+    #[test]
+    fn an_opcua_argument_claiming_a_huge_rank_is_refused() {
+        use opcua::types::{BinaryDecodable, BrowseRequest, ContextOwned};
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../fuzz/regressions/opcua_binary/argument-rank-2g");
+        let data = std::fs::read(path).expect("the finding");
+        let ctx = ContextOwned::default();
+        let mut s = std::io::Cursor::new(data.get(1..).unwrap_or_default());
+        let decoded = BrowseRequest::decode(&mut s, &ctx.context());
+        let err = decoded.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(err.contains("value rank"), "{err}");
+    }
+
     /// The HTTP target's requests reach the API: the demo's devices are there to read and
     /// write.
     #[test]

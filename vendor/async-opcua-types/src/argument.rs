@@ -112,6 +112,14 @@ impl BinaryDecodable for Argument {
         if value_rank > 0 {
             if let Some(array_dimensions) = array_dimensions.as_mut() {
                 let expected_rank = value_rank as usize;
+                // The rank is the sender's word: padding to it must not allocate more
+                // than an array may hold (a rank of 2^31 was 8 GiB for a 58-byte message).
+                if expected_rank > ctx.options().max_array_length {
+                    return Err(Error::decoding(format!(
+                        "The value rank {value_rank} of the Argument is more than the {} dimensions an array may have",
+                        ctx.options().max_array_length
+                    )));
+                }
                 match array_dimensions.len().cmp(&expected_rank) {
                     Ordering::Less => {
                         // If fewer dimensions are provided than rank, pad with 0 to reach rank length
