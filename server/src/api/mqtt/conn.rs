@@ -200,9 +200,16 @@ impl Connection {
         if self.out.is_empty() {
             return Ok(());
         }
-        self.io.write_all(&self.out).await?;
+        // Cancel-safe: what was written leaves `out` write by write, so a flush dropped
+        // midway (a PUBACK sent from a `read` in a `select!`) never writes bytes twice.
+        while !self.out.is_empty() {
+            let n = self.io.write(&self.out).await?;
+            if n == 0 {
+                return Err(ConnError::Closed);
+            }
+            self.out.drain(..n);
+        }
         self.io.flush().await?;
-        self.out.clear();
         if self.out.capacity() > 4 * WRITE_BATCH {
             self.out.shrink_to(WRITE_BATCH);
         }
