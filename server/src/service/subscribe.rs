@@ -10,9 +10,11 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::task::{Context, Poll};
 
+use std::collections::HashSet;
+
+use futures_util::stream::SelectAll;
 use futures_util::{Stream, StreamExt};
 use tokio::sync::watch;
-use tokio_stream::StreamMap;
 use tokio_stream::wrappers::WatchStream;
 
 use super::{Selection, Service, ServiceError};
@@ -191,23 +193,29 @@ struct Additions {
     values: bool,
 }
 
-/// A subscription's streams, and the devices it takes in as they are added.
+/// A subscription's streams, and the devices it takes in as they are added. The streams
+/// are polled as they are woken (a change costs the same whether the subscription follows
+/// ten fields or a hundred thousand); each is followed once, by its key.
 struct Subscription {
-    streams: StreamMap<Key, Changes>,
+    streams: SelectAll<Changes>,
+    keys: HashSet<Key>,
     additions: Option<Additions>,
 }
 
 impl Subscription {
+    fn insert(&mut self, key: Key, followed: Followed) {
+        if self.keys.insert(key) {
+            self.streams.push(followed.into_stream());
+        }
+    }
+
     fn follow(&mut self, n: usize, device: &Arc<Device>, diagnostics: bool, fields: bool) {
         if diagnostics {
-            let followed = Followed::new(device.clone(), None);
-            self.streams
-                .insert((n, DIAGNOSTICS), followed.into_stream());
+            self.insert((n, DIAGNOSTICS), Followed::new(device.clone(), None));
         }
         if fields {
             for idx in 0..device.profile.fields.len() {
-                let followed = Followed::new(device.clone(), Some(idx));
-                self.streams.insert((n, idx), followed.into_stream());
+                self.insert((n, idx), Followed::new(device.clone(), Some(idx)));
             }
         }
     }
@@ -260,9 +268,7 @@ impl Subscription {
             ));
         }
         for (n, device, idx) in grown {
-            let followed = Followed::new(device, Some(idx));
-            self.streams
-                .insert((n, idx + NEW_FIELDS), followed.into_stream());
+            self.insert((n, idx + NEW_FIELDS), Followed::new(device, Some(idx)));
         }
         for (k, device) in new.iter().enumerate() {
             self.follow(first + k, device, diagnostics, values);
@@ -284,9 +290,8 @@ impl Stream for Subscription {
             self.take_in_new();
         }
         match self.streams.poll_next_unpin(cx) {
-            Poll::Ready(Some((_, change))) => Poll::Ready(Some(change)),
             Poll::Ready(None) if self.additions.is_some() => Poll::Pending,
-            other => other.map(|o| o.map(|(_, change)| change)),
+            other => other,
         }
     }
 }
@@ -324,7 +329,8 @@ impl Service {
         self.accepting()?;
         let slot = self.stream_slot_for(client)?;
         let mut subscription = Subscription {
-            streams: StreamMap::new(),
+            streams: SelectAll::new(),
+            keys: HashSet::new(),
             additions: None,
         };
         for (n, device) in selection.devices.iter().enumerate() {
@@ -338,10 +344,10 @@ impl Service {
                 .unwrap_or(usize::MAX - 1)
         };
         for f in selection.fields.iter() {
-            let followed = Followed::new(f.device.clone(), Some(f.idx));
-            subscription
-                .streams
-                .insert((position(&f.device), f.idx), followed.into_stream());
+            subscription.insert(
+                (position(&f.device), f.idx),
+                Followed::new(f.device.clone(), Some(f.idx)),
+            );
         }
         if selection.everything {
             let mut set = self.cache.watch_devices();

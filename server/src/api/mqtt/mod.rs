@@ -72,6 +72,8 @@ const FOLLOW_EVERY: Duration = Duration::from_millis(50);
 /// Messages waiting to be published on a connection, at most: changes wait in the service
 /// (newest value per field) while it is full.
 const MAX_OUTBOX: usize = 4096;
+/// Changes taken in one turn of a session, at most (then what they make is written).
+const CHANGES_AT_ONCE: usize = 256;
 /// Live data messages published and not yet confirmed, at most.
 const MAX_UNCONFIRMED: usize = 8192;
 /// Replayed messages published and not yet confirmed, at most.
@@ -414,6 +416,17 @@ async fn sleep_until(at: Option<Instant>) {
 }
 
 /// The next change, or never when there is no subscription.
+/// A change ready now (`Some(None)`: the stream ended), without waiting.
+async fn ready_change(changes: &mut Option<crate::service::Changes>) -> Option<Option<Change>> {
+    use futures_util::StreamExt;
+    let stream = changes.as_mut()?;
+    std::future::poll_fn(|cx| match stream.poll_next_unpin(cx) {
+        std::task::Poll::Ready(next) => std::task::Poll::Ready(Some(next)),
+        std::task::Poll::Pending => std::task::Poll::Ready(None),
+    })
+    .await
+}
+
 async fn next_change(changes: &mut Option<crate::service::Changes>) -> Option<Change> {
     match changes {
         Some(c) => c.next().await,

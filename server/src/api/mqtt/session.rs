@@ -294,7 +294,10 @@ impl Task {
             Event::Packet(Ok(p)) => return self.incoming(online, p).await,
             Event::Packet(Err(e)) => return Err(e),
             Event::KeepAlive => online.conn.keep_alive().await?,
-            Event::Change(Some(change)) => self.on_change(change, Some(online)),
+            Event::Change(Some(change)) => {
+                self.on_change(change, Some(online));
+                self.ready_changes(online, inputs).await;
+            }
             Event::Change(None) => inputs.changes = None,
             Event::Due(key) => self.heartbeat(key, Some(online)),
             Event::Devices => {
@@ -305,6 +308,25 @@ impl Task {
             Event::Timer => self.tick(Some(online)),
         }
         Ok(None)
+    }
+
+    /// Takes the changes that are ready now, up to [`CHANGES_AT_ONCE`] and while the outbox
+    /// has room, so that a burst of changes is published in a few writes rather than one
+    /// each, and the first of a burst leave before the last are encoded.
+    async fn ready_changes(&mut self, online: &mut Online, inputs: &mut Inputs) {
+        for _ in 1..CHANGES_AT_ONCE {
+            if online.outbox.len() >= MAX_OUTBOX || online.live.len() >= MAX_UNCONFIRMED {
+                return;
+            }
+            match ready_change(&mut inputs.changes).await {
+                Some(Some(change)) => self.on_change(change, Some(&mut *online)),
+                Some(None) => {
+                    inputs.changes = None;
+                    return;
+                }
+                None => return,
+            }
+        }
     }
 
     /// Subscriptions (again after every reconnect: a clean session forgets them), then the
