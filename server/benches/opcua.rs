@@ -41,6 +41,9 @@ async fn session(url: &str, seen: Seen, nodes: Vec<NodeId>) -> anyhow::Result<Ar
         .trust_server_certs(true)
         .create_sample_keypair(false)
         .session_retry_limit(1)
+        // Arrays past async-opcua's default 1,000, for a server that answers with more
+        // notifications at once (`max_notifications_per_publish`).
+        .max_array_length(100_000)
         .client()
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let (session, event_loop) = client
@@ -220,6 +223,17 @@ async fn main() -> anyhow::Result<()> {
     );
     let plain = common::start(&plain_dir, &plain_config)?;
     let url = format!("opc.tcp://127.0.0.1:{port}/");
+    // The same with ten thousand notifications allowed in a publish answer.
+    let wide_dir = common::temp_dir("opcua-wide")?;
+    let wide_port = common::free_port()?;
+    let wide = common::start(
+        &wide_dir,
+        &config.replace(
+            &format!("listen: 127.0.0.1:{port},"),
+            &format!("listen: 127.0.0.1:{wide_port}, max_notifications_per_publish: 10000,"),
+        ),
+    )?;
+    let wide_url = format!("opc.tcp://127.0.0.1:{wide_port}/");
     // The namespace index: the server's namespace array is [UA, application, iogate].
     let ns = 2;
     let idle_rss = common::rss_kib(gw.child.id()) as f64 / 1024.0;
@@ -228,8 +242,18 @@ async fn main() -> anyhow::Result<()> {
         scenario("the same without opcua:", &plain, &url, ns, 0, 0).await?,
         scenario("1 session x 10,000 items", &gw, &url, ns, 1, DEVICES).await?,
         scenario("50 sessions x 100 items", &gw, &url, ns, 50, 1).await?,
+        scenario(
+            "1 session x 10,000 items, max_notifications_per_publish: 10000",
+            &wide,
+            &wide_url,
+            ns,
+            1,
+            DEVICES,
+        )
+        .await?,
     ];
     drop(plain);
+    drop(wide);
     // Against the same server under the same load with no session (the allocator's growth
     // under the load is not the items').
     let per_item = (rows[2].rss_mib - rows[0].rss_mib) * 1024.0 / (DEVICES * FIELDS) as f64;

@@ -25,6 +25,9 @@ input is a command, answered by one JSON line:
                                             -> {"good": K, "refused": {STATUS: COUNT}} (N items
                                                on one node, 1,000 a call, on a subscription of
                                                its own)
+    {"cmd": "message_sizes"}                -> {"sizes": [K]} (the notifications in each data
+                                               change message of that subscription since
+                                               the last ask)
     {"cmd": "path", "path": ["2:iogate", ...]}
                                             -> {"id": ID} (a browse path from Objects)
     {"cmd": "read_many", "node": ID, "count": N}
@@ -90,6 +93,14 @@ class Handler:
         self.event.set()
 
 
+def counted(call, sizes):
+    """`call` (a subscription's data change handling), noting each message's size."""
+    async def wrapped(notification):
+        sizes.append(len(notification.MonitoredItems))
+        await call(notification)
+    return wrapped
+
+
 async def main():
     args = sys.argv[1:]
     url = args.pop(0)
@@ -118,6 +129,7 @@ async def main():
     out({"connected": True, "ns": ns})
     handler = Handler()
     sub = None
+    sizes = []
     reader = asyncio.StreamReader()
     await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
     try:
@@ -191,6 +203,7 @@ async def main():
                     out({"subscribed": 1})
                 elif c["cmd"] == "monitor_many":
                     many = await client.create_subscription(1000, handler)
+                    many._call_datachange = counted(many._call_datachange, sizes)
                     good, refused = 0, {}
                     left = c["count"]
                     while left > 0:
@@ -202,6 +215,9 @@ async def main():
                             else:
                                 good += 1
                     out({"good": good, "refused": refused})
+                elif c["cmd"] == "message_sizes":
+                    out({"sizes": list(sizes)})
+                    sizes.clear()
                 elif c["cmd"] == "read_many":
                     params = ua.ReadParameters()
                     for _ in range(c["count"]):

@@ -423,3 +423,52 @@ async fn security_refusals_are_each_counted() {
     assert_eq!(after - before, 2, "each refusal counted once");
     gw.shutdown().await;
 }
+
+/// The sizes of the data change messages that bring 8,000 items' first values on one node
+/// to asyncua, with the server's `extra` keys.
+async fn first_values_in_messages(name: &str, extra: &str) -> Vec<u64> {
+    let (gw, _) = plant(name, extra).await;
+    let mut ua = client(&gw).await;
+    let many = ua
+        .cmd(json!({"cmd": "monitor_many", "node": "plant.Level", "count": 8000}))
+        .await
+        .expect("items");
+    assert_eq!(many["good"], 8000, "{many}");
+    let mut sizes: Vec<u64> = Vec::new();
+    let deadline = tokio::time::Instant::now() + iogate_tests::PATIENCE;
+    while sizes.iter().sum::<u64>() < 8000 {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the first values not delivered: {sizes:?}"
+        );
+        let seen = ua
+            .cmd(json!({"cmd": "message_sizes"}))
+            .await
+            .expect("sizes");
+        let got = seen["sizes"].as_array().cloned().unwrap_or_default();
+        sizes.extend(got.iter().filter_map(|n| n.as_u64()));
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+    gw.shutdown().await;
+    sizes
+}
+
+#[tokio::test]
+async fn a_burst_of_changes_is_answered_in_messages_within_the_count_and_the_size() {
+    // By default a thousand notifications an answer, what async-opcua's clients decode.
+    let sizes = first_values_in_messages("opcua-burst", "").await;
+    assert_eq!(sizes.iter().copied().max(), Some(1000), "{sizes:?}");
+    // With more allowed, an answer is closed by its size: 8,000 values of about 30 bytes
+    // each as encoded (240 KB) go in two answers, not one past the 160 KiB.
+    let sizes = first_values_in_messages(
+        "opcua-burst-more",
+        "  max_notifications_per_publish: 20000\n",
+    )
+    .await;
+    let largest = sizes.iter().copied().max().unwrap_or(0);
+    assert!(largest > 1000, "answers of at most {largest}: {sizes:?}");
+    assert!(
+        largest < 8000,
+        "one answer carried the whole burst: {sizes:?}"
+    );
+}

@@ -24,6 +24,7 @@ const KEYS: &[&str] = &[
     "max_monitored_items",
     "max_connections",
     "max_connections_per_client",
+    "max_notifications_per_publish",
 ];
 
 pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:4840";
@@ -39,6 +40,11 @@ pub(crate) const DEFAULT_MAX_MONITORED_ITEMS_TOTAL: usize = 50_000;
 /// and for short discovery connections beside them.
 pub(crate) const DEFAULT_MAX_CONNECTIONS: usize = 256;
 pub(crate) const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = 64;
+/// Notifications in one publish answer, at most, by default (a client may ask for fewer):
+/// async-opcua's clients decode arrays of at most 1,000 by default, and a longer answer
+/// would end their session. An answer is also closed at about 160 KiB of notifications.
+pub(crate) const DEFAULT_MAX_NOTIFICATIONS_PER_PUBLISH: usize = 1000;
+const MAX_NOTIFICATIONS_PER_PUBLISH: usize = 100_000;
 /// The most sessions, subscriptions per session and items per subscription configurable.
 const MAX_SESSIONS: usize = 10_000;
 const MAX_SUBSCRIPTIONS: usize = 1_000;
@@ -119,6 +125,8 @@ pub struct OpcUaConfig {
     pub(crate) max_monitored_items_per_subscription: usize,
     /// Monitored items of every session together.
     pub(crate) max_monitored_items: usize,
+    /// Notifications in one publish answer, at most.
+    pub(crate) max_notifications_per_publish: usize,
     /// TCP connections open at once, and from one IP address.
     pub(crate) max_connections: usize,
     pub(crate) max_connections_per_client: usize,
@@ -187,6 +195,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_items_total,
         max_connections,
         max_per_client,
+        max_notifications,
     ] = limits(&mut map, report);
     map.finish(report, ctx, KEYS);
     if certificate.is_some() != private_key.is_some() {
@@ -214,6 +223,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_monitored_items: max_items_total?,
         max_connections: max_connections?,
         max_connections_per_client: max_per_client?,
+        max_notifications_per_publish: max_notifications?,
         line: node.line,
     })
 }
@@ -283,8 +293,9 @@ fn anonymous(text: &str, line: u64, report: &mut Report) -> Option<Anonymous> {
     }
 }
 
-/// The sessions', subscriptions', monitored items' and connections' bounds, in that order.
-fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<usize>; 6] {
+/// The sessions', subscriptions', monitored items' and connections' bounds and the
+/// notifications in a publish answer, in that order.
+fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<usize>; 7] {
     [
         ("max_sessions", DEFAULT_MAX_SESSIONS, MAX_SESSIONS),
         (
@@ -307,6 +318,11 @@ fn limits(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> [Option<
             "max_connections_per_client",
             DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
             4 * MAX_SESSIONS,
+        ),
+        (
+            "max_notifications_per_publish",
+            DEFAULT_MAX_NOTIFICATIONS_PER_PUBLISH,
+            MAX_NOTIFICATIONS_PER_PUBLISH,
         ),
     ]
     .map(|(key, default, max)| match map.get(key) {

@@ -34,8 +34,6 @@ use space::Ids;
 pub(crate) use status::OpcUaState;
 use status::Probe;
 
-/// Notifications in one publish answer, at most.
-const MAX_NOTIFICATIONS_PER_PUBLISH: u64 = 1000;
 /// Nodes (or items) in one call of each service, at most, as advertised in
 /// ServerCapabilities/OperationLimits.
 const MAX_OPERATIONS: usize = 1000;
@@ -372,12 +370,14 @@ fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
         limits.subscriptions.max_subscriptions_per_session = config.max_subscriptions_per_session;
         limits.subscriptions.max_monitored_items_per_sub =
             config.max_monitored_items_per_subscription;
-        // A publish answer carries at most this many notifications (about 30 KB), so that
-        // thousands of changes at once go in several answers within the message size
-        // instead of one the client cannot take.
         limits.max_connections = config.max_connections;
         limits.max_connections_per_client = config.max_connections_per_client;
-        limits.subscriptions.max_notifications_per_publish = MAX_NOTIFICATIONS_PER_PUBLISH;
+        // A publish answer carries at most this many notifications (a thousand by default,
+        // what async-opcua's clients decode) and is closed at about 160 KiB (the vendored
+        // library's `MAX_NOTIFICATION_BYTES`), well within the message size clients
+        // negotiate: a burst of changes goes in several answers, each one a client takes.
+        limits.subscriptions.max_notifications_per_publish =
+            config.max_notifications_per_publish as u64;
         limits.subscriptions.min_publishing_interval_ms = MIN_INTERVAL_MS as f64;
         limits.subscriptions.min_sampling_interval_ms = MIN_INTERVAL_MS as f64;
         // The operation limits the server advertises are the ones it keeps: a request past

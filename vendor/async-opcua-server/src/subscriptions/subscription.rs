@@ -10,6 +10,52 @@ use tracing::{debug, trace, warn};
 
 use super::monitored_item::{MonitoredItem, Notification};
 
+/// A notification message is closed once its notifications' encoded size reaches this
+/// many bytes (as well as at the subscription's maximum count), so that a burst of
+/// thousands of changes goes in a few messages, each well below the 327,675-byte message
+/// clients and servers commonly negotiate.
+pub(crate) const MAX_NOTIFICATION_BYTES: usize = 160 * 1024;
+
+/// Sizes notifications as they are encoded.
+static SIZE_CONTEXT: std::sync::LazyLock<opcua_types::ContextOwned> =
+    std::sync::LazyLock::new(opcua_types::ContextOwned::default);
+
+/// Notifications gathered for the next notification message, with their encoded size.
+#[derive(Default)]
+struct Pending {
+    items: Vec<Notification>,
+    bytes: usize,
+}
+
+impl Pending {
+    /// Adds `notif`; closes a message into `messages` once full.
+    fn push(
+        &mut self,
+        notif: Notification,
+        max_count: usize,
+        messages: &mut Vec<NotificationMessage>,
+        sequence_numbers: &mut Handle,
+        now: &DateTimeUtc,
+    ) {
+        use opcua_types::BinaryEncodable;
+        let ctx = SIZE_CONTEXT.context();
+        self.bytes += match &notif {
+            Notification::MonitoredItemNotification(n) => n.byte_len(&ctx),
+            Notification::Event(e) => e.byte_len(&ctx),
+        };
+        self.items.push(notif);
+        if (max_count > 0 && self.items.len() >= max_count) || self.bytes >= MAX_NOTIFICATION_BYTES
+        {
+            self.bytes = 0;
+            messages.push(Subscription::make_notification_message(
+                sequence_numbers.next(),
+                std::mem::take(&mut self.items),
+                now,
+            ));
+        }
+    }
+}
+
 #[derive(Debug, Copy, Clone, PartialEq)]
 /// Current internal state of the subscription.
 pub enum SubscriptionState {
@@ -559,7 +605,7 @@ impl Subscription {
         &mut self,
         now: &DateTimeUtc,
         triggers: Vec<(u32, u32)>,
-        notifications: &mut Vec<Notification>,
+        notifications: &mut Pending,
         messages: &mut Vec<NotificationMessage>,
     ) {
         for (triggering_item, item_id) in triggers {
@@ -571,16 +617,13 @@ impl Subscription {
             };
 
             while let Some(notif) = item.pop_notification() {
-                notifications.push(notif);
-                if notifications.len() >= self.max_notifications_per_publish
-                    && self.max_notifications_per_publish > 0
-                {
-                    messages.push(Self::make_notification_message(
-                        self.sequence_number.next(),
-                        std::mem::take(notifications),
-                        now,
-                    ));
-                }
+                notifications.push(
+                    notif,
+                    self.max_notifications_per_publish,
+                    messages,
+                    &mut self.sequence_number,
+                    now,
+                );
             }
         }
     }
@@ -615,7 +658,7 @@ impl Subscription {
         resend_data: bool,
         max_notifications: usize,
         triggers: &mut Vec<(u32, u32)>,
-        notifications: &mut Vec<Notification>,
+        notifications: &mut Pending,
         messages: &mut Vec<NotificationMessage>,
         sequence_numbers: &mut Handle,
     ) {
@@ -637,14 +680,7 @@ impl Subscription {
             }
             if monitored_item.has_notifications() {
                 while let Some(notif) = monitored_item.pop_notification() {
-                    notifications.push(notif);
-                    if notifications.len() >= max_notifications && max_notifications > 0 {
-                        messages.push(Self::make_notification_message(
-                            sequence_numbers.next(),
-                            std::mem::take(notifications),
-                            now,
-                        ));
-                    }
+                    notifications.push(notif, max_notifications, messages, sequence_numbers, now);
                 }
             }
         }
@@ -655,7 +691,7 @@ impl Subscription {
         now: &DateTimeUtc,
         resend_data: bool,
     ) -> Vec<NotificationMessage> {
-        let mut notifications = Vec::new();
+        let mut notifications = Pending::default();
         let mut messages = Vec::new();
         let mut triggers = Vec::new();
 
@@ -693,10 +729,10 @@ impl Subscription {
 
         self.handle_triggers(now, triggers, &mut notifications, &mut messages);
 
-        if !notifications.is_empty() {
+        if !notifications.items.is_empty() {
             messages.push(Self::make_notification_message(
                 self.sequence_number.next(),
-                notifications,
+                notifications.items,
                 now,
             ));
         }
