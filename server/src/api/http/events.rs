@@ -55,30 +55,40 @@ fn event(name: &str, data: &impl Serialize) -> Bytes {
     Bytes::from(text)
 }
 
-/// Events with a comment after each [`KEEP_ALIVE`] without one.
+/// Events with a comment after each [`KEEP_ALIVE`] without one. An event only notes its
+/// time; the timer is moved when it fires (not at every event: a timer reset takes the
+/// runtime's timer lock, which a thousand streams given the same change would queue on).
 struct KeptAlive<S> {
     events: S,
     quiet: Pin<Box<tokio::time::Sleep>>,
+    last: tokio::time::Instant,
 }
 
 impl<S: Stream<Item = Bytes> + Unpin> Stream for KeptAlive<S> {
     type Item = Result<Bytes, Infallible>;
 
     fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
-        let next = tokio::time::Instant::now() + KEEP_ALIVE;
         match self.events.poll_next_unpin(cx) {
             Poll::Ready(Some(event)) => {
-                self.quiet.as_mut().reset(next);
+                self.last = tokio::time::Instant::now();
                 Poll::Ready(Some(Ok(event)))
             }
             Poll::Ready(None) => Poll::Ready(None),
-            Poll::Pending => {
+            Poll::Pending => loop {
                 if self.quiet.as_mut().poll(cx).is_pending() {
                     return Poll::Pending;
                 }
-                self.quiet.as_mut().reset(next);
-                Poll::Ready(Some(Ok(Bytes::from_static(b":\n\n"))))
-            }
+                let due = self.last + KEEP_ALIVE;
+                if due > self.quiet.deadline() {
+                    // An event came since the timer was set: wait from that one.
+                    self.quiet.as_mut().reset(due);
+                    continue;
+                }
+                let now = tokio::time::Instant::now();
+                self.last = now;
+                self.quiet.as_mut().reset(now + KEEP_ALIVE);
+                return Poll::Ready(Some(Ok(Bytes::from_static(b":\n\n"))));
+            },
         }
     }
 }
@@ -187,6 +197,7 @@ pub(crate) async fn events(
     let stream = KeptAlive {
         events: futures_util::stream::select(stream, transactions),
         quiet: Box::pin(tokio::time::sleep(KEEP_ALIVE)),
+        last: tokio::time::Instant::now(),
     };
     Ok((
         [
@@ -196,4 +207,32 @@ pub(crate) async fn events(
         Body::from_stream(stream),
     )
         .into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn a_comment_comes_after_fifteen_quiet_seconds_counted_from_the_last_event() {
+        let (tx, rx) = tokio::sync::mpsc::unbounded_channel::<Bytes>();
+        let mut stream = KeptAlive {
+            events: tokio_stream::wrappers::UnboundedReceiverStream::new(rx),
+            quiet: Box::pin(tokio::time::sleep(KEEP_ALIVE)),
+            last: tokio::time::Instant::now(),
+        };
+        let start = tokio::time::Instant::now();
+        tokio::time::sleep(Duration::from_secs(10)).await;
+        tx.send(Bytes::from_static(b"event")).expect("send");
+        let first = stream.next().await.and_then(|e| e.ok());
+        assert_eq!(first.as_deref(), Some(&b"event"[..]));
+        // Quiet since the event at 10 s: the comment at 25 s, not at 15 s.
+        let comment = stream.next().await.and_then(|e| e.ok());
+        assert_eq!(comment.as_deref(), Some(&b":\n\n"[..]));
+        assert_eq!(start.elapsed(), Duration::from_secs(25));
+        // And the next after fifteen more.
+        let comment = stream.next().await.and_then(|e| e.ok());
+        assert_eq!(comment.as_deref(), Some(&b":\n\n"[..]));
+        assert_eq!(start.elapsed(), Duration::from_secs(40));
+    }
 }
