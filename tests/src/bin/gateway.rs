@@ -7,6 +7,11 @@
 use std::io::Write;
 use std::path::PathBuf;
 
+/// The shipped binary's allocator (`server/src/main.rs`), so that what the benchmarks and
+/// the soak measure of this process is what `iogate serve` would do.
+#[global_allocator]
+static ALLOCATOR: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
+
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     tracing_subscriber::fmt()

@@ -11,7 +11,7 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::Instant;
 
-use super::packet::{self, Connect, Incoming, PacketError, Publish};
+use super::packet::{self, Connect, Incoming, PacketError};
 use crate::api::mqtt::config::{MqttConfig, MqttVersion};
 
 /// How long connecting (TCP, TLS and the CONNACK) may take.
@@ -222,22 +222,7 @@ impl Connection {
     /// handed on to be reported.
     pub(crate) async fn read(&mut self) -> Result<Incoming, ConnError> {
         loop {
-            if let Some(packet) = packet::decode(self.version, &mut self.buf)? {
-                if let Incoming::Disconnect { code } = packet {
-                    return Err(ConnError::Disconnected(code));
-                }
-                if let Incoming::Dropped { pkid, rest, .. } = &packet {
-                    self.skip = *rest;
-                    if let Some(pkid) = *pkid {
-                        self.puback(pkid).await?;
-                    }
-                }
-                if packet == Incoming::PingResp {
-                    self.ping_sent = None;
-                    // The broker answers packets in order: every publish before the ping
-                    // has been received.
-                    self.confirmed.append(&mut self.ping_covers);
-                }
+            if let Some(packet) = self.read_buffered().await? {
                 return Ok(packet);
             }
             let mut chunk = [0u8; 4096];
@@ -249,6 +234,30 @@ impl Connection {
             self.skip -= past;
             self.buf.extend_from_slice(&chunk[past..n]);
         }
+    }
+
+    /// The next packet already read whole from the socket, if any (as [`Self::read`], but
+    /// never waiting for the broker).
+    pub(crate) async fn read_buffered(&mut self) -> Result<Option<Incoming>, ConnError> {
+        let Some(packet) = packet::decode(self.version, &mut self.buf)? else {
+            return Ok(None);
+        };
+        if let Incoming::Disconnect { code } = packet {
+            return Err(ConnError::Disconnected(code));
+        }
+        if let Incoming::Dropped { pkid, rest, .. } = &packet {
+            self.skip = *rest;
+            if let Some(pkid) = *pkid {
+                self.puback(pkid).await?;
+            }
+        }
+        if packet == Incoming::PingResp {
+            self.ping_sent = None;
+            // The broker answers packets in order: every publish before the ping has been
+            // received.
+            self.confirmed.append(&mut self.ping_covers);
+        }
+        Ok(Some(packet))
     }
 
     /// When the keep-alive needs attention: a ping to send, or an answer overdue.
@@ -314,22 +323,19 @@ impl Connection {
         tag: u64,
     ) -> Result<(), ConnError> {
         let pkid = if qos > 0 { self.take_pkid() } else { 0 };
-        let bytes = packet::publish(
+        packet::write_publish(
             self.version,
-            &Publish {
-                topic: topic.to_owned(),
-                payload: payload.to_vec(),
-                qos,
-                retain,
-                pkid,
-            },
+            &mut self.out,
+            topic,
+            payload,
+            (qos, retain),
+            pkid,
         );
         if qos > 0 {
             self.inflight.insert(pkid, tag);
         } else if tag != 0 {
             self.unconfirmed.push(tag);
         }
-        self.out.extend_from_slice(&bytes);
         if self.out.len() >= WRITE_BATCH {
             self.flush().await?;
         }

@@ -74,6 +74,8 @@ const FOLLOW_EVERY: Duration = Duration::from_millis(50);
 const MAX_OUTBOX: usize = 4096;
 /// Changes taken in one turn of a session, at most (then what they make is written).
 const CHANGES_AT_ONCE: usize = 256;
+/// Packets from the broker handled in one turn of a session, at most.
+const PACKETS_AT_ONCE: usize = 1024;
 /// Live data messages published and not yet confirmed, at most.
 const MAX_UNCONFIRMED: usize = 8192;
 /// Replayed messages published and not yet confirmed, at most.

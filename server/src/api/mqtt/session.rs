@@ -291,7 +291,7 @@ impl Task {
     ) -> Result<Option<Ended>, ConnError> {
         match event {
             Event::Shutdown => return Ok(Some(Ended::Shutdown)),
-            Event::Packet(Ok(p)) => return self.incoming(online, p).await,
+            Event::Packet(Ok(p)) => return self.packets(online, p).await,
             Event::Packet(Err(e)) => return Err(e),
             Event::KeepAlive => online.conn.keep_alive().await?,
             Event::Change(Some(change)) => {
@@ -306,6 +306,24 @@ impl Task {
             }
             Event::Replay => self.replay(online).await?,
             Event::Timer => self.tick(Some(online)),
+        }
+        Ok(None)
+    }
+
+    /// `first` and the packets read whole behind it: the broker's acknowledgements of a
+    /// burst come together, and are taken together rather than one a turn of the session.
+    async fn packets(
+        &mut self,
+        online: &mut Online,
+        first: Incoming,
+    ) -> Result<Option<Ended>, ConnError> {
+        let mut next = Some(first);
+        for _ in 0..PACKETS_AT_ONCE {
+            let Some(p) = next.take() else { break };
+            if let Some(ended) = self.incoming(online, p).await? {
+                return Ok(Some(ended));
+            }
+            next = online.conn.read_buffered().await?;
         }
         Ok(None)
     }

@@ -16,8 +16,10 @@ use crate::api::mqtt::config::MqttVersion;
 pub(crate) use connect::{Connect, Will, connack_reason, connect};
 pub(crate) use disconnect::disconnect;
 pub(crate) use ping::pingreq;
+#[cfg(test)]
+pub(crate) use publish::publish;
 use publish::publish_head;
-pub(crate) use publish::{Publish, puback, publish};
+pub(crate) use publish::{Publish, puback, write_publish};
 pub(crate) use subscribe::subscribe;
 
 /// The largest packet the gateway takes from a broker (MQTT 5 announces it as the Maximum

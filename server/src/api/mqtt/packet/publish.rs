@@ -13,21 +13,49 @@ pub(crate) struct Publish {
     pub(crate) pkid: u16,
 }
 
+/// A PUBLISH on its own, as the tests take it.
+#[cfg(test)]
 pub(crate) fn publish(version: MqttVersion, p: &Publish) -> Vec<u8> {
-    let mut body = Vec::with_capacity(p.topic.len() + p.payload.len() + 8);
-    put_str(&mut body, &p.topic);
-    if p.qos > 0 {
-        put_u16(&mut body, p.pkid);
-    }
-    if version == MqttVersion::V5 {
-        put_varint(&mut body, 0);
-    }
-    body.extend_from_slice(&p.payload);
-    let mut first = 0x30 | (p.qos.min(1) << 1);
-    if p.retain {
+    let mut out = Vec::with_capacity(p.topic.len() + p.payload.len() + 16);
+    write_publish(
+        version,
+        &mut out,
+        &p.topic,
+        &p.payload,
+        (p.qos, p.retain),
+        p.pkid,
+    );
+    out
+}
+
+/// A PUBLISH appended to `out` as it goes on the wire (no copy of its own): `flags` are
+/// the QoS and retain.
+pub(crate) fn write_publish(
+    version: MqttVersion,
+    out: &mut Vec<u8>,
+    topic: &str,
+    payload: &[u8],
+    (qos, retain): (u8, bool),
+    pkid: u16,
+) {
+    let topic_len = topic.len().min(usize::from(u16::MAX));
+    let v5 = version == MqttVersion::V5;
+    let remaining = 2 + topic_len + if qos > 0 { 2 } else { 0 } + usize::from(v5) + payload.len();
+    let mut first = 0x30 | (qos.min(1) << 1);
+    if retain {
         first |= 0x01;
     }
-    frame(first, &body)
+    out.reserve(remaining + 5);
+    out.push(first);
+    put_varint(out, remaining);
+    put_str(out, topic);
+    if qos > 0 {
+        put_u16(out, pkid);
+    }
+    if v5 {
+        put_varint(out, 0);
+    }
+    out.extend_from_slice(payload);
 }
 
 pub(crate) fn puback(pkid: u16) -> Vec<u8> {
