@@ -258,9 +258,12 @@ impl Task {
             let event = tokio::select! {
                 biased;
                 _ = inputs.token.cancelled() => Event::Shutdown,
+                // Changes before the broker's packets: a burst's acknowledgements do not
+                // hold back its later changes (the window's own bound, `can_take`, lets the
+                // acknowledgements in when publishing has to wait for them).
+                change = next_change(&mut inputs.changes), if can_take => Event::Change(change),
                 packet = online.conn.read() => Event::Packet(packet),
                 _ = sleep_until(keep_alive) => Event::KeepAlive,
-                change = next_change(&mut inputs.changes), if can_take => Event::Change(change),
                 key = self.reporter.due(), if can_take => Event::Due(key),
                 _ = inputs.devices_changed.changed() => Event::Devices,
                 _ = replay_timer.tick(), if replaying => Event::Replay,
