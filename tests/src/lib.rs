@@ -7,6 +7,7 @@ use iogate::app::{self, Running, Setup};
 
 pub mod browser;
 pub mod devices;
+pub mod eip;
 pub mod line;
 pub mod mqtt;
 pub mod opcua;

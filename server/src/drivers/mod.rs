@@ -13,6 +13,7 @@
 //! (`LinkFault`, through the `Result` of each call: an error ends the session) and the
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
+pub(crate) mod eip;
 pub(crate) mod modbus;
 pub mod opcua;
 pub(crate) mod s7;
@@ -43,6 +44,9 @@ pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::
     }
     if s7::S7::serves(config) {
         return Some(f.with::<s7::S7>());
+    }
+    if eip::Eip::serves(config) {
+        return Some(f.with::<eip::Eip>());
     }
     None
 }

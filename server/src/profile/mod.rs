@@ -1,6 +1,7 @@
 //! Device profiles: the model, loading with validation, and the generated FB layout.
 
 pub(crate) mod deadband;
+pub(crate) mod eip_tag;
 pub mod import;
 pub(crate) mod keywords;
 mod layout;

@@ -1,7 +1,7 @@
 //! The words each field protocol besides Modbus uses in configuration: its profiles'
 //! `protocol`, its fields' point key and how a point is checked, its links' settings key.
 
-use super::{point, s7_form};
+use super::{eip_tag, point, s7_form};
 use crate::codec::IecType;
 
 /// The words configuration uses for a field protocol besides Modbus: its profiles'
@@ -66,5 +66,15 @@ pub(crate) const DRIVERS: &[Words] = &[
         check_point: s7_form::check,
         example: "DB10.DBD6",
         scaled: true,
+    },
+    Words {
+        protocol: "ab-eip",
+        point_key: "tag",
+        point_alternative: None,
+        link_key: "eip",
+        link_at: "host",
+        check_point: eip_tag::check,
+        example: "Program:Main.Speed",
+        scaled: false,
     },
 ];

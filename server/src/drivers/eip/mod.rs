@@ -1,0 +1,334 @@
+//! Allen-Bradley Logix controllers as devices (`protocol: ab-eip`): EtherNet/IP explicit
+//! messages, written here (ARCHITECTURE.md says why). A link is a controller (`eip:` with
+//! `host` and the `path` to it); a field names its `tag` as Logix users write it. A device's
+//! tags are read in Multiple Service Packets as large as an unconnected message allows; each
+//! tag's CIP status is its own field's error; a bit of an integer is written with
+//! Read-Modify-Write Tag, never by writing the whole integer.
+
+mod cip;
+mod config;
+mod conn;
+mod value;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use super::{Driver, Read, Session, finish, written};
+use crate::cache::{Device, FieldError, Link, Progress, WriteError};
+use crate::config::{LinkConfig, Transport};
+use crate::link::LinkFault;
+use crate::metrics::Metrics;
+use crate::plan::WriteItem;
+use crate::profile::eip_tag::{self, Tag};
+use conn::{Connection, EipError};
+
+/// The EtherNet/IP driver.
+pub(crate) struct Eip;
+
+/// Its links' key.
+pub(crate) const LINK_KEY: &str = "eip";
+
+/// An unconnected message's data, at most, each way: what every Logix controller takes.
+const MESSAGE: usize = 480;
+
+/// What is kept of a device: each field's tag (or why it has none) and the type the
+/// controller answered for it (a bit's integer, for its writes).
+pub(crate) struct Plan {
+    tags: Vec<Result<Tag, String>>,
+    codes: Vec<Option<u16>>,
+}
+
+/// An open connection to a controller.
+pub(crate) struct Controller {
+    conn: Connection,
+    progress: Arc<Progress>,
+    timeout: Duration,
+}
+
+fn lost(e: EipError) -> LinkFault {
+    LinkFault::Lost(Arc::new(std::io::Error::other(e.to_string())))
+}
+
+impl Driver for Eip {
+    type Plan = Plan;
+    type Session = Controller;
+    const NAME: &'static str = "ab-eip";
+
+    fn serves(config: &LinkConfig) -> bool {
+        matches!(&config.transport, Transport::Driver(d) if d.protocol == LINK_KEY)
+    }
+
+    fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
+        if let Transport::Driver(d) = &config.transport {
+            config::read(&config.name, d, report);
+        }
+    }
+
+    fn plan(device: &Device) -> Plan {
+        let tags: Vec<Result<Tag, String>> = device
+            .profile
+            .fields
+            .iter()
+            .map(|f| {
+                let point = f.point.as_ref().ok_or("the field has no tag")?;
+                eip_tag::parse(&point.address)
+            })
+            .collect();
+        Plan {
+            codes: vec![None; tags.len()],
+            tags,
+        }
+    }
+
+    async fn open(
+        config: &LinkConfig,
+        link: &Arc<Link>,
+        _metrics: &Arc<Metrics>,
+    ) -> Result<Controller, LinkFault> {
+        let Transport::Driver(d) = &config.transport else {
+            return Err(LinkFault::NoPort);
+        };
+        let mut report = crate::yaml::Report::new("config");
+        let Some(s) = config::read(&config.name, d, &mut report) else {
+            return Err(LinkFault::OpenFailed {
+                port: d.endpoint.clone(),
+                reason: report.into_problems().to_string(),
+            });
+        };
+        let failed = |e: EipError| LinkFault::ConnectFailed {
+            endpoint: format!("{}:{}", s.host, s.port),
+            reason: Arc::new(std::io::Error::other(e.to_string())),
+        };
+        let mut conn = Connection::open((s.host.as_str(), s.port), s.route.clone(), s.timeout)
+            .await
+            .map_err(failed)?;
+        if let Some((vendor, product, revision, serial, name)) =
+            conn.identity().await.map_err(failed)?
+        {
+            link.set_peer("vendor", vendor.to_string());
+            link.set_peer("product_code", product.to_string());
+            link.set_peer("product_name", name);
+            link.set_peer("revision", revision);
+            link.set_peer("serial_number", format!("{serial:#010x}"));
+        }
+        Ok(Controller {
+            conn,
+            progress: link.progress.clone(),
+            timeout: s.timeout,
+        })
+    }
+}
+
+/// The device's readable fields packed into packets: each within [`MESSAGE`] both ways.
+fn packets(plan: &Plan, device: &Device) -> Vec<Vec<usize>> {
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    let (mut asked, mut answered) = (0usize, 0usize);
+    for (idx, tag) in plan.tags.iter().enumerate() {
+        let Ok(tag) = tag else { continue };
+        let ask = 2 + 2 + tag.path.len() + 2;
+        let code = plan.codes[idx].or_else(|| eip_tag::type_code(device.profile.fields[idx].ty));
+        let answer = 2 + cip::read_reply_len(code.unwrap_or(0xC5));
+        let fits = out.last().is_some_and(|p| {
+            asked + ask + 2 * (p.len() + 1) <= MESSAGE
+                && answered + answer + 2 * (p.len() + 1) <= MESSAGE
+        });
+        if !fits {
+            out.push(Vec::new());
+            (asked, answered) = (8, 8);
+        }
+        if let Some(p) = out.last_mut() {
+            p.push(idx);
+        }
+        asked += ask;
+        answered += answer;
+    }
+    out
+}
+
+impl Controller {
+    /// A request's reply; `Ok(Err)` when the controller refused it whole (an
+    /// encapsulation status: the connection stays in step), `Err` when the link failed.
+    async fn request(&mut self, message: &[u8]) -> Result<Result<Vec<u8>, String>, LinkFault> {
+        self.progress.started(Instant::now() + self.timeout);
+        let answer = self.conn.request(message).await;
+        self.progress.ended();
+        match answer {
+            Ok(reply) => Ok(Ok(reply)),
+            Err(EipError::Malformed(m @ cip::Malformed::Encapsulation(_))) => {
+                Ok(Err(format!("the controller refused the request: {m}")))
+            }
+            Err(e) => Err(lost(e)),
+        }
+    }
+
+    /// Reads one packet's tags and publishes each.
+    async fn read_packet(
+        &mut self,
+        device: &Device,
+        plan: &mut Plan,
+        fields: &[usize],
+    ) -> Result<(), LinkFault> {
+        let requests: Vec<Vec<u8>> = fields
+            .iter()
+            .filter_map(|&i| plan.tags[i].as_ref().ok().map(|t| cip::read_tag(&t.path)))
+            .collect();
+        let answer = self.request(&cip::multiple(&requests)).await?;
+        let now = crate::cache::Stamp::now();
+        let answer = match answer {
+            Ok(a) => a,
+            Err(why) => {
+                for &i in fields {
+                    device.publish_at(i, Err(FieldError::Device(why.clone())), now);
+                }
+                return Ok(());
+            }
+        };
+        let outer = cip::reply(&answer).map_err(|e| lost(e.into()))?;
+        outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
+        if outer.status != 0 && outer.status != 0x1E {
+            let why = cip::cip_status(outer.status, outer.ext);
+            for &i in fields {
+                device.publish_at(i, Err(FieldError::Device(why.clone())), now);
+            }
+            return Ok(());
+        }
+        let replies =
+            cip::multiple_replies(outer.data, fields.len()).map_err(|e| lost(e.into()))?;
+        for (&idx, bytes) in fields.iter().zip(replies) {
+            let field = &device.profile.fields[idx];
+            let bit = plan.tags[idx].as_ref().ok().and_then(|t| t.bit);
+            let result = cip::reply(bytes)
+                .and_then(|r| r.answers(cip::READ_TAG).map(|()| r))
+                .map_err(|e| e.to_string())
+                .and_then(|r| match r.status {
+                    0 => value::decode(r.data, field.ty, bit),
+                    s => Err(cip::cip_status(s, r.ext)),
+                });
+            match result {
+                Ok((code, v)) => {
+                    plan.codes[idx] = Some(code);
+                    device.publish_at(idx, Ok(v), now);
+                }
+                Err(why) => device.publish_at(idx, Err(FieldError::Device(why)), now),
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes one item: Write Tag, or Read-Modify-Write Tag for a bit of an integer.
+    async fn write_item(
+        &mut self,
+        plan: &Plan,
+        device: &Device,
+        item: &WriteItem,
+    ) -> Result<Result<(), String>, LinkFault> {
+        let tag = match &plan.tags[item.field] {
+            Ok(t) => t.clone(),
+            Err(why) => return Ok(Err(why.clone())),
+        };
+        let field = &device.profile.fields[item.field];
+        let service = if tag.bit.is_some() {
+            cip::READ_MODIFY_WRITE
+        } else {
+            cip::WRITE_TAG
+        };
+        let message = match tag.bit {
+            Some(bit) => {
+                let Some(code) = plan.codes[item.field] else {
+                    return Ok(Err(
+                        "the integer holding the bit was not read yet: its size is unknown".into(),
+                    ));
+                };
+                let on = matches!(item.value, iogate_types::Value::Bool(true));
+                match value::bit_masks(code, bit, on) {
+                    Ok(data) => cip::request(cip::READ_MODIFY_WRITE, &tag.path, &data),
+                    Err(why) => return Ok(Err(why)),
+                }
+            }
+            None => match value::encode(&item.value, field.ty) {
+                Ok((code, bytes)) => cip::write_tag(&tag.path, code, &bytes),
+                Err(why) => return Ok(Err(why)),
+            },
+        };
+        let answer = match self.request(&message).await? {
+            Ok(a) => a,
+            Err(why) => return Ok(Err(why)),
+        };
+        let r = cip::reply(&answer).map_err(|e| lost(e.into()))?;
+        r.answers(service).map_err(|e| lost(e.into()))?;
+        Ok(match r.status {
+            0 => Ok(()),
+            s => Err(cip::cip_status(s, r.ext)),
+        })
+    }
+}
+
+impl Session for Controller {
+    type Plan = Plan;
+
+    async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
+        let started = Instant::now();
+        for (idx, tag) in plan.tags.iter().enumerate() {
+            if let Err(why) = tag {
+                device.publish(idx, Err(FieldError::Device(why.clone())));
+            }
+        }
+        for fields in packets(plan, device) {
+            self.read_packet(device, plan, &fields).await?;
+        }
+        Ok(Read::Answered(started.elapsed()))
+    }
+
+    async fn write(
+        &mut self,
+        device: &Arc<Device>,
+        plan: &mut Plan,
+        items: Vec<WriteItem>,
+    ) -> Result<Option<FieldError>, LinkFault> {
+        for item in &items {
+            match self.write_item(plan, device, item).await? {
+                Ok(()) => written(device, item, 1),
+                Err(why) => finish(device, item, Err(WriteError::Refused(why)), 1),
+            }
+        }
+        Ok(None)
+    }
+}
+
+/// A controller's answer as every parser meets it.
+#[cfg(any(fuzzing, test))]
+pub(crate) fn fuzz_answer(data: &[u8]) {
+    use crate::codec::IecType;
+    let asked = usize::from(data.first().copied().unwrap_or(0) % 40);
+    let _ = cip::header(data);
+    let _ = cip::identity(data);
+    if let Ok(mr) = cip::rr_data_reply(data)
+        && let Ok(r) = cip::reply(mr)
+        && let Ok(parts) = cip::multiple_replies(r.data, asked)
+    {
+        for p in parts {
+            if let Ok(one) = cip::reply(p) {
+                for ty in IecType::ALL {
+                    let _ = value::decode(one.data, ty, None);
+                    let _ = value::decode(one.data, ty, Some(asked as u8));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn every_answer_is_taken_apart_without_a_panic() {
+        for data in [
+            &b""[..],
+            b"\x00\x00\x00\x00\x00\x00\x02\x00\x00\x00\x00\x00\xb2\x00\x04\x00\xcc\x00\x00\x00",
+            &[0xFF; 64],
+        ] {
+            super::fuzz_answer(data);
+        }
+    }
+}

@@ -1,0 +1,55 @@
+//! An independent Logix controller for the EtherNet/IP driver's tests: cpppo's simulator
+//! (`tests/eip/plc.py`) serving the tags it is started with, and pylogix (another
+//! implementation) to read what the gateway wrote.
+
+use crate::{PATIENCE, Piped, repo_file, spawn_piped};
+
+/// A running controller.
+pub struct LogixPlc {
+    piped: Piped,
+    /// The port it listens on.
+    pub port: u16,
+}
+
+impl LogixPlc {
+    /// Starts the controller with `tags` (`Speed=REAL`, `Counts=DINT[10]`), on `port` or a
+    /// free one, and waits until it listens.
+    pub async fn start(port: Option<u16>, tags: &[&str]) -> anyhow::Result<LogixPlc> {
+        crate::run_installer("eip/install.sh")?;
+        let mut command = tokio::process::Command::new("python3");
+        command.arg(repo_file("eip/plc.py"));
+        if let Some(p) = port {
+            command.args(["--port", &p.to_string()]);
+        }
+        command.args(tags);
+        let mut piped = spawn_piped(command)?;
+        let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())
+            .await??
+            .ok_or_else(|| anyhow::anyhow!("the controller ended before it listened"))?;
+        let port = line.trim().parse()?;
+        Ok(LogixPlc { piped, port })
+    }
+
+    /// Kills the controller as the operating system would.
+    pub async fn kill(mut self) -> anyhow::Result<()> {
+        self.piped.child.kill().await?;
+        let _ = self.piped.child.wait().await;
+        Ok(())
+    }
+
+    /// The tags' values as pylogix reads them (JSON: each tag's value, or its error).
+    pub async fn read(&self, tags: &[&str]) -> anyhow::Result<serde_json::Value> {
+        let out = tokio::process::Command::new("python3")
+            .arg(repo_file("eip/read.py"))
+            .arg(self.port.to_string())
+            .args(tags)
+            .output()
+            .await?;
+        anyhow::ensure!(
+            out.status.success(),
+            "pylogix: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Ok(serde_json::from_slice(&out.stdout)?)
+    }
+}

@@ -1,0 +1,187 @@
+//! The EtherNet/IP driver against cpppo's Logix simulator (`tests/eip/plc.py`), with pylogix
+//! as the independent reader: every atomic type read and written, an array element, a bit
+//! of an integer read, each tag's CIP status its own field's error, a type that differs from
+//! the profile's named, the controller's identity in the link's state, and the controller
+//! stopped and started again.
+
+use iogate_tests::TestGateway;
+use iogate_tests::devices::temp_dir;
+use iogate_tests::eip::LogixPlc;
+use serde_json::{Value, json};
+
+const TAGS: &[&str] = &[
+    "Speed=REAL",
+    "Counts=DINT[10]",
+    "Flag=BOOL",
+    "Small=SINT",
+    "Word=INT",
+    "Big=LINT",
+    "Us=USINT",
+    "Ui=UINT",
+    "Ud=UDINT",
+    "Ul=ULINT",
+    "Lr=LREAL",
+    "Flags=DINT",
+];
+
+const PROFILE: &str = r#"name: Line
+protocol: ab-eip
+fields:
+  - { name: Speed, type: REAL, direction: inout, tag: Speed }
+  - { name: C3, type: DINT, direction: inout, tag: "Counts[3]" }
+  - { name: Flag, type: BOOL, direction: inout, tag: Flag }
+  - { name: Small, type: SINT, direction: inout, tag: Small }
+  - { name: Wd, type: INT, direction: inout, tag: Word }
+  - { name: Big, type: LINT, direction: inout, tag: Big }
+  - { name: Us, type: USINT, direction: inout, tag: Us }
+  - { name: Ui, type: UINT, direction: inout, tag: Ui }
+  - { name: Ud, type: UDINT, direction: inout, tag: Ud }
+  - { name: Ul, type: ULINT, direction: inout, tag: Ul }
+  - { name: Lr, type: LREAL, direction: inout, tag: Lr }
+  - { name: F5, type: BOOL, direction: input, tag: Flags.5 }
+  - { name: Nope, type: INT, direction: input, tag: Nope }
+  - { name: Wrong, type: REAL, direction: input, tag: "Counts[4]" }
+"#;
+
+async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
+    let dir = temp_dir(name);
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/line.yaml"), PROFILE)?;
+    TestGateway::start(&format!(
+        "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {port}, path: \"1,0\", timeout: 1s }} }}\ndevices:\n  - {{ name: line, profile: Line, link: plc, refresh_rate: 100ms }}\n",
+        dir.join("profiles").display()
+    ))
+    .await
+}
+
+fn field<'a>(device: &'a Value, name: &str) -> &'a Value {
+    &device["fields"][name]
+}
+
+/// The device once every field has been read (good or with its error).
+async fn read_once(gw: &TestGateway) -> anyhow::Result<Value> {
+    gw.until("/api/v1/devices/line", "every tag read", |d| {
+        field(d, "Speed")["quality"] == "good" && field(d, "Nope")["error"].is_string()
+    })
+    .await
+}
+
+/// Writes through REST and waits for the outcome.
+async fn put(gw: &TestGateway, name: &str, value: Value) -> anyhow::Result<Value> {
+    let (status, w) = gw
+        .send(
+            reqwest::Method::PUT,
+            &format!("/api/v1/devices/line/fields/{name}"),
+            json!({ "value": value }).to_string(),
+        )
+        .await?;
+    anyhow::ensure!((200..300).contains(&status), "{status} {w}");
+    let generation = w["generation"].as_u64().unwrap_or(0);
+    let done = gw
+        .until(
+            &format!("/api/v1/devices/line/fields/{name}"),
+            "the write's outcome",
+            |f| {
+                f["last_write"]["generation"].as_u64() >= Some(generation)
+                    && f["last_write"]["status"] != "pending"
+            },
+        )
+        .await?;
+    Ok(done["last_write"].clone())
+}
+
+#[tokio::test]
+async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own() {
+    let plc = LogixPlc::start(None, TAGS).await.expect("controller");
+    let gw = gateway("eip-types", plc.port).await.expect("gateway");
+    let device = read_once(&gw).await.expect("read");
+    for name in [
+        "Speed", "C3", "Flag", "Small", "Wd", "Big", "Us", "Ui", "Ud", "Ul", "Lr", "F5",
+    ] {
+        assert_eq!(field(&device, name)["quality"], "good", "{name}: {device}");
+    }
+    // A tag the controller does not have, and one of another type: their own errors only.
+    let nope = field(&device, "Nope")["error"].as_str().unwrap_or_default();
+    assert!(nope.contains("0x05"), "{nope}");
+    let wrong = field(&device, "Wrong")["error"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(wrong.contains("DINT") && wrong.contains("REAL"), "{wrong}");
+    // The controller's identity.
+    let (_, link) = gw.get("/api/v1/links/plc").await.expect("link");
+    assert!(
+        link["peer"]["product_name"]
+            .as_str()
+            .is_some_and(|n| !n.is_empty()),
+        "{link}"
+    );
+    // Writes of every type, read back by pylogix.
+    for (name, value) in [
+        ("Speed", json!(12.5)),
+        ("C3", json!(-42)),
+        ("Flag", json!(true)),
+        ("Small", json!(-5)),
+        ("Wd", json!(-32768)),
+        ("Big", json!(-9_000_000_000i64)),
+        ("Us", json!(255)),
+        ("Ui", json!(65535)),
+        ("Ud", json!(4_000_000_000u64)),
+        ("Ul", json!(18_000_000_000_000_000_000u64)),
+        ("Lr", json!(2.25)),
+    ] {
+        let outcome = put(&gw, name, value).await.expect("write");
+        assert_eq!(outcome["status"], "written", "{name}: {outcome}");
+    }
+    let seen = plc
+        .read(&[
+            "Speed",
+            "Counts[3]",
+            "Flag",
+            "Small",
+            "Word",
+            "Big",
+            "Us",
+            "Ui",
+            "Ud",
+            "Ul",
+            "Lr",
+        ])
+        .await
+        .expect("pylogix");
+    assert_eq!(
+        seen,
+        json!({"Speed": 12.5, "Counts[3]": -42, "Flag": true, "Small": -5, "Word": -32768,
+               "Big": -9_000_000_000i64, "Us": 255, "Ui": 65535, "Ud": 4_000_000_000u64,
+               "Ul": 18_000_000_000_000_000_000u64, "Lr": 2.25})
+    );
+    gw.shutdown().await;
+    plc.kill().await.expect("kill");
+}
+
+#[tokio::test]
+async fn a_controller_stopped_and_started_again_is_read_again() {
+    let plc = LogixPlc::start(None, TAGS).await.expect("controller");
+    let port = plc.port;
+    let gw = gateway("eip-restart", port).await.expect("gateway");
+    read_once(&gw).await.expect("read");
+    plc.kill().await.expect("kill");
+    gw.until("/api/v1/links/plc", "the link down", |l| {
+        l["connected"] == false
+    })
+    .await
+    .expect("down");
+    let again = LogixPlc::start(Some(port), TAGS).await.expect("again");
+    gw.until("/api/v1/links/plc", "the link back", |l| {
+        l["connected"] == true
+    })
+    .await
+    .expect("back");
+    let outcome = put(&gw, "C3", json!(7)).await.expect("write");
+    assert_eq!(outcome["status"], "written", "{outcome}");
+    assert_eq!(
+        again.read(&["Counts[3]"]).await.expect("pylogix"),
+        json!({"Counts[3]": 7})
+    );
+    gw.shutdown().await;
+    again.kill().await.expect("kill");
+}
