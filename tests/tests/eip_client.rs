@@ -185,3 +185,55 @@ async fn a_controller_stopped_and_started_again_is_read_again() {
     gw.shutdown().await;
     again.kill().await.expect("kill");
 }
+
+#[tokio::test]
+async fn a_hundred_tags_are_read_in_several_packets_each_within_an_unconnected_message() {
+    let plc = LogixPlc::start(None, &["Counts=DINT[100]"])
+        .await
+        .expect("controller");
+    let dir = temp_dir("eip-many");
+    std::fs::create_dir_all(dir.join("profiles")).expect("dir");
+    let mut profile = String::from("name: Many\nprotocol: ab-eip\nfields:\n");
+    for i in 0..100 {
+        profile.push_str(&format!(
+            "  - {{ name: C{i}, type: DINT, direction: inout, tag: \"Counts[{i}]\" }}\n"
+        ));
+    }
+    std::fs::write(dir.join("profiles/many.yaml"), profile).expect("profile");
+    let gw = TestGateway::start(&format!(
+        "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {} }} }}\ndevices:\n  - {{ name: many, profile: Many, link: plc, refresh_rate: 100ms }}\n",
+        dir.join("profiles").display(),
+        plc.port
+    ))
+    .await
+    .expect("gateway");
+    // Every element written through the gateway (a hundred Write Tags), then every one
+    // read back in the gateway's packets: a packet past the message would be refused whole.
+    for i in [0, 31, 63, 99] {
+        let (status, w) = gw
+            .send(
+                reqwest::Method::PUT,
+                &format!("/api/v1/devices/many/fields/C{i}"),
+                json!({ "value": 1000 + i }).to_string(),
+            )
+            .await
+            .expect("write");
+        assert_eq!(status, 202, "{w}");
+    }
+    let device = gw
+        .until("/api/v1/devices/many", "every element read back", |d| {
+            (0..100).all(|i| {
+                let f = field(d, &format!("C{i}"));
+                let want = if [0, 31, 63, 99].contains(&i) { 1000 + i } else { 0 };
+                f["quality"] == "good" && f["value"] == want
+            })
+        })
+        .await;
+    assert!(device.is_ok(), "{device:?}");
+    assert_eq!(
+        plc.read(&["Counts[99]", "Counts[31]"]).await.expect("pylogix"),
+        json!({"Counts[99]": 1099, "Counts[31]": 1031})
+    );
+    gw.shutdown().await;
+    plc.kill().await.expect("kill");
+}
