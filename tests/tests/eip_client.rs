@@ -1,8 +1,9 @@
 //! The EtherNet/IP driver against cpppo's Logix simulator (`tests/eip/plc.py`), with pylogix
 //! as the independent reader: every atomic type read and written, an array element, a bit
 //! of an integer read, each tag's CIP status its own field's error, a type that differs from
-//! the profile's named, the controller's identity in the link's state, and the controller
-//! stopped and started again.
+//! the profile's named, the controller's identity in the link's state, connected messaging
+//! after Large Forward Open, packets within the connection, and the controller stopped and
+//! started again.
 
 use iogate_tests::TestGateway;
 use iogate_tests::devices::temp_dir;
@@ -107,8 +108,9 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
         .as_str()
         .unwrap_or_default();
     assert!(wrong.contains("DINT") && wrong.contains("REAL"), "{wrong}");
-    // The controller's identity.
+    // The controller's identity, and the connection Large Forward Open made.
     let (_, link) = gw.get("/api/v1/links/plc").await.expect("link");
+    assert_eq!(link["peer"]["connection_size"], "4002", "{link}");
     assert!(
         link["peer"]["product_name"]
             .as_str()
@@ -187,14 +189,14 @@ async fn a_controller_stopped_and_started_again_is_read_again() {
 }
 
 #[tokio::test]
-async fn a_hundred_tags_are_read_in_several_packets_each_within_an_unconnected_message() {
-    let plc = LogixPlc::start(None, &["Counts=DINT[100]"])
+async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection() {
+    let plc = LogixPlc::start(None, &["Counts=DINT[600]"])
         .await
         .expect("controller");
     let dir = temp_dir("eip-many");
     std::fs::create_dir_all(dir.join("profiles")).expect("dir");
     let mut profile = String::from("name: Many\nprotocol: ab-eip\nfields:\n");
-    for i in 0..100 {
+    for i in 0..600 {
         profile.push_str(&format!(
             "  - {{ name: C{i}, type: DINT, direction: inout, tag: \"Counts[{i}]\" }}\n"
         ));
@@ -207,9 +209,10 @@ async fn a_hundred_tags_are_read_in_several_packets_each_within_an_unconnected_m
     ))
     .await
     .expect("gateway");
-    // Every element written through the gateway (a hundred Write Tags), then every one
-    // read back in the gateway's packets: a packet past the message would be refused whole.
-    for i in [0, 31, 63, 99] {
+    // Elements written through the gateway, then every one read back in the gateway's
+    // packets (about 16 bytes a tag asked: three packets of the 4,002-byte connection); a
+    // packet past the connection would be refused whole.
+    for i in [0, 31, 300, 599] {
         let (status, w) = gw
             .send(
                 reqwest::Method::PUT,
@@ -222,17 +225,23 @@ async fn a_hundred_tags_are_read_in_several_packets_each_within_an_unconnected_m
     }
     let device = gw
         .until("/api/v1/devices/many", "every element read back", |d| {
-            (0..100).all(|i| {
+            (0..600).all(|i| {
                 let f = field(d, &format!("C{i}"));
-                let want = if [0, 31, 63, 99].contains(&i) { 1000 + i } else { 0 };
+                let want = if [0, 31, 300, 599].contains(&i) {
+                    1000 + i
+                } else {
+                    0
+                };
                 f["quality"] == "good" && f["value"] == want
             })
         })
         .await;
     assert!(device.is_ok(), "{device:?}");
     assert_eq!(
-        plc.read(&["Counts[99]", "Counts[31]"]).await.expect("pylogix"),
-        json!({"Counts[99]": 1099, "Counts[31]": 1031})
+        plc.read(&["Counts[599]", "Counts[31]"])
+            .await
+            .expect("pylogix"),
+        json!({"Counts[599]": 1599, "Counts[31]": 1031})
     );
     gw.shutdown().await;
     plc.kill().await.expect("kill");

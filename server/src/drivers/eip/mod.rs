@@ -30,15 +30,15 @@ pub(crate) struct Eip;
 /// Its links' key.
 pub(crate) const LINK_KEY: &str = "eip";
 
-/// An unconnected message's data, at most, each way: what every Logix controller takes.
-const MESSAGE: usize = 480;
-
 /// What is kept of a device: each field's tag (or why it has none) and the type the
 /// controller answered for it (a bit's integer, for its writes).
 pub(crate) struct Plan {
     tags: Vec<Result<Tag, String>>,
     codes: Vec<Option<u16>>,
 }
+
+/// Connection serial numbers, one for each Forward Open this gateway makes.
+static SERIAL: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(1);
 
 /// An open connection to a controller.
 pub(crate) struct Controller {
@@ -104,6 +104,15 @@ impl Driver for Eip {
         let mut conn = Connection::open((s.host.as_str(), s.port), s.route.clone(), s.timeout)
             .await
             .map_err(failed)?;
+        let serial = SERIAL.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        conn.forward_open(serial).await.map_err(failed)?;
+        link.set_peer(
+            "connection_size",
+            match conn.connection_size() {
+                0 => "unconnected".to_owned(),
+                n => n.to_string(),
+            },
+        );
         if let Some((vendor, product, revision, serial, name)) =
             conn.identity().await.map_err(failed)?
         {
@@ -121,8 +130,8 @@ impl Driver for Eip {
     }
 }
 
-/// The device's readable fields packed into packets: each within [`MESSAGE`] both ways.
-fn packets(plan: &Plan, device: &Device) -> Vec<Vec<usize>> {
+/// The device's readable fields packed into packets: each within `limit` bytes both ways.
+fn packets(plan: &Plan, device: &Device, limit: usize) -> Vec<Vec<usize>> {
     let mut out: Vec<Vec<usize>> = Vec::new();
     let (mut asked, mut answered) = (0usize, 0usize);
     for (idx, tag) in plan.tags.iter().enumerate() {
@@ -131,8 +140,8 @@ fn packets(plan: &Plan, device: &Device) -> Vec<Vec<usize>> {
         let code = plan.codes[idx].or_else(|| eip_tag::type_code(device.profile.fields[idx].ty));
         let answer = 2 + cip::read_reply_len(code.unwrap_or(0xC5));
         let fits = out.last().is_some_and(|p| {
-            asked + ask + 2 * (p.len() + 1) <= MESSAGE
-                && answered + answer + 2 * (p.len() + 1) <= MESSAGE
+            asked + ask + 2 * (p.len() + 1) <= limit
+                && answered + answer + 2 * (p.len() + 1) <= limit
         });
         if !fits {
             out.push(Vec::new());
@@ -275,7 +284,7 @@ impl Session for Controller {
                 device.publish(idx, Err(FieldError::Device(why.clone())));
             }
         }
-        for fields in packets(plan, device) {
+        for fields in packets(plan, device, self.conn.message_limit()) {
             self.read_packet(device, plan, &fields).await?;
         }
         Ok(Read::Answered(started.elapsed()))
