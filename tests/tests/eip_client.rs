@@ -237,6 +237,17 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
         })
         .await;
     assert!(device.is_ok(), "{device:?}");
+    // The plan, as `iogate plan` and the API show it: three packets a cycle.
+    let plan = gw
+        .client
+        .get(gw.url("/api/v1/links/plc/plan"))
+        .send()
+        .await
+        .expect("plan")
+        .text()
+        .await
+        .expect("text");
+    assert!(plan.contains("3 packet(s) per cycle"), "{plan}");
     assert_eq!(
         plc.read(&["Counts[599]", "Counts[31]"])
             .await

@@ -2,6 +2,7 @@
 //! the bus-time budget of a link (`budget`), and the `iogate plan` report (`report`).
 
 mod budget;
+pub(crate) mod eip;
 mod read_batches;
 mod report;
 pub(crate) mod s7;

@@ -97,6 +97,10 @@ fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>, grant
             render_s7(out, d, profile, pdu);
             continue;
         }
+        if profile.protocol.name() == "ab-eip" {
+            render_eip(out, d, profile);
+            continue;
+        }
         if profile.protocol.point_key().is_some() {
             render_points(out, d, profile);
             continue;
@@ -204,6 +208,42 @@ fn render_s7(out: &mut String, d: &DeviceConfig, profile: &Profile, (pdu, how): 
     }
     for (f, p) in profile.fields.iter().zip(&places) {
         if let Err(why) = p {
+            let _ = writeln!(out, "    {} not read: {why}", f.name);
+        }
+    }
+}
+
+/// An EtherNet/IP device's packets per cycle on a connection of Large Forward Open's size
+/// (a controller that takes only a smaller one gets more packets): each with its tags.
+fn render_eip(out: &mut String, d: &DeviceConfig, profile: &Profile) {
+    let (packets, tags) = super::eip::planned(profile);
+    let _ = writeln!(
+        out,
+        "  device {} (profile {}, ab-eip, every {} ms): {} packet(s) per cycle on a connection of {} bytes",
+        d.name,
+        profile.name,
+        d.refresh_rate.as_millis(),
+        packets.len(),
+        super::eip::LARGE,
+    );
+    for (n, fields) in packets.iter().enumerate() {
+        let names: Vec<String> = fields
+            .iter()
+            .filter_map(|&i| {
+                let point = profile.fields[i].point.as_ref()?;
+                Some(format!("{} ({})", profile.fields[i].name, point.address))
+            })
+            .collect();
+        let _ = writeln!(
+            out,
+            "    packet {}: {} tag(s): {}",
+            n + 1,
+            fields.len(),
+            names.join(", ")
+        );
+    }
+    for (f, t) in profile.fields.iter().zip(&tags) {
+        if let Err(why) = t {
             let _ = writeln!(out, "    {} not read: {why}", f.name);
         }
     }

@@ -127,6 +127,16 @@ pub(crate) fn type_code(ty: IecType) -> Option<u16> {
     })
 }
 
+/// An atomic type's size in bytes.
+pub(crate) fn type_len(code: u16) -> usize {
+    match code {
+        0xC1 | 0xC2 | 0xC6 => 1,
+        0xC3 | 0xC7 => 2,
+        0xC4 | 0xC8 | 0xCA | 0xD3 => 4,
+        _ => 8,
+    }
+}
+
 /// The Logix name of a CIP data type code, for messages.
 pub(crate) fn type_name(code: u16) -> String {
     let name = match code {

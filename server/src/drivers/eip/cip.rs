@@ -361,19 +361,9 @@ pub(super) fn multiple_replies(data: &[u8], asked: usize) -> Result<Vec<&[u8]>, 
         .collect()
 }
 
-/// The bytes a Read Tag reply of one element of `code` takes, as the packing counts them.
-pub(super) fn read_reply_len(code: u16) -> usize {
-    4 + 2 + value_len(code)
-}
-
 /// An atomic type's size in bytes.
 pub(super) fn value_len(code: u16) -> usize {
-    match code {
-        0xC1 | 0xC2 | 0xC6 => 1,
-        0xC3 | 0xC7 => 2,
-        0xC4 | 0xC8 | 0xCA | 0xD3 => 4,
-        _ => 8,
-    }
+    crate::profile::eip_tag::type_len(code)
 }
 
 /// A List Identity answer's vendor, product code, revision, serial number and product name.

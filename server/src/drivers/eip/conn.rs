@@ -41,6 +41,9 @@ struct Connected {
 
 /// The largest message an unconnected request may carry, in every Logix controller.
 const UNCONNECTED: usize = 480;
+use crate::plan::eip::{CONNECTED_OVERHEAD, LARGE};
+/// The size Forward Open asks for, where Large Forward Open is refused.
+const SMALL: usize = 504;
 
 impl Connection {
     /// Connects and registers a session.
@@ -110,8 +113,8 @@ impl Connection {
     /// without one (a controller that refuses both), messages go unconnected.
     pub(crate) async fn forward_open(&mut self, serial: u16) -> Result<(), EipError> {
         let t_o = 0x4947_0000 | u32::from(serial);
-        for (size, large) in [(4002u16, true), (504, false)] {
-            let message = cip::forward_open(&self.route, size, large, t_o, serial);
+        for (size, large) in [(LARGE, true), (SMALL, false)] {
+            let message = cip::forward_open(&self.route, size as u16, large, t_o, serial);
             let (_, body) = self
                 .exchange(cip::SEND_RR_DATA, &cip::send_rr_data(&message, 5))
                 .await?;
@@ -122,7 +125,7 @@ impl Connection {
                 self.connected = Some(Connected {
                     o_t: u32::from_le_bytes([id[0], id[1], id[2], id[3]]),
                     seq: 0,
-                    size: usize::from(size),
+                    size,
                 });
                 return Ok(());
             }
@@ -139,7 +142,7 @@ impl Connection {
     pub(crate) fn message_limit(&self) -> usize {
         match &self.connected {
             // The sequence count and the reply's header within the connection's size.
-            Some(c) => c.size - 16,
+            Some(c) => c.size - CONNECTED_OVERHEAD,
             None => UNCONNECTED,
         }
     }

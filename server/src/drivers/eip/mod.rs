@@ -67,15 +67,7 @@ impl Driver for Eip {
     }
 
     fn plan(device: &Device) -> Plan {
-        let tags: Vec<Result<Tag, String>> = device
-            .profile
-            .fields
-            .iter()
-            .map(|f| {
-                let point = f.point.as_ref().ok_or("the field has no tag")?;
-                eip_tag::parse(&point.address)
-            })
-            .collect();
+        let tags = crate::plan::eip::tags(&device.profile);
         Plan {
             codes: vec![None; tags.len()],
             tags,
@@ -130,30 +122,21 @@ impl Driver for Eip {
     }
 }
 
-/// The device's readable fields packed into packets: each within `limit` bytes both ways.
+/// The device's readable fields packed into packets, each within `limit` bytes both ways.
 fn packets(plan: &Plan, device: &Device, limit: usize) -> Vec<Vec<usize>> {
-    let mut out: Vec<Vec<usize>> = Vec::new();
-    let (mut asked, mut answered) = (0usize, 0usize);
-    for (idx, tag) in plan.tags.iter().enumerate() {
-        let Ok(tag) = tag else { continue };
-        let ask = 2 + 2 + tag.path.len() + 2;
-        let code = plan.codes[idx].or_else(|| eip_tag::type_code(device.profile.fields[idx].ty));
-        let answer = 2 + cip::read_reply_len(code.unwrap_or(0xC5));
-        let fits = out.last().is_some_and(|p| {
-            asked + ask + 2 * (p.len() + 1) <= limit
-                && answered + answer + 2 * (p.len() + 1) <= limit
-        });
-        if !fits {
-            out.push(Vec::new());
-            (asked, answered) = (8, 8);
-        }
-        if let Some(p) = out.last_mut() {
-            p.push(idx);
-        }
-        asked += ask;
-        answered += answer;
-    }
-    out
+    let sizes: Vec<(usize, usize, usize)> = plan
+        .tags
+        .iter()
+        .enumerate()
+        .filter_map(|(idx, tag)| {
+            let tag = tag.as_ref().ok()?;
+            let code =
+                plan.codes[idx].or_else(|| eip_tag::type_code(device.profile.fields[idx].ty));
+            let (ask, answer) = crate::plan::eip::packet_sizes(tag, code);
+            Some((idx, ask, answer))
+        })
+        .collect();
+    crate::plan::eip::packets(&sizes, limit)
 }
 
 impl Controller {
