@@ -151,6 +151,21 @@ HTTP = [
 ]
 
 
+# EtherNet/IP answers: the first byte also says how many replies are asked (mod 40).
+def _eip_rr(mr):
+    return b"\x02\x00\x00\x00\x00\x00\x02\x00\x00\x00\x00\x00\xb2\x00" + len(mr).to_bytes(2, "little") + mr
+
+
+_DINT7 = b"\xcc\x00\x00\x00\xc4\x00\x07\x00\x00\x00"
+_MISSING = b"\xcc\x00\x05\x01\x00\x00"
+EIP = [
+    _eip_rr(b"\x8a\x00\x00\x00\x02\x00\x06\x00" + bytes([6 + len(_DINT7)]) + b"\x00" + _DINT7 + _MISSING),
+    _eip_rr(_DINT7),
+    b"\x6f\x00\x10\x00" + bytes(20),
+    b"\x01\x00\x0c\x00\x34\x00\x01\x00" + bytes(16) + b"\x01\x00\x0e\x00\x36\x00\x14\x0b\x60\x31\x1a\x06\x6c\x00\x05LOGIX\xff",
+]
+
+
 def write(target, name, data):
     d = CORPUS / target
     d.mkdir(parents=True, exist_ok=True)
@@ -191,6 +206,8 @@ def main():
         write("import", "edgex-" + path.name, b"\x01" + path.read_bytes())
     for i, answer in enumerate(S7):
         write("s7_answer", f"answer{i}", answer)
+    for i, answer in enumerate(EIP):
+        write("eip_answer", f"answer{i}", answer)
     for i, message in enumerate(grpc()):
         write("grpc_request", f"message{i}", message)
     for i, message in enumerate(opcua()):

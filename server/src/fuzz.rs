@@ -121,6 +121,11 @@ pub fn s7_answer(data: &[u8]) {
     crate::drivers::s7::fuzz_answer(data);
 }
 
+/// A Logix controller's EtherNet/IP answers and Read Tag replies by every type.
+pub fn eip_answer(data: &[u8]) {
+    crate::drivers::eip::fuzz_answer(data);
+}
+
 /// A fuzz target: bytes in, nothing out but a panic if it has one.
 pub type Target = fn(&[u8]);
 
@@ -271,6 +276,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("tokens", tokens),
     ("import", import),
     ("s7_answer", s7_answer),
+    ("eip_answer", eip_answer),
     ("grpc_request", grpc_request),
     ("opcua_binary", opcua_binary),
     ("http_request", http_request),
