@@ -37,6 +37,18 @@ impl LogixPlc {
         Ok(())
     }
 
+    /// A tag as cpppo's own client prints it (`Name == ['text']: 'OK'`): for STRINGs, which
+    /// pylogix reads as Logix structures only.
+    pub async fn print(&self, tag: &str) -> anyhow::Result<String> {
+        let out = tokio::process::Command::new("python3")
+            .args(["-m", "cpppo.server.enip.client", "--print", "--address"])
+            .arg(format!("127.0.0.1:{}", self.port))
+            .arg(tag)
+            .output()
+            .await?;
+        Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+    }
+
     /// The tags' values as pylogix reads them (JSON: each tag's value, or its error).
     pub async fn read(&self, tags: &[&str]) -> anyhow::Result<serde_json::Value> {
         let out = tokio::process::Command::new("python3")

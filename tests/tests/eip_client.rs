@@ -23,6 +23,7 @@ const TAGS: &[&str] = &[
     "Ul=ULINT",
     "Lr=LREAL",
     "Flags=DINT",
+    "Name=STRING",
 ];
 
 const PROFILE: &str = r#"name: Line
@@ -42,6 +43,7 @@ fields:
   - { name: F5, type: BOOL, direction: input, tag: Flags.5 }
   - { name: Nope, type: INT, direction: input, tag: Nope }
   - { name: Wrong, type: REAL, direction: input, tag: "Counts[4]" }
+  - { name: Label, type: STRING, direction: inout, tag: Name }
 "#;
 
 async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
@@ -97,7 +99,7 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
     let gw = gateway("eip-types", plc.port).await.expect("gateway");
     let device = read_once(&gw).await.expect("read");
     for name in [
-        "Speed", "C3", "Flag", "Small", "Wd", "Big", "Us", "Ui", "Ud", "Ul", "Lr", "F5",
+        "Speed", "C3", "Flag", "Small", "Wd", "Big", "Us", "Ui", "Ud", "Ul", "Lr", "F5", "Label",
     ] {
         assert_eq!(field(&device, name)["quality"], "good", "{name}: {device}");
     }
@@ -130,6 +132,7 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
         ("Ud", json!(4_000_000_000u64)),
         ("Ul", json!(18_000_000_000_000_000_000u64)),
         ("Lr", json!(2.25)),
+        ("Label", json!("hello plant")),
     ] {
         let outcome = put(&gw, name, value).await.expect("write");
         assert_eq!(outcome["status"], "written", "{name}: {outcome}");
@@ -156,6 +159,8 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
                "Big": -9_000_000_000i64, "Us": 255, "Ui": 65535, "Ud": 4_000_000_000u64,
                "Ul": 18_000_000_000_000_000_000u64, "Lr": 2.25})
     );
+    let label = plc.print("Name").await.expect("cpppo");
+    assert!(label.contains("['hello plant']"), "{label}");
     gw.shutdown().await;
     plc.kill().await.expect("kill");
 }

@@ -2,6 +2,7 @@
 //! requests and replies within the connection's size, in the profile's order. The driver
 //! reads by this plan; `iogate plan` prints it.
 
+use crate::codec::IecType;
 use crate::profile::Profile;
 use crate::profile::eip_tag::{self, Tag};
 
@@ -14,8 +15,8 @@ pub(crate) const CONNECTED_MESSAGE: usize = LARGE - CONNECTED_OVERHEAD;
 
 /// A tag's request in a packet and its reply's bytes (the reply of `code`, or of the
 /// largest atomic type while its type is not known), each with its offset.
-pub(crate) fn packet_sizes(tag: &Tag, code: Option<u16>) -> (usize, usize) {
-    let value = eip_tag::type_len(code.unwrap_or(0xC5));
+pub(crate) fn packet_sizes(tag: &Tag, ty: IecType, code: Option<u16>) -> (usize, usize) {
+    let value = eip_tag::reply_value_len(ty, code.or_else(|| eip_tag::type_code(ty)));
     // Request: service, path size, path, element count. Reply: service, reserved,
     // status, extended size, type, value.
     (2 + 2 + tag.path.len() + 2, 2 + 4 + 2 + value)
@@ -66,7 +67,7 @@ pub(crate) fn planned(profile: &Profile) -> (Vec<Vec<usize>>, Vec<Result<Tag, St
         .enumerate()
         .filter_map(|(idx, t)| {
             let t = t.as_ref().ok()?;
-            let (ask, answer) = packet_sizes(t, eip_tag::type_code(profile.fields[idx].ty));
+            let (ask, answer) = packet_sizes(t, profile.fields[idx].ty, None);
             Some((idx, ask, answer))
         })
         .collect();

@@ -137,6 +137,17 @@ pub(crate) fn type_len(code: u16) -> usize {
     }
 }
 
+/// The bytes a Read Tag reply of a field of `ty` carries after its type, at most as the
+/// packing counts them: an atomic value, or a Logix STRING (its structure handle, its
+/// DINT length and 82 characters, padded).
+pub(crate) fn reply_value_len(ty: IecType, code: Option<u16>) -> usize {
+    match (ty, code) {
+        (IecType::String, _) => 2 + 4 + 84,
+        (_, Some(code)) => type_len(code),
+        (_, None) => 8,
+    }
+}
+
 /// The Logix name of a CIP data type code, for messages.
 pub(crate) fn type_name(code: u16) -> String {
     let name = match code {
@@ -152,6 +163,8 @@ pub(crate) fn type_name(code: u16) -> String {
         0xCA => "REAL",
         0xCB => "LREAL",
         0xD3 => "DWORD (BOOL array)",
+        0xD0 => "STRING (CIP)",
+        0xDA => "SHORT_STRING",
         0x02A0 => "a structure",
         other => return format!("type {other:#06x}"),
     };
@@ -168,12 +181,13 @@ pub(crate) fn check(
     let tag = parse(text)?;
     match ty {
         Some(IecType::Bool) | None => Ok(()),
+        Some(IecType::String) if tag.bit.is_none() => Ok(()),
         Some(_) if tag.bit.is_some() => Err(format!(
             "`{}` is a bit of an integer: its field is a BOOL",
             text.trim()
         )),
         Some(ty) if type_code(ty).is_none() => Err(format!(
-            "Logix has no {ty}: an `ab-eip` field is BOOL, SINT, INT, DINT, LINT, USINT, UINT, UDINT, ULINT, REAL or LREAL"
+            "Logix has no {ty}: an `ab-eip` field is BOOL, SINT, INT, DINT, LINT, USINT, UINT, UDINT, ULINT, REAL, LREAL or STRING"
         )),
         Some(_) => Ok(()),
     }

@@ -21,7 +21,7 @@ use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::plan::WriteItem;
-use crate::profile::eip_tag::{self, Tag};
+use crate::profile::eip_tag::Tag;
 use conn::{Connection, EipError};
 
 /// The EtherNet/IP driver.
@@ -35,6 +35,8 @@ pub(crate) const LINK_KEY: &str = "eip";
 pub(crate) struct Plan {
     tags: Vec<Result<Tag, String>>,
     codes: Vec<Option<u16>>,
+    /// A Logix STRING's structure handle and size, as last read (for its writes).
+    layouts: Vec<Option<(u16, usize)>>,
 }
 
 /// Connection serial numbers, one for each Forward Open this gateway makes.
@@ -70,6 +72,7 @@ impl Driver for Eip {
         let tags = crate::plan::eip::tags(&device.profile);
         Plan {
             codes: vec![None; tags.len()],
+            layouts: vec![None; tags.len()],
             tags,
         }
     }
@@ -130,9 +133,8 @@ fn packets(plan: &Plan, device: &Device, limit: usize) -> Vec<Vec<usize>> {
         .enumerate()
         .filter_map(|(idx, tag)| {
             let tag = tag.as_ref().ok()?;
-            let code =
-                plan.codes[idx].or_else(|| eip_tag::type_code(device.profile.fields[idx].ty));
-            let (ask, answer) = crate::plan::eip::packet_sizes(tag, code);
+            let ty = device.profile.fields[idx].ty;
+            let (ask, answer) = crate::plan::eip::packet_sizes(tag, ty, plan.codes[idx]);
             Some((idx, ask, answer))
         })
         .collect();
@@ -195,7 +197,10 @@ impl Controller {
                 .and_then(|r| r.answers(cip::READ_TAG).map(|()| r))
                 .map_err(|e| e.to_string())
                 .and_then(|r| match r.status {
-                    0 => value::decode(r.data, field.ty, bit),
+                    0 => {
+                        plan.layouts[idx] = value::layout(r.data);
+                        value::decode(r.data, field.ty, bit)
+                    }
                     s => Err(cip::cip_status(s, r.ext)),
                 });
             match result {
@@ -239,9 +244,17 @@ impl Controller {
                     Err(why) => return Ok(Err(why)),
                 }
             }
-            None => match value::encode(&item.value, field.ty) {
-                Ok((code, bytes)) => cip::write_tag(&tag.path, code, &bytes),
-                Err(why) => return Ok(Err(why)),
+            None => match (&item.value, plan.codes[item.field]) {
+                (iogate_types::Value::String(text), Some(code)) => {
+                    match value::encode_string(text, code, plan.layouts[item.field]) {
+                        Ok(data) => cip::request(cip::WRITE_TAG, &tag.path, &data),
+                        Err(why) => return Ok(Err(why)),
+                    }
+                }
+                _ => match value::encode(&item.value, field.ty) {
+                    Ok((code, bytes)) => cip::write_tag(&tag.path, code, &bytes),
+                    Err(why) => return Ok(Err(why)),
+                },
             },
         };
         let answer = match self.request(&message).await? {

@@ -13,6 +13,9 @@ pub(crate) fn decode(data: &[u8], ty: IecType, bit: Option<u8>) -> Result<(u16, 
         .get(..2)
         .map(|b| u16::from_le_bytes([b[0], b[1]]))
         .ok_or("a reply without its type")?;
+    if ty == IecType::String && bit.is_none() {
+        return string(code, data.get(2..).unwrap_or_default()).map(|v| (code, v));
+    }
     if code == 0x02A0 {
         return Err(format!(
             "the tag is a structure on the controller; the profile reads it as {}: name one of its members",
@@ -65,6 +68,85 @@ pub(crate) fn decode(data: &[u8], ty: IecType, bit: Option<u8>) -> Result<(u16, 
         _ => Value::LReal(f64::from_le_bytes(raw.try_into().map_err(|_| "LREAL")?)),
     };
     Ok((code, value))
+}
+
+/// A string as the controller holds it: a Logix STRING (a structure: its handle, a DINT
+/// length, the characters), a CIP STRING (a UINT length) or SHORT_STRING (a USINT one).
+fn string(code: u16, bytes: &[u8]) -> Result<Value, String> {
+    let (len, at) = match code {
+        0x02A0 => {
+            let b = bytes.get(2..6).ok_or("a STRING without its length")?;
+            (u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize, 6)
+        }
+        0xD0 => {
+            let b = bytes.get(..2).ok_or("a STRING without its length")?;
+            (usize::from(u16::from_le_bytes([b[0], b[1]])), 2)
+        }
+        0xDA => (
+            usize::from(*bytes.first().ok_or("a STRING without its length")?),
+            1,
+        ),
+        other => {
+            return Err(format!(
+                "the tag is a {} on the controller, the profile reads it as STRING",
+                type_name(other)
+            ));
+        }
+    };
+    let chars = bytes.get(at..at + len).ok_or_else(|| {
+        format!(
+            "a STRING of length {len} with {} characters",
+            bytes.len().saturating_sub(at)
+        )
+    })?;
+    Ok(Value::String(String::from_utf8_lossy(chars).into_owned()))
+}
+
+/// A structure's handle and size from a Read Tag reply's data (type, handle, bytes).
+pub(crate) fn layout(data: &[u8]) -> Option<(u16, usize)> {
+    if data.get(..2)? != [0xA0, 0x02] {
+        return None;
+    }
+    let handle = u16::from_le_bytes([*data.get(2)?, *data.get(3)?]);
+    Some((handle, data.len().checked_sub(4)?))
+}
+
+/// A string's bytes for Write Tag as the controller last answered its type (`code`, and
+/// for a Logix STRING the structure's handle and size).
+pub(crate) fn encode_string(
+    text: &str,
+    code: u16,
+    layout: Option<(u16, usize)>,
+) -> Result<Vec<u8>, String> {
+    let b = text.as_bytes();
+    match (code, layout) {
+        (0xD0, _) if b.len() <= usize::from(u16::MAX) => {
+            let mut out = 0xD0u16.to_le_bytes().to_vec();
+            out.extend_from_slice(&1u16.to_le_bytes());
+            out.extend_from_slice(&(b.len() as u16).to_le_bytes());
+            out.extend_from_slice(b);
+            // Padded to an even length, as CIP lays a STRING out.
+            if b.len() % 2 == 1 {
+                out.push(0);
+            }
+            Ok(out)
+        }
+        (0x02A0, Some((handle, size))) if size >= 4 && b.len() <= size - 4 => {
+            let mut out = 0x02A0u16.to_le_bytes().to_vec();
+            out.extend_from_slice(&handle.to_le_bytes());
+            out.extend_from_slice(&1u16.to_le_bytes());
+            out.extend_from_slice(&(b.len() as u32).to_le_bytes());
+            out.extend_from_slice(b);
+            out.resize(2 + 2 + 2 + size, 0);
+            Ok(out)
+        }
+        (0x02A0, Some((_, size))) => Err(format!(
+            "{} characters do not fit the tag's {}",
+            b.len(),
+            size.saturating_sub(4)
+        )),
+        _ => Err("the tag's string type was not read yet".into()),
+    }
 }
 
 /// A value's bytes for Write Tag of a field of `ty`: its type code and bytes.
@@ -156,5 +238,36 @@ mod tests {
         assert_eq!(bit_masks(0xC3, 0, false), Ok(vec![2, 0, 0, 0, 0xFE, 0xFF]));
         assert!(bit_masks(0xCA, 0, true).is_err());
         assert!(bit_masks(0xC2, 8, true).is_err());
+    }
+
+    #[test]
+    fn strings_of_every_layout_are_read_and_written_as_the_controller_holds_them() {
+        // A Logix STRING: structure, handle 0x0FCE, LEN 2, "hi", the rest of its 82.
+        let mut logix = b"\xa0\x02\xce\x0f\x02\x00\x00\x00hi".to_vec();
+        logix.resize(4 + 88, 0);
+        assert_eq!(
+            decode(&logix, IecType::String, None).map(|d| d.1),
+            Ok(Value::String("hi".into()))
+        );
+        assert_eq!(layout(&logix), Some((0x0FCE, 88)));
+        let cip = b"\xd0\x00\x03\x00abc\x00";
+        assert_eq!(
+            decode(cip, IecType::String, None).map(|d| d.1),
+            Ok(Value::String("abc".into()))
+        );
+        assert!(decode(b"\xd0\x00\x09\x00abc", IecType::String, None).is_err());
+        assert!(decode(b"\xc4\x00\x01\x00\x00\x00", IecType::String, None).is_err());
+        assert_eq!(
+            encode_string("abc", 0xD0, None),
+            Ok(b"\xd0\x00\x01\x00\x03\x00abc\x00".to_vec())
+        );
+        let written = encode_string("hi", 0x02A0, Some((0x0FCE, 88))).expect("STRING");
+        assert_eq!(
+            &written[..12],
+            b"\xa0\x02\xce\x0f\x01\x00\x02\x00\x00\x00hi"
+        );
+        assert_eq!(written.len(), 6 + 88);
+        assert!(encode_string(&"x".repeat(85), 0x02A0, Some((0x0FCE, 88))).is_err());
+        assert!(encode_string("x", 0xC4, None).is_err());
     }
 }
