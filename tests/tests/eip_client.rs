@@ -2,8 +2,8 @@
 //! as the independent reader: every atomic type read and written, an array element, a bit
 //! of an integer read, each tag's CIP status its own field's error, a type that differs from
 //! the profile's named, the controller's identity in the link's state, connected messaging
-//! after Large Forward Open, packets within the connection, and the controller stopped and
-//! started again.
+//! after Large Forward Open, packets within the connection, the controller stopped and
+//! started again, and the device through gRPC, the change stream and the Modbus server.
 
 use iogate_tests::TestGateway;
 use iogate_tests::devices::temp_dir;
@@ -47,11 +47,16 @@ fields:
 "#;
 
 async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
+    gateway_with(name, port, "").await
+}
+
+/// The same, with more configuration (other front-ends).
+async fn gateway_with(name: &str, port: u16, more: &str) -> anyhow::Result<TestGateway> {
     let dir = temp_dir(name);
     std::fs::create_dir_all(dir.join("profiles"))?;
     std::fs::write(dir.join("profiles/line.yaml"), PROFILE)?;
     TestGateway::start(&format!(
-        "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {port}, path: \"1,0\", timeout: 1s }} }}\ndevices:\n  - {{ name: line, profile: Line, link: plc, refresh_rate: 100ms }}\n",
+        "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {port}, path: \"1,0\", timeout: 1s }} }}\ndevices:\n  - {{ name: line, profile: Line, link: plc, refresh_rate: 100ms }}\n{more}",
         dir.join("profiles").display()
     ))
     .await
@@ -261,4 +266,46 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
     );
     gw.shutdown().await;
     plc.kill().await.expect("kill");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grpc_sse_and_the_modbus_server_serve_a_logix_device_unchanged() -> anyhow::Result<()> {
+    use iogate_tests::SseReader;
+    use tokio_modbus::prelude::*;
+    let plc = LogixPlc::start(None, TAGS).await?;
+    let more = "modbus_server:\n  listen: 127.0.0.1:0\n  auto: true\n";
+    let gw = gateway_with("eip-doors", plc.port, more).await?;
+    read_once(&gw).await?;
+    let mut grpc = gw.client().await?;
+    let read = grpc.get("line", "Wd").await?;
+    assert_eq!(read.value, Some(iogate_client::Value::Int(0)), "{read:?}");
+    // The map's automatic binding of Wd (an INT), read and written by a Modbus master.
+    let (_, map) = gw.get("/api/v1/map").await?;
+    let binding = map["bindings"]
+        .as_array()
+        .and_then(|b| {
+            b.iter()
+                .find(|b| b["device"] == "line" && b["field"] == "Wd")
+        })
+        .ok_or_else(|| anyhow::anyhow!("no binding of Wd in {map}"))?;
+    let register = binding["address"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("no address in {binding}"))? as u16;
+    let addr = gw
+        .modbus
+        .ok_or_else(|| anyhow::anyhow!("no Modbus server"))?;
+    let mut master = tcp::connect_slave(addr, Slave(1)).await?;
+    let mut events = SseReader::open(&gw, "/api/v1/events?device=line").await?;
+    master
+        .write_single_register(register, (-1234i16) as u16)
+        .await??;
+    let told = events
+        .until(|_, e| e["field"] == "Wd" && e["value"] == json!(-1234))
+        .await?;
+    assert_eq!(told["device"], "line", "{told}");
+    assert_eq!(plc.read(&["Word"]).await?, json!({"Word": -1234}));
+    let words = master.read_holding_registers(register, 1).await??;
+    assert_eq!(words, vec![(-1234i16) as u16]);
+    gw.shutdown().await;
+    plc.kill().await
 }
