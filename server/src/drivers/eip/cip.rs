@@ -135,22 +135,28 @@ pub(super) fn send_rr_data(mr: &[u8], timeout_s: u16) -> Vec<u8> {
     d
 }
 
-/// The unconnected data item's message of a SendRRData answer.
-pub(super) fn rr_data_reply(data: &[u8]) -> Result<&[u8], Malformed> {
+/// The body of the first item of `kind` in a common packet format answer (SendRRData's or
+/// SendUnitData's data: interface handle, timeout, then the items).
+fn cpf_item(data: &[u8], kind: u16) -> Result<&[u8], Malformed> {
     let count = u16_le(data, 6, "item count")?;
     let mut at = 8;
     for _ in 0..count {
-        let kind = u16_le(data, at, "item")?;
+        let this = u16_le(data, at, "item")?;
         let len = usize::from(u16_le(data, at + 2, "item")?);
         let body = data
             .get(at + 4..at + 4 + len)
             .ok_or(Malformed::Short("item"))?;
-        if kind == 0x00B2 {
+        if this == kind {
             return Ok(body);
         }
         at += 4 + len;
     }
     Err(Malformed::NoData)
+}
+
+/// The unconnected data item's message of a SendRRData answer.
+pub(super) fn rr_data_reply(data: &[u8]) -> Result<&[u8], Malformed> {
+    cpf_item(data, 0x00B2)
 }
 
 fn u16_le(b: &[u8], at: usize, what: &'static str) -> Result<u16, Malformed> {
@@ -249,21 +255,9 @@ pub(super) fn send_unit_data(o_t: u32, seq: u16, message: &[u8]) -> Vec<u8> {
 
 /// A SendUnitData answer's sequence count and message.
 pub(super) fn unit_data_reply(data: &[u8]) -> Result<(u16, &[u8]), Malformed> {
-    let count = u16_le(data, 6, "item count")?;
-    let mut at = 8;
-    for _ in 0..count {
-        let kind = u16_le(data, at, "item")?;
-        let len = usize::from(u16_le(data, at + 2, "item")?);
-        let body = data
-            .get(at + 4..at + 4 + len)
-            .ok_or(Malformed::Short("item"))?;
-        if kind == 0x00B1 {
-            let seq = u16_le(body, 0, "sequence count")?;
-            return Ok((seq, &body[2..]));
-        }
-        at += 4 + len;
-    }
-    Err(Malformed::NoData)
+    let body = cpf_item(data, 0x00B1)?;
+    let seq = u16_le(body, 0, "sequence count")?;
+    Ok((seq, &body[2..]))
 }
 
 /// A reply's service, general status, extended status and data.
