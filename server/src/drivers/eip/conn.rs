@@ -115,11 +115,22 @@ impl Connection {
         let t_o = 0x4947_0000 | u32::from(serial);
         for (size, large) in [(LARGE, true), (SMALL, false)] {
             let message = cip::forward_open(&self.route, size as u16, large, t_o, serial);
-            let (_, body) = self
+            // A controller that does not know the service may refuse it with an
+            // encapsulation status or an answer of its own: the next size is tried, then
+            // messages go unconnected. A lost connection ends the open.
+            let body = match self
                 .exchange(cip::SEND_RR_DATA, &cip::send_rr_data(&message, 5))
-                .await?;
-            let reply = cip::reply(cip::rr_data_reply(&body)?)?;
+                .await
+            {
+                Ok((_, body)) => body,
+                Err(EipError::Malformed(_)) => continue,
+                Err(e) => return Err(e),
+            };
+            let Ok(reply) = cip::rr_data_reply(&body).and_then(cip::reply) else {
+                continue;
+            };
             if reply.status == 0
+                && reply.answers(message[0]).is_ok()
                 && let Some(id) = reply.data.get(..4)
             {
                 self.connected = Some(Connected {
