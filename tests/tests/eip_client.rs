@@ -40,7 +40,7 @@ fields:
   - { name: Ud, type: UDINT, direction: inout, tag: Ud }
   - { name: Ul, type: ULINT, direction: inout, tag: Ul }
   - { name: Lr, type: LREAL, direction: inout, tag: Lr }
-  - { name: F5, type: BOOL, direction: input, tag: Flags.5 }
+  - { name: F5, type: BOOL, direction: inout, tag: Flags.5 }
   - { name: Nope, type: INT, direction: input, tag: Nope }
   - { name: Wrong, type: REAL, direction: input, tag: "Counts[4]" }
   - { name: Label, type: STRING, direction: inout, tag: Name }
@@ -166,6 +166,61 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
     );
     let label = plc.print("Name").await.expect("cpppo");
     assert!(label.contains("['hello plant']"), "{label}");
+    gw.shutdown().await;
+    plc.kill().await.expect("kill");
+}
+
+/// How many times the link reopened after it was lost.
+async fn reconnects(gw: &TestGateway) -> anyhow::Result<u64> {
+    let text = gw.metrics().await?;
+    Ok(text
+        .lines()
+        .find(|l| l.starts_with("iogate_link_reconnects_total{") && l.contains("link=\"plc\""))
+        .and_then(|l| l.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0))
+}
+
+#[tokio::test]
+async fn a_write_the_controller_refuses_is_not_sent_again_and_again() {
+    // cpppo has no Read-Modify-Write Tag: it refuses the request (an encapsulation status).
+    // The refusal is the write's outcome; the value is not written again after that (nor
+    // more than twice more, had the controller dropped the connection at it), and the
+    // integer holding the bit is never rewritten.
+    let plc = LogixPlc::start(None, TAGS).await.expect("controller");
+    let gw = gateway("eip-refused", plc.port).await.expect("gateway");
+    read_once(&gw).await.expect("read");
+    let outcome = put(&gw, "F5", json!(true)).await.expect("write");
+    assert_eq!(outcome["status"], "failed", "{outcome}");
+    let generation = outcome["generation"].as_u64().unwrap_or(0);
+    let (_, now) = gw.get("/api/v1/devices/line").await.expect("device");
+    let cycles = now["io_cycles"].as_u64().unwrap_or(0);
+    gw.until("/api/v1/devices/line", "more cycles read", |d| {
+        d["connected"] == true && d["io_cycles"].as_u64() >= Some(cycles + 10)
+    })
+    .await
+    .expect("cycles");
+    let (_, f5) = gw
+        .get("/api/v1/devices/line/fields/F5")
+        .await
+        .expect("field");
+    let last = &f5["last_write"];
+    let replays = last["generation"].as_u64().unwrap_or(0) - generation;
+    assert!(replays <= 2, "{f5}");
+    if replays > 0 {
+        assert!(
+            last["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("not written again")),
+            "{f5}"
+        );
+    }
+    // cpppo ends the session after the refusal: one reconnect, with no value sent again.
+    assert!(reconnects(&gw).await.expect("metrics") <= 3);
+    assert_eq!(
+        plc.read(&["Flags"]).await.expect("pylogix"),
+        json!({"Flags": 0})
+    );
     gw.shutdown().await;
     plc.kill().await.expect("kill");
 }

@@ -37,6 +37,33 @@ pub(crate) enum WriteError {
     /// The device refused the value, in its own words (an OPC UA status code's name).
     #[error("the device refused it: {0}")]
     Refused(String),
+    /// The link was lost with this value sent, again: it is not written again by itself.
+    #[error(
+        "{0}; the link was lost with this value sent {LOST_AT_WRITE} times in a row, so it is not written again until it is asked again"
+    )]
+    GaveUp(LinkFault),
+}
+
+/// How many times in a row the link may be lost with a field's value sent before that
+/// value is no longer written again after a reconnect (a device that drops its connection
+/// at a request it does not take would otherwise be asked again at every reconnect).
+pub(crate) const LOST_AT_WRITE: u32 = 3;
+
+impl WriteError {
+    /// Whether the device answered that it does not take the value (so writing it again
+    /// after a reconnect would be refused again), rather than failing to answer.
+    fn is_refusal(&self) -> bool {
+        match self {
+            WriteError::Exception(x) => matches!(
+                *x,
+                Exception::ILLEGAL_FUNCTION
+                    | Exception::ILLEGAL_DATA_ADDRESS
+                    | Exception::ILLEGAL_DATA_VALUE
+            ),
+            WriteError::Encode(_) | WriteError::ReadOnly(_) | WriteError::Refused(_) => true,
+            _ => false,
+        }
+    }
 }
 
 impl From<TxError> for WriteError {
@@ -108,6 +135,8 @@ struct WriteSlot {
     in_flight: Option<u64>,
     /// The scan-cycle stream that requested the newest value, if one did.
     writer: Option<u64>,
+    /// How many times in a row the link was lost with this field's value sent.
+    lost_at_write: u32,
 }
 
 /// The write slots of one device's fields, and the gateway's write log they report to.
@@ -179,6 +208,7 @@ impl Outputs {
         }
         // The gateway's own value is encoded when it is planned.
         slot.encoded = None;
+        slot.lost_at_write = 0;
         slot.latest = Some(value);
         slot.last_generation = Some(generation);
         slot.writer = writer;
@@ -209,6 +239,7 @@ impl Outputs {
                     self.log.finish(old, WriteStatus::Superseded, None);
                 }
                 slot.encoded = registers;
+                slot.lost_at_write = 0;
                 slot.latest = Some(value);
                 slot.last_generation = Some(generation);
                 slot.writer = writer;
@@ -280,17 +311,24 @@ impl Outputs {
 
     /// Records the outcome of a taken write that took `attempts` transactions; answers the
     /// field it was for, when it was the field's write on the bus.
+    ///
+    /// A value the device refused is not written again after a reconnect, nor one the link
+    /// was lost with, sent, [`LOST_AT_WRITE`] times in a row (that outcome says so).
     pub(crate) fn finish(
         &self,
         generation: u64,
-        result: Result<(), WriteError>,
+        mut result: Result<(), WriteError>,
         attempts: u32,
     ) -> Option<usize> {
         let field = {
             let mut slots = lock(&self.slots);
             let idx = slots.iter().position(|s| s.in_flight == Some(generation));
             if let Some(i) = idx {
-                slots[i].in_flight = None;
+                let slot = &mut slots[i];
+                slot.in_flight = None;
+                if slot.last_generation == Some(generation) {
+                    result = settle(slot, result, attempts);
+                }
             }
             idx
         };
@@ -306,5 +344,35 @@ impl Outputs {
             ),
         }
         field
+    }
+}
+
+/// What a finished write leaves of the newest requested value: forgotten when the device
+/// refused it or the link was lost with it sent too many times in a row (the outcome then
+/// says so); a write sent `attempts` times.
+fn settle(
+    slot: &mut WriteSlot,
+    result: Result<(), WriteError>,
+    attempts: u32,
+) -> Result<(), WriteError> {
+    match result {
+        Ok(()) => {
+            slot.lost_at_write = 0;
+            Ok(())
+        }
+        Err(WriteError::LinkDown(fault)) if attempts > 0 => {
+            slot.lost_at_write += 1;
+            if slot.lost_at_write >= LOST_AT_WRITE {
+                slot.latest = None;
+                return Err(WriteError::GaveUp(fault));
+            }
+            Err(WriteError::LinkDown(fault))
+        }
+        Err(e) => {
+            if e.is_refusal() {
+                slot.latest = None;
+            }
+            Err(e)
+        }
     }
 }

@@ -207,6 +207,16 @@ pub(crate) trait Session: Send {
         std::future::ready(Ok(()))
     }
 
+    /// Ends the session cleanly, where the protocol asks a client that leaves to say so
+    /// (the link is stopped or reopened with other settings; not after it was lost). The
+    /// task bounds it.
+    fn close(self) -> impl Future<Output = ()> + Send
+    where
+        Self: Sized,
+    {
+        std::future::ready(())
+    }
+
     /// Resolves when the link is lost between requests (a session kept alive by the
     /// protocol); a driver that only talks when asked never resolves it.
     fn lost(&mut self) -> impl Future<Output = LinkFault> + Send {

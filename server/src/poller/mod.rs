@@ -32,6 +32,8 @@ use crate::metrics::Metrics;
 /// Waits between attempts to open a link: doubling from the first to the last.
 pub(crate) const REOPEN_MIN: Duration = Duration::from_millis(250);
 pub(crate) const REOPEN_MAX: Duration = Duration::from_secs(8);
+/// How long a link stopped cleanly may take to tell the other end it leaves.
+const CLOSE_TIMEOUT: Duration = Duration::from_secs(1);
 /// How long a device that stopped answering is left alone: doubling up to the maximum.
 pub(crate) const BACKOFF_MIN: Duration = Duration::from_secs(1);
 pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(16);
@@ -260,10 +262,15 @@ impl<D: Driver> Driven<D> {
                     self.all_unreachable(&fault);
                     down = Some(fault);
                 }
-                Ok(conn) => {
+                Ok(mut conn) => {
                     reopen = REOPEN_MIN;
                     self.opened(lost);
-                    match self.serve(conn, token, &tried).await {
+                    let ended = self.serve(&mut conn, token, &tried).await;
+                    if !matches!(ended, Ended::Lost(_)) {
+                        // Stopped or given other settings: the other end is told.
+                        let _ = tokio::time::timeout(CLOSE_TIMEOUT, conn.close()).await;
+                    }
+                    match ended {
                         Ended::Shutdown => break,
                         Ended::Reconfigured => {
                             tracing::info!(link = %name, "link settings changed: reopening");
@@ -402,7 +409,7 @@ impl<D: Driver> Driven<D> {
 
     async fn serve(
         &mut self,
-        mut session: D::Session,
+        session: &mut D::Session,
         token: &CancellationToken,
         opened: &LinkConfig,
     ) -> Ended {
@@ -427,14 +434,14 @@ impl<D: Driver> Driven<D> {
             after_request = request.is_some();
             let step = if let Some(queued) = request {
                 match self.admit(queued) {
-                    Some(Inbox::Request(r)) => self.pass_through(r, &mut session).await,
+                    Some(Inbox::Request(r)) => self.pass_through(r, session).await,
                     Some(Inbox::Probe(p)) => session.scan_probe(p).await,
                     None => Ok(()),
                 }
             } else if let Some(i) = self.next_writer() {
-                self.write_device(i, &mut session).await
+                self.write_device(i, session).await
             } else if let Some(i) = due {
-                self.poll_device(i, &mut session).await
+                self.poll_device(i, session).await
             } else {
                 let until = self
                     .devices

@@ -110,7 +110,8 @@ async fn a_dead_device_costs_one_probe_per_backoff_period_and_the_other_keeps_it
     let token = CancellationToken::new();
     let stop = token.clone();
     let opened = task.config.clone();
-    let serving = tokio::spawn(async move { task.serve(bus, &stop, &opened).await });
+    let mut bus = bus;
+    let serving = tokio::spawn(async move { task.serve(&mut bus, &stop, &opened).await });
     tokio::time::sleep(Duration::from_secs(10)).await;
     token.cancel();
     assert!(matches!(serving.await, Ok(Ended::Shutdown)));

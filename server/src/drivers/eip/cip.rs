@@ -6,6 +6,7 @@
 
 /// Encapsulation commands.
 pub(super) const REGISTER_SESSION: u16 = 0x65;
+pub(super) const UNREGISTER_SESSION: u16 = 0x66;
 pub(super) const SEND_RR_DATA: u16 = 0x6F;
 pub(super) const LIST_IDENTITY: u16 = 0x63;
 pub(super) const SEND_UNIT_DATA: u16 = 0x70;
@@ -197,46 +198,6 @@ pub(super) fn routed(message: &[u8], route: &[u8]) -> Vec<u8> {
     request(UNCONNECTED_SEND, &[0x20, 0x06, 0x24, 0x01], &data)
 }
 
-/// A Forward Open (`large`: Large Forward Open, 32-bit parameters) of a class 3
-/// connection of `size` bytes to the Message Router at the end of `route`, our side's
-/// connection id `t_o` and serial `serial`.
-pub(super) fn forward_open(route: &[u8], size: u16, large: bool, t_o: u32, serial: u16) -> Vec<u8> {
-    let mut d = vec![0x0A, 0x0E]; // ticks of 1,024 ms, 14 of them
-    d.extend_from_slice(&0u32.to_le_bytes()); // O->T id: the controller chooses
-    d.extend_from_slice(&t_o.to_le_bytes());
-    d.extend_from_slice(&serial.to_le_bytes());
-    d.extend_from_slice(&VENDOR.to_le_bytes());
-    d.extend_from_slice(&ORIGINATOR.to_le_bytes());
-    d.extend_from_slice(&[0x03, 0, 0, 0]); // timeout multiplier x32, reserved
-    // O->T, then T->O: the requested packet interval (µs) and the connection's
-    // parameters (point to point, variable size, `size` bytes).
-    for _ in 0..2 {
-        d.extend_from_slice(&2_000_000u32.to_le_bytes());
-        if large {
-            d.extend_from_slice(&(0x4200_0000u32 | u32::from(size)).to_le_bytes());
-        } else {
-            d.extend_from_slice(&(0x4200u16 | (size & 0x01FF)).to_le_bytes());
-        }
-    }
-    d.push(0xA3); // server class 3, application triggered
-    let mut path = route.to_vec();
-    if path.len() % 2 == 1 {
-        path.push(0);
-    }
-    path.extend_from_slice(&[0x20, 0x02, 0x24, 0x01]);
-    d.push((path.len() / 2) as u8);
-    d.extend_from_slice(&path);
-    request(
-        if large { 0x5B } else { 0x54 },
-        &[0x20, 0x06, 0x24, 0x01],
-        &d,
-    )
-}
-
-/// The vendor id and serial number this originator gives in Forward Open.
-const VENDOR: u16 = 0x4947;
-const ORIGINATOR: u32 = 0x0106_A7E0;
-
 /// SendUnitData's data: `message` on connection `o_t` with sequence count `seq`.
 pub(super) fn send_unit_data(o_t: u32, seq: u16, message: &[u8]) -> Vec<u8> {
     let mut d = Vec::with_capacity(22 + message.len());
@@ -424,20 +385,7 @@ mod tests {
     }
 
     #[test]
-    fn forward_open_and_connected_messages_are_laid_out_as_the_specification_says() {
-        let large = forward_open(&[1, 0], 4002, true, 0x1234_5678, 7);
-        assert_eq!(&large[..6], b"\x5b\x02\x20\x06\x24\x01");
-        let d = &large[6..];
-        assert_eq!(d.len(), 46);
-        assert_eq!(&d[6..10], &0x1234_5678u32.to_le_bytes());
-        assert_eq!(&d[22..26], &2_000_000u32.to_le_bytes());
-        assert_eq!(&d[26..30], &(0x4200_0000u32 | 4002).to_le_bytes());
-        assert_eq!(&d[34..38], &(0x4200_0000u32 | 4002).to_le_bytes());
-        assert_eq!(&d[38..], b"\xa3\x03\x01\x00\x20\x02\x24\x01");
-        let small = forward_open(&[], 504, false, 1, 1);
-        assert_eq!(small[0], 0x54);
-        assert_eq!(&small[6 + 26..6 + 28], &(0x4200u16 | 504).to_le_bytes());
-        assert_eq!(&small[small.len() - 4..], b"\x20\x02\x24\x01");
+    fn connected_messages_are_laid_out_as_the_specification_says() {
         let sent = send_unit_data(9, 3, b"\x4c\x00");
         assert_eq!(&sent[6..8], b"\x02\x00");
         assert_eq!(&sent[8..16], b"\xa1\x00\x04\x00\x09\x00\x00\x00");

@@ -8,6 +8,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use super::cip::{self, Malformed};
+use super::manager;
 
 /// Why a connection failed.
 #[derive(Debug, thiserror::Error)]
@@ -37,6 +38,8 @@ struct Connected {
     o_t: u32,
     seq: u16,
     size: usize,
+    /// The serial Forward Open gave it (Forward Close names it).
+    serial: u16,
 }
 
 /// The largest message an unconnected request may carry, in every Logix controller.
@@ -114,7 +117,7 @@ impl Connection {
     pub(crate) async fn forward_open(&mut self, serial: u16) -> Result<(), EipError> {
         let t_o = 0x4947_0000 | u32::from(serial);
         for (size, large) in [(LARGE, true), (SMALL, false)] {
-            let message = cip::forward_open(&self.route, size as u16, large, t_o, serial);
+            let message = manager::forward_open(&self.route, size as u16, large, t_o, serial);
             // A controller that does not know the service may refuse it with an
             // encapsulation status or an answer of its own: the next size is tried, then
             // messages go unconnected. A lost connection ends the open.
@@ -137,6 +140,7 @@ impl Connection {
                     o_t: u32::from_le_bytes([id[0], id[1], id[2], id[3]]),
                     seq: 0,
                     size,
+                    serial,
                 });
                 return Ok(());
             }
@@ -182,6 +186,22 @@ impl Connection {
             .exchange(cip::SEND_RR_DATA, &cip::send_rr_data(&routed, seconds))
             .await?;
         Ok(cip::rr_data_reply(&body)?.to_vec())
+    }
+
+    /// Leaves: Forward Close of the connection (the controller frees it now, not after
+    /// its timeout), then UnRegister Session; the answers are not waited for past the
+    /// request's timeout, and a failure changes nothing (the connection is dropped anyway).
+    pub(crate) async fn close(mut self) {
+        if let Some(c) = self.connected.take() {
+            let message = manager::forward_close(&self.route, c.serial);
+            let _ = self
+                .exchange(cip::SEND_RR_DATA, &cip::send_rr_data(&message, 5))
+                .await;
+        }
+        self.context = self.context.wrapping_add(1);
+        let packet = cip::encapsulate(cip::UNREGISTER_SESSION, self.session, self.context, &[]);
+        let _ = self.io.write_all(&packet).await;
+        let _ = self.io.shutdown().await;
     }
 
     /// The controller's identity as List Identity answers it: vendor, product code,

@@ -8,6 +8,7 @@
 mod cip;
 mod config;
 mod conn;
+mod manager;
 mod value;
 
 use std::sync::Arc;
@@ -273,6 +274,10 @@ impl Controller {
 impl Session for Controller {
     type Plan = Plan;
 
+    async fn close(self) {
+        self.conn.close().await;
+    }
+
     async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
         let started = Instant::now();
         for (idx, tag) in plan.tags.iter().enumerate() {
@@ -292,10 +297,19 @@ impl Session for Controller {
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {
-        for item in &items {
-            match self.write_item(plan, device, item).await? {
-                Ok(()) => written(device, item, 1),
-                Err(why) => finish(device, item, Err(WriteError::Refused(why)), 1),
+        for (n, item) in items.iter().enumerate() {
+            match self.write_item(plan, device, item).await {
+                Ok(Ok(())) => written(device, item, 1),
+                Ok(Err(why)) => finish(device, item, Err(WriteError::Refused(why)), 1),
+                Err(lost) => {
+                    // This value was sent (the link was lost with it), the rest were not;
+                    // the latest values are written again after the reconnect.
+                    finish(device, item, Err(WriteError::LinkDown(lost.clone())), 1);
+                    for rest in &items[n + 1..] {
+                        finish(device, rest, Err(WriteError::LinkDown(lost.clone())), 0);
+                    }
+                    return Err(lost);
+                }
             }
         }
         Ok(None)

@@ -70,9 +70,11 @@ pub(super) async fn items(
     items: Vec<WriteItem>,
 ) -> Result<(), LinkFault> {
     let (sent, values) = prepare(device, plan, items);
-    for (sent, values) in sent
-        .chunks(super::subscribe::PER_CALL)
+    let chunks = sent.chunks(super::subscribe::PER_CALL);
+    for (k, (sent, values)) in chunks
+        .clone()
         .zip(values.chunks(super::subscribe::PER_CALL))
+        .enumerate()
     {
         conn.started();
         let answered = conn.session.write(values).await;
@@ -91,7 +93,13 @@ pub(super) async fn items(
                     finish(device, item, Err(why.clone()), 1);
                 }
                 match fault {
-                    Some(f) => return Err(f),
+                    Some(f) => {
+                        // The requests not sent: written again once the link is back.
+                        for item in chunks.clone().skip(k + 1).flatten() {
+                            finish(device, item, Err(WriteError::LinkDown(f.clone())), 0);
+                        }
+                        return Err(f);
+                    }
                     None => continue,
                 }
             }
