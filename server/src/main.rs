@@ -104,16 +104,21 @@ enum FbCommand {
 #[derive(Subcommand)]
 enum ProfileCommand {
     /// Convert wb-mqtt-serial device templates (JSON) and EdgeX device profiles (YAML) into
-    /// iogate profiles, or browse an OPC UA server (`--from opcua opc.tcp://HOST:PORT`) for
-    /// one; what cannot be mapped is reported with its source line or node.
+    /// iogate profiles, browse an OPC UA server (`--from opcua opc.tcp://HOST:PORT`) or list
+    /// a Logix controller's tags (`--from eip HOST[:PORT]`) for one; what cannot be mapped
+    /// is reported with its source line, node or tag.
     Import {
         /// The source format; default: by the file name (.json wb, .yaml/.yml edgex); `opcua`
-        /// takes a server's endpoint URL instead of files.
+        /// takes a server's endpoint URL instead of files, `eip` a controller's HOST[:PORT].
         #[arg(long)]
         from: Option<String>,
         /// With `--from opcua`: the node to browse from (default: the Objects folder).
         #[arg(long)]
         node: Option<String>,
+        /// With `--from eip`: the route to the controller (default: 1,0, the backplane's
+        /// slot 0).
+        #[arg(long)]
+        path: Option<String>,
         /// Where to write the profiles (one file each); default: standard output.
         #[arg(long)]
         out: Option<PathBuf>,
@@ -168,31 +173,6 @@ fn log_filter() -> Result<tracing_subscriber::EnvFilter, String> {
     }
 }
 
-/// `iogate profile import`: files, or an OPC UA server (`--from opcua URL [--node ROOT]`).
-fn import(
-    from: Option<&str>,
-    node: Option<&str>,
-    out: Option<&std::path::Path>,
-    files: &[PathBuf],
-) -> ExitCode {
-    if from == Some("opcua") {
-        let [url] = files else {
-            eprintln!("iogate profile import --from opcua: give one endpoint URL");
-            return ExitCode::from(iogate::EXIT_CONFIG as u8);
-        };
-        return ExitCode::from(iogate::drivers::opcua::import::run(
-            &url.to_string_lossy(),
-            node,
-            out,
-        ));
-    }
-    if node.is_some() {
-        eprintln!("iogate profile import: --node is for --from opcua");
-        return ExitCode::from(iogate::EXIT_CONFIG as u8);
-    }
-    ExitCode::from(iogate::profile::import::run(files, from, out))
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let filter = match log_filter() {
@@ -218,12 +198,18 @@ fn main() -> ExitCode {
             ProfileCommand::Import {
                 from,
                 node,
+                path,
                 out,
                 files,
             },
     }) = &cli.command
     {
-        return import(from.as_deref(), node.as_deref(), out.as_deref(), files);
+        return ExitCode::from(iogate::drivers::import::run(
+            from.as_deref(),
+            (node.as_deref(), path.as_deref()),
+            out.as_deref(),
+            files,
+        ));
     }
     let Some((config, action)) = action_of(cli.command) else {
         return ExitCode::SUCCESS;

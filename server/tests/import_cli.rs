@@ -34,3 +34,25 @@ fn the_current_template_is_written_whatever_the_order_and_the_deprecated_one_is_
     assert_eq!(fields, 124, "the current template's fields:\n{written}");
     std::fs::remove_dir_all(&out).expect("cleanup");
 }
+
+#[test]
+fn the_sources_options_are_checked_before_anything_is_asked() {
+    for (args, says) in [
+        (
+            &["--from", "eip", "--path", "1,x", "127.0.0.1"][..],
+            "is not an address",
+        ),
+        (&["--from", "eip", "a", "b"][..], "give one controller"),
+        (&["--from", "eip", "--node", "x", "a"][..], "no --node"),
+        (&["--path", "1,0", "x.json"][..], "--path is for --from eip"),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_iogate"))
+            .args(["profile", "import"])
+            .args(args)
+            .output()
+            .expect("iogate runs");
+        let report = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(64), "{args:?}: {report}");
+        assert!(report.contains(says), "{args:?}: {report}");
+    }
+}

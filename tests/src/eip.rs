@@ -15,19 +15,47 @@ impl LogixPlc {
     /// Starts the controller with `tags` (`Speed=REAL`, `Counts=DINT[10]`), on `port` or a
     /// free one, and waits until it listens.
     pub async fn start(port: Option<u16>, tags: &[&str]) -> anyhow::Result<LogixPlc> {
+        let mut args: Vec<String> = Vec::new();
+        if let Some(p) = port {
+            args.extend(["--port".to_owned(), p.to_string()]);
+        }
+        args.extend(tags.iter().map(|t| (*t).to_owned()));
+        Self::spawn("eip/plc.py", &args).await
+    }
+
+    /// Starts the tag directory controller (`tests/eip/directory_plc.py`, the services a
+    /// client lists tags with) with `args` (`--extra N`, `--stuck`).
+    pub async fn directory(args: &[&str]) -> anyhow::Result<LogixPlc> {
+        let args: Vec<String> = args.iter().map(|a| (*a).to_owned()).collect();
+        Self::spawn("eip/directory_plc.py", &args).await
+    }
+
+    async fn spawn(script: &str, args: &[String]) -> anyhow::Result<LogixPlc> {
         crate::run_installer("eip/install.sh")?;
         let mut command = tokio::process::Command::new("python3");
-        command.arg(repo_file("eip/plc.py"));
-        if let Some(p) = port {
-            command.args(["--port", &p.to_string()]);
-        }
-        command.args(tags);
+        command.arg(repo_file(script)).args(args);
         let mut piped = spawn_piped(command)?;
         let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())
             .await??
             .ok_or_else(|| anyhow::anyhow!("the controller ended before it listened"))?;
         let port = line.trim().parse()?;
         Ok(LogixPlc { piped, port })
+    }
+
+    /// The controller's tags as pylogix lists them (`tests/eip/tag_list.py`: `tags` and
+    /// `udts`).
+    pub async fn tag_list(&self) -> anyhow::Result<serde_json::Value> {
+        let out = tokio::process::Command::new("python3")
+            .arg(repo_file("eip/tag_list.py"))
+            .arg(self.port.to_string())
+            .output()
+            .await?;
+        anyhow::ensure!(
+            out.status.success(),
+            "pylogix: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Ok(serde_json::from_slice(&out.stdout)?)
     }
 
     /// Kills the controller as the operating system would.

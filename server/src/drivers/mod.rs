@@ -13,7 +13,8 @@
 //! (`LinkFault`, through the `Result` of each call: an error ends the session) and the
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
-pub(crate) mod eip;
+pub mod eip;
+pub mod import;
 pub(crate) mod modbus;
 pub mod opcua;
 pub(crate) mod s7;

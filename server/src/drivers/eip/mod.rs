@@ -8,6 +8,8 @@
 mod cip;
 mod config;
 mod conn;
+mod directory;
+pub mod import;
 mod manager;
 mod value;
 
@@ -323,6 +325,9 @@ pub(crate) fn fuzz_answer(data: &[u8]) {
     let asked = usize::from(data.first().copied().unwrap_or(0) % 40);
     let _ = cip::header(data);
     let _ = cip::identity(data);
+    let _ = directory::symbols(data);
+    let _ = directory::template_attributes(data);
+    let _ = directory::template(data, u16::from(data.first().copied().unwrap_or(0)));
     if let Ok(mr) = cip::rr_data_reply(data)
         && let Ok(r) = cip::reply(mr)
         && let Ok(parts) = cip::multiple_replies(r.data, asked)

@@ -414,12 +414,6 @@ fn write(
     out: Option<&Path>,
     skipped: usize,
 ) -> u8 {
-    if fields.is_empty() {
-        eprintln!(
-            "iogate profile import: no variable of {url} could be mapped ({skipped} skipped)"
-        );
-        return 1;
-    }
     let mut text = format!(
         "name: {name}\nprotocol: opcua\ndescription: {}\nfields:\n",
         quoted(&format!(
@@ -441,35 +435,15 @@ fn write(
         }
         text.push_str(" }\n");
     }
-    if let Err(problems) = crate::profile::load_str(&format!("{name}.yaml"), &text) {
-        eprintln!("iogate profile import: the profile made does not load:\n{problems}");
-        return 1;
-    }
-    match out {
-        Some(dir) => {
-            let target = dir.join(format!("{name}.yaml"));
-            if let Err(e) =
-                std::fs::create_dir_all(dir).and_then(|()| std::fs::write(&target, &text))
-            {
-                eprintln!(
-                    "iogate profile import: cannot write {}: {e}",
-                    target.display()
-                );
-                return 1;
-            }
-            eprintln!(
-                "{url}: profile {name} written to {} ({} fields, {skipped} variables not mapped)",
-                target.display(),
-                fields.len()
-            );
-        }
-        None => {
-            println!("---\n{text}");
-            eprintln!(
-                "{url}: profile {name} ({} fields, {skipped} variables not mapped)",
-                fields.len()
-            );
-        }
-    }
-    0
+    crate::profile::import::emit::emit(
+        &crate::profile::import::emit::Made {
+            source: url,
+            name,
+            text,
+            fields: fields.len(),
+            skipped,
+            things: "variables",
+        },
+        out,
+    )
 }

@@ -6,6 +6,7 @@
 
 mod cli;
 mod edgex;
+pub(crate) mod emit;
 mod wb;
 
 pub use cli::run;
