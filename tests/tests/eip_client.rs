@@ -255,7 +255,9 @@ async fn a_controller_stopped_and_started_again_is_read_again() {
 
 #[tokio::test]
 async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection() {
-    let plc = LogixPlc::start(None, &["Counts=DINT[600]"])
+    // Every other element of an array: 600 tags, none next to another (elements next to
+    // each other are read together, see below).
+    let plc = LogixPlc::start(None, &["Counts=DINT[1200]"])
         .await
         .expect("controller");
     let dir = temp_dir("eip-many");
@@ -263,7 +265,8 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
     let mut profile = String::from("name: Many\nprotocol: ab-eip\nfields:\n");
     for i in 0..600 {
         profile.push_str(&format!(
-            "  - {{ name: C{i}, type: DINT, direction: inout, tag: \"Counts[{i}]\" }}\n"
+            "  - {{ name: C{i}, type: DINT, direction: inout, tag: \"Counts[{}]\" }}\n",
+            2 * i
         ));
     }
     std::fs::write(dir.join("profiles/many.yaml"), profile).expect("profile");
@@ -275,7 +278,7 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
     .await
     .expect("gateway");
     // Elements written through the gateway, then every one read back in the gateway's
-    // packets (about 16 bytes a tag asked: three packets of the 4,002-byte connection); a
+    // packets (16 to 18 bytes a tag asked: three packets of the 4,002-byte connection); a
     // packet past the connection would be refused whole.
     for i in [0, 31, 300, 599] {
         let (status, w) = gw
@@ -314,10 +317,10 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
         .expect("text");
     assert!(plan.contains("3 packet(s) per cycle"), "{plan}");
     assert_eq!(
-        plc.read(&["Counts[599]", "Counts[31]"])
+        plc.read(&["Counts[1198]", "Counts[62]"])
             .await
             .expect("pylogix"),
-        json!({"Counts[599]": 1599, "Counts[31]": 1031})
+        json!({"Counts[1198]": 1599, "Counts[62]": 1031})
     );
     gw.shutdown().await;
     plc.kill().await.expect("kill");
@@ -363,4 +366,82 @@ async fn grpc_sse_and_the_modbus_server_serve_a_logix_device_unchanged() -> anyh
     assert_eq!(words, vec![(-1234i16) as u16]);
     gw.shutdown().await;
     plc.kill().await
+}
+
+#[tokio::test]
+async fn elements_next_to_each_other_are_read_together_and_a_large_array_fragmented() {
+    // Data: 2,000 DINTs (8,000 bytes, twice the connection): one read, fragmented. Tail:
+    // elements 8 to 10 of an array of 10, read together at first; the read fails (10 is
+    // past the end), so each is read on its own: 8 and 9 good, 10 its own error.
+    let plc = LogixPlc::start(None, &["Data=DINT[2000]", "Tail=INT[10]"])
+        .await
+        .expect("controller");
+    let dir = temp_dir("eip-runs");
+    std::fs::create_dir_all(dir.join("profiles")).expect("dir");
+    let mut profile = String::from("name: Runs\nprotocol: ab-eip\nfields:\n");
+    for i in 0..2000 {
+        profile.push_str(&format!(
+            "  - {{ name: D{i}, type: DINT, direction: inout, tag: \"Data[{i}]\" }}\n"
+        ));
+    }
+    for i in 8..=10 {
+        profile.push_str(&format!(
+            "  - {{ name: T{i}, type: INT, direction: input, tag: \"Tail[{i}]\" }}\n"
+        ));
+    }
+    std::fs::write(dir.join("profiles/runs.yaml"), profile).expect("profile");
+    let gw = TestGateway::start(&format!(
+        "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {} }} }}\ndevices:\n  - {{ name: runs, profile: Runs, link: plc, refresh_rate: 100ms }}\n",
+        dir.join("profiles").display(),
+        plc.port
+    ))
+    .await
+    .expect("gateway");
+    let plan = gw
+        .client
+        .get(gw.url("/api/v1/links/plc/plan"))
+        .send()
+        .await
+        .expect("plan")
+        .text()
+        .await
+        .expect("text");
+    assert!(
+        plan.contains("D0 (Data[0]) to D1999 (Data[1999]), 2000 elements in one read")
+            && plan.contains("read fragmented (8008 bytes"),
+        "{plan}"
+    );
+    // Written through the gateway (the last element, one in the second part), read back.
+    for (i, v) in [(1999, 77), (1000, -5)] {
+        let (status, w) = gw
+            .send(
+                reqwest::Method::PUT,
+                &format!("/api/v1/devices/runs/fields/D{i}"),
+                json!({ "value": v }).to_string(),
+            )
+            .await
+            .expect("write");
+        assert_eq!(status, 202, "{w}");
+    }
+    let device = gw
+        .until("/api/v1/devices/runs", "every element read", |d| {
+            let good = |n: &str| field(d, n)["quality"] == "good";
+            field(d, "D1999")["value"] == 77
+                && field(d, "D1000")["value"] == -5
+                && good("D0")
+                && good("D1998")
+                && good("T8")
+                && good("T9")
+                && field(d, "T10")["error"].is_string()
+        })
+        .await;
+    assert!(device.is_ok(), "{device:?}");
+    assert_eq!(
+        plc.read(&["Data[1999]", "Data[1000]"])
+            .await
+            .expect("pylogix"),
+        json!({"Data[1999]": 77, "Data[1000]": -5})
+    );
+    gw.shutdown().await;
+    plc.kill().await.expect("kill");
 }

@@ -216,33 +216,54 @@ fn render_s7(out: &mut String, d: &DeviceConfig, profile: &Profile, (pdu, how): 
 /// An EtherNet/IP device's packets per cycle on a connection of Large Forward Open's size
 /// (a controller that takes only a smaller one gets more packets): each with its tags.
 fn render_eip(out: &mut String, d: &DeviceConfig, profile: &Profile) {
-    let (packets, tags) = super::eip::planned(profile);
+    let plan = super::eip::planned(profile);
     let _ = writeln!(
         out,
         "  device {} (profile {}, ab-eip, every {} ms): {} packet(s) per cycle on a connection of {} bytes",
         d.name,
         profile.name,
         d.refresh_rate.as_millis(),
-        packets.len(),
+        plan.packets.len(),
         super::eip::LARGE,
     );
-    for (n, fields) in packets.iter().enumerate() {
-        let names: Vec<String> = fields
-            .iter()
-            .filter_map(|&i| {
-                let point = profile.fields[i].point.as_ref()?;
-                Some(format!("{} ({})", profile.fields[i].name, point.address))
-            })
-            .collect();
+    let name = |i: usize| {
+        let f = &profile.fields[i];
+        let at = f.point.as_ref().map_or("", |p| p.address.as_str());
+        format!("{} ({at})", f.name)
+    };
+    for (n, reads) in plan.packets.iter().enumerate() {
+        let mut names = Vec::new();
+        for &r in reads {
+            match plan.runs[r].as_slice() {
+                [one] => names.push(name(*one)),
+                [first, .., last] => names.push(format!(
+                    "{} to {}, {} elements in one read",
+                    name(*first),
+                    name(*last),
+                    plan.runs[r].len()
+                )),
+                [] => {}
+            }
+        }
+        let how = match reads.as_slice() {
+            [r] if super::eip::fragmented(plan.answers[*r], super::eip::CONNECTED_MESSAGE) => {
+                format!(
+                    ", read fragmented ({} bytes in {} requests at least)",
+                    plan.answers[*r],
+                    plan.answers[*r].div_ceil(super::eip::CONNECTED_MESSAGE - 10)
+                )
+            }
+            _ => String::new(),
+        };
+        let fields: usize = reads.iter().map(|&r| plan.runs[r].len()).sum();
         let _ = writeln!(
             out,
-            "    packet {}: {} tag(s): {}",
+            "    packet {}: {fields} tag(s){how}: {}",
             n + 1,
-            fields.len(),
             names.join(", ")
         );
     }
-    for (f, t) in profile.fields.iter().zip(&tags) {
+    for (f, t) in profile.fields.iter().zip(&plan.tags) {
         if let Err(why) = t {
             let _ = writeln!(out, "    {} not read: {why}", f.name);
         }

@@ -13,6 +13,9 @@ pub(crate) struct Tag {
     pub(crate) path: Vec<u8>,
     /// `Flags.5`: bit 5 of the integer `Flags`.
     pub(crate) bit: Option<u8>,
+    /// `Counts[3]`, `Motor.Hist[3]`: an element of a one-dimensional array, as the length
+    /// of the path before its index and the index (consecutive elements are read together).
+    pub(crate) element: Option<(usize, u32)>,
 }
 
 /// The longest name of one segment Logix allows.
@@ -41,14 +44,16 @@ pub(crate) fn parse(text: &str) -> Result<Tag, String> {
         parts.pop();
     }
     let mut path = Vec::new();
+    let mut element = None;
     for (k, part) in parts.iter().enumerate() {
-        segment(part, k == 0, &mut path).map_err(|e| format!("`{text}`: {e}"))?;
+        element = segment(part, k == 0, &mut path).map_err(|e| format!("`{text}`: {e}"))?;
     }
-    Ok(Tag { path, bit })
+    Ok(Tag { path, bit, element })
 }
 
-/// One segment: a name and its indexes.
-fn segment(part: &str, first: bool, path: &mut Vec<u8>) -> Result<(), String> {
+/// One segment: a name and its indexes; the path's length before the index and the
+/// index, when there is one index.
+fn segment(part: &str, first: bool, path: &mut Vec<u8>) -> Result<Option<(usize, u32)>, String> {
     let (name, indexes) = match part.split_once('[') {
         Some((name, rest)) => {
             let inner = rest
@@ -86,14 +91,18 @@ fn segment(part: &str, first: bool, path: &mut Vec<u8>) -> Result<(), String> {
         if numbers.len() > 3 {
             return Err(format!("`{part}`: Logix arrays have at most 3 dimensions"));
         }
+        let one = numbers.len() == 1;
+        let before = path.len();
+        let mut last = 0;
         for n in numbers {
-            let i: u32 = n
+            last = n
                 .parse()
                 .map_err(|_| format!("`{n}` in `{part}` is not an index"))?;
-            member(i, path);
+            member(last, path);
         }
+        return Ok(one.then_some((before, last)));
     }
-    Ok(())
+    Ok(None)
 }
 
 /// An element index as a member id segment of the smallest size that holds it.

@@ -13,6 +13,7 @@ pub(super) const SEND_UNIT_DATA: u16 = 0x70;
 
 /// CIP services.
 pub(super) const READ_TAG: u8 = 0x4C;
+pub(super) const READ_FRAGMENTED: u8 = 0x52;
 pub(super) const WRITE_TAG: u8 = 0x4D;
 pub(super) const MULTIPLE: u8 = 0x0A;
 pub(super) const READ_MODIFY_WRITE: u8 = 0x4E;
@@ -262,9 +263,16 @@ pub(super) fn reply(b: &[u8]) -> Result<Reply<'_>, Malformed> {
     })
 }
 
-/// Read Tag of one element at `path`.
-pub(super) fn read_tag(path: &[u8]) -> Vec<u8> {
-    request(READ_TAG, path, &1u16.to_le_bytes())
+/// Read Tag of `count` elements from `path`.
+pub(super) fn read_tag(path: &[u8], count: u16) -> Vec<u8> {
+    request(READ_TAG, path, &count.to_le_bytes())
+}
+
+/// Read Tag Fragmented of `count` elements from `path`, the reply's bytes from `offset`.
+pub(super) fn read_fragmented(path: &[u8], count: u16, offset: u32) -> Vec<u8> {
+    let mut data = count.to_le_bytes().to_vec();
+    data.extend_from_slice(&offset.to_le_bytes());
+    request(READ_FRAGMENTED, path, &data)
 }
 
 /// Write Tag of one element of type `code` at `path`.
@@ -344,7 +352,7 @@ mod tests {
 
     #[test]
     fn a_packet_of_two_reads_routed_to_slot_0_is_laid_out_as_the_specification_says() {
-        let a = read_tag(b"\x91\x01A\x00");
+        let a = read_tag(b"\x91\x01A\x00", 1);
         assert_eq!(a, b"\x4c\x02\x91\x01A\x00\x01\x00".to_vec());
         let packet = multiple(&[a.clone(), a.clone()]);
         // Service, path to the Message Router, count 2, offsets 6 and 14.

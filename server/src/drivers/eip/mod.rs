@@ -11,6 +11,7 @@ mod conn;
 mod directory;
 pub mod import;
 mod manager;
+mod read;
 mod value;
 
 use std::sync::Arc;
@@ -40,6 +41,8 @@ pub(crate) struct Plan {
     codes: Vec<Option<u16>>,
     /// A Logix STRING's structure handle and size, as last read (for its writes).
     layouts: Vec<Option<(u16, usize)>>,
+    /// Elements read on their own: a read of them together with their neighbours failed.
+    alone: Vec<bool>,
 }
 
 /// Connection serial numbers, one for each Forward Open this gateway makes.
@@ -76,6 +79,7 @@ impl Driver for Eip {
         Plan {
             codes: vec![None; tags.len()],
             layouts: vec![None; tags.len()],
+            alone: vec![false; tags.len()],
             tags,
         }
     }
@@ -128,22 +132,6 @@ impl Driver for Eip {
     }
 }
 
-/// The device's readable fields packed into packets, each within `limit` bytes both ways.
-fn packets(plan: &Plan, device: &Device, limit: usize) -> Vec<Vec<usize>> {
-    let sizes: Vec<(usize, usize, usize)> = plan
-        .tags
-        .iter()
-        .enumerate()
-        .filter_map(|(idx, tag)| {
-            let tag = tag.as_ref().ok()?;
-            let ty = device.profile.fields[idx].ty;
-            let (ask, answer) = crate::plan::eip::packet_sizes(tag, ty, plan.codes[idx]);
-            Some((idx, ask, answer))
-        })
-        .collect();
-    crate::plan::eip::packets(&sizes, limit)
-}
-
 impl Controller {
     /// A request's reply; `Ok(Err)` when the controller refused it whole (an
     /// encapsulation status: the connection stays in step), `Err` when the link failed.
@@ -158,63 +146,6 @@ impl Controller {
             }
             Err(e) => Err(lost(e)),
         }
-    }
-
-    /// Reads one packet's tags and publishes each.
-    async fn read_packet(
-        &mut self,
-        device: &Device,
-        plan: &mut Plan,
-        fields: &[usize],
-    ) -> Result<(), LinkFault> {
-        let requests: Vec<Vec<u8>> = fields
-            .iter()
-            .filter_map(|&i| plan.tags[i].as_ref().ok().map(|t| cip::read_tag(&t.path)))
-            .collect();
-        let answer = self.request(&cip::multiple(&requests)).await?;
-        let now = crate::cache::Stamp::now();
-        let answer = match answer {
-            Ok(a) => a,
-            Err(why) => {
-                for &i in fields {
-                    device.publish_at(i, Err(FieldError::Device(why.clone())), now);
-                }
-                return Ok(());
-            }
-        };
-        let outer = cip::reply(&answer).map_err(|e| lost(e.into()))?;
-        outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
-        if outer.status != 0 && outer.status != 0x1E {
-            let why = cip::cip_status(outer.status, outer.ext);
-            for &i in fields {
-                device.publish_at(i, Err(FieldError::Device(why.clone())), now);
-            }
-            return Ok(());
-        }
-        let replies =
-            cip::multiple_replies(outer.data, fields.len()).map_err(|e| lost(e.into()))?;
-        for (&idx, bytes) in fields.iter().zip(replies) {
-            let field = &device.profile.fields[idx];
-            let bit = plan.tags[idx].as_ref().ok().and_then(|t| t.bit);
-            let result = cip::reply(bytes)
-                .and_then(|r| r.answers(cip::READ_TAG).map(|()| r))
-                .map_err(|e| e.to_string())
-                .and_then(|r| match r.status {
-                    0 => {
-                        plan.layouts[idx] = value::layout(r.data);
-                        value::decode(r.data, field.ty, bit)
-                    }
-                    s => Err(cip::cip_status(s, r.ext)),
-                });
-            match result {
-                Ok((code, v)) => {
-                    plan.codes[idx] = Some(code);
-                    device.publish_at(idx, Ok(v), now);
-                }
-                Err(why) => device.publish_at(idx, Err(FieldError::Device(why)), now),
-            }
-        }
-        Ok(())
     }
 
     /// Writes one item: Write Tag, or Read-Modify-Write Tag for a bit of an integer.
@@ -287,9 +218,7 @@ impl Session for Controller {
                 device.publish(idx, Err(FieldError::Device(why.clone())));
             }
         }
-        for fields in packets(plan, device, self.conn.message_limit()) {
-            self.read_packet(device, plan, &fields).await?;
-        }
+        self.read_device(device, plan).await?;
         Ok(Read::Answered(started.elapsed()))
     }
 
