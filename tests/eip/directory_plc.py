@@ -9,7 +9,10 @@ implementation) is the check that this one answers as controllers do.
 Serves Register Session, List Identity, Forward Open (large and not), Forward Close,
 SendRRData (with Unconnected Send unwrapped) and SendUnitData; and on them Get Instance
 Attribute List (0x55) of the Symbol class (0x6B), controller and program scope, Get
-Attribute List (0x03) and Read Template (0x4C) of the Template class (0x6C). Replies are
+Attribute List (0x03) and Read Template (0x4C) of the Template class (0x6C); and, for the
+atomic controller tags, Read Tag (0x4C), Write Tag (0x4D) and Read-Modify-Write Tag (0x4E:
+the tag becomes (value OR or-mask) AND and-mask), alone or in Multiple Service Packets
+(0x0A), which cpppo's simulator does not have. Replies are
 cut at about 480 bytes with status 0x06 (partial transfer), so clients page. `--extra N`
 adds N DINT tags `Extra0`.. to the controller scope; `--stuck` answers every page of the
 list from the first symbol on, always partial (a controller a client must not follow
@@ -34,6 +37,7 @@ TEMPLATE_ID = {"STRING": 0x0FCE, "STATUS": 0x0101, "MOTOR": 0x0102}
 # Tags: (name, type, dimensions).
 CONTROLLER = [("Speed", "REAL", []), ("Counts", "DINT", [5]), ("Grid", "INT", [2, 2]),
               ("Flag", "BOOL", []), ("Big", "LINT", []), ("Lr", "LREAL", []),
+              ("Flags", "DINT", []), ("Word", "INT", []),
               ("Name", "STRING", []), ("M1", "MOTOR", []), ("Bits", "BOOL[]", [2]),
               ("__Internal", "DINT", []), ("Map:Local", "MAP", []),
               ("Program:Main", "PROGRAM", [])]
@@ -169,6 +173,43 @@ def template_service(service, p, data):
     return reply(0x4C, 0x06 if more else 0, chunk)
 
 
+VALUES = {}  # an atomic controller tag's bytes, by name (zeros at first)
+
+
+def tag_service(service, p, data):
+    entry = next(((ty, dims) for name, ty, dims in CONTROLLER if name == p["symbol"]), None)
+    if entry is None or entry[1] or entry[0] not in ATOMIC or entry[0] == "BOOL[]":
+        return reply(service, 0x05)
+    code, size = ATOMIC[entry[0]]
+    value = VALUES.setdefault(p["symbol"], bytes(size))
+    if service == 0x4C:
+        return reply(service, 0, struct.pack("<H", code) + value)
+    if service == 0x4D:
+        got, count = struct.unpack_from("<HH", data, 0)
+        if got != code or count != 1 or len(data) != 4 + size:
+            return reply(service, 0xFF, b"")[:3] + b"\x01" + struct.pack("<H", 0x2107)
+        VALUES[p["symbol"]] = data[4:]
+        return reply(service, 0)
+    n = struct.unpack_from("<H", data, 0)[0]
+    if n != size or len(data) != 2 + 2 * n:
+        return reply(service, 0x13)
+    ors, ands = data[2:2 + n], data[2 + n:2 + 2 * n]
+    VALUES[p["symbol"]] = bytes((v | o) & a for v, o, a in zip(value, ors, ands))
+    return reply(service, 0)
+
+
+def multiple(data):
+    count = struct.unpack_from("<H", data, 0)[0]
+    offsets = list(struct.unpack_from(f"<{count}H", data, 2)) + [len(data)]
+    replies = [message(data[offsets[k]:offsets[k + 1]]) for k in range(count)]
+    out, at = b"", 2 + 2 * count
+    for r in replies:
+        out += struct.pack("<H", at)
+        at += len(r)
+    status = 0x1E if any(r[2] for r in replies) else 0
+    return reply(0x0A, status, struct.pack("<H", count) + out + b"".join(replies))
+
+
 def message(msg):
     service, words = msg[0], msg[1]
     path, data = msg[2:2 + 2 * words], msg[2 + 2 * words:]
@@ -187,6 +228,10 @@ def message(msg):
         return reply(0x4E, 0, data[2:10] + b"\0\0")
     if service == 0x55:
         return list_symbols(p, data)
+    if service == 0x0A and p.get("class") == 0x02:
+        return multiple(data)
+    if service in (0x4C, 0x4D, 0x4E) and p["symbol"] and "class" not in p:
+        return tag_service(service, p, data)
     if service in (0x03, 0x4C) and p.get("class") == 0x6C:
         return template_service(service, p, data)
     return reply(service, 0x08)

@@ -77,6 +77,23 @@ impl LogixPlc {
         Ok(String::from_utf8_lossy(&out.stdout).into_owned())
     }
 
+    /// Writes `TAG=VALUE` pairs with pylogix (a bit of an integer, `Flags.4=true`, with
+    /// pylogix's own Read-Modify-Write Tag); each tag's status.
+    pub async fn write(&self, pairs: &[&str]) -> anyhow::Result<serde_json::Value> {
+        let out = tokio::process::Command::new("python3")
+            .arg(repo_file("eip/write.py"))
+            .arg(self.port.to_string())
+            .args(pairs)
+            .output()
+            .await?;
+        anyhow::ensure!(
+            out.status.success(),
+            "pylogix: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Ok(serde_json::from_slice(&out.stdout)?)
+    }
+
     /// The tags' values as pylogix reads them (JSON: each tag's value, or its error).
     pub async fn read(&self, tags: &[&str]) -> anyhow::Result<serde_json::Value> {
         let out = tokio::process::Command::new("python3")

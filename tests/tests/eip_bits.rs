@@ -1,0 +1,92 @@
+//! Bits of an integer written with Read-Modify-Write Tag, against a controller that has the
+//! service (`tests/eip/directory_plc.py`; cpppo's simulator refuses it), with pylogix
+//! (whose own bit writes use the same service) setting and reading the integers: only the
+//! bit asked for changes, even when the integer changed on the controller after the
+//! gateway last read it.
+
+use iogate_tests::TestGateway;
+use iogate_tests::devices::temp_dir;
+use iogate_tests::eip::LogixPlc;
+use serde_json::{Value, json};
+
+const PROFILE: &str = r#"name: Bits
+protocol: ab-eip
+fields:
+  - { name: Flags, type: DINT, direction: input, tag: Flags }
+  - { name: Wd, type: INT, direction: input, tag: Word }
+  - { name: F0, type: BOOL, direction: inout, tag: Flags.0 }
+  - { name: F4, type: BOOL, direction: inout, tag: Flags.4 }
+  - { name: W15, type: BOOL, direction: inout, tag: Word.15 }
+"#;
+
+/// Writes through REST and waits for the outcome.
+async fn put(gw: &TestGateway, name: &str, value: Value) -> anyhow::Result<Value> {
+    let (status, w) = gw
+        .send(
+            reqwest::Method::PUT,
+            &format!("/api/v1/devices/bits/fields/{name}"),
+            json!({ "value": value }).to_string(),
+        )
+        .await?;
+    anyhow::ensure!((200..300).contains(&status), "{status} {w}");
+    let generation = w["generation"].as_u64().unwrap_or(0);
+    let done = gw
+        .until(
+            &format!("/api/v1/devices/bits/fields/{name}"),
+            "the write's outcome",
+            |f| {
+                f["last_write"]["generation"].as_u64() >= Some(generation)
+                    && f["last_write"]["status"] != "pending"
+            },
+        )
+        .await?;
+    Ok(done["last_write"].clone())
+}
+
+#[tokio::test]
+async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
+    let plc = LogixPlc::directory(&[]).await.expect("controller");
+    assert_eq!(
+        plc.write(&["Flags=0x0F0F0F0F", "Word=1"])
+            .await
+            .expect("pylogix"),
+        json!({"Flags": "Success", "Word": "Success"})
+    );
+    let dir = temp_dir("eip-bits");
+    std::fs::create_dir_all(dir.join("profiles")).expect("dir");
+    std::fs::write(dir.join("profiles/bits.yaml"), PROFILE).expect("profile");
+    // Read once an hour: the gateway's value of each integer stays the first one read.
+    let gw = TestGateway::start(&format!(
+        "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {} }} }}\ndevices:\n  - {{ name: bits, profile: Bits, link: plc, refresh_rate: 1h }}\n",
+        dir.join("profiles").display(),
+        plc.port
+    ))
+    .await
+    .expect("gateway");
+    gw.until("/api/v1/devices/bits", "the integers read", |d| {
+        d["fields"]["Flags"]["value"] == 0x0F0F0F0F && d["fields"]["Wd"]["value"] == 1
+    })
+    .await
+    .expect("read");
+    // The controller's integers change after the gateway's read (pylogix's own
+    // Read-Modify-Write: bit 12 of Flags set, bit 0 of Word cleared, bit 3 set), then the
+    // gateway writes other bits.
+    assert_eq!(
+        plc.write(&["Flags.12=true", "Word.0=false", "Word.3=true"])
+            .await
+            .expect("pylogix"),
+        json!({"Flags.12": "Success", "Word.0": "Success", "Word.3": "Success"})
+    );
+    for (name, value) in [("F4", true), ("F0", false), ("W15", true)] {
+        let outcome = put(&gw, name, json!(value)).await.expect("write");
+        assert_eq!(outcome["status"], "written", "{name}: {outcome}");
+    }
+    // What pylogix changed stays; only the gateway's bits changed besides: Flags
+    // 0x0F0F0F0F | bit 12 | bit 4, less bit 0; Word 8 | bit 15 (an INT: -32760).
+    assert_eq!(
+        plc.read(&["Flags", "Word"]).await.expect("pylogix"),
+        json!({"Flags": 0x0F0F_1F1E, "Word": -32760})
+    );
+    gw.shutdown().await;
+    plc.kill().await.expect("kill");
+}
