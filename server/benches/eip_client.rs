@@ -1,9 +1,11 @@
 //! The EtherNet/IP driver beside pylogix (a Logix client in Python, not ours) on the same
-//! cpppo Logix simulator, one after the other in the same run: 500 tags (the elements of a
-//! DINT[500]) read per cycle, cycles a second as a ratio; the gateway's CPU and memory (only
-//! `iogate serve`'s process is measured). Both are bound by the simulator, a Python
-//! program answering on the same two cores: the ratio compares the clients' packing (how
-//! many requests a cycle takes), not the controllers a plant has.
+//! cpppo Logix simulator, one after the other in the same run, cycles a second as a ratio;
+//! the gateway's CPU and memory (only `iogate serve`'s process is measured). Two layouts:
+//! 500 DINT tags of their own (both clients pack them in Multiple Service Packets), and the
+//! 500 elements of a DINT[500] (the gateway reads the fields next to each other as one
+//! read; pylogix with its own array read of 500 elements). Both are bound by the simulator,
+//! a Python program answering on the same two cores: the ratio compares the clients'
+//! packing (how many requests a cycle takes), not the controllers a plant has.
 //!
 //! `cargo bench -p iogate --bench eip_client`
 
@@ -20,18 +22,29 @@ fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// cpppo's simulator with `Counts=DINT[TAGS]`; killed when dropped.
+/// The two layouts: tags of their own, or the elements of one array.
+#[derive(Clone, Copy, PartialEq)]
+enum Layout {
+    Tags,
+    Array,
+}
+
+/// cpppo's simulator with `T0=DINT` .. or `Counts=DINT[TAGS]`; killed when dropped.
 struct Simulator {
     child: Child,
     port: u16,
 }
 
 impl Simulator {
-    fn start() -> anyhow::Result<Simulator> {
+    fn start(layout: Layout) -> anyhow::Result<Simulator> {
         use std::io::BufRead;
+        let tags: Vec<String> = match layout {
+            Layout::Tags => (0..TAGS).map(|i| format!("T{i}=DINT")).collect(),
+            Layout::Array => vec![format!("Counts=DINT[{TAGS}]")],
+        };
         let mut child = Command::new("python3")
             .arg(repo().join("tests/eip/plc.py"))
-            .arg(format!("Counts=DINT[{TAGS}]"))
+            .args(&tags)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()?;
@@ -54,13 +67,19 @@ impl Drop for Simulator {
 }
 
 /// pylogix's cycles a second.
-fn reference(port: u16) -> anyhow::Result<f64> {
+fn reference(port: u16, layout: Layout) -> anyhow::Result<f64> {
     let out = Command::new("python3")
         .arg(repo().join("tests/eip/bench_read.py"))
         .args([
             port.to_string(),
             TAGS.to_string(),
             RUN.as_secs().to_string(),
+            if layout == Layout::Array {
+                "array"
+            } else {
+                "tags"
+            }
+            .to_owned(),
         ])
         .output()?;
     anyhow::ensure!(
@@ -78,14 +97,18 @@ async fn cycles(client: &mut iogate_client::Client) -> anyhow::Result<u64> {
     Ok(d.diagnostics.map_or(0, |d| d.io_cycles))
 }
 
-async fn iogate(port: u16) -> anyhow::Result<(f64, f64, f64)> {
+async fn iogate(port: u16, layout: Layout) -> anyhow::Result<(f64, f64, f64)> {
     let dir = common::temp_dir("eip")?;
     let profiles = dir.join("profiles");
     std::fs::create_dir_all(&profiles)?;
     let mut profile = String::from("name: Bench\nprotocol: ab-eip\nfields:\n");
     for i in 0..TAGS {
+        let tag = match layout {
+            Layout::Tags => format!("T{i}"),
+            Layout::Array => format!("Counts[{i}]"),
+        };
         profile.push_str(&format!(
-            "  - {{ name: C{i}, type: DINT, direction: input, tag: \"Counts[{i}]\" }}\n"
+            "  - {{ name: C{i}, type: DINT, direction: input, tag: \"{tag}\" }}\n"
         ));
     }
     std::fs::write(profiles.join("bench.yaml"), profile)?;
@@ -123,22 +146,35 @@ fn main() -> anyhow::Result<()> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
-    let simulator = Simulator::start()?;
-    let pylogix = reference(simulator.port)?;
-    let (rate, cpu, rss) = runtime.block_on(iogate(simulator.port))?;
-    println!(
-        "{TAGS} tags a cycle from cpppo's simulator: iogate {rate:.1} cycles/s, pylogix {pylogix:.1}: ratio {:.2}; gateway CPU {:.1} % of a core, {rss:.1} MiB resident",
-        rate / pylogix,
-        cpu * 100.0
-    );
-    common::print_table(&[common::Row {
-        measure: format!(
-            "EtherNet/IP, {TAGS} DINT tags a cycle: cycles a second; gateway CPU, memory"
+    let mut rows = Vec::new();
+    for (layout, what, peer) in [
+        (
+            Layout::Tags,
+            "500 DINT tags",
+            "pylogix, Multiple Service Packets",
         ),
-        iogate: format!("{rate:.1}; {:.1} % of a core, {rss:.1} MiB", cpu * 100.0),
-        peer: format!("pylogix {pylogix:.1}"),
-        ratio: rate / pylogix,
-        goal: "at least 1.0".into(),
-    }]);
+        (
+            Layout::Array,
+            "the 500 elements of a DINT[500]",
+            "pylogix, an array read",
+        ),
+    ] {
+        let simulator = Simulator::start(layout)?;
+        let pylogix = reference(simulator.port, layout)?;
+        let (rate, cpu, rss) = runtime.block_on(iogate(simulator.port, layout))?;
+        println!(
+            "{what} a cycle from cpppo's simulator: iogate {rate:.1} cycles/s, {peer} {pylogix:.1}: ratio {:.2}; gateway CPU {:.1} % of a core, {rss:.1} MiB resident",
+            rate / pylogix,
+            cpu * 100.0
+        );
+        rows.push(common::Row {
+            measure: format!("EtherNet/IP, {what} a cycle: cycles a second; gateway CPU, memory"),
+            iogate: format!("{rate:.1}; {:.1} % of a core, {rss:.1} MiB", cpu * 100.0),
+            peer: format!("{peer} {pylogix:.1}"),
+            ratio: rate / pylogix,
+            goal: "at least 1.0".into(),
+        });
+    }
+    common::print_table(&rows);
     Ok(())
 }
