@@ -116,6 +116,22 @@ pub(crate) trait Driver: Send + Sized + 'static {
     ) -> impl Future<Output = Result<Self::Session, LinkFault>> + Send;
 }
 
+/// A driver link's settings, as its `read` makes them from the link's configuration, or
+/// why the link cannot open (what `iogate check` says of it too).
+pub(crate) fn settings<S>(
+    config: &LinkConfig,
+    read: impl FnOnce(&str, &crate::config::DriverLink, &mut crate::yaml::Report) -> Option<S>,
+) -> Result<S, LinkFault> {
+    let crate::config::Transport::Driver(d) = &config.transport else {
+        return Err(LinkFault::NoPort);
+    };
+    let mut report = crate::yaml::Report::new("config");
+    read(&config.name, d, &mut report).ok_or_else(|| LinkFault::OpenFailed {
+        port: d.endpoint.clone(),
+        reason: report.into_problems().to_string(),
+    })
+}
+
 /// Finishes a write the driver took with its outcome, after `attempts` requests (a value
 /// written again after a reconnect has no write of its own to finish).
 pub(crate) fn finish(

@@ -89,16 +89,7 @@ impl Driver for Eip {
         link: &Arc<Link>,
         _metrics: &Arc<Metrics>,
     ) -> Result<Controller, LinkFault> {
-        let Transport::Driver(d) = &config.transport else {
-            return Err(LinkFault::NoPort);
-        };
-        let mut report = crate::yaml::Report::new("config");
-        let Some(s) = config::read(&config.name, d, &mut report) else {
-            return Err(LinkFault::OpenFailed {
-                port: d.endpoint.clone(),
-                reason: report.into_problems().to_string(),
-            });
-        };
+        let s = super::settings(config, config::read)?;
         let failed = |e: EipError| LinkFault::ConnectFailed {
             endpoint: format!("{}:{}", s.host, s.port),
             reason: Arc::new(std::io::Error::other(e.to_string())),

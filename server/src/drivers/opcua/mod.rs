@@ -93,17 +93,7 @@ impl Driver for OpcUa {
         link: &Arc<Link>,
         _metrics: &Arc<Metrics>,
     ) -> Result<Connection, LinkFault> {
-        let Transport::Driver(d) = &config.transport else {
-            return Err(LinkFault::NoPort);
-        };
-        let mut report = crate::yaml::Report::new("config");
-        let Some(settings) = config::read(&config.name, d, &mut report) else {
-            let why = report.into_problems().to_string();
-            return Err(LinkFault::OpenFailed {
-                port: d.endpoint.clone(),
-                reason: why,
-            });
-        };
+        let settings = super::settings(config, config::read)?;
         session::open(settings, link).await
     }
 }

@@ -115,16 +115,7 @@ impl Driver for S7 {
         link: &Arc<Link>,
         _metrics: &Arc<Metrics>,
     ) -> Result<Plc, LinkFault> {
-        let Transport::Driver(d) = &config.transport else {
-            return Err(LinkFault::NoPort);
-        };
-        let mut report = crate::yaml::Report::new("config");
-        let Some(s) = config::read(&config.name, d, &mut report) else {
-            return Err(LinkFault::OpenFailed {
-                port: d.endpoint.clone(),
-                reason: report.into_problems().to_string(),
-            });
-        };
+        let s = super::settings(config, config::read)?;
         let conn = Connection::open(
             (s.host.as_str(), s.port),
             s.local_tsap,
