@@ -373,7 +373,9 @@ async fn elements_next_to_each_other_are_read_together_and_a_large_array_fragmen
     // Data: 2,000 DINTs (8,000 bytes, twice the connection): one read, fragmented. Tail:
     // elements 8 to 10 of an array of 10, read together at first; the read fails (10 is
     // past the end), so each is read on its own: 8 and 9 good, 10 its own error.
-    let plc = LogixPlc::start(None, &["Data=DINT[2000]", "Tail=INT[10]"])
+    // Mid: 500 DINTs, one read that fits the connection, which cpppo answers in part
+    // (status 0x06): read fragmented instead.
+    let plc = LogixPlc::start(None, &["Data=DINT[2000]", "Tail=INT[10]", "Mid=DINT[500]"])
         .await
         .expect("controller");
     let dir = temp_dir("eip-runs");
@@ -387,6 +389,11 @@ async fn elements_next_to_each_other_are_read_together_and_a_large_array_fragmen
     for i in 8..=10 {
         profile.push_str(&format!(
             "  - {{ name: T{i}, type: INT, direction: input, tag: \"Tail[{i}]\" }}\n"
+        ));
+    }
+    for i in 0..500 {
+        profile.push_str(&format!(
+            "  - {{ name: M{i}, type: DINT, direction: inout, tag: \"Mid[{i}]\" }}\n"
         ));
     }
     std::fs::write(dir.join("profiles/runs.yaml"), profile).expect("profile");
@@ -412,11 +419,11 @@ async fn elements_next_to_each_other_are_read_together_and_a_large_array_fragmen
         "{plan}"
     );
     // Written through the gateway (the last element, one in the second part), read back.
-    for (i, v) in [(1999, 77), (1000, -5)] {
+    for (f, v) in [("D1999", 77), ("D1000", -5), ("M499", 9)] {
         let (status, w) = gw
             .send(
                 reqwest::Method::PUT,
-                &format!("/api/v1/devices/runs/fields/D{i}"),
+                &format!("/api/v1/devices/runs/fields/{f}"),
                 json!({ "value": v }).to_string(),
             )
             .await
@@ -428,6 +435,8 @@ async fn elements_next_to_each_other_are_read_together_and_a_large_array_fragmen
             let good = |n: &str| field(d, n)["quality"] == "good";
             field(d, "D1999")["value"] == 77
                 && field(d, "D1000")["value"] == -5
+                && field(d, "M499")["value"] == 9
+                && good("M0")
                 && good("D0")
                 && good("D1998")
                 && good("T8")

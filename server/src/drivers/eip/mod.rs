@@ -43,6 +43,9 @@ pub(crate) struct Plan {
     layouts: Vec<Option<(u16, usize)>>,
     /// Elements read on their own: a read of them together with their neighbours failed.
     alone: Vec<bool>,
+    /// Reads of elements (by their first field) the controller answered only in part:
+    /// read fragmented.
+    fragment: Vec<bool>,
 }
 
 /// Connection serial numbers, one for each Forward Open this gateway makes.
@@ -80,6 +83,7 @@ impl Driver for Eip {
             codes: vec![None; tags.len()],
             layouts: vec![None; tags.len()],
             alone: vec![false; tags.len()],
+            fragment: vec![false; tags.len()],
             tags,
         }
     }

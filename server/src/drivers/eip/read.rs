@@ -45,18 +45,35 @@ impl Controller {
                     let ty = device.profile.fields[first].ty;
                     packet_sizes(t, ty, plan.codes[first], fields.len())
                 });
+                // A read the controller answered in part goes alone, fragmented.
+                let answer = if plan.fragment[first] && fields.len() > 1 {
+                    answer.max(limit)
+                } else {
+                    answer
+                };
                 (r, ask, answer)
             })
             .collect();
         let mut failed = Vec::new();
+        let mut partial = Vec::new();
         for packet in packets(&sizes, limit) {
             let group: Vec<&[usize]> = packet.iter().map(|&r| reads[r].as_slice()).collect();
             match group.as_slice() {
                 [one] if fragmented(sizes[packet[0]].2, limit) => {
                     self.read_fragmented(device, plan, one, &mut failed).await?;
                 }
-                _ => self.read_packet(device, plan, &group, &mut failed).await?,
+                _ => {
+                    let retry = (&mut failed, &mut partial);
+                    self.read_packet(device, plan, &group, retry).await?;
+                }
             }
+        }
+        // Reads the controller answered in part (more than it puts in one reply): read
+        // fragmented now and from now on.
+        for run in partial {
+            plan.fragment[run[0]] = true;
+            self.read_fragmented(device, plan, &run, &mut failed)
+                .await?;
         }
         Ok(failed)
     }
@@ -67,7 +84,7 @@ impl Controller {
         device: &Device,
         plan: &mut Plan,
         group: &[&[usize]],
-        failed: &mut Vec<usize>,
+        (failed, partial): (&mut Vec<usize>, &mut Vec<Vec<usize>>),
     ) -> Result<(), LinkFault> {
         let requests: Vec<Vec<u8>> = group
             .iter()
@@ -100,7 +117,11 @@ impl Controller {
         for (&run, bytes) in group.iter().zip(replies) {
             match cip::reply(bytes).and_then(|r| r.answers(cip::READ_TAG).map(|()| r)) {
                 Ok(r) if r.status == 0 => publish(device, plan, run, r.data, now),
-                Ok(_) if run.len() > 1 => failed.extend_from_slice(run),
+                Ok(r) if r.status == 0x06 && run.len() > 1 => partial.push(run.to_vec()),
+                Ok(r) if run.len() > 1 => {
+                    apart(device, run, &cip::cip_status(r.status, r.ext));
+                    failed.extend_from_slice(run);
+                }
                 Ok(r) => publish_error(device, run, &cip::cip_status(r.status, r.ext), now),
                 Err(e) => publish_error(device, run, &e.to_string(), now),
             }
@@ -137,6 +158,7 @@ impl Controller {
                 .map_err(|e| lost(e.into()))?;
             if r.status != 0 && r.status != 0x06 {
                 if run.len() > 1 {
+                    apart(device, run, &cip::cip_status(r.status, r.ext));
                     failed.extend_from_slice(run);
                 } else {
                     publish_error(device, run, &cip::cip_status(r.status, r.ext), Stamp::now());
@@ -167,6 +189,12 @@ impl Controller {
         publish(device, plan, run, &whole, Stamp::now());
         Ok(())
     }
+}
+
+/// Tells that a read of elements together failed and they are read one by one.
+fn apart(device: &Device, run: &[usize], why: &str) {
+    let first = &device.profile.fields[run[0]].name;
+    tracing::info!(device = %device.name(), first = %first, elements = run.len(), why, "a read of elements together failed: reading them one by one");
 }
 
 fn publish_error(device: &Device, run: &[usize], why: &str, now: Stamp) {
