@@ -14,7 +14,8 @@ atomic controller tags, Read Tag (0x4C), Write Tag (0x4D) and Read-Modify-Write 
 the tag becomes (value OR or-mask) AND and-mask), alone or in Multiple Service Packets
 (0x0A), which cpppo's simulator does not have. Replies are
 cut at about 480 bytes with status 0x06 (partial transfer), so clients page. `--extra N`
-adds N DINT tags `Extra0`.. to the controller scope; `--stuck` answers every page of the
+adds N DINT tags `Extra0`.. to the controller scope; each Forward Close and UnRegister
+Session is printed on a line of its own (`forward-close vendor=0x4947 originator=...`); `--stuck` answers every page of the
 list from the first symbol on, always partial (a controller a client must not follow
 forever). Listens on 127.0.0.1, prints the port once it listens.
 """
@@ -225,6 +226,8 @@ def message(msg):
         return reply(service, 0, struct.pack("<IIHHIIIBB", 0x7000 + serial, t_o, serial,
                                              vendor, orig, 2_000_000, 2_000_000, 0, 0))
     if service == 0x4E and p.get("class") == 0x06:
+        serial, vendor, orig = struct.unpack_from("<HHI", data, 2)
+        print(f"forward-close vendor={vendor:#06x} originator={orig:#010x}", flush=True)
         return reply(0x4E, 0, data[2:10] + b"\0\0")
     if service == 0x55:
         return list_symbols(p, data)
@@ -283,6 +286,7 @@ def serve(sock):
             head, data, buf = buf[:24], buf[24:24 + n], buf[24 + n:]
             command, _, session, _, context, _ = struct.unpack("<HHII8sI", head)
             if command == 0x66:
+                print("unregister-session", flush=True)
                 return
             session, out = answer(command, session, data)
             if out is not None:

@@ -58,6 +58,14 @@ impl LogixPlc {
         Ok(serde_json::from_slice(&out.stdout)?)
     }
 
+    /// The controller's next line after its port (the directory controller prints each
+    /// Forward Close and UnRegister Session it is sent).
+    pub async fn said(&mut self) -> anyhow::Result<String> {
+        tokio::time::timeout(PATIENCE, self.piped.lines.next_line())
+            .await??
+            .ok_or_else(|| anyhow::anyhow!("the controller ended"))
+    }
+
     /// Kills the controller as the operating system would.
     pub async fn kill(mut self) -> anyhow::Result<()> {
         self.piped.child.kill().await?;

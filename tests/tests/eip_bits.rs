@@ -2,7 +2,8 @@
 //! service (`tests/eip/directory_plc.py`; cpppo's simulator refuses it), with pylogix
 //! (whose own bit writes use the same service) setting and reading the integers: only the
 //! bit asked for changes, even when the integer changed on the controller after the
-//! gateway last read it.
+//! gateway last read it. Stopped, the gateway closes its connection (Forward Close) and its
+//! session.
 
 use iogate_tests::TestGateway;
 use iogate_tests::devices::temp_dir;
@@ -45,7 +46,7 @@ async fn put(gw: &TestGateway, name: &str, value: Value) -> anyhow::Result<Value
 
 #[tokio::test]
 async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
-    let plc = LogixPlc::directory(&[]).await.expect("controller");
+    let mut plc = LogixPlc::directory(&[]).await.expect("controller");
     assert_eq!(
         plc.write(&["Flags=0x0F0F0F0F", "Word=1"])
             .await
@@ -87,6 +88,18 @@ async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
         plc.read(&["Flags", "Word"]).await.expect("pylogix"),
         json!({"Flags": 0x0F0F_1F1E, "Word": -32760})
     );
+    // Stopped, the gateway closes its connection and its session on the controller.
     gw.shutdown().await;
+    let mut told = Vec::new();
+    while !told
+        .iter()
+        .any(|l: &String| l.starts_with("forward-close vendor=0x4947"))
+    {
+        told.push(plc.said().await.expect("the gateway's Forward Close"));
+    }
+    assert_eq!(
+        plc.said().await.expect("and its session"),
+        "unregister-session"
+    );
     plc.kill().await.expect("kill");
 }
