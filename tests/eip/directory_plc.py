@@ -38,7 +38,7 @@ TEMPLATE_ID = {"STRING": 0x0FCE, "STATUS": 0x0101, "MOTOR": 0x0102}
 # Tags: (name, type, dimensions).
 CONTROLLER = [("Speed", "REAL", []), ("Counts", "DINT", [5]), ("Grid", "INT", [2, 2]),
               ("Flag", "BOOL", []), ("Big", "LINT", []), ("Lr", "LREAL", []),
-              ("Flags", "DINT", []), ("Word", "INT", []),
+              ("Flags", "DINT", []), ("Word", "INT", []), ("Bad Name", "DINT", []),
               ("Name", "STRING", []), ("M1", "MOTOR", []), ("Bits", "BOOL[]", [2]),
               ("__Internal", "DINT", []), ("Map:Local", "MAP", []),
               ("Program:Main", "PROGRAM", [])]

@@ -213,6 +213,11 @@ impl Walk {
         let controller = list(conn, None).await?;
         let mut scopes = vec![(None, controller.clone())];
         for program in controller.iter().filter(|s| s.name.starts_with("Program:")) {
+            if program.name.len() > usize::from(u8::MAX) {
+                self.skipped
+                    .push(format!("a program's name of {} bytes", program.name.len()));
+                continue;
+            }
             if scopes.len() > MAX_PROGRAMS {
                 self.skipped.push(format!(
                     "`{}`: more than {MAX_PROGRAMS} programs",
@@ -357,8 +362,13 @@ impl Walk {
         }
     }
 
-    /// A field for `tag`, named after it (unique in the profile).
+    /// A field for `tag`, named after it (unique in the profile); a tag `tag:` does not
+    /// take (a controller's name of other characters, too long) is reported instead.
     fn field(&mut self, tag: &str, ty: IecType) {
+        if let Err(why) = crate::profile::eip_tag::parse(tag) {
+            self.skipped.push(why);
+            return;
+        }
         let base = identifier(tag.strip_prefix("Program:").unwrap_or(tag));
         let mut name = base.clone();
         let mut k = 2;
