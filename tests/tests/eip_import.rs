@@ -115,7 +115,7 @@ async fn a_controllers_tags_become_a_profile_of_their_atomic_values() {
 }
 
 #[tokio::test]
-async fn a_controller_whose_pages_never_end_and_one_not_there_are_errors() {
+async fn a_controller_whose_pages_never_end_one_without_a_directory_and_one_not_there_are_errors() {
     let plc = LogixPlc::directory(&["--stuck"]).await.expect("controller");
     let dir = temp_dir("eip-import-stuck");
     let code = tokio::time::timeout(
@@ -128,6 +128,14 @@ async fn a_controller_whose_pages_never_end_and_one_not_there_are_errors() {
     assert!(fields(&dir, plc.port).is_empty());
     let port = plc.port;
     plc.kill().await.expect("kill");
+    // cpppo's simulator has no tag directory: an error, no profile.
+    let cpppo = LogixPlc::start(None, &["Speed=REAL"]).await.expect("cpppo");
+    assert_eq!(
+        import(format!("127.0.0.1:{}", cpppo.port), dir.clone()).await,
+        1
+    );
+    assert!(fields(&dir, cpppo.port).is_empty());
+    cpppo.kill().await.expect("kill");
     // Nothing listens there now; a port that is not one is a bad argument.
     assert_eq!(import(format!("127.0.0.1:{port}"), dir.clone()).await, 1);
     assert_eq!(import("127.0.0.1:nope".to_owned(), dir).await, 64);

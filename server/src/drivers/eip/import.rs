@@ -210,7 +210,9 @@ impl Walk {
     /// Lists the controller's and its programs' symbols, reads the templates they use and
     /// makes the fields.
     async fn run(&mut self, conn: &mut Connection) -> Result<(), String> {
-        let controller = list(conn, None).await?;
+        let controller = list(conn, None).await.map_err(|e| {
+            format!("the controller did not list its tags (Get Instance Attribute List of the Symbol class): {e}")
+        })?;
         let mut scopes = vec![(None, controller.clone())];
         for program in controller.iter().filter(|s| s.name.starts_with("Program:")) {
             if program.name.len() > usize::from(u8::MAX) {
