@@ -42,22 +42,6 @@ impl LogixPlc {
         Ok(LogixPlc { piped, port })
     }
 
-    /// The controller's tags as pylogix lists them (`tests/eip/tag_list.py`: `tags` and
-    /// `udts`).
-    pub async fn tag_list(&self) -> anyhow::Result<serde_json::Value> {
-        let out = tokio::process::Command::new("python3")
-            .arg(repo_file("eip/tag_list.py"))
-            .arg(self.port.to_string())
-            .output()
-            .await?;
-        anyhow::ensure!(
-            out.status.success(),
-            "pylogix: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        Ok(serde_json::from_slice(&out.stdout)?)
-    }
-
     /// The controller's next line after its port (the directory controller prints each
     /// Forward Close and UnRegister Session it is sent).
     pub async fn said(&mut self) -> anyhow::Result<String> {
@@ -88,26 +72,26 @@ impl LogixPlc {
     /// Writes `TAG=VALUE` pairs with pylogix (a bit of an integer, `Flags.4=true`, with
     /// pylogix's own Read-Modify-Write Tag); each tag's status.
     pub async fn write(&self, pairs: &[&str]) -> anyhow::Result<serde_json::Value> {
-        let out = tokio::process::Command::new("python3")
-            .arg(repo_file("eip/write.py"))
-            .arg(self.port.to_string())
-            .args(pairs)
-            .output()
-            .await?;
-        anyhow::ensure!(
-            out.status.success(),
-            "pylogix: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        Ok(serde_json::from_slice(&out.stdout)?)
+        self.pylogix("eip/write.py", pairs).await
     }
 
     /// The tags' values as pylogix reads them (JSON: each tag's value, or its error).
     pub async fn read(&self, tags: &[&str]) -> anyhow::Result<serde_json::Value> {
+        self.pylogix("eip/read.py", tags).await
+    }
+
+    /// The controller's tags as pylogix lists them (`tests/eip/tag_list.py`: `tags` and
+    /// `udts`).
+    pub async fn tag_list(&self) -> anyhow::Result<serde_json::Value> {
+        self.pylogix("eip/tag_list.py", &[]).await
+    }
+
+    /// A pylogix script's JSON, given this controller's port and `args`.
+    async fn pylogix(&self, script: &str, args: &[&str]) -> anyhow::Result<serde_json::Value> {
         let out = tokio::process::Command::new("python3")
-            .arg(repo_file("eip/read.py"))
+            .arg(repo_file(script))
             .arg(self.port.to_string())
-            .args(tags)
+            .args(args)
             .output()
             .await?;
         anyhow::ensure!(

@@ -340,6 +340,30 @@ impl TestGateway {
         }
     }
 
+    /// Asks for a write of `value` to `device`'s `field` through the REST API: the API's
+    /// refusal (`Err`, its status and answer), or the write's record once it has an
+    /// outcome.
+    pub async fn write_outcome(
+        &self,
+        device: &str,
+        field: &str,
+        value: serde_json::Value,
+    ) -> anyhow::Result<Result<serde_json::Value, String>> {
+        let body = serde_json::json!({ "value": value }).to_string();
+        let path = format!("/api/v1/devices/{device}/fields/{field}");
+        let (status, w) = self.send(reqwest::Method::PUT, &path, body).await?;
+        if !(200..300).contains(&status) {
+            return Ok(Err(format!("{status} {w}")));
+        }
+        let generation = w["generation"].as_u64().unwrap_or_default();
+        let outcome = self
+            .until(&format!("/api/v1/writes/{generation}"), "an outcome", |w| {
+                w["status"] != "pending"
+            })
+            .await?;
+        Ok(Ok(outcome))
+    }
+
     /// Waits until every field of `device` has been read (quality good); answers the
     /// device's JSON.
     pub async fn all_read(&self, device: &str) -> anyhow::Result<serde_json::Value> {

@@ -22,26 +22,9 @@ fields:
 
 /// Writes through REST and waits for the outcome.
 async fn put(gw: &TestGateway, name: &str, value: Value) -> anyhow::Result<Value> {
-    let (status, w) = gw
-        .send(
-            reqwest::Method::PUT,
-            &format!("/api/v1/devices/bits/fields/{name}"),
-            json!({ "value": value }).to_string(),
-        )
-        .await?;
-    anyhow::ensure!((200..300).contains(&status), "{status} {w}");
-    let generation = w["generation"].as_u64().unwrap_or(0);
-    let done = gw
-        .until(
-            &format!("/api/v1/devices/bits/fields/{name}"),
-            "the write's outcome",
-            |f| {
-                f["last_write"]["generation"].as_u64() >= Some(generation)
-                    && f["last_write"]["status"] != "pending"
-            },
-        )
-        .await?;
-    Ok(done["last_write"].clone())
+    gw.write_outcome("bits", name, value)
+        .await?
+        .map_err(|refused| anyhow::anyhow!("{name}: {refused}"))
 }
 
 #[tokio::test]

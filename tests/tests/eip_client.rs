@@ -76,26 +76,9 @@ async fn read_once(gw: &TestGateway) -> anyhow::Result<Value> {
 
 /// Writes through REST and waits for the outcome.
 async fn put(gw: &TestGateway, name: &str, value: Value) -> anyhow::Result<Value> {
-    let (status, w) = gw
-        .send(
-            reqwest::Method::PUT,
-            &format!("/api/v1/devices/line/fields/{name}"),
-            json!({ "value": value }).to_string(),
-        )
-        .await?;
-    anyhow::ensure!((200..300).contains(&status), "{status} {w}");
-    let generation = w["generation"].as_u64().unwrap_or(0);
-    let done = gw
-        .until(
-            &format!("/api/v1/devices/line/fields/{name}"),
-            "the write's outcome",
-            |f| {
-                f["last_write"]["generation"].as_u64() >= Some(generation)
-                    && f["last_write"]["status"] != "pending"
-            },
-        )
-        .await?;
-    Ok(done["last_write"].clone())
+    gw.write_outcome("line", name, value)
+        .await?
+        .map_err(|refused| anyhow::anyhow!("{name}: {refused}"))
 }
 
 #[tokio::test]
@@ -168,6 +151,12 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
     assert!(label.contains("['hello plant']"), "{label}");
     gw.shutdown().await;
     plc.kill().await.expect("kill");
+}
+
+/// The link's plan as the API shows it (the text `iogate plan` prints).
+async fn plan(gw: &TestGateway) -> anyhow::Result<String> {
+    let url = gw.url("/api/v1/links/plc/plan");
+    Ok(gw.client.get(url).send().await?.text().await?)
 }
 
 /// How many times the link reopened after it was lost.
@@ -306,15 +295,7 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
         .await;
     assert!(device.is_ok(), "{device:?}");
     // The plan, as `iogate plan` and the API show it: three packets a cycle.
-    let plan = gw
-        .client
-        .get(gw.url("/api/v1/links/plc/plan"))
-        .send()
-        .await
-        .expect("plan")
-        .text()
-        .await
-        .expect("text");
+    let plan = plan(&gw).await.expect("plan");
     assert!(plan.contains("3 packet(s) per cycle"), "{plan}");
     assert_eq!(
         plc.read(&["Counts[1198]", "Counts[62]"])
@@ -404,15 +385,7 @@ async fn elements_next_to_each_other_are_read_together_and_a_large_array_fragmen
     ))
     .await
     .expect("gateway");
-    let plan = gw
-        .client
-        .get(gw.url("/api/v1/links/plc/plan"))
-        .send()
-        .await
-        .expect("plan")
-        .text()
-        .await
-        .expect("text");
+    let plan = plan(&gw).await.expect("plan");
     assert!(
         plan.contains("D0 (Data[0]) to D1999 (Data[1999]), 2000 elements in one read")
             && plan.contains("read fragmented (8008 bytes"),

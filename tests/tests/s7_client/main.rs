@@ -108,23 +108,7 @@ async fn put(
     name: &str,
     value: Value,
 ) -> anyhow::Result<Result<Value, String>> {
-    let (status, w) = gw
-        .send(
-            reqwest::Method::PUT,
-            &format!("/api/v1/devices/{device}/fields/{name}"),
-            json!({ "value": value }).to_string(),
-        )
-        .await?;
-    if !(200..300).contains(&status) {
-        return Ok(Err(format!("{status} {w}")));
-    }
-    let generation = w["generation"].as_u64().unwrap_or_default();
-    let outcome = gw
-        .until(&format!("/api/v1/writes/{generation}"), "an outcome", |w| {
-            w["status"] != "pending"
-        })
-        .await?;
-    Ok(Ok(outcome))
+    gw.write_outcome(device, name, value).await
 }
 
 /// Writes a field through the REST API and waits for its outcome.

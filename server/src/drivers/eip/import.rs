@@ -49,17 +49,7 @@ struct Walk {
 /// Runs the import; the exit code: 0 a profile written, 1 nothing could be imported, 64 a
 /// bad argument.
 pub fn run(target: &str, path: Option<&str>, out: Option<&Path>) -> u8 {
-    let runtime = match tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-    {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("iogate profile import: {e}");
-            return 1;
-        }
-    };
-    runtime.block_on(import(target, path, out))
+    crate::profile::import::emit::on_runtime(import(target, path, out))
 }
 
 /// `HOST` or `HOST:PORT` (44818 by default).

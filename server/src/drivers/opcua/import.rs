@@ -44,17 +44,7 @@ struct Field {
 /// Runs the import; the exit code: 0 a profile written, 1 nothing could be imported, 64 a
 /// bad argument.
 pub fn run(url: &str, root: Option<&str>, out: Option<&Path>) -> u8 {
-    let runtime = match tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-    {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("iogate profile import: {e}");
-            return 1;
-        }
-    };
-    runtime.block_on(import(url, root, out))
+    crate::profile::import::emit::on_runtime(import(url, root, out))
 }
 
 async fn import(url: &str, root: Option<&str>, out: Option<&Path>) -> u8 {

@@ -59,3 +59,18 @@ pub(crate) fn emit(made: &Made, out: Option<&Path>) -> u8 {
     }
     0
 }
+
+/// Runs a live import (`import`, its exit code) on a runtime of its own: the command line
+/// has none.
+pub(crate) fn on_runtime(import: impl std::future::Future<Output = u8>) -> u8 {
+    match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(runtime) => runtime.block_on(import),
+        Err(e) => {
+            eprintln!("iogate profile import: {e}");
+            1
+        }
+    }
+}
