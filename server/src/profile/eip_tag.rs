@@ -107,14 +107,20 @@ fn segment(part: &str, first: bool, path: &mut Vec<u8>) -> Result<Option<(usize,
 
 /// An element index as a member id segment of the smallest size that holds it.
 fn member(i: u32, path: &mut Vec<u8>) {
-    if let Ok(b) = u8::try_from(i) {
-        path.extend_from_slice(&[0x28, b]);
-    } else if let Ok(w) = u16::try_from(i) {
-        path.extend_from_slice(&[0x29, 0]);
+    logical(0x28, i, path);
+}
+
+/// A logical segment (`kind`: its 8-bit form, 0x24 an instance, 0x28 a member id) of the
+/// smallest size that holds `value`: the 16- and 32-bit forms follow a pad byte.
+pub(crate) fn logical(kind: u8, value: u32, path: &mut Vec<u8>) {
+    if let Ok(b) = u8::try_from(value) {
+        path.extend_from_slice(&[kind, b]);
+    } else if let Ok(w) = u16::try_from(value) {
+        path.extend_from_slice(&[kind + 1, 0]);
         path.extend_from_slice(&w.to_le_bytes());
     } else {
-        path.extend_from_slice(&[0x2A, 0]);
-        path.extend_from_slice(&i.to_le_bytes());
+        path.extend_from_slice(&[kind + 2, 0]);
+        path.extend_from_slice(&value.to_le_bytes());
     }
 }
 
