@@ -162,3 +162,89 @@ fn counter_profiles() -> std::path::PathBuf {
     .expect("profile");
     dir
 }
+
+/// A device that answers reads with zeros and ends the connection at every write; the
+/// writes it was sent.
+async fn dropping_device() -> (u16, std::sync::Arc<std::sync::atomic::AtomicUsize>) {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let port = listener.local_addr().expect("addr").port();
+    let writes = std::sync::Arc::new(AtomicUsize::new(0));
+    let seen = writes.clone();
+    tokio::spawn(async move {
+        while let Ok((mut s, _)) = listener.accept().await {
+            let seen = seen.clone();
+            tokio::spawn(async move {
+                let mut head = [0u8; 7];
+                while s.read_exact(&mut head).await.is_ok() {
+                    let len = usize::from(u16::from_be_bytes([head[4], head[5]]));
+                    let mut pdu = vec![0u8; len.saturating_sub(1)];
+                    if s.read_exact(&mut pdu).await.is_err() || pdu.len() < 5 {
+                        return;
+                    }
+                    if matches!(pdu[0], 5 | 6 | 15 | 16) {
+                        seen.fetch_add(1, Ordering::SeqCst);
+                        return;
+                    }
+                    let count = usize::from(u16::from_be_bytes([pdu[3], pdu[4]]));
+                    let bytes = if pdu[0] <= 2 {
+                        count.div_ceil(8)
+                    } else {
+                        2 * count
+                    };
+                    let mut answer = head.to_vec();
+                    answer[4..6].copy_from_slice(&((3 + bytes) as u16).to_be_bytes());
+                    answer.extend_from_slice(&[pdu[0], bytes as u8]);
+                    answer.resize(answer.len() + bytes, 0);
+                    if s.write_all(&answer).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    (port, writes)
+}
+
+#[tokio::test]
+async fn a_write_the_device_drops_the_connection_at_is_sent_three_times_then_no_more() {
+    use std::sync::atomic::Ordering;
+    let (port, writes) = dropping_device().await;
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {port} }} }}\ndevices:\n  - {{ name: vfd, profile: GenericVfd, link: plant, slave_id: 2, refresh_rate: 50ms }}\n"
+    ))
+    .await
+    .expect("gateway");
+    gw.all_read("vfd").await.expect("read");
+    let outcome = gw
+        .write_outcome("vfd", "FrequencySetpoint", serde_json::json!(35.5))
+        .await
+        .expect("write")
+        .expect("accepted");
+    assert_eq!(outcome["status"], "failed", "{outcome}");
+    // Sent again after two reconnects; the third loss gives it up and says so.
+    let given_up = gw
+        .until(
+            "/api/v1/devices/vfd/fields/FrequencySetpoint",
+            "given up",
+            |f| {
+                f["last_write"]["error"]
+                    .as_str()
+                    .is_some_and(|e| e.contains("not written again"))
+            },
+        )
+        .await
+        .expect("given up");
+    assert_eq!(given_up["last_write"]["origin"], "replay", "{given_up}");
+    // The link comes back and is read for a while: no write is sent any more.
+    let (_, now) = gw.get("/api/v1/devices/vfd").await.expect("device");
+    let cycles = now["io_cycles"].as_u64().unwrap_or(0);
+    gw.until("/api/v1/devices/vfd", "more cycles read", |d| {
+        d["connected"] == true && d["io_cycles"].as_u64() >= Some(cycles + 10)
+    })
+    .await
+    .expect("cycles");
+    assert_eq!(writes.load(Ordering::SeqCst), 3);
+    gw.shutdown().await;
+}

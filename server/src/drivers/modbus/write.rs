@@ -90,7 +90,12 @@ pub(super) async fn outputs(
                 one_by_one(device, &items, &op, &mut ops);
             }
             Err(e) => {
-                let failed = WriteError::from(e.clone());
+                // The link lost with the write sent counts towards not writing it again
+                // after every reconnect (`Outputs::finish`).
+                let failed = match connection_fault(&e) {
+                    Some(fault) => WriteError::LinkDown(fault),
+                    None => WriteError::from(e.clone()),
+                };
                 for &n in op.items() {
                     finish(device, &items[n], Err(failed.clone()), attempts);
                 }
