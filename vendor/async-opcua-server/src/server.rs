@@ -576,6 +576,15 @@ impl Server {
             let mut tick = tokio::time::interval(Duration::from_millis(interval));
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
             loop {
+                // No subscriptions: no tick until there are (nothing costs CPU while no
+                // client asks for it).
+                if context.subscriptions.is_idle() {
+                    let subscribed = context.subscriptions.subscribed();
+                    if context.subscriptions.is_idle() {
+                        subscribed.await;
+                    }
+                    tick.reset();
+                }
                 tick.tick().await;
 
                 context.subscriptions.periodic_tick(&context).await;

@@ -101,6 +101,9 @@ pub struct SubscriptionCache {
     inner: RwLock<SubscriptionCacheInner>,
     /// Configured limits on subscriptions.
     limits: SubscriptionLimits,
+    /// Told when a session gets subscriptions (created or transferred), so the periodic
+    /// tick can rest while there are none.
+    subscribed: tokio::sync::Notify,
 }
 
 impl SubscriptionCache {
@@ -112,7 +115,18 @@ impl SubscriptionCache {
                 monitored_items: HashMap::new(),
             }),
             limits,
+            subscribed: tokio::sync::Notify::new(),
         }
+    }
+
+    /// Whether no session has subscriptions (nothing for the periodic tick to do).
+    pub(crate) fn is_idle(&self) -> bool {
+        trace_read_lock!(self.inner).session_subscriptions.is_empty()
+    }
+
+    /// Resolves once a session gets subscriptions after this call.
+    pub(crate) fn subscribed(&self) -> tokio::sync::futures::Notified<'_> {
+        self.subscribed.notified()
     }
 
     /// Get the `SessionSubscriptions` object for a single session by its numeric ID.
@@ -249,6 +263,7 @@ impl SubscriptionCache {
             .diagnostics
             .set_current_subscription_count(lck.subscription_to_session.len() as u32);
         context.info.diagnostics.inc_subscription_count();
+        self.subscribed.notify_waiters();
         Ok(res)
     }
 
@@ -704,6 +719,7 @@ impl SubscriptionCache {
                 }
             }
         }
+        self.subscribed.notify_waiters();
 
         TransferSubscriptionsResponse {
             response_header: ResponseHeader::new_good(&req.request_header),

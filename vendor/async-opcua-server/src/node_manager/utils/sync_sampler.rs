@@ -45,6 +45,8 @@ impl SamplerItem {
 /// to the server context.
 pub struct SyncSampler {
     samplers: Arc<Mutex<HashMap<(NodeId, AttributeId), SamplerItem>>>,
+    /// Told when a sampler is added: the tick rests while there is none.
+    added: Arc<tokio::sync::Notify>,
     _guard: DropGuard,
     token: CancellationToken,
 }
@@ -61,6 +63,7 @@ impl SyncSampler {
         let token = CancellationToken::new();
         Self {
             samplers: Default::default(),
+            added: Default::default(),
             _guard: token.clone().drop_guard(),
             token,
         }
@@ -72,9 +75,10 @@ impl SyncSampler {
     pub fn run(&self, interval: Duration, subscriptions: Arc<SubscriptionCache>) {
         let token = self.token.clone();
         let samplers = self.samplers.clone();
+        let added = self.added.clone();
         tokio::spawn(async move {
             tokio::select! {
-                _ = Self::run_internal(samplers, interval, subscriptions) => {},
+                _ = Self::run_internal(samplers, added, interval, subscriptions) => {},
                 _ = token.cancelled() => {}
             }
         });
@@ -110,6 +114,8 @@ impl SyncSampler {
             },
         );
         sampler.refresh_values();
+        drop(samplers);
+        self.added.notify_one();
     }
 
     /// Update the sample rate of a monitored item.
@@ -170,12 +176,21 @@ impl SyncSampler {
 
     async fn run_internal(
         samplers: Arc<Mutex<HashMap<(NodeId, AttributeId), SamplerItem>>>,
+        added: Arc<tokio::sync::Notify>,
         interval: Duration,
         subscriptions: Arc<SubscriptionCache>,
     ) {
         let mut tick = tokio::time::interval(interval);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
+            // No sampler: no tick until one is added (a permit is kept if it was added
+            // before this wait began).
+            let idle = samplers.lock().is_empty();
+            if idle {
+                added.notified().await;
+                tick.reset();
+                continue;
+            }
             tick.tick().await;
             let now = Instant::now();
             let mut samplers = samplers.lock();
