@@ -276,7 +276,9 @@ impl Walk {
                 .push(format!("`{tag}`: a BOOL array (bits packed in DWORDs) is not mapped; name its elements' bits by hand"));
             return;
         }
-        let total: u64 = dims.iter().map(|&d| u64::from(d)).product();
+        let total = dims
+            .iter()
+            .fold(1u64, |all, &d| all.saturating_mul(u64::from(d)));
         let taken = usize::try_from(total)
             .unwrap_or(usize::MAX)
             .min(MAX_ELEMENTS);
@@ -396,6 +398,24 @@ impl Walk {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn arrays_of_any_claimed_size_give_at_most_their_first_elements() {
+        let mut walk = super::Walk::default();
+        // Three dimensions of 2^32 - 1 each: their product is past any integer.
+        walk.array("Big", 0x60C4, &[u32::MAX; 3], 0);
+        assert_eq!(walk.fields.len(), super::MAX_ELEMENTS);
+        assert_eq!(walk.fields[1].tag, "Big[0,0,1]");
+        assert!(
+            walk.skipped[0].contains("the first 1000 are mapped"),
+            "{:?}",
+            walk.skipped
+        );
+        // A structure whose template was not read, a type without an IEC one: reported.
+        walk.value("S", 0x8123, 0);
+        walk.value("P", 0x00A0, 0);
+        assert_eq!(walk.skipped.len(), 3, "{:?}", walk.skipped);
+    }
+
     #[test]
     fn endpoints_take_a_host_and_an_optional_port() {
         assert_eq!(super::endpoint("10.0.0.5"), Ok(("10.0.0.5".into(), 44818)));
