@@ -18,6 +18,7 @@ fields:
   - { name: F0, type: BOOL, direction: inout, tag: Flags.0 }
   - { name: F4, type: BOOL, direction: inout, tag: Flags.4 }
   - { name: W15, type: BOOL, direction: inout, tag: Word.15 }
+  - { name: Ghost, type: DINT, direction: inout, tag: Ghost }
 "#;
 
 /// Writes through REST and waits for the outcome.
@@ -48,7 +49,9 @@ async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
     .await
     .expect("gateway");
     gw.until("/api/v1/devices/bits", "the integers read", |d| {
-        d["fields"]["Flags"]["value"] == 0x0F0F0F0F && d["fields"]["Wd"]["value"] == 1
+        d["fields"]["Flags"]["value"] == 0x0F0F0F0F
+            && d["fields"]["Wd"]["value"] == 1
+            && d["fields"]["Ghost"]["error"].is_string()
     })
     .await
     .expect("read");
@@ -70,6 +73,34 @@ async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
     assert_eq!(
         plc.read(&["Flags", "Word"]).await.expect("pylogix"),
         json!({"Flags": 0x0F0F_1F1E, "Word": -32760})
+    );
+    // Two writes at once go in one Multiple Service Packet: each its own outcome (a tag
+    // the controller does not have refused, the bit written).
+    let (status, body) = gw
+        .send(
+            reqwest::Method::PATCH,
+            "/api/v1/devices/bits/fields",
+            json!({"F4": false, "Ghost": 5}).to_string(),
+        )
+        .await
+        .expect("patch");
+    assert_eq!(status, 202, "{body}");
+    let device = gw
+        .until("/api/v1/devices/bits", "both outcomes", |d| {
+            let f = &d["fields"];
+            f["F4"]["last_write"]["value"] == false
+                && f["F4"]["last_write"]["status"] == "written"
+                && f["Ghost"]["last_write"]["status"] == "failed"
+        })
+        .await
+        .expect("outcomes");
+    let ghost = device["fields"]["Ghost"]["last_write"]["error"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(ghost.contains("0x05"), "{ghost}");
+    assert_eq!(
+        plc.read(&["Flags"]).await.expect("pylogix"),
+        json!({"Flags": 0x0F0F_1F0E})
     );
     // Stopped, the gateway closes its connection and its session on the controller.
     gw.shutdown().await;

@@ -303,6 +303,35 @@ async fn six_hundred_tags_are_read_in_several_packets_each_within_the_connection
             .expect("pylogix"),
         json!({"Counts[1198]": 1599, "Counts[62]": 1031})
     );
+    // The 600 written at once (one write group): in packets of the connection's size,
+    // each write its own outcome; every value read back.
+    let all: serde_json::Map<String, Value> = (0..600)
+        .map(|i| (format!("C{i}"), json!(5000 + i)))
+        .collect();
+    let (status, body) = gw
+        .send(
+            reqwest::Method::PATCH,
+            "/api/v1/devices/many/fields",
+            Value::Object(all).to_string(),
+        )
+        .await
+        .expect("patch");
+    assert_eq!(status, 202, "{body}");
+    let device = gw
+        .until("/api/v1/devices/many", "every element written", |d| {
+            (0..600).all(|i| {
+                let f = field(d, &format!("C{i}"));
+                f["value"] == 5000 + i && f["last_write"]["status"] == "written"
+            })
+        })
+        .await;
+    assert!(device.is_ok(), "{device:?}");
+    assert_eq!(
+        plc.read(&["Counts[0]", "Counts[600]", "Counts[1198]"])
+            .await
+            .expect("pylogix"),
+        json!({"Counts[0]": 5000, "Counts[600]": 5300, "Counts[1198]": 5599})
+    );
     gw.shutdown().await;
     plc.kill().await.expect("kill");
 }

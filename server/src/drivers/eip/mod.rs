@@ -13,6 +13,7 @@ pub mod import;
 mod manager;
 mod read;
 mod value;
+mod write;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -20,7 +21,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::{Driver, Read, Session, finish, written};
-use crate::cache::{Device, FieldError, Link, Progress, WriteError};
+use crate::cache::{Device, FieldError, Link, Progress};
 use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
@@ -142,61 +143,6 @@ impl Controller {
             Err(e) => Err(lost(e)),
         }
     }
-
-    /// Writes one item: Write Tag, or Read-Modify-Write Tag for a bit of an integer.
-    async fn write_item(
-        &mut self,
-        plan: &Plan,
-        device: &Device,
-        item: &WriteItem,
-    ) -> Result<Result<(), String>, LinkFault> {
-        let tag = match &plan.tags[item.field] {
-            Ok(t) => t.clone(),
-            Err(why) => return Ok(Err(why.clone())),
-        };
-        let field = &device.profile.fields[item.field];
-        let service = if tag.bit.is_some() {
-            cip::READ_MODIFY_WRITE
-        } else {
-            cip::WRITE_TAG
-        };
-        let message = match tag.bit {
-            Some(bit) => {
-                let Some(code) = plan.codes[item.field] else {
-                    return Ok(Err(
-                        "the integer holding the bit was not read yet: its size is unknown".into(),
-                    ));
-                };
-                let on = matches!(item.value, iogate_types::Value::Bool(true));
-                match value::bit_masks(code, bit, on) {
-                    Ok(data) => cip::request(cip::READ_MODIFY_WRITE, &tag.path, &data),
-                    Err(why) => return Ok(Err(why)),
-                }
-            }
-            None => match (&item.value, plan.codes[item.field]) {
-                (iogate_types::Value::String(text), Some(code)) => {
-                    match value::encode_string(text, code, plan.layouts[item.field]) {
-                        Ok(data) => cip::request(cip::WRITE_TAG, &tag.path, &data),
-                        Err(why) => return Ok(Err(why)),
-                    }
-                }
-                _ => match value::encode(&item.value, field.ty) {
-                    Ok((code, bytes)) => cip::write_tag(&tag.path, code, &bytes),
-                    Err(why) => return Ok(Err(why)),
-                },
-            },
-        };
-        let answer = match self.request(&message).await? {
-            Ok(a) => a,
-            Err(why) => return Ok(Err(why)),
-        };
-        let r = cip::reply(&answer).map_err(|e| lost(e.into()))?;
-        r.answers(service).map_err(|e| lost(e.into()))?;
-        Ok(match r.status {
-            0 => Ok(()),
-            s => Err(cip::cip_status(s, r.ext)),
-        })
-    }
 }
 
 impl Session for Controller {
@@ -223,21 +169,7 @@ impl Session for Controller {
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {
-        for (n, item) in items.iter().enumerate() {
-            match self.write_item(plan, device, item).await {
-                Ok(Ok(())) => written(device, item, 1),
-                Ok(Err(why)) => finish(device, item, Err(WriteError::Refused(why)), 1),
-                Err(lost) => {
-                    // This value was sent (the link was lost with it), the rest were not;
-                    // the latest values are written again after the reconnect.
-                    finish(device, item, Err(WriteError::LinkDown(lost.clone())), 1);
-                    for rest in &items[n + 1..] {
-                        finish(device, rest, Err(WriteError::LinkDown(lost.clone())), 0);
-                    }
-                    return Err(lost);
-                }
-            }
-        }
+        self.write_items(device, plan, &items).await?;
         Ok(None)
     }
 }
