@@ -108,14 +108,7 @@ impl Controller {
         let answer = match self.request(&message).await? {
             Ok(a) => a,
             Err(why) => {
-                for r in group {
-                    finish(
-                        device,
-                        &items[r.item],
-                        Err(WriteError::Refused(why.clone())),
-                        1,
-                    );
-                }
+                refuse_all(device, items, group, &why);
                 return Ok(());
             }
         };
@@ -126,14 +119,7 @@ impl Controller {
                 outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
                 if outer.status != 0 && outer.status != 0x1E {
                     let why = cip::cip_status(outer.status, outer.ext);
-                    for r in group {
-                        finish(
-                            device,
-                            &items[r.item],
-                            Err(WriteError::Refused(why.clone())),
-                            1,
-                        );
-                    }
+                    refuse_all(device, items, group, &why);
                     return Ok(());
                 }
                 cip::multiple_replies(outer.data, group.len()).map_err(|e| lost(e.into()))?
@@ -157,5 +143,13 @@ impl Controller {
             }
         }
         Ok(())
+    }
+}
+
+/// A packet refused whole: every write in it, with why.
+fn refuse_all(device: &Device, items: &[WriteItem], group: &[&Ready], why: &str) {
+    for r in group {
+        let refused = Err(WriteError::Refused(why.to_owned()));
+        finish(device, &items[r.item], refused, 1);
     }
 }
