@@ -47,6 +47,20 @@ pub(crate) struct Plan {
     /// Reads of elements (by their first field) the controller answered only in part:
     /// read fragmented.
     fragment: Vec<bool>,
+    /// The reads packed, kept while what they depend on stays the same.
+    packed: Option<read::Packed>,
+    /// Set when a read changed what the packing depends on.
+    repack: bool,
+}
+
+impl Plan {
+    /// The type the controller answered for field `idx`: a new one changes the packing.
+    fn set_code(&mut self, idx: usize, code: u16) {
+        if self.codes[idx] != Some(code) {
+            self.codes[idx] = Some(code);
+            self.repack = true;
+        }
+    }
 }
 
 /// Connection serial numbers, one for each Forward Open this gateway makes.
@@ -85,6 +99,8 @@ impl Driver for Eip {
             layouts: vec![None; tags.len()],
             alone: vec![false; tags.len()],
             fragment: vec![false; tags.len()],
+            packed: None,
+            repack: false,
             tags,
         }
     }

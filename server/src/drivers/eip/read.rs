@@ -9,33 +9,18 @@ use crate::cache::{Device, FieldError, Stamp};
 use crate::link::LinkFault;
 use crate::plan::eip::{fragmented, packet_sizes, packets, runs};
 
-impl Controller {
-    /// Reads every readable field of the device and publishes each.
-    pub(super) async fn read_device(
-        &mut self,
-        device: &Device,
-        plan: &mut Plan,
-    ) -> Result<(), LinkFault> {
-        let reads = runs(&plan.tags, &device.profile, &plan.alone);
-        let failed = self.read_all(device, plan, &reads).await?;
-        if !failed.is_empty() {
-            for &i in &failed {
-                plan.alone[i] = true;
-            }
-            let singles: Vec<Vec<usize>> = failed.iter().map(|&i| vec![i]).collect();
-            self.read_all(device, plan, &singles).await?;
-        }
-        Ok(())
-    }
+/// A device's reads packed for a connection of `limit` bytes, each packet with its
+/// request built: kept from cycle to cycle, made again when what it depends on changes (a
+/// type learned, an element set apart, a read found to need fragments: `Plan::repack`).
+pub(super) struct Packed {
+    limit: usize,
+    reads: Vec<Vec<usize>>,
+    /// Each packet's reads and its request (none for a read sent fragmented).
+    packets: Vec<(Vec<usize>, Option<Vec<u8>>)>,
+}
 
-    /// Reads `reads` in packets; the fields of the reads of several elements that failed.
-    async fn read_all(
-        &mut self,
-        device: &Device,
-        plan: &mut Plan,
-        reads: &[Vec<usize>],
-    ) -> Result<Vec<usize>, LinkFault> {
-        let limit = self.conn.message_limit();
+impl Packed {
+    fn new(plan: &Plan, device: &Device, reads: Vec<Vec<usize>>, limit: usize) -> Packed {
         let sizes: Vec<(usize, usize, usize)> = reads
             .iter()
             .enumerate()
@@ -54,24 +39,94 @@ impl Controller {
                 (r, ask, answer)
             })
             .collect();
+        let packets = packets(&sizes, limit)
+            .into_iter()
+            .map(|packet| {
+                let request = match packet.as_slice() {
+                    [one] if fragmented(sizes[*one].2, limit) => None,
+                    _ => {
+                        let requests: Vec<Vec<u8>> = packet
+                            .iter()
+                            .filter_map(|&r| {
+                                let tag = plan.tags[reads[r][0]].as_ref().ok()?;
+                                Some(cip::read_tag(&tag.path, reads[r].len() as u16))
+                            })
+                            .collect();
+                        Some(cip::multiple(&requests))
+                    }
+                };
+                (packet, request)
+            })
+            .collect();
+        Packed {
+            limit,
+            reads,
+            packets,
+        }
+    }
+}
+
+impl Controller {
+    /// Reads every readable field of the device and publishes each.
+    pub(super) async fn read_device(
+        &mut self,
+        device: &Device,
+        plan: &mut Plan,
+    ) -> Result<(), LinkFault> {
+        let limit = self.conn.message_limit();
+        let packed = match plan.packed.take() {
+            Some(p) if p.limit == limit => p,
+            _ => {
+                let reads = runs(&plan.tags, &device.profile, &plan.alone);
+                Packed::new(plan, device, reads, limit)
+            }
+        };
+        plan.repack = false;
+        let read = self.read_all(device, plan, &packed).await;
+        if !plan.repack {
+            plan.packed = Some(packed);
+        }
+        let failed = read?;
+        if !failed.is_empty() {
+            for &i in &failed {
+                plan.alone[i] = true;
+            }
+            plan.packed = None;
+            let singles = failed.iter().map(|&i| vec![i]).collect();
+            let singles = Packed::new(plan, device, singles, limit);
+            self.read_all(device, plan, &singles).await?;
+        }
+        Ok(())
+    }
+
+    /// Reads the packed reads; the fields of the reads of several elements that failed.
+    async fn read_all(
+        &mut self,
+        device: &Device,
+        plan: &mut Plan,
+        packed: &Packed,
+    ) -> Result<Vec<usize>, LinkFault> {
         let mut failed = Vec::new();
         let mut partial = Vec::new();
-        for packet in packets(&sizes, limit) {
-            let group: Vec<&[usize]> = packet.iter().map(|&r| reads[r].as_slice()).collect();
-            match group.as_slice() {
-                [one] if fragmented(sizes[packet[0]].2, limit) => {
+        for (packet, request) in &packed.packets {
+            let group: Vec<&[usize]> = packet.iter().map(|&r| packed.reads[r].as_slice()).collect();
+            match (group.as_slice(), request) {
+                ([one], None) => {
                     self.read_fragmented(device, plan, one, &mut failed).await?;
                 }
-                _ => {
+                (_, Some(request)) => {
                     let retry = (&mut failed, &mut partial);
-                    self.read_packet(device, plan, &group, retry).await?;
+                    self.read_packet(device, plan, (&group, request), retry)
+                        .await?;
                 }
+                _ => {}
             }
         }
         // Reads the controller answered in part (more than it puts in one reply): read
         // fragmented now and from now on.
         for run in partial {
             plan.fragment[run[0]] = true;
+            plan.repack = true;
             self.read_fragmented(device, plan, &run, &mut failed)
                 .await?;
         }
@@ -83,17 +138,10 @@ impl Controller {
         &mut self,
         device: &Device,
         plan: &mut Plan,
-        group: &[&[usize]],
+        (group, request): (&[&[usize]], &[u8]),
         (failed, partial): (&mut Vec<usize>, &mut Vec<Vec<usize>>),
     ) -> Result<(), LinkFault> {
-        let requests: Vec<Vec<u8>> = group
-            .iter()
-            .filter_map(|run| {
-                let tag = plan.tags[run[0]].as_ref().ok()?;
-                Some(cip::read_tag(&tag.path, run.len() as u16))
-            })
-            .collect();
-        let answer = self.request(&cip::multiple(&requests)).await?;
+        let answer = self.request(request).await?;
         let now = Stamp::now();
         let every = |why: String| {
             for &i in group.iter().flat_map(|r| r.iter()) {
@@ -211,7 +259,7 @@ fn publish(device: &Device, plan: &mut Plan, run: &[usize], data: &[u8], now: St
         plan.layouts[idx] = value::layout(data);
         match value::decode(data, device.profile.fields[idx].ty, bit) {
             Ok((code, v)) => {
-                plan.codes[idx] = Some(code);
+                plan.set_code(idx, code);
                 device.publish_at(idx, Ok(v), now);
             }
             Err(why) => device.publish_at(idx, Err(FieldError::Device(why)), now),
@@ -242,7 +290,7 @@ fn publish(device: &Device, plan: &mut Plan, run: &[usize], data: &[u8], now: St
         one.extend_from_slice(chunk);
         match value::decode(&one, device.profile.fields[idx].ty, None) {
             Ok((code, v)) => {
-                plan.codes[idx] = Some(code);
+                plan.set_code(idx, code);
                 device.publish_at(idx, Ok(v), now);
             }
             Err(why) => device.publish_at(idx, Err(FieldError::Device(why)), now),
