@@ -4,7 +4,7 @@ controller's tags with, from the Logix 5000 Data Access manual (1756-PM020), on 
 EtherNet/IP session. cpppo's simulator has no tag directory; pylogix's GetTagList (another
 implementation) is the check that this one answers as controllers do.
 
-    directory_plc.py [--extra N] [--stuck]
+    directory_plc.py [--extra N] [--stuck] [--small | --unconnected]
 
 Serves Register Session, List Identity, Forward Open (large and not), Forward Close,
 SendRRData (with Unconnected Send unwrapped) and SendUnitData; and on them Get Instance
@@ -17,7 +17,8 @@ cut at about 480 bytes with status 0x06 (partial transfer), so clients page. `--
 adds N DINT tags `Extra0`.. to the controller scope; each Forward Close and UnRegister
 Session is printed on a line of its own (`forward-close vendor=0x4947 originator=...`); `--stuck` answers every page of the
 list from the first symbol on, always partial (a controller a client must not follow
-forever). Listens on 127.0.0.1, prints the port once it listens.
+forever); `--small` refuses Large Forward Open, `--unconnected` both Forward Opens (a
+controller that takes unconnected messages only). Listens on 127.0.0.1, prints the port once it listens.
 """
 import socket
 import struct
@@ -221,6 +222,8 @@ def message(msg):
     if service == 0x52 and p.get("class") == 0x06:
         n = struct.unpack_from("<H", data, 2)[0]
         return message(data[4:4 + n])
+    if service in REFUSED and p.get("class") == 0x06:
+        return reply(service, 0x08)
     if service in (0x54, 0x5B) and p.get("class") == 0x06:
         t_o, serial, vendor, orig = struct.unpack_from("<IHHI", data, 6)
         return reply(service, 0, struct.pack("<IIHHIIIBB", 0x7000 + serial, t_o, serial,
@@ -295,6 +298,8 @@ def serve(sock):
 
 EXTRA = int(sys.argv[sys.argv.index("--extra") + 1]) if "--extra" in sys.argv else 0
 STUCK = "--stuck" in sys.argv
+# `--small`: no Large Forward Open; `--unconnected`: no Forward Open at all.
+REFUSED = {0x5B} if "--small" in sys.argv else {0x5B, 0x54} if "--unconnected" in sys.argv else set()
 listener = socket.socket()
 listener.bind(("127.0.0.1", 0))
 listener.listen(16)

@@ -3,7 +3,8 @@
 //! (whose own bit writes use the same service) setting and reading the integers: only the
 //! bit asked for changes, even when the integer changed on the controller after the
 //! gateway last read it. Stopped, the gateway closes its connection (Forward Close) and its
-//! session.
+//! session. A controller without Large Forward Open, or without any, is read and written on
+//! what it has.
 
 use iogate_tests::TestGateway;
 use iogate_tests::devices::temp_dir;
@@ -116,4 +117,38 @@ async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
         "unregister-session"
     );
     plc.kill().await.expect("kill");
+}
+
+#[tokio::test]
+async fn a_controller_without_large_forward_open_or_any_is_read_on_what_it_has() {
+    for (flag, size) in [("--small", "504"), ("--unconnected", "unconnected")] {
+        // pylogix needs a connection: the gateway's own reads are the check here.
+        let plc = LogixPlc::directory(&[flag]).await.expect("controller");
+        let dir = temp_dir("eip-sizes");
+        std::fs::create_dir_all(dir.join("profiles")).expect("dir");
+        std::fs::write(dir.join("profiles/bits.yaml"), PROFILE).expect("profile");
+        let gw = TestGateway::start(&format!(
+            "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {} }} }}\ndevices:\n  - {{ name: bits, profile: Bits, link: plc, refresh_rate: 100ms }}\n",
+            dir.join("profiles").display(),
+            plc.port
+        ))
+        .await
+        .expect("gateway");
+        gw.until("/api/v1/devices/bits", "Flags read", |d| {
+            d["fields"]["Flags"]["value"] == 0
+        })
+        .await
+        .expect("read");
+        let (_, link) = gw.get("/api/v1/links/plc").await.expect("link");
+        assert_eq!(link["peer"]["connection_size"], size, "{flag}: {link}");
+        let outcome = put(&gw, "F4", json!(true)).await.expect("write");
+        assert_eq!(outcome["status"], "written", "{flag}: {outcome}");
+        gw.until("/api/v1/devices/bits", "the bit read back", |d| {
+            d["fields"]["Flags"]["value"] == 16
+        })
+        .await
+        .expect("read back");
+        gw.shutdown().await;
+        plc.kill().await.expect("kill");
+    }
 }
