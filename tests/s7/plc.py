@@ -4,6 +4,7 @@ inputs, outputs, timers and counters holding one value of every S7 type.
 Prints its port, then takes commands on stdin, one a line, answering each with a line:
   stop | run                      the CPU's state as SZL tells it
   dump AREA NUMBER START LENGTH   the bytes it holds (AREA: DB MK PE PA TM CT), in hex
+  set AREA NUMBER START HEX       bytes written there, as another client would
 Ends when stdin closes.
 """
 
@@ -107,6 +108,11 @@ def main():
             kind, number, start, length = words[1], int(words[2]), int(words[3]), int(words[4])
             buf = areas[(kind, number)]
             print(bytes(buf[start:start + length]).hex(), flush=True)
+        elif words[0] == "set":
+            # What another client (an HMI, the PLC's program) writes: bytes in an area.
+            kind, number, start, data = words[1], int(words[2]), int(words[3]), bytes.fromhex(words[4])
+            put(areas[(kind, number)], start, data)
+            print("ok", flush=True)
         else:
             print("unknown command", flush=True)
     srv.stop()

@@ -6,6 +6,7 @@ use std::time::Duration;
 use iogate::app::{self, Running, Setup};
 
 pub mod browser;
+pub mod cable;
 pub mod devices;
 pub mod eip;
 pub mod line;

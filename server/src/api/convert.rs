@@ -228,6 +228,9 @@ pub(crate) struct DeviceInfo {
     pub(crate) slave_id: Option<u8>,
     pub(crate) refresh_rate_ms: u64,
     pub(crate) timeout_ms: u64,
+    /// What the gateway does with the outputs it wrote when the device is back after a
+    /// reconnect: `on_reconnect` (writes the newest requested values again) or `never`.
+    pub(crate) rewrite_outputs: &'static str,
     pub(crate) connected: bool,
     /// 0 OK, 1 no link, 2 no slave, 10 communication error.
     pub(crate) error_code: i16,
@@ -236,6 +239,7 @@ pub(crate) struct DeviceInfo {
 }
 
 pub(crate) fn device_info(device: &Device) -> DeviceInfo {
+    use crate::config::RewriteOutputs;
     let binding = device.binding();
     let Diagnostics {
         connected,
@@ -251,6 +255,11 @@ pub(crate) fn device_info(device: &Device) -> DeviceInfo {
         slave_id: binding.slave_id,
         refresh_rate_ms: device.config.refresh_rate.as_millis() as u64,
         timeout_ms: device.config.timeout.as_millis() as u64,
+        rewrite_outputs: if device.outputs().rewrites() {
+            RewriteOutputs::OnReconnect.name()
+        } else {
+            RewriteOutputs::Never.name()
+        },
         connected,
         error_code: error_code.code(),
         io_cycles,
@@ -279,7 +288,7 @@ impl Serialize for DeviceDetail<'_> {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeMap;
         let d = &self.device;
-        let mut map = serializer.serialize_map(Some(12))?;
+        let mut map = serializer.serialize_map(Some(13))?;
         map.serialize_entry("name", &d.name)?;
         map.serialize_entry("profile", &d.profile)?;
         map.serialize_entry("protocol", &d.protocol)?;
@@ -287,6 +296,7 @@ impl Serialize for DeviceDetail<'_> {
         map.serialize_entry("slave_id", &d.slave_id)?;
         map.serialize_entry("refresh_rate_ms", &d.refresh_rate_ms)?;
         map.serialize_entry("timeout_ms", &d.timeout_ms)?;
+        map.serialize_entry("rewrite_outputs", &d.rewrite_outputs)?;
         map.serialize_entry("connected", &d.connected)?;
         map.serialize_entry("error_code", &d.error_code)?;
         map.serialize_entry("io_cycles", &d.io_cycles)?;

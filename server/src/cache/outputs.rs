@@ -32,6 +32,16 @@ pub(crate) enum WriteError {
     LinkDown(LinkFault),
     #[error("the device does not answer; the latest value is written when it answers again")]
     DeviceDown,
+    /// The link is down, and the device's outputs are not written again by themselves.
+    #[error(
+        "{0}; not written, and not written by itself when the link is back (rewrite_outputs: never): ask again then"
+    )]
+    LinkDownLeft(LinkFault),
+    /// The device does not answer, and its outputs are not written again by themselves.
+    #[error(
+        "the device does not answer; not written, and not written by itself when it answers again (rewrite_outputs: never): ask again then"
+    )]
+    DeviceDownLeft,
     #[error("the device was removed before the value was written")]
     Removed,
     /// The device refused the value, in its own words (an OPC UA status code's name).
@@ -137,6 +147,11 @@ struct WriteSlot {
     writer: Option<u64>,
     /// How many times in a row the link was lost with this field's value sent.
     lost_at_write: u32,
+    /// The device acknowledged the newest requested value.
+    reached: bool,
+    /// The newest requested value is not written again after a reconnect: the device was
+    /// read holding another value since it was written (someone else wrote the output).
+    left: bool,
 }
 
 /// The write slots of one device's fields, and the gateway's write log they report to.
@@ -147,6 +162,9 @@ pub(crate) struct Outputs {
     /// Set (under the slots' lock) when a re-planned device took the slots over: a request
     /// that comes later is for the successor.
     moved: std::sync::atomic::AtomicBool,
+    /// Whether the newest requested values are written again after a reconnect or the
+    /// device's return (`rewrite_outputs`, resolved by the link's driver).
+    rewrites: std::sync::atomic::AtomicBool,
 }
 
 impl Outputs {
@@ -155,7 +173,19 @@ impl Outputs {
             slots: Mutex::new((0..fields).map(|_| WriteSlot::default()).collect()),
             log,
             moved: std::sync::atomic::AtomicBool::new(false),
+            rewrites: std::sync::atomic::AtomicBool::new(false),
         }
+    }
+
+    /// Sets whether the newest requested values are written again after a reconnect.
+    pub(crate) fn set_rewrites(&self, rewrites: bool) {
+        self.rewrites
+            .store(rewrites, std::sync::atomic::Ordering::Release);
+    }
+
+    /// Whether the newest requested values are written again after a reconnect.
+    pub(crate) fn rewrites(&self) -> bool {
+        self.rewrites.load(std::sync::atomic::Ordering::Acquire)
     }
 
     fn is_moved(&self) -> bool {
@@ -175,6 +205,7 @@ impl Outputs {
             t.pending = s.pending.take();
             t.encoded = s.encoded.take().filter(|_| same_registers);
             t.latest = s.latest.clone();
+            (t.reached, t.left) = (s.reached, s.left);
             t.last_generation = s.last_generation;
             t.writer = s.writer;
         }
@@ -209,6 +240,7 @@ impl Outputs {
         // The gateway's own value is encoded when it is planned.
         slot.encoded = None;
         slot.lost_at_write = 0;
+        (slot.reached, slot.left) = (false, false);
         slot.latest = Some(value);
         slot.last_generation = Some(generation);
         slot.writer = writer;
@@ -240,6 +272,7 @@ impl Outputs {
                 }
                 slot.encoded = registers;
                 slot.lost_at_write = 0;
+                (slot.reached, slot.left) = (false, false);
                 slot.latest = Some(value);
                 slot.last_generation = Some(generation);
                 slot.writer = writer;
@@ -296,17 +329,45 @@ impl Outputs {
         lock(&self.slots).iter().any(|s| s.pending.is_some())
     }
 
-    /// The newest value requested for each output that has one.
-    pub(crate) fn latest_requested(&self) -> Vec<(usize, Value)> {
+    /// The newest value requested for each output that is written again after a
+    /// reconnect, and whether the device acknowledged it; none when the device's outputs
+    /// are not written again.
+    pub(crate) fn replayable(&self) -> Vec<(usize, Value, bool)> {
+        if !self.rewrites() {
+            return Vec::new();
+        }
         lock(&self.slots)
             .iter()
             .enumerate()
-            .filter_map(|(i, s)| s.latest.clone().map(|v| (i, v)))
+            .filter(|(_, s)| !s.left)
+            .filter_map(|(i, s)| s.latest.clone().map(|v| (i, v, s.reached)))
             .collect()
     }
 
-    pub(crate) fn has_requested(&self) -> bool {
-        lock(&self.slots).iter().any(|s| s.latest.is_some())
+    /// Whether an output would be written again after a reconnect.
+    pub(crate) fn has_replayable(&self) -> bool {
+        self.rewrites()
+            && lock(&self.slots)
+                .iter()
+                .any(|s| s.latest.is_some() && !s.left)
+    }
+
+    /// Field `idx`'s newest requested value is not written again after reconnects: the
+    /// device was read holding `held` since (someone else wrote it). The log says so with
+    /// an entry of its own (origin `replay`, `superseded`).
+    pub(crate) fn leave(&self, device: &str, field: &str, idx: usize, held: &Value) {
+        let mut slots = lock(&self.slots);
+        let Some(value) = slots[idx].latest.clone() else {
+            return;
+        };
+        slots[idx].left = true;
+        let generation = self.log.begin_from(device, field, value, Origin::Replay);
+        slots[idx].last_generation = Some(generation);
+        let why = format!(
+            "not written again after the reconnect: the device was read holding {held} since it was written (someone else wrote it); `write_mode: reconcile` makes the gateway own the output"
+        );
+        self.log
+            .finish(generation, WriteStatus::Superseded, Some(why));
     }
 
     /// Records the outcome of a taken write that took `attempts` transactions; answers the
@@ -320,6 +381,13 @@ impl Outputs {
         mut result: Result<(), WriteError>,
         attempts: u32,
     ) -> Option<usize> {
+        if !self.rewrites() {
+            result = result.map_err(|e| match e {
+                WriteError::LinkDown(f) => WriteError::LinkDownLeft(f),
+                WriteError::DeviceDown => WriteError::DeviceDownLeft,
+                other => other,
+            });
+        }
         let field = {
             let mut slots = lock(&self.slots);
             let idx = slots.iter().position(|s| s.in_flight == Some(generation));
@@ -358,6 +426,7 @@ fn settle(
     match result {
         Ok(()) => {
             slot.lost_at_write = 0;
+            slot.reached = true;
             Ok(())
         }
         Err(WriteError::LinkDown(fault)) if attempts > 0 => {

@@ -149,10 +149,7 @@ fn a_burst_of_writes_leaves_one_pending_and_supersedes_the_rest() {
         panic!("missing")
     };
     assert_eq!(r.status, WriteStatus::Written);
-    assert_eq!(
-        io.outputs().latest_requested(),
-        vec![(sp, Value::Real(4.0))]
-    );
+    assert_eq!(io.latest_value(sp), Some(Value::Real(4.0)));
 }
 
 #[test]
@@ -160,23 +157,21 @@ fn a_value_the_device_refused_or_the_link_kept_dropping_is_not_written_again() {
     use crate::link::LinkFault;
     let cache = cache();
     let io = cache.device("io").expect("device");
+    io.outputs().set_rewrites(true);
     let sp = io.field_index("SP").expect("field");
     let lost = || WriteError::LinkDown(LinkFault::NoPort);
     // Refused by the device: forgotten, not replayed after a reconnect.
     io.request_write(sp, Value::Real(1.0)).expect("write");
     let w = io.take_writes().remove(0);
     io.finish_write_after(w.generation, Err(WriteError::Refused("no".into())), 1);
-    assert!(io.outputs().latest_requested().is_empty());
+    assert!(io.replayable().is_empty());
     // A write not sent (attempts 0) never counts; the link lost with it sent twice keeps
     // it, the third time forgets it and says so.
     let g = io.request_write(sp, Value::Real(2.0)).expect("write");
     io.take_writes();
     io.finish_write_after(g, Err(lost()), 0);
     for round in 1..=super::outputs::LOST_AT_WRITE {
-        assert_eq!(
-            io.outputs().latest_requested(),
-            vec![(sp, Value::Real(2.0))]
-        );
+        assert_eq!(io.replayable(), vec![(sp, Value::Real(2.0))]);
         let g = io.outputs().replay("io", "SP", sp, Value::Real(2.0));
         io.finish_write_after(g, Err(lost()), 1);
         let Lookup::Found(r) = cache.writes.get(g) else {
@@ -189,13 +184,10 @@ fn a_value_the_device_refused_or_the_link_kept_dropping_is_not_written_again() {
             "{said}"
         );
     }
-    assert!(io.outputs().latest_requested().is_empty());
+    assert!(io.replayable().is_empty());
     // Asked again: written again after the next reconnect.
     io.request_write(sp, Value::Real(3.0)).expect("write");
-    assert_eq!(
-        io.outputs().latest_requested(),
-        vec![(sp, Value::Real(3.0))]
-    );
+    assert_eq!(io.replayable(), vec![(sp, Value::Real(3.0))]);
 }
 
 #[test]

@@ -297,6 +297,9 @@ pub struct DeviceConfig {
     /// When outputs are written: on a new request, or also whenever the device holds another
     /// value than the one requested.
     pub(crate) write_mode: WriteMode,
+    /// Whether the newest requested outputs are written again after a reconnect or the
+    /// device's return; `None` is the protocol's default (`Driver::REWRITES_OUTPUTS`).
+    pub(crate) rewrite_outputs: Option<RewriteOutputs>,
     /// What happens to outputs a scan-cycle client wrote when it is gone: `None` holds them.
     pub(crate) on_client_loss: Option<ClientLoss>,
     pub(crate) line: u64,
@@ -323,6 +326,36 @@ pub enum WriteMode {
     /// (at most once per refresh period and 100 ms per field), as a PLC's cyclic output
     /// write does.
     Reconcile,
+}
+
+/// `devices[].rewrite_outputs`: what the gateway does with the outputs it wrote when the
+/// link comes back (or the device answers again).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RewriteOutputs {
+    /// Writes the newest requested value of each output again (an I/O module that loses
+    /// its outputs at power-up), unless the device was read holding another value since
+    /// it was written (someone else wrote it).
+    OnReconnect,
+    /// Writes nothing on its own (a controller whose program, HMIs and other masters
+    /// write the same tags).
+    Never,
+}
+
+impl RewriteOutputs {
+    pub(crate) fn parse(text: &str) -> Option<RewriteOutputs> {
+        match text {
+            "on_reconnect" => Some(RewriteOutputs::OnReconnect),
+            "never" => Some(RewriteOutputs::Never),
+            _ => None,
+        }
+    }
+
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            RewriteOutputs::OnReconnect => "on_reconnect",
+            RewriteOutputs::Never => "never",
+        }
+    }
 }
 
 impl WriteMode {

@@ -51,6 +51,7 @@ pub(super) const DEVICE_KEYS: &[&str] = &[
     "max_batch",
     "max_gap",
     "write_mode",
+    "rewrite_outputs",
     "on_client_loss",
 ];
 

@@ -190,6 +190,7 @@ impl Declared<'_> {
             max_batch: rules::MAX_READ_REGISTERS,
             max_gap: 0,
             write_mode: crate::config::WriteMode::default(),
+            rewrite_outputs: None,
             on_client_loss: None,
             line: 0,
         };

@@ -86,6 +86,11 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// again (a server that vouches for its values when it is back), rather than turn bad.
     const STALE_WHILE_AWAY: bool = false;
 
+    /// Whether a device's newest requested outputs are written again after a reconnect or
+    /// its return, when its `rewrite_outputs` does not say: never, unless the protocol's
+    /// devices are I/O modules that lose their outputs at power-up and nobody else writes.
+    const REWRITES_OUTPUTS: bool = false;
+
     /// Whether this driver serves a link configured so.
     fn serves(config: &LinkConfig) -> bool;
 
@@ -224,9 +229,10 @@ pub(crate) trait Session: Send {
         std::future::ready(Ok(()))
     }
 
-    /// Ends the session cleanly, where the protocol asks a client that leaves to say so
-    /// (the link is stopped or reopened with other settings; not after it was lost). The
-    /// task bounds it.
+    /// Ends the session, telling the other end where the protocol has a request for it
+    /// (a CIP connection's Forward Close, an OPC UA session's CloseSession), whether the
+    /// link is stopped, reopened with other settings or was lost: whatever the driver
+    /// opened on a peer is released, not left to the peer's timeouts. The task bounds it.
     fn close(self) -> impl Future<Output = ()> + Send
     where
         Self: Sized,

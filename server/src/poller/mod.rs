@@ -161,6 +161,8 @@ pub(crate) struct Driven<D: Driver> {
     metrics: Arc<Metrics>,
     /// Round-robin position for writes.
     cursor: usize,
+    /// A device was read on the open connection: the link works, not merely opens.
+    answered: bool,
 }
 
 impl<D: Driver> Driven<D> {
@@ -174,6 +176,7 @@ impl<D: Driver> Driven<D> {
             devices: Vec::new(),
             metrics,
             cursor: 0,
+            answered: false,
         };
         task.sync_members();
         task
@@ -202,6 +205,13 @@ impl<D: Driver> Driven<D> {
         for device in new {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
             let rewrite = device.rewrite_first();
+            let rewrites = device
+                .config
+                .rewrite_outputs
+                .map_or(D::REWRITES_OUTPUTS, |r| {
+                    r == crate::config::RewriteOutputs::OnReconnect
+                });
+            device.outputs().set_rewrites(rewrites);
             self.devices.push(Polled {
                 plan: D::plan(&device),
                 device,
@@ -263,13 +273,16 @@ impl<D: Driver> Driven<D> {
                     down = Some(fault);
                 }
                 Ok(mut conn) => {
-                    reopen = REOPEN_MIN;
                     self.opened(lost);
                     let ended = self.serve(&mut conn, token, &tried).await;
-                    if !matches!(ended, Ended::Lost(_)) {
-                        // Stopped or given other settings: the other end is told.
-                        let _ = tokio::time::timeout(CLOSE_TIMEOUT, conn.close()).await;
+                    if self.answered || self.devices.is_empty() {
+                        // The link worked, not merely opened: a loss now is retried soon.
+                        reopen = REOPEN_MIN;
                     }
+                    // Stopped, given other settings or lost: what was opened on the other
+                    // end is closed where the protocol can say so (a peer's connections
+                    // and sessions are scarce), bounded.
+                    let _ = tokio::time::timeout(CLOSE_TIMEOUT, conn.close()).await;
                     match ended {
                         Ended::Shutdown => break,
                         Ended::Reconfigured => {
@@ -282,7 +295,7 @@ impl<D: Driver> Driven<D> {
                             continue 'reopen;
                         }
                         Ended::Lost(fault) => {
-                            tracing::warn!(link = %name, error = %fault, "link lost, reopening");
+                            tracing::warn!(link = %name, error = %fault, retry_in = ?reopen, "link lost, reopening");
                             lost = true;
                             self.set_state(false, LinkCode::Lost);
                             self.all_unreachable(&fault);
@@ -316,6 +329,7 @@ impl<D: Driver> Driven<D> {
             self.metrics.link_reconnected(name);
         }
         tracing::info!(link = %name, protocol = D::NAME, "link open");
+        self.answered = false;
         self.set_state(true, LinkCode::Ok);
         let now = Instant::now();
         for p in &mut self.devices {
@@ -470,7 +484,7 @@ impl<D: Driver> Driven<D> {
         let found = (0..n).map(|k| (self.cursor + k) % n).find(|&i| {
             let p = &self.devices[i];
             let outputs = p.device.outputs();
-            outputs.has_pending() || (p.rewrite && p.backoff.is_none() && outputs.has_requested())
+            outputs.has_pending() || (p.rewrite && p.backoff.is_none() && outputs.has_replayable())
         })?;
         self.cursor = (found + 1) % n;
         Some(found)

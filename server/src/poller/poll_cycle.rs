@@ -22,6 +22,12 @@ impl<D: Driver> Driven<D> {
                     tracing::info!(device = %device.name(), "device answers again");
                     p.backoff = None;
                     p.rewrite = true;
+                    if device.outputs().has_replayable() {
+                        // Its outputs go first (as after a reconnect), judged by what the
+                        // device was last read holding, then its read.
+                        p.next_due = started;
+                        return Ok(());
+                    }
                 }
                 Probed::Silent(e) => {
                     p.back_off();
@@ -35,7 +41,10 @@ impl<D: Driver> Driven<D> {
             }
         }
         match session.read(&device, &mut p.plan).await? {
-            Read::Answered(last_response) => device.record_cycle(true, last_response),
+            Read::Answered(last_response) => {
+                device.record_cycle(true, last_response);
+                self.answered = true;
+            }
             Read::Silent(e) => {
                 if device.diagnostics().connected || p.backoff.is_none() {
                     tracing::warn!(device = %device.name(), error = %e, backoff = ?super::BACKOFF_MIN, "device does not answer");

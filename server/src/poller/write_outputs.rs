@@ -1,6 +1,7 @@
 //! Putting a device's requested outputs on its link: the writes taken (last value wins),
 //! refused at once while the device is backed off, the latest values written again after a
-//! reconnect, and the rest left to the driver, which finishes each with its outcome.
+//! reconnect where the device's `rewrite_outputs` says so (and nobody else wrote them since),
+//! and the rest left to the driver, which finishes each with its outcome.
 
 use std::time::Duration;
 
@@ -12,7 +13,7 @@ use crate::plan::WriteItem;
 /// The requested values again, after a reconnect or the device's return: each a write of
 /// its own in the log (origin `replay`), never an unrecorded one.
 fn replayed(device: &Device, items: &mut Vec<WriteItem>) {
-    for (field, value) in device.outputs().latest_requested() {
+    for (field, value) in device.replayable() {
         if !items.iter().any(|it| it.field == field) {
             let name = &device.field(field).name;
             let generation = device

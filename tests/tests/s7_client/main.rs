@@ -5,6 +5,7 @@
 
 mod doors;
 mod failures;
+mod guest;
 mod values;
 mod writes;
 

@@ -42,7 +42,7 @@ impl Task {
                 if p.qos > 0 {
                     online.conn.puback(p.pkid).await?;
                 }
-                return Ok(self.command(online, &p.topic, &p.payload).await);
+                return Ok(self.command(online, &p.topic, &p.payload, p.retain).await);
             }
             Incoming::Dropped { why, topic, .. } => {
                 self.status.dropped_in += 1;
@@ -57,12 +57,24 @@ impl Task {
     }
 
     /// A message on a subscribed topic: a write, a Sparkplug command, or the host's STATE.
+    /// A write or command the broker delivers as retained is a stored message, not a
+    /// command now: it is counted and not executed (the host's STATE is retained by design).
     pub(super) async fn command(
         &mut self,
         online: &mut Online,
         topic: &str,
         payload: &[u8],
+        retained: bool,
     ) -> Option<Ended> {
+        let host_state = self
+            .spark
+            .as_ref()
+            .and_then(|t| t.host_state())
+            .is_some_and(|s| s == topic);
+        if retained && !host_state {
+            self.retained(topic);
+            return None;
+        }
         if let Some(json) = self.json().cloned()
             && let Some(out) = self.set(&Topics(&json), topic, payload, &mut online.followed)
         {
@@ -70,7 +82,7 @@ impl Task {
             return None;
         }
         let t = self.spark.as_ref()?;
-        if t.host_state().as_deref() == Some(topic) {
+        if host_state {
             return self.host_state(online, payload);
         }
         match t.command(topic)? {
@@ -81,6 +93,17 @@ impl Task {
             }
         }
         None
+    }
+
+    /// A retained write or command: counted, the first one logged (with its topic, short).
+    fn retained(&mut self, topic: &str) {
+        self.status.retained_ignored += 1;
+        let topic = crate::text::quote(topic);
+        if self.status.retained_ignored == 1 {
+            tracing::warn!(topic = %topic, "a retained command or write is a stored message, not a command now: not executed (the next ones are counted in retained_ignored)");
+        } else {
+            tracing::debug!(topic = %topic, "a retained command or write: not executed");
+        }
     }
 
     pub(super) fn host_state(&mut self, online: &mut Online, payload: &[u8]) -> Option<Ended> {

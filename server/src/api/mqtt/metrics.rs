@@ -93,7 +93,7 @@ impl MqttMetrics {
         );
         registry.register(
             MQTT_WRITES,
-            "Writes from MQTT (/set, DCMD) by outcome: accepted, refused",
+            "Writes from MQTT (/set, DCMD) by outcome: accepted, refused, retained (a stored message, not executed)",
             m.writes.clone(),
         );
         registry.register(
@@ -159,6 +159,7 @@ impl MqttMetrics {
         for (outcome, n) in [
             ("accepted", s.writes_accepted),
             ("refused", s.writes_refused),
+            ("retained", s.retained_ignored),
         ] {
             grow(&self.writes.get_or_create(&OutcomeLabels { outcome }), n);
         }

@@ -23,6 +23,9 @@ pub(crate) struct MqttStatus {
     pub(crate) dropped_in: u64,
     /// Writes refused (bad topic, payload or value, or writes not enabled).
     pub(crate) writes_refused: u64,
+    /// Commands (`/set`, NCMD, DCMD) the broker delivered as retained: stored messages, not
+    /// commands now, so not executed (the first logged).
+    pub(crate) retained_ignored: u64,
     /// Writes accepted from `/set`, DCMD.
     pub(crate) writes_accepted: u64,
     pub(crate) buffer: BufferStatus,

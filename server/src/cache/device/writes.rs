@@ -169,14 +169,35 @@ impl Device {
             return None;
         }
         let actual = sample.value?;
+        (!self.agree(idx, &desired, &actual)).then_some(desired)
+    }
+
+    /// Whether two values of field `idx` are the same on the device (the same registers).
+    fn agree(&self, idx: usize, a: &Value, b: &Value) -> bool {
         let field = self.field(idx);
-        let agree = match (
-            field.encoding.encode(&desired),
-            field.encoding.encode(&actual),
-        ) {
-            (Ok(a), Ok(b)) => a == b,
-            _ => desired == actual,
-        };
-        (!agree).then_some(desired)
+        match (field.encoding.encode(a), field.encoding.encode(b)) {
+            (Ok(x), Ok(y)) => x == y,
+            _ => a == b,
+        }
+    }
+
+    /// The outputs to write again now that the device is back (`rewrite_outputs:
+    /// on_reconnect`): the newest requested value of each, except where the device
+    /// acknowledged it and was read holding another value since (someone else wrote it);
+    /// those are left, and the write log says so.
+    pub(crate) fn replayable(&self) -> Vec<(usize, Value)> {
+        let mut again = Vec::new();
+        for (idx, desired, reached) in self.outputs.replayable() {
+            let held = self.sample(idx).value;
+            match held {
+                Some(held) if reached && !self.agree(idx, &desired, &held) => {
+                    let field = &self.field(idx).name;
+                    tracing::info!(device = %self.name(), field = %field, requested = %desired, held = %held, "not written again after the reconnect: another client wrote it since");
+                    self.outputs.leave(self.name(), field, idx, &held);
+                }
+                _ => again.push((idx, desired)),
+            }
+        }
+        again
     }
 }

@@ -116,6 +116,10 @@ pub(super) fn read_device(
         None => Some(crate::config::WriteMode::default()),
         Some(n) => write_mode(n, report, &at("write_mode")),
     };
+    let rewrite_outputs = match map.get("rewrite_outputs") {
+        None => Some(None),
+        Some(n) => rewrite_outputs(n, report, &at("rewrite_outputs")).map(Some),
+    };
     let on_client_loss = match map.get("on_client_loss") {
         None => Some(None),
         Some(n) => read_client_loss(n, report, &at("on_client_loss")),
@@ -133,11 +137,33 @@ pub(super) fn read_device(
             max_batch: max_batch.unwrap_or(rules::MAX_READ_REGISTERS),
             max_gap: max_gap.unwrap_or(0),
             write_mode: write_mode.unwrap_or_default(),
+            rewrite_outputs: rewrite_outputs.flatten(),
             on_client_loss: on_client_loss.flatten(),
             line: node.line,
         },
         slave_refused,
     ))
+}
+
+/// `rewrite_outputs`: `on_reconnect` or `never`.
+fn rewrite_outputs(
+    n: &Node,
+    report: &mut Report,
+    ctx: &str,
+) -> Option<crate::config::RewriteOutputs> {
+    let t = n.scalar_text(report, ctx)?;
+    let rule = crate::config::RewriteOutputs::parse(&t);
+    if rule.is_none() {
+        report.push(
+            n.line,
+            ctx,
+            format!(
+                "`{}` is not a rule for outputs after a reconnect (on_reconnect or never)",
+                crate::text::quote(&t)
+            ),
+        );
+    }
+    rule
 }
 
 /// `write_mode`: `on_change` or `reconcile`.

@@ -36,6 +36,7 @@ impl Driver for Modbus {
     type Plan = Plan;
     type Session = Bus;
     const NAME: &'static str = "modbus";
+    const REWRITES_OUTPUTS: bool = true;
 
     fn serves(config: &LinkConfig) -> bool {
         matches!(

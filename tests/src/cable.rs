@@ -1,0 +1,149 @@
+//! A cable between the gateway and a peer: a TCP proxy on a free loopback port that can be
+//! cut (every connection through it closed at once, as a pulled plug or a switch's restart
+//! would) and that counts the connections the gateway made through it; or a peer that opens
+//! and then fails (the proxy passes the first requests of each connection, then closes it).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::task::AbortHandle;
+
+/// A proxy to `127.0.0.1:<upstream>`.
+pub struct Cable {
+    /// The port the gateway connects to.
+    pub port: u16,
+    accepted: Arc<AtomicUsize>,
+    open: Arc<AtomicUsize>,
+    plugged: Arc<AtomicBool>,
+    connections: Arc<std::sync::Mutex<Vec<AbortHandle>>>,
+    task: AbortHandle,
+}
+
+impl Drop for Cable {
+    fn drop(&mut self) {
+        self.task.abort();
+        self.cut();
+    }
+}
+
+/// A connection's count of open connections, given back when it ends however it ends.
+struct Held(Arc<AtomicUsize>);
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+impl Cable {
+    /// A cable that passes everything.
+    pub async fn to(upstream: u16) -> anyhow::Result<Cable> {
+        Cable::failing_after(upstream, None).await
+    }
+
+    /// A cable whose every connection passes the gateway's first `requests` reads (its
+    /// opening handshake) and their answers, then closes at the next one: a peer that
+    /// opens and then fails every answer. `None` passes everything.
+    pub async fn failing_after(upstream: u16, requests: Option<usize>) -> anyhow::Result<Cable> {
+        let listener = TcpListener::bind("127.0.0.1:0").await?;
+        let port = listener.local_addr()?.port();
+        let accepted = Arc::new(AtomicUsize::new(0));
+        let open = Arc::new(AtomicUsize::new(0));
+        let plugged = Arc::new(AtomicBool::new(true));
+        let connections: Arc<std::sync::Mutex<Vec<AbortHandle>>> = Arc::default();
+        let (count, live, on, held) = (
+            accepted.clone(),
+            open.clone(),
+            plugged.clone(),
+            connections.clone(),
+        );
+        let task = tokio::spawn(async move {
+            while let Ok((client, _)) = listener.accept().await {
+                count.fetch_add(1, Ordering::SeqCst);
+                if !on.load(Ordering::SeqCst) {
+                    continue;
+                }
+                live.fetch_add(1, Ordering::SeqCst);
+                let guard = Held(live.clone());
+                let task = tokio::spawn(async move {
+                    let _guard = guard;
+                    if let Ok(up) = TcpStream::connect(("127.0.0.1", upstream)).await {
+                        pass(client, up, requests).await;
+                    }
+                });
+                if let Ok(mut list) = held.lock() {
+                    list.retain(|h| !h.is_finished());
+                    list.push(task.abort_handle());
+                }
+            }
+        })
+        .abort_handle();
+        Ok(Cable {
+            port,
+            accepted,
+            open,
+            plugged,
+            connections,
+            task,
+        })
+    }
+
+    /// Closes every connection through the cable now; new ones are taken.
+    pub fn cut(&self) {
+        if let Ok(mut list) = self.connections.lock() {
+            for h in list.drain(..) {
+                h.abort();
+            }
+        }
+    }
+
+    /// Pulls the plug: every connection closed, new ones closed as they come.
+    pub fn pull(&self) {
+        self.plugged.store(false, Ordering::SeqCst);
+        self.cut();
+    }
+
+    /// Plugs it in again.
+    pub fn plug(&self) {
+        self.plugged.store(true, Ordering::SeqCst);
+    }
+
+    /// Connections the gateway made through the cable so far.
+    pub fn accepted(&self) -> usize {
+        self.accepted.load(Ordering::SeqCst)
+    }
+
+    /// Connections open through the cable now.
+    pub fn open(&self) -> usize {
+        self.open.load(Ordering::SeqCst)
+    }
+}
+
+/// Copies both ways; with `requests`, the connection closes at the client's read after that
+/// many.
+async fn pass(client: TcpStream, up: TcpStream, requests: Option<usize>) {
+    let Some(limit) = requests else {
+        let (mut client, mut up) = (client, up);
+        let _ = tokio::io::copy_bidirectional(&mut client, &mut up).await;
+        return;
+    };
+    let (mut client_rx, mut client_tx) = client.into_split();
+    let (mut up_rx, mut up_tx) = up.into_split();
+    let down = tokio::spawn(async move {
+        let _ = tokio::io::copy(&mut up_rx, &mut client_tx).await;
+    });
+    let mut buf = vec![0u8; 64 * 1024];
+    let mut seen = 0;
+    while let Ok(n) = client_rx.read(&mut buf).await {
+        if n == 0 || seen == limit {
+            break;
+        }
+        seen += 1;
+        if up_tx.write_all(&buf[..n]).await.is_err() {
+            break;
+        }
+    }
+    down.abort();
+}
