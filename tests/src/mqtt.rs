@@ -318,6 +318,16 @@ impl Peer {
             .await
     }
 
+    /// The same, published retained (QoS 1): a stored message, not a command.
+    pub async fn command_retained(
+        &mut self,
+        topic: &str,
+        metrics: serde_json::Value,
+    ) -> anyhow::Result<()> {
+        self.send(serde_json::json!({"topic": topic, "command": metrics, "qos": 1, "retain": true}))
+            .await
+    }
+
     async fn send(&mut self, line: serde_json::Value) -> anyhow::Result<()> {
         self.stdin.write_all(format!("{line}\n").as_bytes()).await?;
         self.stdin.flush().await?;
