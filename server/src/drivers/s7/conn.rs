@@ -161,10 +161,7 @@ impl Connection {
     ) -> Result<Vec<Result<Vec<u8>, u8>>, S7Error> {
         let reference = self.next_reference();
         let answer = self.job(reference, &pdu::read(reference, items)).await?;
-        Ok(pdu::read_items(
-            &answered(&answer, reference)?,
-            items.len(),
-        )?)
+        Ok(pdu::read_items(&answered(&answer, reference)?, items)?)
     }
 
     /// Reads several jobs of items, as many at a time as the PLC takes: each job's answer,
@@ -204,10 +201,9 @@ impl Connection {
             let Some((_, job)) = waiting.remove(at) else {
                 continue;
             };
-            out[job] = match pdu::read_items(&answer, jobs[job].len()) {
-                Err(refused @ Malformed::Refused { .. }) => Err(refused),
-                answered => Ok(answered?),
-            };
+            // The frame was whole (TPKT counts it): an answer that does not fit its
+            // request fails that job's fields, naming why, and the connection goes on.
+            out[job] = pdu::read_items(&answer, jobs[job]);
         }
         Ok(out)
     }

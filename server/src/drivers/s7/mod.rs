@@ -264,7 +264,7 @@ pub(crate) fn fuzz_answer(data: &[u8]) {
     use crate::profile::s7_form::Form;
     let asked = usize::from(data.first().copied().unwrap_or(0) % 24);
     if let Ok(a) = pdu::answer(data) {
-        let _ = pdu::read_items(&a, asked);
+        let _ = pdu::read_items(&a, &pdu::fuzz_items(asked));
         let _ = pdu::write_items(&a, asked);
         let _ = pdu::granted(&a);
         for record in szl::records(&a).unwrap_or_default() {

@@ -160,6 +160,9 @@ enum Fake {
     Refuses(u8, u8),
     /// Answers a user-data job (an SZL read) only after this long; a read with 0x1234.
     LateSzl(Duration),
+    /// Answers a read of a word with this many bytes (and their length in bits), then,
+    /// asked again, with the word.
+    Longer(u8),
 }
 
 /// A PLC of our own that confirms the connection and the setup (a PDU of 480, one job at a
@@ -175,6 +178,7 @@ async fn fake_plc(fake: Fake) -> u16 {
             return;
         };
         let mut head = [0u8; 4];
+        let mut reads = 0;
         while s.read_exact(&mut head).await.is_ok() {
             let len = usize::from(u16::from_be_bytes([head[2], head[3]]));
             let mut body = vec![0u8; len.saturating_sub(4)];
@@ -200,6 +204,39 @@ async fn fake_plc(fake: Fake) -> u16 {
                     vec![
                         3, 0, 0, 19, 2, 0xF0, 0x80, 0x32, 3, 0, 0, r.0, r.1, 0, 0, 0, 0, 0x81, 4,
                     ]
+                }
+                (_, Fake::Longer(n)) if reads == 0 => {
+                    reads += 1;
+                    let mut a = vec![
+                        3,
+                        0,
+                        0,
+                        0,
+                        2,
+                        0xF0,
+                        0x80,
+                        0x32,
+                        3,
+                        0,
+                        0,
+                        r.0,
+                        r.1,
+                        0,
+                        2,
+                        0,
+                        4 + n,
+                        0,
+                        0,
+                        4,
+                        1,
+                        0xFF,
+                        4,
+                        0,
+                        n * 8,
+                    ];
+                    a.extend((0..n).map(|k| 0x12 + k));
+                    a[3] = a.len() as u8;
+                    a
                 }
                 _ => vec![
                     3, 0, 0, 27, 2, 0xF0, 0x80, 0x32, 3, 0, 0, r.0, r.1, 0, 2, 0, 6, 0, 0, 4, 1,
@@ -269,6 +306,81 @@ async fn refusals_name_what_to_change_on_the_plc() {
 }
 
 #[tokio::test]
+async fn an_item_answered_longer_than_asked_fails_its_job_and_the_connection_goes_on() {
+    let port = fake_plc(Fake::Longer(9)).await;
+    let mut c = Connection::open(
+        ("127.0.0.1", port),
+        0x0100,
+        0x0102,
+        960,
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("connected");
+    let answers = c.read_jobs(&[&[DB1_WORD0]], || {}).await.expect("read");
+    let why = answers[0].as_ref().expect_err("not a value").to_string();
+    assert_eq!(why, "item 1 of the answer has 9 bytes for 2 asked");
+    // The same connection reads the next answer, which fits.
+    let answers = c.read_jobs(&[&[DB1_WORD0]], || {}).await.expect("read");
+    assert_eq!(answers[0], Ok(vec![Ok(vec![0x12, 0x34])]));
+}
+
+#[test]
+fn an_answer_item_of_another_size_or_length_than_asked_is_refused() {
+    use super::pdu::{answer, read_items};
+    let word = DB1_WORD0;
+    let bit = Item {
+        bit: Some(3),
+        length: 1,
+        ..DB1_WORD0
+    };
+    // The S7 header and a Read Var answer of `data` for `items` items.
+    let frame = |items: u8, data: &[u8]| {
+        let mut f = vec![2, 0xF0, 0x80, 0x32, 3, 0, 0, 0, 1, 0, 2];
+        f.extend_from_slice(&(data.len() as u16).to_be_bytes());
+        f.extend_from_slice(&[0, 0, 4, items]);
+        f.extend_from_slice(data);
+        f
+    };
+    let read = |items: &[Item], data: &[u8]| {
+        let f = frame(items.len() as u8, data);
+        let a = answer(&f).expect("an answer");
+        read_items(&a, items).map_err(|e| e.to_string())
+    };
+    assert_eq!(
+        read(&[word], &[0xFF, 4, 0, 16, 1, 2]),
+        Ok(vec![Ok(vec![1, 2])])
+    );
+    assert_eq!(
+        read(&[word], &[0xFF, 4, 0, 8, 1]),
+        Err("item 1 of the answer has 1 bytes for 2 asked".into())
+    );
+    assert_eq!(
+        read(&[word], &[0xFF, 3, 0, 1, 1]),
+        Err("item 1 of the answer has transport size 0x03, not the one asked".into())
+    );
+    assert_eq!(
+        read(&[bit], &[0xFF, 4, 0, 8, 1]),
+        Err("item 1 of the answer has transport size 0x04, not the one asked".into())
+    );
+    assert_eq!(
+        read(&[word], &[0xFF, 4, 0, 12, 1, 2]),
+        Err("item 1 of the answer has transport size 0x04, not the one asked".into()),
+        "12 bits are no whole bytes"
+    );
+    assert_eq!(
+        read(&[word], &[0xFF, 4, 0, 16, 1, 2, 3, 4]),
+        Err("the answer has 2 bytes past its last item".into())
+    );
+    assert_eq!(read(&[bit], &[0xFF, 3, 0, 1, 1, 0]), Ok(vec![Ok(vec![1])]));
+    // Two items: the second's bytes are where the first's length says, never shifted.
+    assert_eq!(
+        read(&[bit, word], &[0xFF, 3, 0, 1, 1, 0, 0xFF, 4, 0, 16, 7, 8]),
+        Ok(vec![Ok(vec![1]), Ok(vec![7, 8])])
+    );
+}
+
+#[tokio::test]
 async fn a_late_answer_to_a_job_given_up_on_is_passed_over() {
     let port = fake_plc(Fake::LateSzl(Duration::from_millis(300))).await;
     let mut c = Connection::open(
@@ -307,7 +419,7 @@ proptest::proptest! {
         frame.extend_from_slice(&bytes);
         for payload in [&bytes[..], &frame[..]] {
             if let Ok(a) = super::pdu::answer(payload) {
-                let _ = super::pdu::read_items(&a, asked);
+                let _ = super::pdu::read_items(&a, &super::pdu::fuzz_items(asked));
                 let _ = super::pdu::write_items(&a, asked);
                 let _ = super::pdu::granted(&a);
                 if let Ok(records) = szl::records(&a) {

@@ -47,9 +47,12 @@ pub(crate) fn decode(form: Form, ty: IecType, bytes: &[u8]) -> Result<Value, Str
                 bytes.first().ok_or_else(short)?,
                 bytes.get(1).ok_or_else(short)?,
             );
-            let chars = bytes
-                .get(2..2 + usize::from(*len.min(max)))
-                .ok_or_else(short)?;
+            if len > max {
+                return Err(format!(
+                    "the PLC's STRING says it holds {len} characters in a STRING[{max}]"
+                ));
+            }
+            let chars = bytes.get(2..2 + usize::from(*len)).ok_or_else(short)?;
             Ok(Value::String(
                 chars.iter().map(|&c| char::from(c)).collect(),
             ))
@@ -57,7 +60,13 @@ pub(crate) fn decode(form: Form, ty: IecType, bytes: &[u8]) -> Result<Value, Str
         Form::WString(_) => {
             let head = bytes.get(..4).ok_or_else(short)?;
             let max = u16::from_be_bytes([head[0], head[1]]);
-            let len = usize::from(u16::from_be_bytes([head[2], head[3]]).min(max));
+            let len = u16::from_be_bytes([head[2], head[3]]);
+            if len > max {
+                return Err(format!(
+                    "the PLC's WSTRING says it holds {len} characters in a WSTRING[{max}]"
+                ));
+            }
+            let len = usize::from(len);
             let body = bytes.get(4..4 + 2 * len).ok_or_else(short)?;
             let units: Vec<u16> = body
                 .chunks_exact(2)
