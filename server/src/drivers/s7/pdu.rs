@@ -250,7 +250,7 @@ pub(crate) fn granted(a: &Answer<'_>) -> Result<(u16, u16), Malformed> {
 fn answered_bytes(size: u8, raw: usize) -> Option<usize> {
     match size {
         TS_BIT if raw == 1 => Some(1),
-        0x04 | 0x05 if raw % 8 == 0 => Some(raw / 8),
+        0x04 | 0x05 if raw.is_multiple_of(8) => Some(raw / 8),
         0x07 | 0x09 => Some(raw),
         _ => None,
     }
