@@ -26,6 +26,7 @@ pub(crate) fn value_to_json(value: &Value) -> Json {
         Value::Bool(b) => Json::Bool(*b),
         Value::Int(i) | Value::Time(i) => Json::from(*i),
         Value::UInt(u) => Json::from(*u),
+        Value::Real(r) if !r.is_finite() => not_finite(f64::from(*r)),
         // The shortest text that reads back as the same f32, so 0.1 stays 0.1.
         Value::Real(r) => r
             .to_string()
@@ -33,8 +34,22 @@ pub(crate) fn value_to_json(value: &Value) -> Json {
             .ok()
             .and_then(Number::from_f64)
             .map_or(Json::Null, Json::Number),
-        Value::LReal(r) => Number::from_f64(*r).map_or(Json::Null, Json::Number),
+        Value::LReal(r) => Number::from_f64(*r).map_or_else(|| not_finite(*r), Json::Number),
         Value::String(s) => Json::String(s.clone()),
+    }
+}
+
+/// A REAL or LREAL that JSON has no number for, as the string JavaScript and Python read
+/// back: `"NaN"`, `"Infinity"`, `"-Infinity"` (never `null`, which would say nothing).
+fn not_finite(x: f64) -> Json {
+    Json::String(not_finite_text(x).to_owned())
+}
+
+fn not_finite_text(x: f64) -> &'static str {
+    match (x.is_nan(), x > 0.0) {
+        (true, _) => "NaN",
+        (false, true) => "Infinity",
+        (false, false) => "-Infinity",
     }
 }
 
@@ -108,7 +123,8 @@ impl Serialize for ValueJson {
             // serde_json writes an f32 as its shortest text that reads back the same f32.
             Some(Value::Real(r)) if r.is_finite() => serializer.serialize_f32(*r),
             Some(Value::LReal(r)) if r.is_finite() => serializer.serialize_f64(*r),
-            Some(Value::Real(_) | Value::LReal(_)) => serializer.serialize_none(),
+            Some(Value::Real(r)) => serializer.serialize_str(not_finite_text(f64::from(*r))),
+            Some(Value::LReal(r)) => serializer.serialize_str(not_finite_text(*r)),
             Some(Value::String(s)) => serializer.serialize_str(s),
         }
     }
@@ -134,7 +150,8 @@ pub(crate) struct FieldValue<'a> {
     #[serde(rename = "type")]
     pub(crate) ty: &'static str,
     pub(crate) direction: &'static str,
-    /// The value as the JSON of its type; null until first read.
+    /// The value as the JSON of its type; null until first read. A REAL or LREAL JSON has
+    /// no number for is the string `"NaN"`, `"Infinity"` or `"-Infinity"`.
     #[schema(value_type = Object)]
     pub(crate) value: ValueJson,
     /// `good`, `stale`, `never_read` or `bad`.
@@ -384,6 +401,15 @@ mod tests {
             format!("\"{}\"", rfc3339(at))
         );
         assert_eq!(value_to_json(&Value::Real(21.5)).to_string(), "21.5");
+        for (v, said) in [
+            (Value::Real(f32::NAN), "\"NaN\""),
+            (Value::Real(f32::NEG_INFINITY), "\"-Infinity\""),
+            (Value::LReal(f64::INFINITY), "\"Infinity\""),
+        ] {
+            assert_eq!(value_to_json(&v).to_string(), said);
+            let direct = serde_json::to_string(&ValueJson(Some(v))).expect("direct");
+            assert_eq!(direct, said);
+        }
         assert_eq!(value_to_json(&Value::LReal(0.1)).to_string(), "0.1");
     }
 

@@ -119,3 +119,22 @@ fn expected() -> Vec<(&'static str, Value)> {
         ("Edge", json!(258)),
     ]
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_real_that_json_has_no_number_for_is_said_as_a_string() -> anyhow::Result<()> {
+    let mut plc = S7Plc::start(None).await?;
+    let gw = gateway("s7-not-finite", plc.port).await?;
+    for (bits, said) in [
+        ("7fc00000", "NaN"),
+        ("7f800000", "Infinity"),
+        ("ff800000", "-Infinity"),
+    ] {
+        assert_eq!(plc.cmd(&format!("set DB 1 16 {bits}")).await?, "ok");
+        let d = until_device(&gw, "press960", said, |d| field(d, "Re")["value"] == said).await?;
+        assert_eq!(field(&d, "Re")["quality"], "good", "{d}");
+        let (_, one) = gw.get("/api/v1/devices/press960/fields/Re").await?;
+        assert_eq!(one["value"], said, "{one}");
+    }
+    gw.shutdown().await;
+    plc.kill().await
+}
