@@ -1,7 +1,9 @@
 //! A cable between the gateway and a peer: a TCP proxy on a free loopback port that can be
 //! cut (every connection through it closed at once, as a pulled plug or a switch's restart
-//! would) and that counts the connections the gateway made through it; or a peer that opens
-//! and then fails (the proxy passes the first requests of each connection, then closes it).
+//! would) or hushed (the open connections pass nothing more, either way: a peer gone
+//! silent), that counts the connections the gateway made through it and keeps what the
+//! gateway sent on each; or a peer that opens and then fails (the proxy passes the first
+//! requests of each connection, then closes it).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -18,6 +20,10 @@ pub struct Cable {
     open: Arc<AtomicUsize>,
     plugged: Arc<AtomicBool>,
     connections: Arc<std::sync::Mutex<Vec<AbortHandle>>>,
+    /// Raised to hush the connections open now.
+    hushed: Arc<tokio::sync::watch::Sender<u64>>,
+    /// What the gateway sent, a list of byte strings per connection.
+    sent: Arc<std::sync::Mutex<Vec<Arc<std::sync::Mutex<Vec<u8>>>>>>,
     task: AbortHandle,
 }
 
@@ -53,12 +59,15 @@ impl Cable {
         let open = Arc::new(AtomicUsize::new(0));
         let plugged = Arc::new(AtomicBool::new(true));
         let connections: Arc<std::sync::Mutex<Vec<AbortHandle>>> = Arc::default();
+        let hushed = Arc::new(tokio::sync::watch::Sender::new(0u64));
+        let sent: Arc<std::sync::Mutex<Vec<Arc<std::sync::Mutex<Vec<u8>>>>>> = Arc::default();
         let (count, live, on, held) = (
             accepted.clone(),
             open.clone(),
             plugged.clone(),
             connections.clone(),
         );
+        let (hush, records) = (hushed.clone(), sent.clone());
         let task = tokio::spawn(async move {
             while let Ok((client, _)) = listener.accept().await {
                 count.fetch_add(1, Ordering::SeqCst);
@@ -67,10 +76,16 @@ impl Cable {
                 }
                 live.fetch_add(1, Ordering::SeqCst);
                 let guard = Held(live.clone());
+                let record: Arc<std::sync::Mutex<Vec<u8>>> = Arc::default();
+                if let Ok(mut all) = records.lock() {
+                    all.push(record.clone());
+                }
+                let mut hush = hush.subscribe();
+                hush.borrow_and_update();
                 let task = tokio::spawn(async move {
                     let _guard = guard;
                     if let Ok(up) = TcpStream::connect(("127.0.0.1", upstream)).await {
-                        pass(client, up, requests).await;
+                        pass(client, up, requests, record, hush).await;
                     }
                 });
                 if let Ok(mut list) = held.lock() {
@@ -86,6 +101,8 @@ impl Cable {
             open,
             plugged,
             connections,
+            hushed,
+            sent,
             task,
         })
     }
@@ -97,6 +114,24 @@ impl Cable {
                 h.abort();
             }
         }
+    }
+
+    /// The connections open now pass nothing more, either way (kept open, what the gateway
+    /// sends kept); new ones pass as before.
+    pub fn hush(&self) {
+        self.hushed.send_modify(|n| *n += 1);
+    }
+
+    /// What the gateway sent on each connection, in the order they were made.
+    pub fn sent(&self) -> Vec<Vec<u8>> {
+        self.sent
+            .lock()
+            .map(|all| {
+                all.iter()
+                    .map(|r| r.lock().map(|b| b.clone()).unwrap_or_default())
+                    .collect()
+            })
+            .unwrap_or_default()
     }
 
     /// Pulls the plug: every connection closed, new ones closed as they come.
@@ -121,27 +156,54 @@ impl Cable {
     }
 }
 
-/// Copies both ways; with `requests`, the connection closes at the client's read after that
-/// many.
-async fn pass(client: TcpStream, up: TcpStream, requests: Option<usize>) {
-    let Some(limit) = requests else {
-        let (mut client, mut up) = (client, up);
-        let _ = tokio::io::copy_bidirectional(&mut client, &mut up).await;
-        return;
-    };
+/// Copies both ways, keeping what the client sends in `record`; with `requests`, the
+/// connection closes at the client's read after that many; once `hush` changes, nothing
+/// passes (the client's bytes are still kept) until the client closes.
+async fn pass(
+    client: TcpStream,
+    up: TcpStream,
+    requests: Option<usize>,
+    record: Arc<std::sync::Mutex<Vec<u8>>>,
+    mut hush: tokio::sync::watch::Receiver<u64>,
+) {
     let (mut client_rx, mut client_tx) = client.into_split();
     let (mut up_rx, mut up_tx) = up.into_split();
+    let mut quiet = hush.clone();
     let down = tokio::spawn(async move {
-        let _ = tokio::io::copy(&mut up_rx, &mut client_tx).await;
+        let mut buf = vec![0u8; 64 * 1024];
+        loop {
+            tokio::select! {
+                _ = quiet.changed() => return,
+                n = up_rx.read(&mut buf) => match n {
+                    Ok(n) if n > 0 => {
+                        if client_tx.write_all(&buf[..n]).await.is_err() {
+                            return;
+                        }
+                    }
+                    _ => return,
+                },
+            }
+        }
     });
     let mut buf = vec![0u8; 64 * 1024];
-    let mut seen = 0;
-    while let Ok(n) = client_rx.read(&mut buf).await {
-        if n == 0 || seen == limit {
+    let (mut seen, mut hushed) = (0, false);
+    loop {
+        let n = tokio::select! {
+            _ = hush.changed(), if !hushed => {
+                hushed = true;
+                continue;
+            }
+            n = client_rx.read(&mut buf) => n,
+        };
+        let Ok(n) = n else { break };
+        if n == 0 || requests == Some(seen) {
             break;
         }
         seen += 1;
-        if up_tx.write_all(&buf[..n]).await.is_err() {
+        if let Ok(mut r) = record.lock() {
+            r.extend_from_slice(&buf[..n]);
+        }
+        if !hushed && up_tx.write_all(&buf[..n]).await.is_err() {
             break;
         }
     }
