@@ -12,6 +12,9 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::task::AbortHandle;
 
+/// What the gateway sent on one connection.
+type Record = Arc<std::sync::Mutex<Vec<u8>>>;
+
 /// A proxy to `127.0.0.1:<upstream>`.
 pub struct Cable {
     /// The port the gateway connects to.
@@ -23,7 +26,7 @@ pub struct Cable {
     /// Raised to hush the connections open now.
     hushed: Arc<tokio::sync::watch::Sender<u64>>,
     /// What the gateway sent, a list of byte strings per connection.
-    sent: Arc<std::sync::Mutex<Vec<Arc<std::sync::Mutex<Vec<u8>>>>>>,
+    sent: Arc<std::sync::Mutex<Vec<Record>>>,
     task: AbortHandle,
 }
 
@@ -60,7 +63,7 @@ impl Cable {
         let plugged = Arc::new(AtomicBool::new(true));
         let connections: Arc<std::sync::Mutex<Vec<AbortHandle>>> = Arc::default();
         let hushed = Arc::new(tokio::sync::watch::Sender::new(0u64));
-        let sent: Arc<std::sync::Mutex<Vec<Arc<std::sync::Mutex<Vec<u8>>>>>> = Arc::default();
+        let sent: Arc<std::sync::Mutex<Vec<Record>>> = Arc::default();
         let (count, live, on, held) = (
             accepted.clone(),
             open.clone(),
@@ -76,7 +79,7 @@ impl Cable {
                 }
                 live.fetch_add(1, Ordering::SeqCst);
                 let guard = Held(live.clone());
-                let record: Arc<std::sync::Mutex<Vec<u8>>> = Arc::default();
+                let record: Record = Arc::default();
                 if let Ok(mut all) = records.lock() {
                     all.push(record.clone());
                 }
@@ -163,7 +166,7 @@ async fn pass(
     client: TcpStream,
     up: TcpStream,
     requests: Option<usize>,
-    record: Arc<std::sync::Mutex<Vec<u8>>>,
+    record: Record,
     mut hush: tokio::sync::watch::Receiver<u64>,
 ) {
     let (mut client_rx, mut client_tx) = client.into_split();
