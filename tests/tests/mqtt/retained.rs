@@ -56,3 +56,48 @@ async fn retained_writes_and_commands_are_not_executed_at_subscribe() {
     peer.stop().await;
     broker.stop().await;
 }
+
+#[tokio::test]
+async fn one_ncmd_of_thirty_thousand_rebirth_metrics_is_one_rebirth() {
+    let broker = Broker::start().await.expect("mosquitto");
+    let mut peer = Peer::subscribe(&broker, "spBv1.0/plant1/#")
+        .await
+        .expect("paho");
+    let config = sparkplug_config(
+        "rebirths",
+        broker.port,
+        "  json: { prefix: iogate/line1, qos: 1, retain: true }\n",
+    );
+    let gw = TestGateway::start(&config).await.expect("gateway");
+    peer.until(|m| m.topic == "spBv1.0/plant1/DBIRTH/line1/sim")
+        .await
+        .expect("born");
+    let rebirth =
+        serde_json::json!({"name": "Node Control/Rebirth", "datatype": "BOOLEAN", "value": true});
+    let many = serde_json::Value::Array(vec![rebirth; 30_000]);
+    peer.command("spBv1.0/plant1/NCMD/line1", many)
+        .await
+        .expect("NCMD");
+    // The NCMD is taken in one turn of the front-end's task, and its counts are copied out
+    // after it: the first count seen is the whole NCMD's.
+    let status = gw
+        .until("/api/v1/mqtt", "the rebirth", |m| {
+            m["sparkplug"]["rebirths"].as_u64().unwrap_or(0) >= 1
+        })
+        .await
+        .expect("rebirth");
+    assert_eq!(status["sparkplug"]["rebirths"], 1, "{status}");
+    let nbirths = std::cell::Cell::new(0);
+    peer.until(|m| {
+        if m.topic == "spBv1.0/plant1/NBIRTH/line1" {
+            nbirths.set(nbirths.get() + 1);
+        }
+        m.topic == "spBv1.0/plant1/DBIRTH/line1/sim"
+    })
+    .await
+    .expect("born again");
+    assert_eq!(nbirths.get(), 1);
+    gw.shutdown().await;
+    peer.stop().await;
+    broker.stop().await;
+}

@@ -46,7 +46,9 @@ impl Task {
             }
             Incoming::Dropped { why, topic, .. } => {
                 self.status.dropped_in += 1;
-                tracing::warn!(error = %why, topic = topic.as_deref().unwrap_or("-"), "a packet from the broker read past and dropped");
+                if self.said.may() {
+                    tracing::warn!(error = %why, topic = %crate::text::quote(topic.as_deref().unwrap_or("-")), "a packet from the broker read past and dropped");
+                }
             }
             Incoming::SubAck { codes, .. } if codes.iter().any(|&c| c >= 0x80) => {
                 tracing::warn!("the broker refused a subscription (commands or writes)");
@@ -66,6 +68,7 @@ impl Task {
         payload: &[u8],
         retained: bool,
     ) -> Option<Ended> {
+        self.said.message();
         let host_state = self
             .spark
             .as_ref()
@@ -99,7 +102,7 @@ impl Task {
     fn retained(&mut self, topic: &str) {
         self.status.retained_ignored += 1;
         let topic = crate::text::quote(topic);
-        if self.status.retained_ignored == 1 {
+        if self.status.retained_ignored == 1 && self.said.may() {
             tracing::warn!(topic = %topic, "a retained command or write is a stored message, not a command now: not executed (the next ones are counted in retained_ignored)");
         } else {
             tracing::debug!(topic = %topic, "a retained command or write: not executed");
@@ -142,7 +145,7 @@ impl Task {
     }
 
     /// NCMD: `Node Control/Rebirth` re-sends NBIRTH and every DBIRTH, same `bdSeq`, no
-    /// death before.
+    /// death before; once per NCMD, and not again while the births are still to be sent.
     pub(super) fn node_command(&mut self, online: &mut Online, payload: &[u8]) {
         let commands = match sparkplug::commands(payload) {
             Ok(c) => c,
@@ -151,23 +154,28 @@ impl Task {
                 return;
             }
         };
+        let mut rebirth = false;
         for c in commands {
             let is_rebirth = c.name.as_deref() == Some(sparkplug::REBIRTH)
                 || (c.name.is_none() && c.alias == Some(1));
             if is_rebirth && c.value == Some(serde_json::Value::Bool(true)) {
-                if online.node_born {
-                    tracing::info!("Sparkplug rebirth requested");
-                    if let Some(sp) = &mut self.status.sparkplug {
-                        sp.rebirths += 1;
-                    }
-                    self.births(online);
-                }
+                rebirth = true;
             } else {
                 let name = c
                     .name
                     .unwrap_or_else(|| format!("alias {}", c.alias.unwrap_or(0)));
                 self.refused("NCMD", Refused::unknown_metric(&name));
             }
+        }
+        // However many Rebirth metrics, and however many NCMDs come while the births are
+        // still to be sent: one rebirth.
+        let pending = online.outbox.iter().any(|i| matches!(i, Item::NodeBirth));
+        if rebirth && online.node_born && !pending {
+            tracing::info!("Sparkplug rebirth requested");
+            if let Some(sp) = &mut self.status.sparkplug {
+                sp.rebirths += 1;
+            }
+            self.births(online);
         }
     }
 
@@ -205,7 +213,7 @@ impl Task {
                 }
             };
             let Some(value) = c.value else {
-                let why = format!("{field}: the metric has no value");
+                let why = format!("{}: the metric has no value", crate::text::quote(&field));
                 self.refused(device, Refused::invalid_body(why));
                 continue;
             };
@@ -217,12 +225,14 @@ impl Task {
             match accepted {
                 Ok(a) => {
                     self.status.writes_accepted += 1;
-                    tracing::info!(
-                        device,
-                        field,
-                        generation = a.generation,
-                        "Sparkplug DCMD write accepted"
-                    );
+                    if self.said.may() {
+                        tracing::info!(
+                            device,
+                            field = %crate::text::quote(&field),
+                            generation = a.generation,
+                            "Sparkplug DCMD write accepted"
+                        );
+                    }
                 }
                 Err(e) => self.refused(device, e.into()),
             }
@@ -233,8 +243,11 @@ impl Task {
     /// its kind and code (it has no answer topic).
     pub(super) fn refused(&mut self, target: &str, refused: Refused) {
         self.status.writes_refused += 1;
+        if !self.said.may() {
+            return;
+        }
         tracing::warn!(
-            target_ = target,
+            target_ = %crate::text::quote(target),
             kind = refused.kind_name(),
             code = refused.code,
             reason = %refused.message,
@@ -254,25 +267,23 @@ impl Task {
         let json = topics.0;
         let (device, field) = topics.parse_set(topic)?;
         let result_topic = format!("{topic}/result");
-        let refused = |e: Refused| {
-            tracing::info!(device, field, kind = e.kind_name(), code = e.code, error = %e.message, "MQTT write refused");
-            Out {
-                topic: result_topic.clone(),
-                payload: serde_json::to_vec(&SetRefused {
-                    device,
-                    field,
-                    error: crate::api::error::ErrorDetail {
-                        code: e.code.to_owned(),
-                        message: e.message,
-                    },
-                })
-                .unwrap_or_default(),
-                qos: json.qos,
-                retain: false,
-            }
+        let refused = |e: Refused| Out {
+            topic: result_topic.clone(),
+            payload: serde_json::to_vec(&SetRefused {
+                device,
+                field,
+                error: crate::api::error::ErrorDetail {
+                    code: e.code.to_owned(),
+                    message: e.message,
+                },
+            })
+            .unwrap_or_default(),
+            qos: json.qos,
+            retain: false,
         };
         if !self.prepared.may(Operation::WriteOutputs) {
             self.status.writes_refused += 1;
+            self.tell_refused_write(device, field, &Refused::not_enabled());
             return Some(refused(Refused::not_enabled()));
         }
         let accepted = (|| -> Result<_, Refused> {
@@ -288,6 +299,7 @@ impl Task {
         match accepted {
             Err(e) => {
                 self.status.writes_refused += 1;
+                self.tell_refused_write(device, field, &e);
                 Some(refused(e))
             }
             Ok(a) => {
@@ -310,6 +322,13 @@ impl Task {
                     retain: false,
                 })
             }
+        }
+    }
+
+    /// Logs a refused `/set` write, within the log's bound for clients' messages.
+    fn tell_refused_write(&mut self, device: &str, field: &str, e: &Refused) {
+        if self.said.may() {
+            tracing::info!(device = %crate::text::quote(device), field = %crate::text::quote(field), kind = e.kind_name(), code = e.code, error = %e.message, "MQTT write refused");
         }
     }
 

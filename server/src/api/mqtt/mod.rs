@@ -28,6 +28,7 @@ mod outbox;
 mod packet;
 mod refusal;
 mod report;
+mod said;
 mod session;
 mod setup;
 mod sparkplug;
@@ -222,6 +223,7 @@ pub(crate) fn spawn(
         next_ticket: 1,
         status,
         lost: 0,
+        said: said::Said::default(),
         prepared,
     };
     service.tasks().spawn(async move {
@@ -355,6 +357,8 @@ struct Task {
     /// Data messages lost here: no buffer, or a buffer that could not take them, or a
     /// replayed message whose device is gone.
     lost: u64,
+    /// What is logged of clients' messages, within its bound.
+    said: said::Said,
 }
 
 impl Task {

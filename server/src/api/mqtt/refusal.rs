@@ -50,7 +50,10 @@ impl Refused {
         Refused {
             kind: Refusal::NotFound,
             code: "unknown_field",
-            message: format!("the node has no writable metric `{name}`"),
+            message: format!(
+                "the node has no writable metric `{}`",
+                crate::text::quote(name)
+            ),
         }
     }
 
