@@ -74,14 +74,20 @@ async fn a_subscription_the_server_drops_is_made_again() -> anyhow::Result<()> {
     let mut plc = UaPlc::start(&[]).await?;
     let gw = gateway(&dir, &plc, "").await?;
     until_field(&gw, "UDI", "read", |f| f["quality"] == "good").await?;
+    let dropped_at = std::time::Instant::now();
     let dropped = plc.cmd(json!({"cmd": "drop_subscriptions"})).await?;
     assert_eq!(dropped["dropped"], 1);
     plc.set("UDInt", json!(77)).await?;
-    // Silent past its keep-alive allowance, it is made again and reports the change.
+    // The server answers the next publish request "no subscription": it is made again at
+    // once and reports the change (waiting for three keep-alives and a request's timeout
+    // took 11 s and more, the old value good all the while).
     until_field(&gw, "UDI", "the change after the drop", |f| {
         f["value"] == json!(77) && f["quality"] == "good"
     })
     .await?;
+    let took = dropped_at.elapsed();
+    assert!(took < std::time::Duration::from_secs(8), "fresh after {took:?}");
+    println!("a deleted subscription's values fresh again after {took:?}");
     assert_eq!(plc.cmd(json!({"cmd": "subscriptions"})).await?["count"], 1);
     gw.shutdown().await;
     plc.kill().await

@@ -17,7 +17,6 @@ mod write;
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 
 use opcua::types::{NodeId, VariantScalarTypeId};
 
@@ -110,12 +109,17 @@ impl Session for Connection {
         let started = tokio::time::Instant::now();
         self.fresh(device, plan).await?;
         if plan.subscribe {
-            let healthy = plan.watched.as_ref().is_some_and(subscribe::Watched::alive);
-            if healthy {
+            let dropped = self.dropped.load(std::sync::atomic::Ordering::Relaxed);
+            match plan.watched.as_ref().map(|w| w.health(dropped)) {
                 // The subscription vouches for every value it has not changed.
-                self.ended();
-            } else {
-                subscribe::watch(self, device, plan).await?;
+                Some(Ok(())) => self.ended(),
+                Some(Err(why)) => {
+                    // Its values are not vouched for until the new one reports them.
+                    tracing::warn!(device = %device.name(), "{}", why.says());
+                    device.doubt_reads(&FieldError::Device(why.says().to_owned()));
+                    subscribe::watch(self, device, plan).await?;
+                }
+                None => subscribe::watch(self, device, plan).await?,
             }
         }
         if !plan.subscribe {
@@ -192,7 +196,3 @@ impl Connection {
     }
 }
 
-/// How long a subscription may go without a publish response before it counts as lost.
-pub(crate) fn silence_allowed(keep_alive: Duration) -> Duration {
-    keep_alive * 3 + session::REQUEST_TIMEOUT
-}

@@ -40,6 +40,9 @@ pub(crate) struct Connection {
     pub(crate) progress: Arc<Progress>,
     /// Set once the connection is lost, with why.
     lost: watch::Receiver<Option<String>>,
+    /// How many times the server answered a publish request saying it has no subscription
+    /// of the session (it deleted them): every subscription made before is gone.
+    pub(crate) dropped: Arc<AtomicU64>,
     pump: JoinHandle<()>,
 }
 
@@ -157,7 +160,8 @@ pub(crate) async fn connect(
         .map_err(|e| failed(&url, e))?;
     session.disable_reconnects();
     let (tell, lost) = watch::channel(None);
-    let pump = tokio::spawn(drive(event_loop, tell, progress.clone()));
+    let dropped = Arc::new(AtomicU64::new(0));
+    let pump = tokio::spawn(drive(event_loop, tell, progress.clone(), dropped.clone()));
     let mut conn = Connection {
         session,
         generation: OPENED.fetch_add(1, Ordering::Relaxed),
@@ -165,6 +169,7 @@ pub(crate) async fn connect(
         settings,
         progress,
         lost,
+        dropped,
         pump,
     };
     let session = conn.session.clone();
@@ -190,11 +195,13 @@ pub(crate) async fn connect(
     Ok(conn)
 }
 
-/// Drives the session's event loop until the connection is lost, telling why.
+/// Drives the session's event loop until the connection is lost, telling why; counts the
+/// publish answers that say the server has no subscription of the session in `dropped`.
 async fn drive(
     event_loop: opcua::client::SessionEventLoop<opcua::client::transport::TcpConnector>,
     tell: watch::Sender<Option<String>>,
     progress: Arc<Progress>,
+    dropped: Arc<AtomicU64>,
 ) {
     use opcua::client::{SessionActivity, SubscriptionActivity};
     let stream = event_loop.enter();
@@ -217,11 +224,25 @@ async fn drive(
                 SessionPollResult::Subscription(SubscriptionActivity::FatalFailure(code)) => {
                     break format!("publishing failed: {code}");
                 }
+                SessionPollResult::Subscription(SubscriptionActivity::PublishFailed(code))
+                    if subscriptions_gone(code) =>
+                {
+                    progress.ended();
+                    dropped.fetch_add(1, Ordering::Relaxed);
+                }
                 _ => {}
             },
         }
     };
     tell.send_replace(Some(why));
+}
+
+/// Whether a publish answer says the server holds no (or not that) subscription of the
+/// session: it deleted them.
+fn subscriptions_gone(code: StatusCode) -> bool {
+    [StatusCode::BadNoSubscription, StatusCode::BadSubscriptionIdInvalid]
+        .iter()
+        .any(|c| c.sub_code() == code.sub_code())
 }
 
 impl Connection {

@@ -2,7 +2,9 @@
 //! per resolved field (the field's sampling interval, else the refresh rate; its deadband as
 //! a data change filter), each change published with its status and source timestamp. Any
 //! publish response of the subscription, data or keep-alive, shows it alive; one that stays
-//! silent past its keep-alive allowance, or that the server says it dropped, is made again.
+//! silent past its keep-alive period and a publishing interval, or that the server says it
+//! dropped or has not (a publish answered `BadNoSubscription`), has its values stale and is
+//! made again.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -18,7 +20,7 @@ use opcua::types::{
 use tokio::time::Instant;
 
 use super::variant::reading;
-use super::{Connection, Plan, refuse, silence_allowed};
+use super::{Connection, Plan, refuse};
 use crate::cache::Device;
 use crate::link::LinkFault;
 use crate::profile::deadband::Deadband;
@@ -42,16 +44,58 @@ pub(crate) struct Watched {
     /// The server told it was dropped.
     gone: Arc<AtomicBool>,
     keep_alive: Duration,
+    /// The publishing interval.
+    interval: Duration,
+    /// The session's count of "no subscription" publish answers when it was made.
+    since: u64,
+}
+
+/// How late a keep-alive may be (the network, the server's timer) before it is missed.
+const LATE: Duration = Duration::from_millis(500);
+
+/// Why a subscription is not vouching for its values any more.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Unwell {
+    /// The server answered a publish request saying it has no subscription of the session.
+    Deleted,
+    /// Neither a notification nor a keep-alive came within the keep-alive period and a
+    /// publishing interval.
+    Silent,
+    /// The server told it dropped it (a status change notification).
+    Dropped,
+}
+
+impl Unwell {
+    pub(crate) fn says(self) -> &'static str {
+        match self {
+            Unwell::Deleted => "the server deleted the device's subscription; made again",
+            Unwell::Silent => {
+                "the device's subscription sent neither a change nor a keep-alive in time; made again"
+            }
+            Unwell::Dropped => "the server dropped the device's subscription; made again",
+        }
+    }
 }
 
 impl Watched {
-    /// Whether the subscription still reports: heard within its allowance, not dropped.
-    pub(crate) fn alive(&self) -> bool {
+    /// Whether the subscription still reports: not deleted or dropped, and heard within the
+    /// keep-alive period and a publishing interval (at least [`LATE`]). `dropped` is the
+    /// session's count of "no subscription" publish answers now.
+    pub(crate) fn health(&self, dropped: u64) -> Result<(), Unwell> {
         let heard = *self
             .heard
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        !self.gone.load(Ordering::Relaxed) && heard.elapsed() <= silence_allowed(self.keep_alive)
+        if dropped != self.since {
+            return Err(Unwell::Deleted);
+        }
+        if self.gone.load(Ordering::Relaxed) {
+            return Err(Unwell::Dropped);
+        }
+        if heard.elapsed() > self.keep_alive + self.interval.max(LATE) {
+            return Err(Unwell::Silent);
+        }
+        Ok(())
     }
 }
 
@@ -154,7 +198,6 @@ pub(super) async fn watch(
     plan: &mut Plan,
 ) -> Result<(), LinkFault> {
     if let Some(old) = plan.watched.take() {
-        tracing::warn!(device = %device.name(), "the device's subscription stopped reporting; creating it again");
         conn.started();
         let _ = conn.session.delete_subscription(old.id).await;
         conn.ended();
@@ -164,6 +207,7 @@ pub(super) async fn watch(
         (KEEP_ALIVE.as_millis() / refresh.as_millis().max(1)).clamp(1, 1000) as u32;
     let heard = Arc::new(Mutex::new(Instant::now()));
     let gone = Arc::new(AtomicBool::new(false));
+    let since = conn.dropped.load(Ordering::Relaxed);
     let callback = Notifications {
         device: device.clone(),
         types: plan.types.clone(),
@@ -205,6 +249,8 @@ pub(super) async fn watch(
         heard,
         gone,
         keep_alive: refresh * keep_alive_count,
+        interval: refresh,
+        since,
     });
     items(conn, device, plan, id).await
 }
