@@ -26,7 +26,8 @@ answered by one JSON line:
 Variables (string ids `Line1.NAME`): Bool, SInt, Int, DInt, LInt, USInt, UInt, UDInt,
 ULInt, Real, LReal, Str (each of the matching OPC UA type, writable), Big (Int32 40000),
 Locked (Int16, read-only), Speed (Double, EngineeringUnits rpm); Started (a DateTime) and
-Counts (an array) have no IEC field.
+Counts (an array) have no IEC field. `--many N` adds Line1.Many.0 .. Line1.Many.N-1 (Int32,
+each holding its number).
 """
 import argparse
 import asyncio
@@ -126,6 +127,8 @@ async def start(args):
     when = await line.add_variable(ua.NodeId("Line1.Started", ns), ua.QualifiedName("Started", ns), ua.Variant(datetime.now(timezone.utc), ua.VariantType.DateTime))
     await line.add_variable(ua.NodeId("Line1.Counts", ns), ua.QualifiedName("Counts", ns), ua.Variant([1, 2, 3], ua.VariantType.Int32))
     del when
+    for k in range(args.many):
+        await line.add_variable(ua.NodeId(f"Line1.Many.{k}", ns), ua.QualifiedName(f"Many{k}", ns), ua.Variant(k, ua.VariantType.Int32))
     if args.no_subscriptions:
         async def refuse(*_a, **_k):
             raise ua.UaStatusCodeError(ua.StatusCodes.BadServiceUnsupported)
@@ -171,6 +174,7 @@ async def main():
     parser.add_argument("--security", nargs=3, metavar=("CERT", "KEY", "TRUSTED"))
     parser.add_argument("--client-cert", nargs=2, metavar=("CERT", "KEY"))
     parser.add_argument("--user", nargs=2, metavar=("USER", "PASSWORD"))
+    parser.add_argument("--many", type=int, default=0, help="variables Line1.Many.0 .. N-1 (Int32 k)")
     args = parser.parse_args()
     if args.client_cert:
         from pathlib import Path

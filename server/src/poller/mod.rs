@@ -274,9 +274,13 @@ impl<D: Driver> Driven<D> {
                 }
                 Ok(mut conn) => {
                     self.opened(lost);
+                    let opened_at = Instant::now();
                     let ended = self.serve(&mut conn, token, &tried).await;
-                    if self.answered || self.devices.is_empty() {
-                        // The link worked, not merely opened: a loss now is retried soon.
+                    if (self.answered || self.devices.is_empty())
+                        && opened_at.elapsed() >= REOPEN_MAX
+                    {
+                        // The link worked, not merely opened (a device read, for longer
+                        // than the longest wait): a loss now is retried soon.
                         reopen = REOPEN_MIN;
                     }
                     // Stopped, given other settings or lost: what was opened on the other

@@ -6,6 +6,7 @@
 //! the Modbus server) on such a device.
 
 mod doors;
+mod limits;
 mod recovery;
 mod values;
 

@@ -86,7 +86,10 @@ async fn a_subscription_the_server_drops_is_made_again() -> anyhow::Result<()> {
     })
     .await?;
     let took = dropped_at.elapsed();
-    assert!(took < std::time::Duration::from_secs(8), "fresh after {took:?}");
+    assert!(
+        took < std::time::Duration::from_secs(8),
+        "fresh after {took:?}"
+    );
     println!("a deleted subscription's values fresh again after {took:?}");
     assert_eq!(plc.cmd(json!({"cmd": "subscriptions"})).await?["count"], 1);
     gw.shutdown().await;

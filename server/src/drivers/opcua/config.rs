@@ -19,6 +19,39 @@ const KEYS: &[&str] = &[
     "trusted",
     "user",
     "subscribe",
+    "max_message_size",
+    "max_string_length",
+    "max_array_length",
+];
+
+/// What the client decodes of a server's answers, at most: a larger message, string or
+/// array ends the connection, so the defaults are what servers send (FreeOpcUa's first
+/// publish of a 2,000-field device, a long string) and the settings raise them, bounded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Limits {
+    /// Bytes of one message (all its chunks).
+    pub(crate) message: usize,
+    /// Bytes of one string or byte string.
+    pub(crate) string: usize,
+    /// Elements of one array (a publish answer's notifications among them).
+    pub(crate) array: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            message: 16 << 20,
+            string: 1 << 20,
+            array: 100_000,
+        }
+    }
+}
+
+/// The bounds of each limit: (key, least, most).
+const LIMIT_BOUNDS: [(&str, i128, i128); 3] = [
+    ("max_message_size", 65_535, 256 << 20),
+    ("max_string_length", 65_535, 64 << 20),
+    ("max_array_length", 1_000, 10_000_000),
 ];
 const USER_KEYS: &[&str] = &["username", "password_file", "certificate", "private_key"];
 
@@ -57,6 +90,7 @@ pub(crate) struct Settings {
     pub(crate) user: User,
     /// Monitored items where the server has subscriptions (`false`: read every refresh).
     pub(crate) subscribe: bool,
+    pub(crate) limits: Limits,
 }
 
 /// Reads a link's settings; `None` after reporting every problem.
@@ -109,6 +143,19 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         None => Some(true),
         Some(n) => crate::yaml::boolean(n, report, &at("subscribe")),
     };
+    let mut limits = Some(Limits::default());
+    for (key, least, most) in LIMIT_BOUNDS {
+        let Some(n) = map.get(key) else { continue };
+        let value = n.int_in(report, &at(key), least, most).map(|v| v as usize);
+        match (value, limits.as_mut()) {
+            (Some(v), Some(l)) => match key {
+                "max_message_size" => l.message = v,
+                "max_string_length" => l.string = v,
+                _ => l.array = v,
+            },
+            _ => limits = None,
+        }
+    }
     map.finish(report, &ctx, KEYS);
     let (policy, mode) = (policy?, mode?);
     let mode = secured(policy, mode, d.settings.line, &ctx, report)?;
@@ -130,6 +177,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         trusted: trusted?,
         user: user?,
         subscribe: subscribe?,
+        limits: limits?,
     })
 }
 

@@ -66,6 +66,7 @@ async fn import(url: &str, root: Option<&str>, out: Option<&Path>) -> u8 {
         trusted: Vec::new(),
         user: User::Anonymous,
         subscribe: false,
+        limits: Default::default(),
     };
     let connecting = super::session::connect(settings, Arc::default());
     let conn = match tokio::time::timeout(std::time::Duration::from_secs(10), connecting).await {

@@ -22,6 +22,8 @@ use crate::link::LinkFault;
 
 /// How long one request to the server may take.
 pub(crate) const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
+/// The size of the chunks the client takes (the library's).
+const CHUNK: usize = 65_535;
 /// How long a session lives on the server without a request.
 const SESSION_TIMEOUT_MS: u32 = 60_000;
 
@@ -124,7 +126,12 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
         .session_retry_limit(0)
         .session_timeout(SESSION_TIMEOUT_MS)
         .request_timeout(REQUEST_TIMEOUT)
-        .recreate_subscriptions(false);
+        .recreate_subscriptions(false)
+        .max_message_size(settings.limits.message)
+        .max_chunk_count(settings.limits.message.div_ceil(CHUNK) + 1)
+        .max_string_length(settings.limits.string)
+        .max_byte_string_length(settings.limits.string)
+        .max_array_length(settings.limits.array);
     if let Some((c, k)) = given {
         builder = builder.certificate_path(c).private_key_path(k);
     }
@@ -240,9 +247,12 @@ async fn drive(
 /// Whether a publish answer says the server holds no (or not that) subscription of the
 /// session: it deleted them.
 fn subscriptions_gone(code: StatusCode) -> bool {
-    [StatusCode::BadNoSubscription, StatusCode::BadSubscriptionIdInvalid]
-        .iter()
-        .any(|c| c.sub_code() == code.sub_code())
+    [
+        StatusCode::BadNoSubscription,
+        StatusCode::BadSubscriptionIdInvalid,
+    ]
+    .iter()
+    .any(|c| c.sub_code() == code.sub_code())
 }
 
 impl Connection {

@@ -29,8 +29,9 @@ use crate::profile::deadband::Deadband;
 /// carries: within the operation limits servers commonly set and their message sizes.
 pub(crate) const PER_CALL: usize = 500;
 
-/// The most notifications one publish response carries (the client's decoding limit on
-/// arrays is 1,000): more changes come in more responses.
+/// The most notifications one publish response is asked to carry: more changes come in
+/// more responses (a server that sends more anyway is taken up to the link's
+/// `max_array_length`).
 const PER_PUBLISH: u32 = 1000;
 
 /// About how often a quiet subscription says it is alive.
