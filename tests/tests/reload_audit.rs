@@ -178,3 +178,62 @@ async fn a_device_moved_to_another_slave_id_is_not_good_until_read_there() {
     gw.shutdown().await;
     serving.abort();
 }
+
+#[tokio::test]
+async fn a_read_of_the_old_place_on_the_way_when_a_device_is_moved_is_not_stored() {
+    use iogate_tests::SseReader;
+    use iogate_tests::devices::Behaviour;
+    let bus = RtuBus::default();
+    // Slave 1 takes 300 ms for each answer: a read of it is on the way when the reload lands.
+    bus.slave(1, |s| {
+        s.tables.input[0] = 11;
+        s.behaviour = Behaviour::Slow(std::time::Duration::from_millis(300));
+    });
+    bus.slave(2, |s| s.tables.input[0] = 22);
+    let dir = temp_dir("reload-moved-in-flight");
+    let port = dir.join("ttyBUS");
+    let (device_end, _holder) = pty_at(&port).expect("pty");
+    let serving = bus.serve(device_end);
+    let config = |slave: u8| {
+        format!(
+            "{HEAD}links:\n  - {{ name: bus, serial: {{ port: {}, baud: 115200 }} }}\ndevices:\n  - {{ name: dev, profile: Reg, link: bus, slave_id: {slave}, refresh_rate: 20ms, timeout: 2s }}\n",
+            port.display()
+        )
+    };
+    let (_, path) = files(
+        "reload-moved-in-flight-files",
+        &[("reg.yaml", REG)],
+        &config(1),
+    );
+    let gw = start(&path).await;
+    let mut sse = SseReader::open(&gw, "/api/v1/events?device=dev")
+        .await
+        .expect("sse");
+    sse.until(|name, v| name == "value" && v["value"] == 11 && v["quality"] == "good")
+        .await
+        .expect("read at slave 1");
+    std::fs::write(&path, config(2)).expect("config");
+    let (status, body) = reload(&gw).await;
+    assert_eq!(status, 200, "{body}");
+    // Every event from the reset on: never slave 1's value as good.
+    let mut reset = false;
+    loop {
+        let (name, v) = sse.next().await.expect("event").expect("stream");
+        if name != "value" {
+            continue;
+        }
+        if v["value"].is_null() {
+            reset = true;
+        } else if v["value"] == 22 && v["quality"] == "good" {
+            break;
+        } else if reset {
+            assert!(
+                !(v["value"] == 11 && v["quality"] == "good"),
+                "slave 1's value served as slave 2's: {v}"
+            );
+        }
+    }
+    assert!(reset, "the moved device starts unread");
+    gw.shutdown().await;
+    serving.abort();
+}

@@ -51,7 +51,13 @@ pub struct Device {
     /// (a new device, or one a reload moved to another link or slave id); a device
     /// re-planned in place does not: its outputs were written already.
     rewrite_first: bool,
+    /// Which device this is, as its fields' samples know it: a read is stored only into a
+    /// sample that still belongs to the device (and so the place) it was read from.
+    place: u64,
 }
+
+/// Every device made gets the next place.
+static PLACES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// What became of a device: the streams that follow it carry on with its successor's
 /// fields, or end with the reason.
@@ -101,8 +107,16 @@ impl Device {
             slave_id: config.slave_id,
         };
         let error_code = binding.code(profile.protocol);
+        let place = PLACES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         Device {
-            samples: (0..n).map(|_| Slot::new(Sample::never_read())).collect(),
+            samples: (0..n)
+                .map(|_| {
+                    Slot::new(Sample {
+                        place,
+                        ..Sample::never_read()
+                    })
+                })
+                .collect(),
             diagnostics: Arc::new(watch::Sender::new(Diagnostics {
                 connected: simulated,
                 error_code,
@@ -121,7 +135,13 @@ impl Device {
             last_cycle: Mutex::new(None),
             line: Mutex::new(None),
             rewrite_first: true,
+            place,
         }
+    }
+
+    /// Which device this is, as its samples know it.
+    pub(super) fn place(&self) -> u64 {
+        self.place
     }
 
     /// Whether the newest requested outputs are written when the device is first polled.
@@ -166,12 +186,21 @@ impl Device {
                 next.samples[idx] = old.samples[before].clone();
                 let same_registers = old.field(before).encoding == field.encoding
                     && old.field(before).register == field.register;
+                let place = next.place;
                 if moved || !same_registers {
                     next.samples[idx].send_modify(|s| {
                         *s = Sample {
                             retold: s.retold,
+                            place,
                             ..Sample::never_read()
                         }
+                    });
+                } else {
+                    // The old device's reads still on the way are not stored from now on
+                    // (its place, or its registers, may no longer be this field's).
+                    next.samples[idx].send_if_modified(|s| {
+                        s.place = place;
+                        false
                     });
                 }
                 kept.push((before, idx, same_registers));

@@ -52,6 +52,10 @@ pub(crate) struct Sample {
     /// Counts the times subscribers were woken for something beside the sample (a failed
     /// write: the field's mismatch), so that such a wake is never taken for a repeat.
     pub(crate) retold: u64,
+    /// The device whose reads are stored here (`Device::place`): a reload that re-plans or
+    /// moves the device gives the sample to its successor, and a read of the old device
+    /// still on the way is then not stored.
+    pub(crate) place: u64,
 }
 
 impl Sample {
@@ -63,6 +67,7 @@ impl Sample {
             updated: None,
             stale_told: false,
             retold: 0,
+            place: 0,
         }
     }
 

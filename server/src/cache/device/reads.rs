@@ -45,7 +45,12 @@ impl Device {
         now: Stamp,
     ) {
         let now = (now.instant, at.unwrap_or(now.system));
+        let place = self.place();
         self.samples[idx].send_if_modified(|s| {
+            if s.place != place {
+                // Read by a device a reload has replaced: perhaps another place's value.
+                return false;
+            }
             // Changed: another value or quality, or a stale spell told that now ends.
             let mut changed = s.stale_told;
             match read {
