@@ -237,3 +237,63 @@ async fn a_read_of_the_old_place_on_the_way_when_a_device_is_moved_is_not_stored
     gw.shutdown().await;
     serving.abort();
 }
+
+/// Where each `device.field` is bound, from `GET /api/v1/map`.
+async fn bound(gw: &TestGateway) -> std::collections::HashMap<String, String> {
+    let (_, map) = gw.get("/api/v1/map").await.expect("map");
+    map["bindings"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|b| {
+            (
+                format!(
+                    "{}.{}",
+                    b["device"].as_str().unwrap_or(""),
+                    b["field"].as_str().unwrap_or("")
+                ),
+                b["at"].as_str().unwrap_or("").to_owned(),
+            )
+        })
+        .collect()
+}
+
+#[tokio::test]
+async fn a_reload_keeps_every_auto_located_field_where_masters_read_it() {
+    let config = |devices: &[&str]| {
+        let mut c = format!("{HEAD}devices:\n");
+        for d in devices {
+            c.push_str(&format!(
+                "  - {{ name: {d}, profile: SimOne, refresh_rate: 100ms }}\n"
+            ));
+        }
+        c.push_str("modbus_server:\n  listen: 127.0.0.1:0\n  auto: true\n");
+        c
+    };
+    let (_, path) = files(
+        "reload-auto-map",
+        &[("sim.yaml", SIM)],
+        &config(&["b", "c"]),
+    );
+    let gw = start(&path).await;
+    let before = bound(&gw).await;
+    let (b, c) = (before["b.X"].clone(), before["c.X"].clone());
+    // Two devices listed before the others, and one removed.
+    std::fs::write(&path, config(&["a1", "a2", "b"])).expect("config");
+    let (status, body) = reload(&gw).await;
+    assert_eq!(status, 200, "{body}");
+    let after = bound(&gw).await;
+    assert_eq!(after["b.X"], b, "b.X moved: {after:?}");
+    assert!(!after.contains_key("c.X"));
+    // c's location stays empty; the new fields take free ones.
+    for new in ["a1.X", "a2.X"] {
+        assert_ne!(after[new], c, "{new} took c's place");
+        assert_ne!(after[new], b);
+    }
+    let changes = body["report"]["changes"].to_string();
+    assert!(
+        changes.contains(&c) && changes.contains("kept empty"),
+        "{changes}"
+    );
+    gw.shutdown().await;
+}

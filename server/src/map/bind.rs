@@ -3,9 +3,11 @@
 //! bound to the next free location of its kind. Checked by `iogate check`, printed by
 //! `iogate map`, served by the Modbus TCP server.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 
 use iogate_types::{Area, Location, Size};
+
+mod auto;
 
 use super::space::{Slot, Space};
 use super::value::Repr;
@@ -86,6 +88,10 @@ pub struct Plan {
     /// Bindings that work but may not show every value (a TIME at `%MD`): `check` and
     /// `serve` print them, they stop nothing.
     pub(crate) warnings: Vec<crate::yaml::Problem>,
+    /// Locations `auto` gave a field that a reload removed (or gave another kind): kept
+    /// empty, so that no master reading them gets another field's value, until a restart
+    /// numbers the map afresh. With the field they held.
+    pub(crate) reserved: Vec<(Location, String)>,
 }
 
 /// Why a field or diagnostic does not fit a location.
@@ -126,21 +132,6 @@ fn fit(
     Ok((repr, writable))
 }
 
-/// The kind of location `auto` gives a field, if any. TIME is 64-bit milliseconds (source
-/// document 000), so it goes to `%ML`, where every value fits.
-fn auto_kind(ty: IecType, one_register: bool, writable: bool) -> Option<(Area, Size)> {
-    let io = if writable { Area::Output } else { Area::Input };
-    [
-        (io, Size::Bit),
-        (io, Size::Word),
-        (Area::Memory, Size::Double),
-        (Area::Memory, Size::Long),
-    ]
-    .into_iter()
-    .filter(|(_, size)| !(ty == IecType::Time && *size == Size::Double))
-    .find(|(_, size)| Repr::of(ty, *size, one_register).is_some())
-}
-
 fn one_register(profile: &Profile, idx: usize) -> bool {
     let r = &profile.fields[idx].register;
     r.kind != RegisterKind::Virtual && r.word_count == 1
@@ -149,11 +140,22 @@ fn one_register(profile: &Profile, idx: usize) -> bool {
 /// Resolves the server's map against the config's devices and the profiles; every problem
 /// with its line.
 pub(crate) fn plan(config: &Config, catalog: &Catalog) -> Result<Option<Plan>, Problems> {
+    plan_after(config, catalog, None)
+}
+
+/// [`plan`] for a reload of a gateway serving `previous`: every field `auto` bound keeps
+/// its location (masters polling it read the same field), new fields take the next free
+/// ones, and a removed field's location stays empty.
+pub(crate) fn plan_after(
+    config: &Config,
+    catalog: &Catalog,
+    previous: Option<&Plan>,
+) -> Result<Option<Plan>, Problems> {
     let Some(server) = &config.modbus_server else {
         return Ok(None);
     };
     let mut report = Report::new(&config.source);
-    let plan = resolve(server, config, catalog, &mut report);
+    let plan = resolve(server, config, catalog, previous, &mut report);
     let problems = report.into_problems();
     if problems.is_empty() {
         Ok(Some(plan))
@@ -166,6 +168,7 @@ fn resolve(
     server: &ModbusServerConfig,
     config: &Config,
     catalog: &Catalog,
+    previous: Option<&Plan>,
     report: &mut Report,
 ) -> Plan {
     let mut r = Resolver {
@@ -176,6 +179,7 @@ fn resolve(
         bindings: Vec::new(),
         warnings: Vec::new(),
         unbound: Vec::new(),
+        reserved: Vec::new(),
     };
     for entry in &server.map {
         let ctx = format!("modbus_server.map: {}", entry.at);
@@ -185,13 +189,14 @@ fn resolve(
     }
     check_forwards(server, config, report);
     if server.auto {
-        r.auto();
+        r.auto(previous.filter(|p| p.space == r.space));
     }
     let Resolver {
         space,
         mut bindings,
         warnings,
         unbound,
+        reserved,
         ..
     } = r;
     bindings.sort_by_key(|b| (b.slot.table, b.slot.address));
@@ -200,6 +205,7 @@ fn resolve(
         bindings,
         unbound,
         warnings,
+        reserved,
     }
 }
 
@@ -213,6 +219,7 @@ struct Resolver<'a> {
     bindings: Vec<Binding>,
     warnings: Vec<crate::yaml::Problem>,
     unbound: Vec<String>,
+    reserved: Vec<(Location, String)>,
 }
 
 impl<'a> Resolver<'a> {
@@ -273,72 +280,6 @@ impl<'a> Resolver<'a> {
             auto: false,
         });
         Ok(())
-    }
-
-    /// `auto: true`: every field no entry binds, at the next free location of its kind.
-    fn auto(&mut self) {
-        let mapped: HashSet<(String, String)> = self
-            .bindings
-            .iter()
-            .map(|b| (b.device.clone(), b.name.to_ascii_lowercase()))
-            .collect();
-        let mut cursors: HashMap<(Area, Size), u32> = HashMap::new();
-        let (config, catalog) = (self.config, self.catalog);
-        for device in &config.devices {
-            let Some(profile) = catalog.get(&device.profile) else {
-                continue;
-            };
-            for (idx, f) in profile.fields.iter().enumerate() {
-                if !mapped.contains(&(device.name.clone(), f.name.to_ascii_lowercase())) {
-                    self.auto_field(&device.name, profile, idx, &mut cursors);
-                }
-            }
-        }
-    }
-
-    fn auto_field(
-        &mut self,
-        device: &str,
-        profile: &Profile,
-        idx: usize,
-        cursors: &mut HashMap<(Area, Size), u32>,
-    ) {
-        let f = &profile.fields[idx];
-        let one = one_register(profile, idx);
-        let writable = f.direction.is_writable();
-        let Some((area, size)) = auto_kind(f.ty, one, writable) else {
-            self.unbound.push(format!("{device}.{} ({})", f.name, f.ty));
-            return;
-        };
-        let cursor = cursors.entry((area, size)).or_insert(0);
-        let (space, taken) = (&self.space, &mut self.taken);
-        let free = space
-            .locations(area, size)
-            .skip(*cursor as usize)
-            .enumerate()
-            .find_map(|(k, at)| {
-                let slot = space.slot(&at).ok()?;
-                claim(taken, slot, at).ok().map(|()| (k, at, slot))
-            });
-        let Some((k, at, slot)) = free else {
-            self.unbound.push(format!("{device}.{} ({})", f.name, f.ty));
-            return;
-        };
-        *cursor += k as u32 + 1;
-        let Ok((repr, writable)) = fit(&at, f.ty, one, writable, false) else {
-            return;
-        };
-        self.bindings.push(Binding {
-            at,
-            slot,
-            device: device.to_owned(),
-            target: Target::Field(idx),
-            name: f.name.clone(),
-            ty: f.ty,
-            repr,
-            writable,
-            auto: true,
-        });
     }
 }
 

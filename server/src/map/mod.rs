@@ -9,5 +9,5 @@ pub mod report;
 pub(crate) mod space;
 pub(crate) mod value;
 
-pub(crate) use bind::{Binding, Diag, Plan, Target, plan};
+pub(crate) use bind::{Binding, Diag, Plan, Target, plan, plan_after};
 pub(crate) use space::{Space, Table};

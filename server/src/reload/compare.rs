@@ -44,8 +44,8 @@ fn invalid(problems: crate::yaml::Problems) -> DiffError {
 /// loaded and checked as a reload loads them.
 pub fn against_file(running: &Path, new: &Path) -> Result<Report, DiffError> {
     let started = Instant::now();
-    let old = super::load(running).map_err(invalid)?;
-    let next = super::load(new).map_err(invalid)?;
+    let old = super::load(running, None).map_err(invalid)?;
+    let next = super::load(new, old.setup.map.as_ref()).map_err(invalid)?;
     let diff = super::diff::diff(&old.setup, &old.tokens, &next.setup, &next.tokens);
     Ok(Report {
         trigger: Trigger::Check,

@@ -396,12 +396,11 @@ fn map(d: &mut Diff, old: &Setup, new: &Setup) {
         }
         for o in &pa.bindings {
             if !pb.bindings.iter().any(|b| b.at == o.at) {
-                d.push(
-                    Kind::Map,
-                    o.at.to_string(),
-                    Action::Removed,
-                    vec![format!("{}.{}", o.device, o.name)],
-                );
+                let mut details = vec![format!("{}.{}", o.device, o.name)];
+                if pb.reserved.iter().any(|(at, _)| *at == o.at) {
+                    details.push("kept empty until a restart numbers the auto map afresh".into());
+                }
+                d.push(Kind::Map, o.at.to_string(), Action::Removed, details);
             }
         }
     }

@@ -34,9 +34,13 @@ pub(crate) struct Loaded {
 }
 
 /// Loads and checks the config file and its profiles as `iogate check` does, and hashes
-/// their contents.
-pub(crate) fn load(path: &Path) -> Result<Loaded, Problems> {
-    let setup = Setup::from_file(path)?;
+/// their contents. `serving` is the Modbus server's map in force: its `auto` locations are
+/// kept (`map::plan_after`).
+pub(crate) fn load(path: &Path, serving: Option<&crate::map::Plan>) -> Result<Loaded, Problems> {
+    let mut setup = Setup::from_file(path)?;
+    if serving.is_some() && setup.map.is_some() {
+        setup.map = crate::map::plan_after(&setup.config, &setup.catalog, serving)?;
+    }
     let access = config::check_security(&setup.config)?;
     let hash = hash_files(path, setup.profiles_dir.as_deref());
     Ok(Loaded {
@@ -186,7 +190,8 @@ impl Reloader {
         let started = std::time::Instant::now();
         let mut in_force = self.in_force.lock().await;
         let path = self.path.clone();
-        let loaded = tokio::task::spawn_blocking(move || load(&path))
+        let serving = in_force.setup.map.clone();
+        let loaded = tokio::task::spawn_blocking(move || load(&path, serving.as_ref()))
             .await
             .map_err(|e| ReloadError::Failed(format!("loading the configuration failed: {e}")))?;
         let result = match loaded {
