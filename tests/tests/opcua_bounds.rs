@@ -312,6 +312,59 @@ async fn sessions_never_activated_cannot_keep_a_client_out() {
 }
 
 #[tokio::test]
+async fn connections_whose_sessions_are_never_activated_are_closed_with_them() {
+    let dir = temp_dir("opcua-unactivated-connections");
+    let gw = TestGateway::start(&format!(
+        "devices:\n  - {{ name: plant, profile: SimPlant, refresh_rate: 100ms }}\n{}",
+        opcua(&dir, "  max_connections_per_client: 4\n")
+    ))
+    .await
+    .expect("gateway");
+    // Four secure channels with a session each, never activated, kept open: every place
+    // this address has.
+    iogate_tests::opcua::install().expect("asyncua");
+    let mut command = tokio::process::Command::new("python3");
+    command
+        .arg(iogate_tests::repo_file("opcua/unactivated.py"))
+        .arg(url(&gw))
+        .arg("4");
+    let started = std::time::Instant::now();
+    let mut squatter = iogate_tests::spawn_piped(command).expect("unactivated.py");
+    let line = squatter
+        .lines
+        .next_line()
+        .await
+        .expect("answer")
+        .expect("a line");
+    let created: serde_json::Value = serde_json::from_str(&line).expect("json");
+    assert_eq!(created["created"], 4, "{created}");
+    // The gateway closes them (the squatter still holds its end), so a real client from
+    // the same address gets in.
+    eventually(
+        "the connections without an activated session closed",
+        || async {
+            gw.metrics().await.is_ok_and(|m| {
+                m.contains("iogate_bound_used{bound=\"opcua_connections_per_client\"} 0\n")
+            })
+        },
+    )
+    .await
+    .expect("closed");
+    println!(
+        "unactivated connections closed after {:?}",
+        started.elapsed()
+    );
+    let mut ua = client(&gw).await;
+    assert_eq!(
+        ua.read("plant.Level").await.expect("read")["status"],
+        "Good"
+    );
+    ua.close().await.expect("closed");
+    drop(squatter);
+    gw.shutdown().await;
+}
+
+#[tokio::test]
 async fn the_advertised_operation_limits_are_the_ones_kept() {
     let (gw, dir) = plant("opcua-limits", "").await;
     let mut ua = client(&gw).await;

@@ -81,6 +81,9 @@ pub(crate) struct SessionController {
     pending_messages: FuturesUnordered<Pin<Box<PendingMessageResponse>>>,
     info: Arc<ServerInfo>,
     deadline: Instant,
+    /// Until when the connection may stay without an activated session; `None` once one
+    /// was activated on it.
+    unactivated_until: Option<Instant>,
 }
 
 enum RequestProcessResult {
@@ -188,6 +191,11 @@ impl SessionController {
             message_handler: MessageHandler::new(info.clone(), node_managers, subscriptions),
             deadline: Instant::now()
                 + Duration::from_secs(info.config.tcp_config.hello_timeout as u64),
+            unactivated_until: Some(
+                Instant::now()
+                    + Duration::from_secs(info.config.tcp_config.hello_timeout as u64)
+                    + super::instance::UNACTIVATED_TIMEOUT,
+            ),
             info,
             pending_messages: FuturesUnordered::new(),
         }
@@ -201,10 +209,21 @@ impl SessionController {
                 Either::Right(self.pending_messages.next())
             };
 
+            let unactivated = self.unactivated_until;
             tokio::select! {
                 _ = tokio::time::sleep_until(self.deadline.into()) => {
                     warn!("Connection timed out, closing");
                     self.fatal_error(StatusCode::BadTimeout, "Connection timeout");
+                }
+                _ = tokio::time::sleep_until(unactivated.unwrap_or(self.deadline).into()), if unactivated.is_some() => {
+                    if self.has_activated_session() {
+                        self.unactivated_until = None;
+                    } else {
+                        // A connection nobody activates a session on is closed with its
+                        // sessions: strangers cannot hold the connection bounds.
+                        warn!("No session activated on the connection in time, closing");
+                        self.fatal_error(StatusCode::BadSessionNotActivated, "No session activated in time");
+                    }
                 }
                 cmd = command.recv() => {
                     match cmd {
@@ -272,6 +291,12 @@ impl SessionController {
                 }
             }
         }
+    }
+
+    /// Whether a session was activated on this connection's secure channel.
+    fn has_activated_session(&self) -> bool {
+        let id = self.channel.secure_channel_id();
+        trace_read_lock!(self.session_manager).has_activated_on(id)
     }
 
     fn fatal_error(&mut self, err: StatusCode, msg: &str) {

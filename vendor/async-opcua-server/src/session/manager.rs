@@ -229,6 +229,14 @@ impl SessionManager {
         }
     }
 
+    /// Whether a session activated on secure channel `id` is in the table.
+    pub(crate) fn has_activated_on(&self, id: u32) -> bool {
+        self.sessions.values().any(|s| {
+            let s = s.read();
+            s.secure_channel_id() == id && s.is_activated()
+        })
+    }
+
     pub(crate) fn expire_session(&mut self, id: &NodeId) {
         let Some(session) = self.sessions.remove(id) else {
             return;
