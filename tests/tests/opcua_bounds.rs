@@ -365,6 +365,56 @@ async fn connections_whose_sessions_are_never_activated_are_closed_with_them() {
 }
 
 #[tokio::test]
+async fn browse_continuation_points_are_bounded_per_session_and_for_the_whole_gateway() {
+    let (gw, _dir) = plant(
+        "opcua-browse-points",
+        "  max_sessions: 100\n  max_connections_per_client: 100\n",
+    )
+    .await;
+    iogate_tests::opcua::install().expect("asyncua");
+    // 60 sessions each asking for 100 points (6,000): the gateway keeps the newest 5,000,
+    // the first session's first point released to make room.
+    let mut command = tokio::process::Command::new("python3");
+    command
+        .arg(iogate_tests::repo_file("opcua/browse_points.py"))
+        .arg(url(&gw))
+        .arg("60")
+        .arg("100");
+    let mut holder = iogate_tests::spawn_piped(command).expect("browse_points.py");
+    let line = tokio::time::timeout(iogate_tests::PATIENCE, holder.lines.next_line())
+        .await
+        .expect("in time")
+        .expect("answer")
+        .expect("a line");
+    let got: serde_json::Value = serde_json::from_str(&line).expect("json");
+    assert_eq!(got["held"], 6_000, "{got}");
+    assert_eq!(got["refused"], 0, "{got}");
+    assert_eq!(got["first"], "BadContinuationPointInvalid", "{got}");
+    // One session asking past its own 100: the rest refused, its first point kept.
+    let mut command = tokio::process::Command::new("python3");
+    command
+        .arg(iogate_tests::repo_file("opcua/browse_points.py"))
+        .arg(url(&gw))
+        .arg("1")
+        .arg("300");
+    let mut one = iogate_tests::spawn_piped(command).expect("browse_points.py");
+    let line = tokio::time::timeout(iogate_tests::PATIENCE, one.lines.next_line())
+        .await
+        .expect("in time")
+        .expect("answer")
+        .expect("a line");
+    let got: serde_json::Value = serde_json::from_str(&line).expect("json");
+    assert_eq!(
+        (got["held"].as_u64(), got["refused"].as_u64()),
+        (Some(100), Some(200)),
+        "{got}"
+    );
+    assert_eq!(got["first"], "Good", "{got}");
+    drop((one, holder));
+    gw.shutdown().await;
+}
+
+#[tokio::test]
 async fn the_advertised_operation_limits_are_the_ones_kept() {
     let (gw, dir) = plant("opcua-limits", "").await;
     let mut ua = client(&gw).await;

@@ -81,6 +81,8 @@ pub struct ServerInfo {
     pub monitored_item_id_handle: AtomicHandle,
     /// Generator for secure channel IDs.
     pub secure_channel_id_handle: Arc<AtomicHandle>,
+    /// Every session's browse continuation points.
+    pub(crate) browse_points: Arc<crate::session::browse_points::BrowsePoints>,
     /// Server capabilities
     pub capabilities: ServerCapabilities,
     /// Service level observer.

@@ -228,6 +228,10 @@ impl Server {
             subscription_id_handle: AtomicHandle::new(1),
             monitored_item_id_handle: AtomicHandle::new(1),
             secure_channel_id_handle: Arc::new(AtomicHandle::new(1)),
+            browse_points: Arc::new(crate::session::browse_points::BrowsePoints::new(
+                config.limits.max_browse_continuation_points,
+                config.limits.max_browse_continuation_points_total,
+            )),
             capabilities: ServerCapabilities::default(),
             service_level: service_level.clone(),
             port: AtomicU16::new(0),

@@ -363,6 +363,10 @@ fn with_certificate(
     Ok(builder)
 }
 
+/// Browse continuation points a session keeps, and every session together.
+pub(crate) const BROWSE_POINTS_PER_SESSION: usize = 100;
+pub(crate) const BROWSE_POINTS: usize = 5_000;
+
 /// The limits the server advertises and keeps.
 fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
     {
@@ -372,6 +376,10 @@ fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
             config.max_monitored_items_per_subscription;
         limits.max_connections = config.max_connections;
         limits.max_connections_per_client = config.max_connections_per_client;
+        // A browse continuation point holds about 5.4 KiB: a session keeps its newest 100
+        // (the oldest gives way), every session together 5,000 (Bad_NoContinuationPoints).
+        limits.max_browse_continuation_points = BROWSE_POINTS_PER_SESSION;
+        limits.max_browse_continuation_points_total = BROWSE_POINTS;
         // A publish answer carries at most this many notifications (a thousand by default,
         // what async-opcua's clients decode) and is closed at about 160 KiB (the vendored
         // library's `MAX_NOTIFICATION_BYTES`), well within the message size clients

@@ -33,6 +33,10 @@ pub struct Limits {
     /// Maximum number of browse continuation points per session.
     #[serde(default = "defaults::max_browse_continuation_points")]
     pub max_browse_continuation_points: usize,
+    /// Maximum number of browse continuation points of every session together: past it,
+    /// a browse that needs one is answered Bad_NoContinuationPoints. 0: no bound.
+    #[serde(default)]
+    pub max_browse_continuation_points_total: usize,
     /// Maximum number of history continuation points per session.
     #[serde(default = "defaults::max_history_continuation_points")]
     pub max_history_continuation_points: usize,
@@ -63,6 +67,7 @@ impl Default for Limits {
             receive_buffer_size: defaults::receive_buffer_size(),
             subscriptions: Default::default(),
             max_browse_continuation_points: defaults::max_browse_continuation_points(),
+            max_browse_continuation_points_total: 0,
             max_history_continuation_points: defaults::max_history_continuation_points(),
             max_query_continuation_points: defaults::max_query_continuation_points(),
             operational: OperationalLimits::default(),

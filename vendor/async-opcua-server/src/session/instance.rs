@@ -49,8 +49,6 @@ pub struct Session {
     max_response_message_size: u32,
     /// Endpoint url for this session
     endpoint_url: UAString,
-    /// Maximum number of continuation points for browse
-    max_browse_continuation_points: usize,
     /// Maximum number of continuation points for history.
     max_history_continuation_points: usize,
     /// Maximum number of continuation points for query.
@@ -61,8 +59,8 @@ pub struct Session {
     message_security_mode: MessageSecurityMode,
     /// Time of last service request.
     last_service_request: ArcSwap<Instant>,
-    /// Continuation points for browse.
-    browse_continuation_points: HashMap<ByteString, BrowseContinuationPoint>,
+    /// Continuation points for browse, kept with every session's in the server's store.
+    browse_points: Arc<super::browse_points::BrowsePoints>,
     /// Continuation points for history.
     history_continuation_points: HashMap<ByteString, ContinuationPoint>,
     /// Continuation points for querying.
@@ -113,10 +111,9 @@ impl Session {
             max_request_message_size,
             max_response_message_size,
             endpoint_url,
-            max_browse_continuation_points: info.config.limits.max_browse_continuation_points,
             max_history_continuation_points: info.config.limits.max_history_continuation_points,
             max_query_continuation_points: info.config.limits.max_query_continuation_points,
-            browse_continuation_points: Default::default(),
+            browse_points: info.browse_points.clone(),
             history_continuation_points: Default::default(),
             query_continuation_points: Default::default(),
             user_token: None,
@@ -235,25 +232,21 @@ impl Session {
         self.secure_channel_id
     }
 
+    /// Keeps a browse continuation point: `Err` (Bad_NoContinuationPoints) past the
+    /// session's bound; at the bound of every session together, the oldest of any session
+    /// gives way.
     pub(crate) fn add_browse_continuation_point(
         &mut self,
         cp: BrowseContinuationPoint,
     ) -> Result<(), ()> {
-        if self.max_browse_continuation_points <= self.browse_continuation_points.len()
-            && self.max_browse_continuation_points > 0
-        {
-            Err(())
-        } else {
-            self.browse_continuation_points.insert(cp.id.clone(), cp);
-            Ok(())
-        }
+        self.browse_points.add(self.session_id_numeric, cp)
     }
 
     pub(crate) fn remove_browse_continuation_point(
         &mut self,
         id: &ByteString,
     ) -> Option<BrowseContinuationPoint> {
-        self.browse_continuation_points.remove(id)
+        self.browse_points.take(self.session_id_numeric, id)
     }
 
     pub(crate) fn add_history_continuation_point(
@@ -339,5 +332,12 @@ impl Session {
     /// Get the security policy URI of this session.
     pub fn security_policy_uri(&self) -> &str {
         &self.security_policy_uri
+    }
+}
+
+impl Drop for Session {
+    /// Releases the session's browse continuation points.
+    fn drop(&mut self) {
+        self.browse_points.release_session(self.session_id_numeric);
     }
 }

@@ -1,3 +1,4 @@
+pub(crate) mod browse_points;
 pub(crate) mod continuation_points;
 pub(crate) mod controller;
 pub(crate) mod instance;
