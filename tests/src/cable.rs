@@ -12,6 +12,36 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::task::AbortHandle;
 
+/// What the cable does to the peer's answers (every read from the peer, which for these
+/// protocols is an answer or a part of one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Mangle {
+    /// Passes them.
+    Pass,
+    /// Drops them (the peer seems silent; the connection stays).
+    Silent,
+    /// Flips the bits of their first 8 bytes (headers, lengths, ids).
+    Garble,
+    /// Sends their first half, then closes the connection.
+    Truncate,
+    /// Sends each with 64 zero bytes after it.
+    Oversize,
+    /// Sends them a byte every 2 ms.
+    Drip,
+}
+
+impl Mangle {
+    const ALL: [Mangle; 6] = [
+        Mangle::Pass,
+        Mangle::Silent,
+        Mangle::Garble,
+        Mangle::Truncate,
+        Mangle::Oversize,
+        Mangle::Drip,
+    ];
+}
+
 /// What the gateway sent on one connection.
 type Record = Arc<std::sync::Mutex<Vec<u8>>>;
 
@@ -27,6 +57,9 @@ pub struct Cable {
     hushed: Arc<tokio::sync::watch::Sender<u64>>,
     /// What the gateway sent, a list of byte strings per connection.
     sent: Arc<std::sync::Mutex<Vec<Record>>>,
+    /// What is done to the peer's answers now (a [`Mangle`]), and how many were changed.
+    mangle: Arc<std::sync::atomic::AtomicU8>,
+    mangled: Arc<AtomicUsize>,
     task: AbortHandle,
 }
 
@@ -71,6 +104,9 @@ impl Cable {
             connections.clone(),
         );
         let (hush, records) = (hushed.clone(), sent.clone());
+        let mangle = Arc::new(std::sync::atomic::AtomicU8::new(Mangle::Pass as u8));
+        let mangled = Arc::new(AtomicUsize::new(0));
+        let mangling = (mangle.clone(), mangled.clone());
         let task = tokio::spawn(async move {
             while let Ok((client, _)) = listener.accept().await {
                 count.fetch_add(1, Ordering::SeqCst);
@@ -85,10 +121,11 @@ impl Cable {
                 }
                 let mut hush = hush.subscribe();
                 hush.borrow_and_update();
+                let mangle = mangling.clone();
                 let task = tokio::spawn(async move {
                     let _guard = guard;
                     if let Ok(up) = TcpStream::connect(("127.0.0.1", upstream)).await {
-                        pass(client, up, requests, record, hush).await;
+                        pass(client, up, requests, record, hush, mangle).await;
                     }
                 });
                 if let Ok(mut list) = held.lock() {
@@ -106,6 +143,8 @@ impl Cable {
             connections,
             hushed,
             sent,
+            mangle,
+            mangled,
             task,
         })
     }
@@ -135,6 +174,16 @@ impl Cable {
                     .collect()
             })
             .unwrap_or_default()
+    }
+
+    /// From now on, does `m` to the peer's answers, on every connection.
+    pub fn mangle(&self, m: Mangle) {
+        self.mangle.store(m as u8, Ordering::SeqCst);
+    }
+
+    /// Answers changed (or dropped) so far.
+    pub fn mangled(&self) -> usize {
+        self.mangled.load(Ordering::SeqCst)
     }
 
     /// Pulls the plug: every connection closed, new ones closed as they come.
@@ -168,6 +217,7 @@ async fn pass(
     requests: Option<usize>,
     record: Record,
     mut hush: tokio::sync::watch::Receiver<u64>,
+    (mangle, mangled): (Arc<std::sync::atomic::AtomicU8>, Arc<AtomicUsize>),
 ) {
     let (mut client_rx, mut client_tx) = client.into_split();
     let (mut up_rx, mut up_tx) = up.into_split();
@@ -179,7 +229,14 @@ async fn pass(
                 _ = quiet.changed() => return,
                 n = up_rx.read(&mut buf) => match n {
                     Ok(n) if n > 0 => {
-                        if client_tx.write_all(&buf[..n]).await.is_err() {
+                        let m = Mangle::ALL
+                            .get(usize::from(mangle.load(Ordering::SeqCst)))
+                            .copied()
+                            .unwrap_or(Mangle::Pass);
+                        if m != Mangle::Pass {
+                            mangled.fetch_add(1, Ordering::SeqCst);
+                        }
+                        if !answer(&mut client_tx, &mut buf[..n], m).await {
                             return;
                         }
                     }
@@ -211,4 +268,36 @@ async fn pass(
         }
     }
     down.abort();
+}
+
+/// Sends an answer of the peer to the gateway as `m` says; `false` when the connection is
+/// to end.
+async fn answer(to: &mut tokio::net::tcp::OwnedWriteHalf, bytes: &mut [u8], m: Mangle) -> bool {
+    match m {
+        Mangle::Pass => to.write_all(bytes).await.is_ok(),
+        Mangle::Silent => true,
+        Mangle::Garble => {
+            for b in bytes.iter_mut().take(8) {
+                *b ^= 0x5A;
+            }
+            to.write_all(bytes).await.is_ok()
+        }
+        Mangle::Truncate => {
+            let _ = to.write_all(&bytes[..bytes.len() / 2]).await;
+            let _ = to.shutdown().await;
+            false
+        }
+        Mangle::Oversize => {
+            to.write_all(bytes).await.is_ok() && to.write_all(&[0u8; 64]).await.is_ok()
+        }
+        Mangle::Drip => {
+            for b in bytes.iter() {
+                if to.write_all(&[*b]).await.is_err() {
+                    return false;
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(2)).await;
+            }
+            true
+        }
+    }
 }
