@@ -8,6 +8,7 @@
 //! the link, `watchdog` the look at every link's progress. [`LinkTask::run`] lists the
 //! drivers.
 
+mod inbox;
 mod poll_cycle;
 pub(crate) mod watchdog;
 mod write_outputs;
@@ -21,8 +22,7 @@ use tokio_util::sync::CancellationToken;
 use tokio::sync::watch;
 
 use crate::cache::{
-    Device, FieldError, Inbox, Link, LinkDiagnostics, LinkState, Passthrough, PassthroughError,
-    WriteError,
+    Device, FieldError, Inbox, Link, LinkDiagnostics, LinkState, PassthroughError, WriteError,
 };
 use crate::config::LinkConfig;
 use crate::drivers::{Driver, ForDriver, Session, with_driver};
@@ -373,37 +373,6 @@ impl<D: Driver> Driven<D> {
                 }
             }
         }
-    }
-
-    /// What of the inbox may go on the line: a request or probe whose caller has gone, or
-    /// whose deadline would pass before its answer could come, is never sent.
-    fn admit(&self, queued: Inbox) -> Option<Inbox> {
-        if queued.abandoned() {
-            self.metrics.inbox_dropped(self.link.name(), "abandoned");
-            return None;
-        }
-        if queued.too_late(Instant::now()) {
-            self.metrics.inbox_dropped(self.link.name(), "expired");
-            queued.refuse(PassthroughError::Expired);
-            return None;
-        }
-        Some(queued)
-    }
-
-    /// Sends a queued request as it is (a Modbus request to a unit), and answers it.
-    async fn pass_through(&mut self, queued: Passthrough, session: &mut D::Session) -> Step {
-        if let Some(stage) = &queued.stage {
-            stage.send_replace(crate::cache::Stage::Taken);
-        }
-        let label = self
-            .devices
-            .iter()
-            .find(|p| p.device.slave_id().unwrap_or(0) == queued.slave)
-            .map_or_else(
-                || format!("unit{}", queued.slave),
-                |p| p.device.name().to_owned(),
-            );
-        session.pass_through(queued, &label).await
     }
 
     fn all_unreachable(&self, fault: &LinkFault) {
