@@ -85,10 +85,24 @@ impl Cable {
         Cable::failing_after(upstream, None).await
     }
 
+    /// A cable that passes everything, each of the peer's answers (a read from it) first
+    /// changed by `rewrite`: a peer of another make, written from its captures.
+    pub async fn rewriting(upstream: u16, rewrite: fn(&mut [u8])) -> anyhow::Result<Cable> {
+        Cable::with(upstream, None, Some(rewrite)).await
+    }
+
     /// A cable whose every connection passes the gateway's first `requests` reads (its
     /// opening handshake) and their answers, then closes at the next one: a peer that
     /// opens and then fails every answer. `None` passes everything.
     pub async fn failing_after(upstream: u16, requests: Option<usize>) -> anyhow::Result<Cable> {
+        Cable::with(upstream, requests, None).await
+    }
+
+    async fn with(
+        upstream: u16,
+        requests: Option<usize>,
+        rewrite: Option<fn(&mut [u8])>,
+    ) -> anyhow::Result<Cable> {
         let listener = TcpListener::bind("127.0.0.1:0").await?;
         let port = listener.local_addr()?.port();
         let accepted = Arc::new(AtomicUsize::new(0));
@@ -125,7 +139,8 @@ impl Cable {
                 let task = tokio::spawn(async move {
                     let _guard = guard;
                     if let Ok(up) = TcpStream::connect(("127.0.0.1", upstream)).await {
-                        pass(client, up, requests, record, hush, mangle).await;
+                        let ends = Ends { client, up };
+                        pass(ends, requests, record, hush, mangle, rewrite).await;
                     }
                 });
                 if let Ok(mut list) = held.lock() {
@@ -211,13 +226,19 @@ impl Cable {
 /// Copies both ways, keeping what the client sends in `record`; with `requests`, the
 /// connection closes at the client's read after that many; once `hush` changes, nothing
 /// passes (the client's bytes are still kept) until the client closes.
-async fn pass(
+/// A connection's two sockets: the gateway's and the peer's.
+struct Ends {
     client: TcpStream,
     up: TcpStream,
+}
+
+async fn pass(
+    Ends { client, up }: Ends,
     requests: Option<usize>,
     record: Record,
     mut hush: tokio::sync::watch::Receiver<u64>,
     (mangle, mangled): (Arc<std::sync::atomic::AtomicU8>, Arc<AtomicUsize>),
+    rewrite: Option<fn(&mut [u8])>,
 ) {
     let (mut client_rx, mut client_tx) = client.into_split();
     let (mut up_rx, mut up_tx) = up.into_split();
@@ -229,6 +250,9 @@ async fn pass(
                 _ = quiet.changed() => return,
                 n = up_rx.read(&mut buf) => match n {
                     Ok(n) if n > 0 => {
+                        if let Some(rewrite) = rewrite {
+                            rewrite(&mut buf[..n]);
+                        }
                         let m = Mangle::ALL
                             .get(usize::from(mangle.load(Ordering::SeqCst)))
                             .copied()

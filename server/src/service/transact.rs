@@ -128,7 +128,7 @@ impl Service {
                 false,
                 state::INTERFACE_UNAVAILABLE,
                 None,
-                Some("RS485 setup incomplete"),
+                Some("RS485 setup incomplete."),
                 None,
             ));
         }
@@ -221,7 +221,7 @@ impl Said {
                 false,
                 state::INTERFACE_UNAVAILABLE,
                 None,
-                Some("RS485 port missing"),
+                Some("RS485 port missing."),
                 None,
             ),
             Err(PassthroughError::NoAnswer) => outcome(

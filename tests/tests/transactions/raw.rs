@@ -223,6 +223,27 @@ async fn parameters_are_refused_with_every_message_before_anything_is_sent() {
 }
 
 #[tokio::test]
+async fn a_link_without_its_port_answers_in_the_read_blocks_words() {
+    let dir = iogate_tests::devices::temp_dir("tx-no-port");
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: rs485, serial: {{ port: {}, baud: 19200 }} }}\n",
+        dir.join("ttyGONE").display()
+    ))
+    .await
+    .expect("gateway");
+    let (status, answer) = transact(
+        &gw,
+        json!({"function": 3, "slave": 1, "address": 0, "value_type": "UNSIGNED_NUMBER16",
+               "byte_order": "BigEndian"}),
+    )
+    .await;
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(answer["state"], -1, "{answer}");
+    assert_eq!(answer["error"], "RS485 port missing.", "{answer}");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
 async fn a_transaction_queued_while_the_line_is_polled_never_collides() {
     let bus = RtuBus::default();
     bus.slave(1, |s| s.counter = Some(0));

@@ -91,8 +91,11 @@ impl Connection {
                 let h = cip::header(&head)?;
                 let mut body = vec![0u8; h.length];
                 self.io.read_exact(&mut body).await?;
-                // An answer to an earlier request given up on is passed over.
-                if h.context != self.context {
+                // An answer to an earlier request given up on is passed over. A controller
+                // that answers with the sender context zeroed (libplctag's ab_server) is
+                // matched by its command: one request is outstanding at a time.
+                let zeroed = h.context == 0 && h.command == command;
+                if h.context != self.context && !zeroed {
                     continue;
                 }
                 if h.command != command {

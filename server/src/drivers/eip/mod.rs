@@ -127,14 +127,22 @@ impl Driver for Eip {
                 n => n.to_string(),
             },
         );
-        if let Some((vendor, product, revision, serial, name)) =
-            conn.identity().await.map_err(failed)?
-        {
-            link.set_peer("vendor", vendor.to_string());
-            link.set_peer("product_code", product.to_string());
-            link.set_peer("product_name", name);
-            link.set_peer("revision", revision);
-            link.set_peer("serial_number", format!("{serial:#010x}"));
+        // The identity is only shown: a controller that refuses List Identity, or does not
+        // answer it, is read on with its identity unknown.
+        match conn.identity().await {
+            Ok(Some((vendor, product, revision, serial, name))) => {
+                link.set_peer("vendor", vendor.to_string());
+                link.set_peer("product_code", product.to_string());
+                link.set_peer("product_name", name);
+                link.set_peer("revision", revision);
+                link.set_peer("serial_number", format!("{serial:#010x}"));
+            }
+            Ok(None) => {}
+            Err(e @ (EipError::Malformed(_) | EipError::Timeout(_))) => {
+                tracing::info!(link = %link.name(), error = %e, "the controller does not tell its identity (List Identity); read on without it");
+                link.set_peer("identity", format!("unknown: {e}"));
+            }
+            Err(e) => return Err(failed(e)),
         }
         Ok(Controller {
             conn,

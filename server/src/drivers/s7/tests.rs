@@ -19,6 +19,13 @@ impl Drop for Snap7 {
 
 fn snap7() -> Option<Snap7> {
     use std::io::BufRead;
+    // The tests install what they need, as a newcomer's `cargo test` runs them.
+    let installer = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/s7/install.sh");
+    let installed = std::process::Command::new("bash").arg(installer).status();
+    assert!(
+        installed.is_ok_and(|s| s.success()),
+        "installing python-snap7 failed: bash tests/s7/install.sh"
+    );
     let script = r#"
 import ctypes, sys, time, socket
 from snap7.server import Server
