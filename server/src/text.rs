@@ -11,7 +11,7 @@ pub(crate) fn quote(text: &str) -> String {
         .chars()
         .take(QUOTE_MAX)
         .flat_map(|c| {
-            let escaped: Vec<char> = if c.is_control() {
+            let escaped: Vec<char> = if c.is_control() || is_format(c) {
                 c.escape_default().collect()
             } else {
                 vec![c]
@@ -23,6 +23,12 @@ pub(crate) fn quote(text: &str) -> String {
         out.push('…');
     }
     out
+}
+
+/// Whether `c` is an invisible format character that can change how a log line reads
+/// (bidirectional overrides and isolates, zero-width characters, the byte order mark).
+fn is_format(c: char) -> bool {
+    matches!(c, '\u{200B}'..='\u{200F}' | '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}' | '\u{FEFF}' | '\u{061C}')
 }
 
 /// Why a text file could not be read: the file itself, or a byte that is not UTF-8 (with
@@ -86,6 +92,12 @@ mod tests {
         assert_eq!(quote("sim"), "sim");
         assert_eq!(quote("line\nfake log"), "line\\nfake log");
         assert_eq!(quote("bell\u{7}"), "bell\\u{7}");
+        assert_eq!(
+            quote("A\u{202E}B"),
+            "A\\u{202e}B",
+            "a right-to-left override"
+        );
+        assert_eq!(quote("é\u{200B}"), "é\\u{200b}");
         let q = quote(&"x".repeat(60_000));
         assert_eq!(q.chars().count(), QUOTE_MAX + 1);
         assert!(q.ends_with('…'));

@@ -42,6 +42,9 @@ impl Mangle {
     ];
 }
 
+/// What a cable makes of each of the peer's answers.
+pub type Rewrite = fn(&[u8]) -> Vec<u8>;
+
 /// What the gateway sent on one connection.
 type Record = Arc<std::sync::Mutex<Vec<u8>>>;
 
@@ -87,7 +90,7 @@ impl Cable {
 
     /// A cable that passes everything, each of the peer's answers (a read from it) first
     /// changed by `rewrite`: a peer of another make, written from its captures.
-    pub async fn rewriting(upstream: u16, rewrite: fn(&mut [u8])) -> anyhow::Result<Cable> {
+    pub async fn rewriting(upstream: u16, rewrite: Rewrite) -> anyhow::Result<Cable> {
         Cable::with(upstream, None, Some(rewrite)).await
     }
 
@@ -101,7 +104,7 @@ impl Cable {
     async fn with(
         upstream: u16,
         requests: Option<usize>,
-        rewrite: Option<fn(&mut [u8])>,
+        rewrite: Option<Rewrite>,
     ) -> anyhow::Result<Cable> {
         let listener = TcpListener::bind("127.0.0.1:0").await?;
         let port = listener.local_addr()?.port();
@@ -238,7 +241,7 @@ async fn pass(
     record: Record,
     mut hush: tokio::sync::watch::Receiver<u64>,
     (mangle, mangled): (Arc<std::sync::atomic::AtomicU8>, Arc<AtomicUsize>),
-    rewrite: Option<fn(&mut [u8])>,
+    rewrite: Option<Rewrite>,
 ) {
     let (mut client_rx, mut client_tx) = client.into_split();
     let (mut up_rx, mut up_tx) = up.into_split();
@@ -250,9 +253,10 @@ async fn pass(
                 _ = quiet.changed() => return,
                 n = up_rx.read(&mut buf) => match n {
                     Ok(n) if n > 0 => {
-                        if let Some(rewrite) = rewrite {
-                            rewrite(&mut buf[..n]);
-                        }
+                        let mut bytes = match rewrite {
+                            Some(rewrite) => rewrite(&buf[..n]),
+                            None => buf[..n].to_vec(),
+                        };
                         let m = Mangle::ALL
                             .get(usize::from(mangle.load(Ordering::SeqCst)))
                             .copied()
@@ -260,7 +264,7 @@ async fn pass(
                         if m != Mangle::Pass {
                             mangled.fetch_add(1, Ordering::SeqCst);
                         }
-                        if !answer(&mut client_tx, &mut buf[..n], m).await {
+                        if !answer(&mut client_tx, &mut bytes, m).await {
                             return;
                         }
                     }

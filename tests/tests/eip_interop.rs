@@ -22,18 +22,22 @@ async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
 }
 
 /// Every encapsulation answer with its sender context (bytes 12-19) zeroed.
-fn zero_context(answer: &mut [u8]) {
+fn zero_context(answer: &[u8]) -> Vec<u8> {
+    let mut answer = answer.to_vec();
     if let Some(context) = answer.get_mut(12..20) {
         context.fill(0);
     }
+    answer
 }
 
 /// A List Identity answer (command 0x63) turned into a refusal: status 1, "invalid or
 /// unsupported command".
-fn refuse_identity(answer: &mut [u8]) {
+fn refuse_identity(answer: &[u8]) -> Vec<u8> {
+    let mut answer = answer.to_vec();
     if answer.len() >= 24 && answer[..2] == [0x63, 0x00] {
         answer[8..12].copy_from_slice(&1u32.to_le_bytes());
     }
+    answer
 }
 
 /// The controller behind `cable` read and written, and the link's state.

@@ -248,3 +248,34 @@ async fn a_write_the_device_drops_the_connection_at_is_sent_three_times_then_no_
     assert_eq!(writes.load(Ordering::SeqCst), 3);
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_meter_holding_nan_or_an_infinity_says_so_as_a_string() {
+    let device = ModbusDevice::default();
+    let (port, server) = modbus_tcp_server(device.clone()).await;
+    let gw = TestGateway::start(&format!(
+        "links:\n  - {{ name: plant, tcp: {{ host: 127.0.0.1, port: {port} }} }}\ndevices:\n  - {{ name: meter, profile: EastronSDM630, link: plant, slave_id: 1, refresh_rate: 50ms }}\n"
+    ))
+    .await
+    .expect("gateway");
+    for (bits, said) in [
+        (0x7FC0_0000u32, "NaN"),
+        (0x7F80_0000, "Infinity"),
+        (0xFF80_0000, "-Infinity"),
+    ] {
+        {
+            let mut t = device.tables.lock().expect("tables");
+            t.input[0] = (bits >> 16) as u16;
+            t.input[1] = bits as u16;
+        }
+        let v = gw
+            .until("/api/v1/devices/meter/fields/L1_Voltage", said, |f| {
+                f["value"] == said
+            })
+            .await
+            .expect("said");
+        assert_eq!(v["quality"], "good", "{v}");
+    }
+    gw.shutdown().await;
+    server.abort();
+}

@@ -297,3 +297,48 @@ async fn a_reload_keeps_every_auto_located_field_where_masters_read_it() {
     );
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_device_moved_to_another_link_gets_no_write_it_was_not_asked() {
+    const OUT: &str = "name: Out\nfields:\n  - { name: HR0, type: UINT, direction: inout, register: { address: 0, kind: holding_register } }\n";
+    let (first, second) = (ModbusDevice::default(), ModbusDevice::default());
+    second.tables.lock().expect("tables").holding[0] = 7777;
+    let (p1, s1) = modbus_tcp_server(first.clone()).await;
+    let (p2, s2) = modbus_tcp_server(second.clone()).await;
+    let config = |link: &str| {
+        format!(
+            "{HEAD}links:\n  - {{ name: one, tcp: {{ host: 127.0.0.1, port: {p1} }} }}\n  - {{ name: two, tcp: {{ host: 127.0.0.1, port: {p2} }} }}\ndevices:\n  - {{ name: d, profile: Out, link: {link}, slave_id: 1, refresh_rate: 50ms }}\n"
+        )
+    };
+    let (_, path) = files("reload-moved-writes", &[("out.yaml", OUT)], &config("one"));
+    let gw = start(&path).await;
+    let outcome = gw
+        .write_outcome("d", "HR0", json!(400))
+        .await
+        .expect("write")
+        .expect("accepted");
+    assert_eq!(outcome["status"], "written", "{outcome}");
+    std::fs::write(&path, config("two")).expect("config");
+    let (status, body) = reload(&gw).await;
+    assert_eq!(status, 200, "{body}");
+    let field = gw
+        .until(
+            "/api/v1/devices/d/fields/HR0",
+            "read at its new place",
+            |f| f["value"] == 7777 && f["quality"] == "good",
+        )
+        .await
+        .expect("read");
+    assert_eq!(
+        field["last_write"]["generation"], outcome["generation"],
+        "{field}"
+    );
+    assert!(
+        second.writes.lock().expect("writes").is_empty(),
+        "written at the new place"
+    );
+    assert_eq!(second.tables.lock().expect("tables").holding[0], 7777);
+    gw.shutdown().await;
+    s1.abort();
+    s2.abort();
+}

@@ -225,8 +225,10 @@ impl Device {
                 to[idx] = from[before].clone();
             }
         }
-        next.outputs.take_over(&old.outputs, &kept);
-        next.rewrite_first = next.binding() != old.binding();
+        next.outputs.take_over(&old.outputs, &kept, moved);
+        // A device moved to another link or slave id is another device: nothing asked of the
+        // old place is written to the new one on the gateway's own account.
+        next.rewrite_first = false;
         *lock(&next.last_cycle) = *lock(&old.last_cycle);
         next
     }

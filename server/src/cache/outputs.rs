@@ -194,18 +194,24 @@ impl Outputs {
 
     /// Takes over the slots of `old`'s fields that a re-planned device keeps (`(old index,
     /// new index, same registers)`): the pending write (its registers only when the field
-    /// is stored the same way), the newest requested value, the newest generation and its
-    /// writer. A write on the bus stays `old`'s to finish. Requests to `old` are refused
+    /// is stored the same way), the newest requested value (not when the device `moved` to
+    /// another link or slave id), the newest generation and its writer. A write on the bus stays `old`'s to finish. Requests to `old` are refused
     /// from now on (they go to the successor).
-    pub(crate) fn take_over(&self, old: &Outputs, kept: &[(usize, usize, bool)]) {
+    pub(crate) fn take_over(&self, old: &Outputs, kept: &[(usize, usize, bool)], moved: bool) {
         let mut from = lock(&old.slots);
         let mut to = lock(&self.slots);
         for &(before, idx, same_registers) in kept {
             let (s, t) = (&mut from[before], &mut to[idx]);
             t.pending = s.pending.take();
             t.encoded = s.encoded.take().filter(|_| same_registers);
-            t.latest = s.latest.clone();
-            (t.reached, t.left) = (s.reached, s.left);
+            // What was asked of the old place is not the new place's desired value (a write
+            // still waiting goes on: it was asked of the device by name).
+            t.latest = if moved {
+                t.pending.as_ref().map(|(_, v)| v.clone())
+            } else {
+                s.latest.clone()
+            };
+            (t.reached, t.left) = (s.reached && !moved, s.left);
             t.last_generation = s.last_generation;
             t.writer = s.writer;
         }

@@ -252,6 +252,14 @@ impl Encoding {
     }
 
     fn value_from_f64(&self, x: f64) -> Result<Value, CodecError> {
+        if self.ty.is_real() && !x.is_finite() {
+            // The device's own NaN or infinity is what it holds (the doors say it as
+            // "NaN", "Infinity", "-Infinity"); a client cannot write one.
+            return Ok(match self.ty {
+                IecType::Real => Value::Real(x as f32),
+                _ => Value::LReal(x),
+            });
+        }
         if self.ty.is_real() {
             Ok(Value::from_real(self.ty, x)?)
         } else if x.is_finite() {

@@ -223,15 +223,24 @@ fn wrong_register_count_is_an_error_not_a_panic() {
 }
 
 #[test]
-fn nan_from_the_device_is_an_error() {
+fn nan_and_infinities_from_the_device_are_its_values_and_never_written() {
     let e = Encoding::plain(IecType::Real, Raw::F32);
     let bits = f32::NAN.to_bits();
     assert!(matches!(
         e.decode(&[(bits >> 16) as u16, bits as u16]),
-        Err(CodecError::Value(
-            crate::codec::ValueError::NotFinite { .. }
-        ))
+        Ok(Value::Real(x)) if x.is_nan()
     ));
+    let bits = f32::NEG_INFINITY.to_bits();
+    assert_eq!(
+        e.decode(&[(bits >> 16) as u16, bits as u16]),
+        Ok(Value::Real(f32::NEG_INFINITY))
+    );
+    let l = Encoding::plain(IecType::Lreal, Raw::F64);
+    assert_eq!(
+        l.decode(&[0x7FF0, 0, 0, 0]),
+        Ok(Value::LReal(f64::INFINITY))
+    );
+    assert!(e.encode(&Value::Real(f32::NAN)).is_err());
 }
 
 #[test]

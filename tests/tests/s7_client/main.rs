@@ -6,6 +6,7 @@
 mod doors;
 mod failures;
 mod guest;
+mod interop;
 mod values;
 mod writes;
 

@@ -171,7 +171,9 @@ impl Task {
         // still to be sent: one rebirth.
         let pending = online.outbox.iter().any(|i| matches!(i, Item::NodeBirth));
         if rebirth && online.node_born && !pending {
-            tracing::info!("Sparkplug rebirth requested");
+            if self.said.may() {
+                tracing::info!("Sparkplug rebirth requested");
+            }
             if let Some(sp) = &mut self.status.sparkplug {
                 sp.rebirths += 1;
             }

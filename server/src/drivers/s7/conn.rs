@@ -46,6 +46,10 @@ pub(crate) struct Connection {
     timeout: Duration,
 }
 
+/// The most bytes an answer split over COTP data frames may put together: more than any PDU
+/// a PLC grants (960) with its headers.
+const REASSEMBLED: usize = 8 * 1024;
+
 /// The S7 answer in a frame, which must be the one to job `reference`.
 fn answered(frame: &[u8], reference: u16) -> Result<pdu::Answer<'_>, Malformed> {
     let a = pdu::answer(frame)?;
@@ -112,21 +116,40 @@ impl Connection {
         self.reference
     }
 
-    /// One TPKT frame's payload, by the deadline.
+    /// One TPKT frame's payload.
+    async fn tpkt(&mut self) -> Result<Vec<u8>, S7Error> {
+        let mut head = [0u8; 4];
+        self.stream.read_exact(&mut head).await?;
+        if head[0] != 3 {
+            return Err(S7Error::Malformed(Malformed::Tpkt(head[0])));
+        }
+        let len = usize::from(u16::from_be_bytes([head[2], head[3]]));
+        if len < 7 {
+            return Err(S7Error::Malformed(Malformed::Short(len)));
+        }
+        let mut payload = vec![0u8; len - 4];
+        self.stream.read_exact(&mut payload).await?;
+        Ok(payload)
+    }
+
+    /// One answer's payload, by the deadline: a TPKT frame, or the data of several COTP
+    /// data frames put together up to the one marked last (some communication processors
+    /// and gateways split an answer so), within [`REASSEMBLED`] bytes.
     async fn frame(&mut self) -> Result<Vec<u8>, S7Error> {
         let timeout = self.timeout;
         let read = async {
-            let mut head = [0u8; 4];
-            self.stream.read_exact(&mut head).await?;
-            if head[0] != 3 {
-                return Err(S7Error::Malformed(Malformed::Tpkt(head[0])));
+            let mut payload = self.tpkt().await?;
+            while pdu::more_to_come(&payload) {
+                let next = self.tpkt().await?;
+                let data = pdu::data_unit(&next)?;
+                if payload.len() + data.len() > REASSEMBLED {
+                    return Err(S7Error::Malformed(Malformed::Reassembled(REASSEMBLED)));
+                }
+                payload.extend_from_slice(data);
+                if !pdu::more_to_come(&next) {
+                    pdu::mark_last(&mut payload);
+                }
             }
-            let len = usize::from(u16::from_be_bytes([head[2], head[3]]));
-            if len < 7 {
-                return Err(S7Error::Malformed(Malformed::Short(len)));
-            }
-            let mut payload = vec![0u8; len - 4];
-            self.stream.read_exact(&mut payload).await?;
             Ok(payload)
         };
         tokio::time::timeout(timeout, read)

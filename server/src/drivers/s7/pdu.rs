@@ -37,6 +37,8 @@ pub(crate) enum Malformed {
     Trailing(usize),
     #[error("an answer to job {got} while job {expected} waits")]
     Reference { expected: u16, got: u16 },
+    #[error("an answer split over COTP data frames passes {0} bytes")]
+    Reassembled(usize),
 }
 
 const TPKT_VERSION: u8 = 3;
@@ -174,6 +176,35 @@ impl Answer<'_> {
             Some(why) => Err(why.clone()),
             None => Ok(self),
         }
+    }
+}
+
+/// The COTP data frame's flag of its last data unit (EOT).
+const EOT: u8 = 0x80;
+
+/// Whether a TPKT payload is a COTP data frame that is not the last of its answer.
+pub(crate) fn more_to_come(payload: &[u8]) -> bool {
+    payload.get(1) == Some(&COTP_DT) && payload.get(2).is_some_and(|n| n & EOT == 0)
+}
+
+/// The user data of a COTP data frame (after its header).
+pub(crate) fn data_unit(payload: &[u8]) -> Result<&[u8], Malformed> {
+    let short = || Malformed::Short(payload.len());
+    let cotp_len = usize::from(*payload.first().ok_or_else(short)?);
+    let kind = *payload.get(1).ok_or_else(short)?;
+    if kind != COTP_DT {
+        return Err(Malformed::Cotp {
+            expected: COTP_DT,
+            got: kind,
+        });
+    }
+    payload.get(cotp_len + 1..).ok_or_else(short)
+}
+
+/// Marks the first frame of a reassembled answer as the last data unit.
+pub(crate) fn mark_last(payload: &mut [u8]) {
+    if let Some(n) = payload.get_mut(2) {
+        *n |= EOT;
     }
 }
 
