@@ -1,8 +1,9 @@
 //! What the command door logs of what clients send, within a bound: at most
 //! [`PER_MESSAGE`] lines about one message and [`PER_SECOND`] lines a second; the lines
-//! held back are counted and told in one line when the next second's first line is logged
-//! (or at debug level only). A client that sends a DCMD of 100,000 metrics, or a thousand
-//! refused writes a second, cannot make the gateway write its log full.
+//! held back are counted and told in one line when their second is over (the front-end's
+//! timer asks) or with the next line logged. A client that sends a DCMD of 100,000
+//! metrics, or a thousand refused writes a second, cannot make the gateway write its log
+//! full.
 
 use std::time::{Duration, Instant};
 
@@ -36,6 +37,25 @@ impl Said {
         self.in_message = 0;
     }
 
+    /// Says how many lines were held back, once their second is over (the timer calls it,
+    /// so a flood's count is told when the flood ends, not with the next message).
+    pub(super) fn flush(&mut self) {
+        if self.held > 0 && self.second.elapsed() >= Duration::from_secs(1) {
+            self.second = Instant::now();
+            self.in_second = 0;
+            self.tell_held();
+            self.in_second += 1;
+        }
+    }
+
+    fn tell_held(&mut self) {
+        tracing::warn!(
+            lines = self.held,
+            "lines about clients' MQTT messages not logged (at most {PER_MESSAGE} a message, {PER_SECOND} a second)"
+        );
+        self.held = 0;
+    }
+
     /// Whether a line about the current message may be logged now; one that may not is
     /// counted (and said once the budget allows).
     pub(super) fn may(&mut self) -> bool {
@@ -49,11 +69,7 @@ impl Said {
             return false;
         }
         if self.held > 0 {
-            tracing::warn!(
-                lines = self.held,
-                "lines about clients' MQTT messages not logged (at most {PER_MESSAGE} a message, {PER_SECOND} a second)"
-            );
-            self.held = 0;
+            self.tell_held();
             self.in_second += 1;
         }
         self.in_second += 1;
@@ -79,5 +95,12 @@ mod tests {
             logged += usize::from(said.may());
         }
         assert!(logged <= PER_SECOND as usize, "{logged}");
+        // Told when its second is over, by the timer, with no message after it.
+        assert!(said.held > 0);
+        said.flush();
+        assert!(said.held > 0, "not before the second ends");
+        said.second -= Duration::from_secs(1);
+        said.flush();
+        assert_eq!(said.held, 0);
     }
 }

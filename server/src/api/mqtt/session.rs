@@ -411,6 +411,7 @@ impl Task {
 
     /// The timer: followed writes, the buffer's sync, the shared status.
     pub(super) fn tick(&mut self, online: Option<&mut Online>) {
+        self.said.flush();
         if let Some(b) = &mut self.buffer
             && let Err(e) = b.tick()
         {
