@@ -211,15 +211,7 @@ pub(crate) fn mark_last(payload: &mut [u8]) {
 /// Splits a TPKT payload (COTP data frame) into the S7 answer, checking every length.
 pub(crate) fn answer(payload: &[u8]) -> Result<Answer<'_>, Malformed> {
     let short = || Malformed::Short(payload.len());
-    let cotp_len = usize::from(*payload.first().ok_or_else(short)?);
-    let kind = *payload.get(1).ok_or_else(short)?;
-    if kind != COTP_DT {
-        return Err(Malformed::Cotp {
-            expected: COTP_DT,
-            got: kind,
-        });
-    }
-    let s7 = payload.get(cotp_len + 1..).ok_or_else(short)?;
+    let s7 = data_unit(payload)?;
     if s7.len() < 10 {
         return Err(Malformed::Short(payload.len()));
     }

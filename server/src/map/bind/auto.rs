@@ -81,6 +81,20 @@ impl Resolver<'_> {
         if claim(&mut self.taken, slot, at).is_err() {
             return false;
         }
+        self.bind_auto(device, profile, idx, (at, slot), (repr, writable));
+        true
+    }
+
+    /// Records field `idx` of `device` bound by `auto` at a location it claimed.
+    fn bind_auto(
+        &mut self,
+        device: &str,
+        profile: &Profile,
+        idx: usize,
+        (at, slot): (Location, Slot),
+        (repr, writable): (Repr, bool),
+    ) {
+        let f = &profile.fields[idx];
         self.bindings.push(Binding {
             at,
             slot,
@@ -92,7 +106,6 @@ impl Resolver<'_> {
             writable,
             auto: true,
         });
-        true
     }
 
     /// Keeps empty the locations `previous` gave by `auto` (or kept empty) that no field
@@ -144,19 +157,9 @@ impl Resolver<'_> {
             return;
         };
         *cursor += k as u32 + 1;
-        let Ok((repr, writable)) = fit(&at, f.ty, one, writable, false) else {
+        let Ok(fits) = fit(&at, f.ty, one, writable, false) else {
             return;
         };
-        self.bindings.push(Binding {
-            at,
-            slot,
-            device: device.to_owned(),
-            target: Target::Field(idx),
-            name: f.name.clone(),
-            ty: f.ty,
-            repr,
-            writable,
-            auto: true,
-        });
+        self.bind_auto(device, profile, idx, (at, slot), fits);
     }
 }
