@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs what the deployment checks use, when it is missing: promtool and prometheus
 # (Debian's prometheus package), kubernetes-validate (PyPI, ships the Kubernetes
-# schemas) and prometheus-client (PyPI, its OpenMetrics parser). Idempotent; safe to run
+# schemas) and prometheus-client (PyPI, its OpenMetrics parser), these two into tests/.venv. Idempotent; safe to run
 # from several test processes at once.
 set -euo pipefail
 lock="${TMPDIR:-/tmp}/iogate-install-tools.lock"
@@ -16,11 +16,5 @@ if ! command -v promtool >/dev/null 2>&1 || ! command -v prometheus >/dev/null 2
   $sudo apt-get install -y -qq --no-install-recommends prometheus >/dev/null
 fi
 
-if ! python3 -c "import kubernetes_validate" >/dev/null 2>&1; then
-  python3 -m pip install --quiet --disable-pip-version-check kubernetes-validate
-fi
-
-# An OpenMetrics parser not written by us (the official Python client's), for /metrics.
-if ! python3 -c "import prometheus_client.openmetrics.parser" >/dev/null 2>&1; then
-  python3 -m pip install --quiet --disable-pip-version-check prometheus-client
-fi
+# The Python tools are pinned in tests/python/requirements.txt, in the tests' own Python.
+bash "$(dirname "$0")/../../tests/python/venv.sh" >/dev/null

@@ -42,7 +42,7 @@ impl Simulator {
             Layout::Tags => (0..TAGS).map(|i| format!("T{i}=DINT")).collect(),
             Layout::Array => vec![format!("Counts=DINT[{TAGS}]")],
         };
-        let mut child = Command::new("python3")
+        let mut child = Command::new(common::python())
             .arg(repo().join("tests/eip/plc.py"))
             .args(&tags)
             .stdout(Stdio::piped())
@@ -68,7 +68,7 @@ impl Drop for Simulator {
 
 /// pylogix's cycles a second.
 fn reference(port: u16, layout: Layout) -> anyhow::Result<f64> {
-    let out = Command::new("python3")
+    let out = Command::new(common::python())
         .arg(repo().join("tests/eip/bench_read.py"))
         .args([
             port.to_string(),

@@ -58,7 +58,7 @@ struct Snap7 {
 impl Snap7 {
     fn start(dbs: usize, size: usize) -> anyhow::Result<Snap7> {
         use std::io::BufRead;
-        let mut child = Command::new("python3")
+        let mut child = Command::new(common::python())
             .arg(peer())
             .args(["server", &dbs.to_string(), &size.to_string()])
             .stdin(Stdio::piped())
@@ -132,7 +132,7 @@ impl Scenario {
 
 /// Snap7's client on the scenario: cycles a second and PDUs a cycle.
 fn reference(port: u16, scenario: Scenario) -> anyhow::Result<(f64, u32)> {
-    let out = Command::new("python3")
+    let out = Command::new(common::python())
         .arg(peer())
         .args([
             "client",

@@ -22,11 +22,7 @@ fn free_port() -> u16 {
 
 #[test]
 fn a_server_without_security_logs_no_certificate_error() {
-    let installed = Command::new("bash")
-        .arg(repo().join("tests/opcua/install.sh"))
-        .status()
-        .expect("installer runs");
-    assert!(installed.success(), "asyncua installed");
+    let python = common::python();
     let dir = std::env::temp_dir().join(format!("iogate-opcua-log-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("dir");
     let port = free_port();
@@ -58,7 +54,7 @@ fn a_server_without_security_logs_no_certificate_error() {
             break;
         }
     }
-    let read = Command::new("python3")
+    let read = Command::new(&python)
         .arg("-c")
         .arg(format!(
             "import asyncio\nfrom asyncua import Client\nasync def main():\n    for _ in range(2):\n        async with Client('opc.tcp://127.0.0.1:{port}/') as c:\n            print(await c.get_node('ns=2;s=sim.DI_0').read_value())\nasyncio.run(main())\n"

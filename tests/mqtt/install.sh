@@ -3,7 +3,7 @@
 # mosquitto (the broker; the tests start their own on a free loopback port) and
 # mosquitto-clients (`mosquitto_sub`, the benchmark's subscriber) and, from PyPI,
 # paho-mqtt (a subscriber and publisher not written by us) and pysparkplug (a Sparkplug B
-# implementation of its own, to decode the gateway's payloads). Idempotent; safe to run from
+# implementation of its own, to decode the gateway's payloads), pinned, into tests/.venv. Idempotent; safe to run from
 # several test processes at once.
 set -euo pipefail
 lock="${TMPDIR:-/tmp}/iogate-install-mqtt.lock"
@@ -19,6 +19,4 @@ if { ! command -v mosquitto >/dev/null 2>&1 && ! [ -x /usr/sbin/mosquitto ]; } \
   # The package's own broker is not needed: the tests start theirs.
   $sudo systemctl disable --now mosquitto >/dev/null 2>&1 || true
 fi
-if ! python3 -c 'import paho.mqtt, pysparkplug' >/dev/null 2>&1; then
-  python3 -m pip install --quiet --disable-pip-version-check 'paho-mqtt>=1.6,<2' 'pysparkplug>=0.6,<0.7'
-fi
+bash "$(dirname "$0")/../python/venv.sh" >/dev/null

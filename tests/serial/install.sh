@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs the independent Modbus serial peers the serial tests use when they are missing:
 # libmodbus's mbpoll (an RTU master, from Debian) and pymodbus (RTU and ASCII masters and
-# slaves, with pyserial, from PyPI). Idempotent; safe to run from several test processes
+# slaves, with pyserial, from PyPI, pinned, into tests/.venv). Idempotent; safe to run from several test processes
 # at once.
 set -euo pipefail
 lock="${TMPDIR:-/tmp}/iogate-install-serial.lock"
@@ -14,6 +14,4 @@ if ! command -v mbpoll >/dev/null 2>&1; then
   $sudo apt-get update -qq
   $sudo apt-get install -y -qq --no-install-recommends mbpoll >/dev/null
 fi
-if ! python3 -c 'import sys, pymodbus, serial; sys.exit(not pymodbus.__version__.startswith("3.16."))' >/dev/null 2>&1; then
-  python3 -m pip install --quiet --root-user-action=ignore --disable-pip-version-check 'pymodbus[serial]==3.16.*'
-fi
+bash "$(dirname "$0")/../python/venv.sh" >/dev/null

@@ -32,7 +32,7 @@ impl LogixPlc {
 
     async fn spawn(script: &str, args: &[String]) -> anyhow::Result<LogixPlc> {
         crate::run_installer("eip/install.sh")?;
-        let mut command = tokio::process::Command::new("python3");
+        let mut command = tokio::process::Command::new(crate::python());
         command.arg(repo_file(script)).args(args);
         let mut piped = spawn_piped(command)?;
         let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())
@@ -60,7 +60,7 @@ impl LogixPlc {
     /// A tag as cpppo's own client prints it (`Name == ['text']: 'OK'`): for STRINGs, which
     /// pylogix reads as Logix structures only.
     pub async fn print(&self, tag: &str) -> anyhow::Result<String> {
-        let out = tokio::process::Command::new("python3")
+        let out = tokio::process::Command::new(crate::python())
             .args(["-m", "cpppo.server.enip.client", "--print", "--address"])
             .arg(format!("127.0.0.1:{}", self.port))
             .arg(tag)
@@ -88,7 +88,7 @@ impl LogixPlc {
 
     /// A pylogix script's JSON, given this controller's port and `args`.
     async fn pylogix(&self, script: &str, args: &[&str]) -> anyhow::Result<serde_json::Value> {
-        let out = tokio::process::Command::new("python3")
+        let out = tokio::process::Command::new(crate::python())
             .arg(repo_file(script))
             .arg(self.port.to_string())
             .args(args)

@@ -11,6 +11,7 @@ pub mod devices;
 pub mod eip;
 pub mod line;
 pub mod mqtt;
+pub mod node_ua;
 pub mod opcua;
 pub mod pki;
 pub mod plc;
@@ -43,6 +44,26 @@ pub fn run_installer(script: &str) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("running tests/{script}: {e}"))?;
     anyhow::ensure!(status.success(), "tests/{script} failed: {status}");
     Ok(())
+}
+
+/// The tests' own Python (`tests/.venv`, made once from `tests/python/requirements.txt` by
+/// `tests/python/venv.sh`), which runs every Python peer; the user's own Python is not used.
+pub fn python() -> PathBuf {
+    static MADE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    MADE.get_or_init(|| {
+        let out = std::process::Command::new("bash")
+            .arg(repo_file("python/venv.sh"))
+            .stderr(std::process::Stdio::inherit())
+            .output()
+            .expect("running tests/python/venv.sh");
+        assert!(
+            out.status.success(),
+            "tests/python/venv.sh failed: {}",
+            out.status
+        );
+        PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+    })
+    .clone()
 }
 
 /// A helper process (one of the tests' Python peers) talking one line at a time: its

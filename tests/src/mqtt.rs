@@ -204,7 +204,7 @@ impl Peer {
     }
 
     async fn start_on(port: u16, filter: &str, id: Option<&str>) -> anyhow::Result<Peer> {
-        let mut command = Command::new("python3");
+        let mut command = Command::new(crate::python());
         command
             .arg(repo_file("mqtt/client.py"))
             .arg(port.to_string())

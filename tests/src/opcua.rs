@@ -36,7 +36,7 @@ impl UaClient {
     /// Connects; a refused connection is an error with asyncua's words.
     pub async fn connect(url: &str, options: &Options) -> anyhow::Result<UaClient> {
         install()?;
-        let mut command = Command::new("python3");
+        let mut command = Command::new(crate::python());
         command.arg(repo_file("opcua/client.py")).arg(url);
         if let Some((security, cert, key)) = &options.security {
             command.arg(security).arg(cert).arg(key);

@@ -21,7 +21,7 @@ impl UaPlc {
     /// `--security CERT KEY TRUSTED`) and waits until it listens.
     pub async fn start(args: &[&str]) -> anyhow::Result<UaPlc> {
         crate::opcua::install()?;
-        let mut command = tokio::process::Command::new("python3");
+        let mut command = tokio::process::Command::new(crate::python());
         command.arg(repo_file("opcua/plc.py")).args(args);
         let mut piped = spawn_piped(command)?;
         let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())

@@ -17,7 +17,7 @@ impl S7Plc {
     /// Starts the PLC (on `port`, else a free one) and waits until it listens.
     pub async fn start(port: Option<u16>) -> anyhow::Result<S7Plc> {
         crate::run_installer("s7/install.sh")?;
-        let mut command = tokio::process::Command::new("python3");
+        let mut command = tokio::process::Command::new(crate::python());
         command.arg(repo_file("s7/plc.py"));
         if let Some(p) = port {
             command.args(["--port", &p.to_string()]);

@@ -192,7 +192,7 @@ async fn schemathesis_with_every_check_finds_nothing() {
             .expect("declare");
         assert!(answer.status().is_success(), "{path}: {}", answer.status());
     }
-    let output = tokio::process::Command::new("python3")
+    let output = tokio::process::Command::new(iogate_tests::python())
         .args(["-m", "schemathesis.cli", "--config-file"])
         .arg(repo_file("openapi/schemathesis.toml"))
         .arg("run")

@@ -13,7 +13,7 @@ use tokio_util::sync::CancellationToken;
 
 /// Starts a pymodbus slave on `path` at `baud` serving `spec`; waits until it serves.
 async fn slave(path: &std::path::Path, baud: u32, spec: serde_json::Value) -> iogate_tests::Piped {
-    let mut command = tokio::process::Command::new("python3");
+    let mut command = tokio::process::Command::new(iogate_tests::python());
     command
         .arg(repo_file("serial/scan_slave.py"))
         .arg(path)

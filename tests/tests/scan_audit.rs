@@ -45,7 +45,7 @@ async fn a_device_that_answers_every_address_is_offered_no_profile_by_its_regist
     let dir = temp_dir("scan-everywhere");
     let port = dir.join("ttyLINE");
     let line = iogate_tests::line::line(&dir, &port, &[(4, 9600)]).expect("line");
-    let mut command = tokio::process::Command::new("python3");
+    let mut command = tokio::process::Command::new(iogate_tests::python());
     command
         .arg(repo_file("serial/scan_slave.py"))
         .arg(&line.slaves[0].path)

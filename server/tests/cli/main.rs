@@ -42,17 +42,11 @@ fn workspace(name: &str) -> PathBuf {
     ws
 }
 
-/// Installs blark (an IEC 61131-3 ST parser, from PyPI) once, with the project's script.
-fn blark() -> &'static str {
-    static DONE: std::sync::OnceLock<()> = std::sync::OnceLock::new();
-    DONE.get_or_init(|| {
-        let status = Command::new("bash")
-            .arg(repo().join("tests/st/install.sh"))
-            .status()
-            .expect("run tests/st/install.sh");
-        assert!(status.success(), "tests/st/install.sh failed");
-    });
-    "blark"
+/// blark (an IEC 61131-3 ST parser, from PyPI), in the tests' own Python.
+fn blark() -> PathBuf {
+    static MADE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    MADE.get_or_init(|| common::python().with_file_name("blark"))
+        .clone()
 }
 
 /// Whether blark parses `text` as ST source; its report.

@@ -18,7 +18,7 @@ fn alert_rules_and_the_compose_prometheus_config_pass_promtool() {
 fn kubernetes_manifests_validate_against_the_kubernetes_schemas() {
     tools();
     run(
-        "python3",
+        &iogate_tests::python().to_string_lossy(),
         &[
             "-m",
             "kubernetes_validate",
@@ -305,7 +305,7 @@ async fn metrics_pass_promtool_and_openmetrics_is_served_to_who_asks_for_it() {
     );
     assert!(text.ends_with("# EOF\n"), "{text}");
     let (ok, report) = piped(
-        "python3",
+        &iogate_tests::python().to_string_lossy(),
         &[
             "-c",
             "import sys\nfrom prometheus_client.openmetrics.parser import text_string_to_metric_families as parse\n\

@@ -198,7 +198,7 @@ async fn serial_state(gw: &TestGateway) -> Value {
 }
 
 async fn python(script: &str, args: &[&str]) -> Value {
-    let out = tokio::process::Command::new("python3")
+    let out = tokio::process::Command::new(iogate_tests::python())
         .arg(repo_file(script))
         .args(args)
         .output()

@@ -153,7 +153,7 @@ async fn an_ascii_link_polls_an_independent_ascii_slave() {
     let (line, _holder) = line(&dir, "ttyLINK");
     // The slave (pymodbus) on the masters' end of the sniffed line; the gateway, the
     // master here, on the other.
-    let mut slave = tokio::process::Command::new("python3")
+    let mut slave = tokio::process::Command::new(iogate_tests::python())
         .arg(repo_file("serial/slave.py"))
         .args([&line.masters_path, "ascii", "5", "9600", "N", "8"])
         .kill_on_drop(true)

@@ -17,7 +17,7 @@ async fn sessions_never_activated_cannot_keep_a_client_out() {
     .expect("gateway");
     // Ten sessions created and left: the whole table.
     iogate_tests::opcua::install().expect("asyncua");
-    let mut command = tokio::process::Command::new("python3");
+    let mut command = tokio::process::Command::new(iogate_tests::python());
     command
         .arg(iogate_tests::repo_file("opcua/unactivated.py"))
         .arg(url(&gw))
@@ -60,7 +60,7 @@ async fn connections_whose_sessions_are_never_activated_are_closed_with_them() {
     // Four secure channels with a session each, never activated, kept open: every place
     // this address has.
     iogate_tests::opcua::install().expect("asyncua");
-    let mut command = tokio::process::Command::new("python3");
+    let mut command = tokio::process::Command::new(iogate_tests::python());
     command
         .arg(iogate_tests::repo_file("opcua/unactivated.py"))
         .arg(url(&gw))
@@ -111,7 +111,7 @@ async fn browse_continuation_points_are_bounded_per_session_and_for_the_whole_ga
     iogate_tests::opcua::install().expect("asyncua");
     // 60 sessions each asking for 100 points (6,000): the gateway keeps the newest 5,000,
     // the first session's first point released to make room.
-    let mut command = tokio::process::Command::new("python3");
+    let mut command = tokio::process::Command::new(iogate_tests::python());
     command
         .arg(iogate_tests::repo_file("opcua/browse_points.py"))
         .arg(url(&gw))
@@ -128,7 +128,7 @@ async fn browse_continuation_points_are_bounded_per_session_and_for_the_whole_ga
     assert_eq!(got["refused"], 0, "{got}");
     assert_eq!(got["first"], "BadContinuationPointInvalid", "{got}");
     // One session asking past its own 100: the rest refused, its first point kept.
-    let mut command = tokio::process::Command::new("python3");
+    let mut command = tokio::process::Command::new(iogate_tests::python());
     command
         .arg(iogate_tests::repo_file("opcua/browse_points.py"))
         .arg(url(&gw))

@@ -7,6 +7,7 @@
 
 mod doors;
 mod limits;
+mod peers;
 mod recovery;
 mod values;
 

@@ -113,7 +113,7 @@ async fn sign_and_encrypt_connects_once_each_side_trusts_the_others_certificate(
     let plc = UaPlc::start(&refs).await?;
     // The gateway's application certificate, made by the PLC's library.
     let (own, own_key) = (dir.join("iogate.der"), dir.join("iogate.pem"));
-    let made = std::process::Command::new("python3")
+    let made = std::process::Command::new(iogate_tests::python())
         .arg(iogate_tests::repo_file("opcua/plc.py"))
         .args(["--client-cert", &own.display().to_string()])
         .arg(&own_key)

@@ -9,6 +9,7 @@
 
 pub(crate) mod config;
 pub mod import;
+mod limits;
 mod resolve;
 mod session;
 mod subscribe;
@@ -26,6 +27,7 @@ use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::plan::WriteItem;
+use limits::Service;
 pub(crate) use session::Connection;
 
 /// The OPC UA client driver.
@@ -166,15 +168,15 @@ impl Connection {
             .enumerate()
             .filter_map(|(i, n)| n.as_ref().ok().map(|n| (i, ReadValueId::from(n.clone()))))
             .collect();
-        for wanted in wanted.chunks(subscribe::PER_CALL) {
-            let ids: Vec<ReadValueId> = wanted.iter().map(|(_, r)| r.clone()).collect();
-            self.started();
-            let answered = self
-                .session
-                .read(&ids, TimestampsToReturn::Source, 0.0)
-                .await;
-            self.ended();
-            let values = match answered {
+        let ids: Vec<ReadValueId> = wanted.iter().map(|(_, r)| r.clone()).collect();
+        let session = &self.session;
+        let answered = limits::in_requests(self, Service::Read, &ids, |ids| {
+            session.read(ids, TimestampsToReturn::Source, 0.0)
+        })
+        .await;
+        for (asked, got) in answered {
+            let wanted = &wanted[asked];
+            let values = match got {
                 Ok(values) => values,
                 Err(e) => {
                     if let Some(fault) = self.fault(&e) {

@@ -128,11 +128,7 @@ pub(super) async fn nodes(
         };
         nodes.push(resolved);
     }
-    let mut paths = paths.into_iter().peekable();
-    while paths.peek().is_some() {
-        let chunk: Vec<_> = paths.by_ref().take(super::subscribe::PER_CALL).collect();
-        translate(conn, &mut nodes, chunk).await?;
-    }
+    translate(conn, &mut nodes, paths).await?;
     for (idx, n) in nodes.iter().enumerate() {
         if let Err(why) = n {
             if device.field(idx).point.is_some() {
@@ -146,31 +142,43 @@ pub(super) async fn nodes(
     Ok(())
 }
 
-/// Browse paths to node ids, in one request.
+/// Browse paths to node ids, in requests within the server's limit.
 async fn translate(
     conn: &Connection,
     nodes: &mut [Result<NodeId, String>],
     paths: Vec<(usize, BrowsePath)>,
 ) -> Result<(), LinkFault> {
     let asked: Vec<BrowsePath> = paths.iter().map(|(_, p)| p.clone()).collect();
-    conn.started();
-    let answered = conn
-        .session
-        .translate_browse_paths_to_node_ids(&asked)
-        .await;
-    conn.ended();
-    let results = match answered {
-        Ok(r) => r,
-        Err(e) => {
-            if let Some(fault) = conn.fault(&e) {
-                return Err(fault);
+    let session = &conn.session;
+    let answered = super::limits::in_requests(conn, super::Service::Translate, &asked, |p| {
+        session.translate_browse_paths_to_node_ids(p)
+    })
+    .await;
+    for (range, got) in answered {
+        let paths = &paths[range];
+        let results = match got {
+            Ok(r) => r,
+            Err(e) => {
+                if let Some(fault) = conn.fault(&e) {
+                    return Err(fault);
+                }
+                for (idx, _) in paths {
+                    nodes[*idx] = Err(format!("browse path not translated: {}", e.status()));
+                }
+                continue;
             }
-            for (idx, _) in &paths {
-                nodes[*idx] = Err(format!("browse path not translated: {}", e.status()));
-            }
-            return Ok(());
-        }
-    };
+        };
+        found(nodes, paths, &results);
+    }
+    Ok(())
+}
+
+/// Each path's node, from the server's answer.
+fn found(
+    nodes: &mut [Result<NodeId, String>],
+    paths: &[(usize, BrowsePath)],
+    results: &[opcua::types::BrowsePathResult],
+) {
     for ((idx, _), result) in paths.iter().zip(results.iter()) {
         let target = result
             .targets
@@ -184,5 +192,4 @@ async fn translate(
     for (idx, _) in paths.iter().skip(results.len()) {
         nodes[*idx] = Err("browse path not answered".to_owned());
     }
-    Ok(())
 }

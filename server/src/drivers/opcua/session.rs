@@ -45,6 +45,8 @@ pub(crate) struct Connection {
     /// How many times the server answered a publish request saying it has no subscription
     /// of the session (it deleted them): every subscription made before is gone.
     pub(crate) dropped: Arc<AtomicU64>,
+    /// How many items one request of each service carries in this session.
+    pub(crate) limits: super::limits::Limits,
     pump: JoinHandle<()>,
 }
 
@@ -138,6 +140,71 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
     builder.client().map_err(|errors| errors.join("; "))
 }
 
+/// The server's endpoint of the configured security, dialled at the configured URL: a
+/// server behind a port mapping, NAT or a proxy advertises an address of its own network
+/// (matched by security policy and mode, as UaExpert and Prosys's clients do). An endpoint
+/// that does not take the configured user says so.
+async fn endpoint(
+    client: &opcua::client::Client,
+    settings: &Settings,
+    mode: MessageSecurityMode,
+    identity: &IdentityToken,
+) -> Result<opcua::types::EndpointDescription, String> {
+    use opcua::crypto::SecurityPolicy;
+    use opcua::types::UserTokenType;
+    let policy: SecurityPolicy = settings.policy.parse().unwrap_or(SecurityPolicy::Unknown);
+    let offered = client
+        .get_server_endpoints_from_url(settings.url.as_str())
+        .await
+        .map_err(|e| format!("asking for its endpoints: {e}"))?;
+    let Some(mut endpoint) = offered
+        .iter()
+        .find(|e| {
+            e.security_mode == mode
+                && SecurityPolicy::from_uri(e.security_policy_uri.as_ref()) == policy
+        })
+        .cloned()
+    else {
+        let list: Vec<String> = offered
+            .iter()
+            .map(|e| {
+                let uri = e.security_policy_uri.as_ref();
+                format!(
+                    "{} {:?}",
+                    uri.rsplit('#').next().unwrap_or(uri),
+                    e.security_mode
+                )
+            })
+            .collect();
+        return Err(format!(
+            "the server has no endpoint with security {} {:?} (it offers: {})",
+            settings.policy,
+            mode,
+            list.join(", ")
+        ));
+    };
+    let (wanted, who) = match identity {
+        IdentityToken::Anonymous => (UserTokenType::Anonymous, "anonymous users"),
+        IdentityToken::UserName(..) => (UserTokenType::UserName, "user names"),
+        IdentityToken::X509(..) => (UserTokenType::Certificate, "user certificates"),
+        IdentityToken::IssuedToken(..) => (UserTokenType::IssuedToken, "issued tokens"),
+    };
+    let tokens = endpoint.user_identity_tokens.clone().unwrap_or_default();
+    if !tokens.iter().any(|t| t.token_type == wanted) {
+        let takes: Vec<String> = tokens
+            .iter()
+            .map(|t| format!("{:?}", t.token_type))
+            .collect();
+        return Err(format!(
+            "the server does not take {who} on this endpoint (it takes: {}): set the link's \
+             `username` and `password_file`, or `certificate` and `private_key`",
+            takes.join(", ")
+        ));
+    }
+    endpoint.endpoint_url = settings.url.as_str().into();
+    Ok(endpoint)
+}
+
 /// Opens a session on the link's server and reads its namespace array.
 pub(crate) async fn open(settings: Settings, link: &Arc<Link>) -> Result<Connection, LinkFault> {
     connect(settings, link.progress.clone()).await
@@ -161,9 +228,11 @@ pub(crate) async fn connect(
         "SignAndEncrypt" => MessageSecurityMode::SignAndEncrypt,
         _ => MessageSecurityMode::None,
     };
-    let (session, event_loop) = client
-        .connect_to_matching_endpoint((url.as_str(), settings.policy, mode), identity)
+    let endpoint = endpoint(&client, &settings, mode, &identity)
         .await
+        .map_err(|e| failed(&url, e))?;
+    let (session, event_loop) = client
+        .connect_to_endpoint_directly(endpoint, identity)
         .map_err(|e| failed(&url, e))?;
     session.disable_reconnects();
     let (tell, lost) = watch::channel(None);
@@ -177,6 +246,7 @@ pub(crate) async fn connect(
         progress,
         lost,
         dropped,
+        limits: Default::default(),
         pump,
     };
     let session = conn.session.clone();
@@ -199,6 +269,8 @@ pub(crate) async fn connect(
         .collect();
     uris.sort();
     conn.namespaces = uris.into_iter().map(|(_, uri)| uri).collect();
+    conn.limits = super::limits::read(&conn.session).await;
+    tracing::debug!(%url, "items per request: {}", conn.limits.says());
     Ok(conn)
 }
 

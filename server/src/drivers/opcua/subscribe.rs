@@ -25,10 +25,6 @@ use crate::cache::Device;
 use crate::link::LinkFault;
 use crate::profile::deadband::Deadband;
 
-/// The most items (monitored items, nodes read or written, paths translated) one request
-/// carries: within the operation limits servers commonly set and their message sizes.
-pub(crate) const PER_CALL: usize = 500;
-
 /// The most notifications one publish response is asked to carry: more changes come in
 /// more responses (a server that sends more anyway is taken up to the link's
 /// `max_array_length`).
@@ -287,13 +283,13 @@ async fn items(conn: &Connection, device: &Device, plan: &Plan, id: u32) -> Resu
             ))
         })
         .unzip();
-    for (handles, requests) in handles.chunks(PER_CALL).zip(requests.chunks(PER_CALL)) {
-        conn.started();
-        let created = conn
-            .session
-            .create_monitored_items(id, TimestampsToReturn::Source, requests.to_vec())
-            .await;
-        conn.ended();
+    let session = &conn.session;
+    let answered = super::limits::in_requests(conn, super::Service::Monitor, &requests, |r| {
+        session.create_monitored_items(id, TimestampsToReturn::Source, r.to_vec())
+    })
+    .await;
+    for (range, created) in answered {
+        let handles = &handles[range];
         let results = match created {
             Ok(r) => r,
             Err(e) => {

@@ -62,24 +62,22 @@ fn prepare(
     (sent, values)
 }
 
-/// Writes `items` in requests of at most [`super::subscribe::PER_CALL`], finishing each.
+/// Writes `items` in requests within the server's limit, finishing each.
 pub(super) async fn items(
     conn: &Connection,
     device: &Arc<Device>,
     plan: &Plan,
     items: Vec<WriteItem>,
 ) -> Result<(), LinkFault> {
-    let (sent, values) = prepare(device, plan, items);
-    let chunks = sent.chunks(super::subscribe::PER_CALL);
-    for (k, (sent, values)) in chunks
-        .clone()
-        .zip(values.chunks(super::subscribe::PER_CALL))
-        .enumerate()
-    {
-        conn.started();
-        let answered = conn.session.write(values).await;
-        conn.ended();
-        let statuses = match answered {
+    let (all, values) = prepare(device, plan, items);
+    let session = &conn.session;
+    let answered =
+        super::limits::in_requests(conn, super::Service::Write, &values, |v| session.write(v))
+            .await;
+    for (range, got) in answered {
+        let after = range.end;
+        let (sent, unsent) = (&all[range], &all[after..]);
+        let statuses = match got {
             Ok(s) => s,
             Err(e) => {
                 // The connection failed: the latest values are written again once it is
@@ -92,16 +90,14 @@ pub(super) async fn items(
                 for item in sent {
                     finish(device, item, Err(why.clone()), 1);
                 }
-                match fault {
-                    Some(f) => {
-                        // The requests not sent: written again once the link is back.
-                        for item in chunks.clone().skip(k + 1).flatten() {
-                            finish(device, item, Err(WriteError::LinkDown(f.clone())), 0);
-                        }
-                        return Err(f);
+                if let Some(f) = fault {
+                    // The requests not sent: written again once the link is back.
+                    for item in unsent {
+                        finish(device, item, Err(WriteError::LinkDown(f.clone())), 0);
                     }
-                    None => continue,
+                    return Err(f);
                 }
+                continue;
             }
         };
         for (n, item) in sent.iter().enumerate() {

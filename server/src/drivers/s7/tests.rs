@@ -20,12 +20,15 @@ impl Drop for Snap7 {
 fn snap7() -> Option<Snap7> {
     use std::io::BufRead;
     // The tests install what they need, as a newcomer's `cargo test` runs them.
-    let installer = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/s7/install.sh");
-    let installed = std::process::Command::new("bash").arg(installer).status();
-    assert!(
-        installed.is_ok_and(|s| s.success()),
-        "installing python-snap7 failed: bash tests/s7/install.sh"
-    );
+    // python-snap7 runs in the tests' own Python, made from tests/python/requirements.txt.
+    let venv = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/python/venv.sh");
+    let made = std::process::Command::new("bash")
+        .arg(venv)
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .expect("running tests/python/venv.sh");
+    assert!(made.status.success(), "tests/python/venv.sh failed");
+    let python = String::from_utf8_lossy(&made.stdout).trim().to_string();
     let script = r#"
 import ctypes, sys, time, socket
 from snap7.server import Server
@@ -42,7 +45,7 @@ srv.start(tcp_port=port)
 print(port, flush=True)
 while sys.stdin.read(1): pass
 "#;
-    let mut child = std::process::Command::new("python3")
+    let mut child = std::process::Command::new(python)
         .args(["-c", script])
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
@@ -57,7 +60,7 @@ while sys.stdin.read(1): pass
 
 /// Snap7's server and a connection to it of a kind (1 PG, 3 S7 basic) asking for `pdu`.
 async fn connect(kind: i128, pdu: u16) -> (Snap7, Connection) {
-    let server = snap7().expect("python-snap7 is needed: bash tests/s7/install.sh");
+    let server = snap7().expect("Snap7 starts (python-snap7, in tests/.venv)");
     let c = Connection::open(
         ("127.0.0.1", server.1),
         0x0100,
