@@ -137,11 +137,13 @@ impl Setup {
 
     /// What `check` and `serve` print without stopping anything: every profile field that
     /// relies on the default `word_count` of 1 although its type is wider, and every map
-    /// binding that cannot show every value of its field (a TIME at `%MD`).
+    /// binding that cannot show every value of its field (a TIME at `%MD`), every link
+    /// setting that turns a check off.
     pub fn warnings(&self) -> Vec<crate::yaml::Problem> {
         let profiles = self.catalog.iter().flat_map(|p| p.width_warnings());
         let map = self.map.iter().flat_map(|m| m.warnings.iter().cloned());
-        profiles.chain(map).collect()
+        let links = crate::drivers::link_warnings(&self.config);
+        profiles.chain(map).chain(links).collect()
     }
 
     /// Loads the profiles for `config` (its `profiles` directory, else `profiles/` in

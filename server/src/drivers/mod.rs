@@ -68,6 +68,22 @@ pub(crate) fn check_links(config: &crate::config::Config) -> crate::yaml::Proble
     report.into_problems()
 }
 
+/// What `check` and `serve` warn of in the links' settings that their drivers read.
+pub(crate) fn link_warnings(config: &crate::config::Config) -> Vec<crate::yaml::Problem> {
+    struct Warn<'a>(&'a LinkConfig, &'a mut crate::yaml::Report);
+    impl ForDriver for Warn<'_> {
+        type Output = ();
+        fn with<D: Driver>(self) {
+            D::warn(self.0, self.1);
+        }
+    }
+    let mut report = crate::yaml::Report::new(&config.source);
+    for link in &config.links {
+        with_driver(link, Warn(link, &mut report));
+    }
+    report.into_problems().0
+}
+
 /// A field protocol: how its links open and how a device's reads are planned.
 pub(crate) trait Driver: Send + Sized + 'static {
     /// What the driver keeps of a device between cycles and across reconnects (its
@@ -97,6 +113,12 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// Reports what is wrong with a link's settings, as `check` does (the settings the
     /// config reader left to the driver, the files they name).
     fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
+        let _ = (config, report);
+    }
+
+    /// Reports what a link's settings allow that a user should know of (a check turned
+    /// off), as `check` and `serve` warn.
+    fn warn(config: &LinkConfig, report: &mut crate::yaml::Report) {
         let _ = (config, report);
     }
 

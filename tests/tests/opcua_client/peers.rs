@@ -128,3 +128,62 @@ async fn ten_thousand_variables_import_and_one_reached_twice_is_one_field() -> a
     gw.shutdown().await;
     Ok(())
 }
+
+/// A gateway with one secure link to `url` trusting `server`'s certificate, `extra` more
+/// of the link's settings.
+async fn secure(
+    dir: &std::path::Path,
+    server: &NodeUa,
+    url: &str,
+    extra: &str,
+) -> anyhow::Result<TestGateway> {
+    let profiles = dir.join("profiles");
+    std::fs::create_dir_all(&profiles)?;
+    std::fs::write(profiles.join("many.yaml"), many(3))?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: sub\n    opcua: {{ url: \"{url}\", pki_dir: {}, security_policy: Basic256Sha256, security_mode: SignAndEncrypt, trusted: [{}]{extra} }}\ndevices:\n  - {{ name: a, profile: Many, link: sub, refresh_rate: 200ms }}\n",
+        profiles.display(),
+        dir.join("pki").display(),
+        server.pki.join("own/certs/certificate.pem").display()
+    );
+    TestGateway::start(&config).await
+}
+
+/// The machine's host name, which node-opcua's certificate carries as its first entry.
+fn host_name() -> anyhow::Result<String> {
+    let out = std::process::Command::new("hostname").output()?;
+    Ok(String::from_utf8(out.stdout)?.trim().to_owned())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_trusted_certificate_listing_its_dns_name_first_is_accepted() -> anyhow::Result<()> {
+    let dir = temp_dir("ua-dns-first");
+    let server = NodeUa::start(dir.join("server-pki"), &["--many", "3", "--secure"]).await?;
+    let url = format!("opc.tcp://{}:{}/UA/Peer", host_name()?, server.port);
+    let gw = secure(&dir, &server, &url, "").await?;
+    all_good(&gw, "a", 3).await?;
+    gw.shutdown().await;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_host_the_certificate_does_not_name_is_refused_unless_accepted() -> anyhow::Result<()> {
+    let dir = temp_dir("ua-host-mismatch");
+    let server = NodeUa::start(dir.join("server-pki"), &["--many", "3", "--secure"]).await?;
+    // 127.0.0.1 is not among the certificate's names.
+    let url = format!("opc.tcp://127.0.0.1:{}/UA/Peer", server.port);
+    let gw = secure(&dir, &server, &url, "").await?;
+    let refused = gw
+        .until("/api/v1/devices/a", "the refusal", |d| {
+            d["fields"]["V0"]["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("BadCertificateHostNameInvalid"))
+        })
+        .await?;
+    assert_eq!(refused["fields"]["V0"]["quality"], "bad", "{refused}");
+    gw.shutdown().await;
+    let gw = secure(&dir, &server, &url, ", accept_host_mismatch: true").await?;
+    all_good(&gw, "a", 3).await?;
+    gw.shutdown().await;
+    Ok(())
+}

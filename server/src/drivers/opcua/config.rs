@@ -19,6 +19,7 @@ const KEYS: &[&str] = &[
     "trusted",
     "user",
     "subscribe",
+    "accept_host_mismatch",
     "max_message_size",
     "max_string_length",
     "max_array_length",
@@ -90,6 +91,9 @@ pub(crate) struct Settings {
     pub(crate) user: User,
     /// Monitored items where the server has subscriptions (`false`: read every refresh).
     pub(crate) subscribe: bool,
+    /// A trusted server certificate is accepted although the host name the URL names is
+    /// not among its DNS and IP names (a server reached through another name).
+    pub(crate) accept_host_mismatch: bool,
     pub(crate) limits: Limits,
 }
 
@@ -143,6 +147,10 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         None => Some(true),
         Some(n) => crate::yaml::boolean(n, report, &at("subscribe")),
     };
+    let accept_host_mismatch = match map.get("accept_host_mismatch") {
+        None => Some(false),
+        Some(n) => crate::yaml::boolean(n, report, &at("accept_host_mismatch")),
+    };
     let mut limits = Some(Limits::default());
     for (key, least, most) in LIMIT_BOUNDS {
         let Some(n) = map.get(key) else { continue };
@@ -177,6 +185,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         trusted: trusted?,
         user: user?,
         subscribe: subscribe?,
+        accept_host_mismatch: accept_host_mismatch?,
         limits: limits?,
     })
 }

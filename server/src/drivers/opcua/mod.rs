@@ -77,6 +77,20 @@ impl Driver for OpcUa {
         }
     }
 
+    fn warn(config: &LinkConfig, report: &mut crate::yaml::Report) {
+        let Transport::Driver(d) = &config.transport else {
+            return;
+        };
+        let mut quiet = crate::yaml::Report::new(report.file());
+        if config::read(&config.name, d, &mut quiet).is_some_and(|s| s.accept_host_mismatch) {
+            report.push(
+                d.settings.line,
+                format!("link {}", config.name),
+                "opcua.accept_host_mismatch: the server's certificate is accepted whatever host names it carries (it must still be trusted)",
+            );
+        }
+    }
+
     fn plan(device: &Device) -> Plan {
         let n = device.profile.fields.len();
         Plan {

@@ -137,7 +137,11 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
     if let Some((c, k)) = given {
         builder = builder.certificate_path(c).private_key_path(k);
     }
-    builder.client().map_err(|errors| errors.join("; "))
+    let client = builder.client().map_err(|errors| errors.join("; "))?;
+    if settings.accept_host_mismatch {
+        client.certificate_store().write().set_check_hostname(false);
+    }
+    Ok(client)
 }
 
 /// The server's endpoint of the configured security, dialled at the configured URL: a

@@ -43,6 +43,7 @@ async fn import(url: &str, root: Option<&str>, out: Option<&Path>) -> u8 {
         trusted: Vec::new(),
         user: User::Anonymous,
         subscribe: false,
+        accept_host_mismatch: false,
         limits: Default::default(),
     };
     let connecting = super::session::connect(settings, Arc::default());
