@@ -1,6 +1,7 @@
 //! Logix controllers of other makes than the one the driver was built with, made from cpppo's
 //! simulator by rewriting its answers as theirs are: one that zeroes the sender context of
-//! every answer (libplctag's `ab_server` does), one that refuses List Identity.
+//! every answer (libplctag's `ab_server` does), one that refuses List Identity, one without
+//! Multiple Service Packets (ab_server, some CompactLogix and Micro800 firmware).
 
 use iogate_tests::TestGateway;
 use iogate_tests::cable::Cable;
@@ -40,6 +41,46 @@ fn refuse_identity(answer: &[u8]) -> Vec<u8> {
     answer
 }
 
+/// Every Multiple Service Packet answer (CIP service 0x8A, in a connected or unconnected
+/// data item) turned into CIP status 0x08, "service not supported".
+fn refuse_multiple(answer: &[u8]) -> Vec<u8> {
+    let word = |at: usize| {
+        answer
+            .get(at..at + 2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+    };
+    let (Some(command), Some(count)) = (word(0), word(30)) else {
+        return answer.to_vec();
+    };
+    if command != 0x6F && command != 0x70 {
+        return answer.to_vec();
+    }
+    let mut out = answer[..32].to_vec();
+    let mut at = 32;
+    for _ in 0..count {
+        let (Some(kind), Some(len)) = (word(at), word(at + 2)) else {
+            return answer.to_vec();
+        };
+        let Some(data) = answer.get(at + 4..at + 4 + usize::from(len)) else {
+            return answer.to_vec();
+        };
+        // A connected data item starts with its sequence count.
+        let skip = if kind == 0xB1 { 2 } else { 0 };
+        let mut data = data.to_vec();
+        if (kind == 0xB1 || kind == 0xB2) && data.get(skip) == Some(&0x8A) {
+            data.truncate(skip);
+            data.extend_from_slice(&[0x8A, 0x00, 0x08, 0x00]);
+        }
+        out.extend_from_slice(&kind.to_le_bytes());
+        out.extend_from_slice(&(data.len() as u16).to_le_bytes());
+        out.extend_from_slice(&data);
+        at += 4 + usize::from(len);
+    }
+    let length = (out.len() - 24) as u16;
+    out[2..4].copy_from_slice(&length.to_le_bytes());
+    out
+}
+
 /// The controller behind `cable` read and written, and the link's state.
 async fn read_and_written(
     name: &str,
@@ -58,7 +99,12 @@ async fn read_and_written(
     assert_eq!(outcome["status"], "written", "{outcome}");
     let read = plc.read(&["Count"]).await?;
     assert_eq!(read["Count"], json!(5), "{read}");
-    let (_, link) = gw.get("/api/v1/links/plc").await?;
+    let (_, mut link) = gw.get("/api/v1/links/plc").await?;
+    let plan = reqwest::get(gw.url("/api/v1/links/plc/plan"))
+        .await?
+        .text()
+        .await?;
+    link["plan"] = json!(plan);
     gw.shutdown().await;
     Ok(link)
 }
@@ -84,5 +130,29 @@ async fn a_controller_that_refuses_list_identity_is_read_on_without_it() -> anyh
     assert!(said.starts_with("unknown"), "{link}");
     assert!(link["peer"]["product_name"].is_null(), "{link}");
     assert_eq!(cable.accepted(), 1, "{link}");
+    plc.kill().await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_controller_without_multiple_service_packets_is_read_one_tag_a_request()
+-> anyhow::Result<()> {
+    let plc = LogixPlc::start(None, &["Count=DINT"]).await?;
+    plc.write(&["Count=77"]).await?;
+    let cable = Cable::rewriting(plc.port, refuse_multiple).await?;
+    let link = read_and_written("eip-no-multiple", &cable, &plc).await?;
+    let said = link["peer"]["multiple_service_packets"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(said.starts_with("unsupported"), "{link}");
+    let plan = link["plan"].as_str().unwrap_or_default();
+    assert!(
+        plan.contains("multiple service packets: unsupported"),
+        "{plan}"
+    );
+    assert_eq!(
+        cable.accepted(),
+        1,
+        "one connection, never given up on: {link}"
+    );
     plc.kill().await
 }

@@ -71,7 +71,17 @@ pub(crate) struct Controller {
     conn: Connection,
     progress: Arc<Progress>,
     timeout: Duration,
+    /// One read a request: the controller has no Multiple Service Packets.
+    single: bool,
+    link: Arc<Link>,
 }
+
+/// The link's word that its controller has no Multiple Service Packets (shown in the
+/// link's view and its plan; learned again, in the same cycle, on each connection).
+const NO_MULTIPLE: (&str, &str) = (
+    "multiple_service_packets",
+    "unsupported: one Read Tag a request",
+);
 
 fn lost(e: EipError) -> LinkFault {
     LinkFault::Lost(Arc::new(std::io::Error::other(e.to_string())))
@@ -148,11 +158,20 @@ impl Driver for Eip {
             conn,
             progress: link.progress.clone(),
             timeout: s.timeout,
+            single: false,
+            link: link.clone(),
         })
     }
 }
 
 impl Controller {
+    /// Learns that the controller has no Multiple Service Packets (CIP status 0x08).
+    fn no_multiple(&mut self) {
+        tracing::warn!(link = %self.link.name(), "the controller does not support Multiple Service Packets (CIP status 0x08): one Read Tag a request from now on");
+        self.single = true;
+        self.link.set_peer(NO_MULTIPLE.0, NO_MULTIPLE.1.to_owned());
+    }
+
     /// A request's reply; `Ok(Err)` when the controller refused it whole (an
     /// encapsulation status: the connection stays in step), `Err` when the link failed.
     async fn request(&mut self, message: &[u8]) -> Result<Result<Vec<u8>, String>, LinkFault> {

@@ -1,5 +1,6 @@
 //! Reading a device: its reads (one tag, or consecutive elements of one array read
-//! together) packed in Multiple Service Packets within the connection's size; a read too
+//! together) packed in Multiple Service Packets within the connection's size (a controller
+//! without them, CIP status 0x08, gets one Read Tag a request, remembered for the link); a read too
 //! large for a packet sent alone with Read Tag Fragmented, a part at a time. Each reply's
 //! status is its fields' error; elements read together whose read failed (one of them past
 //! the array's end, say) are read one by one from then on, and at once.
@@ -14,13 +15,21 @@ use crate::plan::eip::{fragmented, packet_sizes, packets, runs};
 /// type learned, an element set apart, a read found to need fragments: `Plan::repack`).
 pub(super) struct Packed {
     limit: usize,
+    /// One read a request, without Multiple Service Packets.
+    single: bool,
     reads: Vec<Vec<usize>>,
     /// Each packet's reads and its request (none for a read sent fragmented).
     packets: Vec<(Vec<usize>, Option<Vec<u8>>)>,
 }
 
 impl Packed {
-    fn new(plan: &Plan, device: &Device, reads: Vec<Vec<usize>>, limit: usize) -> Packed {
+    fn new(
+        plan: &Plan,
+        device: &Device,
+        reads: Vec<Vec<usize>>,
+        limit: usize,
+        single: bool,
+    ) -> Packed {
         let sizes: Vec<(usize, usize, usize)> = reads
             .iter()
             .enumerate()
@@ -39,11 +48,19 @@ impl Packed {
                 (r, ask, answer)
             })
             .collect();
-        let packets = packets(&sizes, limit)
+        let packed = match single {
+            true => (0..reads.len()).map(|r| vec![r]).collect(),
+            false => packets(&sizes, limit),
+        };
+        let packets = packed
             .into_iter()
             .map(|packet| {
                 let request = match packet.as_slice() {
                     [one] if fragmented(sizes[*one].2, limit) => None,
+                    [one] if single => plan.tags[reads[*one][0]]
+                        .as_ref()
+                        .ok()
+                        .map(|tag| cip::read_tag(&tag.path, reads[*one].len() as u16)),
                     _ => {
                         let requests: Vec<Vec<u8>> = packet
                             .iter()
@@ -60,6 +77,7 @@ impl Packed {
             .collect();
         Packed {
             limit,
+            single,
             reads,
             packets,
         }
@@ -74,11 +92,12 @@ impl Controller {
         plan: &mut Plan,
     ) -> Result<(), LinkFault> {
         let limit = self.conn.message_limit();
+        let single = self.single;
         let packed = match plan.packed.take() {
-            Some(p) if p.limit == limit => p,
+            Some(p) if p.limit == limit && p.single == single => p,
             _ => {
                 let reads = runs(&plan.tags, &device.profile, &plan.alone);
-                Packed::new(plan, device, reads, limit)
+                Packed::new(plan, device, reads, limit, single)
             }
         };
         plan.repack = false;
@@ -86,14 +105,21 @@ impl Controller {
         if !plan.repack {
             plan.packed = Some(packed);
         }
-        let failed = read?;
+        let mut failed = read?;
+        if self.single && !single {
+            // The controller has no Multiple Service Packets: every read again, alone.
+            let reads = runs(&plan.tags, &device.profile, &plan.alone);
+            let packed = Packed::new(plan, device, reads, limit, true);
+            failed = self.read_all(device, plan, &packed).await?;
+            plan.packed = Some(packed);
+        }
         if !failed.is_empty() {
             for &i in &failed {
                 plan.alone[i] = true;
             }
             plan.packed = None;
             let singles = failed.iter().map(|&i| vec![i]).collect();
-            let singles = Packed::new(plan, device, singles, limit);
+            let singles = Packed::new(plan, device, singles, limit, self.single);
             self.read_all(device, plan, &singles).await?;
         }
         Ok(())
@@ -116,7 +142,8 @@ impl Controller {
                 }
                 (_, Some(request)) => {
                     let retry = (&mut failed, &mut partial);
-                    self.read_packet(device, plan, (&group, request), retry)
+                    let bare = packed.single;
+                    self.read_packet(device, plan, (&group, request, bare), retry)
                         .await?;
                 }
                 _ => {}
@@ -133,12 +160,13 @@ impl Controller {
         Ok(failed)
     }
 
-    /// Reads one packet's reads and publishes their fields.
+    /// Reads one packet's reads (`bare`: one Read Tag, not in a Multiple Service Packet)
+    /// and publishes their fields.
     async fn read_packet(
         &mut self,
         device: &Device,
         plan: &mut Plan,
-        (group, request): (&[&[usize]], &[u8]),
+        (group, request, bare): (&[&[usize]], &[u8], bool),
         (failed, partial): (&mut Vec<usize>, &mut Vec<Vec<usize>>),
     ) -> Result<(), LinkFault> {
         let answer = self.request(request).await?;
@@ -155,13 +183,22 @@ impl Controller {
                 return Ok(());
             }
         };
-        let outer = cip::reply(&answer).map_err(|e| lost(e.into()))?;
-        outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
-        if outer.status != 0 && outer.status != 0x1E {
-            every(cip::cip_status(outer.status, outer.ext));
-            return Ok(());
-        }
-        let replies = cip::multiple_replies(outer.data, group.len()).map_err(|e| lost(e.into()))?;
+        let replies = if bare {
+            vec![answer.as_slice()]
+        } else {
+            let outer = cip::reply(&answer).map_err(|e| lost(e.into()))?;
+            outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
+            if outer.status == SERVICE_NOT_SUPPORTED && !self.single {
+                // Read again, one Read Tag a request, by the caller.
+                self.no_multiple();
+                return Ok(());
+            }
+            if outer.status != 0 && outer.status != 0x1E {
+                every(cip::cip_status(outer.status, outer.ext));
+                return Ok(());
+            }
+            cip::multiple_replies(outer.data, group.len()).map_err(|e| lost(e.into()))?
+        };
         for (&run, bytes) in group.iter().zip(replies) {
             match cip::reply(bytes).and_then(|r| r.answers(cip::READ_TAG).map(|()| r)) {
                 Ok(r) if r.status == 0 => publish(device, plan, run, r.data, now),
@@ -238,6 +275,9 @@ impl Controller {
         Ok(())
     }
 }
+
+/// CIP's general status "service not supported".
+pub(super) const SERVICE_NOT_SUPPORTED: u8 = 0x08;
 
 /// Tells that a read of elements together failed and they are read one by one.
 fn apart(device: &Device, run: &[usize], why: &str) {

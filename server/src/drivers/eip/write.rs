@@ -72,10 +72,23 @@ impl Controller {
             .enumerate()
             .map(|(k, r)| (k, r.request.len(), REPLY))
             .collect();
-        let packets = crate::plan::eip::packets(&sizes, self.conn.message_limit());
+        let packets = match self.single {
+            true => (0..ready.len()).map(|k| vec![k]).collect(),
+            false => crate::plan::eip::packets(&sizes, self.conn.message_limit()),
+        };
         for (p, packet) in packets.iter().enumerate() {
             let group: Vec<&Ready> = packet.iter().map(|&k| &ready[k]).collect();
-            if let Err(fault) = self.write_packet(device, items, &group).await {
+            let mut sent = self.write_packet(device, items, &group).await;
+            if matches!(sent, Ok(false)) {
+                // No Multiple Service Packets: each write alone.
+                for r in &group {
+                    sent = self.write_packet(device, items, &[r]).await;
+                    if sent.is_err() {
+                        break;
+                    }
+                }
+            }
+            if let Err(fault) = sent {
                 for r in &group {
                     let why = Err(WriteError::LinkDown(fault.clone()));
                     finish(device, &items[r.item], why, 1);
@@ -91,13 +104,14 @@ impl Controller {
     }
 
     /// Sends one packet's writes (one alone, several in a Multiple Service Packet) and
-    /// finishes each with its reply's status.
+    /// finishes each with its reply's status; `false` when the controller has no Multiple
+    /// Service Packets (none of them finished: to be sent alone).
     async fn write_packet(
         &mut self,
         device: &Device,
         items: &[WriteItem],
         group: &[&Ready],
-    ) -> Result<(), LinkFault> {
+    ) -> Result<bool, LinkFault> {
         let message = match group {
             [one] => one.request.clone(),
             _ => {
@@ -109,7 +123,7 @@ impl Controller {
             Ok(a) => a,
             Err(why) => {
                 refuse_all(device, items, group, &why);
-                return Ok(());
+                return Ok(true);
             }
         };
         let replies: Vec<&[u8]> = match group {
@@ -117,10 +131,14 @@ impl Controller {
             _ => {
                 let outer = cip::reply(&answer).map_err(|e| lost(e.into()))?;
                 outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
+                if outer.status == super::read::SERVICE_NOT_SUPPORTED {
+                    self.no_multiple();
+                    return Ok(false);
+                }
                 if outer.status != 0 && outer.status != 0x1E {
                     let why = cip::cip_status(outer.status, outer.ext);
                     refuse_all(device, items, group, &why);
-                    return Ok(());
+                    return Ok(true);
                 }
                 cip::multiple_replies(outer.data, group.len()).map_err(|e| lost(e.into()))?
             }
@@ -142,7 +160,7 @@ impl Controller {
                 Some(why) => finish(device, &items[r.item], Err(WriteError::Refused(why)), 1),
             }
         }
-        Ok(())
+        Ok(true)
     }
 }
 
