@@ -403,3 +403,38 @@ mqtt:
     peer.stop().await;
     broker.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_refused_before_any_connect_take_no_bd_seq() {
+    let mut broker = Broker::start().await.expect("mosquitto");
+    // Nothing listens on the broker's port: every attempt fails before a CONNECT is sent.
+    broker.pause().await;
+    let gw = TestGateway::start(&sparkplug_config("bdseq", broker.port, ""))
+        .await
+        .expect("gateway");
+    gw.until("/api/v1/mqtt", "an attempt refused", |s| {
+        s["connected"] == false && s["last_error"].is_string()
+    })
+    .await
+    .expect("refused");
+    broker.resume().await.expect("mosquitto again");
+    gw.until("/api/v1/mqtt", "connected", |s| s["connected"] == true)
+        .await
+        .expect("connected");
+    let mut peer = Peer::subscribe(&broker, "spBv1.0/plant1/#")
+        .await
+        .expect("paho");
+    peer.command(
+        "spBv1.0/plant1/NCMD/line1",
+        serde_json::json!([{"name": "Node Control/Rebirth", "datatype": "BOOLEAN", "value": true}]),
+    )
+    .await
+    .expect("NCMD");
+    let birth = peer
+        .until(|m| m.topic == "spBv1.0/plant1/NBIRTH/line1")
+        .await
+        .expect("NBIRTH");
+    // The first CONNECT sent carries 0, however many attempts failed before it.
+    assert_eq!(metric(&birth, "bdSeq").expect("bdSeq")["value"], 0);
+    gw.shutdown().await;
+}

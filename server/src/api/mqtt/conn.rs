@@ -49,6 +49,14 @@ pub(crate) enum ConnError {
     Io(#[from] std::io::Error),
 }
 
+impl ConnError {
+    /// Whether the CONNECT may have reached the broker: not when the TCP or TLS connection
+    /// under it failed.
+    pub(crate) fn connect_sent(&self) -> bool {
+        !matches!(self, ConnError::Connect(..) | ConnError::Tls(..))
+    }
+}
+
 /// The TLS settings a connection uses, loaded once when the front-end starts.
 #[derive(Clone)]
 pub(crate) struct TlsSetup {

@@ -46,8 +46,11 @@ impl Task {
                     tracing::warn!(broker = %url, error = %e, retry_in = ?wait, "cannot connect to the MQTT broker");
                     self.status.last_error = Some(e.to_string());
                     // The CONNECT may have reached the broker (a lost CONNACK): its Will,
-                    // published later, must not carry the next session's bdSeq.
-                    self.next_bd_seq();
+                    // published later, must not carry the next session's bdSeq. One that
+                    // was never sent (no TCP or TLS connection) takes no number.
+                    if e.connect_sent() {
+                        self.next_bd_seq();
+                    }
                 }
             }
             self.publish_status();
