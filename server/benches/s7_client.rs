@@ -6,6 +6,8 @@
 //!   device polled back to back; cycles a second, PDUs a cycle.
 //! - 200 REAL fields scattered over ten DBs, 100 bytes apart (nothing to merge): Snap7's
 //!   `read_multi_vars` of 20 items at a time against one device.
+//! - 500 INT fields of one DB 8 bytes apart: Snap7's `read_multi_vars` of 20 items at a
+//!   time against one device read with the default `max_gap` (32) and with `max_gap: 0`.
 //! - Under the 1,000-field load, 100 writes of one INT through gRPC: request to outcome.
 //! - 100,000 INT fields (fifty devices of 2,000) read every second: CPU share and resident
 //!   memory beside NeuronEX's published 57 % / 512 MB.
@@ -30,8 +32,13 @@ fn main() -> anyhow::Result<()> {
         .build()?;
     let mut rows = Vec::new();
     {
-        let server = Snap7::start(20, 2000)?;
-        for scenario in [Scenario::Block, Scenario::Scattered] {
+        let server = Snap7::start(20, 4000)?;
+        for scenario in [
+            Scenario::Block,
+            Scenario::Scattered,
+            Scenario::Gapped(None),
+            Scenario::Gapped(Some(0)),
+        ] {
             rows.extend(runtime.block_on(compare(&server, scenario))?);
         }
     }
@@ -86,6 +93,8 @@ impl Drop for Snap7 {
 enum Scenario {
     Block,
     Scattered,
+    /// 500 INTs 8 bytes apart, the link's `max_gap` (none: the default).
+    Gapped(Option<u32>),
 }
 
 impl Scenario {
@@ -93,6 +102,7 @@ impl Scenario {
         match self {
             Scenario::Block => "block",
             Scenario::Scattered => "scattered",
+            Scenario::Gapped(_) => "gapped",
         }
     }
 
@@ -100,6 +110,16 @@ impl Scenario {
         match self {
             Scenario::Block => "1,000 fields of one DB",
             Scenario::Scattered => "200 scattered fields",
+            Scenario::Gapped(None) => "500 fields 8 bytes apart, max_gap 32 (default)",
+            Scenario::Gapped(Some(_)) => "500 fields 8 bytes apart, max_gap 0",
+        }
+    }
+
+    /// More of the link's settings.
+    fn link(self) -> String {
+        match self {
+            Scenario::Gapped(Some(gap)) => format!(", max_gap: {gap}"),
+            _ => String::new(),
         }
     }
 
@@ -112,6 +132,14 @@ impl Scenario {
                     out.push_str(&format!(
                         "  - {{ name: v{k}, type: INT, direction: inout, address: DB1.DBW{} }}\n",
                         2 * k
+                    ));
+                }
+            }
+            Scenario::Gapped(_) => {
+                for k in 0..500 {
+                    out.push_str(&format!(
+                        "  - {{ name: v{k}, type: INT, direction: input, address: DB1.DBW{} }}\n",
+                        8 * k
                     ));
                 }
             }
@@ -153,6 +181,7 @@ fn gateway(
     name: &str,
     port: u16,
     devices: &[(String, String, &str)],
+    link: &str,
 ) -> anyhow::Result<common::Gateway> {
     let dir = common::temp_dir(name)?;
     let profiles = dir.join("profiles");
@@ -168,7 +197,7 @@ fn gateway(
         ));
     }
     let config = format!(
-        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\nlinks:\n  - name: plc\n    s7: {{ host: 127.0.0.1, port: {port}, pdu_size: 960 }}\ndevices:\n{listed}",
+        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: {}\nlinks:\n  - name: plc\n    s7: {{ host: 127.0.0.1, port: {port}, pdu_size: 960{link} }}\ndevices:\n{listed}",
         profiles.display()
     );
     common::start(&dir, &config)
@@ -195,7 +224,7 @@ async fn until_read(client: &mut iogate_client::Client, devices: &[&str]) -> any
 async fn compare(server: &Snap7, scenario: Scenario) -> anyhow::Result<Vec<common::Row>> {
     let (snap7_rate, snap7_pdus) = reference(server.port, scenario)?;
     let devices = [("bench".to_owned(), scenario.fields(), "1ms")];
-    let gateway = gateway(scenario.name(), server.port, &devices)?;
+    let gateway = gateway(scenario.name(), server.port, &devices, &scenario.link())?;
     let pid = gateway.child.id();
     let mut client = iogate_client::Client::connect(&format!("http://{}", gateway.grpc)).await?;
     until_read(&mut client, &["bench"]).await?;
@@ -286,7 +315,7 @@ async fn big(server: &Snap7) -> anyhow::Result<common::Row> {
             (format!("d{db}"), fields, "1s")
         })
         .collect();
-    let gateway = gateway("big", server.port, &devices)?;
+    let gateway = gateway("big", server.port, &devices, "")?;
     let pid = gateway.child.id();
     let mut client = iogate_client::Client::connect(&format!("http://{}", gateway.grpc)).await?;
     let names: Vec<&str> = devices.iter().map(|(n, _, _)| n.as_str()).collect();

@@ -157,11 +157,19 @@ pub(crate) struct Key {
     pub(crate) line: u64,
 }
 
+/// The most values (keys, scalars, lists and mappings) one YAML file may hold.
+const MAX_VALUES: usize = 1_500_000;
+
 /// Parses YAML text into a [`Node`] tree; a syntax error is one problem with its line.
 /// An empty document is `Null`.
 pub(crate) fn parse(text: &str, report: &mut Report) -> Option<Node> {
-    // YAML 1.2 booleans only: `parity: N` is the letter N, not false.
-    let options = serde_saphyr::options! { with_snippet: false, strict_booleans: true };
+    // YAML 1.2 booleans only: `parity: N` is the letter N, not false. The reader's bounds
+    // hold a profile of 50,000 fields of about ten keys each, and no more.
+    let mut budget = serde_saphyr::Budget::default();
+    budget.max_nodes = MAX_VALUES;
+    budget.max_events = 2 * MAX_VALUES;
+    let options =
+        serde_saphyr::options! { with_snippet: false, strict_booleans: true, budget: Some(budget) };
     match serde_saphyr::from_str_with_options::<Option<Node>>(text, options) {
         Ok(node) => Some(node.unwrap_or(Node {
             line: 1,
@@ -176,6 +184,14 @@ pub(crate) fn parse(text: &str, report: &mut Report) -> Option<Node> {
                 serde_saphyr::Error::DuplicateMappingKey { key: None, .. } => {
                     "duplicate key: a key may appear once in a mapping (keep one)".to_owned()
                 }
+                serde_saphyr::Error::Budget {
+                    breach:
+                        serde_saphyr::budget::BudgetBreach::Nodes { .. }
+                        | serde_saphyr::budget::BudgetBreach::Events { .. },
+                    ..
+                } => format!(
+                    "the file holds more than {MAX_VALUES} values, the most one file may hold (a profile of about 50,000 fields): split it into several profiles"
+                ),
                 _ => format!("invalid YAML: {}", strip_location(&e.to_string())),
             };
             report.push(line, "", message);

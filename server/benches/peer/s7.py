@@ -6,6 +6,8 @@ client can, one job at a time, and prints `cycles pdus_per_cycle`:
   block      1,000 INTs of DB1 (bytes 0-1999): one db_read, split by Snap7 into PDUs;
   scattered  200 REALs, 20 in each of DB1..DB10, 100 bytes apart: read_multi_vars of 20
              items (Snap7's most) at a time.
+  gapped     500 INTs of DB1, 8 bytes apart (bytes 0-3993): read_multi_vars of 20 items
+             at a time, as a client reads fields it is given.
 """
 
 import ctypes
@@ -44,19 +46,27 @@ def scattered_items():
     for db in range(1, 11):
         for k in range(20):
             items.append((db, k * 100))
+    return multi_vars(items, 4)
+
+
+def gapped_items():
+    return multi_vars([(1, 8 * k) for k in range(500)], 2)
+
+
+def multi_vars(items, amount):
     chunks = []
     for at in range(0, len(items), 20):
         chunk = items[at:at + 20]
         data = (S7DataItem * len(chunk))()
         buffers = []
         for i, (db, start) in enumerate(chunk):
-            buf = ctypes.create_string_buffer(4)
+            buf = ctypes.create_string_buffer(amount)
             buffers.append(buf)
             data[i].Area = AREA_DB
             data[i].WordLen = WORDLEN_BYTE
             data[i].DBNumber = db
             data[i].Start = start
-            data[i].Amount = 4
+            data[i].Amount = amount
             data[i].pData = ctypes.cast(ctypes.pointer(buf), ctypes.POINTER(ctypes.c_uint8))
         chunks.append((data, buffers))
     return chunks
@@ -72,7 +82,7 @@ def client(port, scenario, seconds):
         pdus = math.ceil(2000 / (pdu - 18))
         step = lambda: c.db_read(1, 0, 2000)
     else:
-        chunks = scattered_items()
+        chunks = scattered_items() if scenario == "scattered" else gapped_items()
         pdus = len(chunks)
 
         def step():

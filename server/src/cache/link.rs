@@ -219,6 +219,8 @@ pub struct Link {
     /// What the driver learned of the device at the other end (a PLC's order number, the
     /// PDU size it granted, its operating state), in the order told.
     peer: Mutex<Vec<(&'static str, String)>>,
+    /// Why the link is down (the last failure to open it, or how it was lost).
+    down: Mutex<Option<String>>,
 }
 
 impl Link {
@@ -236,6 +238,7 @@ impl Link {
             }),
             queue: Mutex::new(VecDeque::new()),
             task: Mutex::new(None),
+            down: Mutex::new(None),
             progress: Arc::new(Progress::default()),
             utilisation: Arc::new(Utilisation::default()),
             peer: Mutex::new(Vec::new()),
@@ -245,6 +248,16 @@ impl Link {
     /// What is known of the device at the other end.
     pub(crate) fn peer(&self) -> Vec<(&'static str, String)> {
         super::lock(&self.peer).clone()
+    }
+
+    /// Why the link is down, if it is.
+    pub(crate) fn down(&self) -> Option<String> {
+        super::lock(&self.down).clone()
+    }
+
+    /// Tells why the link is down (`None`: it is up).
+    pub(crate) fn set_down(&self, why: Option<String>) {
+        *super::lock(&self.down) = why;
     }
 
     /// Forgets what was known of the device at the other end (a new connection, perhaps to

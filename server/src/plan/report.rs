@@ -94,7 +94,7 @@ fn render_link(out: &mut String, link: &LinkConfig, devices: &Planned<'_>, grant
                 || (super::s7::asked_pdu(&s.settings), "asked"),
                 |g| (g, "granted"),
             );
-            render_s7(out, d, profile, pdu);
+            render_s7(out, d, profile, pdu, super::s7::asked_gap(&s.settings));
             continue;
         }
         if profile.protocol.name() == "ab-eip" {
@@ -170,9 +170,15 @@ fn render_line(out: &mut String, link: &LinkConfig) -> Option<LineTiming> {
 
 /// An S7 device's jobs per cycle for a PDU size (and whether the PLC granted it or it is
 /// the size asked): each item's area and bytes with the fields it carries.
-fn render_s7(out: &mut String, d: &DeviceConfig, profile: &Profile, (pdu, how): (u16, &str)) {
+fn render_s7(
+    out: &mut String,
+    d: &DeviceConfig,
+    profile: &Profile,
+    (pdu, how): (u16, &str),
+    gap: u32,
+) {
     let places = super::s7::places(profile);
-    let plan = super::s7::read_plan(&places, pdu, &Default::default());
+    let plan = super::s7::read_plan(&places, pdu, &Default::default(), gap);
     let _ = writeln!(
         out,
         "  device {} (profile {}, s7, every {} ms): {} job(s) per cycle for a PDU of {pdu} bytes ({how})",

@@ -1,6 +1,7 @@
 //! An S7 device's reads: each field an area range (its address, its form's size), ranges of one
-//! block merged where they touch, packed into jobs within the negotiated PDU (items per
-//! request, answer bytes). Timers and counters count cells of two bytes.
+//! block merged where they touch or lie at most the link's `max_gap` bytes apart, packed into
+//! jobs within the negotiated PDU (items per request, answer bytes). Timers and counters
+//! count cells of two bytes.
 
 use crate::profile::Profile;
 use crate::profile::s7_address::{Address, Area, parse};
@@ -96,12 +97,21 @@ pub(crate) fn max_item(pdu: u16) -> u32 {
     (u32::from(pdu.saturating_sub(18 + 4)) & !1).max(2)
 }
 
-/// The fields' ranges, merged where they touch up to one item's answer (a field never
-/// merged with `alone` ones), in area, block and address order.
+/// The bytes between two fields of one block read with them (not asked for) rather than
+/// in an item of their own, unless the link says (`max_gap`): an item costs 16 bytes of
+/// request and answer and a request holds 20, so up to about 40 bytes apart, fields of a
+/// few bytes are read in fewer requests merged (500 INTs 8 bytes apart: 5 requests, not
+/// 25; `docs/benchmarks.md`).
+pub(crate) const DEFAULT_GAP: u32 = 32;
+
+/// The fields' ranges, merged where they touch or are at most `gap` bytes apart, up to one
+/// item's answer (a field never merged with `alone` ones), in area, block and address
+/// order.
 fn ranges(
     places: &[Result<Place, String>],
     max_item: u32,
     alone: &std::collections::BTreeSet<usize>,
+    gap: u32,
 ) -> Vec<Range> {
     let mut ranges: Vec<Range> = Vec::new();
     let mut order: Vec<(usize, Place)> = places
@@ -117,8 +127,8 @@ fn ranges(
             Some((area, db, start, stop, fields))
                 if *area == a.area
                     && *db == a.db
-                    && first <= *stop
-                    && end - *start <= max_item
+                    && first <= *stop + gap
+                    && end.max(*stop) - *start <= max_item
                     && !alone.contains(&i)
                     && !fields.iter().any(|(f, _)| alone.contains(f)) =>
             {
@@ -138,13 +148,14 @@ pub(crate) fn read_plan(
     places: &[Result<Place, String>],
     pdu: u16,
     alone: &std::collections::BTreeSet<usize>,
+    gap: u32,
 ) -> ReadPlan {
     let max_item = max_item(pdu);
     let per_request = usize::from(pdu.saturating_sub(19) / 12).clamp(1, MAX_ITEMS);
     let answer_room = u32::from(pdu.saturating_sub(14));
     let mut plan = ReadPlan::default();
     let mut used = u32::MAX;
-    for (area, db, start, stop, fields) in ranges(places, max_item, alone) {
+    for (area, db, start, stop, fields) in ranges(places, max_item, alone, gap) {
         let mut span = Span {
             fields,
             pieces: Vec::new(),
@@ -190,6 +201,20 @@ pub(crate) fn asked_pdu(settings: &crate::yaml::Node) -> u16 {
         .map_or(960, |v| v as u16)
 }
 
+/// The gap a link's settings allow between fields read together ([`DEFAULT_GAP`] unless
+/// they say).
+pub(crate) fn asked_gap(settings: &crate::yaml::Node) -> u32 {
+    let mut quiet = crate::yaml::Report::new("plan");
+    settings
+        .map(&mut quiet, "s7")
+        .and_then(|mut m| m.get("max_gap").cloned())
+        .and_then(|n| n.int_in(&mut quiet, "max_gap", 0, i128::from(MAX_GAP)))
+        .map_or(DEFAULT_GAP, |v| v as u32)
+}
+
+/// The largest `max_gap` a link may set.
+pub(crate) const MAX_GAP: u32 = 512;
+
 /// An item as S7 users read it: its area, block and bytes (timers and counters by number).
 pub(crate) fn describe(item: &Item) -> String {
     let (first, last) = (item.byte, item.byte + u32::from(item.length.max(1)) - 1);
@@ -234,7 +259,7 @@ mod tests {
             place("MW0", 2),
             place("DB2.DBW0", 2),
         ];
-        let plan = read_plan(&places, 240, &Default::default());
+        let plan = read_plan(&places, 240, &Default::default(), 0);
         // M, DB1 0-3, DB1 10-265 (218 + 38 bytes), DB2 0-1.
         let spans: Vec<usize> = plan.spans.iter().map(|s| s.pieces.len()).collect();
         assert_eq!(spans, [1, 1, 2, 1]);
@@ -256,10 +281,44 @@ mod tests {
             assert!(answer <= 240 - 14 && job.len() <= 18, "{job:?}");
         }
         // At 960 everything is one job of four items.
-        let plan = read_plan(&places, 960, &Default::default());
+        let plan = read_plan(&places, 960, &Default::default(), 0);
         assert_eq!((plan.jobs.len(), plan.jobs[0].len()), (1, 4));
         // A field read alone is not merged.
-        let plan = read_plan(&places, 960, &[1].into_iter().collect());
+        let plan = read_plan(&places, 960, &[1].into_iter().collect(), 0);
         assert_eq!(plan.spans.len(), 5);
+    }
+
+    #[test]
+    fn scattered_fields_within_the_gap_are_read_together() {
+        // 500 INTs 8 bytes apart in DB1 (0-3993).
+        let places: Vec<_> = (0..500)
+            .map(|k| place(&format!("DB1.DBW{}", 8 * k), 2))
+            .collect();
+        let apart = read_plan(&places, 960, &Default::default(), 0);
+        assert_eq!(apart.jobs.len(), 25, "20 items a job");
+        let merged = read_plan(&places, 960, &Default::default(), DEFAULT_GAP);
+        assert_eq!(merged.jobs.len(), 5, "{:?}", merged.jobs);
+        let read: u32 = merged
+            .jobs
+            .iter()
+            .flatten()
+            .map(|i| u32::from(i.length))
+            .sum();
+        // Every byte from the first field to the last, once, but for the 6 bytes between
+        // two items (an item holds at most 938 bytes).
+        let gaps = 6 * (merged.spans.len() as u32 - 1);
+        assert_eq!((merged.spans.len(), read), (5, 3994 - gaps));
+        // Fields further apart than the gap stay apart; fields at the gap merge.
+        let two = [place("DB1.DBW0", 2), place("DB1.DBW34", 2)];
+        assert_eq!(read_plan(&two, 960, &Default::default(), 32).spans.len(), 1);
+        assert_eq!(read_plan(&two, 960, &Default::default(), 31).spans.len(), 2);
+        // Another block is never merged, whatever the gap.
+        let blocks = [place("DB1.DBW0", 2), place("DB2.DBW0", 2)];
+        assert_eq!(
+            read_plan(&blocks, 960, &Default::default(), 512)
+                .spans
+                .len(),
+            2
+        );
     }
 }

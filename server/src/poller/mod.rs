@@ -266,6 +266,7 @@ impl<D: Driver> Driven<D> {
             match opened.unwrap_or(Err(LinkFault::ConnectTimeout(D::OPEN_TIMEOUT))) {
                 Err(fault) => {
                     self.set_state(false, if lost { LinkCode::Lost } else { fault.code() });
+                    self.link.set_down(Some(fault.to_string()));
                     if down.as_ref().map(ToString::to_string) != Some(fault.to_string()) {
                         tracing::warn!(link = %name, error = %fault, retry_in = ?reopen, "cannot open the link");
                     }
@@ -302,6 +303,7 @@ impl<D: Driver> Driven<D> {
                             tracing::warn!(link = %name, error = %fault, retry_in = ?reopen, "link lost, reopening");
                             lost = true;
                             self.set_state(false, LinkCode::Lost);
+                            self.link.set_down(Some(format!("lost: {fault}")));
                             self.all_unreachable(&fault);
                             down = Some(fault);
                         }
@@ -335,6 +337,7 @@ impl<D: Driver> Driven<D> {
         tracing::info!(link = %name, protocol = D::NAME, "link open");
         self.answered = false;
         self.set_state(true, LinkCode::Ok);
+        self.link.set_down(None);
         let now = Instant::now();
         for p in &mut self.devices {
             p.rewrite = true;

@@ -48,6 +48,15 @@ impl Form {
     }
 }
 
+/// An address as one key whatever way it is written (`C3` and `Z3`, `T5` and `t5`,
+/// `DB1.DBW0` and `db1.dbw0` are one place in the PLC).
+pub(crate) fn point_identity(text: &str) -> String {
+    match parse(text) {
+        Ok(a) => format!("{a:?}"),
+        Err(_) => text.to_owned(),
+    }
+}
+
 /// The bytes of an IEC type's number (a STRING has none).
 pub(crate) fn number_bytes(ty: IecType) -> u16 {
     match ty {

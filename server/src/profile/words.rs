@@ -18,6 +18,9 @@ pub struct Words {
     /// Checks a point as written under `key` (one of the two point keys) for a field of a
     /// type (and a STRING's length): why not, if not.
     pub(crate) check_point: CheckPoint,
+    /// A point as written, as one key whatever way it is written (`C3` and `Z3`, German
+    /// for it, are one counter): two fields with one key name the same point.
+    pub(crate) point_identity: fn(&str) -> String,
     /// A point as a profile writes it, for messages.
     pub(crate) example: &'static str,
     /// Whether its fields may be scaled (`scale`, `offset`, `raw_type`: the value the
@@ -54,6 +57,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_key: "opcua",
         link_at: "url",
         check_point: point::check_opcua,
+        point_identity: str::to_owned,
         example: "ns=3;s=Line1.Speed",
         scaled: false,
     },
@@ -64,6 +68,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_key: "s7",
         link_at: "host",
         check_point: s7_form::check,
+        point_identity: s7_form::point_identity,
         example: "DB10.DBD6",
         scaled: true,
     },
@@ -74,6 +79,8 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_key: "eip",
         link_at: "host",
         check_point: eip_tag::check,
+        // Logix tag names are not case-sensitive.
+        point_identity: str::to_ascii_lowercase,
         example: "Program:Main.Speed",
         scaled: false,
     },

@@ -181,6 +181,10 @@ async fn a_host_the_certificate_does_not_name_is_refused_unless_accepted() -> an
         })
         .await?;
     assert_eq!(refused["fields"]["V0"]["quality"], "bad", "{refused}");
+    // The link's view says why it is down, in words.
+    let (_, link) = gw.get("/api/v1/links/sub").await?;
+    let why = link["error"].as_str().unwrap_or_default();
+    assert!(why.contains("BadCertificateHostNameInvalid"), "{link}");
     gw.shutdown().await;
     let gw = secure(&dir, &server, &url, ", accept_host_mismatch: true").await?;
     all_good(&gw, "a", 3).await?;

@@ -29,6 +29,9 @@ pub(crate) struct LinkInfo {
     pub(crate) connected: bool,
     /// 0 OK, 1 no port configured, 2 open failed, 3 port lost.
     pub(crate) error_code: i16,
+    /// Why the link is down, in words (the last failure to open it, or how it was lost).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) error: Option<String>,
     pub(crate) devices: Vec<String>,
     /// The share of the line's time the devices' refresh rates demand (serial links; above
     /// 1 they cannot all be kept).
@@ -65,6 +68,7 @@ pub(crate) fn link_info(link: &Link) -> LinkInfo {
         framing: None,
         connected: diag.connected,
         error_code: diag.error_code.code(),
+        error: link.down().filter(|_| !diag.connected),
         devices,
         peer: link
             .peer()

@@ -155,6 +155,14 @@ impl Session for Connection {
         Ok(None)
     }
 
+    /// Closes the session on the server (CloseSession, then CloseSecureChannel), as the
+    /// gateway stops or the link is reopened.
+    async fn close(mut self) {
+        let session = self.session.clone();
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), session.disconnect()).await;
+        self.closed = true;
+    }
+
     async fn lost(&mut self) -> LinkFault {
         let why = self.lost_now().await;
         LinkFault::Lost(Arc::new(std::io::Error::other(why)))

@@ -47,6 +47,8 @@ pub(crate) struct Connection {
     pub(crate) dropped: Arc<AtomicU64>,
     /// How many items one request of each service carries in this session.
     pub(crate) limits: super::limits::Limits,
+    /// Whether the session was closed on the server already ([`Connection::close`]).
+    pub(crate) closed: bool,
     pump: JoinHandle<()>,
 }
 
@@ -55,6 +57,10 @@ impl Drop for Connection {
     fn drop(&mut self) {
         let session = self.session.clone();
         let pump = self.pump.abort_handle();
+        if self.closed {
+            pump.abort();
+            return;
+        }
         match tokio::runtime::Handle::try_current() {
             Ok(runtime) => {
                 runtime.spawn(async move {
@@ -137,7 +143,18 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
     if let Some((c, k)) = given {
         builder = builder.certificate_path(c).private_key_path(k);
     }
-    let client = builder.client().map_err(|errors| errors.join("; "))?;
+    // Without security the client needs no certificate of its own: the library's errors
+    // about the missing one (and about a config without endpoints, which the gateway does
+    // not use) would be said at every connection.
+    let client = match secure {
+        true => builder.client(),
+        false => {
+            tracing::subscriber::with_default(tracing::subscriber::NoSubscriber::default(), || {
+                builder.client()
+            })
+        }
+    }
+    .map_err(|errors| errors.join("; "))?;
     if settings.accept_host_mismatch {
         client.certificate_store().write().set_check_hostname(false);
     }
@@ -251,6 +268,7 @@ pub(crate) async fn connect(
         lost,
         dropped,
         limits: Default::default(),
+        closed: false,
         pump,
     };
     let session = conn.session.clone();

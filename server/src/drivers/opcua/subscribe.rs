@@ -232,7 +232,14 @@ pub(super) async fn watch(
                 return Err(fault);
             }
             if unsupported(e.status()) {
-                tracing::info!(device = %device.name(), status = %e.status(), "the server has no subscriptions for the device; reading it every refresh");
+                let full = e.status().sub_code() == StatusCode::BadTooManySubscriptions.sub_code();
+                let why = match full {
+                    true => {
+                        "the server takes no more subscriptions (its limit is reached, by this gateway's devices or other clients)"
+                    }
+                    false => "the server has no subscriptions",
+                };
+                tracing::info!(device = %device.name(), status = %e.status(), "{why}; reading the device every refresh");
                 plan.subscribe = false;
                 return Ok(());
             }

@@ -59,7 +59,7 @@ pub(crate) fn value_of(ty: IecType, v: &Variant) -> Result<Value, iogate_types::
         Variant::Boolean(_) => Err(wrong("a Boolean")),
         Variant::String(s) if ty == IecType::String => Ok(Value::String(s.as_ref().to_owned())),
         Variant::String(_) => Err(wrong("a String")),
-        _ if ty == IecType::Bool || ty == IecType::String => Err(wrong("a number")),
+        _ if ty == IecType::Bool || ty == IecType::String => Err(wrong(kind(v))),
         Variant::SByte(n) => Value::from_int(ty, i128::from(*n)),
         Variant::Byte(n) => Value::from_int(ty, i128::from(*n)),
         Variant::Int16(n) => Value::from_int(ty, i128::from(*n)),
@@ -71,7 +71,35 @@ pub(crate) fn value_of(ty: IecType, v: &Variant) -> Result<Value, iogate_types::
         Variant::Float(x) => Value::from_real(ty, f64::from(*x)),
         Variant::Double(x) => Value::from_real(ty, *x),
         Variant::Empty => Err(ValueError::Missing { ty }),
-        _ => Err(wrong("this kind of value")),
+        _ => Err(wrong(kind(v))),
+    }
+}
+
+/// What a variant is, as a refusal names it ("BOOL does not take a DateTime").
+fn kind(v: &Variant) -> &'static str {
+    match v {
+        Variant::SByte(_)
+        | Variant::Byte(_)
+        | Variant::Int16(_)
+        | Variant::UInt16(_)
+        | Variant::Int32(_)
+        | Variant::UInt32(_)
+        | Variant::Int64(_)
+        | Variant::UInt64(_)
+        | Variant::Float(_)
+        | Variant::Double(_) => "a number",
+        Variant::Boolean(_) => "a Boolean",
+        Variant::String(_) => "a String",
+        Variant::DateTime(_) => "a DateTime",
+        Variant::ByteString(_) => "a ByteString",
+        Variant::Guid(_) => "a Guid",
+        Variant::LocalizedText(_) => "a LocalizedText",
+        Variant::QualifiedName(_) => "a QualifiedName",
+        Variant::NodeId(_) | Variant::ExpandedNodeId(_) => "a NodeId",
+        Variant::StatusCode(_) => "a StatusCode",
+        Variant::ExtensionObject(_) => "a structure (ExtensionObject)",
+        Variant::Array(_) => "an array",
+        _ => "this kind of value",
     }
 }
 

@@ -66,3 +66,15 @@ fn writes_take_the_servers_type_and_are_refused_where_they_do_not_fit() {
     assert!(write_variant(IecType::Lreal, &Value::LReal(3.5), Some(T::Int16)).is_err());
     assert!(write_variant(IecType::Bool, &Value::Bool(true), Some(T::String)).is_err());
 }
+
+#[test]
+fn a_value_of_another_kind_is_named_by_its_kind() {
+    let date = Variant::DateTime(Box::new(DateTime::ymd_hms(2026, 1, 2, 3, 4, 5)));
+    let e = read_value(IecType::String, 64, &date).expect_err("a DateTime");
+    assert!(e.contains("STRING does not take a DateTime"), "{e}");
+    let bytes = Variant::ByteString(opcua::types::ByteString::from(vec![1u8, 2]));
+    let e = read_value(IecType::String, 64, &bytes).expect_err("a ByteString");
+    assert!(e.contains("does not take a ByteString"), "{e}");
+    let e = read_value(IecType::Bool, 64, &Variant::Int16(1)).expect_err("a number");
+    assert!(e.contains("BOOL does not take a number"), "{e}");
+}

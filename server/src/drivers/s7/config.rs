@@ -5,6 +5,7 @@
 use std::time::Duration;
 
 use crate::config::DriverLink;
+use crate::plan::s7::{DEFAULT_GAP, MAX_GAP};
 use crate::yaml::{Kind, Node, Report};
 
 const KEYS: &[&str] = &[
@@ -17,6 +18,7 @@ const KEYS: &[&str] = &[
     "connection_type",
     "pdu_size",
     "timeout",
+    "max_gap",
 ];
 
 /// The longest `timeout`: the open's three exchanges fit the driver's open timeout.
@@ -30,6 +32,8 @@ pub(crate) struct Settings {
     pub(crate) remote_tsap: u16,
     pub(crate) pdu: u16,
     pub(crate) timeout: Duration,
+    /// The most bytes between two fields of one block read with them (not asked for).
+    pub(crate) max_gap: u32,
 }
 
 fn int(n: &Node, report: &mut Report, ctx: &str, max: i128) -> Option<i128> {
@@ -120,6 +124,10 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         .map_or(Some(Duration::from_secs(2)), |n| {
             job_timeout(n, report, &at("timeout"))
         });
+    let max_gap = map.get("max_gap").map_or(Some(DEFAULT_GAP), |n| {
+        n.int_in(report, &at("max_gap"), 0, i128::from(MAX_GAP))
+            .map(|v| v as u32)
+    });
     map.finish(report, &ctx, KEYS);
     let (rack, slot, kind) = (rack?, slot?, kind?);
     let remote = match remote {
@@ -137,5 +145,6 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         remote_tsap: u16::try_from(remote).ok()?,
         pdu: u16::try_from(pdu?).ok()?,
         timeout: timeout?,
+        max_gap: max_gap?,
     })
 }

@@ -40,6 +40,8 @@ pub(crate) struct Plan {
     reads: ReadPlan,
     /// The PDU size the reads were planned for (0: not yet).
     pdu: u16,
+    /// The link's `max_gap` they were planned with.
+    gap: u32,
     /// Fields read in items of their own (their range, merged, was out of range).
     alone: std::collections::BTreeSet<usize>,
 }
@@ -47,6 +49,8 @@ pub(crate) struct Plan {
 /// An open PLC connection.
 pub(crate) struct Plc {
     conn: Connection,
+    /// The link's `max_gap`.
+    gap: u32,
     link: Arc<Link>,
     progress: Arc<Progress>,
     timeout: Duration,
@@ -106,6 +110,7 @@ impl Driver for S7 {
             places: crate::plan::s7::places(&device.profile),
             reads: ReadPlan::default(),
             pdu: 0,
+            gap: 0,
             alone: Default::default(),
         }
     }
@@ -130,6 +135,7 @@ impl Driver for S7 {
         })?;
         let plc = Plc {
             conn,
+            gap: s.max_gap,
             link: link.clone(),
             progress: link.progress.clone(),
             timeout: s.timeout,

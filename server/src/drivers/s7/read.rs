@@ -17,11 +17,12 @@ use crate::plan::s7::{Span, read_plan};
 /// Why a span has no bytes: the error its fields get, and the item's return code.
 type Failed = (String, Option<u8>);
 
-/// Plans the device's jobs for the PDU the PLC granted, telling each field that has no place
-/// why.
-pub(super) fn replan(device: &Device, plan: &mut Plan, pdu: u16) {
-    plan.reads = read_plan(&plan.places, pdu, &plan.alone);
+/// Plans the device's jobs for the PDU the PLC granted and the link's gap, telling each
+/// field that has no place why.
+pub(super) fn replan(device: &Device, plan: &mut Plan, (pdu, gap): (u16, u32)) {
+    plan.reads = read_plan(&plan.places, pdu, &plan.alone, gap);
     plan.pdu = pdu;
+    plan.gap = gap;
     for (idx, p) in plan.places.iter().enumerate() {
         if let Err(why) = p {
             device.publish(idx, Err(FieldError::Device(why.clone())));
@@ -81,8 +82,8 @@ pub(super) async fn read(
     device: &Arc<Device>,
     plan: &mut Plan,
 ) -> Result<Read, LinkFault> {
-    if plan.pdu != plc.conn.pdu {
-        replan(device, plan, plc.conn.pdu);
+    if (plan.pdu, plan.gap) != (plc.conn.pdu, plc.gap) {
+        replan(device, plan, (plc.conn.pdu, plc.gap));
     }
     if !plc.identified
         && let Err(e) = plc.identify().await

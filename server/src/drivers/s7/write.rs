@@ -92,8 +92,8 @@ pub(super) async fn write(
     plan: &mut Plan,
     items: Vec<WriteItem>,
 ) -> Result<Option<FieldError>, LinkFault> {
-    if plan.pdu != plc.conn.pdu {
-        super::read::replan(device, plan, plc.conn.pdu);
+    if (plan.pdu, plan.gap) != (plc.conn.pdu, plc.gap) {
+        super::read::replan(device, plan, (plc.conn.pdu, plc.gap));
     }
     // Each write's pieces still to be written, and its first failure.
     let mut left = vec![0usize; items.len()];

@@ -7,6 +7,7 @@ mod field;
 mod point;
 mod register;
 
+use super::words::Words;
 use super::{Field, ProbeRead, Profile, Protocol, RegisterKind};
 use crate::codec::IecType;
 use crate::yaml::{self, Node, Problems, Report};
@@ -218,7 +219,7 @@ fn read_profile(root: &Node, report: &mut Report) -> Option<Profile> {
         }
     }
     check_names(&fields, report);
-    check_overlaps(&fields, report);
+    check_overlaps(&fields, protocol.and_then(|p| p.words()), report);
     Some(Profile {
         name: name?,
         vendor,
@@ -359,23 +360,35 @@ fn check_names(fields: &[Field], report: &mut Report) {
     }
 }
 
-/// Two fields of one register kind may not share a register, except BOOL fields on
-/// different bits of one register.
-fn check_overlaps(fields: &[Field], report: &mut Report) {
-    for (i, a) in fields.iter().enumerate() {
-        for b in &fields[..i] {
-            if a.register.kind != b.register.kind {
-                continue;
+/// Two fields may not name one point (however each writes it), and two fields of one
+/// register kind may not share a register, except BOOL fields on different bits of one
+/// register.
+fn check_overlaps(fields: &[Field], words: Option<&Words>, report: &mut Report) {
+    let identity = words.map_or(str::to_owned as fn(&str) -> String, |w| w.point_identity);
+    let mut points: HashMap<(bool, String), &Field> = HashMap::new();
+    for a in fields {
+        let Some(x) = &a.point else { continue };
+        match points.entry((x.browse_path, identity(&x.address))) {
+            std::collections::hash_map::Entry::Occupied(b) => report.push(
+                a.line,
+                format!("field {}", a.name),
+                format!(
+                    "names the same point as field {} (line {})",
+                    b.get().name,
+                    b.get().line
+                ),
+            ),
+            std::collections::hash_map::Entry::Vacant(slot) => {
+                slot.insert(a);
             }
-            if let (Some(x), Some(y)) = (&a.point, &b.point) {
-                if x.address == y.address {
-                    report.push(
-                        a.line,
-                        format!("field {}", a.name),
-                        format!("names the same point as field {} (line {})", b.name, b.line),
-                    );
-                    break;
-                }
+        }
+    }
+    for (i, a) in fields.iter().enumerate() {
+        if a.point.is_some() {
+            continue;
+        }
+        for b in &fields[..i] {
+            if a.register.kind != b.register.kind || b.point.is_some() {
                 continue;
             }
             let (a0, b0) = (u32::from(a.register.address), u32::from(b.register.address));

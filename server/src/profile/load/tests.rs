@@ -241,3 +241,15 @@ fn an_s7_fields_address_type_and_scaling_are_checked_with_their_lines() {
         (0.1, -5.0, Some(IecType::Int))
     );
 }
+
+#[test]
+fn one_place_named_two_ways_is_one_point() {
+    // A counter in English and German, a timer in two cases; two distinct counters pass.
+    let text = "name: P\nprotocol: s7\nfields:\n  - { name: C, type: INT, direction: input, address: C3 }\n  - { name: Z, type: WORD, direction: input, address: Z3 }\n  - { name: T, type: TIME, direction: input, address: T5 }\n  - { name: T2, type: WORD, direction: input, address: t5 }\n  - { name: C4, type: INT, direction: input, address: C4 }\n";
+    assert_problem(text, 5, "names the same point as field C (line 4)");
+    assert_problem(text, 7, "names the same point as field T (line 6)");
+    assert_eq!(problems(text).len(), 2, "{:#?}", problems(text));
+    // Logix tags are one tag whatever their case.
+    let text = "name: P\nprotocol: ab-eip\nfields:\n  - { name: A, type: DINT, direction: input, tag: Count }\n  - { name: B, type: DINT, direction: input, tag: COUNT }\n";
+    assert_problem(text, 5, "names the same point as field A (line 4)");
+}
