@@ -24,6 +24,7 @@ const TAGS: &[&str] = &[
     "Lr=LREAL",
     "Flags=DINT",
     "Name=STRING",
+    "Short=SSTRING",
 ];
 
 const PROFILE: &str = r#"name: Line
@@ -44,6 +45,7 @@ fields:
   - { name: Nope, type: INT, direction: input, tag: Nope }
   - { name: Wrong, type: REAL, direction: input, tag: "Counts[4]" }
   - { name: Label, type: STRING, direction: inout, tag: Name }
+  - { name: Sh, type: STRING, direction: inout, tag: Short }
 "#;
 
 async fn gateway(name: &str, port: u16) -> anyhow::Result<TestGateway> {
@@ -88,6 +90,7 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
     let device = read_once(&gw).await.expect("read");
     for name in [
         "Speed", "C3", "Flag", "Small", "Wd", "Big", "Us", "Ui", "Ud", "Ul", "Lr", "F5", "Label",
+        "Sh",
     ] {
         assert_eq!(field(&device, name)["quality"], "good", "{name}: {device}");
     }
@@ -121,6 +124,7 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
         ("Ul", json!(18_000_000_000_000_000_000u64)),
         ("Lr", json!(2.25)),
         ("Label", json!("hello plant")),
+        ("Sh", json!("short one")),
     ] {
         let outcome = put(&gw, name, value).await.expect("write");
         assert_eq!(outcome["status"], "written", "{name}: {outcome}");
@@ -149,6 +153,12 @@ async fn every_atomic_type_is_read_and_written_and_each_tags_status_is_its_own()
     );
     let label = plc.print("Name").await.expect("cpppo");
     assert!(label.contains("['hello plant']"), "{label}");
+    let short = plc.print("Short").await.expect("cpppo");
+    assert!(short.contains("short one"), "{short}");
+    // A Logix STRING takes 82 characters without a `length` in the profile.
+    let long = "x".repeat(82);
+    let outcome = put(&gw, "Label", json!(long)).await.expect("write");
+    assert_eq!(outcome["status"], "written", "{outcome}");
     gw.shutdown().await;
     plc.kill().await.expect("kill");
 }
@@ -204,8 +214,25 @@ async fn a_write_the_controller_refuses_is_not_sent_again_and_again() {
             "{f5}"
         );
     }
+    let refused = last["error"].as_str().unwrap_or_default();
+    assert!(refused.contains("Read-Modify-Write"), "{f5}");
     // cpppo ends the session after the refusal: one reconnect, with no value sent again.
-    assert!(reconnects(&gw).await.expect("metrics") <= 3);
+    let before = reconnects(&gw).await.expect("metrics");
+    assert!(before <= 3);
+    // Learned: the next bit write is refused at once with why, and costs no session.
+    let outcome = put(&gw, "F5", json!(false)).await.expect("write");
+    assert_eq!(outcome["status"], "failed", "{outcome}");
+    let error = outcome["error"].as_str().unwrap_or_default();
+    assert!(
+        error.contains("does not support Read-Modify-Write"),
+        "{outcome}"
+    );
+    gw.until("/api/v1/devices/line", "cycles after it", |d| {
+        d["connected"] == true && d["io_cycles"].as_u64() >= Some(cycles + 20)
+    })
+    .await
+    .expect("cycles");
+    assert_eq!(reconnects(&gw).await.expect("metrics"), before);
     assert_eq!(
         plc.read(&["Flags"]).await.expect("pylogix"),
         json!({"Flags": 0})

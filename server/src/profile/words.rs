@@ -21,6 +21,8 @@ pub struct Words {
     /// A point as written, as one key whatever way it is written (`C3` and `Z3`, German
     /// for it, are one counter): two fields with one key name the same point.
     pub(crate) point_identity: fn(&str) -> String,
+    /// A STRING field's most characters when the profile does not say (`length`).
+    pub(crate) default_length: u16,
     /// A point as a profile writes it, for messages.
     pub(crate) example: &'static str,
     /// Whether its fields may be scaled (`scale`, `offset`, `raw_type`: the value the
@@ -58,6 +60,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_at: "url",
         check_point: point::check_opcua,
         point_identity: str::to_owned,
+        default_length: 64,
         example: "ns=3;s=Line1.Speed",
         scaled: false,
     },
@@ -69,6 +72,7 @@ pub(crate) const DRIVERS: &[Words] = &[
         link_at: "host",
         check_point: s7_form::check,
         point_identity: s7_form::point_identity,
+        default_length: 64,
         example: "DB10.DBD6",
         scaled: true,
     },
@@ -81,6 +85,8 @@ pub(crate) const DRIVERS: &[Words] = &[
         check_point: eip_tag::check,
         // Logix tag names are not case-sensitive.
         point_identity: str::to_ascii_lowercase,
+        // A Logix STRING holds 82 characters.
+        default_length: 82,
         example: "Program:Main.Speed",
         scaled: false,
     },

@@ -51,6 +51,9 @@ pub(crate) struct Plan {
     packed: Option<read::Packed>,
     /// Set when a read changed what the packing depends on.
     repack: bool,
+    /// Why a bit of an integer is not written: the controller has no Read-Modify-Write Tag
+    /// (it refused it, or closed the connection when asked). Kept across reconnects.
+    no_bit_writes: Option<String>,
 }
 
 impl Plan {
@@ -111,6 +114,7 @@ impl Driver for Eip {
             fragment: vec![false; tags.len()],
             packed: None,
             repack: false,
+            no_bit_writes: None,
             tags,
         }
     }

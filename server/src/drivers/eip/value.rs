@@ -140,6 +140,18 @@ pub(crate) fn encode_string(
             out.resize(2 + 2 + 2 + size, 0);
             Ok(out)
         }
+        (0xDA, _) if b.len() <= usize::from(u8::MAX) => {
+            // SHORT_STRING: a USINT length, then the characters.
+            let mut out = 0xDAu16.to_le_bytes().to_vec();
+            out.extend_from_slice(&1u16.to_le_bytes());
+            out.push(b.len() as u8);
+            out.extend_from_slice(b);
+            Ok(out)
+        }
+        (0xDA, _) => Err(format!(
+            "{} characters do not fit a SHORT_STRING (255 at most)",
+            b.len()
+        )),
         (0x02A0, Some((_, size))) => Err(format!(
             "{} characters do not fit the tag's {}",
             b.len(),

@@ -19,6 +19,9 @@ const REPLY: usize = 6;
 fn message(plan: &Plan, device: &Device, item: &WriteItem) -> Result<(u8, Vec<u8>), String> {
     let tag = plan.tags[item.field].as_ref().map_err(Clone::clone)?;
     if let Some(bit) = tag.bit {
+        if let Some(why) = &plan.no_bit_writes {
+            return Err(why.clone());
+        }
         let code = plan.codes[item.field]
             .ok_or("the integer holding the bit was not read yet: its size is unknown")?;
         let on = matches!(item.value, Value::Bool(true));
@@ -53,7 +56,7 @@ impl Controller {
     pub(super) async fn write_items(
         &mut self,
         device: &Device,
-        plan: &Plan,
+        plan: &mut Plan,
         items: &[WriteItem],
     ) -> Result<(), LinkFault> {
         let mut ready = Vec::with_capacity(items.len());
@@ -72,14 +75,23 @@ impl Controller {
             .enumerate()
             .map(|(k, r)| (k, r.request.len(), REPLY))
             .collect();
-        let packets = match self.single {
-            true => (0..ready.len()).map(|k| vec![k]).collect(),
-            false => crate::plan::eip::packets(&sizes, self.conn.message_limit()),
+        // A bit's Read-Modify-Write goes alone: a controller without the service may
+        // close the connection, and then it is known which write did it.
+        let (bits, words): (Vec<_>, Vec<_>) = sizes
+            .into_iter()
+            .partition(|(k, _, _)| ready[*k].service == cip::READ_MODIFY_WRITE);
+        let mut packets: Vec<Vec<usize>> = match self.single {
+            true => words.iter().map(|(k, _, _)| vec![*k]).collect(),
+            false => crate::plan::eip::packets(&words, self.conn.message_limit())
+                .into_iter()
+                .map(|p| p.into_iter().map(|i| words[i].0).collect())
+                .collect(),
         };
+        packets.extend(bits.iter().map(|(k, _, _)| vec![*k]));
         for (p, packet) in packets.iter().enumerate() {
             let group: Vec<&Ready> = packet.iter().map(|&k| &ready[k]).collect();
             let mut sent = self.write_packet(device, items, &group).await;
-            if matches!(sent, Ok(false)) {
+            if matches!(sent, Ok(Sent::NoMultiple)) {
                 // No Multiple Service Packets: each write alone.
                 for r in &group {
                     sent = self.write_packet(device, items, &[r]).await;
@@ -88,7 +100,25 @@ impl Controller {
                     }
                 }
             }
+            if let Ok(Sent::NoBitWrites) = sent {
+                plan.no_bit_writes = Some(NO_RMW_REFUSED.to_owned());
+            }
             if let Err(fault) = sent {
+                if let [r] = group.as_slice()
+                    && r.service == cip::READ_MODIFY_WRITE
+                {
+                    // The controller closed the connection when asked to change a bit:
+                    // it has no Read-Modify-Write Tag, and asking again would do it again.
+                    plan.no_bit_writes = Some(NO_RMW_CLOSED.to_owned());
+                    finish(
+                        device,
+                        &items[r.item],
+                        Err(WriteError::Refused(NO_RMW_CLOSED.to_owned())),
+                        1,
+                    );
+                    tracing::warn!(link = %self.link.name(), "{NO_RMW_CLOSED}");
+                    return Err(fault);
+                }
                 for r in &group {
                     let why = Err(WriteError::LinkDown(fault.clone()));
                     finish(device, &items[r.item], why, 1);
@@ -104,14 +134,13 @@ impl Controller {
     }
 
     /// Sends one packet's writes (one alone, several in a Multiple Service Packet) and
-    /// finishes each with its reply's status; `false` when the controller has no Multiple
-    /// Service Packets (none of them finished: to be sent alone).
+    /// finishes each with its reply's status.
     async fn write_packet(
         &mut self,
         device: &Device,
         items: &[WriteItem],
         group: &[&Ready],
-    ) -> Result<bool, LinkFault> {
+    ) -> Result<Sent, LinkFault> {
         let message = match group {
             [one] => one.request.clone(),
             _ => {
@@ -122,8 +151,16 @@ impl Controller {
         let answer = match self.request(&message).await? {
             Ok(a) => a,
             Err(why) => {
+                if let [r] = group
+                    && r.service == cip::READ_MODIFY_WRITE
+                {
+                    // Refused whole (cpppo): the service is missing.
+                    let why = format!("{NO_RMW_REFUSED} ({why})");
+                    finish(device, &items[r.item], Err(WriteError::Refused(why)), 1);
+                    return Ok(Sent::NoBitWrites);
+                }
                 refuse_all(device, items, group, &why);
-                return Ok(true);
+                return Ok(Sent::Done);
             }
         };
         let replies: Vec<&[u8]> = match group {
@@ -133,12 +170,12 @@ impl Controller {
                 outer.answers(cip::MULTIPLE).map_err(|e| lost(e.into()))?;
                 if outer.status == super::read::SERVICE_NOT_SUPPORTED {
                     self.no_multiple();
-                    return Ok(false);
+                    return Ok(Sent::NoMultiple);
                 }
                 if outer.status != 0 && outer.status != 0x1E {
                     let why = cip::cip_status(outer.status, outer.ext);
                     refuse_all(device, items, group, &why);
-                    return Ok(true);
+                    return Ok(Sent::Done);
                 }
                 cip::multiple_replies(outer.data, group.len()).map_err(|e| lost(e.into()))?
             }
@@ -146,11 +183,16 @@ impl Controller {
         // Every reply taken apart before any write is finished: an answer out of step
         // is a lost link, and then the packet's writes are finished as sent, once.
         let mut outcomes = Vec::with_capacity(group.len());
+        let mut sent = Sent::Done;
         for (r, bytes) in group.iter().zip(replies) {
             let reply = cip::reply(bytes).map_err(|e| lost(e.into()))?;
             reply.answers(r.service).map_err(|e| lost(e.into()))?;
             outcomes.push(match reply.status {
                 0 => None,
+                super::read::SERVICE_NOT_SUPPORTED if r.service == cip::READ_MODIFY_WRITE => {
+                    sent = Sent::NoBitWrites;
+                    Some(NO_RMW_REFUSED.to_owned())
+                }
                 s => Some(cip::cip_status(s, reply.ext)),
             });
         }
@@ -160,9 +202,24 @@ impl Controller {
                 Some(why) => finish(device, &items[r.item], Err(WriteError::Refused(why)), 1),
             }
         }
-        Ok(true)
+        Ok(sent)
     }
 }
+
+/// What sending a packet of writes found.
+enum Sent {
+    /// Each write finished with its reply.
+    Done,
+    /// The controller has no Multiple Service Packets: none finished, each to be sent alone.
+    NoMultiple,
+    /// The controller has no Read-Modify-Write Tag: the bit's write refused so.
+    NoBitWrites,
+}
+
+/// Why a bit of an integer is not written, when the controller refused Read-Modify-Write
+/// Tag or closed the connection when asked for it.
+const NO_RMW_REFUSED: &str = "the controller does not support Read-Modify-Write Tag: a bit of an integer is not written (writing the whole integer from a value read earlier would undo the controller's own changes to its other bits); write a BOOL tag, or the whole integer as a field of its own";
+const NO_RMW_CLOSED: &str = "the controller closed the connection when asked for Read-Modify-Write Tag (it does not support it): a bit of an integer is not written (writing the whole integer from a value read earlier would undo the controller's own changes to its other bits); write a BOOL tag, or the whole integer as a field of its own";
 
 /// A packet refused whole: every write in it, with why.
 fn refuse_all(device: &Device, items: &[WriteItem], group: &[&Ready], why: &str) {

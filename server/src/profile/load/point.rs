@@ -14,8 +14,6 @@ pub(super) const SCALE_KEYS: &[&str] = &["scale", "offset", "raw_type"];
 
 /// The longest STRING a point field holds, in characters.
 const MAX_LENGTH: i128 = 254;
-/// A STRING point's length when the profile does not say.
-const DEFAULT_LENGTH: u16 = 64;
 
 /// Reads a point field's own keys.
 pub(super) fn read_point(
@@ -65,7 +63,7 @@ pub(super) fn read_point(
     };
     let ty = ty?;
     let word_count = match ty {
-        IecType::String => length.unwrap_or(DEFAULT_LENGTH).div_ceil(2),
+        IecType::String => length.unwrap_or(words.default_length).div_ceil(2),
         t => full_words(t),
     };
     let register = Register {
