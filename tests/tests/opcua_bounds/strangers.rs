@@ -150,3 +150,46 @@ async fn browse_continuation_points_are_bounded_per_session_and_for_the_whole_ga
     drop((one, holder));
     gw.shutdown().await;
 }
+
+#[tokio::test]
+async fn a_read_with_a_range_that_does_not_parse_refuses_that_item_only() {
+    let (gw, _) = plant("opcua-index-range", "").await;
+    iogate_tests::opcua::install().expect("asyncua");
+    // Three items of one Read: a range that is no range, a scalar read whole, a range on a
+    // scalar. asyncua sends the range's text as it is given.
+    let script = r#"
+import asyncio, json, sys
+from asyncua import Client, ua
+async def main(url):
+    async with Client(url) as c:
+        ns = await c.get_namespace_index("urn:iogate:devices")
+        items = []
+        for node, rng in [("plant.Level", "x:y"), ("plant.Level", None), ("plant.Level", "0:1")]:
+            rv = ua.ReadValueId()
+            rv.NodeId = ua.NodeId(node, ns)
+            rv.AttributeId = ua.AttributeIds.Value
+            rv.IndexRange = rng
+            items.append(rv)
+        params = ua.ReadParameters()
+        params.NodesToRead = items
+        got = await c.uaclient.read(params)
+        print(json.dumps([d.StatusCode_.name if hasattr(d, "StatusCode_") else d.StatusCode.name for d in got]))
+asyncio.run(main(sys.argv[1]))
+"#;
+    let out = tokio::process::Command::new(iogate_tests::python())
+        .args(["-c", script, &url(&gw)])
+        .output()
+        .await
+        .expect("python");
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{said}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let statuses: Vec<String> = serde_json::from_str(said.trim()).expect("json");
+    assert_eq!(statuses[0], "BadIndexRangeInvalid", "{statuses:?}");
+    assert_eq!(statuses[1], "Good", "{statuses:?}");
+    assert!(statuses[2].starts_with("Bad"), "{statuses:?}");
+    gw.shutdown().await;
+}

@@ -91,10 +91,20 @@ impl NumericRange {
         }
     }
 
+    /// A range as a message carries it. Text that is no range decodes as the invalid range
+    /// ([`NumericRange::is_invalid`]) rather than failing the message, so that the item that
+    /// carries it, not the whole request, is refused (`BadIndexRangeInvalid`).
     fn from_ua_string(str: UAString) -> Result<Self, Error> {
-        str.as_ref()
+        Ok(str
+            .as_ref()
             .parse::<NumericRange>()
-            .map_err(Error::decoding)
+            .unwrap_or(NumericRange::MultipleRanges(Vec::new())))
+    }
+
+    /// Whether this is a range whose text did not parse (an empty list of ranges, which
+    /// no text parses to).
+    pub fn is_invalid(&self) -> bool {
+        matches!(self, NumericRange::MultipleRanges(r) if r.is_empty())
     }
 
     fn to_ua_string(&self) -> Result<UAString, Error> {

@@ -23,6 +23,9 @@ impl ParsedReadValueId {
     pub fn parse(val: ReadValueId) -> Result<Self, StatusCode> {
         let attribute_id = AttributeId::from_u32(val.attribute_id)
             .map_err(|_| StatusCode::BadAttributeIdInvalid)?;
+        if val.index_range.is_invalid() {
+            return Err(StatusCode::BadIndexRangeInvalid);
+        }
 
         Ok(Self {
             node_id: val.node_id,
@@ -153,6 +156,9 @@ impl ParsedWriteValue {
     pub fn parse(val: WriteValue) -> Result<Self, StatusCode> {
         let attribute_id = AttributeId::from_u32(val.attribute_id)
             .map_err(|_| StatusCode::BadAttributeIdInvalid)?;
+        if val.index_range.is_invalid() {
+            return Err(StatusCode::BadIndexRangeInvalid);
+        }
 
         Ok(Self {
             node_id: val.node_id,
