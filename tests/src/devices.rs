@@ -182,6 +182,11 @@ pub enum Behaviour {
     WrongLength,
     /// Answers every request with this exception.
     Exception(u8),
+    /// Answers with this slave id in its frames, not the one asked (a device set to
+    /// another address than the one its label says, behind a gateway that rewrites it).
+    AnswersAs(u8),
+    /// Every second answer has a corrupted CRC (a noisy line).
+    EverySecondGarbled,
 }
 
 #[derive(Debug, Clone)]
@@ -196,6 +201,8 @@ pub struct Slave {
     pub single_writes_only: bool,
     /// The next this many write requests get exception 06 (server device busy).
     pub busy_writes: u32,
+    /// How many answers it sent.
+    pub answers: u64,
 }
 
 impl Default for Slave {
@@ -207,6 +214,7 @@ impl Default for Slave {
             counter: None,
             single_writes_only: false,
             busy_writes: 0,
+            answers: 0,
         }
     }
 }
@@ -346,10 +354,17 @@ impl RtuBus {
             }
             _ => {}
         }
-        let mut out = vec![slave_id];
+        let id = match slave.behaviour {
+            Behaviour::AnswersAs(other) => other,
+            _ => slave_id,
+        };
+        let mut out = vec![id];
         out.extend_from_slice(&pdu);
         let mut crc = crc16(&out);
-        if slave.behaviour == Behaviour::BadCrc {
+        slave.answers += 1;
+        if slave.behaviour == Behaviour::BadCrc
+            || (slave.behaviour == Behaviour::EverySecondGarbled && slave.answers % 2 == 0)
+        {
             crc ^= 0xFFFF;
         }
         out.extend_from_slice(&crc.to_le_bytes());

@@ -21,6 +21,10 @@ fn profiles() -> Vec<Arc<iogate::profile::Profile>> {
 }
 
 async fn scan(port: &std::path::Path, ids: &str) -> Vec<Found> {
+    scanned(port, ids).await.devices
+}
+
+async fn scanned(port: &std::path::Path, ids: &str) -> scan::Scanned {
     let plan = Plan {
         settings: scan::settings(&[9600], &[iogate::config::Parity::None]),
         ids: scan::parse_ids(ids).expect("ids"),
@@ -109,5 +113,51 @@ async fn a_device_answering_with_bad_crcs_is_one_damaged_device_not_a_collision(
         config.contains("its answers cannot be read") && !config.contains("another id"),
         "{config}"
     );
+    serving.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_answering_as_another_id_is_said_so() {
+    let bus = RtuBus::default();
+    bus.slave(6, |s| {
+        s.tables.holding[0] = 1;
+        s.behaviour = Behaviour::AnswersAs(9);
+    });
+    let dir = temp_dir("scan-answers-as");
+    let port = dir.join("ttyBUS");
+    let (device_end, _holder) = pty_at(&port).expect("pty");
+    let serving = bus.serve(device_end);
+    let found = scanned(&port, "5-7").await;
+    assert!(found.devices.is_empty(), "{found:#?}");
+    assert_eq!(found.strangers.len(), 1, "{found:#?}");
+    assert_eq!(
+        (
+            found.strangers[0].answered_as,
+            found.strangers[0].asked.as_str()
+        ),
+        (9, "6")
+    );
+    let line = scan::report::stranger_line(&found.strangers[0]);
+    assert!(line.contains("answered as slave 9"), "{line}");
+    serving.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_garbling_every_second_answer_is_listed_with_a_warning() {
+    let bus = RtuBus::default();
+    bus.slave(6, |s| {
+        s.tables.holding[0] = 1;
+        s.behaviour = Behaviour::EverySecondGarbled;
+    });
+    let dir = temp_dir("scan-flaky");
+    let port = dir.join("ttyBUS");
+    let (device_end, _holder) = pty_at(&port).expect("pty");
+    let serving = bus.serve(device_end);
+    let found = scan(&port, "6").await;
+    assert_eq!(found.len(), 1, "{found:#?}");
+    let warned = found[0].unsteady.as_deref().unwrap_or_default();
+    assert!(warned.contains("garbled"), "{found:#?}");
+    let config = scan::report::config(&found, None, "line");
+    assert!(config.contains("warning:"), "{config}");
     serving.abort();
 }

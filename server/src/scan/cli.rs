@@ -123,20 +123,20 @@ pub fn run(options: &Options) -> u8 {
     if terminal {
         eprint!("\r\x1b[K");
     }
-    let devices = match scanned {
-        Ok(devices) => devices,
+    let scanned = match scanned {
+        Ok(scanned) => scanned,
         Err(e) => {
             eprintln!("iogate scan: {e}");
             return 1;
         }
     };
+    let found = scanned.devices.len();
     eprintln!(
-        "{} device{} found in {:.1} s",
-        devices.len(),
-        if devices.len() == 1 { "" } else { "s" },
+        "{found} device{} found in {:.1} s",
+        if found == 1 { "" } else { "s" },
         started.elapsed().as_secs_f64()
     );
-    let summary = Summary::new(&plan, devices, Some(&options.port), "line");
+    let summary = Summary::new(&plan, scanned, Some(&options.port), "line");
     print_summary(&summary, options.json)
 }
 
@@ -175,13 +175,21 @@ fn print_summary(summary: &Summary, json: bool) -> u8 {
                 return 1;
             }
         }
-    } else if summary.devices.is_empty() {
+    } else if summary.devices.is_empty() && summary.strangers.is_empty() {
         println!("no device answered");
     } else {
+        if summary.devices.is_empty() {
+            println!("no device answered as the id asked");
+        }
         for d in &summary.devices {
             println!("{}", device_line(d));
         }
-        println!("\n# for iogate.yaml:\n{}", summary.config);
+        for s in &summary.strangers {
+            println!("{}", super::report::stranger_line(s));
+        }
+        if !summary.devices.is_empty() {
+            println!("\n# for iogate.yaml:\n{}", summary.config);
+        }
     }
     0
 }

@@ -34,6 +34,19 @@ pub(super) fn judge(bytes: &[u8], slave: u8, function: u8) -> Heard {
     }
 }
 
+/// The id of a whole answer to `function` heard from another slave than the one asked,
+/// when nothing else was heard: a device that answers as an id of its own.
+pub(super) fn foreign(bytes: &[u8], slave: u8, function: u8) -> Option<u8> {
+    let (frames, noise) = split_frames(bytes);
+    if noise != 0 {
+        return None;
+    }
+    frames
+        .into_iter()
+        .find(|f| f[0] != slave && f[1] & 0x7F == function)
+        .map(|f| f[0])
+}
+
 /// What a read heard: its data, the device's exception, nothing, or bytes that are neither
 /// (checked as a poll's answer is: function, byte count, length).
 pub(super) fn read_answer(

@@ -241,6 +241,10 @@ pub struct Found {
     /// a collision).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub garbled: Option<String>,
+    /// Some of its answers were garbled, others not: what was seen (a noisy line, or a
+    /// setting at its edge).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unsteady: Option<String>,
     pub profiles: Vec<Suggestion>,
 }
 
@@ -273,10 +277,11 @@ pub async fn run(
     profiles: &[Arc<Profile>],
     progress: &mut (dyn FnMut(Progress) + Send),
     cancel: &tokio_util::sync::CancellationToken,
-) -> Result<Vec<Found>, ScanError> {
+) -> Result<Scanned, ScanError> {
     let total = plan.settings.len() * plan.ids.len();
     let mut done = 0;
     let mut found = Vec::new();
+    let mut strangers = Vec::new();
     for (index, setting) in plan.settings.iter().enumerate() {
         progress(Progress::Setting {
             setting: *setting,
@@ -284,19 +289,39 @@ pub async fn run(
             of: plan.settings.len(),
         });
         prober.set(setting).await?;
+        // The ids each id heard answering was asked as, at this setting.
+        let mut foreign: std::collections::BTreeMap<u8, Vec<u8>> = Default::default();
         for &id in &plan.ids {
             if cancel.is_cancelled() {
                 return Err(ScanError::Cancelled);
             }
-            if let Some(device) = discover(prober, id, *setting, profiles).await? {
-                progress(Progress::Found(Box::new(device.clone())));
-                found.push(device);
+            match discover(prober, id, *setting, profiles).await? {
+                Discovered::Device(device) => {
+                    progress(Progress::Found(device.clone()));
+                    found.push(*device);
+                }
+                Discovered::Foreign(other) => foreign.entry(other).or_default().push(id),
+                Discovered::Nothing => {}
             }
             done += 1;
             progress(Progress::Tried { done, total });
         }
+        for (answered_as, asked) in foreign {
+            // One answer right after its own id's probe is that probe's, late.
+            if asked.len() == 1 && u16::from(asked[0]) == u16::from(answered_as) + 1 {
+                continue;
+            }
+            strangers.push(Stranger {
+                answered_as,
+                setting: *setting,
+                asked: report::ranges(&asked),
+            });
+        }
     }
-    Ok(found)
+    Ok(Scanned {
+        devices: found,
+        strangers,
+    })
 }
 
 /// The discovery probe (FC 03, address 0, one register): any answer, data or exception,
@@ -306,13 +331,15 @@ async fn discover(
     id: u8,
     setting: Setting,
     profiles: &[Arc<Profile>],
-) -> Result<Option<Found>, ScanError> {
+) -> Result<Discovered, ScanError> {
     let pdu = read_pdu(RegisterKind::HoldingRegister, 0, 1);
     let first = prober.probe(id, &pdu, false).await?;
     let mut heard = judge::judge(&first, id, 3);
     let mut garbled = None;
+    let mut damaged = 0;
     if matches!(heard, Heard::Garbled(_)) {
         // Once more: what the two hearings show (the same damage twice is one device).
+        damaged += 1;
         let again = prober.probe(id, &pdu, false).await?;
         heard = judge::judge(&again, id, 3);
         if matches!(heard, Heard::Garbled(_)) {
@@ -320,7 +347,12 @@ async fn discover(
         }
     }
     let mut collision = match &heard {
-        Heard::Silent => return Ok(None),
+        Heard::Silent => {
+            if let Some(other) = judge::foreign(&first, id, 3) {
+                return Ok(Discovered::Foreign(other));
+            }
+            return Ok(Discovered::Nothing);
+        }
         Heard::Two(_) => Some("two answers to one request".to_owned()),
         Heard::Garbled(_) | Heard::One(_) => None,
     };
@@ -332,6 +364,7 @@ async fn discover(
         identification: None,
         collision: None,
         garbled,
+        unsteady: None,
         profiles: Vec::new(),
     };
     for kind in [
@@ -341,12 +374,45 @@ async fn discover(
     ] {
         let (answer, two) = read(prober, id, kind, 0, 1).await?;
         collision = collision.or(two);
+        damaged += usize::from(answer.answer == "garbled");
         device.reads.push(answer);
+    }
+    if damaged > 0 && device.garbled.is_none() {
+        device.unsteady = Some(format!(
+            "{damaged} of its answers to {} requests were garbled, the others not: a noisy line, or a baud rate or parity at its edge; check the line before relying on it",
+            device.reads.len() + damaged
+        ));
     }
     device.identification = identify(prober, id, &mut collision).await?;
     device.collision = collision;
     matching::suggest(prober, &mut device, profiles).await?;
-    Ok(Some(device))
+    Ok(Discovered::Device(Box::new(device)))
+}
+
+/// What one id's discovery probe found.
+enum Discovered {
+    Nothing,
+    Device(Box<Found>),
+    /// Only an answer as another id (the one given): a device that answers with an id of
+    /// its own whatever is asked.
+    Foreign(u8),
+}
+
+/// A device that answered requests for other ids as its own: the id it answers with, at
+/// which setting, and the ids asked.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Stranger {
+    pub answered_as: u8,
+    pub setting: Setting,
+    /// The ids whose requests it answered, as ranges (`1-247`).
+    pub asked: String,
+}
+
+/// What a scan found: the devices, and answers given as ids not asked.
+#[derive(Debug, Clone, Default)]
+pub struct Scanned {
+    pub devices: Vec<Found>,
+    pub strangers: Vec<Stranger>,
 }
 
 /// One read of `count` at `address` of `kind`; a second answer is a collision.

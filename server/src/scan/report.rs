@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use serde::Serialize;
 
-use super::{Found, Plan, Setting};
+use super::{Found, Plan, Scanned, Setting, Stranger};
 
 /// A finished (or running) scan's result: what was tried, what was found, and the config.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -17,13 +17,18 @@ pub struct Summary {
     /// The longest the search takes (one slot per id and setting).
     pub estimate_ms: u64,
     pub devices: Vec<Found>,
+    /// Devices that answered requests for other ids as an id of their own.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub strangers: Vec<Stranger>,
     /// Ready `links:` (for a port) and `devices:` entries.
     pub config: String,
 }
 
 impl Summary {
-    pub fn new(plan: &Plan, devices: Vec<Found>, port: Option<&str>, link: &str) -> Self {
+    pub fn new(plan: &Plan, scanned: Scanned, port: Option<&str>, link: &str) -> Self {
+        let Scanned { devices, strangers } = scanned;
         Summary {
+            strangers,
             settings: plan.settings.clone(),
             ids: ranges(&plan.ids),
             timeout_ms: plan.timeout.as_millis() as u64,
@@ -111,6 +116,15 @@ pub fn config(devices: &[Found], port: Option<&str>, link: &str) -> String {
 /// The entry (or the comment saying why there is none) of one device found; `names` are
 /// those given so far (a device that answers at two settings gets two names).
 fn device_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
+    let mut out = entry_lines(d, link, names);
+    if let Some(why) = &d.unsteady {
+        let _ = write!(out, "\n  #   warning: {why}");
+    }
+    out
+}
+
+/// A device's entry, or why it has none.
+fn entry_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
     let slave = d.slave_id;
     if let Some(why) = &d.collision {
         return format!("  # slave {slave} on {link}: {why}; give one of them another id first");
@@ -122,7 +136,29 @@ fn device_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
     }
     let (telling, shape): (Vec<&super::Suggestion>, Vec<&super::Suggestion>) =
         d.profiles.iter().partition(|s| s.telling);
-    let Some((best, others)) = telling.split_first() else {
+    // Several fit and nothing (an identification) tells which: none is offered.
+    let identified: Vec<&&super::Suggestion> = telling.iter().filter(|s| s.identified).collect();
+    let best = match (identified.as_slice(), telling.as_slice()) {
+        ([one], _) => Some(**one),
+        (_, [one]) => Some(*one),
+        (_, []) => None,
+        (_, several) => {
+            let why: Vec<String> = several
+                .iter()
+                .map(|s| format!("{} ({} probe read(s) answered)", s.profile, s.probes))
+                .collect();
+            return format!(
+                "  # slave {slave} on {link}: {} profiles fit and nothing tells which it is: {}; add the entry of the one it is by hand",
+                several.len(),
+                why.join(", ")
+            );
+        }
+    };
+    let others: Vec<&&super::Suggestion> = telling
+        .iter()
+        .filter(|s| best.is_some_and(|b| b.profile != s.profile))
+        .collect();
+    let Some(best) = best else {
         if shape.is_empty() {
             return format!(
                 "  # slave {slave} on {link}: no profile fits; import or write one (iogate profile import)"
@@ -148,6 +184,16 @@ fn device_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
         let _ = write!(out, "\n  #   also fits: {}", names.join(", "));
     }
     out
+}
+
+/// A device that answered as another id, as the terminal shows it.
+pub fn stranger_line(s: &Stranger) -> String {
+    format!(
+        "  at {}: requests for slave {} were answered as slave {}: a device answers with an id other than the one asked (a gateway in between, or a device that ignores the address); no entry is made for it",
+        s.setting.label(),
+        s.asked,
+        s.answered_as
+    )
 }
 
 /// One device found, as the terminal shows it.
@@ -185,6 +231,9 @@ pub fn device_line(d: &Found) -> String {
     if let Some(why) = &d.garbled {
         let _ = write!(out, "\n      UNREADABLE: {why}");
     }
+    if let Some(why) = &d.unsteady {
+        let _ = write!(out, "\n      WARNING: {why}");
+    }
     if d.profiles.is_empty() {
         out.push_str("\n      profiles: none fits");
     } else {
@@ -221,6 +270,7 @@ mod tests {
             identification: None,
             collision: collision.map(str::to_owned),
             garbled: None,
+            unsteady: None,
             profiles: profile
                 .map(|p| Suggestion {
                     profile: p.to_owned(),
@@ -308,5 +358,35 @@ mod tests {
             !out.contains("another id"),
             "no collision is claimed: {out}"
         );
+    }
+
+    #[test]
+    fn several_profiles_that_fit_alike_are_all_named_and_none_offered() {
+        let mut d = found(3, 9600, Some("WaveshareAnalogInput"), None);
+        for other in ["GenericIo", "SimIo"] {
+            let mut s = d.profiles[0].clone();
+            s.profile = other.to_owned();
+            d.profiles.push(s);
+        }
+        let text = config(std::slice::from_ref(&d), Some("/dev/ttyUSB0"), "line");
+        assert!(!text.contains("profile: WaveshareAnalogInput"), "{text}");
+        assert!(
+            text.contains("3 profiles fit and nothing tells which it is")
+                && text.contains("GenericIo (1 probe read(s) answered)"),
+            "{text}"
+        );
+        // An identification tells: that one is offered, the others named.
+        d.profiles[1].identified = true;
+        let text = config(std::slice::from_ref(&d), Some("/dev/ttyUSB0"), "line");
+        assert!(text.contains("profile: GenericIo"), "{text}");
+        assert!(
+            text.contains("also fits: WaveshareAnalogInput, SimIo"),
+            "{text}"
+        );
+        // A device whose answers were sometimes garbled is offered with a warning.
+        d.unsteady = Some("1 of its answers to 5 requests were garbled".to_owned());
+        let text = config(std::slice::from_ref(&d), Some("/dev/ttyUSB0"), "line");
+        assert!(text.contains("warning: 1 of its answers"), "{text}");
+        assert!(device_line(&d).contains("WARNING: 1 of its answers"));
     }
 }

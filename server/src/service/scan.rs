@@ -144,7 +144,7 @@ impl Service {
             probed: 0,
             total: plan.ids.len(),
             elapsed_ms: 0,
-            result: Summary::new(&plan, Vec::new(), None, link.name()),
+            result: Summary::new(&plan, Default::default(), None, link.name()),
             error: None,
         };
         let (state, _) = watch::channel(first.clone());
@@ -256,8 +256,8 @@ async fn run_scan(
     state.send_modify(|s| {
         s.elapsed_ms = started.elapsed().as_millis() as u64;
         match result {
-            Ok(devices) => {
-                s.result = Summary::new(&plan, devices, None, &name);
+            Ok(scanned) => {
+                s.result = Summary::new(&plan, scanned, None, &name);
                 s.state = "done";
             }
             Err(ScanError::Cancelled) => s.state = "cancelled",
