@@ -134,6 +134,10 @@ pub enum CodecError {
     /// A value of another type than the field's.
     #[error("a {ty} value is needed")]
     NotOfType { ty: IecType },
+    /// A value the device's protocol cannot hold where the field is (a text longer than
+    /// the PLC's STRING[n], a count past a counter's 999): refused before it is sent.
+    #[error("{0}")]
+    Protocol(String),
 }
 
 #[cfg(test)]

@@ -52,6 +52,19 @@ pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::
     None
 }
 
+/// Whether the device's protocol can hold `value` where field `idx` is (a write refused
+/// before it is sent is refused at once, with why, not accepted and then failed).
+pub(crate) fn check_value(
+    device: &crate::cache::Device,
+    idx: usize,
+    value: &crate::codec::Value,
+) -> Result<(), String> {
+    match device.profile.protocol.name() {
+        s7::PROTOCOL => s7::check_value(device, idx, value),
+        _ => Ok(()),
+    }
+}
+
 /// What `check` finds wrong with the links' settings that their drivers read.
 pub(crate) fn check_links(config: &crate::config::Config) -> crate::yaml::Problems {
     struct Check<'a>(&'a LinkConfig, &'a mut crate::yaml::Report);

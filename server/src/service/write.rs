@@ -64,9 +64,20 @@ impl Service {
         convert: impl FnOnce(IecType) -> Result<Value, E>,
     ) -> Result<Prepared, AccessError> {
         let (idx, value) = typed(device, field, convert)?;
+        let checked = device.check_write(idx, value)?;
+        // What the device's protocol cannot hold there is refused now, not after sending.
+        crate::drivers::check_value(device, idx, checked.value()).map_err(|why| {
+            let f = device.field(idx);
+            AccessError::InvalidValue {
+                device: device.name().to_owned(),
+                field: f.name.clone(),
+                ty: f.ty,
+                reason: Box::new(CodecError::Protocol(why)),
+            }
+        })?;
         Ok(Prepared {
             device: device.clone(),
-            checked: device.check_write(idx, value)?,
+            checked,
         })
     }
 

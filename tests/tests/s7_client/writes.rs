@@ -43,15 +43,18 @@ async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Resu
         "007d",
         "12.5 / 0.1 as an INT"
     );
-    // What the PLC cannot hold is refused and nothing is written.
-    for (name, value, says) in [
-        ("Str", json!("x".repeat(21)), "21"),
-        ("Tm", json!(1234), "S5TIME cannot hold 1234 ms"),
-        ("Ct", json!(1000), "0-999"),
-        ("Scaled", json!(4000.0), "40000"),
-        ("Stamp", json!("2100-01-01T00:00:00"), "1990-2089"),
-        ("Missing", json!(1), "object does not exist"),
+    // What the PLC cannot hold is refused at once (400, never sent), what the PLC refuses
+    // is the write's failure; nothing is written.
+    for (name, value, says, at_once) in [
+        ("Str", json!("x".repeat(21)), "21", true),
+        ("Tm", json!(1234), "S5TIME cannot hold 1234 ms", true),
+        ("Ct", json!(1000), "0-999", true),
+        ("Scaled", json!(4000.0), "40000", true),
+        ("Stamp", json!("2100-01-01T00:00:00"), "1990-2089", true),
+        ("Missing", json!(1), "object does not exist", false),
     ] {
+        let answer = put(&gw, "press240", name, value.clone()).await?;
+        assert_eq!(answer.is_err(), at_once, "{name}: {answer:?}");
         let why = refused(&gw, "press240", name, value).await?;
         assert!(why.contains(says), "{name}: {why}");
     }

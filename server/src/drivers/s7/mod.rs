@@ -12,6 +12,7 @@ mod read;
 mod szl;
 mod value;
 mod write;
+pub(crate) use write::check_value;
 
 use std::sync::Arc;
 use std::time::Duration;
