@@ -157,6 +157,25 @@ fn finish_one(device: &Device, item: &WriteItem, outcome: Result<(), String>) {
     }
 }
 
+/// Whether `value` can be written to field `idx` at all (its place in the PLC takes it):
+/// checked before the write is accepted, so a value no S7 PLC could hold there is refused at
+/// once, never sent.
+pub(crate) fn check_value(
+    device: &Device,
+    idx: usize,
+    value: &crate::codec::Value,
+) -> Result<(), String> {
+    let field = device.field(idx);
+    let Some(point) = &field.point else {
+        return Ok(());
+    };
+    let address = crate::profile::s7_address::parse(&point.address)?;
+    let stored = field.register.raw_type.unwrap_or(field.ty);
+    let form = crate::profile::s7_form::form(&address, stored, point.length)?;
+    let raw = value::unscaled(field, value)?;
+    value::encode(form, stored, &raw).map(|_| ())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -201,23 +220,4 @@ mod tests {
         assert_eq!(bits.iter().map(Vec::len).sum::<usize>(), 40);
         assert_eq!(max_piece(240), 212);
     }
-}
-
-/// Whether `value` can be written to field `idx` at all (its place in the PLC takes it):
-/// checked before the write is accepted, so a value no S7 PLC could hold there is refused at
-/// once, never sent.
-pub(crate) fn check_value(
-    device: &Device,
-    idx: usize,
-    value: &crate::codec::Value,
-) -> Result<(), String> {
-    let field = device.field(idx);
-    let Some(point) = &field.point else {
-        return Ok(());
-    };
-    let address = crate::profile::s7_address::parse(&point.address)?;
-    let stored = field.register.raw_type.unwrap_or(field.ty);
-    let form = crate::profile::s7_form::form(&address, stored, point.length)?;
-    let raw = value::unscaled(field, value)?;
-    value::encode(form, stored, &raw).map(|_| ())
 }
