@@ -63,3 +63,30 @@ fn empty_document_is_null() {
     assert_eq!(parse_ok("").kind, Kind::Null);
     assert_eq!(parse_ok("# only a comment\n").kind, Kind::Null);
 }
+
+#[test]
+fn a_profile_of_fifty_thousand_fields_is_read_and_a_larger_file_named_so() {
+    let mut text = String::from("name: Big\nprotocol: opcua\nfields:\n");
+    for k in 0..50_000 {
+        text.push_str(&format!(
+            "  - {{ name: V{k}, type: DINT, direction: input, node: \"ns=2;s=V{k}\", unit: rpm }}\n"
+        ));
+    }
+    let node = parse_ok(&text);
+    let Kind::Map(entries) = &node.kind else {
+        panic!("a map");
+    };
+    assert_eq!(entries.len(), 3);
+    // Past the bound: one problem that says what to do.
+    let many = format!("[{}]", vec!["0"; MAX_VALUES + 1].join(","));
+    let mut report = Report::new("huge.yaml");
+    assert!(parse(&many, &mut report).is_none());
+    let problems = report.into_problems();
+    assert_eq!(problems.len(), 1, "{problems}");
+    assert!(
+        problems.0[0]
+            .message
+            .contains("split it into several profiles"),
+        "{problems}"
+    );
+}

@@ -81,6 +81,17 @@ fn a_server_without_security_logs_no_certificate_error() {
         "{}",
         String::from_utf8_lossy(&read.stderr)
     );
+    // An import from a root the server does not have says so (and closes its session).
+    let import = Command::new(env!("CARGO_BIN_EXE_iogate"))
+        .args(["profile", "import", "--from", "opcua"])
+        .arg(format!("opc.tcp://127.0.0.1:{port}/"))
+        .args(["--node", "ns=2;s=Nope", "--out"])
+        .arg(dir.join("imported"))
+        .output()
+        .expect("import runs");
+    let said = String::from_utf8_lossy(&import.stderr);
+    assert_eq!(import.status.code(), Some(1), "{said}");
+    assert!(said.contains("no such node on the server"), "{said}");
     // The gateway's own client has opened its link (the log said so) before it stops.
     let mut log = String::new();
     let stderr = child.stderr.take().expect("piped");

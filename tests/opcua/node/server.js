@@ -11,6 +11,7 @@
 // --twice         Line1/Many/V0 also reachable as Line1/Alias/V0 (one variable, two paths).
 // --pki DIR       its own certificate (node-opcua's, subjectAltName with DNS first) there.
 // --secure        Basic256Sha256 Sign and SignAndEncrypt endpoints besides None.
+// --no-anonymous  anonymous users refused (a user name and password wanted).
 "use strict";
 const opcua = require("node-opcua");
 
@@ -51,7 +52,8 @@ async function main() {
       ? [opcua.MessageSecurityMode.None, opcua.MessageSecurityMode.Sign,
          opcua.MessageSecurityMode.SignAndEncrypt]
       : [opcua.MessageSecurityMode.None],
-    allowAnonymous: true,
+    allowAnonymous: !flag("--no-anonymous"),
+    userManager: { isValidUser: (user, password) => user === "op" && password === "secret" },
     serverCapabilities: { operationLimits },
   });
   await server.initialize();

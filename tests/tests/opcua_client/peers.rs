@@ -191,3 +191,19 @@ async fn a_host_the_certificate_does_not_name_is_refused_unless_accepted() -> an
     gw.shutdown().await;
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_that_refuses_anonymous_users_is_named_so() -> anyhow::Result<()> {
+    let dir = temp_dir("ua-no-anonymous");
+    let server = NodeUa::start(dir.join("server-pki"), &["--many", "3", "--no-anonymous"]).await?;
+    let gw = gateway(&dir, &server.url, 3).await?;
+    let link = gw
+        .until("/api/v1/links/sub", "the refusal", |l| {
+            l["error"].is_string()
+        })
+        .await?;
+    let why = link["error"].as_str().unwrap_or_default();
+    assert!(why.contains("does not take anonymous users"), "{link}");
+    gw.shutdown().await;
+    Ok(())
+}

@@ -216,10 +216,16 @@ async fn endpoint(
             .iter()
             .map(|t| format!("{:?}", t.token_type))
             .collect();
+        let takes = match takes.is_empty() {
+            true => "no user at all there: choose another security_policy".to_owned(),
+            false => format!(
+                "{}: set the link's `user` (`username` and `password_file`, or `certificate` and `private_key`)",
+                takes.join(", ")
+            ),
+        };
         return Err(format!(
-            "the server does not take {who} on this endpoint (it takes: {}): set the link's \
-             `username` and `password_file`, or `certificate` and `private_key`",
-            takes.join(", ")
+            "the server does not take {who} on its endpoint of security {} {mode:?} (it takes {takes})",
+            settings.policy
         ));
     }
     endpoint.endpoint_url = settings.url.as_str().into();

@@ -83,6 +83,9 @@ async fn fields(
         Ok(r) => r.unwrap_or_else(|| ObjectId::ObjectsFolder.into()),
         Err(e) => return Err((crate::EXIT_CONFIG as u8, format!("--node {e}"))),
     };
+    exists(conn, &root_id)
+        .await
+        .map_err(|why| (1, format!("--node {root_id}: {why}")))?;
     let browsed = browse::browse(conn, &root_id)
         .await
         .map_err(|e| (1, format!("browsing {e}")))?;
@@ -96,6 +99,29 @@ async fn fields(
         eprintln!("not mapped: {why}");
     }
     Ok((fields, skipped.len()))
+}
+
+/// Whether the server has the node (its NodeClass read): a root it does not have is named
+/// as such rather than imported as nothing.
+async fn exists(conn: &Connection, node: &NodeId) -> Result<(), String> {
+    use opcua::types::{AttributeId, ReadValueId, StatusCode, TimestampsToReturn};
+    let asked = [ReadValueId {
+        node_id: node.clone(),
+        attribute_id: AttributeId::NodeClass as u32,
+        ..Default::default()
+    }];
+    let read = conn
+        .session
+        .read(&asked, TimestampsToReturn::Neither, 0.0)
+        .await
+        .map_err(|e| e.to_string())?;
+    match read.first().and_then(|v| v.status) {
+        Some(s) if s.sub_code() == StatusCode::BadNodeIdUnknown.sub_code() => {
+            Err("no such node on the server (BadNodeIdUnknown)".to_owned())
+        }
+        Some(s) if s.is_bad() => Err(s.to_string()),
+        _ => Ok(()),
+    }
 }
 
 /// The root given as a node id, in the server's namespaces.
