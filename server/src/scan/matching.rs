@@ -5,7 +5,8 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use super::{Found, Prober, ReadAnswer, ScanError, Suggestion, read};
+use super::discover::read;
+use super::{Found, Prober, ReadAnswer, ScanError, Suggestion};
 use crate::profile::{ProbeRead, Profile, Protocol, RegisterKind};
 
 /// A register no device's map has: a device that answers it answers every address, and its
