@@ -116,6 +116,8 @@ pub enum CodecError {
     WrongType { ty: IecType, found: &'static str },
     #[error("the string is {len} bytes long; the field holds at most {max}")]
     TooLong { len: usize, max: usize },
+    #[error("the string is {len} characters long; the field holds at most {max}")]
+    TooManyCharacters { len: usize, max: usize },
     #[error("expected {expected} registers, got {found}")]
     WrongLength { expected: usize, found: usize },
     /// A client's value of the wrong kind for the type (a string for a BOOL, ...).

@@ -12,6 +12,7 @@
 // --pki DIR       its own certificate (node-opcua's, subjectAltName with DNS first) there.
 // --secure        Basic256Sha256 Sign and SignAndEncrypt endpoints besides None.
 // --no-anonymous  anonymous users refused (a user name and password wanted).
+// --count-refusals FILE  how many requests it refused as too many operations, in FILE.
 "use strict";
 const opcua = require("node-opcua");
 
@@ -91,6 +92,18 @@ async function main() {
     for (const ref of ol ? ol.findReferencesExAsObject("HasProperty") : []) {
       ref.bindVariable({ get: () => new opcua.Variant({ dataType: opcua.DataType.UInt32, value: 0 }) }, true);
     }
+  }
+  const countFile = arg("--count-refusals", null);
+  if (countFile) {
+    let refused = 0;
+    require("fs").writeFileSync(countFile, "0");
+    server.on("response", (response) => {
+      const result = response.responseHeader && response.responseHeader.serviceResult;
+      if (result && result.equals && result.equals(opcua.StatusCodes.BadTooManyOperations)) {
+        refused += 1;
+        require("fs").writeFileSync(countFile, String(refused));
+      }
+    });
   }
   await server.start();
   console.log("ready " + server.endpoints[0].port);

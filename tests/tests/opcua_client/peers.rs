@@ -76,6 +76,28 @@ async fn limits_enforced_but_not_published_are_learned() -> anyhow::Result<()> {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn limits_below_the_five_a_first_read_asks_are_read_and_kept() -> anyhow::Result<()> {
+    let dir = temp_dir("ua-limits-3");
+    let count = dir.join("refusals");
+    let args = ["--limits", "3", "--many", "20", "--count-refusals"];
+    let mut with_count: Vec<&str> = args.to_vec();
+    let count_arg = count.display().to_string();
+    with_count.push(&count_arg);
+    let server = NodeUa::start(dir.join("server-pki"), &with_count).await?;
+    let gw = gateway(&dir, &server.url, 20).await?;
+    all_good(&gw, "a", 20).await?;
+    all_good(&gw, "b", 20).await?;
+    // Each link's first Read of the five limits is refused as too many; nothing after it.
+    let refused: u32 = std::fs::read_to_string(&count)?.trim().parse()?;
+    assert!(
+        refused <= 2,
+        "{refused} requests refused as too many operations"
+    );
+    gw.shutdown().await;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_server_behind_a_port_mapping_is_dialled_where_configured() -> anyhow::Result<()> {
     let dir = temp_dir("ua-mapped");
     let server = NodeUa::start(dir.join("server-pki"), &["--many", "3"]).await?;
@@ -160,6 +182,10 @@ async fn a_trusted_certificate_listing_its_dns_name_first_is_accepted() -> anyho
     let dir = temp_dir("ua-dns-first");
     let server = NodeUa::start(dir.join("server-pki"), &["--many", "3", "--secure"]).await?;
     let url = format!("opc.tcp://{}:{}/UA/Peer", host_name()?, server.port);
+    let gw = secure(&dir, &server, &url, "").await?;
+    all_good(&gw, "a", 3).await?;
+    gw.shutdown().await;
+    // Started again: the key pair made the first time is read from the PKI directory.
     let gw = secure(&dir, &server, &url, "").await?;
     all_good(&gw, "a", 3).await?;
     gw.shutdown().await;

@@ -59,6 +59,20 @@ async fn every_type_is_written_and_a_bit_leaves_its_neighbours() -> anyhow::Resu
         assert!(why.contains(says), "{name}: {why}");
     }
     assert_eq!(plc.dump("DB 1", 64, 8).await?, "14066c696e652032");
+    // A STRING holds characters of one byte: 20 accented ones fit STRING[20], a euro sign
+    // (no Latin-1 byte) is refused at once.
+    let accented = "é".repeat(20);
+    let outcome = put(&gw, "press240", "Str", json!(accented)).await?;
+    assert!(
+        outcome.as_ref().is_ok_and(|o| o["status"] == "written"),
+        "{outcome:?}"
+    );
+    assert_eq!(plc.dump("DB 1", 64, 4).await?, "1414e9e9");
+    let euro = put(&gw, "press240", "Str", json!("5 €")).await?;
+    assert!(
+        euro.as_ref().is_err_and(|e| e.contains("Latin-1")),
+        "{euro:?}"
+    );
     gw.shutdown().await;
     plc.kill().await
 }

@@ -190,7 +190,7 @@ impl CertificateStore {
         use x509_cert::der::pem::PemLabel;
         let doc = pkey.to_der().unwrap();
         let pem = doc
-            .to_pem(rsa::pkcs8::PrivateKeyInfo::PEM_LABEL, pkcs8::LineEnding::CR)
+            .to_pem(rsa::pkcs8::PrivateKeyInfo::PEM_LABEL, pkcs8::LineEnding::LF)
             .unwrap();
         let _ = CertificateStore::write_to_file(pem.as_bytes(), pkey_path, overwrite)?;
         Ok((cert, pkey))

@@ -47,6 +47,22 @@ impl Device {
             }
             return Ok(None);
         }
+        if field.register.kind == RegisterKind::Point {
+            // A point's STRING length counts characters (an S7 STRING holds one byte a
+            // Latin-1 character); the protocol checks the rest before sending.
+            if let Value::String(s) = value {
+                let max = field
+                    .point
+                    .as_ref()
+                    .and_then(|p| p.length)
+                    .map_or(usize::from(field.register.word_count) * 2, usize::from);
+                let len = s.chars().count();
+                if len > max {
+                    return Err(invalid(CodecError::TooManyCharacters { len, max }));
+                }
+                return Ok(None);
+            }
+        }
         let registers = field.encoding.encode(value).map_err(invalid)?;
         let stored_as_registers = field.register.kind == RegisterKind::HoldingRegister
             && !matches!(field.encoding.raw, crate::codec::Raw::RegisterBit(_));

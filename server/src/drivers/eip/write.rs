@@ -82,10 +82,7 @@ impl Controller {
             .partition(|(k, _, _)| ready[*k].service == cip::READ_MODIFY_WRITE);
         let mut packets: Vec<Vec<usize>> = match self.single {
             true => words.iter().map(|(k, _, _)| vec![*k]).collect(),
-            false => crate::plan::eip::packets(&words, self.conn.message_limit())
-                .into_iter()
-                .map(|p| p.into_iter().map(|i| words[i].0).collect())
-                .collect(),
+            false => crate::plan::eip::packets(&words, self.conn.message_limit()),
         };
         packets.extend(bits.iter().map(|(k, _, _)| vec![*k]));
         for (p, packet) in packets.iter().enumerate() {

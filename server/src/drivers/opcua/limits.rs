@@ -114,11 +114,20 @@ pub(crate) async fn read(session: &opcua::client::Session) -> Limits {
         .iter()
         .map(|s| ReadValueId::from(opcua::types::NodeId::from(s.limit())))
         .collect();
-    let values = session
-        .read(&asked, TimestampsToReturn::Neither, 0.0)
-        .await
-        .unwrap_or_default();
-    let values: Vec<Option<u32>> = values.iter().map(number).collect();
+    // All five in one Read; a server that takes fewer nodes a Read is asked one at a time.
+    let values = match session.read(&asked, TimestampsToReturn::Neither, 0.0).await {
+        Ok(values) => values.iter().map(number).collect(),
+        Err(_) => {
+            let mut values = Vec::with_capacity(asked.len());
+            for one in &asked {
+                let read = session
+                    .read(std::slice::from_ref(one), TimestampsToReturn::Neither, 0.0)
+                    .await;
+                values.push(read.ok().and_then(|v| v.first().and_then(number)));
+            }
+            values
+        }
+    };
     Limits::published(&values)
 }
 

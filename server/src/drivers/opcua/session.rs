@@ -97,6 +97,11 @@ fn identity(user: &User) -> Result<IdentityToken, String> {
 /// The client, its certificate made (or read) in the PKI directory and the trusted server
 /// certificates put in its `trusted` folder.
 fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
+    // Links sharing a PKI directory make its key pair once, not each a half of one.
+    static MAKING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _making = MAKING
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let trusted_dir = settings.pki_dir.join("trusted");
     if !settings.trusted.is_empty() {
         std::fs::create_dir_all(&trusted_dir)
@@ -123,6 +128,11 @@ fn client(settings: &Settings) -> Result<opcua::client::Client, String> {
         _ if made.0.exists() && made.1.exists() => Some(made),
         _ => None,
     };
+    // A key that cannot be read is named here, not met by the secure channel.
+    if let Some((_, key)) = given.as_ref().filter(|_| secure) {
+        CertificateStore::read_pkey(key)
+            .map_err(|e| format!("the application's private key {}: {e}", key.display()))?;
+    }
     let mut builder = ClientBuilder::new()
         .application_name("iogate")
         .application_uri("urn:iogate:client")

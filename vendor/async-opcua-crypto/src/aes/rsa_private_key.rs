@@ -144,6 +144,10 @@ impl PrivateKey {
         match converted {
             Err(_) => Err(PKeyError),
             Ok(pem) => {
+                // Keys written with CR line endings (as this crate once wrote them) read as
+                // any other.
+                let pem = pem.replace("\r\n", "\n").replace('\r', "\n");
+                let pem = pem.as_str();
                 let r = RsaPrivateKey::from_pkcs8_pem(pem);
                 match r {
                     Err(_) => {

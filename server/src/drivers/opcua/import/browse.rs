@@ -155,12 +155,26 @@ async fn all_of(
     let server: NodeId = ObjectId::Server.into();
     let mut refs = Vec::new();
     let mut result = first;
+    let mut pages = 0;
     loop {
+        let got = result.references.as_ref().map_or(0, Vec::len);
         refs.extend(result.references.into_iter().flatten().filter(|r| {
             r.reference_type_id != ReferenceTypeId::HasProperty && r.node_id.node_id != server
         }));
         if result.continuation_point.is_null() {
             return Ok(refs);
+        }
+        // A server whose pages do not go forward is an error, not a loop.
+        pages += 1;
+        if got == 0 || refs.len() > MAX_NODES {
+            let _ = conn
+                .session
+                .browse_next(true, std::slice::from_ref(&result.continuation_point))
+                .await;
+            return Err(format!(
+                "the server's browse did not go forward (page {pages} of a node: {got} references, {} in all)",
+                refs.len()
+            ));
         }
         conn.started();
         let next = conn
