@@ -317,13 +317,12 @@ async fn a_scan_of_a_configured_link_runs_between_polls_and_reports_over_rest() 
         done["devices"][1]["profiles"][0]["profile"],
         "WaveshareAnalogInput"
     );
-    // Two profiles fit slave 7 and nothing tells which: none is offered, both are named
-    // with what each answered.
+    // Two profiles fit slave 7: the one with more probe reads answered is offered, the
+    // other named with what it answered.
     assert!(
         done["config"].as_str().is_some_and(|c| {
-            !c.contains("link: line, slave_id: 7")
-                && c.contains("slave 7 on line: 2 profiles fit")
-                && c.contains("WaveshareAnalogInput (2 probe read(s) answered)")
+            c.contains("profile: WaveshareAnalogInput, link: line, slave_id: 7")
+                && c.contains("also fits: EastronSDM630 (1 probe read(s) answered)")
         }),
         "{done:#}"
     );

@@ -136,13 +136,17 @@ fn entry_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
     }
     let (telling, shape): (Vec<&super::Suggestion>, Vec<&super::Suggestion>) =
         d.profiles.iter().partition(|s| s.telling);
-    // Several fit and nothing (an identification) tells which: none is offered.
+    // Several fit: an identification tells which, else the most probe reads answered; a
+    // tie is none offered, each named with what it answered.
     let identified: Vec<&&super::Suggestion> = telling.iter().filter(|s| s.identified).collect();
-    let best = match (identified.as_slice(), telling.as_slice()) {
-        ([one], _) => Some(**one),
-        (_, [one]) => Some(*one),
-        (_, []) => None,
-        (_, several) => {
+    let most = telling.iter().map(|s| s.probes).max().unwrap_or(0);
+    let top: Vec<&&super::Suggestion> = telling.iter().filter(|s| s.probes == most).collect();
+    let best = match (identified.as_slice(), top.as_slice(), telling.as_slice()) {
+        ([one], _, _) => Some(**one),
+        (_, _, [one]) => Some(*one),
+        (_, _, []) => None,
+        ([], [one], _) => Some(**one),
+        (_, _, several) => {
             let why: Vec<String> = several
                 .iter()
                 .map(|s| format!("{} ({} probe read(s) answered)", s.profile, s.probes))
@@ -180,8 +184,17 @@ fn entry_lines(d: &Found, link: &str, names: &mut Vec<String>) -> String {
         super::matching::named_entry(&name, &best.profile, link, slave)
     );
     if !others.is_empty() {
-        let names: Vec<&str> = others.iter().map(|s| s.profile.as_str()).collect();
-        let _ = write!(out, "\n  #   also fits: {}", names.join(", "));
+        let names: Vec<String> = others
+            .iter()
+            .map(|s| format!("{} ({} probe read(s) answered)", s.profile, s.probes))
+            .collect();
+        let _ = write!(
+            out,
+            "\n  #   also fits: {} (chosen: {} probe read(s) answered{})",
+            names.join(", "),
+            best.probes,
+            if best.identified { ", identified" } else { "" }
+        );
     }
     out
 }
@@ -380,7 +393,16 @@ mod tests {
         let text = config(std::slice::from_ref(&d), Some("/dev/ttyUSB0"), "line");
         assert!(text.contains("profile: GenericIo"), "{text}");
         assert!(
-            text.contains("also fits: WaveshareAnalogInput, SimIo"),
+            text.contains("also fits: WaveshareAnalogInput (1 probe read(s) answered), SimIo"),
+            "{text}"
+        );
+        // Without it, the most probe reads answered tells.
+        d.profiles[1].identified = false;
+        d.profiles[2].probes = 3;
+        let text = config(std::slice::from_ref(&d), Some("/dev/ttyUSB0"), "line");
+        assert!(text.contains("profile: SimIo"), "{text}");
+        assert!(
+            text.contains("(chosen: 3 probe read(s) answered)"),
             "{text}"
         );
         // A device whose answers were sometimes garbled is offered with a warning.
