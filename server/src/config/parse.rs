@@ -331,7 +331,14 @@ fn read_driver(
         report.push(node.line, &ctx, format!("missing required key `{at}`"));
         return None;
     };
-    let endpoint = value.scalar_text(report, &format!("{ctx}.{at}"))?;
+    let mut endpoint = value.scalar_text(report, &format!("{ctx}.{at}"))?;
+    // Where the link goes, with the port its settings give (an S7 PLC or a Logix controller
+    // on another port than the protocol's).
+    if let Some((_, port)) = entries.iter().find(|(k, _)| k.name == "port")
+        && let yaml::Kind::Int(p) = &port.kind
+    {
+        endpoint = format!("{endpoint}:{p}");
+    }
     let base = std::path::Path::new(report.file())
         .parent()
         .map(std::path::Path::to_path_buf)
