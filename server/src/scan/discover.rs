@@ -5,7 +5,8 @@ use std::sync::Arc;
 
 use super::Prober;
 use super::judge::{self, Heard};
-use super::{Found, Identification, ReadAnswer, ScanError, Setting, ident, matching};
+use super::probe::{read, read_pdu};
+use super::{Found, Identification, ScanError, Setting, ident, matching};
 use crate::profile::{Profile, RegisterKind};
 
 /// The discovery probe (FC 03, address 0, one register): any answer, data or exception,
@@ -80,27 +81,6 @@ pub(super) enum Discovered {
     /// Only an answer as another id (the one given): a device that answers with an id of
     /// its own whatever is asked.
     Foreign(u8),
-}
-
-/// One read of `count` at `address` of `kind`; a second answer is a collision.
-pub(super) async fn read(
-    prober: &mut dyn Prober,
-    id: u8,
-    kind: RegisterKind,
-    address: u16,
-    count: u16,
-) -> Result<(ReadAnswer, Option<String>), ScanError> {
-    let pdu = read_pdu(kind, address, count);
-    let heard = judge::judge(&prober.probe(id, &pdu, true).await?, id, pdu[0]);
-    let two = matches!(heard, Heard::Two(_)).then(|| "two answers to one request".to_owned());
-    Ok((judge::read_answer(kind, address, count, &heard), two))
-}
-
-/// The request PDU of a read.
-fn read_pdu(kind: RegisterKind, address: u16, count: u16) -> Vec<u8> {
-    let mut pdu = Vec::with_capacity(5);
-    crate::plan::read_request(kind, address, count).encode(&mut pdu);
-    pdu
 }
 
 /// FC 43 / MEI 14: the basic objects, then the regular ones where the device offers them,

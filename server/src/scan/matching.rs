@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use super::discover::read;
+use super::probe::read;
 use super::{Found, Prober, ReadAnswer, ScanError, Suggestion};
 use crate::profile::{ProbeRead, Profile, Protocol, RegisterKind};
 

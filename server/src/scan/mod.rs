@@ -12,6 +12,7 @@ use discover::{Discovered, discover};
 mod judge;
 pub mod matching;
 pub mod port;
+mod probe;
 pub mod report;
 
 use std::sync::Arc;
