@@ -6,13 +6,13 @@ pub mod codec;
 
 /// The generated code of `iogate/v1/gateway.proto`.
 pub mod pb {
-    #![allow(clippy::all, missing_docs)]
+    #![allow(clippy::all, clippy::too_many_lines, missing_docs)]
     tonic::include_proto!("iogate.v1");
 }
 
 /// The Sparkplug B payload (specification 3.0.0, package `org.eclipse.tahu.protobuf`).
 pub mod sparkplug {
-    #![allow(clippy::all, missing_docs)]
+    #![allow(clippy::all, clippy::too_many_lines, missing_docs)]
     include!(concat!(env!("OUT_DIR"), "/org.eclipse.tahu.protobuf.rs"));
 }
 

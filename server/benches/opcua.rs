@@ -14,6 +14,7 @@
 //! shortest, 10 ms; sampling interval 0).
 //!
 //! `cargo bench -p iogate --bench opcua`
+#![allow(clippy::too_many_lines)]
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};

@@ -83,6 +83,7 @@ pub fn json_write(data: &[u8]) {
 
 /// A configuration file.
 pub fn config_yaml(data: &[u8]) {
+    crate::drivers::register();
     if let Ok(text) = std::str::from_utf8(data)
         && let Ok(config) = crate::config::parse("fuzz.yaml", text)
     {
@@ -92,6 +93,7 @@ pub fn config_yaml(data: &[u8]) {
 
 /// A profile.
 pub fn profile_yaml(data: &[u8]) {
+    crate::drivers::register();
     if let Ok(text) = std::str::from_utf8(data) {
         let _ = crate::profile::load_str("fuzz.yaml", text);
     }
@@ -175,7 +177,7 @@ pub fn opcua_binary(data: &[u8]) {
         0 => {
             if let Ok(dv) = DataValue::decode(&mut s, &ctx) {
                 for ty in IecType::ALL {
-                    let _ = crate::drivers::opcua::variant::reading(ty, 64, &dv);
+                    let _ = crate::opcua_variant::reading(ty, 64, &dv);
                 }
             }
         }

@@ -175,6 +175,7 @@ fn log_filter() -> Result<tracing_subscriber::EnvFilter, String> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    iogate::drivers::register();
     let filter = match log_filter() {
         Ok(filter) => filter,
         Err(message) => {
@@ -204,9 +205,13 @@ fn main() -> ExitCode {
             },
     }) = &cli.command
     {
+        let options: Vec<(&'static str, &str)> = [("--node", node), ("--path", path)]
+            .into_iter()
+            .filter_map(|(flag, v)| Some((flag, v.as_deref()?)))
+            .collect();
         return ExitCode::from(iogate::drivers::import::run(
             from.as_deref(),
-            (node.as_deref(), path.as_deref()),
+            &options,
             out.as_deref(),
             files,
         ));

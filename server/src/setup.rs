@@ -77,6 +77,7 @@ impl Setup {
     }
 
     pub fn demo() -> Result<Setup, Problems> {
+        crate::drivers::register();
         let (mut config, catalog) = crate::demo::load()?;
         let problems = crate::front_ends::read_sections(&mut config);
         if !problems.is_empty() {
@@ -95,6 +96,7 @@ impl Setup {
     /// The demo without its field line: only the simulated devices `sim` and `plant` (what
     /// the tests of simulated devices and the benchmarks start).
     pub fn demo_simulated() -> Result<Setup, Problems> {
+        crate::drivers::register();
         let mut setup = Setup::demo()?;
         setup.config.links.clear();
         setup.config.devices.retain(|d| d.link.is_none());
@@ -115,6 +117,7 @@ impl Setup {
     /// Every problem of every file is reported: what could not be read is left out of the
     /// checks that follow, and the rest is still checked.
     pub fn from_file(path: &Path) -> Result<Setup, Problems> {
+        crate::drivers::register();
         let (config, mut problems) = Config::load_partial(path);
         let Some(config) = config else {
             return Err(problems);

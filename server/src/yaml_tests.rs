@@ -66,6 +66,7 @@ fn empty_document_is_null() {
 
 #[test]
 fn a_profile_of_fifty_thousand_fields_is_read_and_a_larger_file_named_so() {
+    crate::drivers::register();
     let mut text = String::from("name: Big\nprotocol: opcua\nfields:\n");
     for k in 0..50_000 {
         text.push_str(&format!(

@@ -2,6 +2,7 @@
 //! (asyncua, an independent implementation) connects and reads, and so does the gateway's
 //! own OPC UA client on a link without security, and the log says nothing about
 //! certificates neither side has by design, nor warns of anything.
+#![allow(clippy::too_many_lines)]
 
 mod common;
 

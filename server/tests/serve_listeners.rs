@@ -1,5 +1,6 @@
 //! `iogate serve` moves its listeners from the command line: the demo on ports of its own
 //! when the usual ones are taken, port 0 for any free one, printed as bound.
+#![allow(clippy::too_many_lines)]
 
 mod common;
 

@@ -126,6 +126,7 @@ pub fn test_setup(config_yaml: &str) -> anyhow::Result<Setup> {
 }
 
 fn setup_on(config_yaml: &str, http: std::net::SocketAddr) -> anyhow::Result<Setup> {
+    iogate::drivers::register();
     let mut config =
         iogate::config::parse("test.yaml", config_yaml).map_err(|p| anyhow::anyhow!("{p}"))?;
     config.http = http;

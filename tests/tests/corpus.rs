@@ -81,6 +81,7 @@ fn every_broken_profile_names_its_problems_and_lines() {
     for path in yaml_files("bad_profiles") {
         let text = std::fs::read_to_string(&path).expect("readable");
         let name = path.display().to_string();
+        iogate::drivers::register();
         match iogate::profile::load_str(&name, &text) {
             Ok(p) => panic!("{name} loaded as {}", p.name),
             Err(problems) => check(&path, &problems),
@@ -100,6 +101,7 @@ fn every_broken_config_names_its_problems_and_lines() {
 
 #[test]
 fn a_directory_with_one_broken_profile_loads_nothing() {
+    iogate::drivers::register();
     let problems = iogate::profile::load_dir(&fixtures_dir().join("bad_profiles"))
         .expect_err("broken profiles");
     let files: std::collections::BTreeSet<_> = problems.iter().map(|p| p.file.clone()).collect();
@@ -112,6 +114,7 @@ fn a_directory_with_one_broken_profile_loads_nothing() {
 
 #[test]
 fn every_shipped_profile_loads() {
+    iogate::drivers::register();
     let profiles =
         iogate::profile::load_dir(&iogate_tests::profiles_dir()).expect("profiles/ is valid");
     let names: Vec<_> = profiles.iter().map(|p| p.name.as_str()).collect();

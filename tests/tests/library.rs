@@ -8,6 +8,7 @@ use serde_json::Value;
 
 /// The profile names of `profiles/` whose description cites a register map.
 fn cited() -> Vec<String> {
+    iogate::drivers::register();
     let mut names: Vec<String> = iogate::profile::load_dir(&profiles_dir())
         .expect("profiles load")
         .into_iter()

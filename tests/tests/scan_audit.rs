@@ -13,6 +13,7 @@ use serde_json::json;
 use tokio_util::sync::CancellationToken;
 
 fn profiles() -> Vec<Arc<iogate::profile::Profile>> {
+    iogate::drivers::register();
     iogate::profile::load_dir(&iogate_tests::profiles_dir())
         .expect("profiles load")
         .into_iter()

@@ -203,7 +203,7 @@ impl Device {
                         false
                     });
                 }
-                kept.push((before, idx, same_registers));
+                kept.push((before, idx));
             }
         }
         if next.is_simulated() == old.is_simulated() {
@@ -221,7 +221,7 @@ impl Device {
         if let (Some(from), Some(to)) = (&old.sim, &next.sim) {
             let from = lock(from);
             let mut to = lock(to);
-            for &(before, idx, _) in &kept {
+            for &(before, idx) in &kept {
                 to[idx] = from[before].clone();
             }
         }

@@ -86,23 +86,17 @@ impl From<TxError> for WriteError {
 }
 
 /// A value checked for a field of a device: the field is writable, the value of its type and
-/// within its raw register after scaling. Only [`super::Device::check_write`] makes one, and it
-/// carries the registers the value becomes, so the write path encodes a value once.
+/// within its raw register after scaling. Only [`super::Device::check_write`] makes one.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Checked {
     idx: usize,
     value: Value,
-    registers: Option<Vec<u16>>,
 }
 
 impl Checked {
     /// Made by [`super::Device::check_write`] only (the cache's own constructor).
-    pub(super) fn new(idx: usize, value: Value, registers: Option<Vec<u16>>) -> Checked {
-        Checked {
-            idx,
-            value,
-            registers,
-        }
+    pub(super) fn new(idx: usize, value: Value) -> Checked {
+        Checked { idx, value }
     }
 
     /// The field's index in its profile.
@@ -114,10 +108,9 @@ impl Checked {
         &self.value
     }
 
-    /// The value and the registers it becomes (`None` for a coil, a bit in a register or a
-    /// simulated field).
-    pub(crate) fn into_parts(self) -> (usize, Value, Option<Vec<u16>>) {
-        (self.idx, self.value, self.registers)
+    /// The field's index and the value.
+    pub(crate) fn into_parts(self) -> (usize, Value) {
+        (self.idx, self.value)
     }
 }
 
@@ -127,16 +120,12 @@ pub(crate) struct TakenWrite {
     pub(crate) field: usize,
     pub(crate) generation: u64,
     pub(crate) value: Value,
-    /// The registers the value becomes, when its check made them (a client's write).
-    pub(crate) registers: Option<Vec<u16>>,
 }
 
 #[derive(Debug, Default)]
 struct WriteSlot {
     /// The newest requested value not yet taken by the link.
     pending: Option<(u64, Value)>,
-    /// The registers the pending value becomes, when its check made them.
-    encoded: Option<Vec<u16>>,
     /// The newest value ever requested, written again after a reconnect.
     latest: Option<Value>,
     /// The generation of the newest write.
@@ -193,17 +182,15 @@ impl Outputs {
     }
 
     /// Takes over the slots of `old`'s fields that a re-planned device keeps (`(old index,
-    /// new index, same registers)`): the pending write (its registers only when the field
-    /// is stored the same way), the newest requested value (not when the device `moved` to
+    /// new index)`): the pending write, the newest requested value (not when the device `moved` to
     /// another link or slave id), the newest generation and its writer. A write on the bus stays `old`'s to finish. Requests to `old` are refused
     /// from now on (they go to the successor).
-    pub(crate) fn take_over(&self, old: &Outputs, kept: &[(usize, usize, bool)], moved: bool) {
+    pub(crate) fn take_over(&self, old: &Outputs, kept: &[(usize, usize)], moved: bool) {
         let mut from = lock(&old.slots);
         let mut to = lock(&self.slots);
-        for &(before, idx, same_registers) in kept {
+        for &(before, idx) in kept {
             let (s, t) = (&mut from[before], &mut to[idx]);
             t.pending = s.pending.take();
-            t.encoded = s.encoded.take().filter(|_| same_registers);
             // What was asked of the old place is not the new place's desired value (a write
             // still waiting goes on: it was asked of the device by name).
             t.latest = if moved {
@@ -243,8 +230,6 @@ impl Outputs {
         if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
             self.log.finish(old, WriteStatus::Superseded, None);
         }
-        // The gateway's own value is encoded when it is planned.
-        slot.encoded = None;
         slot.lost_at_write = 0;
         (slot.reached, slot.left) = (false, false);
         slot.latest = Some(value);
@@ -270,13 +255,12 @@ impl Outputs {
         Ok(writes
             .into_iter()
             .map(|(field, checked)| {
-                let (idx, value, registers) = checked.into_parts();
+                let (idx, value) = checked.into_parts();
                 let slot = &mut slots[idx];
                 let generation = self.log.begin_from(device, field, value.clone(), origin);
                 if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
                     self.log.finish(old, WriteStatus::Superseded, None);
                 }
-                slot.encoded = registers;
                 slot.lost_at_write = 0;
                 (slot.reached, slot.left) = (false, false);
                 slot.latest = Some(value);
@@ -315,7 +299,6 @@ impl Outputs {
                     field,
                     generation,
                     value,
-                    registers: slot.encoded.take(),
                 })
             })
             .collect()

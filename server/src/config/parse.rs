@@ -255,7 +255,7 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     let (name, ctx) = name_of(&mut map, report, "link", index);
     let serial = map.get("serial");
     let tcp = map.get("tcp");
-    let driver = crate::profile::DRIVERS
+    let driver = crate::profile::drivers()
         .iter()
         .find_map(|w| map.get(w.link_key).map(|n| (w.link_key, w.link_at, n)));
     let guard_time = map.get("guard_time").map_or(Some(Duration::ZERO), |n| {
@@ -266,7 +266,7 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
     let keys: Vec<&str> = LINK_KEYS
         .iter()
         .copied()
-        .chain(crate::profile::DRIVERS.iter().map(|w| w.link_key))
+        .chain(crate::profile::drivers().iter().map(|w| w.link_key))
         .collect();
     map.finish(report, &ctx, &keys);
     let transport = match (serial, tcp, driver) {
@@ -283,7 +283,7 @@ fn read_link(node: &Node, index: usize, report: &mut Report) -> Option<LinkConfi
                 &ctx,
                 format!(
                     "a link needs `serial` or `tcp` settings (or {})",
-                    crate::profile::DRIVERS
+                    crate::profile::drivers()
                         .iter()
                         .map(|w| format!("`{}` for a {} device", w.link_key, w.protocol))
                         .collect::<Vec<_>>()

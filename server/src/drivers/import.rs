@@ -1,13 +1,15 @@
-//! `iogate profile import`: files (wb-mqtt-serial templates, EdgeX profiles), an OPC UA
-//! server (`--from opcua URL [--node ROOT]`) or a Logix controller (`--from eip
-//! HOST[:PORT] [--path ROUTE]`); each option checked against the source it is for.
+//! `iogate profile import`: files (wb-mqtt-serial templates, EdgeX profiles), or a live
+//! device through the driver whose import `--from` names (an OPC UA server, a Logix
+//! controller); each option checked against the import it is for.
 
 use std::path::{Path, PathBuf};
+
+use super::{Driver, ForDriver, IMPORTS, ImportOptions, for_import};
 
 /// Runs the import; its exit code (64: a bad argument).
 pub fn run(
     from: Option<&str>,
-    (node, path): (Option<&str>, Option<&str>),
+    options: &ImportOptions<'_>,
     out: Option<&Path>,
     files: &[PathBuf],
 ) -> u8 {
@@ -15,19 +17,29 @@ pub fn run(
         eprintln!("iogate profile import{why}");
         crate::EXIT_CONFIG as u8
     };
-    if path.is_some() && from != Some("eip") {
-        return bad(": --path is for --from eip");
+    let chosen = IMPORTS.iter().flatten().find(|i| Some(i.from) == from);
+    for (flag, _) in options {
+        if chosen.is_none_or(|i| !i.options.contains(flag)) {
+            let owner = IMPORTS.iter().flatten().find(|i| i.options.contains(flag));
+            return bad(&match owner {
+                Some(i) => format!(": {flag} is for --from {}", i.from),
+                None => format!(": {flag} is for no import"),
+            });
+        }
     }
-    match from {
-        Some("eip") => match (files, node) {
-            ([host], None) => super::eip::import::run(&host.to_string_lossy(), path, out),
-            _ => bad(" --from eip: give one controller, HOST or HOST:PORT (no --node)"),
-        },
-        Some("opcua") => match files {
-            [url] => super::opcua::import::run(&url.to_string_lossy(), node, out),
-            _ => bad(" --from opcua: give one endpoint URL"),
-        },
-        _ if node.is_some() => bad(": --node is for --from opcua"),
-        _ => crate::profile::import::run(files, from, out),
+    let Some(import) = chosen else {
+        return crate::profile::import::run(files, from, out);
+    };
+    let [source] = files else {
+        return bad(&format!(" --from {}: give {}", import.from, import.source));
+    };
+    struct Run<'a>(&'a str, &'a ImportOptions<'a>, Option<&'a Path>);
+    impl ForDriver for Run<'_> {
+        type Output = u8;
+        fn with<D: Driver>(self) -> u8 {
+            D::import(self.0, self.1, self.2)
+        }
     }
+    let source = source.to_string_lossy();
+    for_import(import.from, Run(&source, options, out)).unwrap_or(crate::EXIT_CONFIG as u8)
 }

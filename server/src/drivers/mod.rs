@@ -13,6 +13,7 @@
 //! (`LinkFault`, through the `Result` of each call: an error ends the session) and the
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
+pub(crate) mod describe;
 pub mod eip;
 pub mod import;
 pub(crate) mod modbus;
@@ -24,10 +25,75 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crate::cache::{Device, FieldError, Link, Passthrough, PassthroughError, Probe, WriteError};
-use crate::config::LinkConfig;
+use crate::codec::Value;
+use crate::config::{DeviceConfig, DriverLink, LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
-use crate::plan::WriteItem;
+use crate::profile::{Profile, Protocol, Words};
+
+/// The drivers, one line each: the link tasks choose among them by a link's settings
+/// ([`with_driver`]), the profiles' checks by a profile's protocol ([`for_protocol`]), and
+/// configuration learns their words from them ([`register`]).
+macro_rules! drivers {
+    ($($driver:ty),* $(,)?) => {
+        /// The drivers: `f` done with the one that serves a link configured so.
+        pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::Output> {
+            $(if <$driver as Driver>::serves(config) {
+                return Some(f.with::<$driver>());
+            })*
+            None
+        }
+
+        /// The drivers: `f` done with the one whose devices speak `protocol`.
+        pub(crate) fn for_protocol<F: ForDriver>(protocol: Protocol, f: F) -> Option<F::Output> {
+            $(if <$driver as Driver>::speaks(protocol) {
+                return Some(f.with::<$driver>());
+            })*
+            None
+        }
+
+        /// The drivers: `f` done with the one a live import `--from` names.
+        pub(crate) fn for_import<F: ForDriver>(from: &str, f: F) -> Option<F::Output> {
+            $(if <$driver as Driver>::IMPORT.is_some_and(|i| i.from == from) {
+                return Some(f.with::<$driver>());
+            })*
+            None
+        }
+
+        /// The live imports of every driver that has one.
+        const IMPORTS: &[Option<Import>] = &[$(<$driver as Driver>::IMPORT),*];
+
+        /// The words each driver adds to configuration.
+        const WORDS: &[Option<&'static Words>] = &[$(<$driver as Driver>::WORDS),*];
+    };
+}
+
+drivers![modbus::Modbus, opcua::OpcUa, s7::S7, eip::Eip,];
+
+/// Makes the drivers' words known to configuration (profiles' `protocol`, their fields'
+/// point keys, the links' settings keys), which is read below the drivers and so cannot
+/// ask them itself. Done once, before any configuration is read (`Setup::load`, the
+/// command line, the fuzz targets); again, it does nothing.
+pub fn register() {
+    static KNOWN: std::sync::LazyLock<Vec<&'static Words>> =
+        std::sync::LazyLock::new(|| WORDS.iter().flatten().copied().collect());
+    crate::profile::know(&KNOWN);
+}
+
+/// `iogate profile import --from FROM SOURCE`: a driver's import of a live device's
+/// profile (a server's variables, a controller's tags).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Import {
+    /// The word `--from` names it by.
+    pub(crate) from: &'static str,
+    /// The options it takes besides `--out` (`--node`).
+    pub(crate) options: &'static [&'static str],
+    /// What it takes as its one source, for the message when it is given another.
+    pub(crate) source: &'static str,
+}
+
+/// The options given to an import, by flag (`--node`), each with its value.
+pub type ImportOptions<'a> = [(&'static str, &'a str)];
 
 /// Something done with the driver of a link, whichever it is.
 pub(crate) trait ForDriver {
@@ -35,34 +101,27 @@ pub(crate) trait ForDriver {
     fn with<D: Driver>(self) -> Self::Output;
 }
 
-/// The drivers: `f` done with the one that serves a link configured so.
-pub(crate) fn with_driver<F: ForDriver>(config: &LinkConfig, f: F) -> Option<F::Output> {
-    if modbus::Modbus::serves(config) {
-        return Some(f.with::<modbus::Modbus>());
-    }
-    if opcua::OpcUa::serves(config) {
-        return Some(f.with::<opcua::OpcUa>());
-    }
-    if s7::S7::serves(config) {
-        return Some(f.with::<s7::S7>());
-    }
-    if eip::Eip::serves(config) {
-        return Some(f.with::<eip::Eip>());
-    }
-    None
+/// A value to put on a device: a client's write (with its generation) or the latest value
+/// written again after a reconnect (without). Each driver makes its protocol's request of
+/// it (Modbus its registers, S7 its bytes).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct WriteItem {
+    pub(crate) field: usize,
+    pub(crate) value: Value,
+    pub(crate) generation: Option<u64>,
 }
 
 /// Whether the device's protocol can hold `value` where field `idx` is (a write refused
 /// before it is sent is refused at once, with why, not accepted and then failed).
-pub(crate) fn check_value(
-    device: &crate::cache::Device,
-    idx: usize,
-    value: &crate::codec::Value,
-) -> Result<(), String> {
-    match device.profile.protocol.name() {
-        s7::PROTOCOL => s7::check_value(device, idx, value),
-        _ => Ok(()),
+pub(crate) fn check_value(device: &Device, idx: usize, value: &Value) -> Result<(), String> {
+    struct Check<'a>(&'a Device, usize, &'a Value);
+    impl ForDriver for Check<'_> {
+        type Output = Result<(), String>;
+        fn with<D: Driver>(self) -> Result<(), String> {
+            D::check_value(self.0, self.1, self.2)
+        }
     }
+    for_protocol(device.profile.protocol, Check(device, idx, value)).unwrap_or(Ok(()))
 }
 
 /// What `check` finds wrong with the links' settings that their drivers read.
@@ -97,6 +156,32 @@ pub(crate) fn link_warnings(config: &crate::config::Config) -> Vec<crate::yaml::
     report.into_problems().0
 }
 
+/// A link's devices, each with its profile, as `iogate plan` is given them.
+pub type Planned<'a> = [(&'a DeviceConfig, &'a Profile)];
+
+/// What a link's peer told of itself (`Link::peer`): named values.
+pub type Facts = [(&'static str, String)];
+
+/// What `iogate plan` prints under a link's line: how its driver reads its devices (with
+/// what the peer told of itself, for a running link; nothing offline), and the warnings
+/// `check` and `serve` print of its plan.
+pub(crate) fn describe(
+    link: &LinkConfig,
+    devices: &Planned<'_>,
+    peer: &Facts,
+    out: &mut String,
+) -> Vec<String> {
+    struct Describe<'a, 'b>(&'a LinkConfig, &'a Planned<'b>, &'a Facts, &'a mut String);
+    impl ForDriver for Describe<'_, '_> {
+        type Output = Vec<String>;
+        fn with<D: Driver>(self) -> Vec<String> {
+            D::describe(self.0, self.1, self.2, self.3);
+            D::plan_warnings(self.0, self.1)
+        }
+    }
+    with_driver(link, Describe(link, devices, peer, out)).unwrap_or_default()
+}
+
 /// A field protocol: how its links open and how a device's reads are planned.
 pub(crate) trait Driver: Send + Sized + 'static {
     /// What the driver keeps of a device between cycles and across reconnects (its
@@ -120,19 +205,91 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// devices are I/O modules that lose their outputs at power-up and nobody else writes.
     const REWRITES_OUTPUTS: bool = false;
 
-    /// Whether this driver serves a link configured so.
-    fn serves(config: &LinkConfig) -> bool;
+    /// Its words in configuration: its profiles' `protocol`, its fields' point key, its
+    /// links' settings key (`None`: Modbus, whose links are `serial` or `tcp` and whose
+    /// fields are registers).
+    const WORDS: Option<&'static Words> = None;
+
+    /// A link's settings as the driver reads them from its part of the configuration.
+    type Settings;
+
+    /// Reads a link's settings (`None` after reporting every problem in them).
+    fn read_settings(
+        link: &str,
+        d: &DriverLink,
+        report: &mut crate::yaml::Report,
+    ) -> Option<Self::Settings>;
+
+    /// Whether this driver serves a link configured so: its settings key's.
+    fn serves(config: &LinkConfig) -> bool {
+        Self::WORDS.is_some_and(
+            |w| matches!(&config.transport, Transport::Driver(d) if d.protocol == w.link_key),
+        )
+    }
+
+    /// Whether devices of a profile's protocol are this driver's.
+    fn speaks(protocol: Protocol) -> bool {
+        Self::WORDS.is_some() && protocol.words() == Self::WORDS
+    }
+
+    /// A link's settings, or why the link cannot open (what `iogate check` says of it
+    /// too).
+    fn settings(config: &LinkConfig) -> Result<Self::Settings, LinkFault> {
+        let Transport::Driver(d) = &config.transport else {
+            return Err(LinkFault::NoPort);
+        };
+        let mut report = crate::yaml::Report::new("config");
+        Self::read_settings(&config.name, d, &mut report).ok_or_else(|| LinkFault::OpenFailed {
+            port: d.endpoint.clone(),
+            reason: report.into_problems().to_string(),
+        })
+    }
 
     /// Reports what is wrong with a link's settings, as `check` does (the settings the
     /// config reader left to the driver, the files they name).
     fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
-        let _ = (config, report);
+        if let Transport::Driver(d) = &config.transport {
+            Self::read_settings(&config.name, d, report);
+        }
     }
 
     /// Reports what a link's settings allow that a user should know of (a check turned
     /// off), as `check` and `serve` warn.
     fn warn(config: &LinkConfig, report: &mut crate::yaml::Report) {
         let _ = (config, report);
+    }
+
+    /// Whether the protocol can hold `value` where field `idx` of a device is (beyond
+    /// the field's type, which is checked for every protocol).
+    fn check_value(device: &Device, idx: usize, value: &Value) -> Result<(), String> {
+        let _ = (device, idx, value);
+        Ok(())
+    }
+
+    /// What `iogate plan` prints of a link's devices under its line: by default each
+    /// field's point (a protocol the peer samples for the gateway, as OPC UA).
+    fn describe(link: &LinkConfig, devices: &Planned<'_>, peer: &Facts, out: &mut String) {
+        let _ = (link, peer);
+        for (d, profile) in devices {
+            describe::points(out, d, profile);
+        }
+    }
+
+    /// The warnings of `check` and `serve` about a link's plan (refresh rates that need
+    /// more than a line carries).
+    fn plan_warnings(link: &LinkConfig, devices: &Planned<'_>) -> Vec<String> {
+        let _ = (link, devices);
+        Vec::new()
+    }
+
+    /// Its live import (`iogate profile import --from ...`), where it has one.
+    const IMPORT: Option<Import> = None;
+
+    /// Imports a live device's profiles from `source` with the options given (only those
+    /// of [`Driver::IMPORT`]); the command's exit code.
+    fn import(source: &str, options: &ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
+        let _ = (source, options, out);
+        crate::EXIT_CONFIG as u8
     }
 
     /// Plans a device's reads from its profile.
@@ -154,22 +311,6 @@ pub(crate) trait Driver: Send + Sized + 'static {
         link: &Arc<Link>,
         metrics: &Arc<Metrics>,
     ) -> impl Future<Output = Result<Self::Session, LinkFault>> + Send;
-}
-
-/// A driver link's settings, as its `read` makes them from the link's configuration, or
-/// why the link cannot open (what `iogate check` says of it too).
-pub(crate) fn settings<S>(
-    config: &LinkConfig,
-    read: impl FnOnce(&str, &crate::config::DriverLink, &mut crate::yaml::Report) -> Option<S>,
-) -> Result<S, LinkFault> {
-    let crate::config::Transport::Driver(d) = &config.transport else {
-        return Err(LinkFault::NoPort);
-    };
-    let mut report = crate::yaml::Report::new("config");
-    read(&config.name, d, &mut report).ok_or_else(|| LinkFault::OpenFailed {
-        port: d.endpoint.clone(),
-        reason: report.into_problems().to_string(),
-    })
 }
 
 /// Finishes a write the driver took with its outcome, after `attempts` requests (a value

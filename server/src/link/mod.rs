@@ -47,18 +47,35 @@ pub enum LinkFault {
     #[error("cannot open {port}: {reason}")]
     OpenFailed { port: String, reason: String },
     #[error("cannot connect to {endpoint}: {reason}")]
-    ConnectFailed {
-        endpoint: String,
-        reason: Arc<io::Error>,
-    },
+    ConnectFailed { endpoint: String, reason: Cause },
     #[error("no connection within {0:?}")]
     ConnectTimeout(Duration),
     /// The open port or socket failed.
     #[error("link lost: {0}")]
-    Lost(Arc<io::Error>),
+    Lost(Cause),
 }
 
+/// Why a connection failed or was lost: the driver's own error (a socket's, or a
+/// protocol's: `S7Error`, `EipError`), kept as it is rather than as its text.
+pub type Cause = Arc<dyn std::error::Error + Send + Sync>;
+
 impl LinkFault {
+    /// The link lost, for a driver's reason.
+    pub(crate) fn lost(why: impl std::error::Error + Send + Sync + 'static) -> LinkFault {
+        LinkFault::Lost(Arc::new(why))
+    }
+
+    /// No connection to `endpoint`, for a driver's reason.
+    pub(crate) fn connect_failed(
+        endpoint: impl Into<String>,
+        why: impl std::error::Error + Send + Sync + 'static,
+    ) -> LinkFault {
+        LinkFault::ConnectFailed {
+            endpoint: endpoint.into(),
+            reason: Arc::new(why),
+        }
+    }
+
     pub(crate) fn code(&self) -> LinkCode {
         match self {
             LinkFault::NoPort => LinkCode::NoPort,

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use super::{Driven, Step};
 use crate::cache::{Device, WriteError};
+use crate::drivers::WriteItem;
 use crate::drivers::{Driver, Session};
-use crate::plan::WriteItem;
 
 /// The requested values again, after a reconnect or the device's return: each a write of
 /// its own in the log (origin `replay`), never an unrecorded one.
@@ -23,7 +23,6 @@ fn replayed(device: &Device, items: &mut Vec<WriteItem>) {
                 field,
                 value,
                 generation: Some(generation),
-                registers: None,
             });
         }
     }
@@ -35,7 +34,6 @@ impl From<crate::cache::TakenWrite> for WriteItem {
             field: w.field,
             value: w.value,
             generation: Some(w.generation),
-            registers: w.registers,
         }
     }
 }

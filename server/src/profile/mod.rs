@@ -1,18 +1,14 @@
 //! Device profiles: the model, loading with validation, and the generated FB layout.
 
 pub(crate) mod deadband;
-pub(crate) mod eip_tag;
 pub mod import;
 pub(crate) mod keywords;
 mod layout;
 mod load;
-pub(crate) mod point;
-pub(crate) mod s7_address;
-pub(crate) mod s7_form;
 mod words;
 
-pub(crate) use words::DRIVERS;
 pub use words::Words;
+pub(crate) use words::{drivers, know};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -45,7 +41,7 @@ impl Protocol {
             Protocol::Simulated,
         ]
         .into_iter()
-        .chain(DRIVERS.iter().map(Protocol::Driver))
+        .chain(drivers().iter().copied().map(Protocol::Driver))
         .collect()
     }
 
@@ -69,11 +65,6 @@ impl Protocol {
             Protocol::Driver(w) => Some(w),
             _ => None,
         }
-    }
-
-    /// The key of a field's point for a protocol whose fields name their points.
-    pub(crate) fn point_key(self) -> Option<&'static str> {
-        self.words().map(|w| w.point_key)
     }
 
     /// The key of the link settings a device of this protocol needs (none: `serial` or
@@ -405,6 +396,12 @@ pub(crate) fn load_catalog_partial(dir: &Path) -> (Catalog, Problems) {
     let mut catalog = Catalog::new(profiles);
     catalog.unreadable = unreadable;
     (catalog, problems)
+}
+
+/// A profile from field lines, for tests.
+#[cfg(test)]
+pub(crate) fn test_profile(fields: &str) -> Profile {
+    load_str("p.yaml", &format!("name: P\nfields:\n{fields}")).expect("profile")
 }
 
 #[cfg(test)]

@@ -1,7 +1,11 @@
 //! The words each field protocol besides Modbus uses in configuration: its profiles'
 //! `protocol`, its fields' point key and how a point is checked, its links' settings key.
+//! Each driver says its own (`Driver::WORDS`, in its folder); configuration is read below
+//! the drivers, so they are made known to it once, before anything is read
+//! (`crate::drivers::register`, which calls [`know`]).
 
-use super::{eip_tag, point, s7_form};
+use std::sync::OnceLock;
+
 use crate::codec::IecType;
 
 /// The words configuration uses for a field protocol besides Modbus: its profiles'
@@ -49,45 +53,16 @@ impl std::hash::Hash for Words {
     }
 }
 
-/// The protocols of the drivers besides Modbus (the drivers themselves are listed in
-/// `drivers::with_driver`).
-pub(crate) const DRIVERS: &[Words] = &[
-    Words {
-        protocol: "opcua",
-        point_key: "node",
-        point_alternative: Some("browse_path"),
-        link_key: "opcua",
-        link_at: "url",
-        check_point: point::check_opcua,
-        point_identity: str::to_owned,
-        default_length: 64,
-        example: "ns=3;s=Line1.Speed",
-        scaled: false,
-    },
-    Words {
-        protocol: "s7",
-        point_key: "address",
-        point_alternative: None,
-        link_key: "s7",
-        link_at: "host",
-        check_point: s7_form::check,
-        point_identity: s7_form::point_identity,
-        default_length: 64,
-        example: "DB10.DBD6",
-        scaled: true,
-    },
-    Words {
-        protocol: "ab-eip",
-        point_key: "tag",
-        point_alternative: None,
-        link_key: "eip",
-        link_at: "host",
-        check_point: eip_tag::check,
-        // Logix tag names are not case-sensitive.
-        point_identity: str::to_ascii_lowercase,
-        // A Logix STRING holds 82 characters.
-        default_length: 82,
-        example: "Program:Main.Speed",
-        scaled: false,
-    },
-];
+/// The words of the drivers besides Modbus, as the drivers made them known.
+static KNOWN: OnceLock<&'static [&'static Words]> = OnceLock::new();
+
+/// Makes the drivers' words known to configuration (once: a second call does nothing).
+pub(crate) fn know(words: &'static [&'static Words]) {
+    let _ = KNOWN.set(words);
+}
+
+/// The words of the drivers besides Modbus (none before [`know`]: a profile of theirs is
+/// then an unknown protocol, said so).
+pub(crate) fn drivers() -> &'static [&'static Words] {
+    KNOWN.get().copied().unwrap_or(&[])
+}

@@ -56,7 +56,7 @@ pub(super) fn read_answer(
     heard: &Heard,
 ) -> ReadAnswer {
     use crate::link::frame::{Response, ResponseError};
-    let request = crate::plan::read_request(kind, address, count);
+    let request = crate::drivers::modbus::read_request(kind, address, count);
     let mut answer = ReadAnswer {
         function: request.function().code(),
         address,

@@ -21,6 +21,6 @@ pub(super) async fn read(
 /// The request PDU of a read.
 pub(super) fn read_pdu(kind: RegisterKind, address: u16, count: u16) -> Vec<u8> {
     let mut pdu = Vec::with_capacity(5);
-    crate::plan::read_request(kind, address, count).encode(&mut pdu);
+    crate::drivers::modbus::read_request(kind, address, count).encode(&mut pdu);
     pdu
 }

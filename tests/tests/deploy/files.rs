@@ -159,6 +159,7 @@ fn compose_parses_and_every_file_it_mounts_exists() {
 fn the_shipped_configs_pass_the_gateways_own_check() {
     let check = |yaml: &str| {
         let yaml = yaml.replace("profiles: /etc/iogate/profiles", "");
+        iogate::drivers::register();
         let mut config = iogate::config::parse("deploy.yaml", &yaml).map_err(|p| p.to_string())?;
         config.profiles = Some(iogate_tests::profiles_dir());
         iogate::app::Setup::from_config(config, Path::new("."))
@@ -197,6 +198,7 @@ fn the_shipped_configs_pass_the_gateways_own_check() {
             "/etc/iogate/tokens/tokens",
             &dir.join("tokens").display().to_string(),
         );
+    iogate::drivers::register();
     let parsed = iogate::config::parse("configmap", &config).expect("parses");
     iogate::app::Setup::from_config(parsed, Path::new(".")).expect("the ConfigMap's config");
 }

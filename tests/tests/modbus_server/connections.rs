@@ -105,6 +105,7 @@ modbus_server:
     - { at: \"%IW5\", field: plant.Pressure }
     - { at: \"%IW5\", field: plant.SpeedRpm }
 ";
+    iogate::drivers::register();
     let mut parsed = iogate::config::parse("c.yaml", config);
     let problems = match &mut parsed {
         Err(p) => p.to_string(),

@@ -337,6 +337,7 @@ fn safe_values_are_checked_against_the_profile() {
         let yaml = format!(
             "links:\n  - {{ name: bus, serial: {{ port: /dev/ttyUSB0, baud: 9600 }} }}\ndevices:\n  - {{ name: io, profile: MyIoModule, link: bus, slave_id: 1, on_client_loss: {safe} }}\n"
         );
+        iogate::drivers::register();
         let mut config = iogate::config::parse("t.yaml", &yaml).map_err(|p| p.to_string())?;
         config.profiles = Some(iogate_tests::profiles_dir());
         iogate::app::Setup::from_config(config, std::path::Path::new("."))

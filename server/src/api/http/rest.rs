@@ -138,19 +138,11 @@ pub(crate) async fn get_link_plan(
     let link = service.link(&name)?;
     let members = link.members();
     let peer = link.peer();
-    let granted = peer
-        .iter()
-        .find(|(k, _)| *k == "pdu_size")
-        .and_then(|(_, v)| v.parse().ok());
-    let mut text = crate::plan::link_plan(
+    let text = crate::plan::link_plan(
         &link.config(),
         members.iter().map(|d| (&d.config, d.profile.as_ref())),
-        granted,
+        &peer,
     );
-    // What the controller was found not to support changes how it is read.
-    if let Some((_, v)) = peer.iter().find(|(k, _)| *k == "multiple_service_packets") {
-        text.push_str(&format!("multiple service packets: {v}\n"));
-    }
     Ok((
         [(
             axum::http::header::CONTENT_TYPE,

@@ -36,7 +36,7 @@ use opcua::types::{
 
 use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics};
 use crate::codec::IecType;
-pub(crate) use crate::drivers::opcua::variant::{data_type, value_of, variant};
+pub(crate) use crate::opcua_variant::{data_type, value_of, variant};
 use crate::profile::{Direction, Field};
 use crate::service::{FieldView, Service};
 use iogate_types::Quality;

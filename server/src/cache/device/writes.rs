@@ -15,17 +15,13 @@ impl Device {
                 field: field.name.clone(),
             });
         }
-        let registers = self.check_value(idx, &value)?;
-        Ok(Checked::new(idx, value, registers))
+        self.check_value(idx, &value)?;
+        Ok(Checked::new(idx, value))
     }
 
     /// Checks `value` for field `idx`: its type, and that it fits the raw register after
-    /// scaling; the registers it becomes (`None` for a simulated or bit field).
-    pub(super) fn check_value(
-        &self,
-        idx: usize,
-        value: &Value,
-    ) -> Result<Option<Vec<u16>>, AccessError> {
+    /// scaling.
+    pub(super) fn check_value(&self, idx: usize, value: &Value) -> Result<(), AccessError> {
         let field = self.field(idx);
         let invalid = |reason: CodecError| AccessError::InvalidValue {
             device: self.name().to_owned(),
@@ -45,7 +41,7 @@ impl Device {
                     max: SIM_STRING_MAX,
                 }));
             }
-            return Ok(None);
+            return Ok(());
         }
         if field.register.kind == RegisterKind::Point {
             // A point's STRING length counts characters (an S7 STRING holds one byte a
@@ -60,13 +56,11 @@ impl Device {
                 if len > max {
                     return Err(invalid(CodecError::TooManyCharacters { len, max }));
                 }
-                return Ok(None);
+                return Ok(());
             }
         }
-        let registers = field.encoding.encode(value).map_err(invalid)?;
-        let stored_as_registers = field.register.kind == RegisterKind::HoldingRegister
-            && !matches!(field.encoding.raw, crate::codec::Raw::RegisterBit(_));
-        Ok(stored_as_registers.then_some(registers))
+        field.encoding.encode(value).map_err(invalid)?;
+        Ok(())
     }
 
     /// Requests a write: the newest value replaces any pending one (which is then

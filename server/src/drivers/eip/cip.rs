@@ -326,7 +326,7 @@ pub(super) fn multiple_replies(data: &[u8], asked: usize) -> Result<Vec<&[u8]>, 
 
 /// An atomic type's size in bytes.
 pub(super) fn value_len(code: u16) -> usize {
-    crate::profile::eip_tag::type_len(code)
+    super::tag::type_len(code)
 }
 
 /// A List Identity answer's vendor, product code, revision, serial number and product name.

@@ -44,7 +44,7 @@ struct Connected {
 
 /// The largest message an unconnected request may carry, in every Logix controller.
 const UNCONNECTED: usize = 480;
-use crate::plan::eip::{CONNECTED_OVERHEAD, LARGE};
+use super::plan::{CONNECTED_OVERHEAD, LARGE};
 /// The size Forward Open asks for, where Large Forward Open is refused.
 const SMALL: usize = 504;
 

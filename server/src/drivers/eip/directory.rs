@@ -46,7 +46,7 @@ pub(super) fn is_system(ty: u16) -> bool {
 /// The path to `class`'s `instance`, in the smallest instance segment that holds it.
 fn class_instance(class: u8, instance: u32, path: &mut Vec<u8>) {
     path.extend_from_slice(&[0x20, class]);
-    crate::profile::eip_tag::logical(0x24, instance, path);
+    super::tag::logical(0x24, instance, path);
 }
 
 /// Get Instance Attribute List of the symbols from instance `from` on, of the controller

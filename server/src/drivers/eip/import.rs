@@ -315,7 +315,7 @@ impl Walk {
             let code = dir::atomic_code(ty);
             match IecType::ALL
                 .into_iter()
-                .find(|t| crate::profile::eip_tag::type_code(*t) == Some(code))
+                .find(|t| super::tag::type_code(*t) == Some(code))
             {
                 Some(iec) => self.field(tag, iec),
                 None => self
@@ -359,7 +359,7 @@ impl Walk {
     /// A field for `tag`, named after it (unique in the profile); a tag `tag:` does not
     /// take (a controller's name of other characters, too long) is reported instead.
     fn field(&mut self, tag: &str, ty: IecType) {
-        if let Err(why) = crate::profile::eip_tag::parse(tag) {
+        if let Err(why) = super::tag::parse(tag) {
             self.skipped.push(why);
             return;
         }

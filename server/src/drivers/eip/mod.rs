@@ -8,10 +8,13 @@
 mod cip;
 mod config;
 mod conn;
+mod describe;
 mod directory;
 pub mod import;
 mod manager;
+pub(crate) mod plan;
 mod read;
+pub(crate) mod tag;
 mod value;
 mod write;
 
@@ -20,20 +23,37 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
+use super::WriteItem;
 use super::{Driver, Read, Session, finish, written};
 use crate::cache::{Device, FieldError, Link, Progress};
-use crate::config::{LinkConfig, Transport};
+use crate::config::{DriverLink, LinkConfig};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
-use crate::plan::WriteItem;
-use crate::profile::eip_tag::Tag;
+use crate::profile::Words;
 use conn::{Connection, EipError};
+use tag::Tag;
 
 /// The EtherNet/IP driver.
 pub(crate) struct Eip;
 
 /// Its links' key.
 pub(crate) const LINK_KEY: &str = "eip";
+
+/// Its words in configuration.
+const WORDS: Words = Words {
+    protocol: "ab-eip",
+    point_key: "tag",
+    point_alternative: None,
+    link_key: LINK_KEY,
+    link_at: "host",
+    check_point: tag::check,
+    // Logix tag names are not case-sensitive.
+    point_identity: str::to_ascii_lowercase,
+    // A Logix STRING holds 82 characters.
+    default_length: 82,
+    example: "Program:Main.Speed",
+    scaled: false,
+};
 
 /// What is kept of a device: each field's tag (or why it has none) and the type the
 /// controller answered for it (a bit's integer, for its writes).
@@ -87,7 +107,7 @@ const NO_MULTIPLE: (&str, &str) = (
 );
 
 fn lost(e: EipError) -> LinkFault {
-    LinkFault::Lost(Arc::new(std::io::Error::other(e.to_string())))
+    LinkFault::lost(e)
 }
 
 impl Driver for Eip {
@@ -95,18 +115,42 @@ impl Driver for Eip {
     type Session = Controller;
     const NAME: &'static str = "ab-eip";
 
-    fn serves(config: &LinkConfig) -> bool {
-        matches!(&config.transport, Transport::Driver(d) if d.protocol == LINK_KEY)
+    const WORDS: Option<&'static Words> = Some(&WORDS);
+    type Settings = config::Settings;
+
+    fn read_settings(
+        link: &str,
+        d: &DriverLink,
+        report: &mut crate::yaml::Report,
+    ) -> Option<config::Settings> {
+        config::read(link, d, report)
     }
 
-    fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
-        if let Transport::Driver(d) = &config.transport {
-            config::read(&config.name, d, report);
-        }
+    const IMPORT: Option<super::Import> = Some(super::Import {
+        from: LINK_KEY,
+        options: &["--path"],
+        source: "one controller, HOST or HOST:PORT",
+    });
+
+    fn import(host: &str, options: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
+        let path = options
+            .iter()
+            .find(|(f, _)| *f == "--path")
+            .map(|(_, v)| *v);
+        import::run(host, path, out)
+    }
+
+    fn describe(
+        link: &LinkConfig,
+        devices: &super::Planned<'_>,
+        peer: &super::Facts,
+        out: &mut String,
+    ) {
+        describe::link(link, devices, peer, out);
     }
 
     fn plan(device: &Device) -> Plan {
-        let tags = crate::plan::eip::tags(&device.profile);
+        let tags = plan::tags(&device.profile);
         Plan {
             codes: vec![None; tags.len()],
             layouts: vec![None; tags.len()],
@@ -124,11 +168,8 @@ impl Driver for Eip {
         link: &Arc<Link>,
         _metrics: &Arc<Metrics>,
     ) -> Result<Controller, LinkFault> {
-        let s = super::settings(config, config::read)?;
-        let failed = |e: EipError| LinkFault::ConnectFailed {
-            endpoint: format!("{}:{}", s.host, s.port),
-            reason: Arc::new(std::io::Error::other(e.to_string())),
-        };
+        let s = Self::settings(config)?;
+        let failed = |e: EipError| LinkFault::connect_failed(format!("{}:{}", s.host, s.port), e);
         let mut conn = Connection::open((s.host.as_str(), s.port), s.route.clone(), s.timeout)
             .await
             .map_err(failed)?;

@@ -5,10 +5,10 @@
 //! status is its fields' error; elements read together whose read failed (one of them past
 //! the array's end, say) are read one by one from then on, and at once.
 
+use super::plan::{fragmented, packet_sizes, packets, runs};
 use super::{Controller, Plan, cip, lost, value};
 use crate::cache::{Device, FieldError, Stamp};
 use crate::link::LinkFault;
-use crate::plan::eip::{fragmented, packet_sizes, packets, runs};
 
 /// A device's reads packed for a connection of `limit` bytes, each packet with its
 /// request built: kept from cycle to cycle, made again when what it depends on changes (a

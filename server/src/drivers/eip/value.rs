@@ -2,8 +2,8 @@
 //! field's type (a type that differs is the field's error, naming both), a value encoded
 //! for Write Tag, a bit of an integer as Read-Modify-Write masks.
 
+use super::tag::{type_code, type_name};
 use crate::codec::IecType;
-use crate::profile::eip_tag::{type_code, type_name};
 use iogate_types::Value;
 
 /// A Read Tag reply's data (type, then the element) as a field of `ty`, or bit `bit` of

@@ -9,8 +9,8 @@ use iogate_types::Value;
 
 use super::{Controller, Plan, cip, finish, lost, value, written};
 use crate::cache::{Device, WriteError};
+use crate::drivers::WriteItem;
 use crate::link::LinkFault;
-use crate::plan::WriteItem;
 
 /// A write's reply at most: service, reserved, status, extended status of one word.
 const REPLY: usize = 6;
@@ -82,7 +82,7 @@ impl Controller {
             .partition(|(k, _, _)| ready[*k].service == cip::READ_MODIFY_WRITE);
         let mut packets: Vec<Vec<usize>> = match self.single {
             true => words.iter().map(|(k, _, _)| vec![*k]).collect(),
-            false => crate::plan::eip::packets(&words, self.conn.message_limit()),
+            false => super::plan::packets(&words, self.conn.message_limit()),
         };
         packets.extend(bits.iter().map(|(k, _, _)| vec![*k]));
         for (p, packet) in packets.iter().enumerate() {

@@ -1,24 +1,31 @@
 //! Modbus (RTU and ASCII on serial lines; MBAP, RTU or ASCII frames over TCP) as a driver:
 //! a link opens its port or socket (`crate::link`), a device's reads are the batches
-//! `plan::read_batches` makes from its profile, its writes the fewest transactions
-//! `plan::write_ops` allows. The bytes and the transaction rules stay in `crate::link`,
+//! `read_batches` makes from its profile (`batches.rs`), its writes the fewest transactions
+//! `write_ops` allows (`groups.rs`), a serial line's time is budgeted by `budget.rs`, and
+//! `describe.rs` prints the plan. The bytes and the transaction rules stay in `crate::link`,
 //! shared with the Modbus server and the scan.
 
+mod batches;
+mod budget;
 mod bus;
+mod describe;
+mod groups;
 mod read;
 mod write;
 
 use std::sync::Arc;
 
+pub(crate) use batches::{ReadBatch, read_batches, read_request};
+pub(crate) use budget::{cycle_time, transaction_time, utilisation};
 pub(crate) use bus::Bus;
+pub(crate) use groups::{WriteOp, write_ops};
 
-use super::{Driver, Probed, Read, Session};
+use super::{Driver, Facts, Planned, Probed, Read, Session, WriteItem};
 use crate::cache::{Device, FieldError, Link, Passthrough, PassthroughError, Probe};
-use crate::config::{LinkConfig, Transport};
+use crate::config::{DriverLink, LinkConfig, Transport};
 use crate::link::timing::LineTiming;
 use crate::link::{self, LinkFault, TxError};
 use crate::metrics::Metrics;
-use crate::plan::{self, ReadBatch, WriteItem};
 
 /// The Modbus driver.
 pub(crate) struct Modbus;
@@ -37,6 +44,12 @@ impl Driver for Modbus {
     type Session = Bus;
     const NAME: &'static str = "modbus";
     const REWRITES_OUTPUTS: bool = true;
+    /// A serial line's or a TCP link's settings are the config reader's own.
+    type Settings = ();
+
+    fn read_settings(_: &str, _: &DriverLink, _: &mut crate::yaml::Report) -> Option<()> {
+        Some(())
+    }
 
     fn serves(config: &LinkConfig) -> bool {
         matches!(
@@ -45,10 +58,22 @@ impl Driver for Modbus {
         )
     }
 
+    fn speaks(protocol: crate::profile::Protocol) -> bool {
+        protocol.is_modbus()
+    }
+
+    fn describe(link: &LinkConfig, devices: &Planned<'_>, _: &Facts, out: &mut String) {
+        describe::link(link, devices, out);
+    }
+
+    fn plan_warnings(link: &LinkConfig, devices: &Planned<'_>) -> Vec<String> {
+        describe::warnings(link, devices)
+    }
+
     fn plan(device: &Device) -> Plan {
         Plan {
             slave: device.slave_id().unwrap_or(0),
-            reads: plan::read_batches(
+            reads: read_batches(
                 &device.profile,
                 device.config.max_batch,
                 device.config.max_gap,
@@ -64,7 +89,7 @@ impl Driver for Modbus {
         let Transport::Serial(s) = &config.transport else {
             return None;
         };
-        Some(plan::utilisation(
+        Some(utilisation(
             devices.map(|(d, p)| (&d.config, p.reads.as_slice())),
             &LineTiming::new(s),
             config.guard_time,

@@ -6,11 +6,12 @@ use std::collections::VecDeque;
 use std::time::Duration;
 
 use super::{Bus, Plan, connection_fault};
+use super::{WriteOp, write_ops};
 use crate::cache::{Device, FieldError, WriteError};
+use crate::drivers::WriteItem;
 use crate::drivers::{finish, written};
 use crate::link::frame::Exception;
 use crate::link::{LinkFault, TxError};
-use crate::plan::{self, WriteItem, WriteOp};
 
 /// The first wait before a write answered "busy" (06) or "acknowledge" (05) is sent again;
 /// it doubles with each try, up to [`BUSY_BACKOFF_MAX`].
@@ -54,7 +55,7 @@ async fn send(bus: &mut Bus, device: &Device, op: &WriteOp) -> (Result<(), TxErr
 fn one_by_one(device: &Device, items: &[WriteItem], op: &WriteOp, ops: &mut VecDeque<WriteOp>) {
     let subset = op.items().to_vec();
     let sub: Vec<WriteItem> = subset.iter().map(|&n| items[n].clone()).collect();
-    let (singles, _) = plan::write_ops(&device.profile, &sub, true);
+    let (singles, _) = write_ops(&device.profile, &sub, true);
     for single in singles.into_iter().rev() {
         ops.push_front(single.remap(&subset));
     }
@@ -68,7 +69,7 @@ pub(super) async fn outputs(
     plan: &mut Plan,
     items: Vec<WriteItem>,
 ) -> Result<Option<FieldError>, LinkFault> {
-    let (ops, refused) = plan::write_ops(&device.profile, &items, plan.single_writes);
+    let (ops, refused) = write_ops(&device.profile, &items, plan.single_writes);
     for (n, reason) in refused {
         finish(device, &items[n], Err(reason), 0);
     }

@@ -151,19 +151,7 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         None => Some(false),
         Some(n) => crate::yaml::boolean(n, report, &at("accept_host_mismatch")),
     };
-    let mut limits = Some(Limits::default());
-    for (key, least, most) in LIMIT_BOUNDS {
-        let Some(n) = map.get(key) else { continue };
-        let value = n.int_in(report, &at(key), least, most).map(|v| v as usize);
-        match (value, limits.as_mut()) {
-            (Some(v), Some(l)) => match key {
-                "max_message_size" => l.message = v,
-                "max_string_length" => l.string = v,
-                _ => l.array = v,
-            },
-            _ => limits = None,
-        }
-    }
+    let limits = read_limits(&mut map, report, &ctx);
     map.finish(report, &ctx, KEYS);
     let (policy, mode) = (policy?, mode?);
     let mode = secured(policy, mode, d.settings.line, &ctx, report)?;
@@ -188,6 +176,30 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         accept_host_mismatch: accept_host_mismatch?,
         limits: limits?,
     })
+}
+
+/// The message, string and array limits the settings raise or lower.
+fn read_limits(
+    map: &mut crate::yaml::MapReader<'_>,
+    report: &mut Report,
+    ctx: &str,
+) -> Option<Limits> {
+    let mut limits = Some(Limits::default());
+    for (key, least, most) in LIMIT_BOUNDS {
+        let Some(n) = map.get(key) else { continue };
+        let value = n
+            .int_in(report, &format!("{ctx}.{key}"), least, most)
+            .map(|v| v as usize);
+        match (value, limits.as_mut()) {
+            (Some(v), Some(l)) => match key {
+                "max_message_size" => l.message = v,
+                "max_string_length" => l.string = v,
+                _ => l.array = v,
+            },
+            _ => limits = None,
+        }
+    }
+    limits
 }
 
 /// An endpoint URL: `opc.tcp://` and where.

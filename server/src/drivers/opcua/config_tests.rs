@@ -10,6 +10,7 @@ fn problems(yaml: &str) -> String {
 
 #[test]
 fn an_opcua_link_is_checked_with_each_problem_at_its_line() {
+    crate::drivers::register();
     let text = problems(
         "links:\n  - name: plc\n    opcua:\n      url: http://plc:4840\n      security_policy: Basic512\n      speed: fast\n      user: { username: op }\n",
     );
@@ -25,6 +26,7 @@ fn an_opcua_link_is_checked_with_each_problem_at_its_line() {
 
 #[test]
 fn security_needs_a_mode_that_secures_and_files_that_exist() {
+    crate::drivers::register();
     let text = problems(
         "links:\n  - name: plc\n    opcua: { url: \"opc.tcp://plc:4840\", security_policy: Basic256Sha256, security_mode: None }\n",
     );
@@ -45,6 +47,7 @@ fn security_needs_a_mode_that_secures_and_files_that_exist() {
 
 #[test]
 fn a_link_without_its_url_or_with_two_kinds_says_so() {
+    crate::drivers::register();
     let text = problems("links:\n  - name: plc\n    opcua: { security_mode: Sign }\n");
     assert!(
         text.contains("link plc: opcua: missing required key `url`"),
@@ -61,6 +64,7 @@ fn a_link_without_its_url_or_with_two_kinds_says_so() {
 
 #[test]
 fn devices_and_links_of_different_protocols_do_not_mix() {
+    crate::drivers::register();
     let opcua = crate::profile::load_str(
         "p.yaml",
         "name: Plc\nprotocol: opcua\nfields:\n  - { name: Speed, type: REAL, direction: input, node: \"ns=2;s=Speed\" }\n",
@@ -92,6 +96,7 @@ fn devices_and_links_of_different_protocols_do_not_mix() {
 
 #[test]
 fn a_point_field_names_its_node_and_nothing_modbus() {
+    crate::drivers::register();
     let p = |fields: &str| {
         crate::profile::load_str(
             "p.yaml",

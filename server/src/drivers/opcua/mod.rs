@@ -10,10 +10,10 @@
 pub(crate) mod config;
 pub mod import;
 mod limits;
+pub(crate) mod node;
 mod resolve;
 mod session;
 mod subscribe;
-pub(crate) mod variant;
 mod write;
 
 use std::collections::HashMap;
@@ -21,12 +21,13 @@ use std::sync::{Arc, Mutex};
 
 use opcua::types::{NodeId, VariantScalarTypeId};
 
+use super::WriteItem;
 use super::{Driver, Read, Session};
 use crate::cache::{Device, FieldError, Link};
-use crate::config::{LinkConfig, Transport};
+use crate::config::{DriverLink, LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
-use crate::plan::WriteItem;
+use crate::profile::Words;
 use limits::Service;
 pub(crate) use session::Connection;
 
@@ -35,6 +36,34 @@ pub(crate) struct OpcUa;
 
 /// The key of its links' settings and the word of its profiles' `protocol`.
 pub(crate) const PROTOCOL: &str = "opcua";
+
+/// Why a session could not open or ended, as the library or the server said it.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum UaError {
+    /// The session's open failed.
+    #[error("{0}")]
+    Open(String),
+    /// The session ended (the connection closed, the server gone or halted).
+    #[error("{0}")]
+    Ended(String),
+    /// The device's subscription could not be made.
+    #[error("creating a subscription: {0}")]
+    Subscription(String),
+}
+
+/// Its words in configuration.
+const WORDS: Words = Words {
+    protocol: PROTOCOL,
+    point_key: "node",
+    point_alternative: Some("browse_path"),
+    link_key: PROTOCOL,
+    link_at: "url",
+    check_point: node::check,
+    point_identity: str::to_owned,
+    default_length: 64,
+    example: "ns=3;s=Line1.Speed",
+    scaled: false,
+};
 
 /// What is kept of a device between sessions.
 pub(crate) struct Plan {
@@ -62,8 +91,29 @@ impl Driver for OpcUa {
     /// one makes the application's key pair.
     const OPEN_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(15);
 
-    fn serves(config: &LinkConfig) -> bool {
-        matches!(&config.transport, Transport::Driver(d) if d.protocol == PROTOCOL)
+    const WORDS: Option<&'static Words> = Some(&WORDS);
+    type Settings = config::Settings;
+
+    fn read_settings(
+        link: &str,
+        d: &DriverLink,
+        report: &mut crate::yaml::Report,
+    ) -> Option<config::Settings> {
+        config::read(link, d, report)
+    }
+
+    const IMPORT: Option<super::Import> = Some(super::Import {
+        from: PROTOCOL,
+        options: &["--node"],
+        source: "one endpoint URL",
+    });
+
+    fn import(url: &str, options: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
+        let root = options
+            .iter()
+            .find(|(f, _)| *f == "--node")
+            .map(|(_, v)| *v);
+        import::run(url, root, out)
     }
 
     fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
@@ -108,7 +158,7 @@ impl Driver for OpcUa {
         link: &Arc<Link>,
         _metrics: &Arc<Metrics>,
     ) -> Result<Connection, LinkFault> {
-        let settings = super::settings(config, config::read)?;
+        let settings = Self::settings(config)?;
         session::open(settings, link).await
     }
 }
@@ -165,7 +215,7 @@ impl Session for Connection {
 
     async fn lost(&mut self) -> LinkFault {
         let why = self.lost_now().await;
-        LinkFault::Lost(Arc::new(std::io::Error::other(why)))
+        LinkFault::lost(UaError::Ended(why))
     }
 }
 

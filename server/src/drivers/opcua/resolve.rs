@@ -11,12 +11,10 @@ use opcua::types::{
     RelativePathElement,
 };
 
+use super::node::{Identifier, Namespace, NodeAddress, Step, parse_browse_path, parse_node};
 use super::{Connection, Plan, refuse};
 use crate::cache::Device;
 use crate::link::LinkFault;
-use crate::profile::point::{
-    Identifier, Namespace, NodeAddress, Step, parse_browse_path, parse_node,
-};
 
 impl Connection {
     /// The session's index of a namespace URI.

@@ -4,7 +4,6 @@
 //! link reconnects the same way. Any publish response (data or keep-alive) and every
 //! answered keep-alive counts as the link making progress.
 
-use std::io;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
@@ -75,10 +74,7 @@ impl Drop for Connection {
 }
 
 fn failed(endpoint: &str, reason: impl std::fmt::Display) -> LinkFault {
-    LinkFault::ConnectFailed {
-        endpoint: endpoint.to_owned(),
-        reason: Arc::new(io::Error::other(reason.to_string())),
-    }
+    LinkFault::connect_failed(endpoint, super::UaError::Open(reason.to_string()))
 }
 
 /// Who the gateway is, from the user settings.
@@ -394,7 +390,7 @@ impl Connection {
         ];
         gone.iter()
             .any(|g| g.sub_code() == code.sub_code())
-            .then(|| LinkFault::Lost(Arc::new(io::Error::other(e.to_string()))))
+            .then(|| LinkFault::lost(super::UaError::Ended(e.to_string())))
     }
 
     /// Marks a request to the server in progress, for the watchdog.

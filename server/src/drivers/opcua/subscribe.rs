@@ -19,10 +19,10 @@ use opcua::types::{
 };
 use tokio::time::Instant;
 
-use super::variant::reading;
 use super::{Connection, Plan, refuse};
 use crate::cache::Device;
 use crate::link::LinkFault;
+use crate::opcua_variant::reading;
 use crate::profile::deadband::Deadband;
 
 /// The most notifications one publish response is asked to carry: more changes come in
@@ -243,9 +243,7 @@ pub(super) async fn watch(
                 plan.subscribe = false;
                 return Ok(());
             }
-            return Err(LinkFault::Lost(Arc::new(std::io::Error::other(format!(
-                "creating a subscription: {e}"
-            )))));
+            return Err(LinkFault::lost(super::UaError::Subscription(e.to_string())));
         }
     };
     plan.watched = Some(Watched {

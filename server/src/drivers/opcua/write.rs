@@ -6,12 +6,12 @@ use std::sync::Arc;
 
 use opcua::types::{AttributeId, DataValue, NumericRange, WriteValue};
 
-use super::variant::write_variant;
 use super::{Connection, Plan};
 use crate::cache::{Device, WriteError};
+use crate::drivers::WriteItem;
 use crate::drivers::{finish, written};
 use crate::link::LinkFault;
-use crate::plan::WriteItem;
+use crate::opcua_variant::write_variant;
 
 /// The items that can be sent, each with its write value; the others finished with why.
 fn prepare(

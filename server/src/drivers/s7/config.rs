@@ -4,8 +4,8 @@
 
 use std::time::Duration;
 
+use super::plan::{DEFAULT_GAP, MAX_GAP};
 use crate::config::DriverLink;
-use crate::plan::s7::{DEFAULT_GAP, MAX_GAP};
 use crate::yaml::{Kind, Node, Report};
 
 const KEYS: &[&str] = &[

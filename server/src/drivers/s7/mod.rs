@@ -4,29 +4,33 @@
 //! fields are read in the fewest jobs the negotiated PDU allows; a BOOL is written as a
 //! bit, never by rewriting its byte.
 
+pub(crate) mod address;
 mod clock;
 mod config;
 mod conn;
+mod describe;
+pub(crate) mod form;
 pub(crate) mod pdu;
+pub(crate) mod plan;
 mod read;
 mod szl;
 mod value;
 mod write;
-pub(crate) use write::check_value;
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::time::Instant;
 
+use super::WriteItem;
 use super::{Driver, Read, Session};
 use crate::cache::{Device, FieldError, Link, Progress};
-use crate::config::{LinkConfig, Transport};
+use crate::config::{DriverLink, LinkConfig};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
-use crate::plan::WriteItem;
-use crate::plan::s7::{Place, ReadPlan};
+use crate::profile::Words;
 use conn::{Connection, S7Error};
+use plan::{Place, ReadPlan};
 use szl::Mode;
 
 /// The S7 driver.
@@ -34,6 +38,23 @@ pub(crate) struct S7;
 
 /// Its links' key and its profiles' protocol.
 pub(crate) const PROTOCOL: &str = "s7";
+
+/// Its words in configuration.
+const WORDS: Words = Words {
+    protocol: PROTOCOL,
+    point_key: "address",
+    point_alternative: None,
+    link_key: PROTOCOL,
+    link_at: "host",
+    check_point: form::check,
+    point_identity: form::point_identity,
+    default_length: 64,
+    example: "DB10.DBD6",
+    scaled: true,
+};
+
+/// The link's fact of the PDU size the PLC granted (its view, its plan).
+const PDU_SIZE: &str = "pdu_size";
 
 /// What is kept of a device: its fields' places and the jobs planned for a PDU size.
 pub(crate) struct Plan {
@@ -76,7 +97,7 @@ const IN_STOP: &str =
 
 /// The connection's end.
 fn lost(e: S7Error) -> LinkFault {
-    LinkFault::Lost(Arc::new(std::io::Error::other(e.to_string())))
+    LinkFault::lost(e)
 }
 
 /// An error of a job: the connection's end, or (`Ok`) the PLC's refusal of the job.
@@ -96,19 +117,33 @@ impl Driver for S7 {
     /// so that a PLC silent to SZL reads (S7-200, LOGO!) opens all the same.
     const OPEN_TIMEOUT: Duration = Duration::from_secs(15);
 
-    fn serves(config: &LinkConfig) -> bool {
-        matches!(&config.transport, Transport::Driver(d) if d.protocol == PROTOCOL)
+    const WORDS: Option<&'static Words> = Some(&WORDS);
+    type Settings = config::Settings;
+
+    fn read_settings(
+        link: &str,
+        d: &DriverLink,
+        report: &mut crate::yaml::Report,
+    ) -> Option<config::Settings> {
+        config::read(link, d, report)
     }
 
-    fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
-        if let Transport::Driver(d) = &config.transport {
-            config::read(&config.name, d, report);
-        }
+    fn check_value(device: &Device, idx: usize, value: &crate::codec::Value) -> Result<(), String> {
+        write::check_value(device, idx, value)
+    }
+
+    fn describe(
+        link: &LinkConfig,
+        devices: &super::Planned<'_>,
+        peer: &super::Facts,
+        out: &mut String,
+    ) {
+        describe::link(link, devices, peer, out);
     }
 
     fn plan(device: &Device) -> Plan {
         Plan {
-            places: crate::plan::s7::places(&device.profile),
+            places: plan::places(&device.profile),
             reads: ReadPlan::default(),
             pdu: 0,
             gap: 0,
@@ -121,7 +156,7 @@ impl Driver for S7 {
         link: &Arc<Link>,
         _metrics: &Arc<Metrics>,
     ) -> Result<Plc, LinkFault> {
-        let s = super::settings(config, config::read)?;
+        let s = Self::settings(config)?;
         let conn = Connection::open(
             (s.host.as_str(), s.port),
             s.local_tsap,
@@ -130,10 +165,7 @@ impl Driver for S7 {
             s.timeout,
         )
         .await
-        .map_err(|e| LinkFault::ConnectFailed {
-            endpoint: format!("{}:{}", s.host, s.port),
-            reason: Arc::new(std::io::Error::other(e.to_string())),
-        })?;
+        .map_err(|e| LinkFault::connect_failed(format!("{}:{}", s.host, s.port), e))?;
         let plc = Plc {
             conn,
             gap: s.max_gap,
@@ -146,7 +178,7 @@ impl Driver for S7 {
             szl_silent: false,
             identified: false,
         };
-        link.set_peer("pdu_size", plc.conn.pdu.to_string());
+        link.set_peer(PDU_SIZE, plc.conn.pdu.to_string());
         Ok(plc)
     }
 }
@@ -268,7 +300,7 @@ impl Session for Plc {
 #[cfg(any(fuzzing, test))]
 pub(crate) fn fuzz_answer(data: &[u8]) {
     use crate::codec::IecType;
-    use crate::profile::s7_form::Form;
+    use crate::drivers::s7::form::Form;
     let asked = usize::from(data.first().copied().unwrap_or(0) % 24);
     if let Ok(a) = pdu::answer(data) {
         let _ = pdu::read_items(&a, &pdu::fuzz_items(asked));

@@ -4,7 +4,7 @@
 //! count, each item's transport size and length) and a malformed one is an error naming
 //! what was wrong, never a panic.
 
-pub(crate) use crate::plan::s7::Item;
+pub(crate) use super::plan::Item;
 
 /// Why an answer is not one.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -356,7 +356,7 @@ pub(crate) fn read_items(
 /// targets and property tests of the answer parsers.
 #[cfg(any(fuzzing, test))]
 pub(crate) fn fuzz_items(n: usize) -> Vec<Item> {
-    use crate::profile::s7_address::Area;
+    use crate::drivers::s7::address::Area;
     (0..n)
         .map(|k| Item {
             area: if k % 7 == 6 {

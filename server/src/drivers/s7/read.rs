@@ -7,12 +7,12 @@ use std::sync::Arc;
 use tokio::time::Instant;
 
 use super::conn::Answers;
+use super::plan::{Span, read_plan};
 use super::szl::Mode;
 use super::{IN_STOP, Plan, Plc, fault, lost, pdu, value};
 use crate::cache::{Device, FieldError};
 use crate::drivers::Read;
 use crate::link::LinkFault;
-use crate::plan::s7::{Span, read_plan};
 
 /// Why a span has no bytes: the error its fields get, and the item's return code.
 type Failed = (String, Option<u8>);

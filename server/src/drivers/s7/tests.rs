@@ -1,10 +1,10 @@
 use std::time::Duration;
 
+use super::address::Area;
 use super::config::remote_tsap;
 use super::conn::Connection;
 use super::pdu::Item;
 use super::szl;
-use crate::profile::s7_address::Area;
 
 /// Snap7's server (python-snap7) with DB1 of 64 bytes (0x12 0x34 0xAB at 0) and 16 merker
 /// bytes, on a free port; killed when dropped.
@@ -451,8 +451,9 @@ proptest::proptest! {
         bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..40),
         n in 0u16..20,
     ) {
+        crate::drivers::register();
         use crate::codec::IecType;
-        use crate::profile::s7_form::Form;
+        use crate::drivers::s7::form::Form;
         let forms = [
             Form::Bit(7), Form::Number, Form::Char, Form::WChar, Form::String(n),
             Form::WString(n), Form::Dt, Form::Dtl, Form::Timer, Form::Counter,
@@ -477,6 +478,7 @@ fn a_user_data_answer_of_its_bare_header_is_short_not_a_panic() {
 
 #[test]
 fn an_s7_link_is_checked_with_each_problem_at_its_line() {
+    crate::drivers::register();
     let yaml = "links:\n  - name: plc\n    s7:\n      host: 10.0.0.30\n      rack: 9\n      slot: 1\n      pdu_size: 100\n      connection_type: hmi\n      remote_tsap: 0x1G\n      speed: fast\n";
     let config = crate::config::parse("c.yaml", yaml).expect("parses");
     let text = crate::drivers::check_links(&config).to_string();

@@ -3,9 +3,9 @@
 //! (BCD) and DTL, timers (S5TIME) and counters (BCD). A value the form cannot hold exactly
 //! is refused, never rounded or cut.
 
+use super::form::{Form, number_bytes};
 use crate::codec::{IecType, Value};
 use crate::profile::Field;
-use crate::profile::s7_form::{Form, number_bytes};
 
 use super::clock::{self, Civil};
 

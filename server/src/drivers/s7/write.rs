@@ -5,14 +5,14 @@
 
 use std::sync::Arc;
 
+use super::form::Form;
 use super::pdu::{self, Item};
+use super::plan::MAX_ITEMS;
 use super::{Plan, Plc, fault, value};
 use crate::cache::{Device, FieldError, WriteError};
+use crate::drivers::WriteItem;
 use crate::drivers::{finish, written};
 use crate::link::LinkFault;
-use crate::plan::WriteItem;
-use crate::plan::s7::MAX_ITEMS;
-use crate::profile::s7_form::Form;
 
 /// One piece of an output to write: which write it belongs to, where, and its bytes.
 type Piece = (usize, Item, Vec<u8>);
@@ -169,9 +169,9 @@ pub(crate) fn check_value(
     let Some(point) = &field.point else {
         return Ok(());
     };
-    let address = crate::profile::s7_address::parse(&point.address)?;
+    let address = super::address::parse(&point.address)?;
     let stored = field.register.raw_type.unwrap_or(field.ty);
-    let form = crate::profile::s7_form::form(&address, stored, point.length)?;
+    let form = super::form::form(&address, stored, point.length)?;
     let raw = value::unscaled(field, value)?;
     value::encode(form, stored, &raw).map(|_| ())
 }
@@ -179,7 +179,7 @@ pub(crate) fn check_value(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::s7_address::Area;
+    use crate::drivers::s7::address::Area;
 
     #[test]
     fn writes_are_packed_within_the_pdu() {

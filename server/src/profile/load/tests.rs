@@ -197,6 +197,7 @@ fn duplicate_profile_names_across_files_are_rejected() {
 
 #[test]
 fn an_s7_fields_address_type_and_scaling_are_checked_with_their_lines() {
+    crate::drivers::register();
     let head = "name: P\nprotocol: s7\nfields:\n";
     for (field, needle) in [
         (
@@ -244,6 +245,7 @@ fn an_s7_fields_address_type_and_scaling_are_checked_with_their_lines() {
 
 #[test]
 fn one_place_named_two_ways_is_one_point() {
+    crate::drivers::register();
     // A counter in English and German, a timer in two cases; two distinct counters pass.
     let text = "name: P\nprotocol: s7\nfields:\n  - { name: C, type: INT, direction: input, address: C3 }\n  - { name: Z, type: WORD, direction: input, address: Z3 }\n  - { name: T, type: TIME, direction: input, address: T5 }\n  - { name: T2, type: WORD, direction: input, address: t5 }\n  - { name: C4, type: INT, direction: input, address: C4 }\n";
     assert_problem(text, 5, "names the same point as field C (line 4)");

@@ -126,17 +126,17 @@ async fn exists(conn: &Connection, node: &NodeId) -> Result<(), String> {
 
 /// The root given as a node id, in the server's namespaces.
 fn root_node(conn: &Connection, text: &str) -> Result<NodeId, String> {
-    let parsed = crate::profile::point::parse_node(text)?;
+    let parsed = crate::drivers::opcua::node::parse_node(text)?;
     let ns = match &parsed.namespace {
-        crate::profile::point::Namespace::Index(i) => *i,
-        crate::profile::point::Namespace::Uri(u) => conn
+        crate::drivers::opcua::node::Namespace::Index(i) => *i,
+        crate::drivers::opcua::node::Namespace::Uri(u) => conn
             .namespaces
             .iter()
             .position(|x| x == u)
             .and_then(|i| u16::try_from(i).ok())
             .ok_or_else(|| format!("namespace {u} is not on the server"))?,
     };
-    use crate::profile::point::Identifier as I;
+    use crate::drivers::opcua::node::Identifier as I;
     Ok(match parsed.identifier {
         I::Numeric(n) => NodeId::new(ns, n),
         I::String(s) => NodeId::new(ns, s),

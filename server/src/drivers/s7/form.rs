@@ -3,7 +3,7 @@
 //! whose width does not fit its field's type (`MW2` for a REAL) is a problem with its line;
 //! the driver reads and writes by the same form.
 
-use super::s7_address::{Address, Area, S7Type, Width, parse};
+use super::address::{Address, Area, S7Type, Width, parse};
 use crate::codec::IecType;
 
 /// The longest S7 STRING, in characters.

@@ -3,9 +3,9 @@
 //! jobs within the negotiated PDU (items per request, answer bytes). Timers and counters
 //! count cells of two bytes.
 
+use super::address::{Address, Area, parse};
+use super::form::{Form, form};
 use crate::profile::Profile;
-use crate::profile::s7_address::{Address, Area, parse};
-use crate::profile::s7_form::{Form, form};
 
 /// One item of a Read Var or Write Var: bytes (or one bit) of an area, or timers and
 /// counters by number.

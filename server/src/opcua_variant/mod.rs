@@ -214,5 +214,4 @@ pub(crate) fn write_variant(
 }
 
 #[cfg(test)]
-#[path = "variant_tests.rs"]
 mod tests;

@@ -5,19 +5,9 @@ use std::collections::BTreeMap;
 
 use crate::cache::WriteError;
 use crate::codec::{Raw, Value};
+use crate::drivers::WriteItem;
 use crate::link::frame::{MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Request};
 use crate::profile::{Profile, RegisterKind};
-
-/// A value to put on the bus: a client's write (with its generation) or the latest value
-/// written again after a reconnect (without).
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct WriteItem {
-    pub(crate) field: usize,
-    pub(crate) value: Value,
-    pub(crate) generation: Option<u64>,
-    /// The registers the value becomes, when its check made them; else encoded here.
-    pub(crate) registers: Option<Vec<u16>>,
-}
 
 /// One write transaction and the items it carries.
 #[derive(Debug, Clone, PartialEq)]
@@ -94,9 +84,6 @@ pub(crate) fn write_ops(
                 let entry = bits.entry(address).or_default();
                 entry.0.push((bit, field.encoding.wire_bit(*b)));
                 entry.1.push(n);
-            }
-            (RegisterKind::HoldingRegister, _, _) if item.registers.is_some() => {
-                registers.push((address, item.registers.clone().unwrap_or_default(), n));
             }
             (RegisterKind::HoldingRegister, _, value) => match field.encoding.encode(value) {
                 Ok(words) => registers.push((address, words, n)),
@@ -200,33 +187,7 @@ fn runs<T>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::test_profile as profile;
-
-    #[test]
-    fn a_checked_writes_registers_go_on_the_bus_as_they_are() {
-        let p = profile(
-            "  - { name: H0, type: INT, direction: output, register: { address: 0, kind: holding_register } }\n",
-        );
-        // Registers the check made are not encoded again (these are not what 5 encodes to).
-        let items = vec![WriteItem {
-            field: 0,
-            value: Value::Int(5),
-            generation: None,
-            registers: Some(vec![0xBEEF]),
-        }];
-        let (ops, refused) = write_ops(&p, &items, false);
-        assert!(refused.is_empty());
-        assert_eq!(
-            ops,
-            vec![WriteOp::Direct {
-                request: Request::WriteSingleRegister {
-                    address: 0,
-                    value: 0xBEEF
-                },
-                items: vec![0]
-            }]
-        );
-    }
+    use crate::profile::test_profile as profile;
 
     #[test]
     fn writes_group_into_fc05_fc06_fc15_fc16_and_bit_merges() {
@@ -234,7 +195,6 @@ mod tests {
             "  - { name: C0, type: BOOL, direction: output, register: { address: 0, kind: coil } }\n  - { name: C1, type: BOOL, direction: output, register: { address: 1, kind: coil } }\n  - { name: C5, type: BOOL, direction: output, register: { address: 5, kind: coil } }\n  - { name: H0, type: INT, direction: output, register: { address: 0, kind: holding_register } }\n  - { name: H1, type: REAL, direction: output, register: { address: 1, kind: holding_register, word_count: 2 } }\n  - { name: H9, type: UINT, direction: output, register: { address: 9, kind: holding_register } }\n  - { name: Run, type: BOOL, direction: output, register: { address: 20, kind: holding_register, bit: 0 } }\n  - { name: Rev, type: BOOL, direction: output, register: { address: 20, kind: holding_register, bit: 1 } }\n",
         );
         let item = |field, value| WriteItem {
-            registers: None,
             field,
             value,
             generation: None,

@@ -148,7 +148,7 @@ pub(crate) fn read_batches(profile: &Profile, max_batch: u16, max_gap: u16) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::test_profile as profile;
+    use crate::profile::test_profile as profile;
 
     #[test]
     fn consecutive_fields_of_one_kind_share_a_transaction() {

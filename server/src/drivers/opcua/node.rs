@@ -106,7 +106,7 @@ fn identifier(text: &str) -> Result<Identifier, String> {
 }
 
 /// An OPC UA field's `node` (a node id) or `browse_path`, checked.
-pub(crate) fn check_opcua(
+pub(crate) fn check(
     key: &str,
     text: &str,
     _ty: Option<IecType>,

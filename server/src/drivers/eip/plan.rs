@@ -2,9 +2,9 @@
 //! requests and replies within the connection's size, in the profile's order. The driver
 //! reads by this plan; `iogate plan` prints it.
 
+use super::tag::{self, Tag};
 use crate::codec::IecType;
 use crate::profile::Profile;
-use crate::profile::eip_tag::{self, Tag};
 
 /// The size Large Forward Open asks for.
 pub(crate) const LARGE: usize = 4002;
@@ -24,7 +24,7 @@ pub(crate) fn packet_sizes(
     code: Option<u16>,
     count: usize,
 ) -> (usize, usize) {
-    let value = eip_tag::reply_value_len(ty, code.or_else(|| eip_tag::type_code(ty)));
+    let value = tag::reply_value_len(ty, code.or_else(|| tag::type_code(ty)));
     // Request: service, path size, path, element count. Reply: service, reserved,
     // status, extended size, type, values.
     (2 + 2 + tag.path.len() + 2, 2 + 4 + 2 + count * value)
@@ -84,7 +84,7 @@ pub(crate) fn tags(profile: &Profile) -> Vec<Result<Tag, String>> {
         .iter()
         .map(|f| {
             let point = f.point.as_ref().ok_or("the field has no tag")?;
-            eip_tag::parse(&point.address)
+            tag::parse(&point.address)
         })
         .collect()
 }
@@ -150,6 +150,7 @@ pub(crate) fn planned(profile: &Profile) -> Planned {
 mod tests {
     #[test]
     fn elements_next_to_each_other_of_one_type_are_one_read() {
+        crate::drivers::register();
         let yaml = r#"name: R
 protocol: ab-eip
 fields:
