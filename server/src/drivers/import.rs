@@ -19,12 +19,21 @@ pub fn run(
     };
     let chosen = IMPORTS.iter().flatten().find(|i| Some(i.from) == from);
     for (flag, _) in options {
-        if chosen.is_none_or(|i| !i.options.contains(flag)) {
-            let owner = IMPORTS.iter().flatten().find(|i| i.options.contains(flag));
-            return bad(&match owner {
-                Some(i) => format!(": {flag} is for --from {}", i.from),
-                None => format!(": {flag} is for no import"),
-            });
+        match chosen {
+            Some(i) if i.options.contains(flag) => {}
+            Some(i) => {
+                return bad(&format!(
+                    " --from {}: give {} (no {flag})",
+                    i.from, i.source
+                ));
+            }
+            None => {
+                let owner = IMPORTS.iter().flatten().find(|i| i.options.contains(flag));
+                return bad(&match owner {
+                    Some(i) => format!(": {flag} is for --from {}", i.from),
+                    None => format!(": {flag} is for no import"),
+                });
+            }
         }
     }
     let Some(import) = chosen else {

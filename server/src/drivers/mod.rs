@@ -95,6 +95,16 @@ pub(crate) struct Import {
 /// The options given to an import, by flag (`--node`), each with its value.
 pub type ImportOptions<'a> = [(&'static str, &'a str)];
 
+/// The value of an import's option, if given.
+pub(crate) fn option<'a>(options: &ImportOptions<'a>, flag: &str) -> Option<&'a str> {
+    options.iter().find(|(f, _)| *f == flag).map(|(_, v)| *v)
+}
+
+/// How a driver reads a link's settings from its part of the configuration: `None` after
+/// reporting every problem.
+pub(crate) type ReadSettings<S> =
+    fn(link: &str, d: &DriverLink, report: &mut crate::yaml::Report) -> Option<S>;
+
 /// Something done with the driver of a link, whichever it is.
 pub(crate) trait ForDriver {
     type Output;
@@ -214,11 +224,7 @@ pub(crate) trait Driver: Send + Sized + 'static {
     type Settings;
 
     /// Reads a link's settings (`None` after reporting every problem in them).
-    fn read_settings(
-        link: &str,
-        d: &DriverLink,
-        report: &mut crate::yaml::Report,
-    ) -> Option<Self::Settings>;
+    const READ_SETTINGS: ReadSettings<Self::Settings>;
 
     /// Whether this driver serves a link configured so: its settings key's.
     fn serves(config: &LinkConfig) -> bool {
@@ -239,7 +245,7 @@ pub(crate) trait Driver: Send + Sized + 'static {
             return Err(LinkFault::NoPort);
         };
         let mut report = crate::yaml::Report::new("config");
-        Self::read_settings(&config.name, d, &mut report).ok_or_else(|| LinkFault::OpenFailed {
+        (Self::READ_SETTINGS)(&config.name, d, &mut report).ok_or_else(|| LinkFault::OpenFailed {
             port: d.endpoint.clone(),
             reason: report.into_problems().to_string(),
         })
@@ -249,7 +255,7 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// config reader left to the driver, the files they name).
     fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
         if let Transport::Driver(d) = &config.transport {
-            Self::read_settings(&config.name, d, report);
+            (Self::READ_SETTINGS)(&config.name, d, report);
         }
     }
 

@@ -26,7 +26,7 @@ use tokio::time::Instant;
 use super::WriteItem;
 use super::{Driver, Read, Session, finish, written};
 use crate::cache::{Device, FieldError, Link, Progress};
-use crate::config::{DriverLink, LinkConfig};
+use crate::config::LinkConfig;
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::profile::Words;
@@ -118,13 +118,7 @@ impl Driver for Eip {
     const WORDS: Option<&'static Words> = Some(&WORDS);
     type Settings = config::Settings;
 
-    fn read_settings(
-        link: &str,
-        d: &DriverLink,
-        report: &mut crate::yaml::Report,
-    ) -> Option<config::Settings> {
-        config::read(link, d, report)
-    }
+    const READ_SETTINGS: super::ReadSettings<config::Settings> = config::read;
 
     const IMPORT: Option<super::Import> = Some(super::Import {
         from: LINK_KEY,
@@ -133,10 +127,7 @@ impl Driver for Eip {
     });
 
     fn import(host: &str, options: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
-        let path = options
-            .iter()
-            .find(|(f, _)| *f == "--path")
-            .map(|(_, v)| *v);
+        let path = super::option(options, "--path");
         import::run(host, path, out)
     }
 

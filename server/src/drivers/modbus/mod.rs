@@ -22,7 +22,7 @@ pub(crate) use groups::{WriteOp, write_ops};
 
 use super::{Driver, Facts, Planned, Probed, Read, Session, WriteItem};
 use crate::cache::{Device, FieldError, Link, Passthrough, PassthroughError, Probe};
-use crate::config::{DriverLink, LinkConfig, Transport};
+use crate::config::{LinkConfig, Transport};
 use crate::link::timing::LineTiming;
 use crate::link::{self, LinkFault, TxError};
 use crate::metrics::Metrics;
@@ -47,9 +47,7 @@ impl Driver for Modbus {
     /// A serial line's or a TCP link's settings are the config reader's own.
     type Settings = ();
 
-    fn read_settings(_: &str, _: &DriverLink, _: &mut crate::yaml::Report) -> Option<()> {
-        Some(())
-    }
+    const READ_SETTINGS: super::ReadSettings<()> = |_, _, _| Some(());
 
     fn serves(config: &LinkConfig) -> bool {
         matches!(

@@ -24,7 +24,7 @@ use opcua::types::{NodeId, VariantScalarTypeId};
 use super::WriteItem;
 use super::{Driver, Read, Session};
 use crate::cache::{Device, FieldError, Link};
-use crate::config::{DriverLink, LinkConfig, Transport};
+use crate::config::{LinkConfig, Transport};
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::profile::Words;
@@ -94,13 +94,7 @@ impl Driver for OpcUa {
     const WORDS: Option<&'static Words> = Some(&WORDS);
     type Settings = config::Settings;
 
-    fn read_settings(
-        link: &str,
-        d: &DriverLink,
-        report: &mut crate::yaml::Report,
-    ) -> Option<config::Settings> {
-        config::read(link, d, report)
-    }
+    const READ_SETTINGS: super::ReadSettings<config::Settings> = config::read;
 
     const IMPORT: Option<super::Import> = Some(super::Import {
         from: PROTOCOL,
@@ -109,10 +103,7 @@ impl Driver for OpcUa {
     });
 
     fn import(url: &str, options: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
-        let root = options
-            .iter()
-            .find(|(f, _)| *f == "--node")
-            .map(|(_, v)| *v);
+        let root = super::option(options, "--node");
         import::run(url, root, out)
     }
 

@@ -25,7 +25,7 @@ use tokio::time::Instant;
 use super::WriteItem;
 use super::{Driver, Read, Session};
 use crate::cache::{Device, FieldError, Link, Progress};
-use crate::config::{DriverLink, LinkConfig};
+use crate::config::LinkConfig;
 use crate::link::LinkFault;
 use crate::metrics::Metrics;
 use crate::profile::Words;
@@ -120,13 +120,7 @@ impl Driver for S7 {
     const WORDS: Option<&'static Words> = Some(&WORDS);
     type Settings = config::Settings;
 
-    fn read_settings(
-        link: &str,
-        d: &DriverLink,
-        report: &mut crate::yaml::Report,
-    ) -> Option<config::Settings> {
-        config::read(link, d, report)
-    }
+    const READ_SETTINGS: super::ReadSettings<config::Settings> = config::read;
 
     fn check_value(device: &Device, idx: usize, value: &crate::codec::Value) -> Result<(), String> {
         write::check_value(device, idx, value)

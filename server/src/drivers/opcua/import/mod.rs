@@ -21,6 +21,8 @@ use describe::Field;
 /// Runs the import; the exit code: 0 a profile written, 1 nothing could be imported, 64 a
 /// bad argument.
 pub fn run(url: &str, root: Option<&str>, out: Option<&Path>) -> u8 {
+    // What is made is loaded back before it is written, as configuration reads it.
+    crate::drivers::register();
     crate::profile::import::emit::on_runtime(import(url, root, out))
 }
 
