@@ -76,6 +76,8 @@ pub(crate) enum Fate {
 pub(crate) struct Binding {
     pub(crate) link: Option<String>,
     pub(crate) slave_id: Option<u8>,
+    /// Where it is on the link in its protocol's own keys (a BACnet device's instance).
+    pub(crate) at: Vec<(&'static str, String)>,
 }
 
 impl Binding {
@@ -105,6 +107,7 @@ impl Device {
         let binding = Binding {
             link: config.link.clone(),
             slave_id: config.slave_id,
+            at: config.at.clone(),
         };
         let error_code = binding.code(profile.protocol);
         let place = PLACES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);

@@ -302,7 +302,20 @@ pub struct DeviceConfig {
     pub(crate) rewrite_outputs: Option<RewriteOutputs>,
     /// What happens to outputs a scan-cycle client wrote when it is gone: `None` holds them.
     pub(crate) on_client_loss: Option<ClientLoss>,
+    /// Where the device is on its link in its protocol's own keys (`Words::device_keys`:
+    /// a BACnet device's `device_instance`), as written, for its driver to read.
+    pub(crate) at: Vec<(&'static str, String)>,
     pub(crate) line: u64,
+}
+
+impl DeviceConfig {
+    /// The text of one of the protocol's own keys the device carries, if it does.
+    pub(crate) fn at(&self, key: &str) -> Option<&str> {
+        self.at
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| v.as_str())
+    }
 }
 
 /// `devices[].on_client_loss: { after, safe: { FIELD: value } }`: once the `Exchange` stream

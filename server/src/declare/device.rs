@@ -155,6 +155,7 @@ impl Declared<'_> {
         let want = Binding {
             link: link.clone(),
             slave_id,
+            at: Vec::new(),
         };
         if let Some(other) = registry
             .devices
@@ -192,6 +193,7 @@ impl Declared<'_> {
             write_mode: crate::config::WriteMode::default(),
             rewrite_outputs: None,
             on_client_loss: None,
+            at: Vec::new(),
             line: 0,
         };
         let device = cache.insert_device(registry, config, self.profile.clone());
@@ -222,6 +224,7 @@ impl Declared<'_> {
             let bound = Binding {
                 link: have.link.or(want.link),
                 slave_id: have.slave_id.or(want.slave_id),
+                at: have.at,
             };
             tracing::info!(device = %self.decl.name, link = ?bound.link, slave = ?bound.slave_id, "device bound");
             cache.bind_device(registry, existing, bound);

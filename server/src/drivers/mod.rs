@@ -68,7 +68,13 @@ macro_rules! drivers {
     };
 }
 
-drivers![modbus::Modbus, opcua::OpcUa, s7::S7, eip::Eip,];
+#[rustfmt::skip]
+drivers![
+    modbus::Modbus,
+    opcua::OpcUa,
+    s7::S7,
+    eip::Eip,
+];
 
 /// Makes the drivers' words known to configuration (profiles' `protocol`, their fields'
 /// point keys, the links' settings keys), which is read below the drivers and so cannot
@@ -143,9 +149,25 @@ pub(crate) fn check_links(config: &crate::config::Config) -> crate::yaml::Proble
             D::check(self.0, self.1);
         }
     }
+    struct CheckDevice<'a>(&'a DeviceConfig, &'a mut crate::yaml::Report);
+    impl ForDriver for CheckDevice<'_> {
+        type Output = ();
+        fn with<D: Driver>(self) {
+            D::check_device(self.0, self.1);
+        }
+    }
     let mut report = crate::yaml::Report::new(&config.source);
     for link in &config.links {
         with_driver(link, Check(link, &mut report));
+    }
+    for device in &config.devices {
+        let link = config
+            .links
+            .iter()
+            .find(|l| device.link.as_ref() == Some(&l.name));
+        if let Some(link) = link {
+            with_driver(link, CheckDevice(device, &mut report));
+        }
     }
     report.into_problems()
 }
@@ -256,6 +278,19 @@ pub(crate) trait Driver: Send + Sized + 'static {
     fn check(config: &LinkConfig, report: &mut crate::yaml::Report) {
         if let Transport::Driver(d) = &config.transport {
             (Self::READ_SETTINGS)(&config.name, d, report);
+        }
+    }
+
+    /// Reports what is wrong with a device's own keys on a link of this driver
+    /// (`DeviceConfig::at`: a BACnet device's `device_instance`), as `check` does; a driver
+    /// whose devices have none refuses them.
+    fn check_device(device: &DeviceConfig, report: &mut crate::yaml::Report) {
+        for (key, _) in &device.at {
+            report.push(
+                device.line,
+                format!("device {}", device.name),
+                format!("`{key}` is not a key of a device on a {} link", Self::NAME),
+            );
         }
     }
 

@@ -7,7 +7,7 @@ mod layout;
 mod load;
 mod words;
 
-pub use words::Words;
+pub use words::{FieldKey, Words};
 pub(crate) use words::{drivers, know};
 
 use std::collections::BTreeMap;
@@ -172,6 +172,18 @@ pub struct Point {
     pub(crate) sampling: Option<std::time::Duration>,
     /// A STRING's maximum length in characters, where the profile says.
     pub(crate) length: Option<u16>,
+    /// The protocol's further keys the field carries (`Words::field_keys`), as written.
+    pub(crate) extra: Vec<(&'static str, String)>,
+}
+
+impl Point {
+    /// The text of a further key the field carries, if it does.
+    pub(crate) fn get(&self, key: &str) -> Option<&str> {
+        self.extra
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| v.as_str())
+    }
 }
 
 impl Field {

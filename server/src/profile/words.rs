@@ -24,7 +24,7 @@ pub struct Words {
     pub(crate) check_point: CheckPoint,
     /// A point as written, as one key whatever way it is written (`C3` and `Z3`, German
     /// for it, are one counter): two fields with one key name the same point.
-    pub(crate) point_identity: fn(&str) -> String,
+    pub(crate) point_identity: fn(&super::Point) -> String,
     /// A STRING field's most characters when the profile does not say (`length`).
     pub(crate) default_length: u16,
     /// A point as a profile writes it, for messages.
@@ -32,6 +32,21 @@ pub struct Words {
     /// Whether its fields may be scaled (`scale`, `offset`, `raw_type`: the value the
     /// device stores is raw, as for Modbus).
     pub(crate) scaled: bool,
+    /// Further keys a field may carry beside its point (BACnet's `property`), each with its
+    /// check; kept in [`super::Point::extra`].
+    pub(crate) field_keys: &'static [FieldKey],
+    /// Keys a device of the protocol carries in the configuration beside the common ones
+    /// (BACnet's `device_instance`), kept for its driver (`DeviceConfig::at`), which reads
+    /// them.
+    pub(crate) device_keys: &'static [&'static str],
+}
+
+/// A key a field of a protocol may carry beside its point, and its check for the field's
+/// type: why not, if not.
+#[derive(Debug)]
+pub struct FieldKey {
+    pub(crate) key: &'static str,
+    pub(crate) check: fn(text: &str, ty: Option<IecType>) -> Result<(), String>,
 }
 
 /// Checks a point as written under a key, for a field's type and length.

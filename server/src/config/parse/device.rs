@@ -124,7 +124,8 @@ pub(super) fn read_device(
         None => Some(None),
         Some(n) => read_client_loss(n, report, &at("on_client_loss")),
     };
-    map.finish(report, &ctx, DEVICE_KEYS);
+    let (at_keys, keys) = own_keys(&mut map, report, &ctx);
+    map.finish(report, &ctx, &keys);
     Some((
         DeviceConfig {
             name: name?,
@@ -139,10 +140,38 @@ pub(super) fn read_device(
             write_mode: write_mode.unwrap_or_default(),
             rewrite_outputs: rewrite_outputs.flatten(),
             on_client_loss: on_client_loss.flatten(),
+            at: at_keys,
             line: node.line,
         },
         slave_refused,
     ))
+}
+
+/// The keys of the drivers' own a device carries (`Words::device_keys`), as written, and
+/// every key a device may have.
+fn own_keys(
+    map: &mut crate::yaml::MapReader<'_>,
+    report: &mut Report,
+    ctx: &str,
+) -> (Vec<(&'static str, String)>, Vec<&'static str>) {
+    let own: Vec<&'static str> = crate::profile::drivers()
+        .iter()
+        .flat_map(|w| w.device_keys.iter().copied())
+        .collect();
+    let mut at = Vec::new();
+    for key in &own {
+        if at.iter().any(|(k, _)| k == key) {
+            continue;
+        }
+        if let Some(text) = map
+            .get(key)
+            .and_then(|n| n.scalar_text(report, &format!("{ctx}: {key}")))
+        {
+            at.push((*key, text));
+        }
+    }
+    let keys = DEVICE_KEYS.iter().copied().chain(own).collect();
+    (at, keys)
 }
 
 /// `rewrite_outputs`: `on_reconnect` or `never`.

@@ -48,11 +48,13 @@ const WORDS: Words = Words {
     link_at: "host",
     check_point: tag::check,
     // Logix tag names are not case-sensitive.
-    point_identity: str::to_ascii_lowercase,
+    point_identity: |p| p.address.to_ascii_lowercase(),
     // A Logix STRING holds 82 characters.
     default_length: 82,
     example: "Program:Main.Speed",
     scaled: false,
+    field_keys: &[],
+    device_keys: &[],
 };
 
 /// What is kept of a device: each field's tag (or why it has none) and the type the

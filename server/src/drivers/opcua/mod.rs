@@ -59,10 +59,12 @@ const WORDS: Words = Words {
     link_key: PROTOCOL,
     link_at: "url",
     check_point: node::check,
-    point_identity: str::to_owned,
+    point_identity: |p| p.address.clone(),
     default_length: 64,
     example: "ns=3;s=Line1.Speed",
     scaled: false,
+    field_keys: &[],
+    device_keys: &[],
 };
 
 /// What is kept of a device between sessions.

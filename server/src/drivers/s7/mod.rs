@@ -47,10 +47,12 @@ const WORDS: Words = Words {
     link_key: PROTOCOL,
     link_at: "host",
     check_point: form::check,
-    point_identity: form::point_identity,
+    point_identity: |p| form::point_identity(&p.address),
     default_length: 64,
     example: "DB10.DBD6",
     scaled: true,
+    field_keys: &[],
+    device_keys: &[],
 };
 
 /// The link's fact of the PDU size the PLC granted (its view, its plan).

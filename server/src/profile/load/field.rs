@@ -92,5 +92,6 @@ fn point_field_keys(words: &Words) -> Vec<&'static str> {
         .chain(words.point_alternative)
         .chain(POINT_KEYS.iter().copied())
         .chain(SCALE_KEYS.iter().copied().filter(|_| words.scaled))
+        .chain(words.field_keys.iter().map(|k| k.key))
         .collect()
 }

@@ -364,11 +364,14 @@ fn check_names(fields: &[Field], report: &mut Report) {
 /// register kind may not share a register, except BOOL fields on different bits of one
 /// register.
 fn check_overlaps(fields: &[Field], words: Option<&Words>, report: &mut Report) {
-    let identity = words.map_or(str::to_owned as fn(&str) -> String, |w| w.point_identity);
+    let plain = |p: &crate::profile::Point| p.address.clone();
+    let identity = words.map_or(plain as fn(&crate::profile::Point) -> String, |w| {
+        w.point_identity
+    });
     let mut points: HashMap<(bool, String), &Field> = HashMap::new();
     for a in fields {
         let Some(x) = &a.point else { continue };
-        match points.entry((x.browse_path, identity(&x.address))) {
+        match points.entry((x.browse_path, identity(x))) {
             std::collections::hash_map::Entry::Occupied(b) => report.push(
                 a.line,
                 format!("field {}", a.name),

@@ -61,6 +61,7 @@ pub(super) fn read_point(
             }
         }
     };
+    let extra = extra_keys(map, words, ctx, ty, report)?;
     let ty = ty?;
     let word_count = match ty {
         IecType::String => length.unwrap_or(words.default_length).div_ceil(2),
@@ -85,8 +86,37 @@ pub(super) fn read_point(
         browse_path,
         sampling,
         length,
+        extra,
     };
     Some((register, point))
+}
+
+/// The protocol's further keys the field carries, each checked.
+fn extra_keys(
+    map: &mut MapReader<'_>,
+    words: &Words,
+    ctx: &str,
+    ty: Option<IecType>,
+    report: &mut Report,
+) -> Option<Vec<(&'static str, String)>> {
+    let mut extra = Vec::new();
+    let mut valid = true;
+    for k in words.field_keys {
+        let Some(n) = map.get(k.key) else { continue };
+        let at = format!("{ctx}: {}", k.key);
+        let Some(text) = n.scalar_text(report, &at) else {
+            valid = false;
+            continue;
+        };
+        match (k.check)(&text, ty) {
+            Ok(()) => extra.push((k.key, text)),
+            Err(why) => {
+                report.push(n.line, at, why);
+                valid = false;
+            }
+        }
+    }
+    valid.then_some(extra)
 }
 
 /// The field's point under the protocol's key (or its alternative), checked: the text and
