@@ -13,6 +13,7 @@
 //! (`LinkFault`, through the `Result` of each call: an error ends the session) and the
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
+pub(crate) mod bacnet;
 pub(crate) mod describe;
 pub mod eip;
 pub mod import;
@@ -74,6 +75,7 @@ drivers![
     opcua::OpcUa,
     s7::S7,
     eip::Eip,
+    bacnet::Bacnet,
 ];
 
 /// Makes the drivers' words known to configuration (profiles' `protocol`, their fields'

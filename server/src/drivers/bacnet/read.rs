@@ -1,0 +1,232 @@
+//! The port's start and a device's read: the device put in the client's table (by its
+//! address, or by a Who-Is for its instance until its I-Am is heard), then its fields read
+//! in ReadPropertyMultiple requests of at most [`PER_REQUEST`] objects, each present value
+//! with the object's status flags. Every answer is checked against its request: an object
+//! or a property that is not the one asked makes that field's error, never a value.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use bacnet_client::client::BACnetClient;
+use bacnet_encoding::primitives::decode_application_value;
+use bacnet_services::rpm::ReadAccessResult;
+use bacnet_services::who_is::DeviceInstanceRange;
+use bacnet_transport::bip::{BipTransport, ForeignDeviceConfig};
+use bacnet_types::constructed::{PropertyReference, ReadAccessSpecification};
+use bacnet_types::enums::AbortReason;
+use bacnet_types::enums::PropertyIdentifier;
+use bacnet_types::error::{Error, RemoteError};
+use bacnet_types::primitives::PropertyValue;
+use tokio::time::Instant;
+
+use super::config::Settings;
+use super::value::{not_good, reading};
+use super::{Place, Plan, Port};
+use crate::cache::{Device, FieldError};
+use crate::drivers::Read;
+use crate::link::{LinkFault, TxError};
+
+/// The most objects one ReadPropertyMultiple asks for (each with at most two properties:
+/// an answer stays within a device's smallest usual APDU of 480 bytes for numbers).
+pub(super) const PER_REQUEST: usize = 16;
+
+/// Starts the client on the link's port.
+pub(super) async fn start(s: &Settings) -> Result<BACnetClient<BipTransport>, Error> {
+    let mut transport = BipTransport::new(*s.bind.ip(), s.bind.port(), s.broadcast);
+    if let Some((bbmd, ttl)) = s.bbmd {
+        transport.register_as_foreign_device(ForeignDeviceConfig {
+            bbmd_ip: *bbmd.ip(),
+            bbmd_port: bbmd.port(),
+            ttl: u16::try_from(ttl.as_secs()).unwrap_or(u16::MAX).max(1),
+            renewal_interval: None,
+        });
+    }
+    let config = bacnet_client::client::ClientConfig {
+        interface: *s.bind.ip(),
+        port: s.bind.port(),
+        broadcast_address: s.broadcast,
+        apdu_timeout_ms: u64::try_from(s.timeout.as_millis()).unwrap_or(u64::MAX),
+        apdu_retries: s.retries,
+        ..Default::default()
+    };
+    BACnetClient::start(config, transport).await
+}
+
+/// What a failed request means: the port itself failed (`Err`), or the device's answer or
+/// silence (`Ok`, its field error, and whether it was silence).
+pub(super) fn failure(e: Error) -> Result<(FieldError, bool), LinkFault> {
+    match e {
+        Error::Transport(io) => Err(LinkFault::Lost(Arc::new(io))),
+        Error::Timeout(_) => Ok((FieldError::NoResponse(TxError::Timeout), true)),
+        // The client's own transaction timer, after the retries.
+        Error::Remote(RemoteError::Abort { reason }) if reason == AbortReason::TSM_TIMEOUT => {
+            Ok((FieldError::NoResponse(TxError::Timeout), true))
+        }
+        Error::Remote(RemoteError::Abort { reason }) => Ok((
+            FieldError::Device(format!("the device aborted the request ({reason})")),
+            false,
+        )),
+        Error::Remote(RemoteError::Reject { reason }) => Ok((
+            FieldError::Device(format!("the device rejected the request ({reason})")),
+            false,
+        )),
+        e @ (Error::Remote(_) | Error::Structured { .. }) => {
+            Ok((FieldError::Device(e.to_string()), false))
+        }
+        e => Ok((
+            FieldError::Device(format!("the answer does not decode: {e}")),
+            false,
+        )),
+    }
+}
+
+/// Puts the device in the client's table: by its address, or by asking for it (a Who-Is
+/// for its instance); `false` while it is not known yet.
+async fn know(port: &Port, plan: &mut Plan) -> Result<bool, String> {
+    let (instance, address) = plan.instance.clone()?;
+    if plan.known {
+        return Ok(true);
+    }
+    if let Some(at) = address {
+        let mut mac = at.ip().octets().to_vec();
+        mac.extend_from_slice(&at.port().to_be_bytes());
+        port.client
+            .add_device(instance, &mac)
+            .await
+            .map_err(|e| e.to_string())?;
+        plan.known = true;
+        return Ok(true);
+    }
+    if port.client.get_device(instance).await.is_some() {
+        plan.known = true;
+        return Ok(true);
+    }
+    let range = DeviceInstanceRange::new(instance, instance).map_err(|e| e.to_string())?;
+    port.client
+        .who_is(Some(range))
+        .await
+        .map_err(|e| e.to_string())?;
+    Ok(false)
+}
+
+/// The request for some fields: each object with its property, and its status flags when
+/// the property is the present value.
+fn specs(places: &[(usize, Place)]) -> Vec<ReadAccessSpecification> {
+    places
+        .iter()
+        .map(|(_, p)| {
+            let mut refs = vec![PropertyReference {
+                property_identifier: p.property,
+                property_array_index: None,
+            }];
+            if p.property == PropertyIdentifier::PRESENT_VALUE {
+                refs.push(PropertyReference {
+                    property_identifier: PropertyIdentifier::STATUS_FLAGS,
+                    property_array_index: None,
+                });
+            }
+            ReadAccessSpecification {
+                object_identifier: p.object,
+                list_of_property_references: refs,
+            }
+        })
+        .collect()
+}
+
+/// One property of an object's result, decoded, or why not.
+fn property(result: &ReadAccessResult, id: PropertyIdentifier) -> Result<PropertyValue, String> {
+    let element = result
+        .list_of_results
+        .iter()
+        .find(|r| r.property_identifier == id && r.property_array_index.is_none())
+        .ok_or_else(|| format!("the answer has no {id} of {:?}", result.object_identifier))?;
+    if let Some((class, code)) = &element.error {
+        return Err(format!("the device refused {id}: {class}, {code}"));
+    }
+    let bytes = element.property_value.as_deref().unwrap_or_default();
+    let (value, used) =
+        decode_application_value(bytes, 0).map_err(|e| format!("{id} does not decode: {e}"))?;
+    if used != bytes.len() {
+        return Err(format!(
+            "{id} holds more than one value (a list or an array)"
+        ));
+    }
+    Ok(value)
+}
+
+/// Each field's value from its object's result, checked against what was asked.
+fn publish(device: &Device, asked: &[(usize, Place)], results: &[ReadAccessResult]) {
+    for (k, (idx, place)) in asked.iter().enumerate() {
+        let field = device.field(*idx);
+        let outcome = match results.get(k) {
+            None => Err(FieldError::Missing("the object's result")),
+            Some(r) if r.object_identifier != place.object => Err(FieldError::Device(format!(
+                "the answer is for {:?}, not the {:?} asked",
+                r.object_identifier, place.object
+            ))),
+            Some(r) => {
+                let flags = (place.property == PropertyIdentifier::PRESENT_VALUE)
+                    .then(|| property(r, PropertyIdentifier::STATUS_FLAGS));
+                match (property(r, place.property), flags) {
+                    (Err(why), _) | (_, Some(Err(why))) => Err(FieldError::Device(why)),
+                    (Ok(_), Some(Ok(f))) if not_good(&f).is_some() => Err(FieldError::Device(
+                        not_good(&f).unwrap_or_default().to_owned(),
+                    )),
+                    (Ok(v), _) => reading(field.ty, &v).map_err(FieldError::Device),
+                }
+            }
+        };
+        device.publish(*idx, outcome);
+    }
+}
+
+/// Reads the device's fields (one cycle) and publishes each.
+pub(super) async fn cycle(
+    port: &Port,
+    device: &Arc<Device>,
+    plan: &mut Plan,
+) -> Result<Read, LinkFault> {
+    let started = Instant::now();
+    let instance = match know(port, plan).await {
+        Ok(true) => plan.instance.as_ref().map_or(0, |(i, _)| *i),
+        Ok(false) => {
+            return Ok(Read::Silent(FieldError::Device(
+                "not found yet: no I-Am answered the Who-Is for its instance".to_owned(),
+            )));
+        }
+        Err(why) => return Ok(Read::Silent(FieldError::Device(why))),
+    };
+    let mut fields = Vec::new();
+    for (idx, place) in plan.places.iter().enumerate() {
+        match place {
+            Ok(p) => fields.push((idx, *p)),
+            Err(why) => device.publish(idx, Err(FieldError::Device(why.clone()))),
+        }
+    }
+    let mut answered = false;
+    for chunk in fields.chunks(PER_REQUEST) {
+        port.started();
+        let answer = port
+            .client
+            .read_property_multiple_from_device(instance, specs(chunk))
+            .await;
+        port.progress.ended();
+        match answer {
+            Ok(ack) => {
+                answered = true;
+                publish(device, chunk, &ack.list_of_read_access_results);
+            }
+            Err(e) => match failure(e)? {
+                (why, true) if !answered => return Ok(Read::Silent(why)),
+                (why, _) => {
+                    for (idx, _) in chunk {
+                        device.publish(*idx, Err(why.clone()));
+                    }
+                }
+            },
+        }
+    }
+    Ok(Read::Answered(
+        started.elapsed().max(Duration::from_micros(1)),
+    ))
+}

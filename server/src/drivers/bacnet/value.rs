@@ -1,0 +1,206 @@
+//! BACnet values as the fields' IEC values and back: a property's application-tagged value
+//! read as the field's type (a number that does not fit is an error naming both, never a
+//! wrapped or truncated value), and a field's value written as the datatype the object's
+//! property takes (REAL for analog objects, ENUMERATED inactive/active for binary ones,
+//! Unsigned for multi-state ones). The status flags say whether a value is good.
+
+use bacnet_types::enums::ObjectType;
+use bacnet_types::primitives::PropertyValue;
+
+use crate::codec::{IecType, Value};
+
+/// A property's value as a field of type `ty`, or why not.
+pub(crate) fn reading(ty: IecType, value: &PropertyValue) -> Result<Value, String> {
+    let fits = |v: Result<Value, iogate_types::ValueError>| v.map_err(|e| e.to_string());
+    match (ty, value) {
+        (IecType::Bool, PropertyValue::Boolean(b)) => Ok(Value::Bool(*b)),
+        (IecType::Bool, PropertyValue::Enumerated(n)) if *n <= 1 => Ok(Value::Bool(*n == 1)),
+        (IecType::Bool, PropertyValue::Unsigned(n)) if *n <= 1 => Ok(Value::Bool(*n == 1)),
+        (IecType::String, PropertyValue::CharacterString(s)) => Ok(Value::String(s.clone())),
+        (IecType::Real | IecType::Lreal, PropertyValue::Real(x)) => {
+            fits(Value::from_real(ty, f64::from(*x)))
+        }
+        (IecType::Real | IecType::Lreal, PropertyValue::Double(x)) => {
+            fits(Value::from_real(ty, *x))
+        }
+        (t, PropertyValue::Unsigned(n)) if t != IecType::Bool && t != IecType::String => {
+            number(t, i128::from(*n))
+        }
+        (t, PropertyValue::Enumerated(n)) if t != IecType::Bool && t != IecType::String => {
+            number(t, i128::from(*n))
+        }
+        (t, PropertyValue::Signed(n)) if t != IecType::Bool && t != IecType::String => {
+            number(t, i128::from(*n))
+        }
+        (t, PropertyValue::Boolean(b)) if t != IecType::String => number(t, i128::from(*b)),
+        (IecType::Real | IecType::Lreal, _)
+        | (_, PropertyValue::Real(_) | PropertyValue::Double(_)) => {
+            Err(format!("{ty} does not take the device's {}", kind(value)))
+        }
+        _ => Err(format!("{ty} does not take the device's {}", kind(value))),
+    }
+}
+
+/// A whole number as a field of type `ty` (a real type takes it as a number).
+fn number(ty: IecType, n: i128) -> Result<Value, String> {
+    let v = match ty {
+        IecType::Real | IecType::Lreal => Value::from_real(ty, n as f64),
+        _ => Value::from_int(ty, n),
+    };
+    v.map_err(|e| format!("the device's {n}: {e}"))
+}
+
+/// What a value is, for messages.
+pub(crate) fn kind(value: &PropertyValue) -> &'static str {
+    match value {
+        PropertyValue::Null => "NULL",
+        PropertyValue::Boolean(_) => "BOOLEAN",
+        PropertyValue::Unsigned(_) => "Unsigned",
+        PropertyValue::Signed(_) => "INTEGER",
+        PropertyValue::Real(_) => "REAL",
+        PropertyValue::Double(_) => "Double",
+        PropertyValue::OctetString(_) => "OCTET STRING",
+        PropertyValue::CharacterString(_) => "CharacterString",
+        PropertyValue::BitString { .. } => "BIT STRING",
+        PropertyValue::Enumerated(_) => "ENUMERATED",
+        PropertyValue::Date(_) => "Date",
+        PropertyValue::Time(_) => "Time",
+        _ => "value of another kind",
+    }
+}
+
+/// A field's value as the datatype `object`'s present value takes.
+pub(crate) fn writing(object: ObjectType, value: &Value) -> Result<PropertyValue, String> {
+    let analog = [
+        ObjectType::ANALOG_INPUT,
+        ObjectType::ANALOG_OUTPUT,
+        ObjectType::ANALOG_VALUE,
+    ];
+    let binary = [
+        ObjectType::BINARY_INPUT,
+        ObjectType::BINARY_OUTPUT,
+        ObjectType::BINARY_VALUE,
+    ];
+    let multi = [
+        ObjectType::MULTI_STATE_INPUT,
+        ObjectType::MULTI_STATE_OUTPUT,
+        ObjectType::MULTI_STATE_VALUE,
+    ];
+    if analog.contains(&object) {
+        let x = value.as_f64().ok_or("an analog object takes a number")?;
+        let r = x as f32;
+        if !r.is_finite() {
+            return Err(format!("{x} does not fit a REAL"));
+        }
+        return Ok(PropertyValue::Real(r));
+    }
+    if binary.contains(&object) {
+        return match value {
+            Value::Bool(b) => Ok(PropertyValue::Enumerated(u32::from(*b))),
+            v => match v.as_i128() {
+                Some(n @ 0..=1) => Ok(PropertyValue::Enumerated(n as u32)),
+                _ => Err(format!(
+                    "a binary object takes inactive (0) or active (1), not {v}"
+                )),
+            },
+        };
+    }
+    if multi.contains(&object) {
+        return match value.as_i128() {
+            Some(n) if n >= 1 && n <= i128::from(u32::MAX) => Ok(PropertyValue::Unsigned(n as u64)),
+            _ => Err(format!(
+                "a multi-state object takes a state from 1, not {value}"
+            )),
+        };
+    }
+    Ok(match value {
+        Value::Bool(b) => PropertyValue::Boolean(*b),
+        Value::Int(n) => match i32::try_from(*n) {
+            Ok(n) => PropertyValue::Signed(n),
+            Err(_) => return Err(format!("{n} does not fit a BACnet INTEGER")),
+        },
+        Value::UInt(n) => PropertyValue::Unsigned(*n),
+        Value::Real(x) => PropertyValue::Real(*x),
+        Value::LReal(x) => PropertyValue::Double(*x),
+        Value::String(s) => PropertyValue::CharacterString(s.clone()),
+        Value::Time(ms) => {
+            PropertyValue::Unsigned(u64::try_from(*ms).map_err(|_| "a negative TIME".to_owned())?)
+        }
+    })
+}
+
+/// The status flags' fault and out-of-service bits (in-alarm 0, fault 1, overridden 2,
+/// out-of-service 3, from the first byte's highest bit): why the value is not good, if it
+/// is not.
+pub(crate) fn not_good(flags: &PropertyValue) -> Option<&'static str> {
+    let PropertyValue::BitString { data, .. } = flags else {
+        return None;
+    };
+    let first = data.first().copied().unwrap_or(0);
+    if first & 0x40 != 0 {
+        return Some("the device flags it as in fault (status-flags)");
+    }
+    if first & 0x10 != 0 {
+        return Some("the device flags it as out of service (status-flags)");
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_value_that_does_not_fit_the_field_is_an_error_naming_both() {
+        assert_eq!(
+            reading(IecType::Real, &PropertyValue::Real(21.5)),
+            Ok(Value::Real(21.5))
+        );
+        assert_eq!(
+            reading(IecType::Bool, &PropertyValue::Enumerated(1)),
+            Ok(Value::Bool(true))
+        );
+        assert!(reading(IecType::Bool, &PropertyValue::Enumerated(2)).is_err());
+        assert_eq!(
+            reading(IecType::Uint, &PropertyValue::Unsigned(3)),
+            Ok(Value::UInt(3))
+        );
+        assert!(
+            reading(IecType::Sint, &PropertyValue::Unsigned(300))
+                .expect_err("refused")
+                .contains("300")
+        );
+        let why = reading(IecType::Int, &PropertyValue::Real(1.5)).expect_err("refused");
+        assert!(why.contains("INT") && why.contains("REAL"), "{why}");
+    }
+
+    #[test]
+    fn values_are_written_as_the_object_takes_them() {
+        assert_eq!(
+            writing(ObjectType::ANALOG_OUTPUT, &Value::Real(42.0)),
+            Ok(PropertyValue::Real(42.0))
+        );
+        assert_eq!(
+            writing(ObjectType::BINARY_OUTPUT, &Value::Bool(true)),
+            Ok(PropertyValue::Enumerated(1))
+        );
+        assert_eq!(
+            writing(ObjectType::MULTI_STATE_VALUE, &Value::UInt(3)),
+            Ok(PropertyValue::Unsigned(3))
+        );
+        assert!(writing(ObjectType::MULTI_STATE_VALUE, &Value::UInt(0)).is_err());
+        assert!(writing(ObjectType::ANALOG_VALUE, &Value::LReal(1e300)).is_err());
+    }
+
+    #[test]
+    fn fault_and_out_of_service_are_not_good() {
+        let flags = |b: u8| PropertyValue::BitString {
+            unused_bits: 4,
+            data: vec![b],
+        };
+        assert_eq!(not_good(&flags(0x00)), None);
+        assert_eq!(not_good(&flags(0x80)), None, "in alarm is still a value");
+        assert!(not_good(&flags(0x40)).is_some_and(|w| w.contains("fault")));
+        assert!(not_good(&flags(0x10)).is_some_and(|w| w.contains("out of service")));
+    }
+}

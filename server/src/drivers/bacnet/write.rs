@@ -1,0 +1,98 @@
+//! A device's outputs: each a WriteProperty of its object's property at the field's
+//! priority (the lowest, 16, unless the profile says), its outcome the device's answer. A
+//! value the object cannot take is refused before it is sent; a write the device does not
+//! answer leaves the rest unsent and says the device stopped answering.
+
+use std::sync::Arc;
+
+use bacnet_encoding::primitives::encode_property_value;
+use bacnet_types::enums::PropertyIdentifier;
+use bytes::BytesMut;
+
+use super::value::writing;
+use super::{Place, Plan, Port};
+use crate::cache::{Device, FieldError, WriteError};
+use crate::drivers::{WriteItem, finish, written};
+use crate::link::LinkFault;
+
+/// A field's value encoded as its property takes it (a present value as its object's
+/// datatype), or why it cannot be.
+pub(super) fn value(place: Place, value: &crate::codec::Value) -> Result<Vec<u8>, String> {
+    let object = match place.property {
+        PropertyIdentifier::PRESENT_VALUE => place.object.object_type(),
+        // Another property: the value's own datatype.
+        _ => bacnet_types::enums::ObjectType::from_raw(u32::MAX),
+    };
+    let mut bytes = BytesMut::new();
+    encode_property_value(&mut bytes, &writing(object, value)?).map_err(|e| e.to_string())?;
+    Ok(bytes.to_vec())
+}
+
+/// Writes the items one request each, in order.
+pub(super) async fn outputs(
+    port: &Port,
+    device: &Arc<Device>,
+    plan: &mut Plan,
+    items: Vec<WriteItem>,
+) -> Result<Option<FieldError>, LinkFault> {
+    let instance = match &plan.instance {
+        Ok((i, _)) if plan.known => *i,
+        Ok(_) => {
+            for item in &items {
+                finish(device, item, Err(WriteError::DeviceDown), 0);
+            }
+            return Ok(None);
+        }
+        Err(why) => {
+            for item in &items {
+                finish(device, item, Err(WriteError::Refused(why.clone())), 0);
+            }
+            return Ok(None);
+        }
+    };
+    let mut items = items.into_iter();
+    while let Some(item) = items.next() {
+        let place = match &plan.places[item.field] {
+            Ok(p) => *p,
+            Err(why) => {
+                finish(device, &item, Err(WriteError::Refused(why.clone())), 0);
+                continue;
+            }
+        };
+        let bytes = match value(place, &item.value) {
+            Ok(bytes) => bytes,
+            Err(why) => {
+                finish(device, &item, Err(WriteError::Refused(why)), 0);
+                continue;
+            }
+        };
+        port.started();
+        let answer = port
+            .client
+            .write_property_to_device(
+                instance,
+                place.object,
+                place.property,
+                None,
+                bytes,
+                Some(place.priority),
+            )
+            .await;
+        port.progress.ended();
+        match answer {
+            Ok(()) => written(device, &item, 1),
+            Err(e) => match super::read::failure(e)? {
+                (why, true) => {
+                    let silent = WriteError::NoResponse(crate::link::TxError::Timeout);
+                    finish(device, &item, Err(silent), 1);
+                    for rest in items {
+                        finish(device, &rest, Err(WriteError::DeviceDown), 0);
+                    }
+                    return Ok(Some(why));
+                }
+                (why, false) => finish(device, &item, Err(WriteError::Refused(why.to_string())), 1),
+            },
+        }
+    }
+    Ok(None)
+}

@@ -1,0 +1,64 @@
+//! An independent BACnet/IP device for the BACnet driver's tests: bacpypes3 serving one
+//! object of each kind the driver reads (`tests/bacnet/device.py`) on 127.0.0.1 at a free
+//! port, driven one command per line (`get`, `set`, `flags`).
+
+use tokio::io::AsyncWriteExt;
+
+use crate::{PATIENCE, Piped, repo_file, spawn_piped};
+
+/// A running device.
+pub struct BacnetDevice {
+    piped: Piped,
+    /// The UDP port it is bound to.
+    pub port: u16,
+    /// Its device object's instance.
+    pub instance: u32,
+}
+
+impl BacnetDevice {
+    /// Starts a device of `instance` and waits until it is bound.
+    pub async fn start(instance: u32) -> anyhow::Result<BacnetDevice> {
+        let mut command = tokio::process::Command::new(crate::python());
+        command.arg(repo_file("bacnet/device.py")).args([
+            "--instance",
+            &instance.to_string(),
+            "--name",
+            "TestDevice",
+        ]);
+        let mut piped = spawn_piped(command)?;
+        let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())
+            .await??
+            .ok_or_else(|| anyhow::anyhow!("the device ended before it was bound"))?;
+        let port = line.trim().parse()?;
+        Ok(BacnetDevice {
+            piped,
+            port,
+            instance,
+        })
+    }
+
+    /// One command and its answer.
+    pub async fn cmd(&mut self, command: &str) -> anyhow::Result<String> {
+        self.piped
+            .stdin
+            .write_all(format!("{command}\n").as_bytes())
+            .await?;
+        let answer = tokio::time::timeout(PATIENCE, self.piped.lines.next_line())
+            .await??
+            .ok_or_else(|| anyhow::anyhow!("the device ended"))?;
+        anyhow::ensure!(!answer.starts_with("error"), "{command}: {answer}");
+        Ok(answer)
+    }
+
+    /// A property of an object as the device holds it (`analog-output,1`, `presentValue`).
+    pub async fn get(&mut self, object: &str, property: &str) -> anyhow::Result<String> {
+        self.cmd(&format!("get {object} {property}")).await
+    }
+
+    /// Kills the device as the operating system would.
+    pub async fn kill(mut self) -> anyhow::Result<()> {
+        self.piped.child.kill().await?;
+        let _ = self.piped.child.wait().await;
+        Ok(())
+    }
+}

@@ -1,0 +1,208 @@
+//! The BACnet driver against an independent BACnet/IP device (bacpypes3,
+//! `tests/bacnet/device.py`): analog, binary and multi-state inputs, outputs and values read
+//! with their status flags, writes at a field's priority checked on the device, a fault
+//! flagged by the device never shown as a good value, a device that is not there silent,
+//! and configuration problems named at their lines.
+
+use iogate_tests::TestGateway;
+use iogate_tests::bacnet::BacnetDevice;
+use iogate_tests::devices::temp_dir;
+use serde_json::{Value, json};
+
+const PROFILE: &str = r#"name: Ahu
+protocol: bacnet
+fields:
+  - { name: Temp, type: REAL, direction: input, object: "analog-input:1", unit: degC }
+  - { name: TempUnits, type: UINT, direction: input, object: "analog-input:1", property: units }
+  - { name: Valve, type: REAL, direction: inout, object: "analog-output:1", priority: 8 }
+  - { name: Setpoint, type: REAL, direction: inout, object: "analog-value:1" }
+  - { name: Alarm, type: BOOL, direction: input, object: "binary-input:1" }
+  - { name: Fan, type: BOOL, direction: inout, object: "binary-output:1" }
+  - { name: Enable, type: BOOL, direction: inout, object: "binary-value:1" }
+  - { name: Mode, type: UINT, direction: input, object: "multi-state-input:1" }
+  - { name: Speed, type: UINT, direction: inout, object: "multi-state-output:1" }
+  - { name: Season, type: UINT, direction: input, object: "multi-state-value:1" }
+  - { name: Nothing, type: REAL, direction: input, object: "analog-input:99" }
+"#;
+
+/// A gateway with the device on a BACnet link bound to a free port of 127.0.0.1, and a
+/// second device (instance 77) that does not exist.
+async fn gateway(name: &str, device: &BacnetDevice) -> anyhow::Result<TestGateway> {
+    let dir = temp_dir(name);
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/ahu.yaml"), PROFILE)?;
+    let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\", timeout: 500ms, retries: 1 }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: {}, address: \"127.0.0.1:{}\", refresh_rate: 200ms }}\n  - {{ name: ghost, profile: Ahu, link: bms, device_instance: 77, address: \"127.0.0.1:9\", refresh_rate: 200ms }}\n",
+        dir.join("profiles").display(),
+        device.instance,
+        device.port,
+    );
+    TestGateway::start(&config).await
+}
+
+fn field<'a>(device: &'a Value, name: &str) -> &'a Value {
+    &device["fields"][name]
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_object_kind_is_read_and_written_as_the_device_holds_it() -> anyhow::Result<()> {
+    let mut device = BacnetDevice::start(1001).await?;
+    let gw = gateway("bacnet-values", &device).await?;
+    let d = gw
+        .until("/api/v1/devices/ahu", "read", |d| {
+            field(d, "Temp")["quality"] == "good" && field(d, "Season")["quality"] == "good"
+        })
+        .await?;
+    let v = |n: &str| field(&d, n)["value"].clone();
+    assert_eq!(v("Temp"), json!(21.5));
+    assert_eq!(v("TempUnits"), json!(62), "degrees-Celsius is 62");
+    assert_eq!(v("Valve"), json!(0.0));
+    assert_eq!(v("Setpoint"), json!(20.0));
+    assert_eq!(v("Alarm"), json!(false));
+    assert_eq!(v("Fan"), json!(false));
+    assert_eq!(v("Enable"), json!(true));
+    assert_eq!(v("Mode"), json!(2));
+    assert_eq!(v("Speed"), json!(1));
+    assert_eq!(v("Season"), json!(1));
+    // An object the device does not have is that field's error; the others stay good.
+    let nothing = field(&d, "Nothing");
+    assert_eq!(nothing["quality"], "bad", "{nothing}");
+    assert!(
+        nothing["error"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("unknown-object")
+            || nothing["error"]
+                .as_str()
+                .unwrap_or_default()
+                .contains("UNKNOWN_OBJECT"),
+        "{nothing}"
+    );
+
+    // A change on the device is seen.
+    device.cmd("set analog-input,1 23.25").await?;
+    gw.until("/api/v1/devices/ahu", "the change", |d| {
+        field(d, "Temp")["value"] == json!(23.25)
+    })
+    .await?;
+
+    // Writes reach the device, at the field's priority (8) or the lowest (16).
+    for (name, value) in [
+        ("Valve", json!(42.5)),
+        ("Setpoint", json!(21.0)),
+        ("Fan", json!(true)),
+        ("Enable", json!(false)),
+        ("Speed", json!(3)),
+    ] {
+        let outcome = gw
+            .write_outcome("ahu", name, value.clone())
+            .await?
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        assert_eq!(outcome["status"], "written", "{name}: {outcome}");
+    }
+    assert_eq!(device.get("analog-output,1", "presentValue").await?, "42.5");
+    // The valve at its field's priority 8, nothing at 16; the setpoint at 16.
+    assert_eq!(device.cmd("priority analog-output,1 8").await?, "42.5");
+    assert_eq!(device.cmd("priority analog-output,1 16").await?, "null");
+    assert_eq!(device.cmd("priority analog-value,1 16").await?, "21.0");
+    assert_eq!(device.get("analog-value,1", "presentValue").await?, "21.0");
+    assert_eq!(
+        device.get("binary-output,1", "presentValue").await?,
+        "active"
+    );
+    assert_eq!(
+        device.get("binary-value,1", "presentValue").await?,
+        "inactive"
+    );
+    assert_eq!(
+        device.get("multi-state-output,1", "presentValue").await?,
+        "3"
+    );
+
+    // A value the object cannot take is refused before it is sent.
+    let refused = gw.write_outcome("ahu", "Speed", json!(0)).await?;
+    let why = match refused {
+        Err(e) => e,
+        Ok(o) => o["error"].as_str().unwrap_or_default().to_owned(),
+    };
+    assert!(why.contains("multi-state"), "{why}");
+    assert_eq!(
+        device.get("multi-state-output,1", "presentValue").await?,
+        "3"
+    );
+
+    // A fault the device flags is never a good value.
+    device.cmd("flags analog-input,1 FAULT").await?;
+    let d = gw
+        .until("/api/v1/devices/ahu", "the fault", |d| {
+            field(d, "Temp")["quality"] != "good"
+        })
+        .await?;
+    let temp = field(&d, "Temp");
+    assert!(
+        temp["error"].as_str().unwrap_or_default().contains("fault"),
+        "{temp}"
+    );
+    device.cmd("flags analog-input,1 OK").await?;
+    gw.until("/api/v1/devices/ahu", "good again", |d| {
+        field(d, "Temp")["quality"] == "good"
+    })
+    .await?;
+
+    // The device that is not there is disconnected, and the link still reads the other.
+    let ghost = gw
+        .until("/api/v1/devices/ghost", "silent", |d| {
+            d["connected"] == false
+        })
+        .await?;
+    assert_eq!(ghost["error_code"], 10, "{ghost}");
+    let (_, plan) = (
+        200,
+        reqwest::get(gw.url("/api/v1/links/bms/plan"))
+            .await?
+            .text()
+            .await?,
+    );
+    assert!(plan.contains("link bms: bacnet"), "{plan}");
+    device.kill().await?;
+    Ok(())
+}
+
+#[test]
+fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<()> {
+    let dir = temp_dir("bacnet-check");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/ahu.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/bad.yaml"),
+        "name: Bad\nprotocol: bacnet\nfields:\n  - { name: A, type: REAL, direction: input, object: \"analog-inptu:1\" }\n  - { name: B, type: REAL, direction: input, object: \"analog-input:1\", property: present-valu }\n  - { name: C, type: REAL, direction: inout, object: \"analog-output:1\", priority: 17 }\n",
+    )?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n",
+        dir.join("profiles").display()
+    );
+    let path = dir.join("iogate.yaml");
+    std::fs::write(&path, config)?;
+    let text = match iogate::app::Setup::from_file(&path) {
+        Ok(_) => String::from("no problem found"),
+        Err(problems) => problems.to_string(),
+    };
+    for expected in [
+        "bad.yaml:4",
+        "`analog-inptu` is not a BACnet object type",
+        "bad.yaml:5",
+        "`present-valu` is not a BACnet property",
+        "bad.yaml:6",
+        "`17` is not a write priority",
+        "bacnet.bind",
+        "not an IPv4 address",
+        "bacnet.timeout",
+        "device a",
+        "needs its `device_instance`",
+        "`4194303` is not a device instance",
+    ] {
+        assert!(text.contains(expected), "{expected}: {text}");
+    }
+    Ok(())
+}
