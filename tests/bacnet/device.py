@@ -24,7 +24,23 @@ from bacpypes3.local.multistate import (
     MultiStateOutputObject,
     MultiStateValueObject,
 )
+from bacpypes3.local.cov import GenericCriteria
 from bacpypes3.primitivedata import ObjectIdentifier
+
+
+# bacpypes3 0.0.110 gives multi-state objects the COV increment criteria of analog ones, so a
+# subscribed multi-state object fails every write of its present value (it has no COV
+# increment); the standard's criteria for them are the generic ones (Table 13-1).
+class MultiStateInputObject(MultiStateInputObject):
+    _cov_criteria = GenericCriteria
+
+
+class MultiStateOutputObject(MultiStateOutputObject):
+    _cov_criteria = GenericCriteria
+
+
+class MultiStateValueObject(MultiStateValueObject):
+    _cov_criteria = GenericCriteria
 
 
 def free_port() -> int:
@@ -48,6 +64,7 @@ def objects():
             objectName="Valve",
             presentValue=0.0,
             units="percent",
+            covIncrement=0.1,
             statusFlags=[0, 0, 0, 0],
             relinquishDefault=0.0,
         ),
@@ -56,6 +73,7 @@ def objects():
             objectName="Setpoint",
             presentValue=20.0,
             units="degreesCelsius",
+            covIncrement=0.1,
             statusFlags=[0, 0, 0, 0],
             relinquishDefault=18.0,
         ),

@@ -32,8 +32,9 @@ async fn gateway(name: &str, device: &BacnetDevice) -> anyhow::Result<TestGatewa
     std::fs::create_dir_all(dir.join("profiles"))?;
     std::fs::write(dir.join("profiles/ahu.yaml"), PROFILE)?;
     let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
+    let bind2 = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
     let config = format!(
-        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\", timeout: 500ms, retries: 1 }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: {}, address: \"127.0.0.1:{}\", refresh_rate: 200ms }}\n  - {{ name: ghost, profile: Ahu, link: bms, device_instance: 77, address: \"127.0.0.1:9\", refresh_rate: 200ms }}\n",
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\", timeout: 500ms, retries: 1 }}\n  - name: slow\n    bacnet: {{ bind: \"{bind2}\" }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: {}, address: \"127.0.0.1:{}\", refresh_rate: 200ms }}\n  - {{ name: ghost, profile: Ahu, link: bms, device_instance: 77, address: \"127.0.0.1:9\", refresh_rate: 200ms }}\n  - {{ name: watcher, profile: Ahu, link: slow, device_instance: {1}, address: \"127.0.0.1:{2}\", refresh_rate: 1h }}\n",
         dir.join("profiles").display(),
         device.instance,
         device.port,
@@ -51,7 +52,9 @@ async fn every_object_kind_is_read_and_written_as_the_device_holds_it() -> anyho
     let gw = gateway("bacnet-values", &device).await?;
     let d = gw
         .until("/api/v1/devices/ahu", "read", |d| {
-            field(d, "Temp")["quality"] == "good" && field(d, "Season")["quality"] == "good"
+            ["Temp", "TempUnits", "Valve", "Mode", "Season"]
+                .iter()
+                .all(|f| field(d, f)["quality"] == "good")
         })
         .await?;
     let v = |n: &str| field(&d, n)["value"].clone();
@@ -80,12 +83,19 @@ async fn every_object_kind_is_read_and_written_as_the_device_holds_it() -> anyho
         "{nothing}"
     );
 
-    // A change on the device is seen.
-    device.cmd("set analog-input,1 23.25").await?;
-    gw.until("/api/v1/devices/ahu", "the change", |d| {
-        field(d, "Temp")["value"] == json!(23.25)
+    // A change on the device is seen: by a device read every 200 ms, and by one read once
+    // an hour, through its change-of-value subscription.
+    gw.until("/api/v1/devices/watcher", "first read", |d| {
+        field(d, "Temp")["value"] == json!(21.5)
     })
     .await?;
+    device.cmd("set analog-input,1 23.25").await?;
+    for name in ["ahu", "watcher"] {
+        gw.until(&format!("/api/v1/devices/{name}"), "the change", |d| {
+            field(d, "Temp")["value"] == json!(23.25) && field(d, "Temp")["quality"] == "good"
+        })
+        .await?;
+    }
 
     // Writes reach the device, at the field's priority (8) or the lowest (16).
     for (name, value) in [
@@ -179,7 +189,7 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
         "name: Bad\nprotocol: bacnet\nfields:\n  - { name: A, type: REAL, direction: input, object: \"analog-inptu:1\" }\n  - { name: B, type: REAL, direction: input, object: \"analog-input:1\", property: present-valu }\n  - { name: C, type: REAL, direction: inout, object: \"analog-output:1\", priority: 17 }\n",
     )?;
     let config = format!(
-        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n",
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n  - {{ name: c, profile: Ahu, link: bms, device_instance: 5, cov: maybe }}\n",
         dir.join("profiles").display()
     );
     let path = dir.join("iogate.yaml");
@@ -201,6 +211,7 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
         "device a",
         "needs its `device_instance`",
         "`4194303` is not a device instance",
+        "`cov: maybe`: true or false",
     ] {
         assert!(text.contains(expected), "{expected}: {text}");
     }

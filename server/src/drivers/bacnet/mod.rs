@@ -14,6 +14,7 @@
 //! link task's back-off and schedule stay shared.
 
 mod config;
+mod cov;
 mod describe;
 mod point;
 mod read;
@@ -56,7 +57,7 @@ const WORDS: Words = Words {
     example: "analog-input:3",
     scaled: false,
     field_keys: point::FIELD_KEYS,
-    device_keys: &[point::DEVICE_INSTANCE, point::ADDRESS],
+    device_keys: &[point::DEVICE_INSTANCE, point::ADDRESS, point::COV],
 };
 
 /// One point is one object's property, however their names are spelled.
@@ -85,6 +86,8 @@ pub(crate) struct Plan {
     /// Whether the device is in the client's table (bound by its address, or its I-Am
     /// heard).
     known: bool,
+    /// Its change-of-value subscriptions on this session.
+    cov: cov::Subscriptions,
 }
 
 /// The gateway's open BACnet/IP port.
@@ -92,6 +95,10 @@ pub(crate) struct Port {
     client: BACnetClient<BipTransport>,
     progress: Arc<Progress>,
     timeout: Duration,
+    /// The subscriber processes of the port's change-of-value subscriptions, and the task
+    /// that gives each notification to its device.
+    cov: Arc<cov::Table>,
+    listener: tokio::task::JoinHandle<()>,
 }
 
 /// Why the port failed or a request could not be made, as the client says it.
@@ -129,7 +136,9 @@ impl Driver for Bacnet {
 
     fn check_device(device: &DeviceConfig, report: &mut crate::yaml::Report) {
         let at = device.at(point::DEVICE_INSTANCE);
-        if let Err(why) = point::device(at, device.at(point::ADDRESS)) {
+        let checked = point::device(at, device.at(point::ADDRESS))
+            .and_then(|_| point::cov(device.at(point::COV)));
+        if let Err(why) = checked {
             report.push(device.line, format!("device {}", device.name), why);
         }
     }
@@ -151,6 +160,10 @@ impl Driver for Bacnet {
             instance: point::device(config.at(point::DEVICE_INSTANCE), config.at(point::ADDRESS)),
             places: places(device),
             known: false,
+            cov: cov::Subscriptions {
+                wanted: point::cov(config.at(point::COV)).unwrap_or(true),
+                ..Default::default()
+            },
         }
     }
 
@@ -164,10 +177,14 @@ impl Driver for Bacnet {
         let client = read::start(&s)
             .await
             .map_err(|e| LinkFault::connect_failed(endpoint, BacnetError(e)))?;
+        let table = Arc::new(cov::Table::default());
+        let listener = tokio::spawn(cov::listen(table.clone(), client.cov_notifications()));
         Ok(Port {
             client,
             progress: link.progress.clone(),
             timeout: s.timeout * (u32::from(s.retries) + 1),
+            cov: table,
+            listener,
         })
     }
 }
@@ -202,6 +219,8 @@ impl Session for Port {
     }
 
     async fn close(mut self) {
+        cov::cancel(&self).await;
+        self.listener.abort();
         let _ = self.client.stop().await;
     }
 }

@@ -21,6 +21,8 @@ pub(crate) const PRIORITY: &str = "priority";
 /// The device keys: its instance number, and the address that binds it statically.
 pub(crate) const DEVICE_INSTANCE: &str = "device_instance";
 pub(crate) const ADDRESS: &str = "address";
+/// The device key that turns its change-of-value subscriptions off (`cov: false`).
+pub(crate) const COV: &str = "cov";
 
 /// The priority a write goes at when the field does not say: the lowest, 16.
 pub(crate) const DEFAULT_PRIORITY: u8 = 16;
@@ -112,6 +114,15 @@ pub(crate) fn device_instance(text: &str) -> Result<u32, String> {
         .ok()
         .filter(|i| *i < ObjectIdentifier::MAX_INSTANCE)
         .ok_or_else(|| format!("`{text}` is not a device instance (0-4194302)"))
+}
+
+/// Whether a device is subscribed to (its `cov`, true unless it says).
+pub(crate) fn cov(text: Option<&str>) -> Result<bool, String> {
+    match text.map(str::trim) {
+        None | Some("true") => Ok(true),
+        Some("false") => Ok(false),
+        Some(other) => Err(format!("`cov: {other}`: true or false")),
+    }
 }
 
 /// A device's place as its configuration says: its instance, and the address binding it.

@@ -226,6 +226,10 @@ pub(super) async fn cycle(
             },
         }
     }
+    if answered {
+        // Subscribed once the device answers its reads: a silent device costs no more.
+        super::cov::renew(port, device, plan, instance).await;
+    }
     Ok(Read::Answered(
         started.elapsed().max(Duration::from_micros(1)),
     ))

@@ -1,0 +1,228 @@
+//! Change of value: each object whose present value a device's fields read is subscribed
+//! (SubscribeCOV, unconfirmed notifications, a lifetime of [`LIFETIME`], renewed when half
+//! of it is gone), and a notification's present value and status flags are published at
+//! once, between the device's reads. A device that refuses the subscription (it has no COV
+//! for the object, or no COV at all) is read by polling alone. The reads go on at the
+//! device's refresh rate either way: they are what tells a device that stopped answering
+//! (a notification that does not come says nothing).
+//!
+//! The notifications come on the client's channel; one task per port (`listen`) gives each
+//! to the device whose subscription it answers, checked: the subscriber process it names,
+//! the device that sent it and the object must all be the ones subscribed.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, Weak};
+use std::time::Duration;
+
+use bacnet_client::client::ReceivedCOVNotification;
+use bacnet_encoding::primitives::decode_application_value;
+use bacnet_types::enums::PropertyIdentifier;
+use bacnet_types::primitives::ObjectIdentifier;
+use tokio::sync::broadcast;
+use tokio::time::Instant;
+
+use super::value::{not_good, reading};
+use super::{Place, Plan, Port};
+use crate::cache::{Device, FieldError};
+
+/// How long a subscription lasts before it is renewed (at half of it).
+pub(super) const LIFETIME: Duration = Duration::from_secs(300);
+
+/// What a device's subscriptions stand at.
+#[derive(Debug, Default)]
+pub(super) struct Subscriptions {
+    /// Whether the device is subscribed to at all (its `cov`).
+    pub(super) wanted: bool,
+    /// The subscriber process identifier of the device's subscriptions (0: none yet).
+    pub(super) process: u32,
+    /// Each subscribed object and when it was last subscribed; `None` where the device
+    /// refused (read by polling alone).
+    pub(super) objects: HashMap<ObjectIdentifier, Option<Instant>>,
+}
+
+/// Who a subscriber process is: the device (instance and its cache entry) and which field
+/// reads which object.
+struct Subscriber {
+    instance: u32,
+    device: Weak<Device>,
+    fields: Vec<(usize, ObjectIdentifier)>,
+}
+
+/// The subscriber processes of a port.
+#[derive(Default)]
+pub(super) struct Table(Mutex<HashMap<u32, Subscriber>>);
+
+impl Table {
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<u32, Subscriber>> {
+        // A panic while it was held leaves a map of plain values: still usable.
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+/// The subscriber process identifiers of this gateway, one for each device and session.
+static PROCESS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(1);
+
+/// The fields that read an object's present value.
+fn watched(plan: &Plan) -> Vec<(usize, ObjectIdentifier)> {
+    plan.places
+        .iter()
+        .enumerate()
+        .filter_map(|(idx, p)| match p {
+            Ok(Place {
+                object, property, ..
+            }) if *property == PropertyIdentifier::PRESENT_VALUE => Some((idx, *object)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Subscribes (or renews) every object of the device due; a refusal leaves the object to
+/// polling.
+pub(super) async fn renew(port: &Port, device: &Arc<Device>, plan: &mut Plan, instance: u32) {
+    let fields = watched(plan);
+    if fields.is_empty() || !plan.cov.wanted {
+        return;
+    }
+    if plan.cov.process == 0 {
+        plan.cov.process = PROCESS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+    port.cov.lock().insert(
+        plan.cov.process,
+        Subscriber {
+            instance,
+            device: Arc::downgrade(device),
+            fields: fields.clone(),
+        },
+    );
+    let now = Instant::now();
+    let mut objects: Vec<ObjectIdentifier> = fields.iter().map(|(_, o)| *o).collect();
+    objects.dedup();
+    for object in objects {
+        let due = match plan.cov.objects.get(&object) {
+            Some(None) => false,
+            Some(Some(at)) => now.saturating_duration_since(*at) >= LIFETIME / 2,
+            None => true,
+        };
+        if !due {
+            continue;
+        }
+        port.started();
+        let lifetime = u32::try_from(LIFETIME.as_secs()).unwrap_or(u32::MAX);
+        let answer = port
+            .client
+            .subscribe_cov_to_device(instance, plan.cov.process, object, false, Some(lifetime))
+            .await;
+        port.progress.ended();
+        let state = match answer {
+            Ok(()) => Some(now),
+            Err(e) => {
+                let why = e.to_string();
+                // Silence says nothing of the device's COV: asked again after the next read.
+                if super::read::failure(e).is_ok_and(|(_, silent)| silent) {
+                    return;
+                }
+                tracing::info!(device = %device.name(), object = ?object, error = %why, "no change-of-value subscription; the object is polled");
+                None
+            }
+        };
+        plan.cov.objects.insert(object, state);
+    }
+}
+
+/// Cancels the device's subscriptions (a SubscribeCOV without lifetime or kind), as the
+/// session ends.
+pub(super) async fn cancel(port: &Port) {
+    let subscribers: Vec<(u32, u32, Vec<ObjectIdentifier>)> = port
+        .cov
+        .lock()
+        .iter()
+        .map(|(pid, s)| (*pid, s.instance, s.fields.iter().map(|(_, o)| *o).collect()))
+        .collect();
+    for (pid, instance, mut objects) in subscribers {
+        objects.dedup();
+        for object in objects {
+            let _ = port
+                .client
+                .unsubscribe_cov_to_device(instance, pid, object)
+                .await;
+        }
+    }
+}
+
+/// A notification's property, decoded.
+fn property(
+    n: &ReceivedCOVNotification,
+    id: PropertyIdentifier,
+) -> Option<Result<bacnet_types::primitives::PropertyValue, String>> {
+    let v = n
+        .notification
+        .list_of_values
+        .iter()
+        .find(|v| v.property_identifier == id && v.property_array_index.is_none())?;
+    Some(
+        decode_application_value(&v.value, 0)
+            .map(|(value, _)| value)
+            .map_err(|e| format!("{id} of a notification does not decode: {e}")),
+    )
+}
+
+/// Publishes a notification to the fields of the subscription it answers.
+fn deliver(table: &Table, n: &ReceivedCOVNotification) {
+    let note = &n.notification;
+    let (device, fields) = {
+        let subscribers = table.lock();
+        let Some(s) = subscribers.get(&note.subscriber_process_identifier) else {
+            return;
+        };
+        if note.initiating_device_identifier.instance_number() != s.instance {
+            return;
+        }
+        let Some(device) = s.device.upgrade() else {
+            return;
+        };
+        let fields: Vec<usize> = s
+            .fields
+            .iter()
+            .filter(|(_, o)| *o == note.monitored_object_identifier)
+            .map(|(idx, _)| *idx)
+            .collect();
+        (device, fields)
+    };
+    let Some(value) = property(n, PropertyIdentifier::PRESENT_VALUE) else {
+        return;
+    };
+    let flags = property(n, PropertyIdentifier::STATUS_FLAGS);
+    for idx in fields {
+        let outcome = match (&value, &flags) {
+            (Err(why), _) | (_, Some(Err(why))) => Err(FieldError::Device(why.clone())),
+            (Ok(_), Some(Ok(f))) if not_good(f).is_some() => Err(FieldError::Device(
+                not_good(f).unwrap_or_default().to_owned(),
+            )),
+            (Ok(v), _) => reading(device.field(idx).ty, v).map_err(FieldError::Device),
+        };
+        device.publish(idx, outcome);
+    }
+}
+
+/// Gives each notification of the port to its subscription's device, until the client
+/// stops.
+pub(super) async fn listen(
+    table: Arc<Table>,
+    mut notifications: broadcast::Receiver<ReceivedCOVNotification>,
+) {
+    loop {
+        match notifications.recv().await {
+            Ok(n) => deliver(&table, &n),
+            Err(broadcast::error::RecvError::Lagged(missed)) => {
+                // The next reads bring what was missed.
+                tracing::warn!(
+                    missed,
+                    "change-of-value notifications came faster than they were taken"
+                );
+            }
+            Err(broadcast::error::RecvError::Closed) => return,
+        }
+    }
+}
