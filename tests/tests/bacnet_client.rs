@@ -217,3 +217,42 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
     }
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_devices_object_list_becomes_its_profile_and_the_profile_reads() -> anyhow::Result<()> {
+    let device = BacnetDevice::start(1003).await?;
+    let dir = temp_dir("bacnet-import");
+    let out = dir.join("profiles");
+    let target = format!("127.0.0.1:{}", device.port);
+    let (t, o) = (target.clone(), out.clone());
+    let code =
+        tokio::task::spawn_blocking(move || iogate::drivers::bacnet::import::run(&t, Some(&o)))
+            .await?;
+    assert_eq!(code, 0);
+    let name = "BACnet_TestDevice_1003";
+    let text = std::fs::read_to_string(out.join(format!("{name}.yaml")))?;
+    for line in [
+        "protocol: bacnet",
+        "{ name: Temperature, type: REAL, direction: input, object: \"analog-input:1\", unit: \"degrees-celsius\" }",
+        "{ name: Valve, type: REAL, direction: inout, object: \"analog-output:1\", unit: \"percent\" }",
+        "{ name: Fan, type: BOOL, direction: inout, object: \"binary-output:1\" }",
+        "{ name: Mode, type: UINT, direction: input, object: \"multi-state-input:1\" }",
+    ] {
+        assert!(text.contains(line), "{line}:\n{text}");
+    }
+    // The profile made reads the device.
+    let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\" }}\ndevices:\n  - {{ name: d, profile: {name}, link: bms, device_instance: 1003, address: \"{target}\", refresh_rate: 200ms }}\n",
+        out.display()
+    );
+    let gw = TestGateway::start(&config).await?;
+    let d = gw
+        .until("/api/v1/devices/d", "read", |d| {
+            field(d, "Temperature")["quality"] == "good" && field(d, "Season")["quality"] == "good"
+        })
+        .await?;
+    assert_eq!(field(&d, "Temperature")["value"], json!(21.5));
+    device.kill().await?;
+    Ok(())
+}

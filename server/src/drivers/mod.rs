@@ -13,7 +13,7 @@
 //! (`LinkFault`, through the `Result` of each call: an error ends the session) and the
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
-pub(crate) mod bacnet;
+pub mod bacnet;
 pub(crate) mod describe;
 pub mod eip;
 pub mod import;

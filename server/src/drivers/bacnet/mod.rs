@@ -16,6 +16,7 @@
 mod config;
 mod cov;
 mod describe;
+pub mod import;
 mod point;
 mod read;
 mod value;
@@ -133,6 +134,16 @@ impl Driver for Bacnet {
     const WORDS: Option<&'static Words> = Some(&WORDS);
     type Settings = config::Settings;
     const READ_SETTINGS: super::ReadSettings<config::Settings> = config::read;
+
+    const IMPORT: Option<super::Import> = Some(super::Import {
+        from: PROTOCOL,
+        options: &[],
+        source: "one device, HOST or HOST:PORT",
+    });
+
+    fn import(target: &str, _: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
+        import::run(target, out)
+    }
 
     fn check_device(device: &DeviceConfig, report: &mut crate::yaml::Report) {
         let at = device.at(point::DEVICE_INSTANCE);
