@@ -18,6 +18,7 @@ pub mod pki;
 pub mod plc;
 pub mod s7;
 mod started;
+pub mod udp_cable;
 
 pub use started::{
     OnBus, SseReader, bus_gateway, bus_gateway_with, config_files, eventually, link_yaml,

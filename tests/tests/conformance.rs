@@ -7,7 +7,8 @@
 //! the field says why it is not, and once the peer behaves it is read again by itself, with
 //! no connection left open on the peer but the one in use.
 //!
-//! A new driver is not done until it has its peer here.
+//! A new driver is not done until it has its peer here. A datagram protocol's (BACnet/IP's)
+//! cable relays datagrams: silent, garbled, cut in half, with junk after them, or twice.
 
 use std::sync::{Arc, Mutex};
 
@@ -277,6 +278,85 @@ async fn modbus_rtu_keeps_the_rules_of_a_guest() -> anyhow::Result<()> {
     );
     gw.shutdown().await;
     task.abort();
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bacnet_keeps_the_rules_of_a_guest() -> anyhow::Result<()> {
+    use iogate_tests::udp_cable::{Mangle, UdpCable};
+    let device = iogate_tests::bacnet::BacnetDevice::start(2001).await?;
+    let cable = UdpCable::to(device.port).await?;
+    let dir = temp_dir("conformance-bacnet");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(
+        dir.join("profiles/peer.yaml"),
+        "name: Peer\nprotocol: bacnet\nfields:\n  - { name: N, type: REAL, direction: input, object: \"analog-input:1\" }\n",
+    )?;
+    let free = || std::net::UdpSocket::bind("127.0.0.1:0").and_then(|s| s.local_addr());
+    let (a, b) = (free()?, free()?);
+    let config = format!(
+        "profiles: {}\nlinks:\n  - {{ name: hostile, bacnet: {{ bind: \"{a}\", timeout: 300ms, retries: 1 }} }}\n  - {{ name: straight, bacnet: {{ bind: \"{b}\", timeout: 300ms, retries: 1 }} }}\ndevices:\n  - {{ name: dut, profile: Peer, link: hostile, device_instance: 2001, address: \"127.0.0.1:{}\", refresh_rate: 100ms }}\n  - {{ name: other, profile: Peer, link: straight, device_instance: 2001, address: \"127.0.0.1:{}\", refresh_rate: 100ms }}\n",
+        dir.join("profiles").display(),
+        cable.port,
+        device.port,
+    );
+    let gw = TestGateway::start(&config).await?;
+    let want = json!(21.5);
+    for d in ["dut", "other"] {
+        gw.until(&format!("/api/v1/devices/{d}"), "read", |v| {
+            n(v)["value"] == want && n(v)["quality"] == "good"
+        })
+        .await?;
+    }
+    let mut sse = SseReader::open(&gw, "/api/v1/events?device=dut").await?;
+    let wrong: Arc<Mutex<Vec<Value>>> = Arc::default();
+    let (seen, expected) = (wrong.clone(), want.clone());
+    let watcher = tokio::spawn(async move {
+        while let Ok(Some((event, v))) = sse.next().await {
+            if event == "value" && v["quality"] == "good" && v["value"] != expected {
+                seen.lock().expect("lock").push(v);
+            }
+        }
+    });
+    for m in [
+        Mangle::Silent,
+        Mangle::Garble,
+        Mangle::Truncate,
+        Mangle::Oversize,
+        Mangle::Twice,
+    ] {
+        let (_, before) = gw.get("/api/v1/devices/other").await?;
+        let cycles = before["io_cycles"].as_u64().unwrap_or(0);
+        let from = cable.mangled();
+        cable.mangle(m);
+        eventually(&format!("{m:?}: answers mangled"), || async {
+            cable.mangled() >= from + 3
+        })
+        .await?;
+        let (_, dut) = gw.get("/api/v1/devices/dut").await?;
+        if n(&dut)["quality"] != "good" {
+            assert!(n(&dut)["error"].is_string(), "{m:?}: {dut}");
+        }
+        gw.until("/api/v1/devices/other", "read on", |d| {
+            d["io_cycles"].as_u64().unwrap_or(0) > cycles && n(d)["value"] == want
+        })
+        .await
+        .map_err(|e| anyhow::anyhow!("{m:?}: {e}"))?;
+        cable.mangle(Mangle::Pass);
+        gw.until("/api/v1/devices/dut", "read again", |d| {
+            n(d)["value"] == want && n(d)["quality"] == "good"
+        })
+        .await
+        .map_err(|e| anyhow::anyhow!("{m:?}: {e}"))?;
+    }
+    watcher.abort();
+    let wrong = wrong.lock().expect("lock").clone();
+    assert!(
+        wrong.is_empty(),
+        "a value not the device's served good: {wrong:?}"
+    );
+    gw.shutdown().await;
+    device.kill().await?;
     Ok(())
 }
 
