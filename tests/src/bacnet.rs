@@ -62,3 +62,50 @@ impl BacnetDevice {
         Ok(())
     }
 }
+
+/// A BACnet router on `host` (`tests/bacnet/router.py`) with `count` devices behind it on a
+/// virtual network, instances `base + 1` to `base + count`.
+pub struct BacnetRouter {
+    piped: Piped,
+}
+
+impl BacnetRouter {
+    /// Starts the router on `host:port` and waits until its devices are up.
+    pub async fn start(
+        host: &str,
+        port: u16,
+        base: u32,
+        count: usize,
+    ) -> anyhow::Result<BacnetRouter> {
+        let mut command = tokio::process::Command::new(crate::python());
+        command.arg(repo_file("bacnet/router.py")).args([
+            "--host",
+            host,
+            "--port",
+            &port.to_string(),
+            "--base",
+            &base.to_string(),
+            "--count",
+            &count.to_string(),
+        ]);
+        let mut piped = spawn_piped(command)?;
+        let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())
+            .await??
+            .ok_or_else(|| anyhow::anyhow!("the router ended before it was ready"))?;
+        anyhow::ensure!(line.trim() == "ready", "the router said {line}");
+        Ok(BacnetRouter { piped })
+    }
+
+    /// One command and its answer.
+    pub async fn cmd(&mut self, command: &str) -> anyhow::Result<String> {
+        self.piped
+            .stdin
+            .write_all(format!("{command}\n").as_bytes())
+            .await?;
+        let answer = tokio::time::timeout(PATIENCE, self.piped.lines.next_line())
+            .await??
+            .ok_or_else(|| anyhow::anyhow!("the router ended"))?;
+        anyhow::ensure!(!answer.starts_with("error"), "{command}: {answer}");
+        Ok(answer)
+    }
+}

@@ -256,3 +256,64 @@ async fn a_devices_object_list_becomes_its_profile_and_the_profile_reads() -> an
     device.kill().await?;
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn devices_behind_a_router_are_found_by_who_is_and_are_separate_devices() -> anyhow::Result<()>
+{
+    use iogate_tests::bacnet::BacnetRouter;
+    let count = 100;
+    let port = std::net::UdpSocket::bind("127.0.0.2:0")?
+        .local_addr()?
+        .port();
+    let mut router = BacnetRouter::start("127.0.0.2", port, 3000, count).await?;
+    let dir = temp_dir("bacnet-router");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(
+        dir.join("profiles/vav.yaml"),
+        "name: Vav\nprotocol: bacnet\nfields:\n  - { name: Flow, type: REAL, direction: input, object: \"analog-input:1\" }\n  - { name: Setpoint, type: REAL, direction: inout, object: \"analog-value:1\" }\n",
+    )?;
+    // The gateway on another address, a foreign device of the router's BBMD: its Who-Is
+    // goes out through the BBMD, the I-Ams come back routed.
+    let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
+    let mut config = format!(
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\", bbmd: \"127.0.0.2:{port}\", foreign_ttl: 30s, timeout: 1s, retries: 1 }}\ndevices:\n",
+        dir.join("profiles").display()
+    );
+    for k in 1..=count {
+        config.push_str(&format!(
+            "  - {{ name: vav{k}, profile: Vav, link: bms, device_instance: {}, refresh_rate: 1s }}\n",
+            3000 + k
+        ));
+    }
+    let gw = TestGateway::start(&config).await?;
+    // Every device is its own: its own value, through the router.
+    for k in 1..=count {
+        gw.until(&format!("/api/v1/devices/vav{k}"), "read", |d| {
+            field(d, "Flow")["value"] == json!(k as f64) && field(d, "Flow")["quality"] == "good"
+        })
+        .await?;
+    }
+    // A write reaches the one device it is for.
+    let outcome = gw
+        .write_outcome("vav7", "Setpoint", json!(23.5))
+        .await?
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    assert_eq!(outcome["status"], "written", "{outcome}");
+    assert_eq!(
+        router.cmd("get 3007 analog-value,1 presentValue").await?,
+        "23.5"
+    );
+    assert_eq!(
+        router.cmd("get 3008 analog-value,1 presentValue").await?,
+        "20.0"
+    );
+    // A change behind the router comes through.
+    router.cmd("set 3042 analog-input,1 4.25").await?;
+    gw.until("/api/v1/devices/vav42", "the change", |d| {
+        field(d, "Flow")["value"] == json!(4.25)
+    })
+    .await?;
+    let (_, v41) = gw.get("/api/v1/devices/vav41").await?;
+    assert_eq!(field(&v41, "Flow")["value"], json!(41.0), "{v41}");
+    Ok(())
+}
