@@ -315,5 +315,26 @@ async fn devices_behind_a_router_are_found_by_who_is_and_are_separate_devices() 
     .await?;
     let (_, v41) = gw.get("/api/v1/devices/vav41").await?;
     assert_eq!(field(&v41, "Flow")["value"], json!(41.0), "{v41}");
+
+    // A scan finds the router and every device behind it, each by its network and MAC.
+    let on = std::net::UdpSocket::bind("127.0.0.1:0")?
+        .local_addr()?
+        .to_string();
+    let bbmd = format!("127.0.0.2:{port}");
+    let found = tokio::task::spawn_blocking(move || {
+        iogate::drivers::bacnet::scan::find(&[("--on", &on), ("--bbmd", &bbmd), ("--wait", "3s")])
+    })
+    .await?
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let found: Value = serde_json::from_str(&found)?;
+    let devices = found["devices"].as_array().cloned().unwrap_or_default();
+    assert_eq!(devices.len(), count + 1, "{found}");
+    let vav7 = devices
+        .iter()
+        .find(|d| d["device_instance"] == 3007)
+        .ok_or_else(|| anyhow::anyhow!("3007 not found: {found}"))?;
+    assert_eq!(vav7["network"], 2, "{vav7}");
+    assert_eq!(vav7["mac"], "08", "{vav7}");
+    assert!(vav7["address"].is_null(), "{vav7}");
     Ok(())
 }

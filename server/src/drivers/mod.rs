@@ -20,6 +20,7 @@ pub mod import;
 pub(crate) mod modbus;
 pub mod opcua;
 pub(crate) mod s7;
+pub mod scan;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -60,6 +61,17 @@ macro_rules! drivers {
             })*
             None
         }
+
+        /// The drivers: `f` done with the one whose scan `--from` names.
+        pub(crate) fn for_scan<F: ForDriver>(from: &str, f: F) -> Option<F::Output> {
+            $(if <$driver as Driver>::SCAN.is_some_and(|i| i.from == from) {
+                return Some(f.with::<$driver>());
+            })*
+            None
+        }
+
+        /// The scans of every driver that has one.
+        const SCANS: &[Option<Import>] = &[$(<$driver as Driver>::SCAN),*];
 
         /// The live imports of every driver that has one.
         const IMPORTS: &[Option<Import>] = &[$(<$driver as Driver>::IMPORT),*];
@@ -332,6 +344,16 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// of [`Driver::IMPORT`]); the command's exit code.
     fn import(source: &str, options: &ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
         let _ = (source, options, out);
+        crate::EXIT_CONFIG as u8
+    }
+
+    /// Its scan (`iogate scan --from ...`), where it has one (`source` unused).
+    const SCAN: Option<Import> = None;
+
+    /// Finds the devices of a network with the options given (only those of
+    /// [`Driver::SCAN`]); the command's exit code.
+    fn scan(options: &ImportOptions<'_>, json: bool) -> u8 {
+        let _ = (options, json);
         crate::EXIT_CONFIG as u8
     }
 

@@ -16,8 +16,24 @@ use crate::profile::Profile;
 #[derive(Debug, clap::Args)]
 pub struct Options {
     /// The serial port (nothing else may have it open).
+    #[arg(long, required_unless_present = "from")]
+    pub port: Option<String>,
+    /// A network of another protocol to scan instead of a serial line: `bacnet` (a Who-Is).
+    #[arg(long, conflicts_with = "port")]
+    pub from: Option<String>,
+    /// With `--from bacnet`: the address the scan's own port is bound to (`HOST[:PORT]`,
+    /// default 0.0.0.0:47808).
     #[arg(long)]
-    pub port: String,
+    pub on: Option<String>,
+    /// With `--from bacnet`: where the Who-Is goes (default 255.255.255.255).
+    #[arg(long)]
+    pub broadcast: Option<String>,
+    /// With `--from bacnet`: a BBMD to register with as a foreign device (`HOST[:PORT]`).
+    #[arg(long)]
+    pub bbmd: Option<String>,
+    /// With `--from bacnet`: how long to listen for the devices' answers (default 3s).
+    #[arg(long)]
+    pub wait: Option<String>,
     /// Baud rates to try, in this order; default 115200,57600,38400,19200,9600.
     #[arg(long)]
     pub baud: Option<String>,
@@ -76,6 +92,22 @@ fn profiles(dir: Option<&Path>) -> Vec<Arc<Profile>> {
 
 /// Runs the scan; the process's exit code: 0 done, 64 bad options, 1 the port failed.
 pub fn run(options: &Options) -> u8 {
+    if let Some(from) = &options.from {
+        let given: Vec<(&'static str, &str)> = [
+            ("--on", &options.on),
+            ("--broadcast", &options.broadcast),
+            ("--bbmd", &options.bbmd),
+            ("--wait", &options.wait),
+        ]
+        .into_iter()
+        .filter_map(|(flag, v)| Some((flag, v.as_deref()?)))
+        .collect();
+        return crate::drivers::scan::run(from, &given, options.json);
+    }
+    let Some(port) = options.port.as_deref() else {
+        eprintln!("iogate scan: give --port (a serial line) or --from (another network)");
+        return crate::EXIT_CONFIG as u8;
+    };
     let plan = match plan(options) {
         Ok(plan) => plan,
         Err(e) => {
@@ -96,7 +128,7 @@ pub fn run(options: &Options) -> u8 {
     };
     eprintln!(
         "scanning {}: {} setting{} x {} ids ({}), a {} ms slot each: at most {:.1} s, plus a few probes for each device found",
-        options.port,
+        port,
         plan.settings.len(),
         if plan.settings.len() == 1 { "" } else { "s" },
         plan.ids.len(),
@@ -108,7 +140,7 @@ pub fn run(options: &Options) -> u8 {
     let started = std::time::Instant::now();
     let mut on_progress = |p: Progress| progress(p, terminal);
     let cancel = CancellationToken::new();
-    let mut prober = PortProber::new(&options.port, plan.timeout);
+    let mut prober = PortProber::new(port, plan.timeout);
     let scanned = runtime.block_on(async {
         let cancel_on_ctrl_c = cancel.clone();
         let watch = tokio::spawn(async move {
@@ -136,7 +168,7 @@ pub fn run(options: &Options) -> u8 {
         if found == 1 { "" } else { "s" },
         started.elapsed().as_secs_f64()
     );
-    let summary = Summary::new(&plan, scanned, Some(&options.port), "line");
+    let summary = Summary::new(&plan, scanned, Some(port), "line");
     print_summary(&summary, options.json)
 }
 

@@ -19,6 +19,7 @@ mod describe;
 pub mod import;
 mod point;
 mod read;
+pub mod scan;
 mod value;
 mod write;
 
@@ -143,6 +144,16 @@ impl Driver for Bacnet {
 
     fn import(target: &str, _: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
         import::run(target, out)
+    }
+
+    const SCAN: Option<super::Import> = Some(super::Import {
+        from: PROTOCOL,
+        options: &["--on", "--broadcast", "--bbmd", "--wait"],
+        source: "",
+    });
+
+    fn scan(options: &super::ImportOptions<'_>, json: bool) -> u8 {
+        scan::run(options, json)
     }
 
     fn check_device(device: &DeviceConfig, report: &mut crate::yaml::Report) {

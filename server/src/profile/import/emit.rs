@@ -63,14 +63,19 @@ pub(crate) fn emit(made: &Made, out: Option<&Path>) -> u8 {
 /// Runs a live import (`import`, its exit code) on a runtime of its own: the command line
 /// has none.
 pub(crate) fn on_runtime(import: impl std::future::Future<Output = u8>) -> u8 {
-    match tokio::runtime::Builder::new_current_thread()
+    on_runtime_with(async { Ok(import.await) }).unwrap_or_else(|e| {
+        eprintln!("iogate profile import: {e}");
+        1
+    })
+}
+
+/// Runs a command's work on a runtime of its own: its result, or why there is no runtime.
+pub(crate) fn on_runtime_with<T>(
+    work: impl std::future::Future<Output = Result<T, String>>,
+) -> Result<T, String> {
+    tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
-    {
-        Ok(runtime) => runtime.block_on(import),
-        Err(e) => {
-            eprintln!("iogate profile import: {e}");
-            1
-        }
-    }
+        .map_err(|e| e.to_string())?
+        .block_on(work)
 }
