@@ -173,7 +173,7 @@ pub(super) fn run(options: &ImportOptions<'_>, as_json: bool) -> u8 {
             .unwrap_or_default(),
         wait.as_millis()
     );
-    let found = crate::profile::import::emit::on_runtime(async {
+    crate::profile::import::emit::on_runtime(async {
         match listen(&settings, wait).await {
             Ok(found) => {
                 if as_json {
@@ -189,6 +189,5 @@ pub(super) fn run(options: &ImportOptions<'_>, as_json: bool) -> u8 {
                 1
             }
         }
-    });
-    found
+    })
 }
