@@ -2,8 +2,8 @@
 multi-device controller has them: bacpypes3 routing between BACnet/IP (network 1, on HOST
 at PORT, a BBMD that takes foreign devices) and a virtual network (network 2) of COUNT
 devices, device instances BASE+1 to
-BASE+COUNT, each with analog-input:1 holding its own number (k for device BASE+k) and
-analog-value:1, commandable. The router's own device is BASE. Prints "ready", then takes
+BASE+COUNT, each with analog-input:1 to analog-input:OBJECTS holding its own number (k for
+device BASE+k) and analog-value:1, commandable. The router's own device is BASE. Prints "ready", then takes
 commands one per line:
 
     get INSTANCE OBJECT PROPERTY   a property of a device behind the router
@@ -77,6 +77,7 @@ async def main() -> None:
     parser.add_argument("--port", type=int, required=True)
     parser.add_argument("--base", type=int, default=3000)
     parser.add_argument("--count", type=int, default=3)
+    parser.add_argument("--objects", type=int, default=1, help="analog inputs a device")
     args = parser.parse_args()
     VirtualNetwork("vlan")
     router = Application.from_object_list(
@@ -103,14 +104,17 @@ async def main() -> None:
             [
                 device(instance, f"Vav{k}"),
                 virtual_port(k + 1, 2),
-                AnalogInputObject(
-                    objectIdentifier=("analog-input", 1),
-                    objectName="Flow",
-                    presentValue=float(k),
-                    units="litersPerSecond",
-                    statusFlags=[0, 0, 0, 0],
-                    covIncrement=0.1,
-                ),
+                *[
+                    AnalogInputObject(
+                        objectIdentifier=("analog-input", i),
+                        objectName="Flow" if i == 1 else f"Input{i}",
+                        presentValue=float(k),
+                        units="litersPerSecond",
+                        statusFlags=[0, 0, 0, 0],
+                        covIncrement=0.1,
+                    )
+                    for i in range(1, args.objects + 1)
+                ],
                 AnalogValueObjectCmd(
                     objectIdentifier=("analog-value", 1),
                     objectName="Setpoint",

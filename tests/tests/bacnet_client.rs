@@ -189,7 +189,7 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
         "name: Bad\nprotocol: bacnet\nfields:\n  - { name: A, type: REAL, direction: input, object: \"analog-inptu:1\" }\n  - { name: B, type: REAL, direction: input, object: \"analog-input:1\", property: present-valu }\n  - { name: C, type: REAL, direction: inout, object: \"analog-output:1\", priority: 17 }\n",
     )?;
     let config = format!(
-        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n  - {{ name: c, profile: Ahu, link: bms, device_instance: 5, cov: maybe }}\n",
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\n  - name: b1\n    bacnet: {{ bind: 127.0.0.1:47808 }}\n  - name: b2\n    bacnet: {{ bind: 127.0.0.2 }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n  - {{ name: c, profile: Ahu, link: bms, device_instance: 5, cov: maybe }}\n  - {{ name: d, profile: Ahu, link: b1, device_instance: 9 }}\n  - {{ name: e, profile: Ahu, link: b1, device_instance: 9, address: \"127.0.0.1:0\" }}\n",
         dir.join("profiles").display()
     );
     let path = dir.join("iogate.yaml");
@@ -212,6 +212,9 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
         "needs its `device_instance`",
         "`4194303` is not a device instance",
         "`cov: maybe`: true or false",
+        "link b2: link b1 takes UDP port 47808 already",
+        "device e: device d on link b1 has device_instance 9 already",
+        "needs its port (not 0)",
     ] {
         assert!(text.contains(expected), "{expected}: {text}");
     }
@@ -336,5 +339,66 @@ async fn devices_behind_a_router_are_found_by_who_is_and_are_separate_devices() 
     assert_eq!(vav7["network"], 2, "{vav7}");
     assert_eq!(vav7["mac"], "08", "{vav7}");
     assert!(vav7["address"].is_null(), "{vav7}");
+    Ok(())
+}
+
+/// An UnconfirmedCOVNotification as the standard encodes it (BVLC, NPDU, APDU): subscriber
+/// process `pid`, from device `instance`, analog-input:1's present value `value` and its
+/// status flags all clear.
+fn notification(pid: u8, instance: u32, value: f32) -> Vec<u8> {
+    let object = |kind: u32, n: u32| ((kind << 22) | n).to_be_bytes();
+    let mut apdu = vec![0x10, 0x02, 0x09, pid, 0x1C];
+    apdu.extend(object(8, instance));
+    apdu.push(0x2C);
+    apdu.extend(object(0, 1));
+    apdu.extend([0x39, 0x78, 0x4E, 0x09, 0x55, 0x2E, 0x44]);
+    apdu.extend(value.to_be_bytes());
+    apdu.extend([0x2F, 0x09, 0x6F, 0x2E, 0x82, 0x04, 0x00, 0x2F, 0x4F]);
+    let mut out = vec![0x81, 0x0A, 0, 0, 0x01, 0x00];
+    out.extend(apdu);
+    let len = (out.len() as u16).to_be_bytes();
+    out[2..4].copy_from_slice(&len);
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_notification_from_another_address_is_never_a_value() -> anyhow::Result<()> {
+    let device = BacnetDevice::start(1005).await?;
+    let dir = temp_dir("bacnet-spoof");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/ahu.yaml"), PROFILE)?;
+    let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\" }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: 1005, address: \"127.0.0.1:{}\", refresh_rate: 1h }}\n",
+        dir.join("profiles").display(),
+        device.port
+    );
+    let gw = TestGateway::start(&config).await?;
+    gw.until("/api/v1/devices/ahu", "read", |d| {
+        field(d, "Temp")["value"] == json!(21.5) && field(d, "Temp")["quality"] == "good"
+    })
+    .await?;
+    let mut sse = iogate_tests::SseReader::open(&gw, "/api/v1/events?device=ahu").await?;
+    // Notifications for every subscriber process a gateway could have given, from an
+    // address that is not the device's: none is taken.
+    let spoofer = std::net::UdpSocket::bind("127.0.0.1:0")?;
+    for pid in 1..=200u8 {
+        spoofer.send_to(&notification(pid, 1005, 99.5), bind)?;
+    }
+    let seen = tokio::time::timeout(std::time::Duration::from_secs(2), async {
+        while let Ok(Some((event, v))) = sse.next().await {
+            if event == "value" && v["value"] == json!(99.5) {
+                return Some(v);
+            }
+        }
+        None
+    })
+    .await
+    .ok()
+    .flatten();
+    assert!(seen.is_none(), "a spoofed notification was taken: {seen:?}");
+    let (_, d) = gw.get("/api/v1/devices/ahu").await?;
+    assert_eq!(field(&d, "Temp")["value"], json!(21.5), "{d}");
+    device.kill().await?;
     Ok(())
 }

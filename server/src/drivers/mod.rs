@@ -14,6 +14,7 @@
 //! device codes (`Read::Silent`: the device is disconnected, error 10) of document 000.
 
 pub mod bacnet;
+mod checks;
 pub(crate) mod describe;
 pub mod eip;
 pub mod import;
@@ -125,6 +126,8 @@ pub(crate) fn option<'a>(options: &ImportOptions<'a>, flag: &str) -> Option<&'a 
 pub(crate) type ReadSettings<S> =
     fn(link: &str, d: &DriverLink, report: &mut crate::yaml::Report) -> Option<S>;
 
+pub(crate) use checks::{check_links, check_value, describe, link_warnings};
+
 /// Something done with the driver of a link, whichever it is.
 pub(crate) trait ForDriver {
     type Output;
@@ -141,92 +144,11 @@ pub(crate) struct WriteItem {
     pub(crate) generation: Option<u64>,
 }
 
-/// Whether the device's protocol can hold `value` where field `idx` is (a write refused
-/// before it is sent is refused at once, with why, not accepted and then failed).
-pub(crate) fn check_value(device: &Device, idx: usize, value: &Value) -> Result<(), String> {
-    struct Check<'a>(&'a Device, usize, &'a Value);
-    impl ForDriver for Check<'_> {
-        type Output = Result<(), String>;
-        fn with<D: Driver>(self) -> Result<(), String> {
-            D::check_value(self.0, self.1, self.2)
-        }
-    }
-    for_protocol(device.profile.protocol, Check(device, idx, value)).unwrap_or(Ok(()))
-}
-
-/// What `check` finds wrong with the links' settings that their drivers read.
-pub(crate) fn check_links(config: &crate::config::Config) -> crate::yaml::Problems {
-    struct Check<'a>(&'a LinkConfig, &'a mut crate::yaml::Report);
-    impl ForDriver for Check<'_> {
-        type Output = ();
-        fn with<D: Driver>(self) {
-            D::check(self.0, self.1);
-        }
-    }
-    struct CheckDevice<'a>(&'a DeviceConfig, &'a mut crate::yaml::Report);
-    impl ForDriver for CheckDevice<'_> {
-        type Output = ();
-        fn with<D: Driver>(self) {
-            D::check_device(self.0, self.1);
-        }
-    }
-    let mut report = crate::yaml::Report::new(&config.source);
-    for link in &config.links {
-        with_driver(link, Check(link, &mut report));
-    }
-    for device in &config.devices {
-        let link = config
-            .links
-            .iter()
-            .find(|l| device.link.as_ref() == Some(&l.name));
-        if let Some(link) = link {
-            with_driver(link, CheckDevice(device, &mut report));
-        }
-    }
-    report.into_problems()
-}
-
-/// What `check` and `serve` warn of in the links' settings that their drivers read.
-pub(crate) fn link_warnings(config: &crate::config::Config) -> Vec<crate::yaml::Problem> {
-    struct Warn<'a>(&'a LinkConfig, &'a mut crate::yaml::Report);
-    impl ForDriver for Warn<'_> {
-        type Output = ();
-        fn with<D: Driver>(self) {
-            D::warn(self.0, self.1);
-        }
-    }
-    let mut report = crate::yaml::Report::new(&config.source);
-    for link in &config.links {
-        with_driver(link, Warn(link, &mut report));
-    }
-    report.into_problems().0
-}
-
 /// A link's devices, each with its profile, as `iogate plan` is given them.
 pub type Planned<'a> = [(&'a DeviceConfig, &'a Profile)];
 
 /// What a link's peer told of itself (`Link::peer`): named values.
 pub type Facts = [(&'static str, String)];
-
-/// What `iogate plan` prints under a link's line: how its driver reads its devices (with
-/// what the peer told of itself, for a running link; nothing offline), and the warnings
-/// `check` and `serve` print of its plan.
-pub(crate) fn describe(
-    link: &LinkConfig,
-    devices: &Planned<'_>,
-    peer: &Facts,
-    out: &mut String,
-) -> Vec<String> {
-    struct Describe<'a, 'b>(&'a LinkConfig, &'a Planned<'b>, &'a Facts, &'a mut String);
-    impl ForDriver for Describe<'_, '_> {
-        type Output = Vec<String>;
-        fn with<D: Driver>(self) -> Vec<String> {
-            D::describe(self.0, self.1, self.2, self.3);
-            D::plan_warnings(self.0, self.1)
-        }
-    }
-    with_driver(link, Describe(link, devices, peer, out)).unwrap_or_default()
-}
 
 /// A field protocol: how its links open and how a device's reads are planned.
 pub(crate) trait Driver: Send + Sized + 'static {
@@ -306,6 +228,20 @@ pub(crate) trait Driver: Send + Sized + 'static {
                 format!("`{key}` is not a key of a device on a {} link", Self::NAME),
             );
         }
+    }
+
+    /// What of the host a link of this driver takes for itself, which no other link may
+    /// take too (a BACnet/IP port's UDP port), as a sentence's object, and why.
+    fn claims(config: &LinkConfig) -> Option<(String, &'static str)> {
+        let _ = config;
+        None
+    }
+
+    /// What names a device on its link, which no other device of the link may have too (a
+    /// BACnet device's instance), as a sentence's object.
+    fn device_identity(device: &DeviceConfig) -> Option<String> {
+        let _ = device;
+        None
     }
 
     /// Reports what a link's settings allow that a user should know of (a check turned

@@ -11,11 +11,13 @@
 //! the device that sent it and the object must all be the ones subscribed.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;
 
-use bacnet_client::client::ReceivedCOVNotification;
+use bacnet_client::client::{COVNotificationDelivery, ReceivedCOVNotification};
 use bacnet_encoding::primitives::decode_application_value;
+use bacnet_types::MacAddr;
 use bacnet_types::enums::PropertyIdentifier;
 use bacnet_types::primitives::ObjectIdentifier;
 use tokio::sync::broadcast;
@@ -33,6 +35,8 @@ pub(super) const LIFETIME: Duration = Duration::from_secs(300);
 pub(super) struct Subscriptions {
     /// Whether the device is subscribed to at all (its `cov`).
     pub(super) wanted: bool,
+    /// Whether the device answered its last read: a notification is taken only then.
+    pub(super) answering: Arc<AtomicBool>,
     /// The subscriber process identifier of the device's subscriptions (0: none yet).
     pub(super) process: u32,
     /// Each subscribed object and when it was last subscribed; `None` where the device
@@ -40,11 +44,15 @@ pub(super) struct Subscriptions {
     pub(super) objects: HashMap<ObjectIdentifier, Option<Instant>>,
 }
 
-/// Who a subscriber process is: the device (instance and its cache entry) and which field
-/// reads which object.
+/// Who a subscriber process is: the device (instance, where it is, its cache entry) and
+/// which field reads which object.
 struct Subscriber {
     instance: u32,
+    /// The device's MAC and, behind a router, its network and MAC there: a notification
+    /// must come from there.
+    from: (MacAddr, Option<u16>, Option<MacAddr>),
     device: Weak<Device>,
+    answering: Arc<AtomicBool>,
     fields: Vec<(usize, ObjectIdentifier)>,
 }
 
@@ -88,11 +96,16 @@ pub(super) async fn renew(port: &Port, device: &Arc<Device>, plan: &mut Plan, in
     if plan.cov.process == 0 {
         plan.cov.process = PROCESS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
+    let Some(at) = port.client.get_device(instance).await else {
+        return;
+    };
     port.cov.lock().insert(
         plan.cov.process,
         Subscriber {
             instance,
+            from: (at.mac_address, at.source_network, at.source_address),
             device: Arc::downgrade(device),
+            answering: plan.cov.answering.clone(),
             fields: fields.clone(),
         },
     );
@@ -119,8 +132,16 @@ pub(super) async fn renew(port: &Port, device: &Arc<Device>, plan: &mut Plan, in
             Ok(()) => Some(now),
             Err(e) => {
                 let why = e.to_string();
-                // Silence says nothing of the device's COV: asked again after the next read.
-                if super::read::failure(e).is_ok_and(|(_, silent)| silent) {
+                // Silence says nothing of the device's COV, but costs the link a timeout:
+                // none of its objects is asked again before half a lifetime.
+                if super::client::failure(e).is_ok_and(|(_, silent)| silent) {
+                    tracing::info!(device = %device.name(), "the device did not answer a change-of-value subscription; asked again in {} s", (LIFETIME / 2).as_secs());
+                    for (_, o) in &fields {
+                        let state = plan.cov.objects.entry(*o).or_insert(Some(now));
+                        if state.is_some() {
+                            *state = Some(now);
+                        }
+                    }
                     return;
                 }
                 tracing::info!(device = %device.name(), object = ?object, error = %why, "no change-of-value subscription; the object is polled");
@@ -171,17 +192,36 @@ fn property(
 /// Publishes a notification to the fields of the subscription it answers.
 fn deliver(table: &Table, n: &ReceivedCOVNotification) {
     let note = &n.notification;
+    // Subscribed for unconfirmed notifications: a confirmed one is not this subscription's.
+    if n.delivery != COVNotificationDelivery::Unconfirmed {
+        return;
+    }
     let (device, fields) = {
         let subscribers = table.lock();
         let Some(s) = subscribers.get(&note.subscriber_process_identifier) else {
+            tracing::debug!(
+                process = note.subscriber_process_identifier,
+                "a change-of-value notification for no subscription of this port: dropped"
+            );
             return;
         };
-        if note.initiating_device_identifier.instance_number() != s.instance {
+        let from = (
+            n.source_mac.clone(),
+            n.source_network,
+            n.source_address.clone(),
+        );
+        if note.initiating_device_identifier.instance_number() != s.instance || from != s.from {
+            tracing::debug!(from = ?from, subscribed = ?s.from, "a change-of-value notification not from its subscription's device: dropped");
             return;
         }
         let Some(device) = s.device.upgrade() else {
             return;
         };
+        // A device that does not answer its reads is not vouched for by a notification.
+        if !s.answering.load(Ordering::Relaxed) {
+            tracing::debug!(device = %device.name(), "a change-of-value notification for a device not answering: dropped");
+            return;
+        }
         let fields: Vec<usize> = s
             .fields
             .iter()
@@ -212,15 +252,20 @@ pub(super) async fn listen(
     table: Arc<Table>,
     mut notifications: broadcast::Receiver<ReceivedCOVNotification>,
 ) {
+    let (mut lagged, mut told) = (0u64, None);
     loop {
         match notifications.recv().await {
             Ok(n) => deliver(&table, &n),
             Err(broadcast::error::RecvError::Lagged(missed)) => {
-                // The next reads bring what was missed.
-                tracing::warn!(
-                    missed,
-                    "change-of-value notifications came faster than they were taken"
-                );
+                // The next reads bring what was missed; told at most every 10 s.
+                lagged += missed;
+                if told.is_none_or(|t: Instant| t.elapsed() >= Duration::from_secs(10)) {
+                    tracing::warn!(
+                        missed = lagged,
+                        "change-of-value notifications came faster than they were taken"
+                    );
+                    (lagged, told) = (0, Some(Instant::now()));
+                }
             }
             Err(broadcast::error::RecvError::Closed) => return,
         }

@@ -37,11 +37,6 @@ pub fn run(target: &str, out: Option<&Path>) -> u8 {
     crate::profile::import::emit::on_runtime(import(target, out))
 }
 
-/// An object type as a profile writes it (`analog-input`).
-pub(super) fn type_name(kind: ObjectType) -> String {
-    kind.to_string().to_ascii_lowercase().replace('_', "-")
-}
-
 /// The field type and direction an object's present value takes, or why it is left out.
 fn kind_of(kind: ObjectType) -> Result<(&'static str, &'static str), String> {
     Ok(match kind {
@@ -55,7 +50,7 @@ fn kind_of(kind: ObjectType) -> Result<(&'static str, &'static str), String> {
         other => {
             return Err(format!(
                 "{}: not a value the gateway reads",
-                type_name(other)
+                super::point::type_name(other)
             ));
         }
     })
@@ -74,7 +69,7 @@ async fn read(
         .map_err(|e| {
             format!(
                 "reading {property} of {}: {e}",
-                type_name(object.object_type())
+                super::point::type_name(object.object_type())
             )
         })?;
     let mut values = Vec::new();
@@ -134,6 +129,42 @@ async fn object_list(
 }
 
 /// Each object's name and an analog object's units.
+/// Each object's name and an analog object's units, one ReadProperty each.
+async fn describe_one_by_one(
+    client: &BACnetClient<BipTransport>,
+    mac: &[u8],
+    objects: &[ObjectIdentifier],
+) -> Vec<(String, Option<String>)> {
+    let mut out = Vec::new();
+    for object in objects {
+        let name = match read(client, mac, *object, PropertyIdentifier::OBJECT_NAME, None)
+            .await
+            .as_deref()
+        {
+            Ok([PropertyValue::CharacterString(s)]) => s.clone(),
+            _ => format!(
+                "{}_{}",
+                super::point::type_name(object.object_type()),
+                object.instance_number()
+            ),
+        };
+        let unit = match read(client, mac, *object, PropertyIdentifier::UNITS, None)
+            .await
+            .as_deref()
+        {
+            Ok([PropertyValue::Enumerated(u)]) => Some(
+                EngineeringUnits::from_raw(*u)
+                    .to_string()
+                    .to_ascii_lowercase()
+                    .replace('_', "-"),
+            ),
+            _ => None,
+        };
+        out.push((name, unit));
+    }
+    out
+}
+
 async fn describe(
     client: &BACnetClient<BipTransport>,
     mac: &[u8],
@@ -179,7 +210,7 @@ async fn describe(
                 Some(PropertyValue::CharacterString(s)) => s,
                 _ => format!(
                     "{}_{}",
-                    type_name(object.object_type()),
+                    super::point::type_name(object.object_type()),
                     object.instance_number()
                 ),
             };
@@ -216,7 +247,7 @@ async fn import(target: &str, out: Option<&Path>) -> u8 {
         timeout: std::time::Duration::from_secs(3),
         retries: 2,
     };
-    let mut client = match super::read::start(&settings).await {
+    let mut client = match super::client::start(&settings).await {
         Ok(c) => c,
         Err(e) => {
             eprintln!("iogate profile import: {source}: {e}");
@@ -251,7 +282,7 @@ async fn import(target: &str, out: Option<&Path>) -> u8 {
             f.direction,
             quoted(&format!(
                 "{}:{}",
-                type_name(f.object.object_type()),
+                super::point::type_name(f.object.object_type()),
                 f.object.instance_number()
             ))
         );
@@ -334,12 +365,17 @@ async fn walk(
         };
     let mut skipped = Vec::new();
     let mut objects = Vec::new();
+    let mut listed = HashSet::new();
     for o in object_list(client, &mac, device).await? {
+        if !listed.insert(o) {
+            skipped.push(format!("{}: listed twice", super::point::name(o)));
+            continue;
+        }
         match kind_of(o.object_type()) {
             Ok(_) if objects.len() < MAX_FIELDS => objects.push(o),
             Ok(_) => skipped.push(format!(
                 "{}:{}: past {MAX_FIELDS} fields",
-                type_name(o.object_type()),
+                super::point::type_name(o.object_type()),
                 o.instance_number()
             )),
             Err(why) if o.object_type() != ObjectType::DEVICE => {
@@ -348,18 +384,23 @@ async fn walk(
             Err(_) => {}
         }
     }
-    let described = describe(client, &mac, &objects).await?;
+    let described = match describe(client, &mac, &objects).await {
+        Ok(d) => d,
+        // A device without ReadPropertyMultiple: each name on its own.
+        Err(_) => describe_one_by_one(client, &mac, &objects).await,
+    };
     let mut names = HashSet::new();
     let mut fields = Vec::new();
     for (object, (text, unit)) in objects.into_iter().zip(described) {
+        // Field names are one whatever their case.
         let mut name = identifier(&text);
-        if !names.insert(name.clone()) {
+        if !names.insert(name.to_ascii_lowercase()) {
             name = identifier(&format!(
                 "{text}_{}_{}",
-                type_name(object.object_type()),
+                super::point::type_name(object.object_type()),
                 object.instance_number()
             ));
-            names.insert(name.clone());
+            names.insert(name.to_ascii_lowercase());
         }
         let (ty, direction) = kind_of(object.object_type())?;
         fields.push(Field {

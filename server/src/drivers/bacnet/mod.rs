@@ -13,6 +13,7 @@
 //! registration. The session holds the client as the OPC UA driver holds its session; the
 //! link task's back-off and schedule stay shared.
 
+mod client;
 mod config;
 mod cov;
 mod describe;
@@ -158,11 +159,28 @@ impl Driver for Bacnet {
 
     fn check_device(device: &DeviceConfig, report: &mut crate::yaml::Report) {
         let at = device.at(point::DEVICE_INSTANCE);
-        let checked = point::device(at, device.at(point::ADDRESS))
-            .and_then(|_| point::cov(device.at(point::COV)));
-        if let Err(why) = checked {
+        let checks = [
+            point::device(at, device.at(point::ADDRESS)).map(drop),
+            point::cov(device.at(point::COV)).map(drop),
+        ];
+        for why in checks.into_iter().filter_map(Result::err) {
             report.push(device.line, format!("device {}", device.name), why);
         }
+    }
+
+    /// Its port binds every address of the host on its UDP port (to hear broadcasts).
+    fn claims(config: &LinkConfig) -> Option<(String, &'static str)> {
+        let s = Self::settings(config).ok()?;
+        Some((
+            format!("UDP port {}", s.bind.port()),
+            "a BACnet/IP port is bound on every address of the host, to hear broadcasts: give each link a port of its own",
+        ))
+    }
+
+    fn device_identity(device: &DeviceConfig) -> Option<String> {
+        point::device_instance(device.at(point::DEVICE_INSTANCE)?)
+            .ok()
+            .map(|i| format!("device_instance {i}"))
     }
 
     fn describe(_: &LinkConfig, devices: &super::Planned<'_>, _: &super::Facts, out: &mut String) {
@@ -196,7 +214,7 @@ impl Driver for Bacnet {
     ) -> Result<Port, LinkFault> {
         let s = Self::settings(config)?;
         let endpoint = s.bind.to_string();
-        let client = read::start(&s)
+        let client = client::start(&s)
             .await
             .map_err(|e| LinkFault::connect_failed(endpoint, BacnetError(e)))?;
         let table = Arc::new(cov::Table::default());
@@ -241,7 +259,8 @@ impl Session for Port {
     }
 
     async fn close(mut self) {
-        cov::cancel(&self).await;
+        // A silent device's cancellations are not waited for past half a second.
+        let _ = tokio::time::timeout(Duration::from_millis(500), cov::cancel(&self)).await;
         self.listener.abort();
         let _ = self.client.stop().await;
     }

@@ -134,7 +134,20 @@ pub(crate) fn device(
         "a BACnet device needs its `device_instance` (the instance of its device object)",
     )?)?;
     let address = address.map(super::config::address).transpose()?;
+    if address.is_some_and(|a| a.port() == 0) {
+        return Err("a device's `address` needs its port (not 0)".into());
+    }
     Ok((instance, address))
+}
+
+/// An object type as a profile writes it (`analog-input`).
+pub(crate) fn type_name(kind: ObjectType) -> String {
+    kind.to_string().to_ascii_lowercase().replace('_', "-")
+}
+
+/// An object as a profile writes it (`analog-input:3`).
+pub(crate) fn name(id: bacnet_types::primitives::ObjectIdentifier) -> String {
+    format!("{}:{}", type_name(id.object_type()), id.instance_number())
 }
 
 #[cfg(test)]

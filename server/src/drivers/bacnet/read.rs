@@ -7,78 +7,23 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use bacnet_client::client::BACnetClient;
 use bacnet_encoding::primitives::decode_application_value;
 use bacnet_services::rpm::ReadAccessResult;
 use bacnet_services::who_is::DeviceInstanceRange;
-use bacnet_transport::bip::{BipTransport, ForeignDeviceConfig};
 use bacnet_types::constructed::{PropertyReference, ReadAccessSpecification};
-use bacnet_types::enums::AbortReason;
 use bacnet_types::enums::PropertyIdentifier;
-use bacnet_types::error::{Error, RemoteError};
 use bacnet_types::primitives::PropertyValue;
 use tokio::time::Instant;
 
-use super::config::Settings;
 use super::value::{not_good, reading};
 use super::{Place, Plan, Port};
 use crate::cache::{Device, FieldError};
 use crate::drivers::Read;
-use crate::link::{LinkFault, TxError};
+use crate::link::LinkFault;
 
 /// The most objects one ReadPropertyMultiple asks for (each with at most two properties:
 /// an answer stays within a device's smallest usual APDU of 480 bytes for numbers).
 pub(super) const PER_REQUEST: usize = 16;
-
-/// Starts the client on the link's port.
-pub(super) async fn start(s: &Settings) -> Result<BACnetClient<BipTransport>, Error> {
-    let mut transport = BipTransport::new(*s.bind.ip(), s.bind.port(), s.broadcast);
-    if let Some((bbmd, ttl)) = s.bbmd {
-        transport.register_as_foreign_device(ForeignDeviceConfig {
-            bbmd_ip: *bbmd.ip(),
-            bbmd_port: bbmd.port(),
-            ttl: u16::try_from(ttl.as_secs()).unwrap_or(u16::MAX).max(1),
-            renewal_interval: None,
-        });
-    }
-    let config = bacnet_client::client::ClientConfig {
-        interface: *s.bind.ip(),
-        port: s.bind.port(),
-        broadcast_address: s.broadcast,
-        apdu_timeout_ms: u64::try_from(s.timeout.as_millis()).unwrap_or(u64::MAX),
-        apdu_retries: s.retries,
-        ..Default::default()
-    };
-    BACnetClient::start(config, transport).await
-}
-
-/// What a failed request means: the port itself failed (`Err`), or the device's answer or
-/// silence (`Ok`, its field error, and whether it was silence).
-pub(super) fn failure(e: Error) -> Result<(FieldError, bool), LinkFault> {
-    match e {
-        Error::Transport(io) => Err(LinkFault::Lost(Arc::new(io))),
-        Error::Timeout(_) => Ok((FieldError::NoResponse(TxError::Timeout), true)),
-        // The client's own transaction timer, after the retries.
-        Error::Remote(RemoteError::Abort { reason }) if reason == AbortReason::TSM_TIMEOUT => {
-            Ok((FieldError::NoResponse(TxError::Timeout), true))
-        }
-        Error::Remote(RemoteError::Abort { reason }) => Ok((
-            FieldError::Device(format!("the device aborted the request ({reason})")),
-            false,
-        )),
-        Error::Remote(RemoteError::Reject { reason }) => Ok((
-            FieldError::Device(format!("the device rejected the request ({reason})")),
-            false,
-        )),
-        e @ (Error::Remote(_) | Error::Structured { .. }) => {
-            Ok((FieldError::Device(e.to_string()), false))
-        }
-        e => Ok((
-            FieldError::Device(format!("the answer does not decode: {e}")),
-            false,
-        )),
-    }
-}
 
 /// Puts the device in the client's table: by its address, or by asking for it (a Who-Is
 /// for its instance); `false` while it is not known yet.
@@ -135,11 +80,22 @@ fn specs(places: &[(usize, Place)]) -> Vec<ReadAccessSpecification> {
 
 /// One property of an object's result, decoded, or why not.
 fn property(result: &ReadAccessResult, id: PropertyIdentifier) -> Result<PropertyValue, String> {
-    let element = result
+    let mut found = result
         .list_of_results
         .iter()
-        .find(|r| r.property_identifier == id && r.property_array_index.is_none())
-        .ok_or_else(|| format!("the answer has no {id} of {:?}", result.object_identifier))?;
+        .filter(|r| r.property_identifier == id && r.property_array_index.is_none());
+    let element = found.next().ok_or_else(|| {
+        format!(
+            "the answer has no {id} of {}",
+            super::point::name(result.object_identifier)
+        )
+    })?;
+    if found.next().is_some() {
+        return Err(format!(
+            "the answer holds {id} of {} twice",
+            super::point::name(result.object_identifier)
+        ));
+    }
     if let Some((class, code)) = &element.error {
         return Err(format!("the device refused {id}: {class}, {code}"));
     }
@@ -161,8 +117,9 @@ fn publish(device: &Device, asked: &[(usize, Place)], results: &[ReadAccessResul
         let outcome = match results.get(k) {
             None => Err(FieldError::Missing("the object's result")),
             Some(r) if r.object_identifier != place.object => Err(FieldError::Device(format!(
-                "the answer is for {:?}, not the {:?} asked",
-                r.object_identifier, place.object
+                "the answer is for {}, not the {} asked",
+                super::point::name(r.object_identifier),
+                super::point::name(place.object)
             ))),
             Some(r) => {
                 let flags = (place.property == PropertyIdentifier::PRESENT_VALUE)
@@ -187,7 +144,13 @@ pub(super) async fn cycle(
     plan: &mut Plan,
 ) -> Result<Read, LinkFault> {
     let started = Instant::now();
-    let instance = match know(port, plan).await {
+    let known = know(port, plan).await;
+    if !matches!(known, Ok(true)) {
+        plan.cov
+            .answering
+            .store(false, std::sync::atomic::Ordering::Relaxed);
+    }
+    let instance = match known {
         Ok(true) => plan.instance.as_ref().map_or(0, |(i, _)| *i),
         Ok(false) => {
             return Ok(Read::Silent(FieldError::Device(
@@ -216,8 +179,13 @@ pub(super) async fn cycle(
                 answered = true;
                 publish(device, chunk, &ack.list_of_read_access_results);
             }
-            Err(e) => match failure(e)? {
-                (why, true) if !answered => return Ok(Read::Silent(why)),
+            Err(e) => match super::client::failure(e)? {
+                (why, true) if !answered => {
+                    plan.cov
+                        .answering
+                        .store(false, std::sync::atomic::Ordering::Relaxed);
+                    return Ok(Read::Silent(why));
+                }
                 (why, _) => {
                     for (idx, _) in chunk {
                         device.publish(*idx, Err(why.clone()));
@@ -226,6 +194,9 @@ pub(super) async fn cycle(
             },
         }
     }
+    plan.cov
+        .answering
+        .store(answered, std::sync::atomic::Ordering::Relaxed);
     if answered {
         // Subscribed once the device answers its reads: a silent device costs no more.
         super::cov::renew(port, device, plan, instance).await;

@@ -118,7 +118,7 @@ fn json(devices: &[DiscoveredDevice]) -> String {
 
 /// Every device that answers a global Who-Is within `wait`, by instance.
 async fn listen(s: &Settings, wait: Duration) -> Result<Vec<DiscoveredDevice>, String> {
-    let mut client = super::read::start(s).await.map_err(|e| e.to_string())?;
+    let mut client = super::client::start(s).await.map_err(|e| e.to_string())?;
     let mut events = client.device_events();
     let asked = client
         .who_is(None)

@@ -17,6 +17,12 @@ pub(crate) fn reading(ty: IecType, value: &PropertyValue) -> Result<Value, Strin
         (IecType::Bool, PropertyValue::Enumerated(n)) if *n <= 1 => Ok(Value::Bool(*n == 1)),
         (IecType::Bool, PropertyValue::Unsigned(n)) if *n <= 1 => Ok(Value::Bool(*n == 1)),
         (IecType::String, PropertyValue::CharacterString(s)) => Ok(Value::String(s.clone())),
+        // A device's own NaN or infinity (a sensor fault) is its value, as for Modbus.
+        (IecType::Real, PropertyValue::Real(x)) if !x.is_finite() => Ok(Value::Real(*x)),
+        (IecType::Lreal, PropertyValue::Real(x)) if !x.is_finite() => {
+            Ok(Value::LReal(f64::from(*x)))
+        }
+        (IecType::Lreal, PropertyValue::Double(x)) if !x.is_finite() => Ok(Value::LReal(*x)),
         (IecType::Real | IecType::Lreal, PropertyValue::Real(x)) => {
             fits(Value::from_real(ty, f64::from(*x)))
         }
@@ -133,9 +139,12 @@ pub(crate) fn writing(object: ObjectType, value: &Value) -> Result<PropertyValue
 /// out-of-service 3, from the first byte's highest bit): why the value is not good, if it
 /// is not.
 pub(crate) fn not_good(flags: &PropertyValue) -> Option<&'static str> {
-    let PropertyValue::BitString { data, .. } = flags else {
-        return None;
+    let PropertyValue::BitString { data, unused_bits } = flags else {
+        return Some("the device's status-flags are not a bit string");
     };
+    if data.is_empty() || data.len() * 8 < 4 + usize::from(*unused_bits) {
+        return Some("the device's status-flags hold fewer than their four bits");
+    }
     let first = data.first().copied().unwrap_or(0);
     if first & 0x40 != 0 {
         return Some("the device flags it as in fault (status-flags)");
@@ -193,6 +202,13 @@ mod tests {
     }
 
     #[test]
+    fn a_devices_own_nan_is_its_value() {
+        let nan = reading(IecType::Real, &PropertyValue::Real(f32::NAN)).expect("taken");
+        assert!(matches!(nan, Value::Real(x) if x.is_nan()));
+        assert!(reading(IecType::Int, &PropertyValue::Real(f32::NAN)).is_err());
+    }
+
+    #[test]
     fn fault_and_out_of_service_are_not_good() {
         let flags = |b: u8| PropertyValue::BitString {
             unused_bits: 4,
@@ -202,5 +218,11 @@ mod tests {
         assert_eq!(not_good(&flags(0x80)), None, "in alarm is still a value");
         assert!(not_good(&flags(0x40)).is_some_and(|w| w.contains("fault")));
         assert!(not_good(&flags(0x10)).is_some_and(|w| w.contains("out of service")));
+        let empty = PropertyValue::BitString {
+            unused_bits: 0,
+            data: vec![],
+        };
+        assert!(not_good(&empty).is_some_and(|w| w.contains("four bits")));
+        assert!(not_good(&PropertyValue::Unsigned(0)).is_some());
     }
 }

@@ -12,7 +12,7 @@ use bytes::BytesMut;
 use super::value::writing;
 use super::{Place, Plan, Port};
 use crate::cache::{Device, FieldError, WriteError};
-use crate::drivers::{WriteItem, finish, written};
+use crate::drivers::{WriteItem, finish};
 use crate::link::LinkFault;
 
 /// A field's value encoded as its property takes it (a present value as its object's
@@ -80,8 +80,10 @@ pub(super) async fn outputs(
             .await;
         port.progress.ended();
         match answer {
-            Ok(()) => written(device, &item, 1),
-            Err(e) => match super::read::failure(e)? {
+            // Taken at its priority: the present value is what the device says at its next
+            // read (a higher priority may hold it), never the value sent.
+            Ok(()) => finish(device, &item, Ok(()), 1),
+            Err(e) => match super::client::failure(e)? {
                 (why, true) => {
                     let silent = WriteError::NoResponse(crate::link::TxError::Timeout);
                     finish(device, &item, Err(silent), 1);
