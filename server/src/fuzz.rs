@@ -123,6 +123,11 @@ pub fn s7_answer(data: &[u8]) {
     crate::drivers::s7::fuzz_answer(data);
 }
 
+/// A BACnet device's answers, notifications and a profile's BACnet notation.
+pub fn bacnet_answer(data: &[u8]) {
+    crate::drivers::bacnet::fuzz_answer(data);
+}
+
 /// A Logix controller's EtherNet/IP answers and Read Tag replies by every type.
 pub fn eip_answer(data: &[u8]) {
     crate::drivers::eip::fuzz_answer(data);
@@ -279,6 +284,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("import", import),
     ("s7_answer", s7_answer),
     ("eip_answer", eip_answer),
+    ("bacnet_answer", bacnet_answer),
     ("grpc_request", grpc_request),
     ("opcua_binary", opcua_binary),
     ("http_request", http_request),

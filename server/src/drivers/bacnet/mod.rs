@@ -265,3 +265,52 @@ impl Session for Port {
         let _ = self.client.stop().await;
     }
 }
+
+/// A device's ReadPropertyMultiple answer and change-of-value notification as the driver
+/// meets them (each value read as every kind of field, the status flags judged), and the
+/// object, property and priority notation of a profile.
+#[cfg(any(fuzzing, test))]
+pub(crate) fn fuzz_answer(data: &[u8]) {
+    use crate::codec::IecType;
+    let types = [
+        IecType::Bool,
+        IecType::Int,
+        IecType::Udint,
+        IecType::Real,
+        IecType::Lreal,
+        IecType::String,
+    ];
+    let values = |bytes: &[u8]| {
+        let mut at = 0;
+        while let Ok((v, next)) = bacnet_encoding::primitives::decode_application_value(bytes, at) {
+            for ty in types {
+                let _ = value::reading(ty, &v);
+            }
+            let _ = value::not_good(&v);
+            if next <= at {
+                break;
+            }
+            at = next;
+        }
+    };
+    if let Ok(ack) = bacnet_services::rpm::ReadPropertyMultipleACK::decode(data) {
+        for r in &ack.list_of_read_access_results {
+            for e in &r.list_of_results {
+                values(e.property_value.as_deref().unwrap_or_default());
+            }
+        }
+    }
+    if let Ok(n) = bacnet_services::cov::COVNotificationRequest::decode(data) {
+        for v in &n.list_of_values {
+            values(&v.value);
+        }
+    }
+    if let Ok(text) = std::str::from_utf8(data) {
+        let _ = (
+            point::object(text),
+            point::property(text),
+            point::priority(text),
+        );
+        let _ = point::device(Some(text), Some(text));
+    }
+}
