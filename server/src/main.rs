@@ -107,25 +107,7 @@ enum ProfileCommand {
     /// iogate profiles, browse an OPC UA server (`--from opcua opc.tcp://HOST:PORT`) or list
     /// a Logix controller's tags (`--from eip HOST[:PORT]`) for one; what cannot be mapped
     /// is reported with its source line, node or tag.
-    Import {
-        /// The source format; default: by the file name (.json wb, .yaml/.yml edgex); `opcua`
-        /// takes a server's endpoint URL instead of files, `eip` a controller's HOST[:PORT].
-        #[arg(long)]
-        from: Option<String>,
-        /// With `--from opcua`: the node to browse from (default: the Objects folder).
-        #[arg(long)]
-        node: Option<String>,
-        /// With `--from eip`: the route to the controller (default: 1,0, the backplane's
-        /// slot 0).
-        #[arg(long)]
-        path: Option<String>,
-        /// Where to write the profiles (one file each); default: standard output.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// The files to convert.
-        #[arg(required = true)]
-        files: Vec<PathBuf>,
-    },
+    Import(iogate::drivers::import::Options),
     /// Print the profile's function block as an IEC 61131-3 ST declaration.
     St {
         /// The profile name.
@@ -195,26 +177,10 @@ fn main() -> ExitCode {
         return ExitCode::from(iogate::scan::cli::run(options));
     }
     if let Some(Command::Profile {
-        command:
-            ProfileCommand::Import {
-                from,
-                node,
-                path,
-                out,
-                files,
-            },
+        command: ProfileCommand::Import(options),
     }) = &cli.command
     {
-        let options: Vec<(&'static str, &str)> = [("--node", node), ("--path", path)]
-            .into_iter()
-            .filter_map(|(flag, v)| Some((flag, v.as_deref()?)))
-            .collect();
-        return ExitCode::from(iogate::drivers::import::run(
-            from.as_deref(),
-            &options,
-            out.as_deref(),
-            files,
-        ));
+        return ExitCode::from(iogate::drivers::import::run_cli(options));
     }
     let Some((config, action)) = action_of(cli.command) else {
         return ExitCode::SUCCESS;
@@ -281,7 +247,7 @@ fn action_of(command: Option<Command>) -> Option<(Option<PathBuf>, Action)> {
             Command::Fb { .. }
             | Command::Scan(_)
             | Command::Profile {
-                command: ProfileCommand::Import { .. },
+                command: ProfileCommand::Import(_),
             },
         ) => return None,
     })

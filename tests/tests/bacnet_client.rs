@@ -228,9 +228,10 @@ async fn a_devices_object_list_becomes_its_profile_and_the_profile_reads() -> an
     let out = dir.join("profiles");
     let target = format!("127.0.0.1:{}", device.port);
     let (t, o) = (target.clone(), out.clone());
-    let code =
-        tokio::task::spawn_blocking(move || iogate::drivers::bacnet::import::run(&t, Some(&o)))
-            .await?;
+    let code = tokio::task::spawn_blocking(move || {
+        iogate::drivers::bacnet::import::run(&t, &[], Some(&o))
+    })
+    .await?;
     assert_eq!(code, 0);
     let name = "BACnet_TestDevice_1003";
     let text = std::fs::read_to_string(out.join(format!("{name}.yaml")))?;
@@ -339,6 +340,26 @@ async fn devices_behind_a_router_are_found_by_who_is_and_are_separate_devices() 
     assert_eq!(vav7["network"], 2, "{vav7}");
     assert_eq!(vav7["mac"], "08", "{vav7}");
     assert!(vav7["address"].is_null(), "{vav7}");
+
+    // A device behind the router imported by its instance alone.
+    let out = dir.join("imported");
+    let (on, bbmd) = (
+        std::net::UdpSocket::bind("127.0.0.1:0")?
+            .local_addr()?
+            .to_string(),
+        format!("127.0.0.2:{port}"),
+    );
+    let o = out.clone();
+    let code = tokio::task::spawn_blocking(move || {
+        iogate::drivers::bacnet::import::run("3007", &[("--on", &on), ("--bbmd", &bbmd)], Some(&o))
+    })
+    .await?;
+    assert_eq!(code, 0);
+    let text = std::fs::read_to_string(out.join("BACnet_Vav7_3007.yaml"))?;
+    assert!(
+        text.contains("{ name: Flow, type: REAL, direction: input, object: \"analog-input:1\", unit: \"liters-per-second\" }"),
+        "{text}"
+    );
     Ok(())
 }
 

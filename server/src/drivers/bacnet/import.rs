@@ -16,6 +16,7 @@ use bacnet_types::constructed::{PropertyReference, ReadAccessSpecification};
 use bacnet_types::enums::{EngineeringUnits, ObjectType, PropertyIdentifier};
 use bacnet_types::primitives::{ObjectIdentifier, PropertyValue};
 
+use crate::drivers::{ImportOptions, option};
 use crate::profile::import::{identifier, quoted};
 
 /// The most fields a profile made here holds.
@@ -32,9 +33,9 @@ struct Field {
 
 /// Runs the import; the exit code: 0 a profile written, 1 nothing could be imported, 64 a
 /// bad argument.
-pub fn run(target: &str, out: Option<&Path>) -> u8 {
+pub fn run(target: &str, options: &ImportOptions<'_>, out: Option<&Path>) -> u8 {
     crate::drivers::register();
-    crate::profile::import::emit::on_runtime(import(target, out))
+    crate::profile::import::emit::on_runtime(import(target, options, out))
 }
 
 /// The field type and direction an object's present value takes, or why it is left out.
@@ -58,13 +59,13 @@ fn kind_of(kind: ObjectType) -> Result<(&'static str, &'static str), String> {
 
 async fn read(
     client: &BACnetClient<BipTransport>,
-    mac: &[u8],
+    instance: u32,
     object: ObjectIdentifier,
     property: PropertyIdentifier,
     index: Option<u32>,
 ) -> Result<Vec<PropertyValue>, String> {
     let ack = client
-        .read_property(mac, object, property, index)
+        .read_property_from_device(instance, object, property, index)
         .await
         .map_err(|e| {
             format!(
@@ -86,7 +87,7 @@ async fn read(
 /// The device's object list: whole, or element by element where it does not fit an answer.
 async fn object_list(
     client: &BACnetClient<BipTransport>,
-    mac: &[u8],
+    instance: u32,
     device: ObjectIdentifier,
 ) -> Result<Vec<ObjectIdentifier>, String> {
     let ids = |values: Vec<PropertyValue>| {
@@ -98,12 +99,20 @@ async fn object_list(
             })
             .collect::<Vec<_>>()
     };
-    if let Ok(whole) = read(client, mac, device, PropertyIdentifier::OBJECT_LIST, None).await {
+    if let Ok(whole) = read(
+        client,
+        instance,
+        device,
+        PropertyIdentifier::OBJECT_LIST,
+        None,
+    )
+    .await
+    {
         return Ok(ids(whole));
     }
     let count = match read(
         client,
-        mac,
+        instance,
         device,
         PropertyIdentifier::OBJECT_LIST,
         Some(0),
@@ -118,7 +127,7 @@ async fn object_list(
         let k = u32::try_from(k).unwrap_or(u32::MAX);
         list.extend(ids(read(
             client,
-            mac,
+            instance,
             device,
             PropertyIdentifier::OBJECT_LIST,
             Some(k),
@@ -132,14 +141,20 @@ async fn object_list(
 /// Each object's name and an analog object's units, one ReadProperty each.
 async fn describe_one_by_one(
     client: &BACnetClient<BipTransport>,
-    mac: &[u8],
+    instance: u32,
     objects: &[ObjectIdentifier],
 ) -> Vec<(String, Option<String>)> {
     let mut out = Vec::new();
     for object in objects {
-        let name = match read(client, mac, *object, PropertyIdentifier::OBJECT_NAME, None)
-            .await
-            .as_deref()
+        let name = match read(
+            client,
+            instance,
+            *object,
+            PropertyIdentifier::OBJECT_NAME,
+            None,
+        )
+        .await
+        .as_deref()
         {
             Ok([PropertyValue::CharacterString(s)]) => s.clone(),
             _ => format!(
@@ -148,7 +163,7 @@ async fn describe_one_by_one(
                 object.instance_number()
             ),
         };
-        let unit = match read(client, mac, *object, PropertyIdentifier::UNITS, None)
+        let unit = match read(client, instance, *object, PropertyIdentifier::UNITS, None)
             .await
             .as_deref()
         {
@@ -167,7 +182,7 @@ async fn describe_one_by_one(
 
 async fn describe(
     client: &BACnetClient<BipTransport>,
-    mac: &[u8],
+    instance: u32,
     objects: &[ObjectIdentifier],
 ) -> Result<Vec<(String, Option<String>)>, String> {
     let mut out = Vec::new();
@@ -189,7 +204,7 @@ async fn describe(
             })
             .collect();
         let ack = client
-            .read_property_multiple(mac, specs)
+            .read_property_multiple_from_device(instance, specs)
             .await
             .map_err(|e| format!("reading the objects' names: {e}"))?;
         for (k, object) in chunk.iter().enumerate() {
@@ -229,23 +244,28 @@ async fn describe(
     Ok(out)
 }
 
-async fn import(target: &str, out: Option<&Path>) -> u8 {
-    let at = match super::config::address(target.trim()) {
-        Ok(a) => a,
+async fn import(target: &str, options: &ImportOptions<'_>, out: Option<&Path>) -> u8 {
+    let parsed = match target.trim().parse::<u32>() {
+        Ok(i) => super::point::device_instance(&i.to_string()).map(Target::Instance),
+        Err(_) => super::config::address(target.trim()).map(Target::At),
+    };
+    let settings = parsed.and_then(|t| Ok((t, super::scan::settings(options)?.0)));
+    let (target, mut settings) = match settings {
+        Ok(s) => s,
         Err(e) => {
             eprintln!(
-                "iogate profile import --from bacnet: {e} (give the device's HOST or HOST:PORT)"
+                "iogate profile import --from bacnet: {e} (give the device's HOST[:PORT] or its device instance)"
             );
             return crate::EXIT_CONFIG as u8;
         }
     };
-    let source = at.to_string();
-    let settings = super::config::Settings {
-        bind: "0.0.0.0:0".parse().unwrap_or(at),
-        broadcast: std::net::Ipv4Addr::BROADCAST,
-        bbmd: None,
-        timeout: std::time::Duration::from_secs(3),
-        retries: 2,
+    // A device at an address is asked from a port of the import's own, unless it says.
+    if matches!(target, Target::At(_)) && option(options, "--on").is_none() {
+        settings.bind = std::net::SocketAddrV4::new(std::net::Ipv4Addr::UNSPECIFIED, 0);
+    }
+    let source = match target {
+        Target::At(a) => a.to_string(),
+        Target::Instance(i) => format!("device {i}"),
     };
     let mut client = match super::client::start(&settings).await {
         Ok(c) => c,
@@ -254,7 +274,7 @@ async fn import(target: &str, out: Option<&Path>) -> u8 {
             return 1;
         }
     };
-    let made = walk(&client, at).await;
+    let made = walk(&client, target).await;
     let _ = client.stop().await;
     let (instance, device_name, fields, skipped) = match made {
         Ok(m) => m,
@@ -335,38 +355,103 @@ async fn heard(
         })
 }
 
-/// The device's instance and name, its fields, and what was left out.
-async fn walk(
+/// Where the device to import is: at an address, or by its instance (a Who-Is finds it).
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Target {
+    At(std::net::SocketAddrV4),
+    Instance(u32),
+}
+
+/// The device object of the device at an address: by the wildcard instance, else by its
+/// I-Am to a Who-Is sent to it alone; the device put in the client's table.
+async fn at(
     client: &BACnetClient<BipTransport>,
     at: std::net::SocketAddrV4,
-) -> Result<(u32, String, Vec<Field>, Vec<String>), String> {
+) -> Result<ObjectIdentifier, String> {
     let mut mac = at.ip().octets().to_vec();
     mac.extend_from_slice(&at.port().to_be_bytes());
     let wildcard = ObjectIdentifier::new(ObjectType::DEVICE, ObjectIdentifier::MAX_INSTANCE)
         .map_err(|e| e.to_string())?;
-    let asked = read(
+    let asked = client
+        .read_property(&mac, wildcard, PropertyIdentifier::OBJECT_IDENTIFIER, None)
+        .await
+        .ok()
+        .and_then(|ack| decode_application_value(&ack.property_value, 0).ok());
+    let device = match asked {
+        Some((PropertyValue::ObjectIdentifier(id), _))
+            if id.object_type() == ObjectType::DEVICE =>
+        {
+            id
+        }
+        // A device that does not take the wildcard instance says who it is in its I-Am.
+        _ => heard(client, &mac).await?,
+    };
+    if client.get_device(device.instance_number()).await.is_none() {
+        client
+            .add_device(device.instance_number(), &mac)
+            .await
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(device)
+}
+
+/// The device object of the device of an instance, from its I-Am to a Who-Is for it
+/// (through a BBMD and routers too).
+async fn by_instance(
+    client: &BACnetClient<BipTransport>,
+    instance: u32,
+) -> Result<ObjectIdentifier, String> {
+    let mut events = client.device_events();
+    let range = bacnet_services::who_is::DeviceInstanceRange::new(instance, instance)
+        .map_err(|e| e.to_string())?;
+    client
+        .who_is(Some(range))
+        .await
+        .map_err(|e| format!("sending a Who-Is: {e}"))?;
+    let answer = async {
+        loop {
+            match events.recv().await {
+                Ok(e) if e.device.object_identifier.instance_number() == instance => {
+                    return Some(e.device.object_identifier);
+                }
+                Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return None,
+            }
+        }
+    };
+    tokio::time::timeout(std::time::Duration::from_secs(3), answer)
+        .await
+        .ok()
+        .flatten()
+        .ok_or_else(|| format!("no device {instance} answered a Who-Is"))
+}
+
+/// The device's instance and name, its fields, and what was left out.
+async fn walk(
+    client: &BACnetClient<BipTransport>,
+    target: Target,
+) -> Result<(u32, String, Vec<Field>, Vec<String>), String> {
+    let device = match target {
+        Target::At(a) => at(client, a).await?,
+        Target::Instance(i) => by_instance(client, i).await?,
+    };
+    let instance = device.instance_number();
+    let device_name = match read(
         client,
-        &mac,
-        wildcard,
-        PropertyIdentifier::OBJECT_IDENTIFIER,
+        instance,
+        device,
+        PropertyIdentifier::OBJECT_NAME,
         None,
     )
-    .await;
-    let device = match asked.as_deref() {
-        Ok([PropertyValue::ObjectIdentifier(id)]) if id.object_type() == ObjectType::DEVICE => *id,
-        Ok(_) => return Err("the device did not say its device object".into()),
-        // A device that does not take the wildcard instance says who it is in its I-Am.
-        Err(_) => heard(client, &mac).await?,
+    .await?[..]
+    {
+        [PropertyValue::CharacterString(ref s)] => s.clone(),
+        _ => format!("device_{}", device.instance_number()),
     };
-    let device_name =
-        match read(client, &mac, device, PropertyIdentifier::OBJECT_NAME, None).await?[..] {
-            [PropertyValue::CharacterString(ref s)] => s.clone(),
-            _ => format!("device_{}", device.instance_number()),
-        };
     let mut skipped = Vec::new();
     let mut objects = Vec::new();
     let mut listed = HashSet::new();
-    for o in object_list(client, &mac, device).await? {
+    for o in object_list(client, instance, device).await? {
         if !listed.insert(o) {
             skipped.push(format!("{}: listed twice", super::point::name(o)));
             continue;
@@ -384,10 +469,10 @@ async fn walk(
             Err(_) => {}
         }
     }
-    let described = match describe(client, &mac, &objects).await {
+    let described = match describe(client, instance, &objects).await {
         Ok(d) => d,
         // A device without ReadPropertyMultiple: each name on its own.
-        Err(_) => describe_one_by_one(client, &mac, &objects).await,
+        Err(_) => describe_one_by_one(client, instance, &objects).await,
     };
     let mut names = HashSet::new();
     let mut fields = Vec::new();

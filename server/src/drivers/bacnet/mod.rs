@@ -139,12 +139,16 @@ impl Driver for Bacnet {
 
     const IMPORT: Option<super::Import> = Some(super::Import {
         from: PROTOCOL,
-        options: &[],
-        source: "one device, HOST or HOST:PORT",
+        options: &["--on", "--broadcast", "--bbmd"],
+        source: "one device, HOST[:PORT] or its device instance",
     });
 
-    fn import(target: &str, _: &super::ImportOptions<'_>, out: Option<&std::path::Path>) -> u8 {
-        import::run(target, out)
+    fn import(
+        target: &str,
+        options: &super::ImportOptions<'_>,
+        out: Option<&std::path::Path>,
+    ) -> u8 {
+        import::run(target, options, out)
     }
 
     const SCAN: Option<super::Import> = Some(super::Import {

@@ -18,7 +18,7 @@ use crate::drivers::{ImportOptions, option};
 const MAX_DEVICES: usize = 10_000;
 
 /// The scan's settings from its options.
-fn settings(options: &ImportOptions<'_>) -> Result<(Settings, Duration), String> {
+pub(super) fn settings(options: &ImportOptions<'_>) -> Result<(Settings, Duration), String> {
     let on = address(option(options, "--on").unwrap_or("0.0.0.0:47808"))
         .map_err(|e| format!("--on: {e}"))?;
     let broadcast = match option(options, "--broadcast") {
