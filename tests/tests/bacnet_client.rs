@@ -34,7 +34,7 @@ async fn gateway(name: &str, device: &BacnetDevice) -> anyhow::Result<TestGatewa
     let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
     let bind2 = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
     let config = format!(
-        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\", timeout: 500ms, retries: 1 }}\n  - name: slow\n    bacnet: {{ bind: \"{bind2}\" }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: {}, address: \"127.0.0.1:{}\", refresh_rate: 200ms }}\n  - {{ name: ghost, profile: Ahu, link: bms, device_instance: 77, address: \"127.0.0.1:9\", refresh_rate: 200ms }}\n  - {{ name: watcher, profile: Ahu, link: slow, device_instance: {1}, address: \"127.0.0.1:{2}\", refresh_rate: 1h }}\n",
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\", timeout: 500ms, retries: 1 }}\n  - name: slow\n    bacnet: {{ bind: \"{bind2}\" }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: {}, address: \"127.0.0.1:{}\", refresh_rate: 200ms }}\n  - {{ name: ghost, profile: Ahu, link: bms, device_instance: 77, address: \"127.0.0.1:9\", refresh_rate: 200ms, cov: false }}\n  - {{ name: watcher, profile: Ahu, link: slow, device_instance: {1}, address: \"127.0.0.1:{2}\", refresh_rate: 1h }}\n",
         dir.join("profiles").display(),
         device.instance,
         device.port,

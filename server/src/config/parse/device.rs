@@ -163,10 +163,12 @@ fn own_keys(
         if at.iter().any(|(k, _)| k == key) {
             continue;
         }
-        if let Some(text) = map
-            .get(key)
-            .and_then(|n| n.scalar_text(report, &format!("{ctx}: {key}")))
-        {
+        // A driver's key may be a word, a number or a truth value (`cov: false`).
+        let text = map.get(key).and_then(|n| match &n.kind {
+            crate::yaml::Kind::Bool(b) => Some(b.to_string()),
+            _ => n.scalar_text(report, &format!("{ctx}: {key}")),
+        });
+        if let Some(text) = text {
             at.push((*key, text));
         }
     }
