@@ -39,15 +39,7 @@ impl BacnetDevice {
 
     /// One command and its answer.
     pub async fn cmd(&mut self, command: &str) -> anyhow::Result<String> {
-        self.piped
-            .stdin
-            .write_all(format!("{command}\n").as_bytes())
-            .await?;
-        let answer = tokio::time::timeout(PATIENCE, self.piped.lines.next_line())
-            .await??
-            .ok_or_else(|| anyhow::anyhow!("the device ended"))?;
-        anyhow::ensure!(!answer.starts_with("error"), "{command}: {answer}");
-        Ok(answer)
+        ask(&mut self.piped, command).await
     }
 
     /// A property of an object as the device holds it (`analog-output,1`, `presentValue`).
@@ -98,14 +90,19 @@ impl BacnetRouter {
 
     /// One command and its answer.
     pub async fn cmd(&mut self, command: &str) -> anyhow::Result<String> {
-        self.piped
-            .stdin
-            .write_all(format!("{command}\n").as_bytes())
-            .await?;
-        let answer = tokio::time::timeout(PATIENCE, self.piped.lines.next_line())
-            .await??
-            .ok_or_else(|| anyhow::anyhow!("the router ended"))?;
-        anyhow::ensure!(!answer.starts_with("error"), "{command}: {answer}");
-        Ok(answer)
+        ask(&mut self.piped, command).await
     }
+}
+
+/// One command to a peer driven a line at a time, and its answer (an `error` answer is one).
+async fn ask(piped: &mut Piped, command: &str) -> anyhow::Result<String> {
+    piped
+        .stdin
+        .write_all(format!("{command}\n").as_bytes())
+        .await?;
+    let answer = tokio::time::timeout(PATIENCE, piped.lines.next_line())
+        .await??
+        .ok_or_else(|| anyhow::anyhow!("the peer ended"))?;
+    anyhow::ensure!(!answer.starts_with("error"), "{command}: {answer}");
+    Ok(answer)
 }

@@ -110,8 +110,13 @@ pub(super) async fn renew(port: &Port, device: &Arc<Device>, plan: &mut Plan, in
         },
     );
     let now = Instant::now();
-    let mut objects: Vec<ObjectIdentifier> = fields.iter().map(|(_, o)| *o).collect();
-    objects.dedup();
+    // Each object once, however many fields read it (wherever they stand in the profile).
+    let mut seen = std::collections::HashSet::new();
+    let objects: Vec<ObjectIdentifier> = fields
+        .iter()
+        .map(|(_, o)| *o)
+        .filter(|o| seen.insert(*o))
+        .collect();
     for object in objects {
         let due = match plan.cov.objects.get(&object) {
             Some(None) => false,
@@ -161,9 +166,9 @@ pub(super) async fn cancel(port: &Port) {
         .iter()
         .map(|(pid, s)| (*pid, s.instance, s.fields.iter().map(|(_, o)| *o).collect()))
         .collect();
-    for (pid, instance, mut objects) in subscribers {
-        objects.dedup();
-        for object in objects {
+    for (pid, instance, objects) in subscribers {
+        let mut seen = std::collections::HashSet::new();
+        for object in objects.into_iter().filter(|o| seen.insert(*o)) {
             let _ = port
                 .client
                 .unsubscribe_cov_to_device(instance, pid, object)
