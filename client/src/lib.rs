@@ -168,6 +168,7 @@ impl Exchange {
                     device: (*d).to_owned(),
                     field: (*f).to_owned(),
                     value: Some(v.to_pb(None)),
+                    relinquish: false,
                 })
                 .collect(),
             devices: devices.iter().map(|d| (*d).to_owned()).collect(),
@@ -311,6 +312,7 @@ impl Client {
                         device: (*d).to_owned(),
                         field: (*f).to_owned(),
                         value: Some(v.to_pb(None)),
+                        relinquish: false,
                     })
                     .collect(),
             })
@@ -324,6 +326,28 @@ impl Client {
             )));
         }
         Ok(acks.into_iter().map(|a| a.generation).collect())
+    }
+
+    /// Relinquishes an output (BACnet: NULL at the field's priority, so a lower priority or
+    /// the relinquish default takes over); refused where the field's protocol has none.
+    /// Answers the write's generation.
+    pub async fn relinquish(&mut self, device: &str, field: &str) -> Result<u64, Error> {
+        let write = pb::FieldWrite {
+            device: device.to_owned(),
+            field: field.to_owned(),
+            value: None,
+            relinquish: true,
+        };
+        let r = self
+            .inner
+            .write(pb::WriteRequest {
+                writes: vec![write],
+            })
+            .await?;
+        match r.into_inner().acks.as_slice() {
+            [ack] => Ok(ack.generation),
+            acks => Err(Error::Protocol(format!("{} acks for 1 write", acks.len()))),
+        }
     }
 
     /// Where the write with `generation` stands.

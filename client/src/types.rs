@@ -324,7 +324,7 @@ pub struct WriteStatus {
     pub device: String,
     /// The field written.
     pub field: String,
-    /// The value requested.
+    /// The value requested; `None` for a relinquish.
     pub value: Option<Value>,
     /// Pending, written, superseded or failed.
     pub outcome: WriteOutcome,

@@ -70,7 +70,9 @@ pub(crate) struct WriteRecord {
     pub(crate) generation: u64,
     pub(crate) device: String,
     pub(crate) field: String,
-    pub(crate) value: Value,
+    /// The value asked for; `None` for a relinquish (the device's own value, or a lower
+    /// priority's, takes over).
+    pub(crate) value: Option<Value>,
     pub(crate) status: WriteStatus,
     pub(crate) origin: Origin,
     /// Transactions sent for it (retries included); 0 until it reached the bus.
@@ -145,7 +147,7 @@ impl WriteLog {
     /// Records a new pending write from a client and returns its generation.
     #[cfg(test)]
     pub(crate) fn begin(&self, device: &str, field: &str, value: Value) -> u64 {
-        self.begin_from(device, field, value, Origin::Client)
+        self.begin_from(device, field, Some(value), Origin::Client)
     }
 
     /// Records a new pending write from `origin` and returns its generation.
@@ -153,7 +155,7 @@ impl WriteLog {
         &self,
         device: &str,
         field: &str,
-        value: Value,
+        value: Option<Value>,
         origin: Origin,
     ) -> u64 {
         let mut inner = self.lock();
@@ -279,14 +281,14 @@ mod tests {
         for i in 0..10_000 {
             log.begin("other", &format!("f{}", i % 500), Value::Int(i));
         }
-        assert!(matches!(log.get(waiting), Lookup::Found(r) if r.value == Value::Int(7)));
+        assert!(matches!(log.get(waiting), Lookup::Found(r) if r.value == Some(Value::Int(7))));
         assert_eq!(log.history("d", "f").len(), FIELD_HISTORY);
     }
 
     #[test]
     fn the_gateways_own_writes_say_where_they_came_from() {
         let log = WriteLog::default();
-        let g = log.begin_from("d", "f", Value::Bool(true), Origin::Replay);
+        let g = log.begin_from("d", "f", Some(Value::Bool(true)), Origin::Replay);
         log.finish_after(g, WriteStatus::Written, None, 3);
         let Lookup::Found(r) = log.get(g) else {
             panic!("not found")

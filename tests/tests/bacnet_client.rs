@@ -130,6 +130,27 @@ async fn every_object_kind_is_read_and_written_as_the_device_holds_it() -> anyho
         "3"
     );
 
+    // A relinquish (null) clears the gateway's priority only: the valve goes back to its
+    // relinquish default, and what the gateway reads of it follows.
+    let outcome = gw
+        .write_outcome("ahu", "Valve", json!(null))
+        .await?
+        .map_err(|e| anyhow::anyhow!("relinquish: {e}"))?;
+    assert_eq!(outcome["status"], "written", "{outcome}");
+    assert_eq!(outcome["value"], json!(null), "{outcome}");
+    assert_eq!(device.cmd("priority analog-output,1 8").await?, "null");
+    assert_eq!(device.get("analog-output,1", "presentValue").await?, "0.0");
+    gw.until("/api/v1/devices/ahu", "the relinquish default", |d| {
+        field(d, "Valve")["value"] == json!(0.0)
+    })
+    .await?;
+    // An input has nothing to relinquish: refused, and nothing is sent.
+    let input = gw.write_outcome("ahu", "Temp", json!(null)).await?;
+    assert!(
+        input.as_ref().is_err_and(|e| e.starts_with("409")),
+        "{input:?}"
+    );
+
     // A value the object cannot take is refused before it is sent.
     let refused = gw.write_outcome("ahu", "Speed", json!(0)).await?;
     let why = match refused {

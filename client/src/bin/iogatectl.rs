@@ -59,6 +59,15 @@ enum Command {
         #[arg(long, default_value_t = 2000)]
         wait_ms: u64,
     },
+    /// Relinquishes an output: `relinquish DEVICE.FIELD` (BACnet: NULL at the field's
+    /// priority, so a lower priority or the relinquish default takes over); waits for the
+    /// outcome.
+    Relinquish {
+        target: String,
+        /// How long to wait for the write's outcome, in milliseconds (0: don't wait).
+        #[arg(long, default_value_t = 2000)]
+        wait_ms: u64,
+    },
     /// A live table of values; `watch DEVICE...` for some devices only.
     Watch { devices: Vec<String> },
     /// One raw Modbus transaction through the gateway, queued between its polls: mbpoll
@@ -133,7 +142,10 @@ async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             target,
             value,
             wait_ms,
-        } => return set(&mut client, &target, &value, wait_ms, json).await,
+        } => return set(&mut client, &target, Some(&value), wait_ms, json).await,
+        Command::Relinquish { target, wait_ms } => {
+            return set(&mut client, &target, None, wait_ms, json).await;
+        }
         Command::Watch { devices } => return watch::watch(&mut client, devices, json).await,
         Command::Tx {
             link,
@@ -268,11 +280,11 @@ async fn get(client: &mut Client, target: &str, json: bool) -> anyhow::Result<()
 }
 
 /// `set DEVICE.FIELD VALUE` (or a located address): the write and its outcome; a failed
-/// write is a failure of the command.
+/// write is a failure of the command. No value: `relinquish DEVICE.FIELD`.
 async fn set(
     client: &mut Client,
     target: &str,
-    value: &str,
+    value: Option<&str>,
     wait_ms: u64,
     json: bool,
 ) -> anyhow::Result<ExitCode> {
@@ -285,6 +297,10 @@ async fn set(
         _ => anyhow::bail!("write DEVICE.FIELD or a located address, e.g. sim.DO_0 or %QX0.0"),
     };
     let (device, field) = (device.as_str(), field.as_str());
+    let Some(value) = value else {
+        let generation = client.relinquish(device, field).await?;
+        return outcome(client, device, field, generation, wait_ms, json).await;
+    };
     let info = client.device(device).await?;
     let current = info
         .fields
@@ -301,6 +317,19 @@ async fn set(
         .ok_or_else(|| anyhow::anyhow!("the profile does not give {field}'s type"))?;
     let value = Value::parse(ty, value)?;
     let generation = client.write(device, &current.field, value).await?;
+    outcome(client, device, &current.field, generation, wait_ms, json).await
+}
+
+/// Waits for write `generation`'s outcome and prints it; a failed write is a failure of the
+/// command.
+async fn outcome(
+    client: &mut Client,
+    device: &str,
+    field: &str,
+    generation: u64,
+    wait_ms: u64,
+    json: bool,
+) -> anyhow::Result<ExitCode> {
     let status = if wait_ms > 0 {
         client
             .wait_write(generation, Duration::from_millis(wait_ms))
@@ -317,7 +346,7 @@ async fn set(
             WriteOutcome::Superseded => "superseded".to_owned(),
             WriteOutcome::Failed(e) => format!("failed: {e}"),
         };
-        println!("{device}.{} write {generation}: {outcome}", current.field);
+        println!("{device}.{field} write {generation}: {outcome}");
     }
     if matches!(status.outcome, WriteOutcome::Failed(_)) {
         return Ok(ExitCode::FAILURE);

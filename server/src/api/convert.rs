@@ -224,7 +224,7 @@ impl From<&WriteRecord> for WriteInfo {
             generation: r.generation,
             device: r.device.clone(),
             field: r.field.clone(),
-            value: value_to_json(&r.value),
+            value: r.value.as_ref().map_or(Json::Null, value_to_json),
             status: r.status.name().to_owned(),
             error: r.error.clone(),
             requested: rfc3339(r.requested),

@@ -465,8 +465,11 @@ impl Device {
     pub(crate) fn sim_cycle(&self, writes: &[TakenWrite]) -> Option<Vec<Value>> {
         let memory = self.sim.as_ref()?;
         let mut memory = lock(memory);
+        // A relinquish is refused before it is requested: a simulated device has none.
         for w in writes {
-            memory[w.field] = w.value.clone();
+            if let Some(value) = &w.value {
+                memory[w.field] = value.clone();
+            }
         }
         Some(memory.clone())
     }

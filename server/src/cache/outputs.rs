@@ -86,16 +86,18 @@ impl From<TxError> for WriteError {
 }
 
 /// A value checked for a field of a device: the field is writable, the value of its type and
-/// within its raw register after scaling. Only [`super::Device::check_write`] makes one.
+/// within its raw register after scaling; or a relinquish (no value) of a field whose
+/// protocol has one. Only [`super::Device::check_write`] and
+/// [`super::Device::check_relinquish`] make one.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Checked {
     idx: usize,
-    value: Value,
+    value: Option<Value>,
 }
 
 impl Checked {
-    /// Made by [`super::Device::check_write`] only (the cache's own constructor).
-    pub(super) fn new(idx: usize, value: Value) -> Checked {
+    /// Made by the device's checks only (the cache's own constructor).
+    pub(super) fn new(idx: usize, value: Option<Value>) -> Checked {
         Checked { idx, value }
     }
 
@@ -104,29 +106,32 @@ impl Checked {
         self.idx
     }
 
-    pub(crate) fn value(&self) -> &Value {
-        &self.value
+    /// The value; `None` for a relinquish.
+    pub(crate) fn value(&self) -> Option<&Value> {
+        self.value.as_ref()
     }
 
     /// The field's index and the value.
-    pub(crate) fn into_parts(self) -> (usize, Value) {
+    pub(crate) fn into_parts(self) -> (usize, Option<Value>) {
         (self.idx, self.value)
     }
 }
 
-/// A write taken by the device's task to put on the bus.
+/// A write taken by the device's task to put on the bus; `value` is `None` for a
+/// relinquish.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct TakenWrite {
     pub(crate) field: usize,
     pub(crate) generation: u64,
-    pub(crate) value: Value,
+    pub(crate) value: Option<Value>,
 }
 
 #[derive(Debug, Default)]
 struct WriteSlot {
-    /// The newest requested value not yet taken by the link.
-    pending: Option<(u64, Value)>,
-    /// The newest value ever requested, written again after a reconnect.
+    /// The newest requested value not yet taken by the link (`None`: a relinquish).
+    pending: Option<(u64, Option<Value>)>,
+    /// The newest value ever requested, written again after a reconnect (none after a
+    /// relinquish: nothing is desired of the output then).
     latest: Option<Value>,
     /// The generation of the newest write.
     last_generation: Option<u64>,
@@ -194,7 +199,7 @@ impl Outputs {
             // What was asked of the old place is not the new place's desired value (a write
             // still waiting goes on: it was asked of the device by name).
             t.latest = if moved {
-                t.pending.as_ref().map(|(_, v)| v.clone())
+                t.pending.as_ref().and_then(|(_, v)| v.clone())
             } else {
                 s.latest.clone()
             };
@@ -225,17 +230,28 @@ impl Outputs {
         if self.is_moved() {
             return None;
         }
-        let slot = &mut slots[idx];
+        let at = (device, field, origin, writer);
+        Some(self.put(&mut slots[idx], at, Some(value)))
+    }
+
+    /// Makes `value` field `slot`'s pending write and newest requested value, superseding
+    /// the write it replaces; answers its generation.
+    fn put(
+        &self,
+        slot: &mut WriteSlot,
+        (device, field, origin, writer): (&str, &str, Origin, Option<u64>),
+        value: Option<Value>,
+    ) -> u64 {
         let generation = self.log.begin_from(device, field, value.clone(), origin);
         if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
             self.log.finish(old, WriteStatus::Superseded, None);
         }
         slot.lost_at_write = 0;
         (slot.reached, slot.left) = (false, false);
-        slot.latest = Some(value);
+        slot.latest = value;
         slot.last_generation = Some(generation);
         slot.writer = writer;
-        Some(generation)
+        generation
     }
 
     /// Requests several checked writes at once (`(field name, proof)`), under one lock: the
@@ -256,17 +272,7 @@ impl Outputs {
             .into_iter()
             .map(|(field, checked)| {
                 let (idx, value) = checked.into_parts();
-                let slot = &mut slots[idx];
-                let generation = self.log.begin_from(device, field, value.clone(), origin);
-                if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
-                    self.log.finish(old, WriteStatus::Superseded, None);
-                }
-                slot.lost_at_write = 0;
-                (slot.reached, slot.left) = (false, false);
-                slot.latest = Some(value);
-                slot.last_generation = Some(generation);
-                slot.writer = writer;
-                generation
+                self.put(&mut slots[idx], (device, field, origin, writer), value)
             })
             .collect())
     }
@@ -275,7 +281,7 @@ impl Outputs {
     /// on its own (after a reconnect); it becomes the field's newest write.
     pub(crate) fn replay(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
         let mut slots = lock(&self.slots);
-        let generation = self.log.begin_from(device, field, value, Origin::Replay);
+        let generation = self.log.begin_from(device, field, Some(value), Origin::Replay);
         slots[idx].last_generation = Some(generation);
         slots[idx].in_flight = Some(generation);
         generation
@@ -350,7 +356,7 @@ impl Outputs {
             return;
         };
         slots[idx].left = true;
-        let generation = self.log.begin_from(device, field, value, Origin::Replay);
+        let generation = self.log.begin_from(device, field, Some(value), Origin::Replay);
         slots[idx].last_generation = Some(generation);
         let why = format!(
             "not written again after the reconnect: the device was read holding {held} since it was written (someone else wrote it); `write_mode: reconcile` makes the gateway own the output"

@@ -136,7 +136,7 @@ fn a_burst_of_writes_leaves_one_pending_and_supersedes_the_rest() {
         .collect();
     let taken = io.take_writes();
     assert_eq!(taken.len(), 1);
-    assert_eq!(taken[0].value, Value::Real(4.0));
+    assert_eq!(taken[0].value, Some(Value::Real(4.0)));
     assert_eq!(taken[0].generation, gens[4]);
     for g in &gens[..4] {
         let Lookup::Found(r) = cache.writes.get(*g) else {

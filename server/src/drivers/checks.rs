@@ -21,6 +21,23 @@ pub(crate) fn check_value(device: &Device, idx: usize, value: &Value) -> Result<
     for_protocol(device.profile.protocol, Check(device, idx, value)).unwrap_or(Ok(()))
 }
 
+/// Whether field `idx` of a device can be relinquished, as its driver says (a simulated
+/// device holds what is written: it has none).
+pub(crate) fn check_relinquish(device: &Device, idx: usize) -> Result<(), String> {
+    struct Check<'a>(&'a Device, usize);
+    impl ForDriver for Check<'_> {
+        type Output = Result<(), String>;
+        fn with<D: Driver>(self) -> Result<(), String> {
+            D::check_relinquish(self.0, self.1)
+        }
+    }
+    let none = || Err("a simulated device has no relinquish; write a value".to_owned());
+    if device.is_simulated() {
+        return none();
+    }
+    for_protocol(device.profile.protocol, Check(device, idx)).unwrap_or_else(none)
+}
+
 /// What `check` finds wrong with the links' settings that their drivers read.
 pub(crate) fn check_links(config: &crate::config::Config) -> crate::yaml::Problems {
     struct Check<'a>(&'a LinkConfig, &'a mut crate::yaml::Report);

@@ -126,7 +126,7 @@ pub(crate) fn option<'a>(options: &ImportOptions<'a>, flag: &str) -> Option<&'a 
 pub(crate) type ReadSettings<S> =
     fn(link: &str, d: &DriverLink, report: &mut crate::yaml::Report) -> Option<S>;
 
-pub(crate) use checks::{check_links, check_value, describe, link_warnings};
+pub(crate) use checks::{check_links, check_relinquish, check_value, describe, link_warnings};
 
 /// Something done with the driver of a link, whichever it is.
 pub(crate) trait ForDriver {
@@ -140,8 +140,19 @@ pub(crate) trait ForDriver {
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct WriteItem {
     pub(crate) field: usize,
-    pub(crate) value: Value,
+    /// The value; `None` for a relinquish, which only a driver whose
+    /// [`Driver::check_relinquish`] allows it is given.
+    pub(crate) value: Option<Value>,
     pub(crate) generation: Option<u64>,
+}
+
+impl WriteItem {
+    /// The value to write; a relinquish is refused (for a driver that has none).
+    pub(crate) fn value(&self) -> Result<&Value, String> {
+        self.value
+            .as_ref()
+            .ok_or_else(|| "the protocol has no relinquish; write a value".to_owned())
+    }
 }
 
 /// A link's devices, each with its profile, as `iogate plan` is given them.
@@ -257,6 +268,17 @@ pub(crate) trait Driver: Send + Sized + 'static {
         Ok(())
     }
 
+    /// Whether field `idx` of a device can be relinquished (a write of no value: the
+    /// device's own value, or a lower priority's, takes over); by default not, and the
+    /// answer says what to do instead.
+    fn check_relinquish(device: &Device, idx: usize) -> Result<(), String> {
+        let _ = idx;
+        Err(format!(
+            "{} has no relinquish; write a value of the field's type",
+            device.profile.protocol.name()
+        ))
+    }
+
     /// What `iogate plan` prints of a link's devices under its line: by default each
     /// field's point (a protocol the peer samples for the gateway, as OPC UA).
     fn describe(link: &LinkConfig, devices: &Planned<'_>, peer: &Facts, out: &mut String) {
@@ -330,7 +352,9 @@ pub(crate) fn finish(
 /// A write the device took: its value published, then its outcome (never a moment that
 /// shows the write done and the old value).
 pub(crate) fn written(device: &Device, item: &WriteItem, attempts: u32) {
-    device.publish(item.field, Ok(item.value.clone()));
+    if let Some(value) = &item.value {
+        device.publish(item.field, Ok(value.clone()));
+    }
     finish(device, item, Ok(()), attempts);
 }
 

@@ -21,7 +21,7 @@ fn replayed(device: &Device, items: &mut Vec<WriteItem>) {
                 .replay(device.name(), name, field, value.clone());
             items.push(WriteItem {
                 field,
-                value,
+                value: Some(value),
                 generation: Some(generation),
             });
         }

@@ -23,7 +23,8 @@ impl Prepared {
         self.checked.idx()
     }
 
-    pub(crate) fn value(&self) -> &Value {
+    /// The value; `None` for a relinquish.
+    pub(crate) fn value(&self) -> Option<&Value> {
         self.checked.value()
     }
 }
@@ -34,6 +35,17 @@ pub(crate) struct Accepted {
     pub(crate) device: String,
     pub(crate) field: String,
     pub(crate) generation: u64,
+}
+
+/// Field `idx` of `device` refused by its protocol, in the driver's words.
+fn refused(device: &Device, idx: usize, why: String) -> AccessError {
+    let f = device.field(idx);
+    AccessError::InvalidValue {
+        device: device.name().to_owned(),
+        field: f.name.clone(),
+        ty: f.ty,
+        reason: Box::new(CodecError::Protocol(why)),
+    }
 }
 
 /// Field `field` of `device` and the value `convert` makes for its type.
@@ -66,15 +78,26 @@ impl Service {
         let (idx, value) = typed(device, field, convert)?;
         let checked = device.check_write(idx, value)?;
         // What the device's protocol cannot hold there is refused now, not after sending.
-        crate::drivers::check_value(device, idx, checked.value()).map_err(|why| {
-            let f = device.field(idx);
-            AccessError::InvalidValue {
-                device: device.name().to_owned(),
-                field: f.name.clone(),
-                ty: f.ty,
-                reason: Box::new(CodecError::Protocol(why)),
-            }
-        })?;
+        if let Some(value) = checked.value() {
+            crate::drivers::check_value(device, idx, value)
+                .map_err(|why| refused(device, idx, why))?;
+        }
+        Ok(Prepared {
+            device: device.clone(),
+            checked,
+        })
+    }
+
+    /// Checks a relinquish of field `field` of `device` (a write of no value, JSON
+    /// `null`): the field exists and is writable, and its protocol has a relinquish.
+    pub(crate) fn prepare_relinquish(
+        &self,
+        device: &Arc<Device>,
+        field: &str,
+    ) -> Result<Prepared, AccessError> {
+        let idx = device.field_index(field)?;
+        let checked = device.check_relinquish(idx)?;
+        crate::drivers::check_relinquish(device, idx).map_err(|why| refused(device, idx, why))?;
         Ok(Prepared {
             device: device.clone(),
             checked,
@@ -92,6 +115,23 @@ impl Service {
         let (device, idx) = self.field(device, field)?;
         let name = device.field(idx).name.clone();
         Ok(self.prepare(&device, &name, convert)?)
+    }
+
+    /// Like [`Service::prepare_relinquish`] for a device given by name, or a field given by
+    /// its located address; refused when a value was given too (`with_value`).
+    pub(crate) fn prepare_relinquish_named(
+        &self,
+        device: &str,
+        field: &str,
+        with_value: bool,
+    ) -> Result<Prepared, ServiceError> {
+        let (device, idx) = self.field(device, field)?;
+        if with_value {
+            let f = device.field(idx);
+            return Err(refused(&device, idx, format!("{}: a relinquish carries no value; leave value unset", f.name)).into());
+        }
+        let name = device.field(idx).name.clone();
+        Ok(self.prepare_relinquish(&device, &name)?)
     }
 
     /// Requests one checked write.
@@ -198,7 +238,10 @@ impl Service {
                         .map(|c| {
                             let name = device.field(c.idx()).name.clone();
                             let idx = next.field_index(&name)?;
-                            next.check_write(idx, c.value().clone())
+                            match c.value() {
+                                Some(value) => next.check_write(idx, value.clone()),
+                                None => next.check_relinquish(idx),
+                            }
                         })
                         .collect::<Result<_, AccessError>>()?;
                     device = next;
@@ -364,7 +407,11 @@ impl ScanCycle {
         let mut changed = Vec::new();
         for out in outputs {
             match out {
-                Ok(w) if w.device.latest_value(w.idx()).as_ref() == Some(w.value()) => {
+                Ok(w)
+                    if w
+                        .value()
+                        .is_some_and(|v| w.device.latest_value(w.idx()).as_ref() == Some(v)) =>
+                {
                     if w.device.mismatch(w.idx()).is_some() {
                         let actual = w.device.sample(w.idx()).value;
                         errors.push(format!(
@@ -372,7 +419,7 @@ impl ScanCycle {
                             w.device.name(),
                             w.device.field(w.idx()).name,
                             actual.map_or_else(|| "nothing".to_owned(), |v| v.to_string()),
-                            w.value(),
+                            w.value().map(ToString::to_string).unwrap_or_default(),
                             self.service
                                 .last_write(&w.device, w.idx())
                                 .and_then(|r| r.error.map(|e| format!(" (last write: {e})")))

@@ -223,6 +223,7 @@ async fn a_burst_of_ten_thousand_writes_erases_no_other_writers_outcome() {
                         r#type: 0,
                         kind: Some(kind),
                     }),
+                    relinquish: false,
                 }
             })
             .collect();

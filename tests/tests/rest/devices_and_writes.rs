@@ -213,6 +213,11 @@ async fn caller_mistakes_get_json_errors_with_the_right_status() {
         ),
         (
             400,
+            "invalid_value",
+            put("/api/v1/devices/sim/fields/DO_0", r#"{"value": null}"#).await,
+        ),
+        (
+            400,
             "invalid_json",
             put("/api/v1/devices/sim/fields/DO_0", r#"{"value": tru"#).await,
         ),

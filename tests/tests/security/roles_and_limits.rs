@@ -110,6 +110,7 @@ async fn every_rpc_needs_its_role_over_grpc() {
                 r#type: 0,
                 kind: Some(iogate_client::proto::value::Kind::BoolValue(true)),
             }),
+            relinquish: false,
         }],
     };
     assert_eq!(

@@ -154,6 +154,9 @@ impl GrpcApi {
 
     /// Converts and checks one write; nothing is written.
     pub(super) fn prepare(service: &Service, w: &pb::FieldWrite) -> Result<Prepared, ServiceError> {
+        if w.relinquish {
+            return service.prepare_relinquish_named(&w.device, &w.field, w.value.is_some());
+        }
         service.prepare_named(&w.device, &w.field, |ty| match &w.value {
             Some(v) => Value::from_pb_as(ty, v),
             None => Err(ValueError::Missing { ty }),

@@ -203,7 +203,7 @@ pub(crate) fn write_status(r: &WriteRecord, ty: Option<IecType>) -> pb::WriteSta
         generation: r.generation,
         device: r.device.clone(),
         field: r.field.clone(),
-        value: ty.map(|t| value(t, &r.value)),
+        value: ty.zip(r.value.as_ref()).map(|(t, v)| value(t, v)),
         outcome: write_outcome(r.status).into(),
         error: r.error.clone().unwrap_or_default(),
         requested: Some(timestamp(r.requested)),

@@ -178,7 +178,7 @@ pub(crate) async fn put_located(
     let (device, idx) = service.located(&at)?;
     let json = super::rest::value_of(super::rest::parse_body(&body)?);
     let name = device.field(idx).name.clone();
-    let write = service.prepare(&device, &name, |ty| convert::json_to_value(ty, &json))?;
+    let write = super::rest::prepare_json(&service, &device, &name, &json)?;
     let a = service.write(write)?;
     Ok((
         StatusCode::ACCEPTED,

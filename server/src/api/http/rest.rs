@@ -13,8 +13,8 @@ use utoipa::ToSchema;
 
 use super::error::{ApiError, ErrorBody};
 use crate::api::convert::{self, *};
-use crate::cache::Device;
-use crate::service::{Accepted, Service};
+use crate::cache::{AccessError, Device};
+use crate::service::{Accepted, Prepared, Service};
 
 type ServiceRef = State<Arc<Service>>;
 
@@ -232,7 +232,8 @@ pub(crate) async fn get_field(
     reason = "documents the request body in the OpenAPI document"
 )]
 pub(crate) struct WriteRequest {
-    /// The value as the JSON of the field's type.
+    /// The value as the JSON of the field's type; `null` relinquishes the output where its
+    /// protocol has a relinquish (BACnet), and is refused elsewhere.
     #[schema(value_type = Object)]
     value: Json_,
 }
@@ -268,7 +269,22 @@ pub(crate) fn value_of(body: Json_) -> Json_ {
     }
 }
 
-/// Writes one field (last value wins). Answers with the write's generation; follow its
+/// A write of `json` to field `field` of `device`, checked; JSON `null` is a relinquish
+/// (refused where the field's protocol has none).
+pub(crate) fn prepare_json(
+    service: &Service,
+    device: &Arc<Device>,
+    field: &str,
+    json: &Json_,
+) -> Result<Prepared, AccessError> {
+    match json {
+        Json_::Null => service.prepare_relinquish(device, field),
+        json => service.prepare(device, field, |ty| convert::json_to_value(ty, json)),
+    }
+}
+
+/// Writes one field (last value wins); `null` relinquishes it (BACnet: NULL at the field's
+/// priority). Answers with the write's generation; follow its
 /// outcome at `/api/v1/writes/{generation}`.
 #[utoipa::path(put, path = "/api/v1/devices/{device}/fields/{field}", tag = "devices",
     params(("device" = String, Path, description = "device name"),
@@ -285,7 +301,7 @@ pub(crate) async fn put_field(
 ) -> Result<(StatusCode, Json<WriteAccepted>), ApiError> {
     let device = service.device(&name)?;
     let json = value_of(parse_body(&body)?);
-    let write = service.prepare(&device, &field, |ty| convert::json_to_value(ty, &json))?;
+    let write = prepare_json(&service, &device, &field, &json)?;
     Ok((StatusCode::ACCEPTED, Json(accepted(service.write(write)?))))
 }
 
@@ -314,7 +330,7 @@ pub(crate) async fn patch_fields(
     }
     let writes = map
         .iter()
-        .map(|(field, json)| service.prepare(&device, field, |ty| convert::json_to_value(ty, json)))
+        .map(|(field, json)| prepare_json(&service, &device, field, json))
         .collect();
     let writes = service
         .write_all(writes)?

@@ -293,9 +293,7 @@ impl Task {
                 .map_err(|e| Refused::invalid_body(format!("the payload is not JSON: {e}")))?;
             let value = crate::api::rest::value_of(body);
             let d = self.service.device(device)?;
-            let write = self
-                .service
-                .prepare(&d, field, |ty| convert::json_to_value(ty, &value))?;
+            let write = crate::api::rest::prepare_json(&self.service, &d, field, &value)?;
             Ok(self.service.write(write)?)
         })();
         match accepted {

@@ -8,6 +8,19 @@ impl Device {
     /// Checks that `value` can be written to field `idx`: the field is writable and the value
     /// fits the field's type and raw register after scaling.
     pub(crate) fn check_write(&self, idx: usize, value: Value) -> Result<Checked, AccessError> {
+        self.check_writable(idx)?;
+        self.check_value(idx, &value)?;
+        Ok(Checked::new(idx, Some(value)))
+    }
+
+    /// Checks that field `idx` can be relinquished: it is writable (whether its protocol
+    /// has a relinquish is the driver's to say).
+    pub(crate) fn check_relinquish(&self, idx: usize) -> Result<Checked, AccessError> {
+        self.check_writable(idx)?;
+        Ok(Checked::new(idx, None))
+    }
+
+    fn check_writable(&self, idx: usize) -> Result<(), AccessError> {
         let field = self.field(idx);
         if !field.direction.is_writable() {
             return Err(AccessError::NotWritable {
@@ -15,8 +28,7 @@ impl Device {
                 field: field.name.clone(),
             });
         }
-        self.check_value(idx, &value)?;
-        Ok(Checked::new(idx, value))
+        Ok(())
     }
 
     /// Checks `value` for field `idx`: its type, and that it fits the raw register after

@@ -198,6 +198,14 @@ impl Driver for Bacnet {
         write::value(place, value).map(drop)
     }
 
+    fn check_relinquish(device: &Device, idx: usize) -> Result<(), String> {
+        match places(device).into_iter().nth(idx) {
+            Some(Ok(place)) => write::relinquishing(place).map(drop),
+            Some(Err(why)) => Err(why),
+            None => Err("no such field".to_owned()),
+        }
+    }
+
     fn plan(device: &Device) -> Plan {
         let config = &device.config;
         Plan {

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use bacnet_encoding::primitives::encode_property_value;
 use bacnet_types::enums::PropertyIdentifier;
+use bacnet_types::primitives::PropertyValue;
 use bytes::BytesMut;
 
 use super::value::writing;
@@ -28,7 +29,34 @@ pub(super) fn value(place: Place, value: &crate::codec::Value) -> Result<Vec<u8>
     Ok(bytes.to_vec())
 }
 
-/// Writes the items one request each, in order.
+/// A relinquish: NULL written to a commandable object's present value at the field's
+/// priority (the next priority, or the relinquish default, takes over), or why the field
+/// has none.
+pub(super) fn relinquishing(place: Place) -> Result<Vec<u8>, String> {
+    use bacnet_types::enums::ObjectType;
+    let inputs = [
+        ObjectType::ANALOG_INPUT,
+        ObjectType::BINARY_INPUT,
+        ObjectType::MULTI_STATE_INPUT,
+    ];
+    if place.property != PropertyIdentifier::PRESENT_VALUE {
+        return Err(format!(
+            "only a present value is relinquished, not {}",
+            place.property.to_string().to_ascii_lowercase().replace('_', "-")
+        ));
+    }
+    if inputs.contains(&place.object.object_type()) {
+        return Err(format!(
+            "{} is not commandable: it has no priorities to relinquish",
+            super::point::name(place.object)
+        ));
+    }
+    let mut bytes = BytesMut::new();
+    encode_property_value(&mut bytes, &PropertyValue::Null).map_err(|e| e.to_string())?;
+    Ok(bytes.to_vec())
+}
+
+/// Writes the items one request each, in order (a relinquish as NULL).
 pub(super) async fn outputs(
     port: &Port,
     device: &Arc<Device>,
@@ -59,7 +87,7 @@ pub(super) async fn outputs(
                 continue;
             }
         };
-        let bytes = match value(place, &item.value) {
+        let bytes = match item.value.as_ref().map_or_else(|| relinquishing(place), |v| value(place, v)) {
             Ok(bytes) => bytes,
             Err(why) => {
                 finish(device, &item, Err(WriteError::Refused(why)), 0);

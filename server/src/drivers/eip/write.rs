@@ -18,26 +18,27 @@ const REPLY: usize = 6;
 /// An item's request and the service it asks, or why it cannot be written.
 fn message(plan: &Plan, device: &Device, item: &WriteItem) -> Result<(u8, Vec<u8>), String> {
     let tag = plan.tags[item.field].as_ref().map_err(Clone::clone)?;
+    let value = item.value()?;
     if let Some(bit) = tag.bit {
         if let Some(why) = &plan.no_bit_writes {
             return Err(why.clone());
         }
         let code = plan.codes[item.field]
             .ok_or("the integer holding the bit was not read yet: its size is unknown")?;
-        let on = matches!(item.value, Value::Bool(true));
+        let on = matches!(value, Value::Bool(true));
         let masks = value::bit_masks(code, bit, on)?;
         return Ok((
             cip::READ_MODIFY_WRITE,
             cip::request(cip::READ_MODIFY_WRITE, &tag.path, &masks),
         ));
     }
-    let request = match (&item.value, plan.codes[item.field]) {
+    let request = match (value, plan.codes[item.field]) {
         (Value::String(text), Some(code)) => {
             let data = value::encode_string(text, code, plan.layouts[item.field])?;
             cip::request(cip::WRITE_TAG, &tag.path, &data)
         }
         _ => {
-            let (code, bytes) = value::encode(&item.value, device.profile.fields[item.field].ty)?;
+            let (code, bytes) = value::encode(value, device.profile.fields[item.field].ty)?;
             cip::write_tag(&tag.path, code, &bytes)
         }
     };

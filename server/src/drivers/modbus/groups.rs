@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use crate::cache::WriteError;
-use crate::codec::{Raw, Value};
+use crate::codec::{CodecError, Raw, Value};
 use crate::drivers::WriteItem;
 use crate::link::frame::{MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Request};
 use crate::profile::{Profile, RegisterKind};
@@ -75,7 +75,14 @@ pub(crate) fn write_ops(
     for (n, item) in items.iter().enumerate() {
         let field = &profile.fields[item.field];
         let address = field.register.address;
-        match (field.register.kind, field.encoding.raw, &item.value) {
+        let value = match item.value() {
+            Ok(value) => value,
+            Err(why) => {
+                refused.push((n, WriteError::Encode(CodecError::Protocol(why))));
+                continue;
+            }
+        };
+        match (field.register.kind, field.encoding.raw, value) {
             // The bit on the wire: an inverted switch writes 0 for TRUE.
             (RegisterKind::Coil, _, Value::Bool(b)) => {
                 coils.push((address, field.encoding.wire_bit(*b), n));
@@ -196,7 +203,7 @@ mod tests {
         );
         let item = |field, value| WriteItem {
             field,
-            value,
+            value: Some(value),
             generation: None,
         };
         let items = vec![

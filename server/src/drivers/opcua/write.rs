@@ -46,7 +46,7 @@ fn prepare(
             .get(item.field)
             .copied()
             .flatten();
-        match write_variant(field.ty, &item.value, server_type) {
+        match item.value().and_then(|v| write_variant(field.ty, v, server_type)) {
             Ok(v) => {
                 values.push(WriteValue {
                     node_id: node,

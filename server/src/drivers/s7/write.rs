@@ -35,7 +35,7 @@ fn pieces(plan: &Plan, item: &WriteItem, device: &Device) -> Result<Vec<(Item, V
         Some(Err(why)) => return Err(why.clone()),
         None => return Err("no such field".to_owned()),
     };
-    let raw = value::unscaled(device.field(item.field), &item.value)?;
+    let raw = value::unscaled(device.field(item.field), item.value()?)?;
     let (skip, bytes) = value::encode(place.form, place.stored, &raw)?;
     let a = place.address;
     let at = |byte: u32, bit: Option<u8>, length: u16| Item {
