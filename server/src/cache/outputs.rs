@@ -281,7 +281,9 @@ impl Outputs {
     /// on its own (after a reconnect); it becomes the field's newest write.
     pub(crate) fn replay(&self, device: &str, field: &str, idx: usize, value: Value) -> u64 {
         let mut slots = lock(&self.slots);
-        let generation = self.log.begin_from(device, field, Some(value), Origin::Replay);
+        let generation = self
+            .log
+            .begin_from(device, field, Some(value), Origin::Replay);
         slots[idx].last_generation = Some(generation);
         slots[idx].in_flight = Some(generation);
         generation
@@ -356,7 +358,9 @@ impl Outputs {
             return;
         };
         slots[idx].left = true;
-        let generation = self.log.begin_from(device, field, Some(value), Origin::Replay);
+        let generation = self
+            .log
+            .begin_from(device, field, Some(value), Origin::Replay);
         slots[idx].last_generation = Some(generation);
         let why = format!(
             "not written again after the reconnect: the device was read holding {held} since it was written (someone else wrote it); `write_mode: reconcile` makes the gateway own the output"

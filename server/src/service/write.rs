@@ -128,7 +128,15 @@ impl Service {
         let (device, idx) = self.field(device, field)?;
         if with_value {
             let f = device.field(idx);
-            return Err(refused(&device, idx, format!("{}: a relinquish carries no value; leave value unset", f.name)).into());
+            return Err(refused(
+                &device,
+                idx,
+                format!(
+                    "{}: a relinquish carries no value; leave value unset",
+                    f.name
+                ),
+            )
+            .into());
         }
         let name = device.field(idx).name.clone();
         Ok(self.prepare_relinquish(&device, &name)?)
@@ -408,8 +416,7 @@ impl ScanCycle {
         for out in outputs {
             match out {
                 Ok(w)
-                    if w
-                        .value()
+                    if w.value()
                         .is_some_and(|v| w.device.latest_value(w.idx()).as_ref() == Some(v)) =>
                 {
                     if w.device.mismatch(w.idx()).is_some() {

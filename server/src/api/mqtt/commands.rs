@@ -219,9 +219,7 @@ impl Task {
                 self.refused(device, Refused::invalid_body(why));
                 continue;
             };
-            let accepted = self
-                .service
-                .prepare(&d, &field, |ty| convert::json_to_value(ty, &value))
+            let accepted = crate::api::rest::prepare_json(&self.service, &d, &field, &value)
                 .map_err(crate::service::ServiceError::from)
                 .and_then(|w| self.service.write(w));
             match accepted {

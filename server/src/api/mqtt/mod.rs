@@ -45,7 +45,7 @@ use serde::Serialize;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
-use super::convert::{self, DiagnosticsEvent, field_value};
+use super::convert::{DiagnosticsEvent, field_value};
 use crate::api::mqtt::config::{JsonConfig, MqttConfig, Password};
 use crate::auth::{Operation, Role};
 use crate::cache::{Device, Diagnostics};

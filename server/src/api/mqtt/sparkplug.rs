@@ -424,8 +424,9 @@ pub(crate) fn commands(payload: &[u8]) -> Result<Vec<Command>, CommandError> {
         .into_iter()
         .map(|m| {
             let ty = m.datatype.and_then(|t| DataType::try_from(t as i32).ok());
+            // A null metric is a relinquish (JSON null), a metric without a value nothing.
             let value = if m.is_null == Some(true) {
-                None
+                Some(serde_json::Value::Null)
             } else {
                 m.value.and_then(|v| json_of(ty, v))
             };

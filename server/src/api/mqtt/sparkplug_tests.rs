@@ -83,3 +83,21 @@ fn a_kept_metric_is_sent_as_if_it_were_encoded_whole() {
     assert_eq!(payload.metrics[0].alias, Some(3));
     assert!(sendable(&[0x0A, 0xFF]).is_none(), "not a metric");
 }
+
+#[test]
+fn a_null_metric_is_a_relinquish_and_a_metric_without_a_value_is_nothing() {
+    let null = Metric {
+        name: Some("Valve".into()),
+        datatype: Some(DataType::Float as u32),
+        is_null: Some(true),
+        ..Metric::default()
+    };
+    let empty = Metric {
+        name: Some("Fan".into()),
+        datatype: Some(DataType::Boolean as u32),
+        ..Metric::default()
+    };
+    let c = commands(&encode(1, Some(3), vec![null, empty])).expect("test");
+    assert_eq!(c[0].value, Some(serde_json::Value::Null));
+    assert_eq!(c[1].value, None);
+}

@@ -42,7 +42,11 @@ pub(super) fn relinquishing(place: Place) -> Result<Vec<u8>, String> {
     if place.property != PropertyIdentifier::PRESENT_VALUE {
         return Err(format!(
             "only a present value is relinquished, not {}",
-            place.property.to_string().to_ascii_lowercase().replace('_', "-")
+            place
+                .property
+                .to_string()
+                .to_ascii_lowercase()
+                .replace('_', "-")
         ));
     }
     if inputs.contains(&place.object.object_type()) {
@@ -87,7 +91,11 @@ pub(super) async fn outputs(
                 continue;
             }
         };
-        let bytes = match item.value.as_ref().map_or_else(|| relinquishing(place), |v| value(place, v)) {
+        let bytes = match item
+            .value
+            .as_ref()
+            .map_or_else(|| relinquishing(place), |v| value(place, v))
+        {
             Ok(bytes) => bytes,
             Err(why) => {
                 finish(device, &item, Err(WriteError::Refused(why)), 0);

@@ -46,7 +46,10 @@ fn prepare(
             .get(item.field)
             .copied()
             .flatten();
-        match item.value().and_then(|v| write_variant(field.ty, v, server_type)) {
+        match item
+            .value()
+            .and_then(|v| write_variant(field.ty, v, server_type))
+        {
             Ok(v) => {
                 values.push(WriteValue {
                     node_id: node,
