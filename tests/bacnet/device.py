@@ -57,6 +57,7 @@ def objects():
             presentValue=21.5,
             units="degreesCelsius",
             statusFlags=[0, 0, 0, 0],
+            reliability="noFaultDetected",
             covIncrement=0.1,
         ),
         AnalogOutputObject(

@@ -1,6 +1,7 @@
-//! An independent BACnet/IP device for the BACnet driver's tests: bacpypes3 serving one
-//! object of each kind the driver reads (`tests/bacnet/device.py`) on 127.0.0.1 at a free
-//! port, driven one command per line (`get`, `set`, `flags`).
+//! Independent BACnet/IP devices for the BACnet driver's tests: bacpypes3 serving one
+//! object of each kind the driver reads (`tests/bacnet/device.py`) on 127.0.0.1, and the
+//! original bacpypes, a second stack (`tests/bacnet/legacy_device.py`), on 127.0.0.2, each
+//! at a free port, driven one command per line (`get`, `priority`, `set`, `flags`).
 
 use tokio::io::AsyncWriteExt;
 
@@ -9,6 +10,8 @@ use crate::{PATIENCE, Piped, repo_file, spawn_piped};
 /// A running device.
 pub struct BacnetDevice {
     piped: Piped,
+    /// The address it is bound to.
+    pub host: &'static str,
     /// The UDP port it is bound to.
     pub port: u16,
     /// Its device object's instance.
@@ -16,15 +19,28 @@ pub struct BacnetDevice {
 }
 
 impl BacnetDevice {
-    /// Starts a device of `instance` and waits until it is bound.
+    /// Starts a bacpypes3 device of `instance` on 127.0.0.1 and waits until it is bound.
     pub async fn start(instance: u32) -> anyhow::Result<BacnetDevice> {
+        let args = ["--instance", &instance.to_string(), "--name", "TestDevice"].map(String::from);
+        Self::spawn("bacnet/device.py", &args, "127.0.0.1", instance).await
+    }
+
+    /// Starts a device of the original bacpypes, a second stack (`tests/bacnet/legacy_device.py`),
+    /// of `instance` on 127.0.0.2, and waits until it is bound.
+    pub async fn start_legacy(instance: u32) -> anyhow::Result<BacnetDevice> {
+        let host = "127.0.0.2";
+        let args = ["--instance", &instance.to_string(), "--host", host].map(String::from);
+        Self::spawn("bacnet/legacy_device.py", &args, host, instance).await
+    }
+
+    async fn spawn(
+        script: &str,
+        args: &[String],
+        host: &'static str,
+        instance: u32,
+    ) -> anyhow::Result<BacnetDevice> {
         let mut command = tokio::process::Command::new(crate::python());
-        command.arg(repo_file("bacnet/device.py")).args([
-            "--instance",
-            &instance.to_string(),
-            "--name",
-            "TestDevice",
-        ]);
+        command.arg(repo_file(script)).args(args);
         let mut piped = spawn_piped(command)?;
         let line = tokio::time::timeout(PATIENCE, piped.lines.next_line())
             .await??
@@ -32,6 +48,7 @@ impl BacnetDevice {
         let port = line.trim().parse()?;
         Ok(BacnetDevice {
             piped,
+            host,
             port,
             instance,
         })

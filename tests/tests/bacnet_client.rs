@@ -14,6 +14,8 @@ protocol: bacnet
 fields:
   - { name: Temp, type: REAL, direction: input, object: "analog-input:1", unit: degC }
   - { name: TempUnits, type: UINT, direction: input, object: "analog-input:1", property: units }
+  - { name: TempFlags, type: BYTE, direction: input, object: "analog-input:1", property: status-flags }
+  - { name: TempReliability, type: UINT, direction: input, object: "analog-input:1", property: reliability }
   - { name: Valve, type: REAL, direction: inout, object: "analog-output:1", priority: 8 }
   - { name: Setpoint, type: REAL, direction: inout, object: "analog-value:1" }
   - { name: Alarm, type: BOOL, direction: input, object: "binary-input:1" }
@@ -52,14 +54,24 @@ async fn every_object_kind_is_read_and_written_as_the_device_holds_it() -> anyho
     let gw = gateway("bacnet-values", &device).await?;
     let d = gw
         .until("/api/v1/devices/ahu", "read", |d| {
-            ["Temp", "TempUnits", "Valve", "Mode", "Season"]
-                .iter()
-                .all(|f| field(d, f)["quality"] == "good")
+            [
+                "Temp",
+                "TempUnits",
+                "TempFlags",
+                "TempReliability",
+                "Valve",
+                "Mode",
+                "Season",
+            ]
+            .iter()
+            .all(|f| field(d, f)["quality"] == "good")
         })
         .await?;
     let v = |n: &str| field(&d, n)["value"].clone();
     assert_eq!(v("Temp"), json!(21.5));
     assert_eq!(v("TempUnits"), json!(62), "degrees-Celsius is 62");
+    assert_eq!(v("TempFlags"), json!(0), "no status flag set");
+    assert_eq!(v("TempReliability"), json!(0), "no-fault-detected is 0");
     assert_eq!(v("Valve"), json!(0.0));
     assert_eq!(v("Setpoint"), json!(20.0));
     assert_eq!(v("Alarm"), json!(false));
@@ -175,6 +187,15 @@ async fn every_object_kind_is_read_and_written_as_the_device_holds_it() -> anyho
         temp["error"].as_str().unwrap_or_default().contains("fault"),
         "{temp}"
     );
+    // The flags and the reliability themselves are values, read as the device holds them:
+    // the fault flag (bit 1), unreliable-other (7).
+    let d = gw
+        .until("/api/v1/devices/ahu", "the flags read", |d| {
+            field(d, "TempFlags")["value"] == json!(2)
+        })
+        .await?;
+    assert_eq!(field(&d, "TempFlags")["quality"], "good");
+    assert_eq!(field(&d, "TempReliability")["value"], json!(7));
     device.cmd("flags analog-input,1 OK").await?;
     gw.until("/api/v1/devices/ahu", "good again", |d| {
         field(d, "Temp")["quality"] == "good"

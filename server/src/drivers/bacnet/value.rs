@@ -39,12 +39,35 @@ pub(crate) fn reading(ty: IecType, value: &PropertyValue) -> Result<Value, Strin
             number(t, i128::from(*n))
         }
         (t, PropertyValue::Boolean(b)) if t != IecType::String => number(t, i128::from(*b)),
+        (t, PropertyValue::BitString { unused_bits, data })
+            if t.int_bits().is_some_and(|(_, signed)| !signed) =>
+        {
+            bits(t, *unused_bits, data)
+        }
         (IecType::Real | IecType::Lreal, _)
         | (_, PropertyValue::Real(_) | PropertyValue::Double(_)) => {
             Err(format!("{ty} does not take the device's {}", kind(value)))
         }
         _ => Err(format!("{ty} does not take the device's {}", kind(value))),
     }
+}
+
+/// A BIT STRING as an unsigned field of type `ty`: the string's bit n (BACnet's first bit,
+/// status-flags' in-alarm, is bit 0) is the number's bit n, so `status-flags` reads as
+/// in-alarm 1, fault 2, overridden 4, out-of-service 8. A string longer than the type is
+/// refused.
+fn bits(ty: IecType, unused: u8, data: &[u8]) -> Result<Value, String> {
+    let len = (data.len() * 8).saturating_sub(usize::from(unused.min(7)));
+    let width = ty.int_bits().map_or(0, |(w, _)| usize::from(w));
+    if len > width {
+        return Err(format!(
+            "{ty} does not take the device's BIT STRING of {len} bits"
+        ));
+    }
+    let n = (0..len)
+        .filter(|i| data[i / 8] & (0x80 >> (i % 8)) != 0)
+        .fold(0u64, |n, i| n | 1 << i);
+    number(ty, i128::from(n))
 }
 
 /// A whole number as a field of type `ty` (a real type takes it as a number).
@@ -119,6 +142,9 @@ pub(crate) fn writing(object: ObjectType, value: &Value) -> Result<PropertyValue
             )),
         };
     }
+    if let Some(fixed) = fixed_datatype(object, value) {
+        return fixed;
+    }
     Ok(match value {
         Value::Bool(b) => PropertyValue::Boolean(*b),
         Value::Int(n) => match i32::try_from(*n) {
@@ -132,6 +158,40 @@ pub(crate) fn writing(object: ObjectType, value: &Value) -> Result<PropertyValue
         Value::Time(ms) => {
             PropertyValue::Unsigned(u64::try_from(*ms).map_err(|_| "a negative TIME".to_owned())?)
         }
+    })
+}
+
+/// A value as the present value of an object whose datatype the standard fixes: an
+/// integer value's INTEGER, a positive integer value's Unsigned, a large analog value's
+/// Double, a character string value's CharacterString. `None` for other objects.
+fn fixed_datatype(object: ObjectType, value: &Value) -> Option<Result<PropertyValue, String>> {
+    let whole = |what: &str| format!("{what} takes a whole number, not {value}");
+    Some(match object {
+        ObjectType::INTEGER_VALUE => match value.as_i128().map(i32::try_from) {
+            Some(Ok(n)) => Ok(PropertyValue::Signed(n)),
+            Some(Err(_)) => Err(format!("{value} does not fit an integer value's INTEGER")),
+            None => Err(whole("an integer value")),
+        },
+        ObjectType::POSITIVE_INTEGER_VALUE => match value.as_i128().map(u64::try_from) {
+            Some(Ok(n)) => Ok(PropertyValue::Unsigned(n)),
+            Some(Err(_)) => Err(format!(
+                "a positive integer value takes 0 or more, not {value}"
+            )),
+            None => Err(whole("a positive integer value")),
+        },
+        ObjectType::LARGE_ANALOG_VALUE => match value.as_f64() {
+            Some(x) if x.is_finite() => Ok(PropertyValue::Double(x)),
+            _ => Err(format!(
+                "a large analog value takes a finite number, not {value}"
+            )),
+        },
+        ObjectType::CHARACTERSTRING_VALUE => match value {
+            Value::String(s) => Ok(PropertyValue::CharacterString(s.clone())),
+            _ => Err(format!(
+                "a character string value takes a STRING, not {value}"
+            )),
+        },
+        _ => return None,
     })
 }
 
@@ -158,6 +218,31 @@ pub(crate) fn not_good(flags: &PropertyValue) -> Option<&'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bit_string_reads_as_its_bits_from_bit_0() {
+        // status-flags: in-alarm and out-of-service set (1000 1000, 4 unused bits).
+        let flags = PropertyValue::BitString {
+            unused_bits: 4,
+            data: vec![0b1001_0000],
+        };
+        assert_eq!(reading(IecType::Byte, &flags), Ok(Value::UInt(0b1001)));
+        let fault = PropertyValue::BitString {
+            unused_bits: 4,
+            data: vec![0b0100_0000],
+        };
+        assert_eq!(reading(IecType::Uint, &fault), Ok(Value::UInt(2)));
+        let long = PropertyValue::BitString {
+            unused_bits: 0,
+            data: vec![0xff, 0x01],
+        };
+        let why = reading(IecType::Byte, &long).expect_err("16 bits in a BYTE");
+        assert!(why.contains("16 bits"), "{why}");
+        assert!(
+            reading(IecType::Int, &fault).is_err(),
+            "a signed type is refused"
+        );
+    }
 
     #[test]
     fn a_value_that_does_not_fit_the_field_is_an_error_naming_both() {
