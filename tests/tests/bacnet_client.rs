@@ -424,6 +424,19 @@ fn notification(pid: u8, instance: u32, value: f32) -> Vec<u8> {
     out
 }
 
+/// The same notification in a Forwarded-NPDU (BVLC 0x04) that names `origin` as the host
+/// it comes from, as a BBMD forwards a broadcast.
+fn forwarded(pid: u8, instance: u32, value: f32, origin: std::net::SocketAddrV4) -> Vec<u8> {
+    let original = notification(pid, instance, value);
+    let mut out = vec![0x81, 0x04, 0, 0];
+    out.extend(origin.ip().octets());
+    out.extend(origin.port().to_be_bytes());
+    out.extend(&original[4..]);
+    let len = (out.len() as u16).to_be_bytes();
+    out[2..4].copy_from_slice(&len);
+    out
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_notification_from_another_address_is_never_a_value() -> anyhow::Result<()> {
     let device = BacnetDevice::start(1005).await?;
@@ -444,9 +457,13 @@ async fn a_notification_from_another_address_is_never_a_value() -> anyhow::Resul
     let mut sse = iogate_tests::SseReader::open(&gw, "/api/v1/events?device=ahu").await?;
     // Notifications for every subscriber process a gateway could have given, from an
     // address that is not the device's: none is taken.
-    let spoofer = std::net::UdpSocket::bind("127.0.0.1:0")?;
+    // Nor as a Forwarded-NPDU sent to the gateway alone that names the device's own address
+    // as its origin (only a foreign device's BBMD sends those).
+    let spoofer = std::net::UdpSocket::bind("127.0.0.2:0")?;
+    let origin = std::net::SocketAddrV4::new(std::net::Ipv4Addr::LOCALHOST, device.port);
     for pid in 1..=200u8 {
         spoofer.send_to(&notification(pid, 1005, 99.5), bind)?;
+        spoofer.send_to(&forwarded(pid, 1005, 99.5, origin), bind)?;
     }
     let seen = tokio::time::timeout(std::time::Duration::from_secs(2), async {
         while let Ok(Some((event, v))) = sse.next().await {

@@ -47,6 +47,12 @@ pub(crate) enum WriteError {
     /// The device refused the value, in its own words (an OPC UA status code's name).
     #[error("the device refused it: {0}")]
     Refused(String),
+    /// The device did not answer this value, sent, again: it is not written again by
+    /// itself.
+    #[error(
+        "{0}; the device did not answer this value {LOST_AT_WRITE} times in a row, so it is not written again until it is asked again"
+    )]
+    Unanswered(TxError),
     /// The link was lost with this value sent, again: it is not written again by itself.
     #[error(
         "{0}; the link was lost with this value sent {LOST_AT_WRITE} times in a row, so it is not written again until it is asked again"
@@ -427,6 +433,16 @@ fn settle(
             slot.lost_at_write = 0;
             slot.reached = true;
             Ok(())
+        }
+        // A device that takes its reads but never answers this value is not asked it again
+        // at every return.
+        Err(WriteError::NoResponse(tx)) if attempts > 0 => {
+            slot.lost_at_write += 1;
+            if slot.lost_at_write >= LOST_AT_WRITE {
+                slot.latest = None;
+                return Err(WriteError::Unanswered(tx));
+            }
+            Err(WriteError::NoResponse(tx))
         }
         Err(WriteError::LinkDown(fault)) if attempts > 0 => {
             slot.lost_at_write += 1;

@@ -191,6 +191,37 @@ fn a_value_the_device_refused_or_the_link_kept_dropping_is_not_written_again() {
 }
 
 #[test]
+fn a_value_the_device_never_answered_three_times_is_not_written_again() {
+    let cache = cache();
+    let io = cache.device("io").expect("device");
+    io.outputs().set_rewrites(true);
+    let sp = io.field_index("SP").expect("field");
+    let silent = || WriteError::NoResponse(crate::link::TxError::Timeout);
+    let g = io.request_write(sp, Value::Real(2.0)).expect("write");
+    io.take_writes();
+    io.finish_write_after(g, Err(silent()), 1);
+    for round in 2..=super::outputs::LOST_AT_WRITE {
+        assert_eq!(
+            io.replayable(),
+            vec![(sp, Value::Real(2.0))],
+            "round {round}"
+        );
+        let g = io.outputs().replay("io", "SP", sp, Value::Real(2.0));
+        io.finish_write_after(g, Err(silent()), 1);
+        let Lookup::Found(r) = cache.writes.get(g) else {
+            panic!("missing")
+        };
+        let said = r.error.unwrap_or_default();
+        assert_eq!(
+            said.contains("did not answer this value"),
+            round == super::outputs::LOST_AT_WRITE,
+            "{said}"
+        );
+    }
+    assert!(io.replayable().is_empty());
+}
+
+#[test]
 fn writing_an_input_or_out_of_raw_range_is_refused() {
     let cache = cache();
     let io = cache.device("io").expect("device");

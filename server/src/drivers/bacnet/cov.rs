@@ -238,11 +238,16 @@ fn deliver(table: &Table, n: &ReceivedCOVNotification) {
     let Some(value) = property(n, PropertyIdentifier::PRESENT_VALUE) else {
         return;
     };
-    let flags = property(n, PropertyIdentifier::STATUS_FLAGS);
+    // The standard's notifications carry the status flags beside the present value
+    // (Table 13-1): one without them cannot say the value is good, and is left to the reads.
+    let Some(flags) = property(n, PropertyIdentifier::STATUS_FLAGS) else {
+        tracing::debug!(device = %device.name(), "a change-of-value notification without status-flags: dropped");
+        return;
+    };
     for idx in fields {
         let outcome = match (&value, &flags) {
-            (Err(why), _) | (_, Some(Err(why))) => Err(FieldError::Device(why.clone())),
-            (Ok(_), Some(Ok(f))) if not_good(f).is_some() => Err(FieldError::Device(
+            (Err(why), _) | (_, Err(why)) => Err(FieldError::Device(why.clone())),
+            (Ok(_), Ok(f)) if not_good(f).is_some() => Err(FieldError::Device(
                 not_good(f).unwrap_or_default().to_owned(),
             )),
             (Ok(v), _) => reading(device.field(idx).ty, v).map_err(FieldError::Device),

@@ -89,6 +89,9 @@ pub(crate) struct Plan {
     /// Whether the device is in the client's table (bound by its address, or its I-Am
     /// heard).
     known: bool,
+    /// The device as the client's table last held it, to put back when the client forgets
+    /// it.
+    row: Option<bacnet_client::discovery::DiscoveredDevice>,
     /// Its change-of-value subscriptions on this session.
     cov: cov::Subscriptions,
 }
@@ -212,6 +215,7 @@ impl Driver for Bacnet {
             instance: point::device(config.at(point::DEVICE_INSTANCE), config.at(point::ADDRESS)),
             places: places(device),
             known: false,
+            row: None,
             cov: cov::Subscriptions {
                 wanted: point::cov(config.at(point::COV)).unwrap_or(true),
                 ..Default::default()

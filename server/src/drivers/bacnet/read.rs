@@ -7,6 +7,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use bacnet_client::discovery::RoutedDeviceConfig;
 use bacnet_encoding::primitives::decode_application_value;
 use bacnet_services::rpm::ReadAccessResult;
 use bacnet_services::who_is::DeviceInstanceRange;
@@ -26,31 +27,52 @@ use crate::link::LinkFault;
 pub(super) const PER_REQUEST: usize = 16;
 
 /// Puts the device in the client's table: by its address, or by asking for it (a Who-Is
-/// for its instance); `false` while it is not known yet.
-async fn know(port: &Port, plan: &mut Plan) -> Result<bool, String> {
+/// for its instance); `false` while it is not known yet. Asked before every read and
+/// write: the client forgets a device it has not heard an I-Am from for ten minutes,
+/// however well it answers, and a forgotten device is put back as it was last known (and
+/// asked for again, so its next I-Am refreshes it).
+pub(super) async fn know(port: &Port, plan: &mut Plan) -> Result<bool, String> {
     let (instance, address) = plan.instance.clone()?;
-    if plan.known {
-        return Ok(true);
-    }
-    if let Some(at) = address {
-        let mut mac = at.ip().octets().to_vec();
-        mac.extend_from_slice(&at.port().to_be_bytes());
-        port.client
-            .add_device(instance, &mac)
-            .await
-            .map_err(|e| e.to_string())?;
+    if let Some(row) = port.client.get_device(instance).await {
+        plan.row = Some(row);
         plan.known = true;
         return Ok(true);
     }
-    if port.client.get_device(instance).await.is_some() {
+    let fail = |e: bacnet_types::error::Error| e.to_string();
+    if let Some(at) = address {
+        let mut mac = at.ip().octets().to_vec();
+        mac.extend_from_slice(&at.port().to_be_bytes());
+        port.client.add_device(instance, &mac).await.map_err(fail)?;
         plan.known = true;
         return Ok(true);
     }
     let range = DeviceInstanceRange::new(instance, instance).map_err(|e| e.to_string())?;
-    port.client
-        .who_is(Some(range))
-        .await
-        .map_err(|e| e.to_string())?;
+    if let (true, Some(row)) = (plan.known, &plan.row) {
+        match (row.source_network, &row.source_address) {
+            (Some(network), Some(sadr)) => port
+                .client
+                .add_routed_device(RoutedDeviceConfig {
+                    instance,
+                    router_mac: row.mac_address.to_vec(),
+                    remote_network: network,
+                    remote_mac: sadr.to_vec(),
+                    max_apdu_length: row.max_apdu_length,
+                    segmentation_supported: row.segmentation_supported,
+                    max_segments_accepted: row.max_segments_accepted,
+                })
+                .await
+                .map_err(fail)?,
+            _ => port
+                .client
+                .add_device(instance, &row.mac_address)
+                .await
+                .map_err(fail)?,
+        }
+        port.client.who_is(Some(range)).await.map_err(fail)?;
+        return Ok(true);
+    }
+    plan.known = false;
+    port.client.who_is(Some(range)).await.map_err(fail)?;
     Ok(false)
 }
 

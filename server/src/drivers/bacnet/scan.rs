@@ -129,7 +129,12 @@ async fn listen(s: &Settings, wait: Duration) -> Result<Vec<DiscoveredDevice>, S
         let collect = async {
             loop {
                 match events.recv().await {
-                    Ok(DeviceEvent { device, .. }) if found.len() < MAX_DEVICES => {
+                    // An I-Am names a device object; one that names another is not a device.
+                    Ok(DeviceEvent { device, .. })
+                        if found.len() < MAX_DEVICES
+                            && device.object_identifier.object_type()
+                                == bacnet_types::enums::ObjectType::DEVICE =>
+                    {
                         let id = device.object_identifier;
                         found.retain(|d| d.object_identifier != id);
                         found.push(device);

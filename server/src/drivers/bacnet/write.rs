@@ -33,11 +33,31 @@ pub(super) fn value(place: Place, value: &crate::codec::Value) -> Result<Vec<u8>
 /// priority (the next priority, or the relinquish default, takes over), or why the field
 /// has none.
 pub(super) fn relinquishing(place: Place) -> Result<Vec<u8>, String> {
-    use bacnet_types::enums::ObjectType;
-    let inputs = [
-        ObjectType::ANALOG_INPUT,
-        ObjectType::BINARY_INPUT,
-        ObjectType::MULTI_STATE_INPUT,
+    use bacnet_types::enums::ObjectType as T;
+    // The object types the standard gives a priority array (outputs always; values,
+    // doors and lights where the device makes them commandable).
+    let commandable = [
+        T::ANALOG_OUTPUT,
+        T::ANALOG_VALUE,
+        T::BINARY_OUTPUT,
+        T::BINARY_VALUE,
+        T::MULTI_STATE_OUTPUT,
+        T::MULTI_STATE_VALUE,
+        T::ACCESS_DOOR,
+        T::BITSTRING_VALUE,
+        T::CHARACTERSTRING_VALUE,
+        T::DATEPATTERN_VALUE,
+        T::DATE_VALUE,
+        T::DATETIMEPATTERN_VALUE,
+        T::DATETIME_VALUE,
+        T::INTEGER_VALUE,
+        T::LARGE_ANALOG_VALUE,
+        T::OCTETSTRING_VALUE,
+        T::POSITIVE_INTEGER_VALUE,
+        T::TIMEPATTERN_VALUE,
+        T::TIME_VALUE,
+        T::LIGHTING_OUTPUT,
+        T::BINARY_LIGHTING_OUTPUT,
     ];
     if place.property != PropertyIdentifier::PRESENT_VALUE {
         return Err(format!(
@@ -49,7 +69,7 @@ pub(super) fn relinquishing(place: Place) -> Result<Vec<u8>, String> {
                 .replace('_', "-")
         ));
     }
-    if inputs.contains(&place.object.object_type()) {
+    if !commandable.contains(&place.object.object_type()) {
         return Err(format!(
             "{} is not commandable: it has no priorities to relinquish",
             super::point::name(place.object)
@@ -67,8 +87,9 @@ pub(super) async fn outputs(
     plan: &mut Plan,
     items: Vec<WriteItem>,
 ) -> Result<Option<FieldError>, LinkFault> {
+    let known = super::read::know(port, plan).await;
     let instance = match &plan.instance {
-        Ok((i, _)) if plan.known => *i,
+        Ok((i, _)) if matches!(known, Ok(true)) => *i,
         Ok(_) => {
             for item in &items {
                 finish(device, item, Err(WriteError::DeviceDown), 0);
