@@ -3,7 +3,7 @@
 device does not have (integer, positive integer, large analog and character string values)
 beside an analog input and commandable analog, binary and multi-state values, with
 change-of-value services, on a host of its own (127.0.0.2 by default) at a free port (printed
-first), driven one command per line:
+first; `--no-rpm`: without ReadPropertyMultiple), driven one command per line:
 
     get OBJECT PROPERTY        the property's value as the device holds it
     priority OBJECT N          what the object's priority array holds at N (1-16): null or a value
@@ -35,6 +35,11 @@ from bacpypes.service.object import ReadWritePropertyMultipleServices
 
 class Device(BIPSimpleApplication, ReadWritePropertyMultipleServices, ChangeOfValueServices):
     pass
+
+
+class SmallDevice(BIPSimpleApplication, ChangeOfValueServices):
+    """A device without ReadPropertyMultiple (as many small controllers are): it rejects the
+    service as unrecognized."""
 
 
 # bacpypes builds an object class's property table when the class is registered; its
@@ -201,6 +206,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--host", default="127.0.0.2")
     parser.add_argument("--instance", type=int, default=2002)
+    parser.add_argument("--no-rpm", action="store_true", help="no ReadPropertyMultiple")
     args = parser.parse_args()
     port = free_port(args.host)
     device = LocalDeviceObject(
@@ -210,7 +216,8 @@ def main() -> None:
         segmentationSupported="segmentedBoth",
         vendorIdentifier=15,
     )
-    app = Device(device, f"{args.host}/32:{port}")
+    kind = SmallDevice if args.no_rpm else Device
+    app = kind(device, f"{args.host}/32:{port}")
     for obj in objects():
         app.add_object(obj)
     print(port, flush=True)

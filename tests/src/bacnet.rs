@@ -33,6 +33,16 @@ impl BacnetDevice {
         Self::spawn("bacnet/legacy_device.py", &args, host, instance).await
     }
 
+    /// As [`BacnetDevice::start_legacy`], a device without ReadPropertyMultiple.
+    pub async fn start_without_rpm(instance: u32) -> anyhow::Result<BacnetDevice> {
+        let host = "127.0.0.2";
+        let mut args = ["--instance", &instance.to_string(), "--host", host]
+            .map(String::from)
+            .to_vec();
+        args.push("--no-rpm".into());
+        Self::spawn("bacnet/legacy_device.py", &args, host, instance).await
+    }
+
     async fn spawn(
         script: &str,
         args: &[String],

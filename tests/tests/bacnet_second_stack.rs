@@ -124,3 +124,30 @@ async fn a_second_stack_is_read_written_relinquished_and_notifies() -> anyhow::R
     device.kill().await?;
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_without_read_property_multiple_is_read_property_by_property() -> anyhow::Result<()>
+{
+    let mut device = BacnetDevice::start_without_rpm(2003).await?;
+    let gw = gateway(&device).await?;
+    let d = gw.all_read("zone").await?;
+    assert_eq!(field(&d, "Outside")["value"], json!(4.5), "{d}");
+    assert_eq!(field(&d, "Label")["value"], json!("north wing"), "{d}");
+    assert_eq!(field(&d, "Energy")["value"], json!(1234567.25), "{d}");
+    device.cmd("set analogInput,1 6.5").await?;
+    gw.until("/api/v1/devices/zone", "the change read", |d| {
+        field(d, "Outside")["value"] == json!(6.5)
+    })
+    .await?;
+    let outcome = gw
+        .write_outcome("zone", "Count", json!(11))
+        .await?
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    assert_eq!(outcome["status"], "written", "{outcome}");
+    assert_eq!(
+        device.get("positiveIntegerValue,1", "presentValue").await?,
+        "11"
+    );
+    device.kill().await?;
+    Ok(())
+}

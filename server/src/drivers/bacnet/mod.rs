@@ -92,6 +92,9 @@ pub(crate) struct Plan {
     /// The device as the client's table last held it, to put back when the client forgets
     /// it.
     row: Option<bacnet_client::discovery::DiscoveredDevice>,
+    /// The device rejected ReadPropertyMultiple as a service it does not have: its
+    /// properties are read with ReadProperty.
+    one_by_one: bool,
     /// Its change-of-value subscriptions on this session.
     cov: cov::Subscriptions,
 }
@@ -216,6 +219,7 @@ impl Driver for Bacnet {
             places: places(device),
             known: false,
             row: None,
+            one_by_one: false,
             cov: cov::Subscriptions {
                 wanted: point::cov(config.at(point::COV)).unwrap_or(true),
                 ..Default::default()

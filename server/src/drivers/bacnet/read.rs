@@ -159,6 +159,87 @@ fn publish(device: &Device, asked: &[(usize, Place)], results: &[ReadAccessResul
     }
 }
 
+/// The results for some fields: one ReadPropertyMultiple, or, for a device that does not
+/// have that service (it rejects it as unrecognized), a ReadProperty for each property
+/// from then on.
+async fn read_chunk(
+    port: &Port,
+    plan: &mut Plan,
+    instance: u32,
+    chunk: &[(usize, Place)],
+) -> Result<Vec<ReadAccessResult>, bacnet_types::error::Error> {
+    use bacnet_types::enums::RejectReason;
+    use bacnet_types::error::{Error, RemoteError};
+    if !plan.one_by_one {
+        port.started();
+        let answer = port
+            .client
+            .read_property_multiple_from_device(instance, specs(chunk))
+            .await;
+        port.progress.ended();
+        match answer {
+            Ok(ack) => return Ok(ack.list_of_read_access_results),
+            Err(Error::Remote(RemoteError::Reject { reason }))
+                if reason == RejectReason::UNRECOGNIZED_SERVICE =>
+            {
+                tracing::info!(
+                    instance,
+                    "the device has no ReadPropertyMultiple: its properties are read one by one"
+                );
+                plan.one_by_one = true;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    let mut results = Vec::with_capacity(chunk.len());
+    for spec in specs(chunk) {
+        let mut list = Vec::new();
+        for r in spec.list_of_property_references {
+            port.started();
+            let answer = port
+                .client
+                .read_property_from_device(
+                    instance,
+                    spec.object_identifier,
+                    r.property_identifier,
+                    None,
+                )
+                .await;
+            port.progress.ended();
+            let (property_value, error) = match answer {
+                Ok(ack)
+                    if ack.object_identifier != spec.object_identifier
+                        || ack.property_identifier != r.property_identifier =>
+                {
+                    return Err(Error::Encoding(format!(
+                        "the answer is for {} of {}, not the {} of {} asked",
+                        ack.property_identifier,
+                        super::point::name(ack.object_identifier),
+                        r.property_identifier,
+                        super::point::name(spec.object_identifier)
+                    )));
+                }
+                Ok(ack) => (Some(ack.property_value), None),
+                Err(Error::Remote(RemoteError::Error { class, code })) => {
+                    (None, Some((class, code)))
+                }
+                Err(e) => return Err(e),
+            };
+            list.push(bacnet_services::rpm::ReadResultElement {
+                property_identifier: r.property_identifier,
+                property_array_index: None,
+                property_value,
+                error,
+            });
+        }
+        results.push(ReadAccessResult {
+            object_identifier: spec.object_identifier,
+            list_of_results: list,
+        });
+    }
+    Ok(results)
+}
+
 /// Reads the device's fields (one cycle) and publishes each.
 pub(super) async fn cycle(
     port: &Port,
@@ -190,16 +271,11 @@ pub(super) async fn cycle(
     }
     let mut answered = false;
     for chunk in fields.chunks(PER_REQUEST) {
-        port.started();
-        let answer = port
-            .client
-            .read_property_multiple_from_device(instance, specs(chunk))
-            .await;
-        port.progress.ended();
+        let answer = read_chunk(port, plan, instance, chunk).await;
         match answer {
-            Ok(ack) => {
+            Ok(results) => {
                 answered = true;
-                publish(device, chunk, &ack.list_of_read_access_results);
+                publish(device, chunk, &results);
             }
             Err(e) => match super::client::failure(e)? {
                 (why, true) if !answered => {
