@@ -231,7 +231,7 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
         "name: Bad\nprotocol: bacnet\nfields:\n  - { name: A, type: REAL, direction: input, object: \"analog-inptu:1\" }\n  - { name: B, type: REAL, direction: input, object: \"analog-input:1\", property: present-valu }\n  - { name: C, type: REAL, direction: inout, object: \"analog-output:1\", priority: 17 }\n",
     )?;
     let config = format!(
-        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\n  - name: b1\n    bacnet: {{ bind: 127.0.0.1:47808 }}\n  - name: b2\n    bacnet: {{ bind: 127.0.0.2 }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n  - {{ name: c, profile: Ahu, link: bms, device_instance: 5, cov: maybe }}\n  - {{ name: d, profile: Ahu, link: b1, device_instance: 9 }}\n  - {{ name: e, profile: Ahu, link: b1, device_instance: 9, address: \"127.0.0.1:0\" }}\n",
+        "profiles: {}\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"plant:47808\", timeout: 0s }}\n  - name: b1\n    bacnet: {{ bind: 127.0.0.1:47808 }}\n  - name: b2\n    bacnet: {{ bind: 127.0.0.2 }}\ndevices:\n  - {{ name: a, profile: Ahu, link: bms }}\n  - {{ name: b, profile: Ahu, link: bms, device_instance: 4194303 }}\n  - {{ name: c, profile: Ahu, link: bms, device_instance: 5, cov: maybe }}\n  - {{ name: d, profile: Ahu, link: b1, device_instance: 9 }}\n  - {{ name: e, profile: Ahu, link: b1, device_instance: 9, address: \"127.0.0.1:0\" }}\n  - {{ name: f, profile: Ahu, link: b1, device_instance: 10, address: \"255.255.255.255:47808\" }}\n",
         dir.join("profiles").display()
     );
     let path = dir.join("iogate.yaml");
@@ -257,6 +257,7 @@ fn bacnet_settings_and_devices_are_checked_with_their_lines() -> anyhow::Result<
         "link b2: link b1 takes UDP port 47808 already",
         "device e: device d on link b1 has device_instance 9 already",
         "needs its port (not 0)",
+        "255.255.255.255 is not: a device is asked by unicast",
     ] {
         assert!(text.contains(expected), "{expected}: {text}");
     }

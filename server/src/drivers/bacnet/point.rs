@@ -137,6 +137,14 @@ pub(crate) fn device(
     if address.is_some_and(|a| a.port() == 0) {
         return Err("a device's `address` needs its port (not 0)".into());
     }
+    if let Some(a) = address
+        && (a.ip().is_unspecified() || a.ip().is_broadcast() || a.ip().is_multicast())
+    {
+        return Err(format!(
+            "a device's `address` is one host's ({} is not: a device is asked by unicast)",
+            a.ip()
+        ));
+    }
     Ok((instance, address))
 }
 
