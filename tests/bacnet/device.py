@@ -7,6 +7,7 @@ values), on 127.0.0.1 at a free port (printed first), driven one command per lin
     set OBJECT VALUE           the present value changed on the device (as its program would)
     flags OBJECT FAULT|OOS|OK  its status flags (fault, out of service) or back to normal
                                (through its reliability and out-of-service)
+    subscriptions              how many change-of-value subscriptions the device holds
     quit
 """
 
@@ -131,6 +132,10 @@ async def commands(app: Application) -> None:
         line = (await reader.readline()).decode().split()
         if not line or line[0] == "quit":
             return
+        if line[0] == "subscriptions":
+            held = sum(len(d.cov_subscriptions) for d in app._cov_detections.values())
+            print(held, flush=True)
+            continue
         try:
             obj = app.get_object_id(ObjectIdentifier(line[1]))
             if line[0] == "get":

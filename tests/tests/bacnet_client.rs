@@ -483,3 +483,44 @@ async fn a_notification_from_another_address_is_never_a_value() -> anyhow::Resul
     device.kill().await?;
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_replaces_the_devices_subscriptions_and_never_adds_to_them() -> anyhow::Result<()>
+{
+    let mut device = BacnetDevice::start(1006).await?;
+    let bind = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?;
+    let port = device.port;
+    let config = |refresh: &str| {
+        format!(
+            "profiles: profiles\nlinks:\n  - name: bms\n    bacnet: {{ bind: \"{bind}\" }}\ndevices:\n  - {{ name: ahu, profile: Ahu, link: bms, device_instance: 1006, address: \"127.0.0.1:{}\", refresh_rate: {refresh} }}\n",
+            port
+        )
+    };
+    let (_, path) =
+        iogate_tests::config_files("bacnet-reload", &[("ahu.yaml", PROFILE)], &config("200ms"));
+    let gw = iogate_tests::start_file(&path).await;
+    // Each object whose present value is read is subscribed once the device answers its
+    // first read: by its third, all are.
+    let read = |ms: u64| {
+        move |d: &Value| {
+            d["refresh_rate_ms"] == json!(ms) && d["io_cycles"].as_u64().is_some_and(|n| n >= 3)
+        }
+    };
+    gw.until("/api/v1/devices/ahu", "read", read(200)).await?;
+    let held = device.cmd("subscriptions").await?;
+    assert_ne!(held, "0");
+    for refresh in ["300ms", "400ms", "250ms"] {
+        std::fs::write(&path, config(refresh))?;
+        let (status, answer) = gw
+            .send(reqwest::Method::POST, "/api/v1/config/reload", "")
+            .await?;
+        assert_eq!(status, 200, "{answer}");
+        let ms = refresh.trim_end_matches("ms").parse()?;
+        gw.until("/api/v1/devices/ahu", "read again", read(ms))
+            .await?;
+    }
+    // Each plan subscribed under the same subscriber process: the device holds what it held.
+    assert_eq!(device.cmd("subscriptions").await?, held);
+    device.kill().await?;
+    Ok(())
+}

@@ -69,8 +69,31 @@ impl Table {
     }
 }
 
-/// The subscriber process identifiers of this gateway, one for each device and session.
-static PROCESS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(1);
+/// The subscriber process identifiers of this gateway, one for each device name, kept
+/// while the gateway runs: a device re-planned by a reload subscribes under the same one, so
+/// its new subscriptions replace the old ones on the device (a subscription is its
+/// subscriber, process and object) instead of piling up in the device's few slots. At most
+/// [`KEPT`] names are kept; past them a device gets a new one each time.
+fn process_of(device: &str) -> u32 {
+    static PROCESSES: Mutex<Option<HashMap<String, u32>>> = Mutex::new(None);
+    static BEYOND: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(KEPT + 1);
+    let mut known = PROCESSES
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let known = known.get_or_insert_with(HashMap::new);
+    if let Some(process) = known.get(device) {
+        return *process;
+    }
+    if known.len() >= KEPT as usize {
+        return BEYOND.fetch_add(1, Ordering::Relaxed);
+    }
+    let process = u32::try_from(known.len() + 1).unwrap_or(u32::MAX);
+    known.insert(device.to_owned(), process);
+    process
+}
+
+/// How many device names keep their subscriber process identifier.
+const KEPT: u32 = 100_000;
 
 /// The fields that read an object's present value.
 fn watched(plan: &Plan) -> Vec<(usize, ObjectIdentifier)> {
@@ -94,7 +117,7 @@ pub(super) async fn renew(port: &Port, device: &Arc<Device>, plan: &mut Plan, in
         return;
     }
     if plan.cov.process == 0 {
-        plan.cov.process = PROCESS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        plan.cov.process = process_of(device.name());
     }
     let Some(at) = port.client.get_device(instance).await else {
         return;
