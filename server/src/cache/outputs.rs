@@ -434,23 +434,19 @@ fn settle(
             slot.reached = true;
             Ok(())
         }
-        // A device that takes its reads but never answers this value is not asked it again
-        // at every return.
-        Err(WriteError::NoResponse(tx)) if attempts > 0 => {
+        // The link lost with the value sent, or a device that takes its reads but never
+        // answers this value: not asked it again at every return.
+        Err(e @ (WriteError::LinkDown(_) | WriteError::NoResponse(_))) if attempts > 0 => {
             slot.lost_at_write += 1;
-            if slot.lost_at_write >= LOST_AT_WRITE {
-                slot.latest = None;
-                return Err(WriteError::Unanswered(tx));
+            if slot.lost_at_write < LOST_AT_WRITE {
+                return Err(e);
             }
-            Err(WriteError::NoResponse(tx))
-        }
-        Err(WriteError::LinkDown(fault)) if attempts > 0 => {
-            slot.lost_at_write += 1;
-            if slot.lost_at_write >= LOST_AT_WRITE {
-                slot.latest = None;
-                return Err(WriteError::GaveUp(fault));
-            }
-            Err(WriteError::LinkDown(fault))
+            slot.latest = None;
+            Err(match e {
+                WriteError::LinkDown(fault) => WriteError::GaveUp(fault),
+                WriteError::NoResponse(tx) => WriteError::Unanswered(tx),
+                other => other,
+            })
         }
         Err(e) => {
             if e.is_refusal() {

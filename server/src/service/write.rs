@@ -397,6 +397,19 @@ impl ScanCycle {
     /// become bus writes. Such an output the device holds another value in is named in the
     /// cycle's errors (a failed write, a device that changed it), and is written again by
     /// the device's `write_mode: reconcile`.
+    /// Whether `w` is what its field was last asked: the same value as the newest requested,
+    /// or a relinquish after a relinquish (a runtime that relinquishes an output every cycle
+    /// sends the device one NULL, not one a cycle).
+    fn requested_already(&self, w: &Prepared) -> bool {
+        match w.value() {
+            Some(v) => w.device.latest_value(w.idx()).as_ref() == Some(v),
+            None => self
+                .service
+                .last_write(&w.device, w.idx())
+                .is_some_and(|r| r.value.is_none()),
+        }
+    }
+
     pub(crate) fn step(
         &mut self,
         devices: &[String],
@@ -415,10 +428,7 @@ impl ScanCycle {
         let mut changed = Vec::new();
         for out in outputs {
             match out {
-                Ok(w)
-                    if w.value()
-                        .is_some_and(|v| w.device.latest_value(w.idx()).as_ref() == Some(v)) =>
-                {
+                Ok(w) if self.requested_already(&w) => {
                     if w.device.mismatch(w.idx()).is_some() {
                         let actual = w.device.sample(w.idx()).value;
                         errors.push(format!(

@@ -75,12 +75,12 @@ impl Table {
 /// subscriber, process and object) instead of piling up in the device's few slots. At most
 /// [`KEPT`] names are kept; past them a device gets a new one each time.
 fn process_of(device: &str) -> u32 {
-    static PROCESSES: Mutex<Option<HashMap<String, u32>>> = Mutex::new(None);
+    static PROCESSES: Mutex<std::collections::BTreeMap<String, u32>> =
+        Mutex::new(std::collections::BTreeMap::new());
     static BEYOND: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(KEPT + 1);
     let mut known = PROCESSES
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
-    let known = known.get_or_insert_with(HashMap::new);
     if let Some(process) = known.get(device) {
         return *process;
     }

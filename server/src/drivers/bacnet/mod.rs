@@ -86,11 +86,8 @@ pub(crate) struct Place {
 pub(crate) struct Plan {
     instance: Result<(u32, Option<SocketAddrV4>), String>,
     places: Vec<Result<Place, String>>,
-    /// Whether the device is in the client's table (bound by its address, or its I-Am
-    /// heard).
-    known: bool,
-    /// The device as the client's table last held it, to put back when the client forgets
-    /// it.
+    /// The device as the client's table last held it (its I-Am heard, or bound by its
+    /// address), to put back when the client forgets it.
     row: Option<bacnet_client::discovery::DiscoveredDevice>,
     /// The device rejected ReadPropertyMultiple as a service it does not have: its
     /// properties are read with ReadProperty.
@@ -217,7 +214,6 @@ impl Driver for Bacnet {
         Plan {
             instance: point::device(config.at(point::DEVICE_INSTANCE), config.at(point::ADDRESS)),
             places: places(device),
-            known: false,
             row: None,
             one_by_one: false,
             cov: cov::Subscriptions {

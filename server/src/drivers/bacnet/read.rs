@@ -29,13 +29,11 @@ pub(super) const PER_REQUEST: usize = 16;
 /// Puts the device in the client's table: by its address, or by asking for it (a Who-Is
 /// for its instance); `false` while it is not known yet. Asked before every read and
 /// write: the client forgets a device it has not heard an I-Am from for ten minutes,
-/// however well it answers, and a forgotten device is put back as it was last known (and
-/// asked for again, so its next I-Am refreshes it).
+/// however well it answers, and a forgotten device is put back as it was last known.
 pub(super) async fn know(port: &Port, plan: &mut Plan) -> Result<bool, String> {
     let (instance, address) = plan.instance.clone()?;
     if let Some(row) = port.client.get_device(instance).await {
         plan.row = Some(row);
-        plan.known = true;
         return Ok(true);
     }
     let fail = |e: bacnet_types::error::Error| e.to_string();
@@ -43,37 +41,34 @@ pub(super) async fn know(port: &Port, plan: &mut Plan) -> Result<bool, String> {
         let mut mac = at.ip().octets().to_vec();
         mac.extend_from_slice(&at.port().to_be_bytes());
         port.client.add_device(instance, &mac).await.map_err(fail)?;
-        plan.known = true;
         return Ok(true);
     }
-    let range = DeviceInstanceRange::new(instance, instance).map_err(|e| e.to_string())?;
-    if let (true, Some(row)) = (plan.known, &plan.row) {
-        match (row.source_network, &row.source_address) {
-            (Some(network), Some(sadr)) => port
-                .client
-                .add_routed_device(RoutedDeviceConfig {
-                    instance,
-                    router_mac: row.mac_address.to_vec(),
-                    remote_network: network,
-                    remote_mac: sadr.to_vec(),
-                    max_apdu_length: row.max_apdu_length,
-                    segmentation_supported: row.segmentation_supported,
-                    max_segments_accepted: row.max_segments_accepted,
-                })
-                .await
-                .map_err(fail)?,
-            _ => port
-                .client
-                .add_device(instance, &row.mac_address)
-                .await
-                .map_err(fail)?,
-        }
+    let Some(row) = &plan.row else {
+        let range = DeviceInstanceRange::new(instance, instance).map_err(|e| e.to_string())?;
         port.client.who_is(Some(range)).await.map_err(fail)?;
-        return Ok(true);
+        return Ok(false);
+    };
+    match (row.source_network, &row.source_address) {
+        (Some(network), Some(sadr)) => port
+            .client
+            .add_routed_device(RoutedDeviceConfig {
+                instance,
+                router_mac: row.mac_address.to_vec(),
+                remote_network: network,
+                remote_mac: sadr.to_vec(),
+                max_apdu_length: row.max_apdu_length,
+                segmentation_supported: row.segmentation_supported,
+                max_segments_accepted: row.max_segments_accepted,
+            })
+            .await
+            .map_err(fail)?,
+        _ => port
+            .client
+            .add_device(instance, &row.mac_address)
+            .await
+            .map_err(fail)?,
     }
-    plan.known = false;
-    port.client.who_is(Some(range)).await.map_err(fail)?;
-    Ok(false)
+    Ok(true)
 }
 
 /// The request for some fields: each object with its property, and its status flags when
