@@ -109,7 +109,8 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         _ => None,
     };
 
-    let tasks = Tasks::new(tracker.clone(), token.clone(), Arc::new(Metrics::new()));
+    let tasks = Tasks::new(tracker.clone(), token.clone(), Arc::new(Metrics::new()))
+        .with_role(crate::ha::role(&config));
     spawn_polling(&tasks, &cache, field, &token);
 
     let tls = tls.map(Arc::new);
@@ -129,6 +130,7 @@ pub async fn start(setup: Setup) -> anyhow::Result<Running> {
         anyhow::bail!("the HTTP and gRPC listeners did not start");
     };
     let modbus_addr = bound("modbus");
+    crate::ha::start(&service, &config, &base);
     if let Some(path) = source {
         let setup = Setup {
             config: config.clone(),

@@ -17,6 +17,7 @@ pub(crate) mod demo;
 pub mod drivers;
 pub(crate) mod duration;
 pub(crate) mod front_ends;
+pub(crate) mod ha;
 #[cfg(any(fuzzing, test))]
 pub mod fuzz;
 #[cfg(test)]
@@ -30,6 +31,7 @@ pub mod plan;
 pub(crate) mod poller;
 pub mod profile;
 pub mod reload;
+pub mod role;
 pub(crate) mod runtime;
 pub mod scan;
 pub mod service;

@@ -11,6 +11,7 @@ use tokio_util::task::TaskTracker;
 use crate::cache::{Device, Link};
 use crate::metrics::Metrics;
 use crate::poller::LinkTask;
+use crate::role::Role;
 
 /// Starts the tasks that own links and simulated devices, at start-up and when one is
 /// declared at run time, and any other task that must end with the gateway.
@@ -19,6 +20,8 @@ pub(crate) struct Tasks {
     tracker: TaskTracker,
     token: CancellationToken,
     metrics: Arc<Metrics>,
+    /// This gateway's role in its pair: a link task owns its link only while it may.
+    role: Arc<Role>,
 }
 
 impl Tasks {
@@ -31,7 +34,18 @@ impl Tasks {
             tracker,
             token,
             metrics,
+            role: Arc::new(Role::alone()),
         }
+    }
+
+    /// The tasks of node `role` of an active/standby pair.
+    pub(crate) fn with_role(mut self, role: Arc<Role>) -> Self {
+        self.role = role;
+        self
+    }
+
+    pub(crate) fn role(&self) -> &Arc<Role> {
+        &self.role
     }
 
     pub(crate) fn metrics(&self) -> &Arc<Metrics> {
@@ -47,7 +61,7 @@ impl Tasks {
     pub(crate) fn spawn_link(&self, link: Arc<Link>) {
         let token = self.token.child_token();
         link.attach_task(token.clone());
-        let task = LinkTask::new(link, self.metrics.clone());
+        let task = LinkTask::new(link, self.metrics.clone()).with_role(self.role.clone());
         self.tracker.spawn(task.run(token));
     }
 

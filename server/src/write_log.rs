@@ -139,6 +139,14 @@ impl WriteLog {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Writes from now on carry `epoch` (an active/standby pair's lease, [`crate::role`]):
+    /// their generations start at the epoch's first, so they are above every earlier one,
+    /// the other node's included.
+    pub(crate) fn enter_epoch(&self, epoch: u64) {
+        let mut inner = self.lock();
+        inner.next = inner.next.max(crate::role::first_generation(epoch));
+    }
+
     /// Writes kept, every field's together.
     pub(crate) fn kept(&self) -> usize {
         self.lock().index.len()

@@ -58,6 +58,10 @@ pub(crate) enum WriteError {
         "{0}; the link was lost with this value sent {LOST_AT_WRITE} times in a row, so it is not written again until it is asked again"
     )]
     GaveUp(LinkFault),
+    /// Not put on the field: this gateway is not (or no longer) the active of its pair in
+    /// the epoch that accepted the write.
+    #[error("{0}")]
+    Fenced(crate::role::Fenced),
 }
 
 /// How many times in a row the link may be lost with a field's value sent before that

@@ -4,6 +4,7 @@
 //! other and devices against the loaded profiles.
 
 mod check;
+pub(crate) mod ha;
 mod line;
 pub(crate) mod modbus_server;
 mod parse;
@@ -72,6 +73,8 @@ pub struct Config {
     pub security: security::SecurityConfig,
     /// `reload:`: whether changed files are applied by themselves.
     pub(crate) reload: ReloadConfig,
+    /// `ha:`: this gateway as a node of an active/standby pair.
+    pub(crate) ha: Option<ha::HaConfig>,
     /// The file the config came from.
     pub source: String,
     /// Where keys checked after reading are written, for their problems' lines.
@@ -405,6 +408,7 @@ impl Config {
             transactions: Vec::new(),
             security: security::SecurityConfig::default(),
             reload: ReloadConfig::default(),
+            ha: None,
             source: source.to_owned(),
             lines: KeyLines::default(),
             unreadable: Unreadable::default(),

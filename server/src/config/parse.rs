@@ -26,6 +26,7 @@ pub(crate) const CORE_KEYS: &[&str] = &[
     "transactions",
     "security",
     "reload",
+    "ha",
 ];
 const RELOAD_KEYS: &[&str] = &["watch", "debounce"];
 const LISTEN_KEYS: &[&str] = &[
@@ -87,6 +88,7 @@ pub(super) fn read_config(root: &Node, report: &mut Report) -> Option<Config> {
     if let Some(reload) = map.get("reload").and_then(|n| n.map(report, "reload")) {
         read_reload(&mut config.reload, reload, report);
     }
+    config.ha = map.get("ha").and_then(|n| super::ha::read(n, report));
     for (key, node) in map.rest() {
         config.sections.keep(&key.name, key.line, node);
     }

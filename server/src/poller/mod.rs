@@ -28,6 +28,7 @@ use crate::config::LinkConfig;
 use crate::drivers::{Driver, ForDriver, Session, with_driver};
 use crate::link::{LinkCode, LinkFault};
 use crate::metrics::Metrics;
+use crate::role::{self as ha, Role};
 
 /// Waits between attempts to open a link: doubling from the first to the last.
 pub(crate) const REOPEN_MIN: Duration = Duration::from_millis(250);
@@ -99,20 +100,87 @@ enum Ended {
 pub(crate) struct LinkTask {
     link: Arc<Link>,
     metrics: Arc<Metrics>,
+    role: Arc<Role>,
 }
 
 impl LinkTask {
     pub(crate) fn new(link: Arc<Link>, metrics: Arc<Metrics>) -> Self {
-        LinkTask { link, metrics }
+        LinkTask {
+            link,
+            metrics,
+            role: Arc::new(Role::alone()),
+        }
+    }
+
+    /// The task of a node of an active/standby pair: it opens the link only while the
+    /// node is active, and closes it when the node stands down.
+    pub(crate) fn with_role(mut self, role: Arc<Role>) -> Self {
+        self.role = role;
+        self
+    }
+
+    /// Runs the link until `token` is cancelled, while this gateway owns the field: a
+    /// standby opens nothing, and a node that stands down closes what it opened and fails
+    /// the writes still waiting (a new active takes the field).
+    pub(crate) async fn run(self, token: CancellationToken) {
+        let mut lease = self.role.watch();
+        loop {
+            while !self.role.owns_field() {
+                self.standing_by();
+                tokio::select! {
+                    _ = token.cancelled() => return,
+                    changed = lease.changed() => if changed.is_err() { return },
+                }
+            }
+            let epoch = lease.borrow_and_update().epoch;
+            let owned = token.child_token();
+            let run = self.run_owned(owned.clone());
+            tokio::pin!(run);
+            tokio::select! {
+                () = &mut run => return,
+                () = ha::stood_down(&mut lease, epoch) => {
+                    owned.cancel();
+                    run.await;
+                    if token.is_cancelled() {
+                        return;
+                    }
+                    tracing::info!(link = %self.link.name(), "standing by: the link is closed");
+                    self.fail_waiting();
+                }
+            }
+        }
+    }
+
+    /// The link as a standby shows it: not connected, and why.
+    fn standing_by(&self) {
+        self.link.set_diagnostics(LinkDiagnostics {
+            connected: false,
+            error_code: LinkCode::Ok,
+        });
+        self.link.set_down(Some(
+            "standby: the active gateway of the pair owns the field".into(),
+        ));
+    }
+
+    /// The writes still waiting when this gateway stood down are not written by it.
+    fn fail_waiting(&self) {
+        for device in self.link.members() {
+            for w in device.take_writes() {
+                let fenced = self.role.may_write(w.generation).err();
+                let why = fenced.unwrap_or(crate::role::Fenced::Standby);
+                device.finish_write(w.generation, Err(WriteError::Fenced(why)));
+            }
+        }
     }
 
     /// Runs the link with its driver until `token` is cancelled.
-    pub(crate) async fn run(self, token: CancellationToken) {
+    async fn run_owned(&self, token: CancellationToken) {
         loop {
             let config = self.link.config();
             let start = Start {
                 link: self.link.clone(),
                 metrics: self.metrics.clone(),
+                role: self.role.clone(),
                 token: token.clone(),
             };
             let ended = match with_driver(&config, start) {
@@ -135,6 +203,7 @@ impl LinkTask {
 struct Start {
     link: Arc<Link>,
     metrics: Arc<Metrics>,
+    role: Arc<Role>,
     token: CancellationToken,
 }
 
@@ -144,6 +213,7 @@ impl ForDriver for Start {
     fn with<D: Driver>(self) -> Self::Output {
         Box::pin(async move {
             Driven::<D>::new(self.link, self.metrics)
+                .with_role(self.role)
                 .run(&self.token)
                 .await
         })
@@ -163,6 +233,8 @@ pub(crate) struct Driven<D: Driver> {
     cursor: usize,
     /// A device was read on the open connection: the link works, not merely opens.
     answered: bool,
+    /// Whether a write may go on the field now (an active/standby pair's fence).
+    role: Arc<Role>,
 }
 
 impl<D: Driver> Driven<D> {
@@ -177,9 +249,15 @@ impl<D: Driver> Driven<D> {
             metrics,
             cursor: 0,
             answered: false,
+            role: Arc::new(Role::alone()),
         };
         task.sync_members();
         task
+    }
+
+    fn with_role(mut self, role: Arc<Role>) -> Self {
+        self.role = role;
+        self
     }
 
     /// Takes in the link's newest settings and members, if they changed since the last

@@ -42,7 +42,16 @@ impl<D: Driver> Driven<D> {
     pub(super) async fn write_device(&mut self, i: usize, session: &mut D::Session) -> Step {
         let p = &mut self.devices[i];
         let device = p.device.clone();
-        let taken = device.take_writes();
+        let mut taken = device.take_writes();
+        // Fenced: a write accepted in another epoch, or after the lease ran out, is not
+        // this gateway's to put on the field.
+        taken.retain(|w| match self.role.may_write(w.generation) {
+            Ok(()) => true,
+            Err(fenced) => {
+                device.finish_write(w.generation, Err(WriteError::Fenced(fenced)));
+                false
+            }
+        });
         if p.backoff.is_some() {
             for w in taken {
                 device.finish_write(w.generation, Err(WriteError::DeviceDown));
@@ -50,7 +59,7 @@ impl<D: Driver> Driven<D> {
             return Ok(());
         }
         let mut items: Vec<WriteItem> = taken.into_iter().map(WriteItem::from).collect();
-        if p.rewrite {
+        if p.rewrite && self.role.owns_field() {
             replayed(&device, &mut items);
             p.rewrite = false;
         }

@@ -97,6 +97,26 @@ pub enum ServiceError {
     ScanRunning { link: String, id: u64 },
     #[error("no scan {0} (the last {kept} scans are kept)", kept = scan::KEPT_SCANS)]
     UnknownScan(u64),
+    /// This gateway is the standby of an active/standby pair: the active takes writes.
+    #[error("{}", standby_message(.0.as_ref()))]
+    Standby(Option<crate::role::Peer>),
+}
+
+fn standby_message(active: Option<&crate::role::Peer>) -> String {
+    match active {
+        Some(peer) => {
+            let at = peer
+                .addresses
+                .get("http")
+                .map(|a| format!(" at {a}"))
+                .unwrap_or_default();
+            format!(
+                "this gateway is the standby of its pair: the active, node {}{at}, takes writes",
+                peer.node
+            )
+        }
+        None => "this gateway is the standby of its pair, and no node is active yet: try again shortly".into(),
+    }
 }
 
 /// The refusals, the first ten of them named (a request with thousands of bad keys gets a
@@ -230,11 +250,21 @@ impl Service {
     /// Refuses writes when the gateway is read-only (or shutting down).
     pub(crate) fn accepting_writes(&self) -> Result<(), ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         if self.is_read_only() {
             Err(ServiceError::ReadOnly)
         } else {
             Ok(())
         }
+    }
+
+    /// Refuses what only the active of a pair does (writes, declarations, transactions).
+    pub(crate) fn owning_field(&self) -> Result<(), ServiceError> {
+        let role = self.tasks.role();
+        if role.owns_field() {
+            return Ok(());
+        }
+        Err(ServiceError::Standby(role.lease().active))
     }
 
     /// The service with `listen.max_streams`.
@@ -368,6 +398,7 @@ impl Service {
     /// Declares a link (idempotent); a new one starts polling at once.
     pub(crate) fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         self.counted(declare::ensure_link(
             &self.cache,
             &self.tasks,
@@ -382,18 +413,21 @@ impl Service {
         decl: DeviceDeclaration,
     ) -> Result<Ensured<Device>, ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         self.counted(declare::ensure_device(&self.cache, &self.tasks, decl))
     }
 
     /// Removes a device declared at run time.
     pub(crate) fn remove_device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         Ok(declare::remove_device(&self.cache, name)?)
     }
 
     /// Removes a link declared at run time that no device or standing transaction uses.
     pub(crate) fn remove_link(&self, name: &str) -> Result<Arc<Link>, ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         let users = self
             .standing()
             .all()

@@ -75,6 +75,7 @@ impl ServiceError {
             ServiceError::Scan(_) => (Refusal::Invalid, "invalid_scan"),
             ServiceError::ScanRunning { .. } => (Refusal::Conflict, "scan_running"),
             ServiceError::UnknownScan(_) => (Refusal::NotFound, "unknown_scan"),
+            ServiceError::Standby(_) => (Refusal::Unavailable, "standby"),
         }
     }
 }

@@ -232,6 +232,7 @@ impl Service {
     /// from the config file stays, as configured devices do.
     pub(crate) fn remove_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
         let at = set
             .iter()

@@ -90,6 +90,7 @@ impl Service {
         stage: Option<tokio::sync::watch::Sender<Stage>>,
     ) -> Result<Outcome, ServiceError> {
         self.accepting()?;
+        self.owning_field()?;
         let link = self.cache.link(link).ok();
         let checked = spec.check();
         let checked = match (checked, &link) {

@@ -1,0 +1,489 @@
+//! The lease of an active/standby pair held through the broker of the `mqtt:` section
+//! (`ha: {arbiter: mqtt}`), as a Sparkplug primary host holds its STATE:
+//!
+//! - The lock is a connection with the client id both nodes share (`iogate-ha-<group>`):
+//!   the broker lets one connection hold a client id at a time. It carries a Will that
+//!   releases the claim, so a holder that dies or is cut off releases it through the broker
+//!   (at once for a killed process, after 1.5 keep-alives for a silent one).
+//! - The claim is a retained message (`iogate/ha/<group>/claim`): who holds the lease, its
+//!   epoch, and how clients reach the holder. The epoch is read under the lock (the
+//!   retained claim, after a subscription and a ping that comes back behind it) and the
+//!   next one published, so it only grows.
+//! - The holder renews with a QoS 1 message (`iogate/ha/<group>/alive`) every third of the
+//!   lease; each acknowledgement extends the lease to the renewal's *sending* time plus the
+//!   lease. The broker keeps the connection for 1.5 keep-alives (the lease) after the last
+//!   packet it received, which is after that sending time: a holder cut off stops writing
+//!   at least half a lease before the broker can release it.
+//! - A standby watches the claim on a connection of its own and takes the lock when the
+//!   claim is released, absent, or silent (no claim nor renewal) for two leases.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use tokio::time::{Instant, sleep_until};
+use tokio_util::sync::CancellationToken;
+
+use super::Prepared;
+use super::conn::{ConnError, Connection};
+use super::packet::{Connect, Incoming, Will};
+use crate::role::{Peer, Role};
+
+/// How long a newly granted lease is held before the field is touched: a node that lost
+/// a start-up race (both saw no claim) is pushed off the lock in this time.
+const SETTLE_MAX: Duration = Duration::from_millis(500);
+/// The longest wait between attempts to reach the broker.
+const RETRY_MAX: Duration = Duration::from_secs(1);
+
+/// What the lease task is given.
+pub(crate) struct LeaseSetup {
+    pub(crate) prepared: Prepared,
+    pub(crate) group: String,
+    pub(crate) node: String,
+    pub(crate) lease: Duration,
+    pub(crate) role: Arc<Role>,
+    /// This node as clients reach it (its servers' addresses), when it claims the lease.
+    pub(crate) me: Arc<dyn Fn() -> Peer + Send + Sync>,
+    /// Called with the epoch before this node becomes active in it.
+    pub(crate) entering: Arc<dyn Fn(u64) + Send + Sync>,
+}
+
+/// The retained claim.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Claim {
+    node: String,
+    epoch: u64,
+    held: bool,
+    #[serde(default)]
+    addresses: BTreeMap<String, String>,
+}
+
+impl Claim {
+    fn peer(&self) -> Peer {
+        Peer {
+            node: self.node.clone(),
+            addresses: self.addresses.clone(),
+        }
+    }
+}
+
+/// What a standby knows of the lease.
+#[derive(Debug)]
+struct Seen {
+    claim: Option<Claim>,
+    /// The highest epoch heard of.
+    epoch: u64,
+    /// When the holder was last heard of (a claim or a renewal).
+    heard: Instant,
+}
+
+impl Seen {
+    fn take(&mut self, topic: &str, payload: &[u8], topics: &Topics) {
+        if topic == topics.claim {
+            // An empty retained message clears the claim (an operator's reset).
+            if payload.is_empty() {
+                self.claim = None;
+                return;
+            }
+            if let Ok(claim) = serde_json::from_slice::<Claim>(payload) {
+                self.epoch = self.epoch.max(claim.epoch);
+                self.heard = Instant::now();
+                self.claim = Some(claim);
+            }
+        } else if topic == topics.alive
+            && let Ok(alive) = serde_json::from_slice::<Claim>(payload)
+        {
+            self.epoch = self.epoch.max(alive.epoch);
+            self.heard = Instant::now();
+        }
+    }
+
+    /// Whether the lease is free to take: nobody claims it, the holder released it, or
+    /// has not been heard of for two leases.
+    fn free(&self, lease: Duration) -> bool {
+        match &self.claim {
+            None => true,
+            Some(c) => !c.held || self.heard.elapsed() >= 2 * lease,
+        }
+    }
+}
+
+struct Topics {
+    claim: String,
+    alive: String,
+}
+
+/// How the watch of a standby ended.
+enum Watched {
+    Stop,
+    Take,
+}
+
+/// How holding the lease ended.
+enum Held {
+    Stop,
+    Lost(String),
+}
+
+/// Runs the lease until `token` is cancelled: watches, takes, holds, and stands down.
+pub(crate) async fn run(setup: LeaseSetup, token: CancellationToken) {
+    let topics = Topics {
+        claim: format!("iogate/ha/{}/claim", setup.group),
+        alive: format!("iogate/ha/{}/alive", setup.group),
+    };
+    let mut seen = Seen {
+        claim: None,
+        epoch: 0,
+        heard: Instant::now(),
+    };
+    let mut wait = Duration::ZERO;
+    loop {
+        if wait > Duration::ZERO {
+            tokio::select! {
+                _ = token.cancelled() => return,
+                _ = tokio::time::sleep(wait) => {}
+            }
+        }
+        match watch(&setup, &topics, &mut seen, &token).await {
+            Ok(Watched::Stop) => return,
+            Ok(Watched::Take) => {}
+            Err(e) => {
+                wait = retry(wait, setup.lease);
+                tracing::warn!(error = %e, retry_in = ?wait, "HA: cannot watch the lease on the MQTT broker");
+                continue;
+            }
+        }
+        match take(&setup, &topics, &seen, &token).await {
+            Ok(Some(holding)) => {
+                wait = Duration::ZERO;
+                seen.epoch = holding.epoch;
+                match hold(&setup, &topics, holding, &token).await {
+                    Held::Stop => return,
+                    Held::Lost(why) => {
+                        tracing::warn!(why = %why, "HA: the lease is lost: standing by");
+                        seen.heard = Instant::now();
+                    }
+                }
+            }
+            Ok(None) => return,
+            Err(e) => {
+                setup.role.stand_by(seen.epoch, None);
+                wait = retry(wait, setup.lease);
+                tracing::warn!(error = %e, retry_in = ?wait, "HA: cannot take the lease");
+            }
+        }
+    }
+}
+
+fn retry(wait: Duration, lease: Duration) -> Duration {
+    (wait * 2).clamp(Duration::from_millis(100), RETRY_MAX.min(lease / 3))
+}
+
+fn connect(setup: &LeaseSetup, client_id: String, will: Option<Will>) -> Connect {
+    let config = &setup.prepared.config;
+    Connect {
+        client_id,
+        keep_alive: setup.lease.as_secs().clamp(1, u64::from(u16::MAX)) as u16,
+        clean_start: true,
+        username: config.username.clone(),
+        password: setup.prepared.password.clone(),
+        will,
+    }
+}
+
+async fn open(setup: &LeaseSetup, connect: &Connect) -> Result<Connection, ConnError> {
+    let prepared = &setup.prepared;
+    Connection::open(&prepared.config, prepared.tls.as_ref(), connect).await
+}
+
+/// Subscribes to `filters` and reads until a ping sent behind the subscription comes back:
+/// every retained message the subscription brings is in `seen` then.
+async fn subscribed(
+    conn: &mut Connection,
+    filters: &[(String, u8)],
+    topics: &Topics,
+    seen: &mut Seen,
+) -> Result<(), ConnError> {
+    conn.subscribe(filters).await?;
+    loop {
+        match conn.read().await? {
+            Incoming::SubAck { codes, .. } => {
+                if codes.iter().any(|&c| c >= 0x80) {
+                    return Err(ConnError::Refused("the subscription to the lease", codes[0]));
+                }
+                break;
+            }
+            Incoming::Publish(p) => publish_in(conn, &p, topics, seen).await?,
+            _ => {}
+        }
+    }
+    conn.keep_alive().await?;
+    loop {
+        match conn.read().await? {
+            Incoming::PingResp => return Ok(()),
+            Incoming::Publish(p) => publish_in(conn, &p, topics, seen).await?,
+            _ => {}
+        }
+    }
+}
+
+async fn publish_in(
+    conn: &mut Connection,
+    p: &super::packet::Publish,
+    topics: &Topics,
+    seen: &mut Seen,
+) -> Result<(), ConnError> {
+    seen.take(&p.topic, &p.payload, topics);
+    if p.qos > 0 {
+        conn.puback(p.pkid).await?;
+    }
+    Ok(())
+}
+
+/// A standby's watch: until the lease is free to take (or the gateway stops).
+async fn watch(
+    setup: &LeaseSetup,
+    topics: &Topics,
+    seen: &mut Seen,
+    token: &CancellationToken,
+) -> Result<Watched, ConnError> {
+    let id = format!("iogate-ha-{}-{}", setup.group, setup.node);
+    let mut conn = open(setup, &connect(setup, id, None)).await?;
+    let filters = [(topics.claim.clone(), 1), (topics.alive.clone(), 0)];
+    seen.heard = Instant::now();
+    subscribed(&mut conn, &filters, topics, seen).await?;
+    loop {
+        let active = seen.claim.as_ref().filter(|c| c.held).map(Claim::peer);
+        setup.role.stand_by(seen.epoch, active);
+        if seen.free(setup.lease) {
+            conn.disconnect().await;
+            return Ok(Watched::Take);
+        }
+        let silent = seen.heard + 2 * setup.lease;
+        let ping = conn.keep_alive_due().unwrap_or(silent);
+        tokio::select! {
+            _ = token.cancelled() => {
+                conn.disconnect().await;
+                return Ok(Watched::Stop);
+            }
+            packet = conn.read() => {
+                if let Incoming::Publish(p) = packet? {
+                    publish_in(&mut conn, &p, topics, seen).await?;
+                }
+            }
+            _ = sleep_until(ping) => conn.keep_alive().await?,
+            _ = sleep_until(silent) => {}
+        }
+    }
+}
+
+/// The lock held, in `epoch`.
+struct Holding {
+    conn: Connection,
+    epoch: u64,
+    /// When the claim that granted it was sent.
+    sent: Instant,
+}
+
+/// Takes the lock, reads the epoch under it, claims the next one and settles; `None` when
+/// the gateway stops first.
+async fn take(
+    setup: &LeaseSetup,
+    topics: &Topics,
+    seen: &Seen,
+    token: &CancellationToken,
+) -> Result<Option<Holding>, ConnError> {
+    let released = |epoch| Claim {
+        node: setup.node.clone(),
+        epoch,
+        held: false,
+        addresses: BTreeMap::new(),
+    };
+    let will = Will {
+        topic: topics.claim.clone(),
+        payload: serde_json::to_vec(&released(seen.epoch + 1)).unwrap_or_default(),
+        qos: 1,
+        retain: true,
+    };
+    let id = format!("iogate-ha-{}", setup.group);
+    let mut conn = open(setup, &connect(setup, id, Some(will))).await?;
+    let mut under = Seen {
+        claim: None,
+        epoch: seen.epoch,
+        heard: Instant::now(),
+    };
+    subscribed(&mut conn, &[(topics.claim.clone(), 1)], topics, &mut under).await?;
+    let epoch = under.epoch + 1;
+    let me = (setup.me)();
+    let claim = Claim {
+        node: setup.node.clone(),
+        epoch,
+        held: true,
+        addresses: me.addresses,
+    };
+    let sent = Instant::now();
+    let payload = serde_json::to_vec(&claim).unwrap_or_default();
+    conn.publish(&topics.claim, &payload, 1, true, epoch).await?;
+    conn.flush().await?;
+    let settle = Instant::now() + SETTLE_MAX.min(setup.lease / 6);
+    let unanswered = sent + setup.lease;
+    let mut acked = false;
+    loop {
+        if acked && Instant::now() >= settle {
+            return Ok(Some(Holding { conn, epoch, sent }));
+        }
+        let wake = if acked { settle } else { unanswered };
+        tokio::select! {
+            _ = token.cancelled() => {
+                release(conn, topics, released(epoch)).await;
+                return Ok(None);
+            }
+            packet = conn.read() => match packet? {
+                Incoming::PubAck { pkid, .. } => acked |= conn.acked(pkid) == Some(epoch),
+                Incoming::Publish(p) if p.qos > 0 => conn.puback(p.pkid).await?,
+                _ => {}
+            },
+            _ = sleep_until(wake) => if !acked {
+                let url = setup.prepared.config.url.to_string();
+                return Err(ConnError::Timeout(url, setup.lease));
+            },
+        }
+    }
+}
+
+/// Active: renews the lease until it is lost or the gateway stops.
+async fn hold(
+    setup: &LeaseSetup,
+    topics: &Topics,
+    mut holding: Holding,
+    token: &CancellationToken,
+) -> Held {
+    let epoch = holding.epoch;
+    let me = (setup.me)();
+    (setup.entering)(epoch);
+    setup
+        .role
+        .activate(epoch, holding.sent + setup.lease, me.clone());
+    tracing::info!(epoch, node = %setup.node, "HA: this node is active");
+    let alive = serde_json::to_vec(&Claim {
+        node: setup.node.clone(),
+        epoch,
+        held: true,
+        addresses: BTreeMap::new(),
+    })
+    .unwrap_or_default();
+    let every = setup.lease / 3;
+    let mut next = Instant::now() + every;
+    // Renewals in flight: tag -> when sent.
+    let mut sent: BTreeMap<u64, Instant> = BTreeMap::new();
+    let mut tag = epoch << 20;
+    let lost = |why: String| {
+        setup.role.stand_by(epoch, None);
+        Held::Lost(why)
+    };
+    loop {
+        let until = setup.role.until().unwrap_or_else(Instant::now);
+        tokio::select! {
+            _ = token.cancelled() => {
+                setup.role.stand_by(epoch, None);
+                let claim = Claim { node: setup.node.clone(), epoch, held: false, addresses: BTreeMap::new() };
+                release(holding.conn, topics, claim).await;
+                return Held::Stop;
+            }
+            _ = sleep_until(until) => return lost("the lease was not renewed in time".into()),
+            _ = sleep_until(next) => {
+                next += every;
+                tag += 1;
+                sent.insert(tag, Instant::now());
+                let out = async {
+                    holding.conn.publish(&topics.alive, &alive, 1, false, tag).await?;
+                    holding.conn.flush().await
+                };
+                if let Err(e) = out.await {
+                    return lost(e.to_string());
+                }
+            }
+            packet = holding.conn.read() => match packet {
+                Err(e) => return lost(e.to_string()),
+                Ok(Incoming::PubAck { pkid, .. }) => {
+                    if let Some(at) = holding.conn.acked(pkid).and_then(|t| sent.remove(&t)) {
+                        sent.retain(|_, s| *s > at);
+                        setup.role.renew(at + setup.lease);
+                    }
+                }
+                Ok(Incoming::Publish(p)) => {
+                    if p.qos > 0 && holding.conn.puback(p.pkid).await.is_err() {
+                        return lost("the broker connection failed".into());
+                    }
+                    if let Ok(claim) = serde_json::from_slice::<Claim>(&p.payload)
+                        && p.topic == topics.claim && claim.held && claim.node != setup.node
+                    {
+                        return lost(format!("node {} claims epoch {}", claim.node, claim.epoch));
+                    }
+                }
+                Ok(_) => {}
+            },
+        }
+    }
+}
+
+/// Gives the lease back: the released claim, then a clean DISCONNECT (the Will is not
+/// published: the claim says it already).
+async fn release(mut conn: Connection, topics: &Topics, claim: Claim) {
+    let payload = serde_json::to_vec(&claim).unwrap_or_default();
+    let published = tokio::time::timeout(Duration::from_secs(1), async {
+        conn.publish(&topics.claim, &payload, 1, true, u64::MAX)
+            .await?;
+        conn.flush().await?;
+        loop {
+            if let Incoming::PubAck { pkid, .. } = conn.read().await?
+                && conn.acked(pkid) == Some(u64::MAX)
+            {
+                return Ok::<(), ConnError>(());
+            }
+        }
+    })
+    .await;
+    if !matches!(published, Ok(Ok(()))) {
+        tracing::warn!("HA: the lease's release was not acknowledged; the broker releases it by the Will");
+    }
+    conn.disconnect().await;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn topics() -> Topics {
+        Topics {
+            claim: "iogate/ha/g/claim".into(),
+            alive: "iogate/ha/g/alive".into(),
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_lease_is_free_when_absent_released_or_silent_for_two_leases() {
+        let lease = Duration::from_secs(3);
+        let t = topics();
+        let mut seen = Seen {
+            claim: None,
+            epoch: 0,
+            heard: Instant::now(),
+        };
+        assert!(seen.free(lease));
+        seen.take(&t.claim, br#"{"node":"b","epoch":4,"held":true}"#, &t);
+        assert!(!seen.free(lease));
+        assert_eq!(seen.epoch, 4);
+        tokio::time::advance(Duration::from_secs(5)).await;
+        seen.take(&t.alive, br#"{"node":"b","epoch":4,"held":true}"#, &t);
+        tokio::time::advance(Duration::from_secs(5)).await;
+        assert!(!seen.free(lease), "heard of 5 s ago");
+        tokio::time::advance(Duration::from_secs(1)).await;
+        assert!(seen.free(lease), "silent for two leases");
+        seen.take(&t.claim, br#"{"node":"b","epoch":4,"held":false}"#, &t);
+        assert!(seen.free(lease));
+        seen.take(&t.claim, b"not json", &t);
+        assert_eq!(seen.epoch, 4, "a claim that does not parse changes nothing");
+    }
+}

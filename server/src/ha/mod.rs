@@ -1,0 +1,145 @@
+//! This gateway as one node of an active/standby pair (`ha:`): its role made from the
+//! section, the arbiter that grants the lease started, and what the node announces of
+//! itself (how clients reach its servers). The role itself, and the fence every write
+//! passes, are `crate::role`'s; the link tasks open the field only while the node is
+//! active, the service refuses writes on a standby, each front-end says what it is.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use crate::config::Config;
+use crate::config::ha::{Arbiter, HaConfig};
+use crate::role::{Peer, Role};
+use crate::service::Service;
+use crate::yaml::{Problems, Report};
+
+/// The role of a gateway configured with `config`: standby until its arbiter says more,
+/// or alone.
+pub(crate) fn role(config: &Config) -> Arc<Role> {
+    Arc::new(match &config.ha {
+        Some(ha) => Role::paired(&ha.node),
+        None => Role::alone(),
+    })
+}
+
+/// What `check` finds wrong with `ha:` beside the section itself: an arbiter this
+/// configuration cannot reach.
+pub(crate) fn check(config: &Config) -> Problems {
+    let mut report = Report::new(&config.source);
+    if let Some(ha) = &config.ha {
+        match ha.arbiter {
+            Arbiter::Mqtt if crate::api::mqtt::section(config).is_none() => report.push(
+                ha.line,
+                "ha.arbiter",
+                "mqtt: the lease is held on the broker of the `mqtt:` section, and there is none",
+            ),
+            Arbiter::Mqtt => {}
+            other => report.push(
+                ha.line,
+                "ha.arbiter",
+                format!(
+                    "{}: this build holds the lease on an MQTT broker only (arbiter: mqtt)",
+                    other.name()
+                ),
+            ),
+        }
+    }
+    report.into_problems()
+}
+
+/// Starts the lease of a node of a pair (nothing for a gateway alone). Its servers listen
+/// already, so what it announces is where they are.
+pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::Path) {
+    let Some(ha) = config.ha.clone() else {
+        return;
+    };
+    let Some(mqtt) = crate::api::mqtt::section(config) else {
+        return;
+    };
+    let prepared = match crate::api::mqtt::prepare(mqtt, base) {
+        Ok(p) => p,
+        Err(e) => {
+            tracing::error!(error = %e, "HA: the MQTT broker's settings cannot be used: this node stays standby");
+            return;
+        }
+    };
+    let me = {
+        let (service, ha) = (service.clone(), ha.clone());
+        Arc::new(move || announced(&service, &ha)) as Arc<dyn Fn() -> Peer + Send + Sync>
+    };
+    let entering = {
+        let service = service.clone();
+        Arc::new(move |epoch| service.cache.writes.enter_epoch(epoch))
+            as Arc<dyn Fn(u64) + Send + Sync>
+    };
+    let setup = crate::api::mqtt::lease::LeaseSetup {
+        prepared,
+        group: ha.group.clone(),
+        node: ha.node.clone(),
+        lease: ha.lease,
+        role: service.tasks().role().clone(),
+        me,
+        entering,
+    };
+    let token = service.tasks().token().clone();
+    tracing::info!(node = %ha.node, arbiter = ha.arbiter.name(), lease = ?ha.lease, "HA: standby, watching the lease");
+    service
+        .tasks()
+        .spawn(crate::api::mqtt::lease::run(setup, token));
+}
+
+/// This node as clients reach it: each server's address, a wildcard host replaced by
+/// `ha.advertise` (else this machine's host name).
+fn announced(service: &Service, ha: &HaConfig) -> Peer {
+    let host = ha.advertise.clone().unwrap_or_else(host_name);
+    let addresses: BTreeMap<String, String> = service
+        .listening
+        .list()
+        .into_iter()
+        .map(|l| (l.server, reachable(&l.address, &host)))
+        .collect();
+    Peer {
+        node: ha.node.clone(),
+        addresses,
+    }
+}
+
+/// `address` with a wildcard host (`0.0.0.0`, `[::]`) replaced by `host`.
+fn reachable(address: &str, host: &str) -> String {
+    for wildcard in ["0.0.0.0", "[::]"] {
+        if let Some(at) = address.find(wildcard) {
+            let before = &address[..at];
+            if before.is_empty() || before.ends_with("://") {
+                return format!("{before}{host}{}", &address[at + wildcard.len()..]);
+            }
+        }
+    }
+    address.to_owned()
+}
+
+fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .map(|s| s.trim().to_owned())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "localhost".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::reachable;
+
+    #[test]
+    fn a_wildcard_host_is_replaced_by_the_advertised_one() {
+        assert_eq!(
+            reachable("http://0.0.0.0:8080", "gw-a"),
+            "http://gw-a:8080"
+        );
+        assert_eq!(reachable("[::]:502", "10.0.0.7"), "10.0.0.7:502");
+        assert_eq!(
+            reachable("opc.tcp://127.0.0.1:4840/", "gw-a"),
+            "opc.tcp://127.0.0.1:4840/"
+        );
+    }
+}

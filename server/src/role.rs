@@ -1,0 +1,279 @@
+//! This gateway's role in an active/standby pair (`ha:`), as the rest of the house sees it:
+//! alone (no pair), active under a lease with its epoch, or standby. `ha/` decides it with
+//! the arbiter; the link tasks, the service and the front-ends only read it.
+//!
+//! Every write is fenced: its generation carries the epoch that accepted it (the high 32
+//! bits, [`epoch_of`]), and a link writes it only while this gateway is active in that
+//! same epoch and its lease is still valid ([`Role::may_write`]). A process paused past its
+//! lease (a stopped VM, a long GC-like stall) writes nothing when it wakes.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use serde::Serialize;
+use tokio::sync::watch;
+use tokio::time::Instant;
+
+/// Where an epoch sits in a write's generation.
+const EPOCH_SHIFT: u32 = 32;
+
+/// The epoch a write generation was handed out in.
+pub(crate) fn epoch_of(generation: u64) -> u64 {
+    generation >> EPOCH_SHIFT
+}
+
+/// The first generation of `epoch`.
+pub(crate) fn first_generation(epoch: u64) -> u64 {
+    (epoch << EPOCH_SHIFT) | 1
+}
+
+/// What this gateway is in its pair.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Standing {
+    /// No `ha:` section: the gateway owns its field alone.
+    Alone,
+    /// It holds the lease: it polls the field and takes writes.
+    Active,
+    /// The other node holds the lease (or nobody does yet): it touches nothing in the field.
+    Standby,
+}
+
+impl Standing {
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Standing::Alone => "alone",
+            Standing::Active => "active",
+            Standing::Standby => "standby",
+        }
+    }
+}
+
+/// A node of the pair and how clients reach it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct Peer {
+    pub node: String,
+    /// Each server's address, by server name (`http`, `grpc`, `opcua`, `modbus`).
+    pub addresses: BTreeMap<String, String>,
+}
+
+/// The role as it changes (not as it is renewed: a renewal wakes nobody).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct Lease {
+    pub(crate) standing: Standing,
+    /// The epoch of the newest lease this gateway knows of (its own while active).
+    pub(crate) epoch: u64,
+    /// Who is active, when anyone is known to be.
+    pub(crate) active: Option<Peer>,
+}
+
+/// Why a write was not put on the field.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub(crate) enum Fenced {
+    #[error("this gateway is the standby of its pair: it writes nothing to the field")]
+    Standby,
+    #[error(
+        "accepted in epoch {accepted}, but the pair is in epoch {now}: not written by the old epoch"
+    )]
+    OldEpoch { accepted: u64, now: u64 },
+    #[error("the lease was not renewed in time: this gateway stopped writing")]
+    Expired,
+}
+
+/// The role cell: one per gateway.
+#[derive(Debug)]
+pub(crate) struct Role {
+    /// This node's name, when it is in a pair.
+    node: Option<String>,
+    lease: watch::Sender<Lease>,
+    /// Until when the active's lease holds, in nanoseconds after `base` (0: not held).
+    until: AtomicU64,
+    base: Instant,
+    takeovers: AtomicU64,
+}
+
+impl Role {
+    /// The role of a gateway without a pair: always allowed to write.
+    pub(crate) fn alone() -> Role {
+        Role::new(None, Standing::Alone)
+    }
+
+    /// The role of node `node` of a pair, standby until the arbiter grants it the lease.
+    pub(crate) fn paired(node: &str) -> Role {
+        Role::new(Some(node.to_owned()), Standing::Standby)
+    }
+
+    fn new(node: Option<String>, standing: Standing) -> Role {
+        let (lease, _) = watch::channel(Lease {
+            standing,
+            epoch: 0,
+            active: None,
+        });
+        Role {
+            node,
+            lease,
+            until: AtomicU64::new(0),
+            base: Instant::now(),
+            takeovers: AtomicU64::new(0),
+        }
+    }
+
+    pub(crate) fn node(&self) -> Option<&str> {
+        self.node.as_deref()
+    }
+
+    pub(crate) fn lease(&self) -> Lease {
+        self.lease.borrow().clone()
+    }
+
+    pub(crate) fn standing(&self) -> Standing {
+        self.lease.borrow().standing
+    }
+
+    /// Wakes at every change of role, epoch or active node.
+    pub(crate) fn watch(&self) -> watch::Receiver<Lease> {
+        self.lease.subscribe()
+    }
+
+    /// How many times this gateway became active.
+    pub(crate) fn takeovers(&self) -> u64 {
+        self.takeovers.load(Ordering::Relaxed)
+    }
+
+    /// Whether the field is this gateway's: alone, or active with a lease still valid.
+    pub(crate) fn owns_field(&self) -> bool {
+        match self.standing() {
+            Standing::Alone => true,
+            Standing::Active => self.valid(),
+            Standing::Standby => false,
+        }
+    }
+
+    fn valid(&self) -> bool {
+        let until = self.until.load(Ordering::Acquire);
+        until != 0 && (Instant::now() - self.base).as_nanos() < u128::from(until)
+    }
+
+    /// Whether the write of `generation` may go on the field now.
+    pub(crate) fn may_write(&self, generation: u64) -> Result<(), Fenced> {
+        let lease = self.lease.borrow();
+        match lease.standing {
+            Standing::Alone => Ok(()),
+            Standing::Standby => Err(Fenced::Standby),
+            Standing::Active if epoch_of(generation) != lease.epoch => Err(Fenced::OldEpoch {
+                accepted: epoch_of(generation),
+                now: lease.epoch,
+            }),
+            Standing::Active if !self.valid() => Err(Fenced::Expired),
+            Standing::Active => Ok(()),
+        }
+    }
+
+    /// The lease of `epoch` is granted, valid until `until`: this gateway is active.
+    pub(crate) fn activate(&self, epoch: u64, until: Instant, me: Peer) {
+        self.renew(until);
+        self.takeovers.fetch_add(1, Ordering::Relaxed);
+        self.lease.send_replace(Lease {
+            standing: Standing::Active,
+            epoch,
+            active: Some(me),
+        });
+    }
+
+    /// The lease holds until `until` (a renewal the arbiter confirmed).
+    pub(crate) fn renew(&self, until: Instant) {
+        let nanos = until.saturating_duration_since(self.base).as_nanos();
+        self.until
+            .store(u64::try_from(nanos).unwrap_or(u64::MAX).max(1), Ordering::Release);
+    }
+
+    /// This gateway is standby (again): it writes nothing from now on. `active` is the node
+    /// holding the lease, when one is known, at `epoch`.
+    pub(crate) fn stand_by(&self, epoch: u64, active: Option<Peer>) {
+        self.until.store(0, Ordering::Release);
+        self.lease.send_if_modified(|lease| {
+            let new = Lease {
+                standing: Standing::Standby,
+                epoch: epoch.max(lease.epoch),
+                active,
+            };
+            let changed = *lease != new;
+            *lease = new;
+            changed
+        });
+    }
+
+    /// When this gateway's lease runs out, while it is active.
+    pub(crate) fn until(&self) -> Option<Instant> {
+        let until = self.until.load(Ordering::Acquire);
+        (until != 0).then(|| self.base + std::time::Duration::from_nanos(until))
+    }
+}
+
+/// Resolves when the gateway no longer owns the field it owned in `epoch`: it stood down,
+/// or holds a later lease (a lease lost and taken again is another epoch). Never for a
+/// gateway alone; when the role is gone (shutdown) at once.
+pub(crate) async fn stood_down(lease: &mut watch::Receiver<Lease>, epoch: u64) {
+    loop {
+        {
+            let now = lease.borrow_and_update();
+            let owns = match now.standing {
+                Standing::Alone => true,
+                Standing::Active => now.epoch == epoch,
+                Standing::Standby => false,
+            };
+            if !owns {
+                return;
+            }
+        }
+        if lease.changed().await.is_err() {
+            return;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    fn me() -> Peer {
+        Peer {
+            node: "a".into(),
+            addresses: BTreeMap::new(),
+        }
+    }
+
+    #[test]
+    fn alone_writes_everything() {
+        assert_eq!(Role::alone().may_write(7), Ok(()));
+    }
+
+    #[tokio::test]
+    async fn only_the_epoch_that_accepted_a_write_puts_it_on_the_field() {
+        let role = Role::paired("a");
+        assert_eq!(role.may_write(first_generation(0)), Err(Fenced::Standby));
+        role.activate(3, Instant::now() + Duration::from_secs(5), me());
+        assert_eq!(role.may_write(first_generation(3) + 9), Ok(()));
+        assert_eq!(
+            role.may_write(first_generation(2)),
+            Err(Fenced::OldEpoch {
+                accepted: 2,
+                now: 3
+            })
+        );
+        role.stand_by(4, None);
+        assert_eq!(role.may_write(first_generation(3)), Err(Fenced::Standby));
+        assert!(!role.owns_field());
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_lease_not_renewed_in_time_stops_the_writes() {
+        let role = Role::paired("a");
+        role.activate(1, Instant::now() + Duration::from_secs(3), me());
+        assert!(role.owns_field());
+        tokio::time::advance(Duration::from_millis(3001)).await;
+        assert_eq!(role.may_write(first_generation(1)), Err(Fenced::Expired));
+        assert!(!role.owns_field());
+    }
+}
