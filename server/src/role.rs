@@ -39,16 +39,6 @@ pub enum Standing {
     Standby,
 }
 
-impl Standing {
-    pub(crate) fn name(self) -> &'static str {
-        match self {
-            Standing::Alone => "alone",
-            Standing::Active => "active",
-            Standing::Standby => "standby",
-        }
-    }
-}
-
 /// A node of the pair and how clients reach it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct Peer {
@@ -85,6 +75,8 @@ pub(crate) enum Fenced {
 pub(crate) struct Role {
     /// This node's name, when it is in a pair.
     node: Option<String>,
+    /// The arbiter's name and the lease, when in a pair.
+    terms: Option<(&'static str, std::time::Duration)>,
     lease: watch::Sender<Lease>,
     /// Until when the active's lease holds, in nanoseconds after `base` (0: not held).
     until: AtomicU64,
@@ -98,9 +90,17 @@ impl Role {
         Role::new(None, Standing::Alone)
     }
 
-    /// The role of node `node` of a pair, standby until the arbiter grants it the lease.
-    pub(crate) fn paired(node: &str) -> Role {
-        Role::new(Some(node.to_owned()), Standing::Standby)
+    /// The role of node `node` of a pair whose lease of `lease` the arbiter `arbiter`
+    /// grants; standby until it does.
+    pub(crate) fn paired(node: &str, arbiter: &'static str, lease: std::time::Duration) -> Role {
+        let mut role = Role::new(Some(node.to_owned()), Standing::Standby);
+        role.terms = Some((arbiter, lease));
+        role
+    }
+
+    /// The arbiter's name and the lease, when in a pair.
+    pub(crate) fn terms(&self) -> Option<(&'static str, std::time::Duration)> {
+        self.terms
     }
 
     fn new(node: Option<String>, standing: Standing) -> Role {
@@ -111,6 +111,7 @@ impl Role {
         });
         Role {
             node,
+            terms: None,
             lease,
             until: AtomicU64::new(0),
             base: Instant::now(),
@@ -251,7 +252,7 @@ mod tests {
 
     #[tokio::test]
     async fn only_the_epoch_that_accepted_a_write_puts_it_on_the_field() {
-        let role = Role::paired("a");
+        let role = Role::paired("a", "mqtt", Duration::from_secs(3));
         assert_eq!(role.may_write(first_generation(0)), Err(Fenced::Standby));
         role.activate(3, Instant::now() + Duration::from_secs(5), me());
         assert_eq!(role.may_write(first_generation(3) + 9), Ok(()));
@@ -269,7 +270,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn a_lease_not_renewed_in_time_stops_the_writes() {
-        let role = Role::paired("a");
+        let role = Role::paired("a", "mqtt", Duration::from_secs(3));
         role.activate(1, Instant::now() + Duration::from_secs(3), me());
         assert!(role.owns_field());
         tokio::time::advance(Duration::from_millis(3001)).await;

@@ -71,7 +71,18 @@ fn grpc_code(refusal: Refusal) -> tonic::Code {
 /// The gRPC status of a service error.
 pub(crate) fn status(e: ServiceError) -> Status {
     let (refusal, _) = e.refusal();
-    Status::new(grpc_code(refusal), e.to_string())
+    let mut status = Status::new(grpc_code(refusal), e.to_string());
+    // A standby's refusal names the active, for a client to ask there.
+    if let ServiceError::Standby(Some(active)) = &e {
+        let metadata = status.metadata_mut();
+        if let Ok(node) = active.node.parse() {
+            metadata.insert("iogate-active-node", node);
+        }
+        if let Some(Ok(grpc)) = active.addresses.get("grpc").map(|a| a.parse()) {
+            metadata.insert("iogate-active-grpc", grpc);
+        }
+    }
+    status
 }
 
 /// The operation a gRPC method is (`/iogate.v1.Gateway/Write`): every method of the
@@ -83,7 +94,9 @@ pub(crate) fn operation(path: &str) -> Option<Operation> {
     let method = path.rsplit('/').next().unwrap_or("");
     Some(match method {
         "ListProfiles" | "DescribeProfile" | "ListLinks" | "DescribeLink" | "ListDevices"
-        | "DescribeDevice" | "Read" | "GetWrite" | "ListTransactions" => Operation::Read,
+        | "DescribeDevice" | "Read" | "GetWrite" | "ListTransactions" | "GetHa" => {
+            Operation::Read
+        }
         "Subscribe" => Operation::Subscribe,
         "Write" | "Exchange" => Operation::WriteOutputs,
         "Transact" => Operation::Transact,
@@ -473,6 +486,26 @@ impl Gateway for GrpcApi {
         Ok(Response::new(pb::ReloadConfigResponse {
             applied: !dry_run,
             report: Some(to_pb::config_report(&report)),
+        }))
+    }
+
+    async fn get_ha(
+        &self,
+        _request: Request<pb::GetHaRequest>,
+    ) -> Result<Response<pb::HaStatus>, Status> {
+        let ha = self.service.ha();
+        let active = ha.active.unwrap_or_else(|| crate::role::Peer {
+            node: String::new(),
+            addresses: Default::default(),
+        });
+        Ok(Response::new(pb::HaStatus {
+            node: ha.node.unwrap_or_default(),
+            role: ha.role.to_owned(),
+            paired: ha.paired,
+            epoch: ha.epoch,
+            active_node: active.node,
+            active_addresses: active.addresses.into_iter().collect(),
+            takeovers: ha.takeovers,
         }))
     }
 }

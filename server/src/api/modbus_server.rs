@@ -298,6 +298,11 @@ pub(crate) async fn answer_into(
 ) {
     let code = pdu.first().copied().unwrap_or(0);
     let result = match (Request::parse(pdu), unit) {
+        // The standby of a pair serves nothing of the field: 0B, as a gateway whose target
+        // does not answer (a master with two gateways asks the other).
+        (Ok(_), _) if !service.tasks().role().owns_field() => {
+            Err(Exception::GATEWAY_TARGET_FAILED)
+        }
         (Ok(request), Some(unit)) => service
             .modbus_request(unit, &request)
             .await

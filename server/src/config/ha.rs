@@ -8,10 +8,11 @@ use crate::yaml::{Node, Report};
 
 const KEYS: &[&str] = &["node", "arbiter", "lease", "group", "advertise"];
 
-/// The lease by default, and its bounds: an MQTT keep-alive counts whole seconds, and a
-/// lease of minutes would leave the plant without a master for minutes.
+/// The lease by default, and its bounds: an MQTT keep-alive counts whole seconds (and
+/// brokers round them, so a lease of one second could be dropped at once), and a lease of
+/// minutes would leave the plant without a master for minutes.
 pub(crate) const DEFAULT_LEASE: Duration = Duration::from_secs(3);
-pub(crate) const MIN_LEASE: Duration = Duration::from_secs(1);
+pub(crate) const MIN_LEASE: Duration = Duration::from_secs(2);
 pub(crate) const MAX_LEASE: Duration = Duration::from_secs(60);
 /// The pair's name on the arbiter by default.
 pub(crate) const DEFAULT_GROUP: &str = "iogate";
@@ -181,7 +182,7 @@ mod tests {
         let joined = problems.join("\n");
         for expected in [
             "2: ha.node",
-            "3: ha.arbiter: \"zookeeper\" is no arbiter",
+            "3: ha.arbiter: zookeeper is no arbiter",
             "4: ha.lease: 500ms: a lease is whole seconds",
             "5: ha.advertise",
             "master",

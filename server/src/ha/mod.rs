@@ -17,7 +17,7 @@ use crate::yaml::{Problems, Report};
 /// or alone.
 pub(crate) fn role(config: &Config) -> Arc<Role> {
     Arc::new(match &config.ha {
-        Some(ha) => Role::paired(&ha.node),
+        Some(ha) => Role::paired(&ha.node, ha.arbiter.name(), ha.lease),
         None => Role::alone(),
     })
 }

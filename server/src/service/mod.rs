@@ -6,6 +6,7 @@
 
 mod bounds;
 pub(crate) mod doors;
+pub(crate) mod ha;
 pub(crate) mod listening;
 mod modbus_map;
 mod refusal;

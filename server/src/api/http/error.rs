@@ -16,6 +16,8 @@ pub(crate) struct ApiError {
     pub(crate) status: StatusCode,
     pub(crate) code: &'static str,
     pub(crate) message: String,
+    /// The active node of the pair, when a standby refuses what only the active does.
+    pub(crate) active: Option<crate::role::Peer>,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -29,6 +31,10 @@ pub(crate) struct ErrorDetail {
     pub(crate) code: String,
     /// What is wrong, for people.
     pub(crate) message: String,
+    /// On a standby's refusal (`standby`): the active node and its servers' addresses, to
+    /// ask there.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) active: Option<crate::role::Peer>,
 }
 
 impl ApiError {
@@ -37,6 +43,7 @@ impl ApiError {
             status,
             code,
             message: message.into(),
+            active: None,
         }
     }
 
@@ -72,19 +79,42 @@ impl From<AccessError> for ApiError {
 impl From<ServiceError> for ApiError {
     fn from(e: ServiceError) -> Self {
         let (refusal, code) = e.refusal();
-        ApiError::new(http_status(refusal), code, e.to_string())
+        let mut error = ApiError::new(http_status(refusal), code, e.to_string());
+        if let ServiceError::Standby(active) = e {
+            error.active = active;
+        }
+        error
     }
 }
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
+        // A standby's refusal says where the active is: in the body, and as the active's
+        // HTTP address in `Location` (with `Retry-After`, as for any 503).
+        let location = self
+            .active
+            .as_ref()
+            .and_then(|a| a.addresses.get("http"))
+            .and_then(|a| axum::http::HeaderValue::from_str(a).ok());
         let body = ErrorBody {
             error: ErrorDetail {
                 code: self.code.to_owned(),
                 message: self.message,
+                active: self.active,
             },
         };
-        (self.status, Json(body)).into_response()
+        let mut response = (self.status, Json(body)).into_response();
+        if self.code == "standby" {
+            let headers = response.headers_mut();
+            headers.insert(
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from_static("1"),
+            );
+            if let Some(location) = location {
+                headers.insert(axum::http::header::LOCATION, location);
+            }
+        }
+        response
     }
 }
 
@@ -151,6 +181,7 @@ pub(crate) async fn json_errors(response: Response) -> Response {
         error: ErrorDetail {
             code: status_code(status).to_owned(),
             message,
+            active: None,
         },
     };
     let mut out = (status, Json(body)).into_response();

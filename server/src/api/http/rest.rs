@@ -107,6 +107,14 @@ pub(crate) async fn get_mqtt(
     })
 }
 
+/// This gateway in its active/standby pair: its node, role and epoch, and the active node
+/// with its servers' addresses (a gateway alone is active, `paired: false`).
+#[utoipa::path(get, path = "/api/v1/ha", tag = "health",
+    responses((status = 200, description = "this gateway's place in its pair", body = crate::service::ha::HaView)))]
+pub(crate) async fn get_ha(State(service): ServiceRef) -> Json<crate::service::ha::HaView> {
+    Json(service.ha())
+}
+
 /// Every link with its settings and diagnostics.
 #[utoipa::path(get, path = "/api/v1/links", tag = "links", responses((status = 200, description = "every link", body = LinkList)))]
 pub(crate) async fn list_links(State(service): ServiceRef) -> Json<LinkList> {

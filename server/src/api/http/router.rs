@@ -28,7 +28,7 @@ pub(crate) const MAX_BODY: usize = 1024 * 1024;
 #[openapi(
     info(title = "iogate", description = "I/O gateway for industrial devices: cached field values, last-value-wins writes."),
     paths(
-        rest::livez, rest::readyz, rest::get_mqtt,
+        rest::livez, rest::readyz, rest::get_mqtt, rest::get_ha,
         rest::list_links, rest::get_link, rest::get_link_plan,
         rest::list_devices, rest::get_device, rest::get_field, rest::put_field,
         rest::patch_fields, rest::simulate_field, rest::get_write,
@@ -79,7 +79,10 @@ async fn metrics(State(service): State<Arc<Service>>, headers: HeaderMap) -> imp
         [(header::CONTENT_TYPE, format.content_type())],
         service.metrics.render(
             &service.cache,
-            |out| service.doors.encode_metrics(out),
+            |out| {
+                service.ha().encode_metrics(out)?;
+                service.doors.encode_metrics(out)
+            },
             format,
         ),
     )
@@ -214,6 +217,7 @@ fn link_routes(s: &Arc<Service>) -> Router<Arc<Service>> {
         .route("/config", needs(s, Read, get(config::get_config)))
         .route("/config/reload", needs(s, Reload, post(config::reload)))
         .route("/mqtt", needs(s, Read, get(rest::get_mqtt)))
+        .route("/ha", needs(s, Read, get(rest::get_ha)))
         .route(
             "/links/{link}",
             needs(s, Read, get(rest::get_link))

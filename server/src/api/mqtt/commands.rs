@@ -275,6 +275,7 @@ impl Task {
                 error: crate::api::error::ErrorDetail {
                     code: e.code.to_owned(),
                     message: e.message,
+                    active: None,
                 },
             })
             .unwrap_or_default(),

@@ -9,11 +9,14 @@
 //!   epoch, and how clients reach the holder. The epoch is read under the lock (the
 //!   retained claim, after a subscription and a ping that comes back behind it) and the
 //!   next one published, so it only grows.
-//! - The holder renews with a QoS 1 message (`iogate/ha/<group>/alive`) every third of the
-//!   lease; each acknowledgement extends the lease to the renewal's *sending* time plus the
-//!   lease. The broker keeps the connection for 1.5 keep-alives (the lease) after the last
-//!   packet it received, which is after that sending time: a holder cut off stops writing
-//!   at least half a lease before the broker can release it.
+//! - The lock's keep-alive is two thirds of the lease (whole seconds, [`keep_alive`]): the
+//!   broker drops a silent connection after 1.5 keep-alives, about the lease. Brokers count
+//!   in whole seconds (Mosquitto compares `time_t`s), so a drop may come up to a second
+//!   early: the holder's own lease ([`holds`]) is three quarters of the earliest drop. It
+//!   renews with a QoS 1 message (`iogate/ha/<group>/alive`) three times within it; each
+//!   acknowledgement extends the lease to the renewal's *sending* time plus [`holds`]. The
+//!   broker received that renewal after it was sent: a holder cut off stops writing before
+//!   the broker can release the lock, and the standby takes over about a lease after.
 //! - A standby watches the claim on a connection of its own and takes the lock when the
 //!   claim is released, absent, or silent (no claim nor renewal) for two leases.
 
@@ -180,11 +183,25 @@ fn retry(wait: Duration, lease: Duration) -> Duration {
     (wait * 2).clamp(Duration::from_millis(100), RETRY_MAX.min(lease / 3))
 }
 
+/// The lock's keep-alive for a lease: two thirds of it, rounded up to whole seconds.
+fn keep_alive(lease: Duration) -> Duration {
+    Duration::from_secs((lease.as_secs() * 2).div_ceil(3).max(1))
+}
+
+/// How long an acknowledged renewal holds the lease, from when it was sent: three quarters
+/// of the earliest moment a broker counting whole seconds may drop the silent lock
+/// (1.5 keep-alives, rounded down, less a second).
+fn holds(lease: Duration) -> Duration {
+    let k = keep_alive(lease).as_secs();
+    let earliest = Duration::from_secs((k * 3 / 2).saturating_sub(1));
+    earliest * 3 / 4
+}
+
 fn connect(setup: &LeaseSetup, client_id: String, will: Option<Will>) -> Connect {
     let config = &setup.prepared.config;
     Connect {
         client_id,
-        keep_alive: setup.lease.as_secs().clamp(1, u64::from(u16::MAX)) as u16,
+        keep_alive: keep_alive(setup.lease).as_secs().min(u64::from(u16::MAX)) as u16,
         clean_start: true,
         username: config.username.clone(),
         password: setup.prepared.password.clone(),
@@ -362,9 +379,8 @@ async fn hold(
     let epoch = holding.epoch;
     let me = (setup.me)();
     (setup.entering)(epoch);
-    setup
-        .role
-        .activate(epoch, holding.sent + setup.lease, me.clone());
+    let valid = holds(setup.lease);
+    setup.role.activate(epoch, holding.sent + valid, me.clone());
     tracing::info!(epoch, node = %setup.node, "HA: this node is active");
     let alive = serde_json::to_vec(&Claim {
         node: setup.node.clone(),
@@ -373,7 +389,7 @@ async fn hold(
         addresses: BTreeMap::new(),
     })
     .unwrap_or_default();
-    let every = setup.lease / 3;
+    let every = valid / 3;
     let mut next = Instant::now() + every;
     // Renewals in flight: tag -> when sent.
     let mut sent: BTreeMap<u64, Instant> = BTreeMap::new();
@@ -409,7 +425,7 @@ async fn hold(
                 Ok(Incoming::PubAck { pkid, .. }) => {
                     if let Some(at) = holding.conn.acked(pkid).and_then(|t| sent.remove(&t)) {
                         sent.retain(|_, s| *s > at);
-                        setup.role.renew(at + setup.lease);
+                        setup.role.renew(at + valid);
                     }
                 }
                 Ok(Incoming::Publish(p)) => {
@@ -459,6 +475,25 @@ mod tests {
         Topics {
             claim: "iogate/ha/g/claim".into(),
             alive: "iogate/ha/g/alive".into(),
+        }
+    }
+
+    #[test]
+    fn a_holder_stops_before_the_broker_can_release_it_and_is_replaced_within_two_leases() {
+        for lease in 2..=60 {
+            let lease = Duration::from_secs(lease);
+            let k = keep_alive(lease).as_secs();
+            // The broker drops a silent lock between floor(1.5 k) - 1 and floor(1.5 k) + 1
+            // seconds after the last packet (whole-second clocks).
+            let earliest = Duration::from_secs(k * 3 / 2 - 1);
+            let latest = Duration::from_secs(k * 3 / 2 + 1);
+            assert!(holds(lease) > Duration::ZERO && holds(lease) < earliest, "{lease:?}");
+            // A takeover: the last renewal a third of `holds` before the loss, the drop, the
+            // settling of the new holder.
+            let takeover = latest + holds(lease) / 3 + SETTLE_MAX;
+            if lease >= Duration::from_secs(3) {
+                assert!(takeover <= 2 * lease, "{lease:?}: {takeover:?}");
+            }
         }
     }
 

@@ -325,6 +325,8 @@ enum Event {
     Devices,
     Replay,
     Timer,
+    /// The gateway's role in its pair changed.
+    Role,
 }
 
 /// Why a session ended.
@@ -335,6 +337,9 @@ enum Ended {
     Lost(ConnError),
     /// The primary host went offline: NDEATH sent, connect again and wait for it.
     HostOffline,
+    /// The gateway stood down in its pair: the edge node dies here and is born on the
+    /// new active.
+    StoodDown,
 }
 
 struct Task {

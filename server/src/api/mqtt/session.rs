@@ -11,6 +11,8 @@ pub(super) struct Inputs {
     /// Followed writes, the buffer's sync and the shared status.
     timer: tokio::time::Interval,
     token: CancellationToken,
+    /// The gateway's role in its pair: only the active (or a gateway alone) connects.
+    lease: tokio::sync::watch::Receiver<crate::role::Lease>,
 }
 
 impl Task {
@@ -20,6 +22,7 @@ impl Task {
             changes: self.subscribe(),
             timer: tokio::time::interval(FOLLOW_EVERY),
             token,
+            lease: self.service.tasks().role().watch(),
         };
         let mut wait = Duration::ZERO;
         let mut first = true;
@@ -67,7 +70,9 @@ impl Task {
         let connect = self.connect_packet();
         let (config, tls) = (self.prepared.config.clone(), self.prepared.tls.clone());
         let delay = jittered(wait);
+        let role = self.service.tasks().role().clone();
         let attempt = async {
+            owning(&role).await;
             tokio::time::sleep(delay).await;
             Connection::open(&config, tls.as_ref(), &connect).await
         };
@@ -122,6 +127,13 @@ impl Task {
                 tracing::warn!(broker = %url, error = %e, "MQTT connection lost");
                 self.status.last_error = Some(e.to_string());
                 RECONNECT_MIN
+            }
+            Ended::StoodDown => {
+                tracing::info!(broker = %url, "MQTT: the gateway stood down in its pair: NDEATH, disconnected");
+                self.node_death(&mut online).await;
+                online.conn.disconnect().await;
+                self.status.last_error = Some("standby: the active of the pair publishes".into());
+                Duration::ZERO
             }
             Ended::HostOffline => {
                 self.node_death(&mut online).await;
@@ -271,6 +283,7 @@ impl Task {
                 _ = inputs.devices_changed.changed() => Event::Devices,
                 _ = replay_timer.tick(), if replaying => Event::Replay,
                 _ = inputs.timer.tick() => Event::Timer,
+                _ = inputs.lease.changed() => Event::Role,
             };
             match self.handle(online, inputs, event).await {
                 Ok(None) => {}
@@ -312,6 +325,10 @@ impl Task {
             }
             Event::Replay => self.replay(online).await?,
             Event::Timer => self.tick(Some(online)),
+            Event::Role if !self.service.tasks().role().owns_field() => {
+                return Ok(Some(Ended::StoodDown));
+            }
+            Event::Role => {}
         }
         Ok(None)
     }
@@ -454,5 +471,16 @@ impl Task {
         }
         let status = self.status.clone();
         self.state.update(|s| *s = status);
+    }
+}
+
+/// Resolves once the gateway owns its field (at once for a gateway alone): a standby's MQTT
+/// front-end does not connect, so one edge node is online for the pair.
+async fn owning(role: &crate::role::Role) {
+    let mut lease = role.watch();
+    while !role.owns_field() {
+        if lease.changed().await.is_err() {
+            std::future::pending::<()>().await;
+        }
     }
 }
