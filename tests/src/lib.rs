@@ -18,6 +18,7 @@ pub mod pki;
 pub mod plc;
 pub mod s7;
 mod started;
+pub mod tap;
 pub mod udp_cable;
 
 pub use started::{

@@ -11,10 +11,13 @@ use crate::drivers::WriteItem;
 use crate::drivers::{Driver, Session};
 
 /// The requested values again, after a reconnect or the device's return: each a write of
-/// its own in the log (origin `replay`), never an unrecorded one.
-fn replayed(device: &Device, items: &mut Vec<WriteItem>) {
+/// its own in the log (origin `replay`), never an unrecorded one. Only a value asked for in
+/// this node's current epoch is written again (`fenced`): what was asked of an earlier
+/// active spell, before the other node of the pair wrote the field, is not.
+fn replayed(device: &Device, items: &mut Vec<WriteItem>, fenced: impl Fn(u64) -> bool) {
     for (field, value) in device.replayable() {
-        if !items.iter().any(|it| it.field == field) {
+        let asked_now = device.last_write(field).is_some_and(|g| !fenced(g));
+        if asked_now && !items.iter().any(|it| it.field == field) {
             let name = &device.field(field).name;
             let generation = device
                 .outputs()
@@ -60,7 +63,7 @@ impl<D: Driver> Driven<D> {
         }
         let mut items: Vec<WriteItem> = taken.into_iter().map(WriteItem::from).collect();
         if p.rewrite && self.role.owns_field() {
-            replayed(&device, &mut items);
+            replayed(&device, &mut items, |g| self.role.may_write(g).is_err());
             p.rewrite = false;
         }
         let written = session.write(&device, &mut p.plan, items).await;

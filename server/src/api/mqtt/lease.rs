@@ -407,7 +407,9 @@ async fn hold(
                 release(holding.conn, topics, claim).await;
                 return Held::Stop;
             }
-            _ = sleep_until(until) => return lost("the lease was not renewed in time".into()),
+            _ = sleep_until(until) => {
+                return lost(format!("the lease was not renewed in time ({} renewals unanswered)", sent.len()));
+            }
             _ = sleep_until(next) => {
                 next += every;
                 tag += 1;
@@ -426,6 +428,7 @@ async fn hold(
                     if let Some(at) = holding.conn.acked(pkid).and_then(|t| sent.remove(&t)) {
                         sent.retain(|_, s| *s > at);
                         setup.role.renew(at + valid);
+                        tracing::trace!(epoch, answered_in = ?at.elapsed(), "HA: lease renewed");
                     }
                 }
                 Ok(Incoming::Publish(p)) => {

@@ -1,0 +1,335 @@
+//! The pair under test: two gateway processes on one config but their node, the field
+//! device behind a tap, and a client that writes to whichever node is active.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use iogate_tests::devices::{ModbusDevice, modbus_tcp_server, temp_dir};
+use iogate_tests::tap::{Tap, modbus_writes};
+use iogate_tests::{GatewayProcess, PATIENCE, TestGateway};
+use serde_json::{Value, json};
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+const BIN: &str = env!("CARGO_BIN_EXE_gateway");
+/// The setpoint's holding register.
+const SETPOINT: u16 = 10;
+const PROFILE: &str = "name: Setpoints\nvendor: test\nprotocol: modbus-rtu\ndescription: a setpoint and a level\nfields:\n  - { name: sp, type: UINT, direction: output, register: { address: 10, kind: holding_register } }\n  - { name: level, type: UINT, direction: input, register: { address: 11, kind: holding_register } }\n";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Node {
+    A,
+    B,
+}
+
+impl Node {
+    pub fn index(self) -> usize {
+        match self {
+            Node::A => 0,
+            Node::B => 1,
+        }
+    }
+
+    pub fn other(self) -> Node {
+        match self {
+            Node::A => Node::B,
+            Node::B => Node::A,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Node::A => "a",
+            Node::B => "b",
+        }
+    }
+}
+
+/// The field device: tokio-modbus's TCP server behind a tap.
+pub struct Field {
+    pub tap: Tap,
+    _slave: JoinHandle<()>,
+}
+
+impl Field {
+    async fn start() -> anyhow::Result<Field> {
+        let (port, slave) = modbus_tcp_server(ModbusDevice::default()).await;
+        Ok(Field {
+            tap: Tap::start(port).await?,
+            _slave: slave,
+        })
+    }
+
+    /// Every setpoint value written on the field, with when.
+    fn written(&self) -> Vec<(Instant, u16)> {
+        let mut all: Vec<(Instant, u16)> = self
+            .tap
+            .passages()
+            .iter()
+            .flat_map(modbus_writes)
+            .filter(|(_, at, _)| *at == SETPOINT)
+            .flat_map(|(t, _, values)| values.into_iter().map(move |v| (t, v)))
+            .collect();
+        all.sort();
+        all
+    }
+
+    /// No two connections to the field device were ever open at once: one master.
+    pub fn assert_one_master_at_a_time(&self) {
+        let mut passages = self.tap.passages();
+        passages.sort_by_key(|p| p.opened);
+        assert!(passages.len() >= 2, "the field was reached by both nodes");
+        for w in passages.windows(2) {
+            let closed = w[0].closed.expect("an earlier connection still open");
+            assert!(
+                closed <= w[1].opened,
+                "connection {} was open {:?} after connection {} opened: two masters",
+                w[0].id,
+                closed - w[1].opened,
+                w[1].id
+            );
+        }
+    }
+
+    /// Every write the gateways said was written is on the field, once; no value is on
+    /// the field twice.
+    pub fn assert_written_once(&self, log: &WriteLog) {
+        let on_field = self.written();
+        for value in log.written() {
+            let times = on_field.iter().filter(|(_, v)| *v == value).count();
+            assert_eq!(times, 1, "value {value} was written {times} times on the field");
+        }
+        let mut values: Vec<u16> = on_field.iter().map(|(_, v)| *v).collect();
+        values.sort_unstable();
+        let before = values.len();
+        values.dedup();
+        assert_eq!(values.len(), before, "a value was written twice");
+    }
+
+    /// Nothing is on the field that the client did not ask for before it was written.
+    pub fn assert_only_asked(&self, log: &WriteLog) {
+        for (at, value) in self.written() {
+            let asked = log.entries.iter().find(|e| e.value == value);
+            let asked = asked.unwrap_or_else(|| panic!("{value} was written, never asked"));
+            assert!(asked.at <= at, "{value} was written before it was asked");
+        }
+    }
+}
+
+/// Two gateway processes, `a` and `b`.
+pub struct Pair {
+    procs: [Option<GatewayProcess>; 2],
+    pub bases: [String; 2],
+    clients: [TestGateway; 2],
+    pub field: Field,
+}
+
+impl Pair {
+    /// Starts `a` (which becomes active) then `b` (standby), each reaching the broker at
+    /// its port of `brokers`.
+    pub async fn start(name: &str, brokers: [u16; 2], lease: u64) -> anyhow::Result<Pair> {
+        let field = Field::start().await?;
+        let dir = temp_dir(name);
+        std::fs::create_dir_all(dir.join("profiles"))?;
+        std::fs::write(dir.join("profiles/setpoints.yaml"), PROFILE)?;
+        let config = |node: Node| {
+            format!(
+                "profiles: {profiles}\nlinks:\n  - {{ name: field, tcp: {{ host: 127.0.0.1, port: {field} }} }}\n\
+                 devices:\n  - {{ name: pump, profile: Setpoints, link: field, slave_id: 1, refresh_rate: 20ms }}\n\
+                 mqtt:\n  url: mqtt://127.0.0.1:{broker}\n  json: {{ prefix: plant }}\n\
+                 ha: {{ node: {node}, arbiter: mqtt, lease: {lease}s }}\n",
+                profiles = dir.join("profiles").display(),
+                field = field.tap.port,
+                broker = brokers[node.index()],
+                node = node.name(),
+            )
+        };
+        let mut procs = [None, None];
+        for node in [Node::A, Node::B] {
+            let home = dir.join(node.name());
+            std::fs::create_dir_all(&home)?;
+            let process = GatewayProcess::start(BIN, &home, &config(node)).await?;
+            let base = process.gateway.base.clone();
+            procs[node.index()] = Some(process);
+            let client = TestGateway::remote(base);
+            let want = node == Node::A;
+            client
+                .until("/api/v1/ha", "its role", |ha| {
+                    (ha["role"] == "active") == want && ha["active"]["node"] == "a"
+                })
+                .await?;
+        }
+        let bases = procs.each_ref().map(|p| {
+            p.as_ref()
+                .map(|p| p.gateway.base.clone())
+                .unwrap_or_default()
+        });
+        let clients = bases.clone().map(TestGateway::remote);
+        Ok(Pair {
+            procs,
+            bases,
+            clients,
+            field,
+        })
+    }
+
+    /// `GET /api/v1/ha` of `node` (null when it does not answer).
+    pub async fn ha(&self, node: Node) -> Value {
+        match self.clients[node.index()].get("/api/v1/ha").await {
+            Ok((200, body)) => body,
+            _ => Value::Null,
+        }
+    }
+
+    pub async fn until_ha(&self, node: Node, what: &str, check: impl Fn(&Value) -> bool) -> Value {
+        self.clients[node.index()]
+            .until("/api/v1/ha", what, check)
+            .await
+            .expect(what)
+    }
+
+    pub async fn until_active(&self, node: Node) -> Value {
+        self.until_ha(node, "the node active", |ha| ha["role"] == "active")
+            .await
+    }
+
+    /// SIGKILL of `node`'s process.
+    pub async fn kill(&mut self, node: Node) {
+        if let Some(p) = self.procs[node.index()].take() {
+            p.kill().await.expect("kill");
+        }
+    }
+}
+
+/// One write the client asked for.
+#[derive(Debug, Clone)]
+pub struct Entry {
+    pub value: u16,
+    pub node: Node,
+    /// When the node accepted it.
+    pub at: Instant,
+    /// Its final status as the node said (`written`, `superseded`, `failed`), if it said.
+    pub outcome: Option<String>,
+}
+
+#[derive(Debug, Default, Clone)]
+pub struct WriteLog {
+    pub entries: Vec<Entry>,
+    /// Writes refused (a standby's 503, a dead node).
+    pub refused: usize,
+}
+
+impl WriteLog {
+    pub fn asked(&self) -> usize {
+        self.entries.len() + self.refused
+    }
+
+    /// The values a node said were written.
+    pub fn written(&self) -> Vec<u16> {
+        self.entries
+            .iter()
+            .filter(|e| e.outcome.as_deref() == Some("written"))
+            .map(|e| e.value)
+            .collect()
+    }
+}
+
+/// A client writing a new setpoint every 10 ms to whichever node takes it, following each
+/// write to its outcome.
+pub struct Writer {
+    log: Arc<Mutex<WriteLog>>,
+    stop: watch::Sender<bool>,
+    task: JoinHandle<()>,
+}
+
+impl Writer {
+    pub fn start(pair: &Pair) -> Writer {
+        let log = Arc::new(Mutex::new(WriteLog::default()));
+        let (stop, stopped) = watch::channel(false);
+        let clients = pair.bases.clone().map(TestGateway::remote);
+        let task = tokio::spawn(write(clients, log.clone(), stopped));
+        Writer { log, stop, task }
+    }
+
+    fn log(&self) -> WriteLog {
+        self.log.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Waits until `node` said `n` more writes were written than when asked.
+    pub async fn until_written(&self, node: Node, n: usize) {
+        let count = |log: &WriteLog| {
+            log.entries
+                .iter()
+                .filter(|e| e.node == node && e.outcome.as_deref() == Some("written"))
+                .count()
+        };
+        let start = count(&self.log());
+        let deadline = Instant::now() + PATIENCE;
+        while count(&self.log()) < start + n {
+            assert!(
+                Instant::now() < deadline,
+                "node {} wrote too little: {:?}",
+                node.name(),
+                self.log().entries.last()
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    pub async fn stop(self) -> WriteLog {
+        let _ = self.stop.send(true);
+        let Writer { log, task, .. } = self;
+        let _ = task.await;
+        log.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+}
+
+async fn write(clients: [TestGateway; 2], log: Arc<Mutex<WriteLog>>, stop: watch::Receiver<bool>) {
+    let mut target = Node::A;
+    let mut value: u16 = 0;
+    let mut tick = tokio::time::interval(Duration::from_millis(10));
+    let path = "/api/v1/devices/pump/fields/sp";
+    while !*stop.borrow() {
+        tick.tick().await;
+        value += 1;
+        let body = json!({ "value": value }).to_string();
+        let client = &clients[target.index()];
+        let at = Instant::now();
+        let put = tokio::time::timeout(
+            Duration::from_secs(2),
+            client.send(reqwest::Method::PUT, path, body),
+        )
+        .await;
+        let Ok(Ok((202, accepted))) = put else {
+            log.lock().unwrap_or_else(|e| e.into_inner()).refused += 1;
+            target = target.other();
+            continue;
+        };
+        let generation = accepted["generation"].as_u64().unwrap_or_default();
+        let outcome = follow(client, generation).await;
+        log.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .entries
+            .push(Entry {
+                value,
+                node: target,
+                at,
+                outcome,
+            });
+    }
+}
+
+/// The write's final status, while its node answers (at most 3 s).
+async fn follow(client: &TestGateway, generation: u64) -> Option<String> {
+    let deadline = Instant::now() + Duration::from_secs(3);
+    while Instant::now() < deadline {
+        match client.get(&format!("/api/v1/writes/{generation}")).await {
+            Ok((200, w)) if w["status"] != "pending" => {
+                return w["status"].as_str().map(str::to_owned);
+            }
+            Ok((200, _)) => tokio::time::sleep(Duration::from_millis(2)).await,
+            _ => return None,
+        }
+    }
+    None
+}
