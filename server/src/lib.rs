@@ -17,9 +17,9 @@ pub(crate) mod demo;
 pub mod drivers;
 pub(crate) mod duration;
 pub(crate) mod front_ends;
-pub(crate) mod ha;
 #[cfg(any(fuzzing, test))]
 pub mod fuzz;
+pub(crate) mod ha;
 #[cfg(test)]
 pub(crate) mod killed;
 pub mod link;

@@ -184,8 +184,10 @@ impl Role {
     /// The lease holds until `until` (a renewal the arbiter confirmed).
     pub(crate) fn renew(&self, until: Instant) {
         let nanos = until.saturating_duration_since(self.base).as_nanos();
-        self.until
-            .store(u64::try_from(nanos).unwrap_or(u64::MAX).max(1), Ordering::Release);
+        self.until.store(
+            u64::try_from(nanos).unwrap_or(u64::MAX).max(1),
+            Ordering::Release,
+        );
     }
 
     /// This gateway is standby (again): it writes nothing from now on. `active` is the node

@@ -11,6 +11,7 @@ input is a command, answered by one JSON line:
 
     {"cmd": "browse", "node": ID}           -> {"children": [{"id", "name", "class"}]}
     {"cmd": "read", "node": ID}             -> {"value", "type", "status", "source", "server"}
+      (with "absolute": true, ID is a whole node id such as "i=2267", not one of iogate's)
     {"cmd": "attrs", "node": ID}            -> {"data_type", "access", "user_access", "description"}
     {"cmd": "write", "node": ID, "value": V, "type": VARIANT_TYPE}
                                             -> {"status": "Good"} or {"status": NAME}
@@ -151,7 +152,10 @@ async def main():
                     out({"children": kids})
                 elif c["cmd"] == "read":
                     rv = ua.ReadValueId()
-                    rv.NodeId = ua.NodeId(c["node"], ns)
+                    if c.get("absolute"):
+                        rv.NodeId = ua.NodeId.from_string(c["node"])
+                    else:
+                        rv.NodeId = ua.NodeId(c["node"], ns)
                     rv.AttributeId = ua.AttributeIds.Value
                     params = ua.ReadParameters()
                     params.NodesToRead = [rv]

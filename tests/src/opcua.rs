@@ -84,6 +84,12 @@ impl UaClient {
         self.cmd(json!({"cmd": "read", "node": node})).await
     }
 
+    /// Reads a node of any namespace by its whole id (`i=2267`, `ns=1;s=x`).
+    pub async fn read_absolute(&mut self, node: &str) -> anyhow::Result<Value> {
+        self.cmd(json!({"cmd": "read", "node": node, "absolute": true}))
+            .await
+    }
+
     /// Writes `value` as a variant of `ty` (asyncua's VariantType name); answers the
     /// status code's name.
     pub async fn write(&mut self, node: &str, value: Value, ty: &str) -> anyhow::Result<String> {

@@ -94,9 +94,7 @@ pub(crate) fn operation(path: &str) -> Option<Operation> {
     let method = path.rsplit('/').next().unwrap_or("");
     Some(match method {
         "ListProfiles" | "DescribeProfile" | "ListLinks" | "DescribeLink" | "ListDevices"
-        | "DescribeDevice" | "Read" | "GetWrite" | "ListTransactions" | "GetHa" => {
-            Operation::Read
-        }
+        | "DescribeDevice" | "Read" | "GetWrite" | "ListTransactions" | "GetHa" => Operation::Read,
         "Subscribe" => Operation::Subscribe,
         "Write" | "Exchange" => Operation::WriteOutputs,
         "Transact" => Operation::Transact,

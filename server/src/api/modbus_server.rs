@@ -300,9 +300,7 @@ pub(crate) async fn answer_into(
     let result = match (Request::parse(pdu), unit) {
         // The standby of a pair serves nothing of the field: 0B, as a gateway whose target
         // does not answer (a master with two gateways asks the other).
-        (Ok(_), _) if !service.tasks().role().owns_field() => {
-            Err(Exception::GATEWAY_TARGET_FAILED)
-        }
+        (Ok(_), _) if !service.tasks().role().owns_field() => Err(Exception::GATEWAY_TARGET_FAILED),
         (Ok(request), Some(unit)) => service
             .modbus_request(unit, &request)
             .await

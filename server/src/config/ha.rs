@@ -196,6 +196,9 @@ mod tests {
         let (ha, problems) = read_section("ha: {lease: 3s}\n", "ha", read);
         assert!(ha.is_none());
         let joined = problems.join("\n");
-        assert!(joined.contains("node") && joined.contains("arbiter"), "{joined}");
+        assert!(
+            joined.contains("node") && joined.contains("arbiter"),
+            "{joined}"
+        );
     }
 }

@@ -132,10 +132,7 @@ mod tests {
 
     #[test]
     fn a_wildcard_host_is_replaced_by_the_advertised_one() {
-        assert_eq!(
-            reachable("http://0.0.0.0:8080", "gw-a"),
-            "http://gw-a:8080"
-        );
+        assert_eq!(reachable("http://0.0.0.0:8080", "gw-a"), "http://gw-a:8080");
         assert_eq!(reachable("[::]:502", "10.0.0.7"), "10.0.0.7:502");
         assert_eq!(
             reachable("opc.tcp://127.0.0.1:4840/", "gw-a"),

@@ -51,7 +51,10 @@ impl Service {
             lease_left_ms: role
                 .until()
                 .filter(|_| active_now && lease.standing == Standing::Active)
-                .map(|u| u.saturating_duration_since(tokio::time::Instant::now()).as_millis() as u64),
+                .map(|u| {
+                    u.saturating_duration_since(tokio::time::Instant::now())
+                        .as_millis() as u64
+                }),
             takeovers: role.takeovers(),
         }
     }
@@ -65,15 +68,28 @@ impl HaView {
         if !self.paired {
             return Ok(());
         }
-        writeln!(out, "# HELP iogate_ha_role This node's role in its active/standby pair: 1 for the role it has.")?;
+        writeln!(
+            out,
+            "# HELP iogate_ha_role This node's role in its active/standby pair: 1 for the role it has."
+        )?;
         writeln!(out, "# TYPE iogate_ha_role gauge")?;
         for role in ["active", "standby"] {
-            writeln!(out, "iogate_ha_role{{role=\"{role}\"}} {}", u8::from(self.role == role))?;
+            writeln!(
+                out,
+                "iogate_ha_role{{role=\"{role}\"}} {}",
+                u8::from(self.role == role)
+            )?;
         }
-        writeln!(out, "# HELP iogate_ha_epoch The newest lease epoch this node knows of.")?;
+        writeln!(
+            out,
+            "# HELP iogate_ha_epoch The newest lease epoch this node knows of."
+        )?;
         writeln!(out, "# TYPE iogate_ha_epoch gauge")?;
         writeln!(out, "iogate_ha_epoch {}", self.epoch)?;
-        writeln!(out, "# HELP iogate_ha_takeovers How many times this node became active.")?;
+        writeln!(
+            out,
+            "# HELP iogate_ha_takeovers How many times this node became active."
+        )?;
         writeln!(out, "# TYPE iogate_ha_takeovers counter")?;
         writeln!(out, "iogate_ha_takeovers_total {}", self.takeovers)
     }

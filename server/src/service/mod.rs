@@ -116,7 +116,10 @@ fn standby_message(active: Option<&crate::role::Peer>) -> String {
                 peer.node
             )
         }
-        None => "this gateway is the standby of its pair, and no node is active yet: try again shortly".into(),
+        None => {
+            "this gateway is the standby of its pair, and no node is active yet: try again shortly"
+                .into()
+        }
     }
 }
 

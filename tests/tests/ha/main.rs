@@ -11,6 +11,7 @@ mod pair;
 use std::time::{Duration, Instant};
 
 use iogate_tests::mqtt::Broker;
+use iogate_tests::opcua::{Options, UaClient};
 use iogate_tests::tap::Tap;
 use pair::{Node, Pair, Writer};
 
@@ -23,6 +24,44 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
     let mut pair = Pair::start("ha-kill", [broker.port, broker.port], LEASE_S)
         .await
         .expect("pair");
+    // An OPC UA client on each node (asyncua): the pair as Part 4's non-transparent
+    // redundancy says it.
+    let mut ua = [
+        UaClient::connect(&pair.opcua(Node::A).await, &Options::default())
+            .await
+            .expect("ua a"),
+        UaClient::connect(&pair.opcua(Node::B).await, &Options::default())
+            .await
+            .expect("ua b"),
+    ];
+    for (node, level) in [(0, 255), (1, 1)] {
+        assert_eq!(
+            ua[node]
+                .read_absolute("i=2267")
+                .await
+                .expect("ServiceLevel")["value"],
+            level
+        );
+        assert_eq!(
+            ua[node]
+                .read_absolute("i=3709")
+                .await
+                .expect("RedundancySupport")["value"],
+            2,
+            "Warm"
+        );
+    }
+    let uris = ua[1]
+        .read_absolute("i=11314")
+        .await
+        .expect("ServerUriArray")["value"]
+        .clone();
+    // asyncua's list, as text: both nodes' application URIs.
+    let uris = uris.to_string();
+    assert!(
+        uris.contains("urn:iogate:a") && uris.contains("urn:iogate:b"),
+        "{uris}"
+    );
     let writer = Writer::start(&pair);
     writer.until_written(Node::A, 50).await;
     let epoch = pair.ha(Node::A).await["epoch"].as_u64().expect("epoch");
@@ -35,6 +74,11 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
         "took over in {takeover:?}"
     );
     assert_eq!(ha["epoch"].as_u64(), Some(epoch + 1), "{ha}");
+    let [_, ua_b] = &mut ua;
+    assert_eq!(
+        ua_b.read_absolute("i=2267").await.expect("ServiceLevel")["value"],
+        255
+    );
     writer.until_written(Node::B, 50).await;
     let log = writer.stop().await;
     eprintln!(
@@ -72,8 +116,14 @@ async fn an_active_cut_from_the_broker_stops_before_the_standby_starts() {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let (a_down, b_up) = (a_down.expect("a stood down first"), b_up.expect("b"));
-    assert!(a_down < b_up, "a stood down at {a_down:?}, b took over at {b_up:?}");
-    assert!(b_up < Duration::from_secs(2 * LEASE_S), "took over in {b_up:?}");
+    assert!(
+        a_down < b_up,
+        "a stood down at {a_down:?}, b took over at {b_up:?}"
+    );
+    assert!(
+        b_up < Duration::from_secs(2 * LEASE_S),
+        "took over in {b_up:?}"
+    );
     writer.until_written(Node::B, 30).await;
     tap_a.restore();
     // Back on the broker, a finds b holding the lease and stays standby.

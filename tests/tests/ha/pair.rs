@@ -97,7 +97,10 @@ impl Field {
         let on_field = self.written();
         for value in log.written() {
             let times = on_field.iter().filter(|(_, v)| *v == value).count();
-            assert_eq!(times, 1, "value {value} was written {times} times on the field");
+            assert_eq!(
+                times, 1,
+                "value {value} was written {times} times on the field"
+            );
         }
         let mut values: Vec<u16> = on_field.iter().map(|(_, v)| *v).collect();
         values.sort_unstable();
@@ -137,7 +140,9 @@ impl Pair {
                 "profiles: {profiles}\nlinks:\n  - {{ name: field, tcp: {{ host: 127.0.0.1, port: {field} }} }}\n\
                  devices:\n  - {{ name: pump, profile: Setpoints, link: field, slave_id: 1, refresh_rate: 20ms }}\n\
                  mqtt:\n  url: mqtt://127.0.0.1:{broker}\n  json: {{ prefix: plant }}\n\
+                 opcua: {{ listen: 127.0.0.1:0, pki_dir: {pki} }}\n\
                  ha: {{ node: {node}, arbiter: mqtt, lease: {lease}s }}\n",
+                pki = dir.join(node.name()).join("pki").display(),
                 profiles = dir.join("profiles").display(),
                 field = field.tap.port,
                 broker = brokers[node.index()],
@@ -191,6 +196,20 @@ impl Pair {
     pub async fn until_active(&self, node: Node) -> Value {
         self.until_ha(node, "the node active", |ha| ha["role"] == "active")
             .await
+    }
+
+    /// The address of `node`'s OPC UA server.
+    pub async fn opcua(&self, node: Node) -> String {
+        let (_, config) = self.clients[node.index()]
+            .get("/api/v1/config")
+            .await
+            .expect("config");
+        config["listening"]
+            .as_array()
+            .and_then(|l| l.iter().find(|s| s["server"] == "opcua"))
+            .and_then(|s| s["address"].as_str())
+            .map(str::to_owned)
+            .expect("an OPC UA server")
     }
 
     /// SIGKILL of `node`'s process.

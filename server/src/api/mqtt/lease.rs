@@ -227,7 +227,10 @@ async fn subscribed(
         match conn.read().await? {
             Incoming::SubAck { codes, .. } => {
                 if codes.iter().any(|&c| c >= 0x80) {
-                    return Err(ConnError::Refused("the subscription to the lease", codes[0]));
+                    return Err(ConnError::Refused(
+                        "the subscription to the lease",
+                        codes[0],
+                    ));
                 }
                 break;
             }
@@ -341,7 +344,8 @@ async fn take(
     };
     let sent = Instant::now();
     let payload = serde_json::to_vec(&claim).unwrap_or_default();
-    conn.publish(&topics.claim, &payload, 1, true, epoch).await?;
+    conn.publish(&topics.claim, &payload, 1, true, epoch)
+        .await?;
     conn.flush().await?;
     let settle = Instant::now() + SETTLE_MAX.min(setup.lease / 6);
     let unanswered = sent + setup.lease;
@@ -465,7 +469,9 @@ async fn release(mut conn: Connection, topics: &Topics, claim: Claim) {
     })
     .await;
     if !matches!(published, Ok(Ok(()))) {
-        tracing::warn!("HA: the lease's release was not acknowledged; the broker releases it by the Will");
+        tracing::warn!(
+            "HA: the lease's release was not acknowledged; the broker releases it by the Will"
+        );
     }
     conn.disconnect().await;
 }
@@ -490,7 +496,10 @@ mod tests {
             // seconds after the last packet (whole-second clocks).
             let earliest = Duration::from_secs(k * 3 / 2 - 1);
             let latest = Duration::from_secs(k * 3 / 2 + 1);
-            assert!(holds(lease) > Duration::ZERO && holds(lease) < earliest, "{lease:?}");
+            assert!(
+                holds(lease) > Duration::ZERO && holds(lease) < earliest,
+                "{lease:?}"
+            );
             // A takeover: the last renewal a third of `holds` before the loss, the drop, the
             // settling of the new holder.
             let takeover = latest + holds(lease) / 3 + SETTLE_MAX;

@@ -15,6 +15,7 @@ mod front_end;
 mod live;
 mod metrics;
 mod nodes;
+mod redundancy;
 mod space;
 mod status;
 
@@ -288,6 +289,12 @@ pub(crate) async fn start(
         counts: counts.clone(),
     };
     service.tasks().spawn(feed.run(token.clone()));
+    service.tasks().spawn(redundancy::follow(
+        handle.clone(),
+        service.tasks().role().clone(),
+        config.application_uri.clone(),
+        token.clone(),
+    ));
     let (done, stopped) = tokio::sync::oneshot::channel();
     service.tasks().spawn(async move {
         if let Err(e) = server.run_with(listener).await {
@@ -317,7 +324,10 @@ fn builder(
     let host = endpoint_host(addr);
     ServerBuilder::new()
         .application_name("iogate")
-        .application_uri(config.application_uri.clone())
+        .application_uri(redundancy::application_uri(
+            &config.application_uri,
+            service.tasks().role().node(),
+        ))
         .product_uri("urn:iogate")
         .build_info(BuildInfo {
             product_uri: "urn:iogate".into(),
