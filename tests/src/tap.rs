@@ -125,7 +125,7 @@ async fn pass(
     let (mut up_open, mut down_open) = (true, true);
     loop {
         let cut = *network.borrow() != born;
-        if !cut && !(up_open && down_open) {
+        if !cut && (!up_open || !down_open) {
             break;
         }
         tokio::select! {

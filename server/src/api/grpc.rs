@@ -491,20 +491,7 @@ impl Gateway for GrpcApi {
         &self,
         _request: Request<pb::GetHaRequest>,
     ) -> Result<Response<pb::HaStatus>, Status> {
-        let ha = self.service.ha();
-        let active = ha.active.unwrap_or_else(|| crate::role::Peer {
-            node: String::new(),
-            addresses: Default::default(),
-        });
-        Ok(Response::new(pb::HaStatus {
-            node: ha.node.unwrap_or_default(),
-            role: ha.role.to_owned(),
-            paired: ha.paired,
-            epoch: ha.epoch,
-            active_node: active.node,
-            active_addresses: active.addresses.into_iter().collect(),
-            takeovers: ha.takeovers,
-        }))
+        Ok(Response::new(to_pb::ha_status(self.service.ha())))
     }
 }
 

@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::Service;
+use super::{Service, ServiceError};
 use crate::role::{Peer, Standing};
 
 /// This gateway in its pair (`GET /api/v1/ha`).
@@ -31,6 +31,15 @@ pub struct HaView {
 }
 
 impl Service {
+    /// Refuses what only the active of a pair does (writes, declarations, transactions).
+    pub(crate) fn owning_field(&self) -> Result<(), ServiceError> {
+        let role = self.tasks.role();
+        if role.owns_field() {
+            return Ok(());
+        }
+        Err(ServiceError::Standby(role.lease().active))
+    }
+
     /// This gateway in its pair.
     pub(crate) fn ha(&self) -> HaView {
         let role = self.tasks().role();
@@ -92,5 +101,26 @@ impl HaView {
         )?;
         writeln!(out, "# TYPE iogate_ha_takeovers counter")?;
         writeln!(out, "iogate_ha_takeovers_total {}", self.takeovers)
+    }
+}
+
+/// What a standby says when it refuses.
+pub(super) fn standby_message(active: Option<&crate::role::Peer>) -> String {
+    match active {
+        Some(peer) => {
+            let at = peer
+                .addresses
+                .get("http")
+                .map(|a| format!(" at {a}"))
+                .unwrap_or_default();
+            format!(
+                "this gateway is the standby of its pair: the active, node {}{at}, takes writes",
+                peer.node
+            )
+        }
+        None => {
+            "this gateway is the standby of its pair, and no node is active yet: try again shortly"
+                .into()
+        }
     }
 }

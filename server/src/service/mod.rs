@@ -99,29 +99,10 @@ pub enum ServiceError {
     #[error("no scan {0} (the last {kept} scans are kept)", kept = scan::KEPT_SCANS)]
     UnknownScan(u64),
     /// This gateway is the standby of an active/standby pair: the active takes writes.
-    #[error("{}", standby_message(.0.as_ref()))]
+    #[error("{}", ha::standby_message(.0.as_ref()))]
     Standby(Option<crate::role::Peer>),
 }
 
-fn standby_message(active: Option<&crate::role::Peer>) -> String {
-    match active {
-        Some(peer) => {
-            let at = peer
-                .addresses
-                .get("http")
-                .map(|a| format!(" at {a}"))
-                .unwrap_or_default();
-            format!(
-                "this gateway is the standby of its pair: the active, node {}{at}, takes writes",
-                peer.node
-            )
-        }
-        None => {
-            "this gateway is the standby of its pair, and no node is active yet: try again shortly"
-                .into()
-        }
-    }
-}
 
 /// The refusals, the first ten of them named (a request with thousands of bad keys gets a
 /// short answer).
@@ -260,15 +241,6 @@ impl Service {
         } else {
             Ok(())
         }
-    }
-
-    /// Refuses what only the active of a pair does (writes, declarations, transactions).
-    pub(crate) fn owning_field(&self) -> Result<(), ServiceError> {
-        let role = self.tasks.role();
-        if role.owns_field() {
-            return Ok(());
-        }
-        Err(ServiceError::Standby(role.lease().active))
     }
 
     /// The service with `listen.max_streams`.

@@ -327,3 +327,37 @@ async fn metrics_pass_promtool_and_openmetrics_is_served_to_who_asks_for_it() {
     gw.shutdown().await;
     task.abort();
 }
+
+#[test]
+fn the_pairs_compose_mounts_two_configs_that_differ_only_in_their_node_and_pass_check() {
+    let dir = deploy("compose-ha");
+    let text = std::fs::read_to_string(dir.join("docker-compose.yml")).expect("compose");
+    let doc: serde_json::Value = serde_saphyr::from_str(&text).expect("compose parses");
+    let services = doc["services"].as_object().expect("services");
+    for name in ["iogate-a", "iogate-b", "mosquitto"] {
+        assert!(services.contains_key(name), "no service {name}");
+        for volume in services[name]["volumes"].as_array().into_iter().flatten() {
+            let source = volume.as_str().and_then(|v| v.split(':').next()).expect("volume");
+            assert!(dir.join(source).exists(), "{name} mounts {source}: missing");
+        }
+    }
+    let [a, b] = ["a", "b"].map(|n| {
+        std::fs::read_to_string(dir.join(format!("iogate-{n}.yaml"))).expect("config")
+    });
+    // The same config but for the node: a pair runs one configuration.
+    let unnamed = |t: &str, n: &str| {
+        t.replace(&format!("Node {n} "), "Node ")
+            .replace(&format!("node: {n}"), "node:")
+            .replace(&format!("iogate-{n}"), "iogate-")
+            .replace(&format!("pair-{n}"), "pair-")
+    };
+    assert_eq!(unnamed(&a, "a"), unnamed(&b, "b"));
+    for (n, text) in [("a", &a), ("b", &b)] {
+        iogate::drivers::register();
+        let yaml = text.replace("profiles: /etc/iogate/profiles", "");
+        let mut config = iogate::config::parse("pair.yaml", &yaml).expect("parses");
+        config.profiles = Some(iogate_tests::profiles_dir());
+        iogate::app::Setup::from_config(config, Path::new("."))
+            .unwrap_or_else(|p| panic!("node {n}: {p}"));
+    }
+}

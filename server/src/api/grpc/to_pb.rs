@@ -233,3 +233,20 @@ pub(crate) fn config_report(r: &crate::service::Report) -> pb::ConfigReport {
         at_unix_ms: r.at_unix_ms,
     }
 }
+
+/// This gateway in its pair, as `GetHa` answers.
+pub(crate) fn ha_status(ha: crate::service::ha::HaView) -> pb::HaStatus {
+    let active = ha.active.unwrap_or_else(|| crate::role::Peer {
+        node: String::new(),
+        addresses: Default::default(),
+    });
+    pb::HaStatus {
+        node: ha.node.unwrap_or_default(),
+        role: ha.role.to_owned(),
+        paired: ha.paired,
+        epoch: ha.epoch,
+        active_node: active.node,
+        active_addresses: active.addresses.into_iter().collect(),
+        takeovers: ha.takeovers,
+    }
+}
