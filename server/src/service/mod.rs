@@ -103,7 +103,6 @@ pub enum ServiceError {
     Standby(Option<crate::role::Peer>),
 }
 
-
 /// The refusals, the first ten of them named (a request with thousands of bad keys gets a
 /// short answer).
 fn join(errors: &[AccessError]) -> String {

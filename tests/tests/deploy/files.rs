@@ -337,13 +337,15 @@ fn the_pairs_compose_mounts_two_configs_that_differ_only_in_their_node_and_pass_
     for name in ["iogate-a", "iogate-b", "mosquitto"] {
         assert!(services.contains_key(name), "no service {name}");
         for volume in services[name]["volumes"].as_array().into_iter().flatten() {
-            let source = volume.as_str().and_then(|v| v.split(':').next()).expect("volume");
+            let source = volume
+                .as_str()
+                .and_then(|v| v.split(':').next())
+                .expect("volume");
             assert!(dir.join(source).exists(), "{name} mounts {source}: missing");
         }
     }
-    let [a, b] = ["a", "b"].map(|n| {
-        std::fs::read_to_string(dir.join(format!("iogate-{n}.yaml"))).expect("config")
-    });
+    let [a, b] = ["a", "b"]
+        .map(|n| std::fs::read_to_string(dir.join(format!("iogate-{n}.yaml"))).expect("config"));
     // The same config but for the node: a pair runs one configuration.
     let unnamed = |t: &str, n: &str| {
         t.replace(&format!("Node {n} "), "Node ")
