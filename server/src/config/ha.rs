@@ -120,7 +120,14 @@ fn arbiter(node: &Node, report: &mut Report) -> Option<Arbiter> {
 }
 
 fn lease(node: &Node, report: &mut Report) -> Option<Duration> {
-    let d = super::parse::duration_value(node, report, "ha.lease", Duration::ZERO)?;
+    let text = node.scalar_text(report, "ha.lease")?;
+    let d = match crate::duration::parse(&text) {
+        Ok(d) => d,
+        Err(e) => {
+            report.push(node.line, "ha.lease", e);
+            return None;
+        }
+    };
     if !(MIN_LEASE..=MAX_LEASE).contains(&d) || d.subsec_nanos() != 0 {
         report.push(
             node.line,
