@@ -104,6 +104,7 @@ async fn the_document_is_valid_openapi_3_1_and_describes_every_route() {
         ("/api/v1/transactions/{name}/values", &["put"]),
         ("/api/v1/links/{link}/plan", &["get"]),
         ("/api/v1/mqtt", &["get"]),
+        ("/api/v1/ha", &["get"]),
         ("/api/v1/config", &["get"]),
         ("/api/v1/config/reload", &["post"]),
         ("/api/v1/links/{link}/scan", &["post"]),
