@@ -96,7 +96,13 @@ struct Inner {
     index: BTreeMap<u64, (String, String)>,
     /// Final outcomes per device and status, for metrics.
     outcomes: BTreeMap<(String, &'static str), u64>,
+    /// Generations never handed out here: the gaps an epoch's start jumped over (the other
+    /// node of a pair handed them out), the newest [`MAX_GAPS`].
+    gaps: std::collections::VecDeque<std::ops::Range<u64>>,
 }
+
+/// Epoch starts remembered, at most (one per takeover).
+const MAX_GAPS: usize = 1024;
 
 /// What the log knows of a generation.
 #[derive(Debug, Clone, PartialEq)]
@@ -116,6 +122,7 @@ impl Default for WriteLog {
                 fields: HashMap::new(),
                 index: BTreeMap::new(),
                 outcomes: BTreeMap::new(),
+                gaps: std::collections::VecDeque::new(),
             }),
         }
     }
@@ -144,7 +151,15 @@ impl WriteLog {
     /// the other node's included.
     pub(crate) fn enter_epoch(&self, epoch: u64) {
         let mut inner = self.lock();
-        inner.next = inner.next.max(crate::role::first_generation(epoch));
+        let first = crate::role::first_generation(epoch);
+        if first > inner.next {
+            let gap = inner.next..first;
+            inner.gaps.push_back(gap);
+            if inner.gaps.len() > MAX_GAPS {
+                inner.gaps.pop_front();
+            }
+            inner.next = first;
+        }
     }
 
     /// Writes kept, every field's together.
@@ -231,7 +246,10 @@ impl WriteLog {
 
     pub(crate) fn get(&self, generation: u64) -> Lookup {
         let mut inner = self.lock();
-        if generation == 0 || generation >= inner.next {
+        if generation == 0
+            || generation >= inner.next
+            || inner.gaps.iter().any(|g| g.contains(&generation))
+        {
             return Lookup::Unknown;
         }
         match inner.record(generation) {
@@ -254,6 +272,19 @@ impl WriteLog {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_generation_the_other_node_of_a_pair_handed_out_is_unknown_here_not_expired() {
+        let log = WriteLog::default();
+        let mine = log.begin("d", "f", Value::Bool(true));
+        log.enter_epoch(2);
+        let next = log.begin("d", "f", Value::Bool(false));
+        assert_eq!(crate::role::epoch_of(next), 2);
+        assert!(matches!(log.get(mine), Lookup::Found(_)));
+        // Epoch 1 was the other node's: its generations were never handed out here.
+        assert_eq!(log.get(crate::role::first_generation(1)), Lookup::Unknown);
+        assert_eq!(log.get(mine + 1), Lookup::Unknown);
+    }
 
     #[test]
     fn generations_increase_and_keep_their_outcome() {

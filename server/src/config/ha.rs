@@ -73,10 +73,7 @@ pub(crate) fn read(node: &Node, report: &mut Report) -> Option<HaConfig> {
         Some(n) => name(n, "ha.group", report),
         None => Some(DEFAULT_GROUP.to_owned()),
     };
-    let advertise = map
-        .get("advertise")
-        .and_then(|n| advertise(n, report).map(Some))
-        .unwrap_or(None);
+    let advertise = map.get("advertise").and_then(|n| advertise(n, report));
     map.finish(report, "ha", KEYS);
     Some(HaConfig {
         node: node_name?,

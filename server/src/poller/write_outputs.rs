@@ -62,7 +62,7 @@ impl<D: Driver> Driven<D> {
             return Ok(());
         }
         let mut items: Vec<WriteItem> = taken.into_iter().map(WriteItem::from).collect();
-        if p.rewrite && self.role.owns_field() {
+        if p.rewrite {
             replayed(&device, &mut items, |g| self.role.may_write(g).is_err());
             p.rewrite = false;
         }

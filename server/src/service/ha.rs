@@ -37,7 +37,12 @@ impl Service {
         if role.owns_field() {
             return Ok(());
         }
-        Err(ServiceError::Standby(role.lease().active))
+        // A node whose own lease ran out names no active: it is not one any more.
+        let active = role
+            .lease()
+            .active
+            .filter(|p| Some(p.node.as_str()) != role.node());
+        Err(ServiceError::Standby(active))
     }
 
     /// This gateway in its pair.

@@ -74,6 +74,18 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
         "took over in {takeover:?}"
     );
     assert_eq!(ha["epoch"].as_u64(), Some(epoch + 1), "{ha}");
+    // Prometheus sees the role and the takeover.
+    let metrics = iogate_tests::TestGateway::remote(pair.bases[1].clone())
+        .metrics()
+        .await
+        .expect("metrics");
+    for line in [
+        "iogate_ha_role{role=\"active\"} 1",
+        "iogate_ha_role{role=\"standby\"} 0",
+        "iogate_ha_takeovers_total 1",
+    ] {
+        assert!(metrics.contains(line), "{line} in {metrics}");
+    }
     let [_, ua_b] = &mut ua;
     assert_eq!(
         ua_b.read_absolute("i=2267").await.expect("ServiceLevel")["value"],
@@ -120,8 +132,13 @@ async fn an_active_cut_from_the_broker_stops_before_the_standby_starts() {
         a_down < b_up,
         "a stood down at {a_down:?}, b took over at {b_up:?}"
     );
+    // A silent loss is bounded by the broker: it drops the lock 1.5 keep-alives after the
+    // last packet, counted in whole seconds (at most 4 s for a 3 s lease), then the new
+    // holder settles (0.5 s). Two leases is the goal measured without load; here two
+    // gateways, the broker and the other tests share two cores, so the bound is that worst
+    // case with 2 s of scheduling on top.
     assert!(
-        b_up < Duration::from_secs(2 * LEASE_S),
+        b_up < Duration::from_secs(2 * LEASE_S + 2),
         "took over in {b_up:?}"
     );
     writer.until_written(Node::B, 30).await;
