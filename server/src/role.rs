@@ -8,7 +8,7 @@
 //! lease (a stopped VM, a long GC-like stall) writes nothing when it wakes.
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
 
 use serde::Serialize;
 use tokio::sync::watch;
@@ -82,7 +82,14 @@ pub(crate) struct Role {
     until: AtomicU64,
     base: Instant,
     takeovers: AtomicU64,
+    /// The pair's one Sparkplug edge node: the `bdSeq` of this node's newest session, and
+    /// of the other node's as its lease renewals said ([`NO_SESSION`]: none).
+    edge_session: AtomicU16,
+    heard_session: AtomicU16,
 }
+
+/// No Sparkplug session known.
+const NO_SESSION: u16 = u16::MAX;
 
 impl Role {
     /// The role of a gateway without a pair: always allowed to write.
@@ -116,7 +123,33 @@ impl Role {
             until: AtomicU64::new(0),
             base: Instant::now(),
             takeovers: AtomicU64::new(0),
+            edge_session: AtomicU16::new(NO_SESSION),
+            heard_session: AtomicU16::new(NO_SESSION),
         }
+    }
+
+    /// This node's Sparkplug session is `bd_seq` (its MQTT front-end says so at each
+    /// connection).
+    pub(crate) fn set_edge_session(&self, bd_seq: u8) {
+        self.edge_session
+            .store(u16::from(bd_seq), Ordering::Relaxed);
+    }
+
+    /// This node's Sparkplug `bdSeq`, when it has one.
+    pub(crate) fn edge_session(&self) -> Option<u8> {
+        u8::try_from(self.edge_session.load(Ordering::Relaxed)).ok()
+    }
+
+    /// The active of the pair is in Sparkplug session `bd_seq` (heard by a standby).
+    pub(crate) fn heard_edge_session(&self, bd_seq: u8) {
+        self.heard_session
+            .store(u16::from(bd_seq), Ordering::Relaxed);
+    }
+
+    /// The other node's newest Sparkplug `bdSeq` heard, once: a node taking over births
+    /// with the next.
+    pub(crate) fn take_heard_edge_session(&self) -> Option<u8> {
+        u8::try_from(self.heard_session.swap(NO_SESSION, Ordering::Relaxed)).ok()
     }
 
     pub(crate) fn node(&self) -> Option<&str> {
@@ -139,6 +172,16 @@ impl Role {
     /// How many times this gateway became active.
     pub(crate) fn takeovers(&self) -> u64 {
         self.takeovers.load(Ordering::Relaxed)
+    }
+
+    /// Resolves once the gateway owns its field (at once for a gateway alone).
+    pub(crate) async fn owning(&self) {
+        let mut lease = self.watch();
+        while !self.owns_field() {
+            if lease.changed().await.is_err() {
+                std::future::pending::<()>().await;
+            }
+        }
     }
 
     /// Whether the field is this gateway's: alone, or active with a lease still valid.

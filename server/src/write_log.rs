@@ -80,12 +80,29 @@ pub(crate) struct WriteRecord {
     pub(crate) error: Option<String>,
     pub(crate) requested: SystemTime,
     pub(crate) finished: Option<SystemTime>,
+    /// The outcome made the gateway forget the value asked for (the device refused it, or
+    /// the link was lost with it sent too often): it is not the output's desired value any
+    /// more. Carried to the other node of a pair with the record.
+    pub(crate) forgets: bool,
 }
 
 #[derive(Debug)]
 pub struct WriteLog {
     inner: Mutex<Inner>,
+    /// Woken when the journal has records.
+    journaled: tokio::sync::Notify,
 }
+
+/// Records as they change, kept for the other node of a pair ([`WriteLog::start_journal`]).
+#[derive(Debug, Default)]
+struct Journal {
+    records: VecDeque<WriteRecord>,
+    /// Records dropped because the journal was full, since it was last drained.
+    dropped: u64,
+}
+
+/// Records the journal holds at most: about 20 MiB, a few seconds of the fastest writes.
+const JOURNAL_MAX: usize = 65_536;
 
 #[derive(Debug)]
 struct Inner {
@@ -99,6 +116,10 @@ struct Inner {
     /// Generations never handed out here: the gaps an epoch's start jumped over (the other
     /// node of a pair handed them out), the newest [`MAX_GAPS`].
     gaps: std::collections::VecDeque<std::ops::Range<u64>>,
+    /// The journal, in a pair.
+    journal: Option<Journal>,
+    /// Generations adopted from the other node of the pair still pending there.
+    adopted_pending: std::collections::BTreeSet<u64>,
 }
 
 /// Epoch starts remembered, at most (one per takeover).
@@ -123,7 +144,10 @@ impl Default for WriteLog {
                 index: BTreeMap::new(),
                 outcomes: BTreeMap::new(),
                 gaps: std::collections::VecDeque::new(),
+                journal: None,
+                adopted_pending: Default::default(),
             }),
+            journaled: tokio::sync::Notify::new(),
         }
     }
 }
@@ -136,6 +160,23 @@ impl Inner {
             .binary_search_by_key(&generation, |r| r.generation)
             .ok()?;
         history.get_mut(idx)
+    }
+
+    /// Puts a copy of `generation`'s record in the journal, when there is one.
+    fn journal(&mut self, generation: u64) -> bool {
+        if self.journal.is_none() {
+            return false;
+        }
+        let Some(record) = self.record(generation).cloned() else {
+            return false;
+        };
+        let journal = self.journal.get_or_insert_with(Journal::default);
+        if journal.records.len() >= JOURNAL_MAX {
+            journal.records.pop_front();
+            journal.dropped += 1;
+        }
+        journal.records.push_back(record);
+        true
     }
 }
 
@@ -202,11 +243,17 @@ impl WriteLog {
             error: None,
             requested: SystemTime::now(),
             finished: None,
+            forgets: false,
         });
         if let Some(old) = dropped {
             inner.index.remove(&old);
         }
         inner.index.insert(generation, key);
+        let journaled = inner.journal(generation);
+        drop(inner);
+        if journaled {
+            self.journaled.notify_one();
+        }
         generation
     }
 
@@ -223,6 +270,17 @@ impl WriteLog {
         error: Option<String>,
         attempts: u32,
     ) {
+        self.finish_forgetting(generation, (status, error, attempts), false);
+    }
+
+    /// Sets the final status, error and attempts of a generation, and whether the outcome
+    /// made the gateway forget the value asked for ([`WriteRecord::forgets`]).
+    pub(crate) fn finish_forgetting(
+        &self,
+        generation: u64,
+        (status, error, attempts): (WriteStatus, Option<String>, u32),
+        forgets: bool,
+    ) {
         let mut inner = self.lock();
         let Some(record) = inner.record(generation) else {
             return;
@@ -230,9 +288,14 @@ impl WriteLog {
         record.status = status;
         record.error = error;
         record.attempts = attempts;
+        record.forgets = forgets;
         record.finished = Some(SystemTime::now());
         let key = (record.device.clone(), status.name());
         *inner.outcomes.entry(key).or_default() += 1;
+        if inner.journal(generation) {
+            drop(inner);
+            self.journaled.notify_one();
+        }
     }
 
     /// How many writes ended with each status, per device.
@@ -246,16 +309,17 @@ impl WriteLog {
 
     pub(crate) fn get(&self, generation: u64) -> Lookup {
         let mut inner = self.lock();
+        // A record adopted from the other node of a pair is above this node's own.
+        if let Some(record) = inner.record(generation) {
+            return Lookup::Found(record.clone());
+        }
         if generation == 0
             || generation >= inner.next
             || inner.gaps.iter().any(|g| g.contains(&generation))
         {
             return Lookup::Unknown;
         }
-        match inner.record(generation) {
-            Some(record) => Lookup::Found(record.clone()),
-            None => Lookup::Expired,
-        }
+        Lookup::Expired
     }
 
     /// The writes kept for one field, oldest first.
@@ -269,69 +333,9 @@ impl WriteLog {
     }
 }
 
+#[path = "write_log_pair.rs"]
+mod pair;
+
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_generation_the_other_node_of_a_pair_handed_out_is_unknown_here_not_expired() {
-        let log = WriteLog::default();
-        let mine = log.begin("d", "f", Value::Bool(true));
-        log.enter_epoch(2);
-        let next = log.begin("d", "f", Value::Bool(false));
-        assert_eq!(crate::role::epoch_of(next), 2);
-        assert!(matches!(log.get(mine), Lookup::Found(_)));
-        // Epoch 1 was the other node's: its generations were never handed out here.
-        assert_eq!(log.get(crate::role::first_generation(1)), Lookup::Unknown);
-        assert_eq!(log.get(mine + 1), Lookup::Unknown);
-    }
-
-    #[test]
-    fn generations_increase_and_keep_their_outcome() {
-        let log = WriteLog::default();
-        let a = log.begin("d", "f", Value::Bool(true));
-        let b = log.begin("d", "f", Value::Bool(false));
-        assert!(b > a);
-        log.finish(a, WriteStatus::Superseded, None);
-        log.finish(b, WriteStatus::Failed, Some("timeout".into()));
-        let Lookup::Found(ra) = log.get(a) else {
-            panic!("a not found")
-        };
-        assert_eq!(ra.status, WriteStatus::Superseded);
-        let Lookup::Found(rb) = log.get(b) else {
-            panic!("b not found")
-        };
-        assert_eq!(rb.error.as_deref(), Some("timeout"));
-        assert_eq!(log.get(b + 1), Lookup::Unknown);
-        assert_eq!(log.get(0), Lookup::Unknown);
-    }
-
-    #[test]
-    fn old_generations_of_a_field_expire_and_a_burst_elsewhere_erases_none() {
-        let log = WriteLog::default();
-        let first = log.begin("d", "f", Value::Int(0));
-        let waiting = log.begin("d", "g", Value::Int(7));
-        for i in 0..FIELD_HISTORY {
-            log.begin("d", "f", Value::Int(i as i64));
-        }
-        assert_eq!(log.get(first), Lookup::Expired);
-        assert!(matches!(log.get(first + 2), Lookup::Found(_)));
-        // Ten thousand writes to other fields leave field g's write in place.
-        for i in 0..10_000 {
-            log.begin("other", &format!("f{}", i % 500), Value::Int(i));
-        }
-        assert!(matches!(log.get(waiting), Lookup::Found(r) if r.value == Some(Value::Int(7))));
-        assert_eq!(log.history("d", "f").len(), FIELD_HISTORY);
-    }
-
-    #[test]
-    fn the_gateways_own_writes_say_where_they_came_from() {
-        let log = WriteLog::default();
-        let g = log.begin_from("d", "f", Some(Value::Bool(true)), Origin::Replay);
-        log.finish_after(g, WriteStatus::Written, None, 3);
-        let Lookup::Found(r) = log.get(g) else {
-            panic!("not found")
-        };
-        assert_eq!((r.origin, r.attempts), (Origin::Replay, 3));
-    }
-}
+#[path = "write_log_tests.rs"]
+mod tests;

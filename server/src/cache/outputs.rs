@@ -397,6 +397,7 @@ impl Outputs {
                 other => other,
             });
         }
+        let mut forgets = false;
         let field = {
             let mut slots = lock(&self.slots);
             let idx = slots.iter().position(|s| s.in_flight == Some(generation));
@@ -404,25 +405,24 @@ impl Outputs {
                 let slot = &mut slots[i];
                 slot.in_flight = None;
                 if slot.last_generation == Some(generation) {
+                    let had = slot.latest.is_some();
                     result = settle(slot, result, attempts);
+                    forgets = had && slot.latest.is_none();
                 }
             }
             idx
         };
-        match result {
-            Ok(()) => self
-                .log
-                .finish_after(generation, WriteStatus::Written, None, attempts),
-            Err(e) => self.log.finish_after(
-                generation,
-                WriteStatus::Failed,
-                Some(e.to_string()),
-                attempts,
-            ),
-        }
+        let outcome = match result {
+            Ok(()) => (WriteStatus::Written, None, attempts),
+            Err(e) => (WriteStatus::Failed, Some(e.to_string()), attempts),
+        };
+        self.log.finish_forgetting(generation, outcome, forgets);
         field
     }
 }
+
+#[path = "outputs_adopt.rs"]
+mod adopt;
 
 /// What a finished write leaves of the newest requested value: forgotten when the device
 /// refused it or the link was lost with it sent too many times in a row (the outcome then

@@ -69,9 +69,14 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
     };
     let entering = {
         let service = service.clone();
-        Arc::new(move |epoch| service.cache.writes.enter_epoch(epoch))
-            as Arc<dyn Fn(u64) + Send + Sync>
+        Arc::new(move |epoch| service.take_over(epoch)) as Arc<dyn Fn(u64) + Send + Sync>
     };
+    let adopt = {
+        let service = service.clone();
+        Arc::new(move |epoch, records| service.adopt_writes(epoch, records))
+            as Arc<dyn Fn(u64, Vec<crate::write_log::WriteRecord>) + Send + Sync>
+    };
+    service.cache.writes.start_journal();
     let setup = crate::api::mqtt::lease::LeaseSetup {
         prepared,
         group: ha.group.clone(),
@@ -80,6 +85,8 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
         role: service.tasks().role().clone(),
         me,
         entering,
+        log: service.cache.writes.clone(),
+        adopt,
     };
     let token = service.tasks().token().clone();
     tracing::info!(node = %ha.node, arbiter = ha.arbiter.name(), lease = ?ha.lease, "HA: standby, watching the lease");

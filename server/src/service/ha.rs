@@ -4,6 +4,7 @@ use serde::Serialize;
 
 use super::{Service, ServiceError};
 use crate::role::{Peer, Standing};
+use crate::write_log::WriteRecord;
 
 /// This gateway in its pair (`GET /api/v1/ha`).
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -31,6 +32,44 @@ pub struct HaView {
 }
 
 impl Service {
+    /// This node becomes active in `epoch`: its writes carry it from now on, and the
+    /// writes the old active took and never finished (as far as this node heard) end
+    /// failed, saying why.
+    pub(crate) fn take_over(&self, epoch: u64) {
+        self.cache.writes.enter_epoch(epoch);
+        let orphaned = self.cache.writes.orphan_adopted(epoch);
+        if orphaned > 0 {
+            tracing::warn!(
+                orphaned,
+                epoch,
+                "HA: writes the old active took had no outcome yet: failed here, not written"
+            );
+        }
+    }
+
+    /// Takes the write records the active of the pair shipped (this node is its standby):
+    /// their outcomes for clients following them, and each output's desired value.
+    pub(crate) fn adopt_writes(&self, epoch: u64, records: Vec<WriteRecord>) {
+        if self.tasks.role().owns_field() {
+            tracing::warn!(
+                epoch,
+                "HA: write records shipped by another node while this one is active: ignored"
+            );
+            return;
+        }
+        for record in records {
+            if !self.cache.writes.adopt(record.clone()) {
+                continue;
+            }
+            let Ok(device) = self.cache.device(&record.device) else {
+                continue;
+            };
+            if let Ok(idx) = device.field_index(&record.field) {
+                device.outputs().adopt(idx, &record);
+            }
+        }
+    }
+
     /// Refuses what only the active of a pair does (writes, declarations, transactions).
     pub(crate) fn owning_field(&self) -> Result<(), ServiceError> {
         let role = self.tasks.role();

@@ -212,6 +212,14 @@ impl Pair {
             .expect("an OPC UA server")
     }
 
+    /// `GET /api/v1/writes/<generation>` on `node`.
+    pub async fn write_record(&self, node: Node, generation: u64) -> (u16, Value) {
+        self.clients[node.index()]
+            .get(&format!("/api/v1/writes/{generation}"))
+            .await
+            .expect("the write's record")
+    }
+
     /// SIGKILL of `node`'s process.
     pub async fn kill(&mut self, node: Node) {
         if let Some(p) = self.procs[node.index()].take() {
@@ -225,6 +233,7 @@ impl Pair {
 pub struct Entry {
     pub value: u16,
     pub node: Node,
+    pub generation: u64,
     /// When the node accepted it.
     pub at: Instant,
     /// Its final status as the node said (`written`, `superseded`, `failed`), if it said.
@@ -332,6 +341,7 @@ async fn write(clients: [TestGateway; 2], log: Arc<Mutex<WriteLog>>, stop: watch
             .push(Entry {
                 value,
                 node: target,
+                generation,
                 at,
                 outcome,
             });

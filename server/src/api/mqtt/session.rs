@@ -67,15 +67,31 @@ impl Task {
         wait: Duration,
         inputs: &mut Inputs,
     ) -> Option<Result<Connection, ConnError>> {
+        let role = self.service.tasks().role().clone();
+        if !role.owns_field() {
+            self.meanwhile(role.owning(), inputs).await?;
+            // The pair's one edge node: born again with the session after the old active's.
+            if let Some(bd_seq) = role.take_heard_edge_session() {
+                self.bd_seq = bd_seq.wrapping_add(1);
+                self.keep_bd_seq();
+            }
+        }
         let connect = self.connect_packet();
         let (config, tls) = (self.prepared.config.clone(), self.prepared.tls.clone());
         let delay = jittered(wait);
-        let role = self.service.tasks().role().clone();
         let attempt = async {
-            owning(&role).await;
             tokio::time::sleep(delay).await;
             Connection::open(&config, tls.as_ref(), &connect).await
         };
+        self.meanwhile(attempt, inputs).await
+    }
+
+    /// Runs `attempt` while changes go to the buffer; `None` when the gateway stops first.
+    async fn meanwhile<T>(
+        &mut self,
+        attempt: impl std::future::Future<Output = T>,
+        inputs: &mut Inputs,
+    ) -> Option<T> {
         tokio::pin!(attempt);
         loop {
             tokio::select! {
@@ -155,6 +171,7 @@ impl Task {
     /// file at once), so that after a restart, even a kill, the next one differs from it:
     /// a late NDEATH from the Will of a killed connection is never taken for the new one's.
     pub(super) fn keep_bd_seq(&mut self) {
+        self.service.tasks().role().set_edge_session(self.bd_seq);
         let Some(dir) = &self.prepared.config.buffer.dir else {
             return;
         };
@@ -471,16 +488,5 @@ impl Task {
         }
         let status = self.status.clone();
         self.state.update(|s| *s = status);
-    }
-}
-
-/// Resolves once the gateway owns its field (at once for a gateway alone): a standby's MQTT
-/// front-end does not connect, so one edge node is online for the pair.
-async fn owning(role: &crate::role::Role) {
-    let mut lease = role.watch();
-    while !role.owns_field() {
-        if lease.changed().await.is_err() {
-            std::future::pending::<()>().await;
-        }
     }
 }

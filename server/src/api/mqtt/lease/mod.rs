@@ -24,7 +24,6 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-use serde::{Deserialize, Serialize};
 use tokio::time::{Instant, sleep_until};
 use tokio_util::sync::CancellationToken;
 
@@ -32,6 +31,12 @@ use super::Prepared;
 use super::conn::{ConnError, Connection};
 use super::packet::{Connect, Incoming, Will};
 use crate::role::{Peer, Role};
+use crate::write_log::{WriteLog, WriteRecord};
+
+mod claim;
+mod ship;
+
+use claim::{Claim, Seen, Topics};
 
 /// How long a newly granted lease is held before the field is touched: a node that lost
 /// a start-up race (both saw no claim) is pushed off the lock in this time.
@@ -50,71 +55,10 @@ pub(crate) struct LeaseSetup {
     pub(crate) me: Arc<dyn Fn() -> Peer + Send + Sync>,
     /// Called with the epoch before this node becomes active in it.
     pub(crate) entering: Arc<dyn Fn(u64) + Send + Sync>,
-}
-
-/// The retained claim.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-struct Claim {
-    node: String,
-    epoch: u64,
-    held: bool,
-    #[serde(default)]
-    addresses: BTreeMap<String, String>,
-}
-
-impl Claim {
-    fn peer(&self) -> Peer {
-        Peer {
-            node: self.node.clone(),
-            addresses: self.addresses.clone(),
-        }
-    }
-}
-
-/// What a standby knows of the lease.
-#[derive(Debug)]
-struct Seen {
-    claim: Option<Claim>,
-    /// The highest epoch heard of.
-    epoch: u64,
-    /// When the holder was last heard of (a claim or a renewal).
-    heard: Instant,
-}
-
-impl Seen {
-    fn take(&mut self, topic: &str, payload: &[u8], topics: &Topics) {
-        if topic == topics.claim {
-            // An empty retained message clears the claim (an operator's reset).
-            if payload.is_empty() {
-                self.claim = None;
-                return;
-            }
-            if let Ok(claim) = serde_json::from_slice::<Claim>(payload) {
-                self.epoch = self.epoch.max(claim.epoch);
-                self.heard = Instant::now();
-                self.claim = Some(claim);
-            }
-        } else if topic == topics.alive
-            && let Ok(alive) = serde_json::from_slice::<Claim>(payload)
-        {
-            self.epoch = self.epoch.max(alive.epoch);
-            self.heard = Instant::now();
-        }
-    }
-
-    /// Whether the lease is free to take: nobody claims it, the holder released it, or
-    /// has not been heard of for two leases.
-    fn free(&self, lease: Duration) -> bool {
-        match &self.claim {
-            None => true,
-            Some(c) => !c.held || self.heard.elapsed() >= 2 * lease,
-        }
-    }
-}
-
-struct Topics {
-    claim: String,
-    alive: String,
+    /// The write log whose journal the active ships to the standby.
+    pub(crate) log: Arc<WriteLog>,
+    /// Takes the records the active shipped (on the standby), with the active's epoch.
+    pub(crate) adopt: Arc<dyn Fn(u64, Vec<WriteRecord>) + Send + Sync>,
 }
 
 /// How the watch of a standby ended.
@@ -131,14 +75,12 @@ enum Held {
 
 /// Runs the lease until `token` is cancelled: watches, takes, holds, and stands down.
 pub(crate) async fn run(setup: LeaseSetup, token: CancellationToken) {
-    let topics = Topics {
-        claim: format!("iogate/ha/{}/claim", setup.group),
-        alive: format!("iogate/ha/{}/alive", setup.group),
-    };
+    let topics = Topics::new(&setup.group);
     let mut seen = Seen {
         claim: None,
         epoch: 0,
         heard: Instant::now(),
+        bd_seq: None,
     };
     let mut wait = Duration::ZERO;
     loop {
@@ -270,12 +212,23 @@ async fn watch(
 ) -> Result<Watched, ConnError> {
     let id = format!("iogate-ha-{}-{}", setup.group, setup.node);
     let mut conn = open(setup, &connect(setup, id, None)).await?;
-    let filters = [(topics.claim.clone(), 1), (topics.alive.clone(), 0)];
+    let filters = [
+        (topics.claim.clone(), 1),
+        (topics.alive.clone(), 0),
+        (topics.writes.clone(), 0),
+    ];
     seen.heard = Instant::now();
     subscribed(&mut conn, &filters, topics, seen).await?;
+    // The active ships each field's newest record again for a standby that comes.
+    conn.publish(&topics.hello, setup.node.as_bytes(), 0, false, 0)
+        .await?;
+    conn.flush().await?;
     loop {
         let active = seen.claim.as_ref().filter(|c| c.held).map(Claim::peer);
         setup.role.stand_by(seen.epoch, active);
+        if let Some(bd_seq) = seen.bd_seq {
+            setup.role.heard_edge_session(bd_seq);
+        }
         if seen.free(setup.lease) {
             conn.disconnect().await;
             return Ok(Watched::Take);
@@ -289,6 +242,9 @@ async fn watch(
             }
             packet = conn.read() => {
                 if let Incoming::Publish(p) = packet? {
+                    if p.topic == topics.writes {
+                        adopt(setup, &p.payload);
+                    }
                     publish_in(&mut conn, &p, topics, seen).await?;
                 }
             }
@@ -319,6 +275,7 @@ async fn take(
         epoch,
         held: false,
         addresses: BTreeMap::new(),
+        bd_seq: None,
     };
     let will = Will {
         topic: topics.claim.clone(),
@@ -332,8 +289,10 @@ async fn take(
         claim: None,
         epoch: seen.epoch,
         heard: Instant::now(),
+        bd_seq: None,
     };
-    subscribed(&mut conn, &[(topics.claim.clone(), 1)], topics, &mut under).await?;
+    let filters = [(topics.claim.clone(), 1), (topics.hello.clone(), 0)];
+    subscribed(&mut conn, &filters, topics, &mut under).await?;
     let epoch = under.epoch + 1;
     let me = (setup.me)();
     let claim = Claim {
@@ -341,6 +300,7 @@ async fn take(
         epoch,
         held: true,
         addresses: me.addresses,
+        bd_seq: None,
     };
     let sent = Instant::now();
     let payload = serde_json::to_vec(&claim).unwrap_or_default();
@@ -386,13 +346,16 @@ async fn hold(
     let valid = holds(setup.lease);
     setup.role.activate(epoch, holding.sent + valid, me.clone());
     tracing::info!(epoch, node = %setup.node, "HA: this node is active");
-    let alive = serde_json::to_vec(&Claim {
-        node: setup.node.clone(),
-        epoch,
-        held: true,
-        addresses: BTreeMap::new(),
-    })
-    .unwrap_or_default();
+    let alive = || {
+        serde_json::to_vec(&Claim {
+            node: setup.node.clone(),
+            epoch,
+            held: true,
+            addresses: BTreeMap::new(),
+            bd_seq: setup.role.edge_session(),
+        })
+        .unwrap_or_default()
+    };
     let every = valid / 3;
     let mut next = Instant::now() + every;
     // Renewals in flight: tag -> when sent.
@@ -407,7 +370,7 @@ async fn hold(
         tokio::select! {
             _ = token.cancelled() => {
                 setup.role.stand_by(epoch, None);
-                let claim = Claim { node: setup.node.clone(), epoch, held: false, addresses: BTreeMap::new() };
+                let claim = Claim { node: setup.node.clone(), epoch, held: false, addresses: BTreeMap::new(), bd_seq: None };
                 release(holding.conn, topics, claim).await;
                 return Held::Stop;
             }
@@ -419,10 +382,15 @@ async fn hold(
                 tag += 1;
                 sent.insert(tag, Instant::now());
                 let out = async {
-                    holding.conn.publish(&topics.alive, &alive, 1, false, tag).await?;
+                    holding.conn.publish(&topics.alive, &alive(), 1, false, tag).await?;
                     holding.conn.flush().await
                 };
                 if let Err(e) = out.await {
+                    return lost(e.to_string());
+                }
+            }
+            _ = setup.log.journaled() => {
+                if let Err(e) = ship::ship(&mut holding.conn, &topics.writes, epoch, &setup.log).await {
                     return lost(e.to_string());
                 }
             }
@@ -439,6 +407,9 @@ async fn hold(
                     if p.qos > 0 && holding.conn.puback(p.pkid).await.is_err() {
                         return lost("the broker connection failed".into());
                     }
+                    if p.topic == topics.hello {
+                        setup.log.journal_snapshot();
+                    }
                     if let Ok(claim) = serde_json::from_slice::<Claim>(&p.payload)
                         && p.topic == topics.claim && claim.held && claim.node != setup.node
                     {
@@ -448,6 +419,17 @@ async fn hold(
                 Ok(_) => {}
             },
         }
+    }
+}
+
+/// Takes a shipment of the active's write records (a standby).
+fn adopt(setup: &LeaseSetup, payload: &[u8]) {
+    match ship::unpack(payload) {
+        Some((epoch, records)) => (setup.adopt)(epoch, records),
+        None => tracing::warn!(
+            bytes = payload.len(),
+            "HA: a message on the pair's writes topic that is not a shipment of records: ignored"
+        ),
     }
 }
 
@@ -477,5 +459,4 @@ async fn release(mut conn: Connection, topics: &Topics, claim: Claim) {
 }
 
 #[cfg(test)]
-#[path = "lease_tests.rs"]
 mod tests;

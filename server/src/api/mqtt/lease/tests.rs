@@ -3,10 +3,7 @@
 use super::*;
 
 fn topics() -> Topics {
-    Topics {
-        claim: "iogate/ha/g/claim".into(),
-        alive: "iogate/ha/g/alive".into(),
-    }
+    Topics::new("g")
 }
 
 #[test]
@@ -39,6 +36,7 @@ async fn a_lease_is_free_when_absent_released_or_silent_for_two_leases() {
         claim: None,
         epoch: 0,
         heard: Instant::now(),
+        bd_seq: None,
     };
     assert!(seen.free(lease));
     seen.take(&t.claim, br#"{"node":"b","epoch":4,"held":true}"#, &t);
