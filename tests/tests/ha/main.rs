@@ -10,7 +10,7 @@ mod pair;
 
 use std::time::{Duration, Instant};
 
-use iogate_tests::mqtt::Broker;
+use iogate_tests::mqtt::{Broker, Message, Peer};
 use iogate_tests::opcua::{Options, UaClient};
 use iogate_tests::tap::Tap;
 use pair::{Node, Pair, Writer};
@@ -21,6 +21,10 @@ const LEASE_S: u64 = 3;
 async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_is_on_the_field_once()
  {
     let broker = Broker::start().await.expect("broker");
+    // A Sparkplug host's view (paho, pysparkplug): one edge node for the pair.
+    let mut host = Peer::subscribe(&broker, "spBv1.0/plant/+/pair")
+        .await
+        .expect("paho");
     let mut pair = Pair::start("ha-kill", [broker.port, broker.port], LEASE_S)
         .await
         .expect("pair");
@@ -62,6 +66,11 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
         uris.contains("urn:iogate:a") && uris.contains("urn:iogate:b"),
         "{uris}"
     );
+    let born = host
+        .until(|m| m.topic == "spBv1.0/plant/NBIRTH/pair")
+        .await
+        .expect("NBIRTH of node a");
+    let born_with = bd_seq(&born);
     let writer = Writer::start(&pair);
     writer.until_written(Node::A, 50).await;
     let epoch = pair.ha(Node::A).await["epoch"].as_u64().expect("epoch");
@@ -90,6 +99,22 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
     assert_eq!(
         ua_b.read_absolute("i=2267").await.expect("ServiceLevel")["value"],
         255
+    );
+    // The edge node dies (node a's Will) and is born again from node b with the next bdSeq.
+    let death = host
+        .until(|m| m.topic == "spBv1.0/plant/NDEATH/pair")
+        .await
+        .expect("NDEATH");
+    assert_eq!(bd_seq(&death), born_with);
+    let reborn = host
+        .until(|m| m.topic == "spBv1.0/plant/NBIRTH/pair")
+        .await
+        .expect("NBIRTH of node b");
+    assert_eq!(
+        bd_seq(&reborn),
+        (born_with + 1) % 256,
+        "{:?}",
+        reborn.sparkplug
     );
     writer.until_written(Node::B, 50).await;
     let log = writer.stop().await;
@@ -217,4 +242,13 @@ async fn twenty_cuts_and_restores_never_make_two_masters() {
     pair.field.assert_one_master_at_a_time();
     pair.field.assert_written_once(&log);
     pair.field.assert_only_asked(&log);
+}
+
+/// The `bdSeq` metric of a Sparkplug NBIRTH or NDEATH.
+fn bd_seq(m: &Message) -> u64 {
+    m.sparkplug["metrics"]
+        .as_array()
+        .and_then(|ms| ms.iter().find(|x| x["name"] == "bdSeq"))
+        .and_then(|x| x["value"].as_u64())
+        .unwrap_or_else(|| panic!("no bdSeq in {:?}", m.sparkplug))
 }

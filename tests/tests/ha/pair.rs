@@ -140,6 +140,7 @@ impl Pair {
                 "profiles: {profiles}\nlinks:\n  - {{ name: field, tcp: {{ host: 127.0.0.1, port: {field} }} }}\n\
                  devices:\n  - {{ name: pump, profile: Setpoints, link: field, slave_id: 1, refresh_rate: 20ms }}\n\
                  mqtt:\n  url: mqtt://127.0.0.1:{broker}\n  json: {{ prefix: plant }}\n\
+                 \x20 sparkplug: {{ group_id: plant, edge_node_id: pair }}\n\
                  opcua: {{ listen: 127.0.0.1:0, pki_dir: {pki} }}\n\
                  ha: {{ node: {node}, arbiter: mqtt, lease: {lease}s }}\n",
                 pki = dir.join(node.name()).join("pki").display(),
