@@ -105,7 +105,7 @@ fn a_write_the_old_active_left_pending_fails_here_at_the_takeover() {
     assert_eq!(r.status, WriteStatus::Failed);
     assert!(
         r.error
-            .unwrap()
+            .expect("why")
             .contains("may or may not have reached the device")
     );
     // The new epoch's own writes come after it.

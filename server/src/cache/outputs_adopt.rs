@@ -36,3 +36,50 @@ impl Outputs {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::time::SystemTime;
+
+    use super::*;
+    use crate::codec::Value;
+    use crate::write_log::WriteLog;
+
+    fn record(generation: u64, value: i64, status: WriteStatus, origin: Origin) -> WriteRecord {
+        WriteRecord {
+            generation,
+            device: "d".into(),
+            field: "f".into(),
+            value: Some(Value::Int(value)),
+            status,
+            origin,
+            attempts: 1,
+            error: None,
+            requested: SystemTime::now(),
+            finished: None,
+            forgets: false,
+        }
+    }
+
+    #[test]
+    fn the_standby_knows_each_desired_value_and_has_nothing_to_write() {
+        let outputs = Outputs::new(1, Arc::new(WriteLog::default()));
+        outputs.set_rewrites(true);
+        let g = crate::role::first_generation(4);
+        outputs.adopt(0, &record(g, 7, WriteStatus::Pending, Origin::Client));
+        outputs.adopt(0, &record(g, 7, WriteStatus::Written, Origin::Client));
+        assert_eq!(outputs.latest(0), Some(Value::Int(7)));
+        assert_eq!(outputs.last_generation(0), Some(g));
+        assert!(!outputs.has_pending(), "a handed-over value is not a write");
+        assert!(outputs.take().is_empty());
+        assert_eq!(outputs.replayable(), vec![(0, Value::Int(7), true)]);
+        // An older record arriving late changes nothing; a refusal forgets the value.
+        outputs.adopt(0, &record(g - 1, 3, WriteStatus::Written, Origin::Client));
+        assert_eq!(outputs.latest(0), Some(Value::Int(7)));
+        let mut refused = record(g + 1, 9, WriteStatus::Failed, Origin::Client);
+        refused.forgets = true;
+        outputs.adopt(0, &refused);
+        assert_eq!(outputs.latest(0), None);
+    }
+}

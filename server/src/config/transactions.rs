@@ -64,7 +64,7 @@ fn whole<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<i64>, D::Error
 }
 
 /// One standing transaction as configured (or declared at run time).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, Deserialize)]
 pub struct StandingConfig {
     pub(crate) name: String,
     pub(crate) link: String,

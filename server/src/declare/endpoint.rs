@@ -8,7 +8,7 @@ use crate::config::{Framing, Parity, SerialSettings, Transport};
 /// A link's endpoint as a declaration gives it: numbers unchecked, zero or empty for "the
 /// default" (8 data bits, 1 stop bit, no parity, RTU framing on a line; port 502, MBAP
 /// framing over TCP).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) enum Endpoint {
     Serial {
         port: String,

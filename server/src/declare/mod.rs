@@ -24,7 +24,7 @@ pub(crate) use endpoint::Endpoint;
 pub(crate) use error::{Conflict, DeclareError};
 pub(crate) use link::{ensure_link, remove_link};
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct LinkDeclaration {
     /// Optional: by default the name is made from the port (`/dev/ttyUSB0` → `dev_ttyUSB0`)
     /// or the endpoint (`192.0.2.10_502`).
@@ -33,7 +33,7 @@ pub(crate) struct LinkDeclaration {
     pub(crate) guard_time: Duration,
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct DeviceDeclaration {
     pub(crate) name: String,
     pub(crate) profile: String,

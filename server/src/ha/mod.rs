@@ -87,6 +87,7 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
         entering,
         log: service.cache.writes.clone(),
         adopt,
+        service: service.clone(),
     };
     let token = service.tasks().token().clone();
     tracing::info!(node = %ha.node, arbiter = ha.arbiter.name(), lease = ?ha.lease, "HA: standby, watching the lease");

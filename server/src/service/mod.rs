@@ -5,6 +5,7 @@
 //! or the [`ServiceError`] to their own wire format. None of them decides a rule.
 
 mod bounds;
+mod declared;
 pub(crate) mod doors;
 pub(crate) mod ha;
 pub(crate) mod listening;
@@ -129,6 +130,8 @@ pub struct Service {
     /// The Modbus TCP server's map and memory, when one is configured; a reload replaces it.
     modbus: std::sync::RwLock<Option<Arc<ModbusImage>>>,
     standing: StandingSet,
+    /// What clients declared, as a pair hands it over.
+    declared: declared::Declared,
     /// What run-time declarations may reach.
     policy: std::sync::RwLock<crate::config::security::DeclarePolicy>,
     /// Who may do what.
@@ -176,6 +179,7 @@ impl Service {
             ready: AtomicBool::new(false),
             modbus: std::sync::RwLock::new(None),
             standing: StandingSet::default(),
+            declared: declared::Declared::default(),
             policy: std::sync::RwLock::new(crate::config::security::DeclarePolicy::default()),
             tokens: crate::auth::TokenTable::default(),
             read_only: AtomicBool::new(false),
@@ -374,12 +378,15 @@ impl Service {
     pub(crate) fn ensure_link(&self, decl: LinkDeclaration) -> Result<Ensured<Link>, ServiceError> {
         self.accepting()?;
         self.owning_field()?;
-        self.counted(declare::ensure_link(
-            &self.cache,
-            &self.tasks,
-            &self.policy.read().unwrap_or_else(|e| e.into_inner()),
-            decl,
-        ))
+        let policy = self
+            .policy
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        let ensured = declare::ensure_link(&self.cache, &self.tasks, &policy, decl.clone());
+        let ensured = self.counted(ensured)?;
+        self.declared.link(ensured.value.name(), &decl);
+        Ok(ensured)
     }
 
     /// Declares a device (idempotent); a new one is polled by its link at once.
@@ -389,14 +396,22 @@ impl Service {
     ) -> Result<Ensured<Device>, ServiceError> {
         self.accepting()?;
         self.owning_field()?;
-        self.counted(declare::ensure_device(&self.cache, &self.tasks, decl))
+        let ensured = self.counted(declare::ensure_device(
+            &self.cache,
+            &self.tasks,
+            decl.clone(),
+        ))?;
+        self.declared.device(&decl);
+        Ok(ensured)
     }
 
     /// Removes a device declared at run time.
     pub(crate) fn remove_device(&self, name: &str) -> Result<Arc<Device>, ServiceError> {
         self.accepting()?;
         self.owning_field()?;
-        Ok(declare::remove_device(&self.cache, name)?)
+        let removed = declare::remove_device(&self.cache, name)?;
+        self.declared.undevice(name);
+        Ok(removed)
     }
 
     /// Removes a link declared at run time that no device or standing transaction uses.
@@ -410,7 +425,9 @@ impl Service {
             .filter(|s| s.link == name)
             .map(|s| s.name.clone())
             .collect();
-        Ok(declare::remove_link(&self.cache, name, users)?)
+        let removed = declare::remove_link(&self.cache, name, users)?;
+        self.declared.unlink(name);
+        Ok(removed)
     }
 }
 

@@ -80,7 +80,7 @@ impl Standing {
         self.status.subscribe()
     }
 
-    fn config(&self) -> StandingConfig {
+    pub(crate) fn config(&self) -> StandingConfig {
         StandingConfig {
             name: self.name.clone(),
             link: self.link.clone(),
@@ -190,6 +190,9 @@ impl Service {
         });
         set.push(standing.clone());
         drop(set);
+        if standing.line == 0 {
+            self.declared.touch();
+        }
         let (service, task) = (self.clone(), standing.clone());
         self.tasks()
             .spawn(async move { service.run_standing(task).await });
@@ -208,6 +211,9 @@ impl Service {
             st.enabled = enabled;
             changed
         });
+        if s.line == 0 {
+            self.declared.touch();
+        }
         s.wake.notify_one();
         Ok(s)
     }
@@ -223,6 +229,9 @@ impl Service {
         spec.values = Some(values);
         spec.check().map_err(ServiceError::Transaction)?;
         *lock(&s.spec) = spec;
+        if s.line == 0 {
+            self.declared.touch();
+        }
         s.wake.notify_one();
         Ok(s)
     }
@@ -233,7 +242,7 @@ impl Service {
     pub(crate) fn remove_transaction(&self, name: &str) -> Result<Arc<Standing>, ServiceError> {
         self.accepting()?;
         self.owning_field()?;
-        let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
+        let set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
         let at = set
             .iter()
             .position(|s| s.name == name)
@@ -246,11 +255,21 @@ impl Service {
                 },
             ));
         }
+        drop(set);
+        self.unstand(name)
+            .ok_or_else(|| ServiceError::UnknownTransaction(crate::text::quote(name)))
+    }
+
+    /// Stops and removes the standing transaction `name` declared at run time.
+    pub(super) fn unstand(&self, name: &str) -> Option<Arc<Standing>> {
+        let mut set = self.standing.0.write().unwrap_or_else(|e| e.into_inner());
+        let at = set.iter().position(|s| s.name == name && s.line == 0)?;
         let removed = set.remove(at);
         drop(set);
         removed.stop.cancel();
+        self.declared.touch();
         tracing::info!(transaction = %removed.name, "transaction removed");
-        Ok(removed)
+        Some(removed)
     }
 
     /// Stops and removes a standing transaction, whether declared or configured (a reload

@@ -10,6 +10,8 @@ mod pair;
 
 use std::time::{Duration, Instant};
 
+use serde_json::json;
+
 use iogate_tests::mqtt::{Broker, Message, Peer};
 use iogate_tests::opcua::{Options, UaClient};
 use iogate_tests::tap::Tap;
@@ -71,6 +73,23 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
         .await
         .expect("NBIRTH of node a");
     let born_with = bd_seq(&born);
+    // Declared on the active, handed to the standby: a link (nothing answers at its port,
+    // so it adds no field connection) and a device on it.
+    pair.declare(
+        Node::A,
+        "/api/v1/links/spare",
+        json!({"tcp": {"host": "127.0.0.1", "port": 1}}),
+    )
+    .await;
+    let device =
+        json!({"profile": "Setpoints", "link": "spare", "slave_id": 2, "refresh_rate_ms": 500});
+    pair.declare(Node::A, "/api/v1/devices/pump2", device).await;
+    pair.until_path(
+        Node::B,
+        "/api/v1/devices/pump2",
+        "the declared device on the standby",
+    )
+    .await;
     let writer = Writer::start(&pair);
     writer.until_written(Node::A, 50).await;
     let epoch = pair.ha(Node::A).await["epoch"].as_u64().expect("epoch");
@@ -117,6 +136,12 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
         reborn.sparkplug
     );
     writer.until_written(Node::B, 50).await;
+    pair.until_path(
+        Node::B,
+        "/api/v1/links/spare",
+        "the declared link on the new active",
+    )
+    .await;
     let log = writer.stop().await;
     // Handed over: every write node a said was written, followed on node b, is written
     // there too, with its value.

@@ -221,6 +221,23 @@ impl Pair {
             .expect("the write's record")
     }
 
+    /// `PUT path` of a declaration on `node`: created.
+    pub async fn declare(&self, node: Node, path: &str, body: Value) {
+        let (status, answer) = self.clients[node.index()]
+            .send(reqwest::Method::PUT, path, body.to_string())
+            .await
+            .expect("declare");
+        assert_eq!(status, 201, "{path}: {answer}");
+    }
+
+    /// Waits until `path` answers 200 on `node`.
+    pub async fn until_path(&self, node: Node, path: &str, what: &str) -> Value {
+        self.clients[node.index()]
+            .until(path, what, |_| true)
+            .await
+            .expect(what)
+    }
+
     /// SIGKILL of `node`'s process.
     pub async fn kill(&mut self, node: Node) {
         if let Some(p) = self.procs[node.index()].take() {

@@ -82,6 +82,8 @@ pub(super) struct Topics {
     pub(super) writes: String,
     /// A standby that comes asks for the records again.
     pub(super) hello: String,
+    /// The links, devices and transactions clients declared (retained).
+    pub(super) declared: String,
 }
 
 impl Topics {
@@ -92,6 +94,7 @@ impl Topics {
             alive: topic("alive"),
             writes: topic("writes"),
             hello: topic("hello"),
+            declared: topic("declared"),
         }
     }
 }

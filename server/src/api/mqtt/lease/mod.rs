@@ -59,6 +59,8 @@ pub(crate) struct LeaseSetup {
     pub(crate) log: Arc<WriteLog>,
     /// Takes the records the active shipped (on the standby), with the active's epoch.
     pub(crate) adopt: Arc<dyn Fn(u64, Vec<WriteRecord>) + Send + Sync>,
+    /// Whose declarations the active publishes and the standby takes.
+    pub(crate) service: Arc<crate::service::Service>,
 }
 
 /// How the watch of a standby ended.
@@ -216,6 +218,7 @@ async fn watch(
         (topics.claim.clone(), 1),
         (topics.alive.clone(), 0),
         (topics.writes.clone(), 0),
+        (topics.declared.clone(), 0),
     ];
     seen.heard = Instant::now();
     subscribed(&mut conn, &filters, topics, seen).await?;
@@ -244,6 +247,8 @@ async fn watch(
                 if let Incoming::Publish(p) = packet? {
                     if p.topic == topics.writes {
                         adopt(setup, &p.payload);
+                    } else if p.topic == topics.declared {
+                        setup.service.adopt_declarations(&p.payload);
                     }
                     publish_in(&mut conn, &p, topics, seen).await?;
                 }
@@ -346,18 +351,11 @@ async fn hold(
     let valid = holds(setup.lease);
     setup.role.activate(epoch, holding.sent + valid, me.clone());
     tracing::info!(epoch, node = %setup.node, "HA: this node is active");
-    let alive = || {
-        serde_json::to_vec(&Claim {
-            node: setup.node.clone(),
-            epoch,
-            held: true,
-            addresses: BTreeMap::new(),
-            bd_seq: setup.role.edge_session(),
-        })
-        .unwrap_or_default()
-    };
     let every = valid / 3;
     let mut next = Instant::now() + every;
+    // The declarations this node holds are the pair's from now on (retained: state).
+    let mut declared = setup.service.watch_declared();
+    declared.mark_changed();
     // Renewals in flight: tag -> when sent.
     let mut sent: BTreeMap<u64, Instant> = BTreeMap::new();
     let mut tag = epoch << 20;
@@ -382,10 +380,15 @@ async fn hold(
                 tag += 1;
                 sent.insert(tag, Instant::now());
                 let out = async {
-                    holding.conn.publish(&topics.alive, &alive(), 1, false, tag).await?;
+                    holding.conn.publish(&topics.alive, &alive(setup, epoch), 1, false, tag).await?;
                     holding.conn.flush().await
                 };
                 if let Err(e) = out.await {
+                    return lost(e.to_string());
+                }
+            }
+            Ok(()) = declared.changed() => {
+                if let Err(e) = ship::declared(&mut holding.conn, &topics.declared, &setup.service).await {
                     return lost(e.to_string());
                 }
             }
@@ -407,19 +410,42 @@ async fn hold(
                     if p.qos > 0 && holding.conn.puback(p.pkid).await.is_err() {
                         return lost("the broker connection failed".into());
                     }
-                    if p.topic == topics.hello {
-                        setup.log.journal_snapshot();
-                    }
-                    if let Ok(claim) = serde_json::from_slice::<Claim>(&p.payload)
-                        && p.topic == topics.claim && claim.held && claim.node != setup.node
-                    {
-                        return lost(format!("node {} claims epoch {}", claim.node, claim.epoch));
+                    if let Some(why) = heard_by_holder(setup, topics, &p) {
+                        return lost(why);
                     }
                 }
                 Ok(_) => {}
             },
         }
     }
+}
+
+/// A renewal: the holder, its epoch, and its Sparkplug session.
+fn alive(setup: &LeaseSetup, epoch: u64) -> Vec<u8> {
+    serde_json::to_vec(&Claim {
+        node: setup.node.clone(),
+        epoch,
+        held: true,
+        addresses: BTreeMap::new(),
+        bd_seq: setup.role.edge_session(),
+    })
+    .unwrap_or_default()
+}
+
+/// What the holder makes of a message: a standby's hello is answered with a snapshot of
+/// the records; another node's claim ends the lease (the reason).
+fn heard_by_holder(
+    setup: &LeaseSetup,
+    topics: &Topics,
+    p: &super::packet::Publish,
+) -> Option<String> {
+    if p.topic == topics.hello {
+        setup.log.journal_snapshot();
+        return None;
+    }
+    let claim = serde_json::from_slice::<Claim>(&p.payload).ok()?;
+    (p.topic == topics.claim && claim.held && claim.node != setup.node)
+        .then(|| format!("node {} claims epoch {}", claim.node, claim.epoch))
 }
 
 /// Takes a shipment of the active's write records (a standby).

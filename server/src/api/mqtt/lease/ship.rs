@@ -173,6 +173,17 @@ pub(super) async fn ship(
     }
 }
 
+/// Publishes what clients declared here, retained: the pair's declarations.
+pub(super) async fn declared(
+    conn: &mut Connection,
+    topic: &str,
+    service: &crate::service::Service,
+) -> Result<(), ConnError> {
+    conn.publish(topic, &service.declared_set(), 0, true, 0)
+        .await?;
+    conn.flush().await
+}
+
 /// The records of a shipment, those this build can read; `None` for a payload that is not
 /// a shipment at all (logged by the caller).
 pub(super) fn unpack(payload: &[u8]) -> Option<(u64, Vec<WriteRecord>)> {
@@ -209,8 +220,8 @@ mod tests {
             dropped: 0,
             records: vec![Shipped::from(&record)],
         };
-        let bytes = serde_json::to_vec(&shipment).unwrap();
-        let (epoch, back) = unpack(&bytes).unwrap();
+        let bytes = serde_json::to_vec(&shipment).expect("encoded");
+        let (epoch, back) = unpack(&bytes).expect("a shipment");
         assert_eq!(epoch, 3);
         assert_eq!(back.len(), 1);
         let Some(Value::Real(f)) = back[0].value else {
