@@ -22,6 +22,7 @@ use tonic::transport::Channel;
 
 mod declare;
 pub mod fb;
+mod pair;
 mod types;
 
 /// How a raw transaction ended, as the read and write function blocks report it.
@@ -52,6 +53,7 @@ pub use types::{
 
 pub use declare::{DeviceDeclaration, SerialLink};
 pub use iogate_proto::pb as proto;
+pub use pair::{FOLLOW_PATIENCE, HaStatus};
 
 /// What went wrong talking to the gateway.
 #[derive(Debug, thiserror::Error)]
@@ -204,6 +206,8 @@ impl Exchange {
 #[derive(Debug, Clone)]
 pub struct Client {
     inner: GatewayClient<Channel>,
+    /// Both nodes' addresses, for a client of an active/standby pair.
+    urls: Vec<String>,
 }
 
 impl Client {
@@ -215,7 +219,10 @@ impl Client {
                 url: url.to_owned(),
                 source,
             })?;
-        Ok(Client { inner })
+        Ok(Client {
+            inner,
+            urls: Vec::new(),
+        })
     }
 
     /// The generated stub, for anything this wrapper does not cover.
@@ -301,8 +308,19 @@ impl Client {
         Ok(self.write_many(&[(device, field, value)]).await?[0])
     }
 
-    /// Writes several fields at once: all are accepted or none.
+    /// Writes several fields at once: all are accepted or none. A client of a pair whose
+    /// node refused it (`UNAVAILABLE`: a standby, or a node lost) asks the active again.
     pub async fn write_many(&mut self, writes: &[(&str, &str, Value)]) -> Result<Vec<u64>, Error> {
+        match self.write_once(writes).await {
+            Err(e) if self.should_follow(&e) => {
+                self.follow_active().await?;
+                self.write_once(writes).await
+            }
+            other => other,
+        }
+    }
+
+    async fn write_once(&mut self, writes: &[(&str, &str, Value)]) -> Result<Vec<u64>, Error> {
         let r = self
             .inner
             .write(pb::WriteRequest {
@@ -351,11 +369,17 @@ impl Client {
     }
 
     /// Where the write with `generation` stands.
+    /// A client of a pair follows the active when its node is lost: the outcome of a write
+    /// the old active took is on the new one.
     pub async fn write_status(&mut self, generation: u64) -> Result<WriteStatus, Error> {
-        let r = self
-            .inner
-            .get_write(pb::GetWriteRequest { generation })
-            .await?;
+        let request = pb::GetWriteRequest { generation };
+        let r = match self.inner.get_write(request).await {
+            Err(e) if self.should_follow(&e.clone().into()) => {
+                self.follow_active().await?;
+                self.inner.get_write(request).await?
+            }
+            other => other?,
+        };
         Ok(WriteStatus::from_pb(r.into_inner()))
     }
 

@@ -26,7 +26,8 @@ use format::{field_table, print_json, show, split_target};
     about = "Look at and drive an iogate gateway over gRPC"
 )]
 struct Cli {
-    /// The gateway's gRPC address.
+    /// The gateway's gRPC address; both nodes' of an active/standby pair, separated by a
+    /// comma (`http://gw-a:50051,http://gw-b:50051`): iogatectl talks to the active.
     #[arg(
         long,
         short,
@@ -45,6 +46,8 @@ struct Cli {
 enum Command {
     /// Devices with their diagnostics.
     Devices,
+    /// The gateway in its active/standby pair: node, role, epoch, the active.
+    Ha,
     /// Links with their state.
     Links,
     /// Loaded profiles.
@@ -131,11 +134,40 @@ enum Describe {
 }
 
 async fn run(cli: Cli) -> anyhow::Result<ExitCode> {
-    let mut client = Client::connect(&cli.server).await?;
+    let urls: Vec<String> = cli
+        .server
+        .split(',')
+        .map(|u| u.trim().to_owned())
+        .filter(|u| !u.is_empty())
+        .collect();
+    let mut client = Client::connect_pair(&urls).await?;
     let json = cli.json;
     match cli.command {
         Command::Devices => devices(&mut client, json).await?,
         Command::Links => links(&mut client, json).await?,
+        Command::Ha => {
+            let ha = client.ha().await?;
+            let active = ha.active_grpc.as_deref().unwrap_or("-");
+            if json {
+                let fields = [
+                    ("node", &ha.node),
+                    ("role", &ha.role),
+                    ("active", &ha.active_node),
+                ];
+                let mut doc: serde_json::Map<_, _> = fields
+                    .iter()
+                    .map(|(k, v)| ((*k).to_owned(), (*v).clone().into()))
+                    .collect();
+                doc.insert("epoch".into(), ha.epoch.into());
+                doc.insert("active_grpc".into(), active.into());
+                print_json(&doc)?;
+            } else {
+                println!(
+                    "{} {} epoch {} active {} ({active})",
+                    ha.node, ha.role, ha.epoch, ha.active_node
+                );
+            }
+        }
         Command::Profiles => profiles(&mut client, json).await?,
         Command::Get { target } => get(&mut client, &target, json).await?,
         Command::Set {

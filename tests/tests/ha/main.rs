@@ -10,6 +10,7 @@ mod pair;
 
 use std::time::{Duration, Instant};
 
+use iogate_client::{Client, Value};
 use serde_json::json;
 
 use iogate_tests::mqtt::{Broker, Message, Peer};
@@ -90,6 +91,17 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
         "the declared device on the standby",
     )
     .await;
+    // The remote runtime's client, given both nodes, talks to the active. Its writes go
+    // to the declared device, whose link is down: accepted, they fail, and touch no field.
+    let urls = [pair.grpc(Node::A).await, pair.grpc(Node::B).await];
+    let mut runtime = Client::connect_pair(&urls)
+        .await
+        .expect("the pair's client");
+    assert_eq!(runtime.ha().await.expect("ha").node, "a");
+    let before = runtime
+        .write("pump2", "sp", Value::UInt(7))
+        .await
+        .expect("write on a");
     let writer = Writer::start(&pair);
     writer.until_written(Node::A, 50).await;
     let epoch = pair.ha(Node::A).await["epoch"].as_u64().expect("epoch");
@@ -118,6 +130,22 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
     assert_eq!(
         ua_b.read_absolute("i=2267").await.expect("ServiceLevel")["value"],
         255
+    );
+    // The runtime's client follows the takeover: its next write goes to node b, and the
+    // write node a took is found there.
+    let after = runtime
+        .write("pump2", "sp", Value::UInt(8))
+        .await
+        .expect("write after the takeover");
+    assert_eq!(runtime.ha().await.expect("ha").node, "b");
+    assert!(after > before, "{after} after {before}");
+    let status = runtime
+        .write_status(before)
+        .await
+        .expect("the old write on b");
+    assert_eq!(
+        (status.generation, status.device.as_str(), status.value),
+        (before, "pump2", Some(Value::UInt(7)))
     );
     // The edge node dies (node a's Will) and is born again from node b with the next bdSeq.
     let death = host

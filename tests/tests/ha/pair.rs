@@ -201,16 +201,26 @@ impl Pair {
 
     /// The address of `node`'s OPC UA server.
     pub async fn opcua(&self, node: Node) -> String {
+        self.listening(node, "opcua").await
+    }
+
+    /// The URL of `node`'s gRPC server.
+    pub async fn grpc(&self, node: Node) -> String {
+        format!("http://{}", self.listening(node, "grpc").await)
+    }
+
+    /// Where `node`'s `server` listens.
+    async fn listening(&self, node: Node, server: &str) -> String {
         let (_, config) = self.clients[node.index()]
             .get("/api/v1/config")
             .await
             .expect("config");
         config["listening"]
             .as_array()
-            .and_then(|l| l.iter().find(|s| s["server"] == "opcua"))
+            .and_then(|l| l.iter().find(|s| s["server"] == server))
             .and_then(|s| s["address"].as_str())
             .map(str::to_owned)
-            .expect("an OPC UA server")
+            .unwrap_or_else(|| panic!("no {server} server in {config}"))
     }
 
     /// `GET /api/v1/writes/<generation>` on `node`.
