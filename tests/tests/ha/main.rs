@@ -6,6 +6,7 @@
 //! write the gateways said was written is on the field once, nothing is written that was
 //! not asked for, and two field connections are never open at once.
 
+mod bench;
 mod pair;
 
 use std::time::{Duration, Instant};

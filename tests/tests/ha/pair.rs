@@ -122,6 +122,8 @@ impl Field {
 /// Two gateway processes, `a` and `b`.
 pub struct Pair {
     procs: [Option<GatewayProcess>; 2],
+    /// Each node's directory and configuration, to start it again.
+    homes: [(std::path::PathBuf, String); 2],
     pub bases: [String; 2],
     clients: [TestGateway; 2],
     pub field: Field,
@@ -171,8 +173,10 @@ impl Pair {
                 .unwrap_or_default()
         });
         let clients = bases.clone().map(TestGateway::remote);
+        let homes = [Node::A, Node::B].map(|n| (dir.join(n.name()), config(n)));
         Ok(Pair {
             procs,
+            homes,
             bases,
             clients,
             field,
@@ -246,6 +250,31 @@ impl Pair {
             .until(path, what, |_| true)
             .await
             .expect(what)
+    }
+
+    /// Starts `node` again after a kill, and waits until it is the standby.
+    pub async fn restart(&mut self, node: Node) {
+        let (home, config) = &self.homes[node.index()];
+        let process = GatewayProcess::start(BIN, home, config)
+            .await
+            .expect("restart");
+        let base = process.gateway.base.clone();
+        self.procs[node.index()] = Some(process);
+        self.bases[node.index()] = base.clone();
+        self.clients[node.index()] = TestGateway::remote(base);
+        let other = node.other().name();
+        self.until_ha(node, "the standby again", |ha| {
+            ha["role"] == "standby" && ha["active"]["node"] == other
+        })
+        .await;
+    }
+
+    /// The process id of `node`.
+    pub fn pid(&self, node: Node) -> u32 {
+        self.procs[node.index()]
+            .as_ref()
+            .and_then(GatewayProcess::pid)
+            .expect("a running node")
     }
 
     /// SIGKILL of `node`'s process.
