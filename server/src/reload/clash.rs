@@ -65,6 +65,54 @@ pub(super) fn clashes(service: &Service, old: &Setup, new: &Setup) -> Option<Pro
             );
         }
     }
+    pair_terms(old, new, &mut report);
     let problems = report.into_problems();
     (!problems.is_empty()).then_some(problems)
+}
+
+/// The pair's terms are fixed for the life of the process: a node that took a lease in one
+/// group, or under one name, cannot change them under the other node's feet.
+fn pair_terms(old: &Setup, new: &Setup, report: &mut Problem) {
+    let terms = |c: &crate::config::Config| {
+        c.ha.clone().map(|mut ha| {
+            ha.line = 0;
+            ha
+        })
+    };
+    if terms(&old.config) != terms(&new.config) {
+        let line = new.config.ha.as_ref().map_or(1, |ha| ha.line);
+        report.push(
+            line,
+            "ha",
+            "the `ha:` section changed: a node of a pair takes its terms (node, arbiter, lease, group) at start; restart the gateway to change them (the other node takes over meanwhile)",
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    fn setup(ha: &str) -> Setup {
+        let text =
+            format!("mqtt: {{ url: \"mqtt://127.0.0.1:1883\", json: {{ prefix: p }} }}\n{ha}");
+        let config = crate::config::parse("iogate.yaml", &text).expect("config parses");
+        Setup::from_config(config, Path::new(".")).expect("config checks")
+    }
+
+    #[test]
+    fn a_reload_that_changes_the_pairs_terms_is_refused_and_one_that_keeps_them_is_not() {
+        let a = setup("ha: { node: a, arbiter: mqtt, lease: 3s }\n");
+        let moved = setup("\n\nha: { node: a, arbiter: mqtt, lease: 3s }\n");
+        let mut report = Problem::new(&moved.config.source);
+        pair_terms(&a, &moved, &mut report);
+        assert!(report.into_problems().is_empty(), "only its line moved");
+        let longer = setup("ha: { node: a, arbiter: mqtt, lease: 4s }\n");
+        let mut report = Problem::new(&longer.config.source);
+        pair_terms(&a, &longer, &mut report);
+        let problems = report.into_problems().to_string();
+        assert!(problems.contains("`ha:` section changed"), "{problems}");
+    }
 }

@@ -226,11 +226,15 @@ async fn watch(
     conn.publish(&topics.hello, setup.node.as_bytes(), 0, false, 0)
         .await?;
     conn.flush().await?;
+    // Whether the lease's messages changed what this node knows (a shipment does not).
+    let mut told = true;
     loop {
-        let active = seen.claim.as_ref().filter(|c| c.held).map(Claim::peer);
-        setup.role.stand_by(seen.epoch, active);
-        if let Some(bd_seq) = seen.bd_seq {
-            setup.role.heard_edge_session(bd_seq);
+        if std::mem::take(&mut told) {
+            let active = seen.claim.as_ref().filter(|c| c.held).map(Claim::peer);
+            setup.role.stand_by(seen.epoch, active);
+            if let Some(bd_seq) = seen.bd_seq {
+                setup.role.heard_edge_session(bd_seq);
+            }
         }
         if seen.free(setup.lease) {
             conn.disconnect().await;
@@ -249,12 +253,14 @@ async fn watch(
                         adopt(setup, &p.payload);
                     } else if p.topic == topics.declared {
                         setup.service.adopt_declarations(&p.payload);
+                    } else {
+                        told = true;
                     }
                     publish_in(&mut conn, &p, topics, seen).await?;
                 }
             }
             _ = sleep_until(ping) => conn.keep_alive().await?,
-            _ = sleep_until(silent) => {}
+            _ = sleep_until(silent) => told = true,
         }
     }
 }
