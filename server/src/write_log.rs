@@ -120,6 +120,8 @@ struct Inner {
     journal: Option<Journal>,
     /// Generations adopted from the other node of the pair still pending there.
     adopted_pending: std::collections::BTreeSet<u64>,
+    /// When a standby's hello last made a snapshot of the journal.
+    snapshot_at: Option<std::time::Instant>,
 }
 
 /// Epoch starts remembered, at most (one per takeover).
@@ -146,6 +148,7 @@ impl Default for WriteLog {
                 gaps: std::collections::VecDeque::new(),
                 journal: None,
                 adopted_pending: Default::default(),
+                snapshot_at: None,
             }),
             journaled: tokio::sync::Notify::new(),
         }

@@ -39,6 +39,19 @@ impl WriteLog {
         (journal.records.drain(..n).collect(), dropped)
     }
 
+    /// As [`WriteLog::journal_snapshot`], unless one was taken less than `every` ago.
+    pub(crate) fn journal_snapshot_at_most(&self, every: std::time::Duration) {
+        {
+            let mut inner = self.lock();
+            let now = std::time::Instant::now();
+            if inner.snapshot_at.is_some_and(|at| now < at + every) {
+                return;
+            }
+            inner.snapshot_at = Some(now);
+        }
+        self.journal_snapshot();
+    }
+
     /// Journals again what a standby that just came needs: each field's newest record
     /// (its desired value and latest outcome) and every pending one.
     pub(crate) fn journal_snapshot(&self) {

@@ -140,3 +140,17 @@ fn the_journal_carries_each_change_and_a_snapshot_the_newest_of_each_field() {
         "not {before}, which is older than f's newest"
     );
 }
+
+#[test]
+fn hellos_make_at_most_one_snapshot_a_second() {
+    let log = WriteLog::default();
+    log.start_journal();
+    let g = log.begin("d", "f", Value::Int(1));
+    log.finish(g, WriteStatus::Written, None);
+    log.drain_journal(10);
+    let every = std::time::Duration::from_secs(1);
+    log.journal_snapshot_at_most(every);
+    log.journal_snapshot_at_most(every);
+    let (records, _) = log.drain_journal(10);
+    assert_eq!(records.len(), 1, "one snapshot of f's newest record");
+}

@@ -57,14 +57,16 @@ impl Service {
             );
             return;
         }
+        // Only records of this gateway's own fields are kept: the log is bounded per field,
+        // and a name nobody has would make a field of its own.
         for record in records {
-            if !self.cache.writes.adopt(record.clone()) {
-                continue;
-            }
             let Ok(device) = self.cache.device(&record.device) else {
                 continue;
             };
-            if let Ok(idx) = device.field_index(&record.field) {
+            let Ok(idx) = device.field_index(&record.field) else {
+                continue;
+            };
+            if self.cache.writes.adopt(record.clone()) {
                 device.outputs().adopt(idx, &record);
             }
         }
