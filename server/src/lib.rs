@@ -20,6 +20,7 @@ pub(crate) mod front_ends;
 #[cfg(any(fuzzing, test))]
 pub mod fuzz;
 pub(crate) mod ha;
+pub(crate) mod http_client;
 #[cfg(test)]
 pub(crate) mod killed;
 pub mod link;

@@ -187,7 +187,7 @@ impl Setup {
         problems.extend_all(checks.into_iter().flatten());
         problems.extend(crate::front_ends::check_files(&config, base));
         problems.extend(crate::drivers::check_links(&config));
-        problems.extend(crate::ha::check(&config));
+        problems.extend(crate::ha::check(&config, base));
         let map = if dir.is_none() && !config.devices.is_empty() {
             None // the map's fields are the profiles' (checked once they load)
         } else {

@@ -4,9 +4,18 @@
 
 use std::time::Duration;
 
+use super::ha_arbiters::{EtcdConfig, KubernetesConfig};
 use crate::yaml::{Node, Report};
 
-const KEYS: &[&str] = &["node", "arbiter", "lease", "group", "advertise"];
+const KEYS: &[&str] = &[
+    "node",
+    "arbiter",
+    "lease",
+    "group",
+    "advertise",
+    "etcd",
+    "kubernetes",
+];
 
 /// The lease by default, and its bounds: an MQTT keep-alive counts whole seconds (and
 /// brokers round them, so a lease of one second could be dropped at once), and a lease of
@@ -52,6 +61,10 @@ pub(crate) struct HaConfig {
     /// address each server is bound to, or this machine's host name when that is a
     /// wildcard).
     pub(crate) advertise: Option<String>,
+    /// Where etcd is (`arbiter: etcd`).
+    pub(crate) etcd: Option<EtcdConfig>,
+    /// Where the Kubernetes Lease is (`arbiter: kubernetes`; in-cluster by default).
+    pub(crate) kubernetes: Option<KubernetesConfig>,
     /// The line of the `ha` key.
     pub(crate) line: u64,
 }
@@ -74,13 +87,27 @@ pub(crate) fn read(node: &Node, report: &mut Report) -> Option<HaConfig> {
         None => Some(DEFAULT_GROUP.to_owned()),
     };
     let advertise = map.get("advertise").and_then(|n| advertise(n, report));
+    let etcd = map.get("etcd").map(|n| super::ha_arbiters::etcd(n, report));
+    let kubernetes = map
+        .get("kubernetes")
+        .map(|n| super::ha_arbiters::kubernetes(n, report));
     map.finish(report, "ha", KEYS);
+    if arbiter == Some(Arbiter::Etcd) && etcd.is_none() {
+        report.push(
+            node.line,
+            "ha.etcd",
+            "arbiter: etcd needs `etcd: {endpoints: [http://host:2379]}`",
+        );
+        return None;
+    }
     Some(HaConfig {
         node: node_name?,
         arbiter: arbiter?,
         lease: lease?,
         group: group?,
         advertise,
+        etcd: etcd.flatten(),
+        kubernetes: kubernetes.map(|k| k.unwrap_or_default()),
         line: node.line,
     })
 }

@@ -5,6 +5,7 @@
 
 mod check;
 pub(crate) mod ha;
+pub(crate) mod ha_arbiters;
 mod line;
 pub(crate) mod modbus_server;
 mod parse;

@@ -13,6 +13,13 @@ use crate::role::{Peer, Role};
 use crate::service::Service;
 use crate::yaml::{Problems, Report};
 
+mod etcd;
+mod kube;
+mod store;
+
+use etcd::Etcd;
+use kube::Kube;
+
 /// The role of a gateway configured with `config`: standby until its arbiter says more,
 /// or alone.
 pub(crate) fn role(config: &Config) -> Arc<Role> {
@@ -24,36 +31,84 @@ pub(crate) fn role(config: &Config) -> Arc<Role> {
 
 /// What `check` finds wrong with `ha:` beside the section itself: an arbiter this
 /// configuration cannot reach.
-pub(crate) fn check(config: &Config) -> Problems {
+pub(crate) fn check(config: &Config, base: &std::path::Path) -> Problems {
     let mut report = Report::new(&config.source);
     if let Some(ha) = &config.ha {
-        match ha.arbiter {
-            Arbiter::Mqtt if crate::api::mqtt::section(config).is_none() => report.push(
-                ha.line,
-                "ha.arbiter",
-                "mqtt: the lease is held on the broker of the `mqtt:` section, and there is none",
+        let mqtt = crate::api::mqtt::section(config).is_some();
+        let problem = match ha.arbiter {
+            Arbiter::Mqtt if !mqtt => Some(
+                "mqtt: the lease is held on the broker of the `mqtt:` section, and there is none"
+                    .to_owned(),
             ),
-            Arbiter::Mqtt => {}
-            other => report.push(
-                ha.line,
-                "ha.arbiter",
-                format!(
-                    "{}: this build holds the lease on an MQTT broker only (arbiter: mqtt)",
-                    other.name()
-                ),
-            ),
+            Arbiter::Mqtt => None,
+            Arbiter::Etcd => ha
+                .etcd
+                .as_ref()
+                .and_then(|e| Etcd::new(e, &ha.group, ha.lease, base).err()),
+            Arbiter::Kubernetes => {
+                let k = ha.kubernetes.clone().unwrap_or_default();
+                Kube::new(&k, &ha.group, ha.lease, base).err()
+            }
+        };
+        if let Some(problem) = problem {
+            report.push(ha.line, "ha.arbiter", problem);
         }
     }
     report.into_problems()
 }
 
-/// Starts the lease of a node of a pair (nothing for a gateway alone). Its servers listen
-/// already, so what it announces is where they are.
+/// Starts the lease of a node of a pair (nothing for a gateway alone), and the handover
+/// over the `mqtt:` broker when there is one. Its servers listen already, so what it
+/// announces is where they are.
 pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::Path) {
     let Some(ha) = config.ha.clone() else {
         return;
     };
+    let token = service.tasks().token().clone();
+    let role = service.tasks().role().clone();
+    let me = {
+        let (service, ha) = (service.clone(), ha.clone());
+        Arc::new(move || announced(&service, &ha)) as Arc<dyn Fn() -> Peer + Send + Sync>
+    };
+    let entering = {
+        let service = service.clone();
+        Arc::new(move |epoch| service.take_over(epoch)) as Arc<dyn Fn(u64) + Send + Sync>
+    };
+    tracing::info!(node = %ha.node, arbiter = ha.arbiter.name(), lease = ?ha.lease, "HA: standby, watching the lease");
+    let setup = store::StoreSetup {
+        node: ha.node.clone(),
+        lease: ha.lease,
+        role: role.clone(),
+        me: me.clone(),
+        entering: entering.clone(),
+    };
+    let stored = match ha.arbiter {
+        Arbiter::Mqtt => Ok(None),
+        Arbiter::Etcd => match &ha.etcd {
+            Some(e) => Etcd::new(e, &ha.group, ha.lease, base)
+                .map(|e| Some(Box::pin(store::run(e, setup, token.clone())) as Lease)),
+            None => Err("no `etcd:` section".to_owned()),
+        },
+        Arbiter::Kubernetes => {
+            let k = ha.kubernetes.clone().unwrap_or_default();
+            Kube::new(&k, &ha.group, ha.lease, base)
+                .map(|k| Some(Box::pin(store::run(k, setup, token.clone())) as Lease))
+        }
+    };
+    let stored = match stored {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::error!(error = %e, arbiter = ha.arbiter.name(), "HA: the arbiter cannot be reached: this node stays standby");
+            return;
+        }
+    };
     let Some(mqtt) = crate::api::mqtt::section(config) else {
+        if let Some(lease) = stored {
+            tracing::warn!(
+                "HA: no `mqtt:` broker: the lease fences writes, but nothing is handed over (write outcomes, desired values, declarations)"
+            );
+            service.tasks().spawn(lease);
+        }
         return;
     };
     let prepared = match crate::api::mqtt::prepare(mqtt, base) {
@@ -62,14 +117,6 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
             tracing::error!(error = %e, "HA: the MQTT broker's settings cannot be used: this node stays standby");
             return;
         }
-    };
-    let me = {
-        let (service, ha) = (service.clone(), ha.clone());
-        Arc::new(move || announced(&service, &ha)) as Arc<dyn Fn() -> Peer + Send + Sync>
-    };
-    let entering = {
-        let service = service.clone();
-        Arc::new(move |epoch| service.take_over(epoch)) as Arc<dyn Fn(u64) + Send + Sync>
     };
     let adopt = {
         let service = service.clone();
@@ -82,19 +129,28 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
         group: ha.group.clone(),
         node: ha.node.clone(),
         lease: ha.lease,
-        role: service.tasks().role().clone(),
+        role,
         me,
         entering,
         log: service.cache.writes.clone(),
         adopt,
         service: service.clone(),
     };
-    let token = service.tasks().token().clone();
-    tracing::info!(node = %ha.node, arbiter = ha.arbiter.name(), lease = ?ha.lease, "HA: standby, watching the lease");
-    service
-        .tasks()
-        .spawn(crate::api::mqtt::lease::run(setup, token));
+    match stored {
+        None => service
+            .tasks()
+            .spawn(crate::api::mqtt::lease::run(setup, token)),
+        Some(lease) => {
+            service.tasks().spawn(lease);
+            service
+                .tasks()
+                .spawn(crate::api::mqtt::lease::handover(setup, token));
+        }
+    }
 }
+
+/// A lease held on a store, as a task.
+type Lease = std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>;
 
 /// This node as clients reach it: each server's address, a wildcard host replaced by
 /// `ha.advertise` (else this machine's host name).

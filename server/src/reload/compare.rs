@@ -267,18 +267,5 @@ fn connector(setup: &Setup) -> Result<tokio_rustls::TlsConnector, DiffError> {
             "https: the config has no security.tls certificate to trust".to_owned(),
         ));
     };
-    let failed = |e: crate::tls::TlsError| DiffError::Failed(e.to_string());
-    let mut roots = rustls::RootCertStore::empty();
-    for cert in crate::tls::read_certs(&files.cert).map_err(failed)? {
-        roots
-            .add(cert)
-            .map_err(|e| DiffError::Failed(format!("{}: {e}", files.cert.display())))?;
-    }
-    let config = crate::tls::client_builder()
-        .map_err(failed)?
-        .with_root_certificates(roots)
-        .with_no_client_auth();
-    Ok(tokio_rustls::TlsConnector::from(std::sync::Arc::new(
-        config,
-    )))
+    crate::http_client::trusting(&files.cert).map_err(DiffError::Failed)
 }
