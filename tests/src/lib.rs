@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use iogate::app::{self, Running, Setup};
 
+pub mod arbiters;
 pub mod bacnet;
 pub mod browser;
 pub mod cable;

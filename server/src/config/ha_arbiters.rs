@@ -154,3 +154,62 @@ pub(crate) fn dns_label(s: &str) -> bool {
         && !s.starts_with('-')
         && !s.ends_with('-')
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::config::ha::{Arbiter, read};
+    use crate::config::read_section;
+
+    #[test]
+    fn an_etcd_and_a_kubernetes_arbiter_are_read_with_their_defaults() {
+        let text = "ha: {node: a, arbiter: etcd, etcd: {endpoints: [\"http://10.0.0.5:2379/\", \"https://e2:2379\"]}}\n";
+        let (ha, problems) = read_section(text, "ha", read);
+        assert_eq!(problems, Vec::<String>::new());
+        let ha = ha.expect("read");
+        let etcd = ha.etcd.expect("etcd");
+        assert_eq!(ha.arbiter, Arbiter::Etcd);
+        assert_eq!(etcd.endpoints, ["http://10.0.0.5:2379", "https://e2:2379"]);
+        assert_eq!(etcd.prefix, super::DEFAULT_ETCD_PREFIX);
+        let (ha, problems) = read_section("ha: {node: b, arbiter: kubernetes}\n", "ha", read);
+        assert_eq!(problems, Vec::<String>::new());
+        let ha = ha.expect("read");
+        assert_eq!(ha.arbiter, Arbiter::Kubernetes);
+        assert_eq!(ha.kubernetes, None, "in-cluster defaults");
+    }
+
+    #[test]
+    fn every_problem_of_an_arbiter_is_named() {
+        for (text, expected) in [
+            ("ha: {node: a, arbiter: etcd}\n", "ha.etcd: arbiter: etcd needs"),
+            (
+                "ha: {node: a, arbiter: etcd, etcd: {endpoints: [\"tcp://x:1\"]}}\n",
+                "ha.etcd.endpoints: tcp://x:1 is not an http:// or https:// URL",
+            ),
+            (
+                "ha: {node: a, arbiter: etcd, etcd: {endpoints: []}}\n",
+                "ha.etcd.endpoints: from 1 to 9 client URLs",
+            ),
+            (
+                "ha: {node: a, arbiter: etcd, etcd: {endpoints: [\"http://x:1\"], prefix: \"a/\"}}\n",
+                "ha.etcd.prefix",
+            ),
+            (
+                "ha: {node: a, arbiter: kubernetes, kubernetes: {namespace: Plant_1}}\n",
+                "ha.kubernetes.namespace: Plant_1 is not a Kubernetes name",
+            ),
+            (
+                "ha: {node: a, arbiter: kubernetes, kubernetes: {api: \"kube:6443\"}}\n",
+                "ha.kubernetes.api",
+            ),
+            (
+                "ha: {node: a, arbiter: kubernetes, kubernetes: {lease: x}}\n",
+                "lease",
+            ),
+        ] {
+            let (ha, problems) = read_section(text, "ha", read);
+            let joined = problems.join("\n");
+            assert!(joined.contains(expected), "{expected} in {joined}");
+            assert!(ha.is_none() || !problems.is_empty(), "{text}");
+        }
+    }
+}

@@ -8,6 +8,7 @@
 
 mod bench;
 mod pair;
+mod stores;
 
 use std::time::{Duration, Instant};
 
@@ -174,26 +175,12 @@ async fn a_killed_active_is_replaced_within_two_leases_and_every_written_value_i
     let log = writer.stop().await;
     // Handed over: every write node a said was written, followed on node b, is written
     // there too, with its value.
-    let on_a: Vec<_> = log
-        .entries
-        .iter()
-        .filter(|e| e.node == Node::A && e.outcome.as_deref() == Some("written"))
-        .collect();
-    for e in &on_a {
-        let (status, record) = pair.write_record(Node::B, e.generation).await;
-        assert_eq!(
-            status, 200,
-            "write {} of node a on node b: {record}",
-            e.generation
-        );
-        assert_eq!(record["status"], "written", "{record}");
-        assert_eq!(record["value"], e.value, "{record}");
-    }
+    let on_a = pair.assert_handed_over(&log, Node::A, killed).await;
     eprintln!(
         "takeover after kill -9: {takeover:?}; {} writes asked, {} written, {} of node a's found on node b",
         log.asked(),
         log.written().len(),
-        on_a.len()
+        on_a
     );
     pair.field.assert_one_master_at_a_time();
     pair.field.assert_written_once(&log);

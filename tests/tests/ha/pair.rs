@@ -133,6 +133,17 @@ impl Pair {
     /// Starts `a` (which becomes active) then `b` (standby), each reaching the broker at
     /// its port of `brokers`.
     pub async fn start(name: &str, brokers: [u16; 2], lease: u64) -> anyhow::Result<Pair> {
+        Pair::start_with(name, brokers, lease, |_| "arbiter: mqtt".to_owned()).await
+    }
+
+    /// Starts the pair with the lease on `arbiter` (each node's `ha:` keys for it), and the
+    /// handover on the brokers.
+    pub async fn start_with(
+        name: &str,
+        brokers: [u16; 2],
+        lease: u64,
+        arbiter: impl Fn(Node) -> String,
+    ) -> anyhow::Result<Pair> {
         let field = Field::start().await?;
         let dir = temp_dir(name);
         std::fs::create_dir_all(dir.join("profiles"))?;
@@ -144,12 +155,13 @@ impl Pair {
                  mqtt:\n  url: mqtt://127.0.0.1:{broker}\n  json: {{ prefix: plant }}\n\
                  \x20 sparkplug: {{ group_id: plant, edge_node_id: pair }}\n\
                  opcua: {{ listen: 127.0.0.1:0, pki_dir: {pki} }}\n\
-                 ha: {{ node: {node}, arbiter: mqtt, lease: {lease}s }}\n",
+                 ha: {{ node: {node}, lease: {lease}s, {arbiter} }}\n",
                 pki = dir.join(node.name()).join("pki").display(),
                 profiles = dir.join("profiles").display(),
                 field = field.tap.port,
                 broker = brokers[node.index()],
                 node = node.name(),
+                arbiter = arbiter(node),
             )
         };
         let mut procs = [None, None];
@@ -277,6 +289,46 @@ impl Pair {
             .expect("a running node")
     }
 
+    /// Every write `from` said was written, found on the other node with its outcome and
+    /// value: all that settled before `killed` less the active's gathering of records
+    /// (20 ms, with margin); those settled later may be lost with the node. The number
+    /// checked.
+    pub async fn assert_handed_over(&self, log: &WriteLog, from: Node, killed: Instant) -> usize {
+        let margin = Duration::from_millis(100);
+        let (mut checked, mut lost) = (0, 0);
+        for e in log
+            .entries
+            .iter()
+            .filter(|e| e.node == from && e.outcome.as_deref() == Some("written"))
+        {
+            let (status, record) = self.write_record(from.other(), e.generation).await;
+            // Lost with the node, or found pending and ended by the takeover.
+            if e.settled + margin >= killed && (status == 404 || record["status"] != "written") {
+                lost += 1;
+                continue;
+            }
+            assert_eq!(
+                status,
+                200,
+                "write {} of node {} on the other: {record}",
+                e.generation,
+                from.name()
+            );
+            assert_eq!(
+                record["status"],
+                "written",
+                "settled {:?} before the kill: {record}",
+                killed.saturating_duration_since(e.settled)
+            );
+            assert_eq!(record["value"], e.value, "{record}");
+            checked += 1;
+        }
+        eprintln!(
+            "handed over: {checked} written records found; {lost} settled in the last {margin:?} before the kill not"
+        );
+        checked
+    }
+
     /// SIGKILL of `node`'s process.
     pub async fn kill(&mut self, node: Node) {
         if let Some(p) = self.procs[node.index()].take() {
@@ -295,6 +347,8 @@ pub struct Entry {
     pub at: Instant,
     /// Its final status as the node said (`written`, `superseded`, `failed`), if it said.
     pub outcome: Option<String>,
+    /// When the client learnt it.
+    pub settled: Instant,
 }
 
 #[derive(Debug, Default, Clone)]
@@ -401,6 +455,7 @@ async fn write(clients: [TestGateway; 2], log: Arc<Mutex<WriteLog>>, stop: watch
                 generation,
                 at,
                 outcome,
+                settled: Instant::now(),
             });
     }
 }

@@ -203,7 +203,7 @@ pub(crate) fn router(service: Arc<Service>, body_timeout: std::time::Duration) -
         .layer(axum::middleware::from_fn(refuse_large_bodies))
         .layer(axum::middleware::map_response(error::json_errors))
         .layer(axum::middleware::map_response(error::json_newline))
-        .layer(TraceLayer::new_for_http())
+        .layer(TraceLayer::new_for_http().on_failure(failed))
         .with_state(service)
 }
 
@@ -334,4 +334,20 @@ pub(crate) async fn serve_http(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     super::serve(listener, service, limits, tls, shutdown).await
+}
+
+/// A failed response in the log: a standby's refusal (503, with the active's address) is
+/// how a pair works, not an error.
+fn failed(
+    class: tower_http::classify::ServerErrorsFailureClass,
+    latency: std::time::Duration,
+    _: &tracing::Span,
+) {
+    use tower_http::classify::ServerErrorsFailureClass::StatusCode;
+    match class {
+        StatusCode(s) if s == axum::http::StatusCode::SERVICE_UNAVAILABLE => {
+            tracing::debug!(latency_ms = latency.as_millis() as u64, "answered 503");
+        }
+        other => tracing::error!(classification = %other, latency_ms = latency.as_millis() as u64, "response failed"),
+    }
 }

@@ -14,10 +14,6 @@ use crate::api::mqtt::conn::ConnError;
 use crate::api::mqtt::packet::Incoming;
 use crate::role::Standing;
 
-/// How long an active gathers write records before it ships them: fewer, larger
-/// messages for the standby to read, at the cost of this much more that a kill can lose.
-pub(super) const GATHER: Duration = Duration::from_millis(20);
-
 /// Runs the handover until `token` is cancelled, connecting again when the broker fails.
 pub(crate) async fn run(setup: LeaseSetup, token: CancellationToken) {
     let topics = Topics::new(&setup.group);
@@ -54,7 +50,7 @@ async fn session(
     let mut roles = setup.role.watch();
     let mut declared = setup.service.watch_declared();
     let mut active = None;
-    let mut ship_at: Option<Instant> = None;
+    let mut gathering = ship::Gathering::new();
     loop {
         let lease = roles.borrow_and_update().clone();
         let now_active = lease.standing == Standing::Active;
@@ -80,11 +76,9 @@ async fn session(
             Ok(()) = declared.changed(), if now_active => {
                 ship::declared(&mut conn, &topics.declared, &setup.service).await?;
             }
-            _ = setup.log.journaled(), if now_active && ship_at.is_none() => {
-                ship_at = Some(Instant::now() + GATHER);
-            }
-            _ = sleep_until(ship_at.unwrap_or(far)), if ship_at.is_some() => {
-                ship_at = None;
+            _ = setup.log.journaled(), if now_active && !gathering.waiting() => gathering.journaled(),
+            _ = sleep_until(gathering.due()), if gathering.waiting() => {
+                gathering.shipped();
                 if now_active {
                     ship::ship(&mut conn, &topics.writes, lease.epoch, &setup.log).await?;
                 }

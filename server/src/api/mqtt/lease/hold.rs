@@ -8,7 +8,6 @@ use tokio::time::{Instant, sleep_until};
 use tokio_util::sync::CancellationToken;
 
 use super::claim::{Claim, Topics};
-use super::handover::GATHER;
 use super::{Held, Holding, LeaseSetup, holds, ship};
 use crate::api::mqtt::conn::{ConnError, Connection};
 use crate::api::mqtt::packet::{Incoming, Publish};
@@ -34,8 +33,7 @@ pub(super) async fn hold(
     // Renewals in flight: tag -> when sent.
     let mut sent: BTreeMap<u64, Instant> = BTreeMap::new();
     let mut tag = epoch << 20;
-    // When the records gathered since the journal had some are shipped.
-    let mut ship_at: Option<Instant> = None;
+    let mut gathering = ship::Gathering::new();
     let lost = |why: String| {
         setup.role.stand_by(epoch, None);
         Held::Lost(why)
@@ -69,9 +67,9 @@ pub(super) async fn hold(
                     return lost(e.to_string());
                 }
             }
-            _ = setup.log.journaled(), if ship_at.is_none() => ship_at = Some(Instant::now() + GATHER),
-            _ = sleep_until(ship_at.unwrap_or(next)), if ship_at.is_some() => {
-                ship_at = None;
+            _ = setup.log.journaled(), if !gathering.waiting() => gathering.journaled(),
+            _ = sleep_until(gathering.due()), if gathering.waiting() => {
+                gathering.shipped();
                 if let Err(e) = ship::ship(&mut holding.conn, &topics.writes, epoch, &setup.log).await {
                     return lost(e.to_string());
                 }

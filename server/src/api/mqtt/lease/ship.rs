@@ -7,6 +7,7 @@
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
+use tokio::time::Instant;
 
 use super::super::conn::{ConnError, Connection};
 use crate::codec::Value;
@@ -139,6 +140,49 @@ impl Shipped {
             finished: self.finished_ms.map(at),
             forgets: self.forgets,
         })
+    }
+}
+
+/// How often an active ships at most: a record journaled after a quiet spell goes at
+/// once, those that follow it closely wait and go together (fewer, larger messages for
+/// the standby to read). A kill can lose this much more.
+const GATHER: Duration = Duration::from_millis(20);
+
+/// When the journal's records are shipped next.
+pub(super) struct Gathering {
+    last: Instant,
+    at: Option<Instant>,
+}
+
+impl Gathering {
+    pub(super) fn new() -> Gathering {
+        Gathering {
+            last: Instant::now()
+                .checked_sub(GATHER)
+                .unwrap_or_else(Instant::now),
+            at: None,
+        }
+    }
+
+    /// Whether a shipment is waiting for its time.
+    pub(super) fn waiting(&self) -> bool {
+        self.at.is_some()
+    }
+
+    /// The journal has records: they go at once, or a gathering after the last shipment.
+    pub(super) fn journaled(&mut self) {
+        self.at = Some(Instant::now().max(self.last + GATHER));
+    }
+
+    /// When the waiting shipment is due (far away when none is).
+    pub(super) fn due(&self) -> Instant {
+        self.at
+            .unwrap_or_else(|| Instant::now() + Duration::from_secs(3600))
+    }
+
+    pub(super) fn shipped(&mut self) {
+        self.at = None;
+        self.last = Instant::now();
     }
 }
 
