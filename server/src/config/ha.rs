@@ -26,6 +26,26 @@ pub(crate) const MAX_LEASE: Duration = Duration::from_secs(60);
 /// The pair's name on the arbiter by default.
 pub(crate) const DEFAULT_GROUP: &str = "iogate";
 
+/// Where a replica's own node name comes from when one config serves both (a
+/// StatefulSet's pod name): it stands for `ha.node`.
+pub(crate) const NODE_ENV: &str = "IOGATE_HA_NODE";
+/// And the host it is reached at (the pod's IP), for `ha.advertise`.
+pub(crate) const ADVERTISE_ENV: &str = "IOGATE_HA_ADVERTISE";
+
+/// `name`, or the node name `var` gives when it is set.
+fn from_env(var: &str, name: String, line: u64, report: &mut Report) -> Option<String> {
+    let Ok(given) = std::env::var(var) else {
+        return Some(name);
+    };
+    match super::rules::name(&given) {
+        Ok(()) => Some(given),
+        Err(e) => {
+            report.push(line, var, e.to_string());
+            None
+        }
+    }
+}
+
 /// Who grants the lease.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Arbiter {
@@ -74,7 +94,8 @@ pub(crate) fn read(node: &Node, report: &mut Report) -> Option<HaConfig> {
     let mut map = node.map(report, "ha")?;
     let node_name = map
         .require("node", report, "ha")
-        .and_then(|n| name(n, "ha.node", report));
+        .and_then(|n| name(n, "ha.node", report))
+        .and_then(|n| from_env(NODE_ENV, n, node.line, report));
     let arbiter = map
         .require("arbiter", report, "ha")
         .and_then(|n| arbiter(n, report));
@@ -87,6 +108,10 @@ pub(crate) fn read(node: &Node, report: &mut Report) -> Option<HaConfig> {
         None => Some(DEFAULT_GROUP.to_owned()),
     };
     let advertise = map.get("advertise").and_then(|n| advertise(n, report));
+    let advertise = match std::env::var(ADVERTISE_ENV) {
+        Ok(host) => Some(host).filter(|h| advertised(h, node.line, ADVERTISE_ENV, report)),
+        Err(_) => advertise,
+    };
     let etcd = map.get("etcd").map(|n| super::ha_arbiters::etcd(n, report));
     let kubernetes = map
         .get("kubernetes")
@@ -169,24 +194,27 @@ fn lease(node: &Node, report: &mut Report) -> Option<Duration> {
 
 fn advertise(node: &Node, report: &mut Report) -> Option<String> {
     let text = node.scalar_text(report, "ha.advertise")?;
+    advertised(&text, node.line, "ha.advertise", report).then_some(text)
+}
+
+/// Whether `text` is a host name or an IP address (else reported under `ctx`).
+fn advertised(text: &str, line: u64, ctx: &str, report: &mut Report) -> bool {
     let ok = !text.is_empty()
         && text.len() <= 253
         && text
             .bytes()
             .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'-' | b':' | b'[' | b']'));
-    if ok {
-        Some(text)
-    } else {
+    if !ok {
         report.push(
-            node.line,
-            "ha.advertise",
+            line,
+            ctx,
             format!(
                 "{} is not a host name or IP address",
-                crate::text::quote(&text)
+                crate::text::quote(text)
             ),
         );
-        None
     }
+    ok
 }
 
 #[cfg(test)]

@@ -180,7 +180,10 @@ mod tests {
     #[test]
     fn every_problem_of_an_arbiter_is_named() {
         for (text, expected) in [
-            ("ha: {node: a, arbiter: etcd}\n", "ha.etcd: arbiter: etcd needs"),
+            (
+                "ha: {node: a, arbiter: etcd}\n",
+                "ha.etcd: arbiter: etcd needs",
+            ),
             (
                 "ha: {node: a, arbiter: etcd, etcd: {endpoints: [\"tcp://x:1\"]}}\n",
                 "ha.etcd.endpoints: tcp://x:1 is not an http:// or https:// URL",

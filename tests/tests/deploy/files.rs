@@ -363,3 +363,67 @@ fn the_pairs_compose_mounts_two_configs_that_differ_only_in_their_node_and_pass_
             .unwrap_or_else(|p| panic!("node {n}: {p}"));
     }
 }
+
+#[test]
+fn the_pairs_kubernetes_manifests_validate_and_their_config_passes_check() {
+    tools();
+    let files = [
+        "rbac.yaml",
+        "configmap.yaml",
+        "mosquitto.yaml",
+        "statefulset.yaml",
+        "service.yaml",
+    ];
+    let paths: Vec<String> = files
+        .iter()
+        .map(|f| format!("deploy/kubernetes-ha/{f}"))
+        .collect();
+    let mut args = vec!["-m", "kubernetes_validate", "--strict", "--quiet"];
+    args.extend(paths.iter().map(String::as_str));
+    run(&iogate_tests::python().to_string_lossy(), &args);
+    let kustomization =
+        std::fs::read_to_string(deploy("kubernetes-ha/kustomization.yaml")).expect("kustomization");
+    for file in files {
+        assert!(kustomization.contains(file), "{file} not in kustomization");
+    }
+    let set = std::fs::read_to_string(deploy("kubernetes-ha/statefulset.yaml")).expect("set");
+    for needed in [
+        "replicas: 2",
+        "podManagementPolicy: Parallel",
+        "IOGATE_HA_NODE",
+        "fieldPath: metadata.name",
+        "serviceAccountName: iogate",
+        "/readyz",
+    ] {
+        assert!(set.contains(needed), "the StatefulSet lacks {needed}");
+    }
+    let rbac = std::fs::read_to_string(deploy("kubernetes-ha/rbac.yaml")).expect("rbac");
+    assert!(rbac.contains("coordination.k8s.io") && rbac.contains("leases"));
+    // The replicas' config passes the gateway's own check, its API server given (outside a
+    // pod there is none to find).
+    let configmap =
+        std::fs::read_to_string(deploy("kubernetes-ha/configmap.yaml")).expect("configmap");
+    let doc: serde_json::Value = serde_saphyr::from_str(&configmap).expect("yaml");
+    let config = doc["data"]["iogate.yaml"].as_str().expect("config");
+    assert!(config.contains("arbiter: kubernetes"), "{config}");
+    let dir = iogate_tests::devices::temp_dir("k8s-pair-config");
+    std::fs::write(dir.join("tokens"), "admin k8s-admin-token-0123456789\n").expect("tokens");
+    let config = config
+        .replace("profiles: /etc/iogate/profiles", "")
+        .replace(
+            "/etc/iogate/tokens/tokens",
+            &dir.join("tokens").display().to_string(),
+        )
+        .replace(
+            "/var/lib/iogate/buffer",
+            &dir.join("buffer").display().to_string(),
+        )
+        .replace(
+            "lease: 3s\n",
+            "lease: 3s\n  kubernetes: { api: \"http://127.0.0.1:9\" }\n",
+        );
+    iogate::drivers::register();
+    let mut parsed = iogate::config::parse("configmap", &config).expect("parses");
+    parsed.profiles = Some(iogate_tests::profiles_dir());
+    iogate::app::Setup::from_config(parsed, Path::new(".")).expect("the pair's config");
+}

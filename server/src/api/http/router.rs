@@ -348,6 +348,8 @@ fn failed(
         StatusCode(s) if s == axum::http::StatusCode::SERVICE_UNAVAILABLE => {
             tracing::debug!(latency_ms = latency.as_millis() as u64, "answered 503");
         }
-        other => tracing::error!(classification = %other, latency_ms = latency.as_millis() as u64, "response failed"),
+        other => {
+            tracing::error!(classification = %other, latency_ms = latency.as_millis() as u64, "response failed")
+        }
     }
 }
