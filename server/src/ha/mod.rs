@@ -82,20 +82,7 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
         me: me.clone(),
         entering: entering.clone(),
     };
-    let stored = match ha.arbiter {
-        Arbiter::Mqtt => Ok(None),
-        Arbiter::Etcd => match &ha.etcd {
-            Some(e) => Etcd::new(e, &ha.group, ha.lease, base)
-                .map(|e| Some(Box::pin(store::run(e, setup, token.clone())) as Lease)),
-            None => Err("no `etcd:` section".to_owned()),
-        },
-        Arbiter::Kubernetes => {
-            let k = ha.kubernetes.clone().unwrap_or_default();
-            Kube::new(&k, &ha.group, ha.lease, base)
-                .map(|k| Some(Box::pin(store::run(k, setup, token.clone())) as Lease))
-        }
-    };
-    let stored = match stored {
+    let stored = match stored_lease(&ha, setup, base, token.clone()) {
         Ok(s) => s,
         Err(e) => {
             tracing::error!(error = %e, arbiter = ha.arbiter.name(), "HA: the arbiter cannot be reached: this node stays standby");
@@ -145,6 +132,29 @@ pub(crate) fn start(service: &Arc<Service>, config: &Config, base: &std::path::P
             service
                 .tasks()
                 .spawn(crate::api::mqtt::lease::handover(setup, token));
+        }
+    }
+}
+
+/// The lease held on etcd or a Kubernetes Lease, as a task; none for the MQTT arbiter
+/// (whose lease is the handover connection's own).
+fn stored_lease(
+    ha: &HaConfig,
+    setup: store::StoreSetup,
+    base: &std::path::Path,
+    token: tokio_util::sync::CancellationToken,
+) -> Result<Option<Lease>, String> {
+    match ha.arbiter {
+        Arbiter::Mqtt => Ok(None),
+        Arbiter::Etcd => match &ha.etcd {
+            Some(e) => Etcd::new(e, &ha.group, ha.lease, base)
+                .map(|e| Some(Box::pin(store::run(e, setup, token)) as Lease)),
+            None => Err("no `etcd:` section".to_owned()),
+        },
+        Arbiter::Kubernetes => {
+            let k = ha.kubernetes.clone().unwrap_or_default();
+            Kube::new(&k, &ha.group, ha.lease, base)
+                .map(|k| Some(Box::pin(store::run(k, setup, token)) as Lease))
         }
     }
 }

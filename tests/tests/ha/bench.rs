@@ -5,7 +5,9 @@
 
 use std::time::{Duration, Instant};
 
-use iogate_tests::mqtt::Broker;
+use std::sync::{Arc, Mutex};
+
+use iogate_tests::mqtt::{Broker, Peer};
 
 use super::pair::{Node, Pair, Writer};
 
@@ -55,6 +57,7 @@ async fn takeover_over_fifty_kills_and_the_cost_of_a_standby() {
         "standby, the active writing ~100/s: {busy:.3} % of a core over 10 s, {rss} KiB resident"
     );
     let _ = writer.stop().await;
+    missed_over_kills(&broker, &mut pair, 10).await;
     let mut takeovers = Vec::new();
     let mut active = Node::A;
     for _ in 0..50 {
@@ -75,4 +78,78 @@ async fn takeover_over_fifty_kills_and_the_cost_of_a_standby() {
         takeovers[takeovers.len() - 1]
     );
     assert!(at(0.99) < Duration::from_secs(6), "p99 {:?}", at(0.99));
+}
+
+/// Values a subscriber misses over `kills` takeovers: the field's level counts up every
+/// 100 ms (the gateway polls it every 20 ms, so a subscriber sees each value while a node
+/// is active); a paho subscriber of its JSON topic notes each value it gets. Per kill: the
+/// values between the last seen before it and the first seen after, and that blind time.
+async fn missed_over_kills(broker: &Broker, pair: &mut Pair, kills: usize) {
+    let tables = pair.field.device.tables.clone();
+    let ticker = tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        loop {
+            tick.tick().await;
+            let mut t = tables.lock().unwrap_or_else(|e| e.into_inner());
+            t.holding[11] = t.holding[11].wrapping_add(1);
+        }
+    });
+    let mut peer = Peer::subscribe(broker, "plant/#").await.expect("paho");
+    let seen: Arc<Mutex<Vec<(Instant, u64)>>> = Arc::default();
+    let noted = seen.clone();
+    let reader = tokio::spawn(async move {
+        while let Ok(m) = peer.next().await {
+            if m.topic.contains("pump")
+                && m.topic.ends_with("level")
+                && let Some(v) = m.json()["value"].as_u64()
+            {
+                noted
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push((Instant::now(), v));
+            }
+        }
+    });
+    let (mut missed, mut blind) = (Vec::new(), Vec::new());
+    let mut active = if pair.ha(Node::A).await["role"] == "active" {
+        Node::A
+    } else {
+        Node::B
+    };
+    for _ in 0..kills {
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let killed = Instant::now();
+        pair.kill(active).await;
+        pair.until_active(active.other()).await;
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let seen = seen.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let before = seen.iter().rev().find(|(t, _)| *t < killed).copied();
+        let after = seen
+            .iter()
+            .find(|(t, v)| *t > killed && before.is_none_or(|(_, b)| v > &b))
+            .copied();
+        if let (Some((t0, v0)), Some((t1, v1))) = (before, after) {
+            missed.push(v1 - v0 - 1);
+            blind.push(t1 - t0);
+        }
+        pair.restart(active).await;
+        active = active.other();
+    }
+    ticker.abort();
+    reader.abort();
+    missed.sort_unstable();
+    blind.sort();
+    eprintln!(
+        "a subscriber over {} kills, the level changing every 100 ms: missed p50 {} values, max {}; blind p50 {:?}, max {:?}",
+        missed.len(),
+        missed.get(missed.len() / 2).copied().unwrap_or_default(),
+        missed.last().copied().unwrap_or_default(),
+        blind.get(blind.len() / 2).copied().unwrap_or_default(),
+        blind.last().copied().unwrap_or_default(),
+    );
+    assert_eq!(
+        missed.len(),
+        kills,
+        "a value seen before and after each kill"
+    );
 }

@@ -48,14 +48,18 @@ impl Node {
 /// The field device: tokio-modbus's TCP server behind a tap.
 pub struct Field {
     pub tap: Tap,
+    /// The device's tables, as the slave serves them.
+    pub device: ModbusDevice,
     _slave: JoinHandle<()>,
 }
 
 impl Field {
     async fn start() -> anyhow::Result<Field> {
-        let (port, slave) = modbus_tcp_server(ModbusDevice::default()).await;
+        let device = ModbusDevice::default();
+        let (port, slave) = modbus_tcp_server(device.clone()).await;
         Ok(Field {
             tap: Tap::start(port).await?,
+            device,
             _slave: slave,
         })
     }
