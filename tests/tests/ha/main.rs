@@ -1,12 +1,13 @@
 //! Two gateway processes, one plant: an active/standby pair (`ha:`) with Mosquitto as the
-//! arbiter and tokio-modbus as the field device behind a tap that logs every connection and
-//! every write request on it. A client writes about a hundred times a second to whichever
+//! arbiter, and as the field tokio-modbus's Modbus TCP server and pymodbus speaking RTU over
+//! TCP, each behind a tap that logs every connection (`field.rs`). A client writes about a hundred times a second to whichever
 //! node is active; the active is killed (`kill -9`), cut from the broker but not from the
 //! field, and cut again and again. Each time: one node takes over within two leases, every
 //! write the gateways said was written is on the field once, nothing is written that was
 //! not asked for, and two field connections are never open at once.
 
 mod bench;
+mod field;
 mod pair;
 mod stores;
 

@@ -4,17 +4,15 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use iogate_tests::devices::{ModbusDevice, modbus_tcp_server, temp_dir};
-use iogate_tests::tap::{Tap, modbus_writes};
+use iogate_tests::devices::temp_dir;
 use iogate_tests::{GatewayProcess, PATIENCE, TestGateway};
 use serde_json::{Value, json};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
+use crate::field::{Field, PROFILE, device_of};
+
 const BIN: &str = env!("CARGO_BIN_EXE_gateway");
-/// The setpoint's holding register.
-const SETPOINT: u16 = 10;
-const PROFILE: &str = "name: Setpoints\nvendor: test\nprotocol: modbus-rtu\ndescription: a setpoint and a level\nfields:\n  - { name: sp, type: UINT, direction: output, register: { address: 10, kind: holding_register } }\n  - { name: level, type: UINT, direction: input, register: { address: 11, kind: holding_register } }\n";
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Node {
@@ -41,84 +39,6 @@ impl Node {
         match self {
             Node::A => "a",
             Node::B => "b",
-        }
-    }
-}
-
-/// The field device: tokio-modbus's TCP server behind a tap.
-pub struct Field {
-    pub tap: Tap,
-    /// The device's tables, as the slave serves them.
-    pub device: ModbusDevice,
-    _slave: JoinHandle<()>,
-}
-
-impl Field {
-    async fn start() -> anyhow::Result<Field> {
-        let device = ModbusDevice::default();
-        let (port, slave) = modbus_tcp_server(device.clone()).await;
-        Ok(Field {
-            tap: Tap::start(port).await?,
-            device,
-            _slave: slave,
-        })
-    }
-
-    /// Every setpoint value written on the field, with when.
-    fn written(&self) -> Vec<(Instant, u16)> {
-        let mut all: Vec<(Instant, u16)> = self
-            .tap
-            .passages()
-            .iter()
-            .flat_map(modbus_writes)
-            .filter(|(_, at, _)| *at == SETPOINT)
-            .flat_map(|(t, _, values)| values.into_iter().map(move |v| (t, v)))
-            .collect();
-        all.sort();
-        all
-    }
-
-    /// No two connections to the field device were ever open at once: one master.
-    pub fn assert_one_master_at_a_time(&self) {
-        let mut passages = self.tap.passages();
-        passages.sort_by_key(|p| p.opened);
-        assert!(passages.len() >= 2, "the field was reached by both nodes");
-        for w in passages.windows(2) {
-            let closed = w[0].closed.expect("an earlier connection still open");
-            assert!(
-                closed <= w[1].opened,
-                "connection {} was open {:?} after connection {} opened: two masters",
-                w[0].id,
-                closed - w[1].opened,
-                w[1].id
-            );
-        }
-    }
-
-    /// Every write the gateways said was written is on the field, once; no value is on
-    /// the field twice.
-    pub fn assert_written_once(&self, log: &WriteLog) {
-        let on_field = self.written();
-        for value in log.written() {
-            let times = on_field.iter().filter(|(_, v)| *v == value).count();
-            assert_eq!(
-                times, 1,
-                "value {value} was written {times} times on the field"
-            );
-        }
-        let mut values: Vec<u16> = on_field.iter().map(|(_, v)| *v).collect();
-        values.sort_unstable();
-        let before = values.len();
-        values.dedup();
-        assert_eq!(values.len(), before, "a value was written twice");
-    }
-
-    /// Nothing is on the field that the client did not ask for before it was written.
-    pub fn assert_only_asked(&self, log: &WriteLog) {
-        for (at, value) in self.written() {
-            let asked = log.entries.iter().find(|e| e.value == value);
-            let asked = asked.unwrap_or_else(|| panic!("{value} was written, never asked"));
-            assert!(asked.at <= at, "{value} was written before it was asked");
         }
     }
 }
@@ -154,15 +74,14 @@ impl Pair {
         std::fs::write(dir.join("profiles/setpoints.yaml"), PROFILE)?;
         let config = |node: Node| {
             format!(
-                "profiles: {profiles}\nlinks:\n  - {{ name: field, tcp: {{ host: 127.0.0.1, port: {field} }} }}\n\
-                 devices:\n  - {{ name: pump, profile: Setpoints, link: field, slave_id: 1, refresh_rate: 20ms }}\n\
+                "profiles: {profiles}\n{field}\
                  mqtt:\n  url: mqtt://127.0.0.1:{broker}\n  json: {{ prefix: plant }}\n\
                  \x20 sparkplug: {{ group_id: plant, edge_node_id: pair }}\n\
                  opcua: {{ listen: 127.0.0.1:0, pki_dir: {pki} }}\n\
                  ha: {{ node: {node}, lease: {lease}s, {arbiter} }}\n",
                 pki = dir.join(node.name()).join("pki").display(),
                 profiles = dir.join("profiles").display(),
-                field = field.tap.port,
+                field = field.config(),
                 broker = brokers[node.index()],
                 node = node.name(),
                 arbiter = arbiter(node),
@@ -377,8 +296,8 @@ impl WriteLog {
     }
 }
 
-/// A client writing a new setpoint every 10 ms to whichever node takes it, following each
-/// write to its outcome.
+/// A client writing a new setpoint every 10 ms to whichever node takes it (odd values to
+/// `pump`, even ones to `tank`), following each write to its outcome.
 pub struct Writer {
     log: Arc<Mutex<WriteLog>>,
     stop: watch::Sender<bool>,
@@ -431,16 +350,16 @@ async fn write(clients: [TestGateway; 2], log: Arc<Mutex<WriteLog>>, stop: watch
     let mut target = Node::A;
     let mut value: u16 = 0;
     let mut tick = tokio::time::interval(Duration::from_millis(10));
-    let path = "/api/v1/devices/pump/fields/sp";
     while !*stop.borrow() {
         tick.tick().await;
         value += 1;
         let body = json!({ "value": value }).to_string();
         let client = &clients[target.index()];
+        let path = format!("/api/v1/devices/{}/fields/sp", device_of(value));
         let at = Instant::now();
         let put = tokio::time::timeout(
             Duration::from_secs(2),
-            client.send(reqwest::Method::PUT, path, body),
+            client.send(reqwest::Method::PUT, &path, body),
         )
         .await;
         let Ok(Ok((202, accepted))) = put else {
