@@ -20,7 +20,11 @@ pub const PROFILE: &str = "name: Setpoints\nvendor: test\nprotocol: modbus-rtu\n
 /// The device a value is written to: the client writes odd values to `pump`, even ones to
 /// `tank`.
 pub fn device_of(value: u16) -> &'static str {
-    if value % 2 == 0 { "tank" } else { "pump" }
+    if value.is_multiple_of(2) {
+        "tank"
+    } else {
+        "pump"
+    }
 }
 
 /// A write request as the field received it: when, the register, the values.
