@@ -10,6 +10,7 @@ pub(crate) mod api;
 pub mod app;
 pub(crate) mod auth;
 pub mod cache;
+pub(crate) mod civil;
 pub(crate) mod codec;
 pub mod config;
 pub(crate) mod declare;

@@ -17,6 +17,7 @@ pub mod bacnet;
 mod checks;
 pub(crate) mod describe;
 pub mod eip;
+pub(crate) mod iec104;
 pub mod import;
 pub(crate) mod modbus;
 pub mod opcua;
