@@ -11,6 +11,7 @@ pub mod browser;
 pub mod cable;
 pub mod devices;
 pub mod eip;
+pub mod iec104;
 pub mod line;
 pub mod mqtt;
 pub mod node_ua;

@@ -90,6 +90,7 @@ drivers![
     s7::S7,
     eip::Eip,
     bacnet::Bacnet,
+    iec104::Iec104,
 ];
 
 /// Makes the drivers' words known to configuration (profiles' `protocol`, their fields'

@@ -31,6 +31,9 @@ pub(crate) struct Etcd {
     holder_revision: i64,
     /// The session the holder key says (put again when it changes).
     put_bd_seq: Option<u8>,
+    /// The holder last seen, and the etcd lease that keeps its key: a holder key gone while
+    /// that lease lives was deleted by someone else, and its holder may still be active.
+    seen: Option<(Holder, i64)>,
 }
 
 impl Etcd {
@@ -56,6 +59,7 @@ impl Etcd {
             lease_id: None,
             holder_revision: 0,
             put_bd_seq: None,
+            seen: None,
         })
     }
 
@@ -135,10 +139,20 @@ impl Store for Etcd {
             .and_then(|s| s.trim().parse::<u64>().ok())
             .unwrap_or(0);
         if holder.is_null() {
+            // Deleted with its holder's lease still alive: not given back, and not expired.
+            if let Some((h, id)) = self.seen.clone()
+                && self.lease_alive(id).await?
+            {
+                return Ok(Observed::Held(h));
+            }
+            self.seen = None;
             return Ok(Observed::Free(last));
         }
         match serde_json::from_slice::<Holder>(&value_of(&holder)) {
-            Ok(h) => Ok(Observed::Held(h)),
+            Ok(h) => {
+                self.seen = Some((h.clone(), int(&holder["lease"])));
+                Ok(Observed::Held(h))
+            }
             Err(e) => Err(format!("{holder_key} is not a holder: {e}")),
         }
     }
@@ -191,10 +205,9 @@ impl Store for Etcd {
             self.lease_id = None;
             return Ok(false);
         }
-        if me.bd_seq != self.put_bd_seq {
-            self.put_holder(me, id).await?;
-        }
-        Ok(true)
+        // The key must still be the one this node put: someone may have deleted or
+        // replaced it, and a standby may be taking the lease.
+        self.put_holder(me, id).await
     }
 
     async fn release(&mut self, _me: &Holder) -> Result<(), String> {
@@ -206,22 +219,36 @@ impl Store for Etcd {
 }
 
 impl Etcd {
-    /// Puts the holder key again (its session changed), if it is still the one this node
-    /// put.
-    async fn put_holder(&mut self, me: &Holder, id: i64) -> Result<(), String> {
+    /// Whether the holder key is still the one this node put (under its lease), putting
+    /// it again when its session changed.
+    async fn put_holder(&mut self, me: &Holder, id: i64) -> Result<bool, String> {
         let holder = serde_json::to_vec(me).unwrap_or_default();
-        let txn = json!({
-            "compare": [
-                { "key": key(&self.holder_key), "target": "CREATE", "result": "EQUAL", "create_revision": self.holder_revision.to_string() },
-            ],
-            "success": [
-                { "request_put": { "key": key(&self.holder_key), "value": B64.encode(&holder), "lease": id.to_string() } },
-            ],
-        });
+        let ours = [
+            json!({ "key": key(&self.holder_key), "target": "CREATE", "result": "EQUAL", "create_revision": self.holder_revision.to_string() }),
+            json!({ "key": key(&self.holder_key), "target": "LEASE", "result": "EQUAL", "lease": id.to_string() }),
+        ];
+        let success = if me.bd_seq == self.put_bd_seq {
+            json!([{ "request_range": { "key": key(&self.holder_key) } }])
+        } else {
+            json!([{ "request_put": { "key": key(&self.holder_key), "value": B64.encode(&holder), "lease": id.to_string() } }])
+        };
+        let txn = json!({ "compare": ours, "success": success });
         let answer = self.post("/v3/kv/txn", txn).await?;
-        if answer["succeeded"].as_bool() == Some(true) {
-            self.put_bd_seq = me.bd_seq;
+        if answer["succeeded"].as_bool() != Some(true) {
+            return Ok(false);
         }
-        Ok(())
+        self.put_bd_seq = me.bd_seq;
+        Ok(true)
+    }
+
+    /// Whether etcd lease `id` is still alive.
+    async fn lease_alive(&mut self, id: i64) -> Result<bool, String> {
+        if id == 0 {
+            return Ok(false);
+        }
+        let answer = self
+            .post("/v3/lease/timetolive", json!({ "ID": id.to_string() }))
+            .await?;
+        Ok(int(&answer["TTL"]) > 0)
     }
 }

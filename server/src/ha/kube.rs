@@ -25,6 +25,12 @@ use crate::http_client::HttpClient;
 const ACCOUNT: &str = "/var/run/secrets/kubernetes.io/serviceaccount";
 const ADDRESSES: &str = "iogate.io/addresses";
 const BD_SEQ: &str = "iogate.io/bd-seq";
+/// The epoch a holder gave the Lease back in: an empty holder without it was emptied by
+/// someone else, and its holder may still be active.
+const RELEASED: &str = "iogate.io/released";
+
+/// The longest `leaseDurationSeconds` taken from a Lease (the longest `ha.lease`).
+const LONGEST: u64 = 60;
 
 pub(crate) struct Kube {
     client: HttpClient,
@@ -98,7 +104,14 @@ impl Kube {
         }
         let body = body.map(|b| b.to_string().into_bytes()).unwrap_or_default();
         let (status, answer) = self.client.call(method, path, &headers, body).await?;
-        let answer: Value = serde_json::from_slice(&answer).unwrap_or(Value::Null);
+        let parsed: Result<Value, _> = serde_json::from_slice(&answer);
+        if matches!(status, 200 | 201) && !parsed.as_ref().is_ok_and(|v| v["kind"] == "Lease") {
+            return Err(format!(
+                "{}{path} answered {status} with no Lease (a proxy's page?)",
+                self.client.url()
+            ));
+        }
+        let answer = parsed.unwrap_or(Value::Null);
         match status {
             200 | 201 | 404 | 409 => Ok((status, answer)),
             _ => Err(format!(
@@ -140,6 +153,9 @@ impl Kube {
         }
         let annotations = &mut lease["metadata"]["annotations"];
         annotations[ADDRESSES] = json!(serde_json::to_string(&me.addresses).unwrap_or_default());
+        if let Some(a) = annotations.as_object_mut() {
+            a.remove(RELEASED);
+        }
         match me.bd_seq {
             Some(b) => annotations[BD_SEQ] = json!(b.to_string()),
             None => {
@@ -161,6 +177,17 @@ impl Kube {
         let (status, answer) = self.call(method, &path, Some(&lease)).await?;
         match status {
             200 | 201 => {
+                let version = &answer["metadata"]["resourceVersion"];
+                let sent = &lease["metadata"]["resourceVersion"];
+                if answer["spec"]["holderIdentity"] != lease["spec"]["holderIdentity"]
+                    || !version.is_string()
+                    || version == sent
+                {
+                    return Err(format!(
+                        "{}{path} answered {status} with a Lease that is not the one sent",
+                        self.client.url()
+                    ));
+                }
                 self.saw(Some(answer));
                 Ok(true)
             }
@@ -197,10 +224,23 @@ impl Store for Kube {
         let node = spec["holderIdentity"].as_str().unwrap_or_default();
         let duration = spec["leaseDurationSeconds"]
             .as_u64()
-            .unwrap_or(self.lease_s);
-        let expired = self.seen_at.elapsed().as_secs_f64() >= duration.max(1) as f64;
-        if node.is_empty() || expired {
+            .unwrap_or(self.lease_s)
+            .clamp(1, LONGEST);
+        let expired = self.seen_at.elapsed().as_secs_f64() >= duration as f64;
+        let released =
+            lease["metadata"]["annotations"][RELEASED].as_str() == Some(&epoch.to_string());
+        if (node.is_empty() && released) || expired {
             return Ok(Observed::Free(epoch));
+        }
+        if node.is_empty() {
+            // Emptied by someone else: the holder may still be active until the Lease has
+            // stood unchanged for its duration.
+            return Ok(Observed::Held(Holder {
+                node: String::new(),
+                epoch,
+                addresses: Default::default(),
+                bd_seq: None,
+            }));
         }
         let annotations = &lease["metadata"]["annotations"];
         Ok(Observed::Held(Holder {
@@ -242,6 +282,7 @@ impl Store for Kube {
         }
         let mut lease = self.lease_of(me, false);
         lease["spec"]["holderIdentity"] = Value::Null;
+        lease["metadata"]["annotations"][RELEASED] = json!(me.epoch.to_string());
         self.write(lease).await.map(|_| ())
     }
 }

@@ -162,15 +162,20 @@ fn stored_lease(
 /// A lease held on a store, as a task.
 type Lease = std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>;
 
-/// This node as clients reach it: each server's address, a wildcard host replaced by
-/// `ha.advertise` (else this machine's host name).
+/// This node as clients reach it: each server's address with its host `ha.advertise`
+/// where that is set, else with a wildcard host replaced by this machine's host name.
 fn announced(service: &Service, ha: &HaConfig) -> Peer {
-    let host = ha.advertise.clone().unwrap_or_else(host_name);
     let addresses: BTreeMap<String, String> = service
         .listening
         .list()
         .into_iter()
-        .map(|l| (l.server, reachable(&l.address, &host)))
+        .map(|l| {
+            let address = match &ha.advertise {
+                Some(host) => advertised(&l.address, host),
+                None => reachable(&l.address, &host_name()),
+            };
+            (l.server, address)
+        })
         .collect();
     Peer {
         node: ha.node.clone(),
@@ -191,6 +196,20 @@ fn reachable(address: &str, host: &str) -> String {
     address.to_owned()
 }
 
+/// `address` (`[scheme://]host:port[/path]`) with its host replaced by `host`.
+fn advertised(address: &str, host: &str) -> String {
+    let (scheme, rest) = match address.find("://") {
+        Some(at) => address.split_at(at + 3),
+        None => ("", address),
+    };
+    let (authority, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
+    let port = match authority.rfind(':') {
+        Some(at) if !authority[at..].contains(']') => &authority[at..],
+        _ => "",
+    };
+    format!("{scheme}{host}{port}{path}")
+}
+
 fn host_name() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")
         .or_else(|_| std::fs::read_to_string("/etc/hostname"))
@@ -202,7 +221,20 @@ fn host_name() -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::reachable;
+    use super::{advertised, reachable};
+
+    #[test]
+    fn the_advertised_host_replaces_any_host() {
+        assert_eq!(
+            advertised("opc.tcp://127.0.0.1:4840/", "gw-a"),
+            "opc.tcp://gw-a:4840/"
+        );
+        assert_eq!(advertised("[::1]:502", "10.0.0.7"), "10.0.0.7:502");
+        assert_eq!(
+            advertised("http://0.0.0.0:8080", "gw-a"),
+            "http://gw-a:8080"
+        );
+    }
 
     #[test]
     fn a_wildcard_host_is_replaced_by_the_advertised_one() {

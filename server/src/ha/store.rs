@@ -21,6 +21,10 @@ use crate::role::{Peer, Role};
 /// The longest wait between attempts to reach the store.
 const RETRY_MAX: Duration = Duration::from_secs(1);
 
+/// The newest epoch this node takes: a write's generation carries the epoch in 32 bits,
+/// and a Lease's `leaseTransitions` is an int32.
+pub(crate) const LAST_EPOCH: u64 = i32::MAX as u64;
+
 /// The holder as the store keeps it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Holder {
@@ -77,6 +81,7 @@ pub(crate) fn valid(lease: Duration) -> Duration {
 pub(crate) async fn run<S: Store>(mut store: S, setup: StoreSetup, token: CancellationToken) {
     let mut epoch = 0;
     let mut wait = Duration::ZERO;
+    let mut told = false;
     loop {
         tokio::select! {
             _ = token.cancelled() => return,
@@ -98,15 +103,24 @@ pub(crate) async fn run<S: Store>(mut store: S, setup: StoreSetup, token: Cancel
                 if let Some(bd_seq) = holder.bd_seq {
                     setup.role.heard_edge_session(bd_seq);
                 }
-                let active = Peer {
+                if holder.node == setup.node && !std::mem::replace(&mut told, true) {
+                    tracing::error!(node = %setup.node, store = %store.name(), "HA: the lease is held by another gateway under this node's name: each node of a pair needs its own ha.node");
+                }
+                let active = (!holder.node.is_empty()).then_some(Peer {
                     node: holder.node,
                     addresses: holder.addresses,
-                };
-                setup.role.stand_by(epoch, Some(active));
+                });
+                setup.role.stand_by(epoch, active);
             }
             Observed::Free(last) => {
                 epoch = epoch.max(last);
                 setup.role.stand_by(epoch, None);
+                if epoch >= LAST_EPOCH {
+                    if !std::mem::replace(&mut told, true) {
+                        tracing::error!(epoch, store = %store.name(), "HA: the arbiter's epoch is the last a write can carry: this node does not take the lease; with both nodes stopped, reset the epoch (etcd: the epoch key; Kubernetes: the Lease)");
+                    }
+                    continue;
+                }
                 let me = holder(&setup, epoch + 1);
                 let sent = Instant::now();
                 match ask(&setup, store.acquire(&me)).await {
@@ -184,7 +198,7 @@ async fn hold<S: Store>(
                     _ = sleep_until(until) => break "the lease was not renewed in time".to_owned(),
                     renewed = store.renew(&me) => match renewed {
                         Ok(true) => setup.role.renew(sent + valid),
-                        Ok(false) => break "another node holds the lease".to_owned(),
+                        Ok(false) => break "the store no longer names this node its holder".to_owned(),
                         Err(e) => tracing::warn!(error = %e, "HA: a renewal failed"),
                     },
                 }
@@ -193,5 +207,9 @@ async fn hold<S: Store>(
     };
     setup.role.stand_by(epoch, None);
     tracing::warn!(why = %why, "HA: the lease is lost: standing by");
+    // Stood down: what this node still holds on the store (an etcd lease) is given back.
+    if let Err(e) = ask(setup, store.release(&holder(setup, epoch))).await {
+        tracing::debug!(error = %e, "HA: the lease was not given back: it ends by itself");
+    }
     false
 }

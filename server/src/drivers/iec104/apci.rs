@@ -73,16 +73,6 @@ impl Unnumbered {
         .find(|u| u.octet() == octet)
     }
 
-    /// The confirmation an act frame asks for.
-    pub(crate) fn confirmation(self) -> Option<Unnumbered> {
-        match self {
-            Unnumbered::StartAct => Some(Unnumbered::StartCon),
-            Unnumbered::StopAct => Some(Unnumbered::StopCon),
-            Unnumbered::TestAct => Some(Unnumbered::TestCon),
-            _ => None,
-        }
-    }
-
     pub(crate) fn name(self) -> &'static str {
         match self {
             Unnumbered::StartAct => "STARTDT act",

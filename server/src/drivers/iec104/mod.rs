@@ -1,13 +1,205 @@
-//! IEC 60870-5-104: the controlling station's side (a link to an RTU or a substation, its
-//! devices' fields by information object address) and the wire format both sides share:
-//! the APCI (`apci.rs`), the ASDU (`asdu.rs`), its types (`types.rs`) and their elements (`element.rs`), the
-//! time tags (`time.rs`).
-
-// The wire format is used by the link and the outstation as they are built on it.
-#![allow(dead_code)]
+//! IEC 60870-5-104 stations as devices (`protocol: iec104`), the gateway the controlling
+//! station: a link is a connection to a station (`iec104:` with its `host`, the standard's
+//! timers and windows, a `backup` address for a redundant connection), a device is a
+//! common address on it (the link's unless the device says), a field is an information
+//! object (`ioa:`), its ASDU type taken from the station's answers unless `asdu:` fixes it.
+//! The station is interrogated at connect (general, and counter interrogation for devices
+//! with counters) and on its period; spontaneous data is taken as it comes, each value with
+//! the station's time tag as its timestamp and its quality descriptor judged. An output's
+//! write is a command (`C_SC`, `C_DC`, `C_SE_*`, `C_BO`), selected first where the field
+//! says `select: true`; its confirmation is its outcome.
+//!
+//! The wire format both sides share: the APCI (`apci.rs`), the ASDU (`asdu.rs`), its types
+//! (`types.rs`) and elements (`element.rs`), the time tags (`time.rs`). The connection and
+//! its timers and windows, `conn.rs`; where received ASDUs go, `route.rs`; values both
+//! ways, `value.rs`; interrogations and commands, `session.rs`; fields and devices as
+//! profiles write them, `point.rs`; settings, `config.rs`.
 
 pub(crate) mod apci;
 pub(crate) mod asdu;
+mod config;
+mod conn;
 pub(crate) mod element;
+mod point;
+mod route;
+mod session;
 pub(crate) mod time;
 pub(crate) mod types;
+mod value;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::{Driver, Read, Session, WriteItem};
+use crate::cache::{Device, FieldError, Link};
+use crate::config::{DeviceConfig, LinkConfig};
+use crate::link::LinkFault;
+use crate::metrics::Metrics;
+use crate::profile::{Direction, Words};
+use types::TypeId;
+
+/// The IEC 104 driver.
+pub(crate) struct Iec104;
+
+const PROTOCOL: &str = "iec104";
+
+const WORDS: Words = Words {
+    protocol: PROTOCOL,
+    point_key: "ioa",
+    point_alternative: None,
+    link_key: PROTOCOL,
+    link_at: "host",
+    check_point: point::check_ioa,
+    point_identity: |p| p.address.trim().to_owned(),
+    default_length: 0,
+    example: "4001",
+    scaled: true,
+    field_keys: point::FIELD_KEYS,
+    device_keys: &[point::COMMON_ADDRESS],
+};
+
+/// Where a field is: its object, the type it is fixed to, whether commands are selected.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Place {
+    ioa: u32,
+    fixed: Option<TypeId>,
+    select: bool,
+}
+
+/// What is kept of a device.
+pub(crate) struct Plan {
+    common_address: Result<u16, String>,
+    places: Vec<Result<Place, String>>,
+    /// The connection its fields were registered with (0: none yet).
+    generation: u64,
+    /// When it was last interrogated (general, counter) on that connection.
+    interrogated: Option<tokio::time::Instant>,
+    counted: Option<tokio::time::Instant>,
+}
+
+fn places(device: &Device) -> Vec<Result<Place, String>> {
+    device
+        .profile
+        .fields
+        .iter()
+        .map(|f| {
+            let p = f.point.as_ref().ok_or("the field has no ioa")?;
+            Ok(Place {
+                ioa: point::ioa(&p.address)?,
+                fixed: p
+                    .get(point::ASDU)
+                    .map(|t| point::asdu(t, Some(f.ty)))
+                    .transpose()?,
+                select: p.get(point::SELECT).map_or(Ok(false), point::select)?,
+            })
+        })
+        .collect()
+}
+
+/// The connection's error as the link's.
+fn lost(e: conn::Iec104Error) -> LinkFault {
+    LinkFault::lost(e)
+}
+
+impl Driver for Iec104 {
+    type Plan = Plan;
+    type Session = session::Station;
+    const NAME: &'static str = PROTOCOL;
+    const WORDS: Option<&'static Words> = Some(&WORDS);
+    type Settings = config::Settings;
+    const READ_SETTINGS: super::ReadSettings<config::Settings> = config::read;
+    /// t0 (30 s by default) bounds the connect; STARTDT waits t1 more.
+    const OPEN_TIMEOUT: Duration = Duration::from_secs(60);
+
+    fn check_device(device: &DeviceConfig, report: &mut crate::yaml::Report) {
+        for (key, value) in &device.at {
+            let why = if *key == point::COMMON_ADDRESS {
+                point::common_address(value).err()
+            } else {
+                Some(format!(
+                    "`{key}` is not a key of a device on an iec104 link"
+                ))
+            };
+            if let Some(why) = why {
+                report.push(device.line, format!("device {}", device.name), why);
+            }
+        }
+    }
+
+    fn check_value(device: &Device, idx: usize, value: &crate::codec::Value) -> Result<(), String> {
+        let field = &device.profile.fields[idx];
+        let Some(Ok(place)) = places(device).into_iter().nth(idx) else {
+            return Ok(());
+        };
+        let command = point::command_for(field.ty, place.fixed)
+            .ok_or_else(|| format!("IEC 104 has no command for a {}", field.ty))?;
+        value::command(command, value, false).map(drop)
+    }
+
+    fn plan(device: &Device) -> Plan {
+        Plan {
+            common_address: Err(String::new()),
+            places: places(device),
+            generation: 0,
+            interrogated: None,
+            counted: None,
+        }
+    }
+
+    async fn open(
+        config: &LinkConfig,
+        link: &Arc<Link>,
+        _metrics: &Arc<Metrics>,
+    ) -> Result<session::Station, LinkFault> {
+        let s = Self::settings(config)?;
+        session::Station::open(s, link).await
+    }
+}
+
+impl Session for session::Station {
+    type Plan = Plan;
+
+    async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
+        let started = tokio::time::Instant::now();
+        if plan.generation != self.generation {
+            self.register(device, plan);
+        }
+        let ca = match &plan.common_address {
+            Ok(ca) => *ca,
+            Err(why) => {
+                device.fail_reads(&FieldError::Device(why.clone()));
+                return Ok(Read::Answered(started.elapsed()));
+            }
+        };
+        self.interrogate_when_due(device, plan, ca).await?;
+        Ok(Read::Answered(started.elapsed()))
+    }
+
+    async fn write(
+        &mut self,
+        device: &Arc<Device>,
+        plan: &mut Plan,
+        items: Vec<WriteItem>,
+    ) -> Result<Option<FieldError>, LinkFault> {
+        if plan.generation != self.generation {
+            self.register(device, plan);
+        }
+        for item in items {
+            self.command(device, plan, item).await?;
+        }
+        Ok(None)
+    }
+
+    async fn close(self) {
+        self.stop().await;
+    }
+
+    async fn lost(&mut self) -> LinkFault {
+        lost(self.lost_now().await)
+    }
+}
+
+/// Whether a field takes its values from the station (an input), not a command.
+fn is_input(device: &Device, idx: usize) -> bool {
+    device.profile.fields[idx].direction != Direction::Output
+}

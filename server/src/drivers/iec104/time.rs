@@ -19,6 +19,7 @@ pub(crate) struct Cp56 {
 impl Cp56 {
     pub(crate) const LEN: usize = 7;
 
+    #[cfg(test)]
     pub(crate) fn at(millis: i64) -> Cp56 {
         Cp56 {
             millis,
@@ -95,8 +96,6 @@ pub(crate) struct Cp24 {
 }
 
 impl Cp24 {
-    pub(crate) const LEN: usize = 3;
-
     pub(crate) fn decode(b: &[u8; 3]) -> Result<Cp24, String> {
         let millis = u16::from_le_bytes([b[0], b[1]]);
         let minute = b[2] & 0x3F;

@@ -104,7 +104,12 @@ fn extra_keys(
     for k in words.field_keys {
         let Some(n) = map.get(k.key) else { continue };
         let at = format!("{ctx}: {}", k.key);
-        let Some(text) = n.scalar_text(report, &at) else {
+        // A flag (IEC 104's `select: true`) is a scalar like the rest.
+        let text = match n.kind {
+            crate::yaml::Kind::Bool(b) => Some(b.to_string()),
+            _ => n.scalar_text(report, &at),
+        };
+        let Some(text) = text else {
             valid = false;
             continue;
         };

@@ -1,0 +1,352 @@
+//! A connection to a controlled station as the controlling station keeps it: TCP within t0,
+//! STARTDT confirmed within t1, then one task owns the socket. It numbers the I-frames it
+//! sends and holds at most `k` of them unacknowledged (each acknowledged within t1, or the
+//! connection is closed), acknowledges what it receives after `w` frames or t2, tests a
+//! quiet connection after t3 (TESTFR con within t1), and checks every frame: a sequence
+//! number out of order, an acknowledgement of a frame never sent, a malformed frame, each
+//! close the connection naming it. Received ASDUs go to the connection's `Router`.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+use super::apci::{self, Frame, Unnumbered};
+use super::asdu::Asdu;
+use super::config::Settings;
+use super::route::Router;
+
+/// Why a connection failed or ended.
+#[derive(Debug, Clone, thiserror::Error)]
+pub(crate) enum Iec104Error {
+    #[error("{0}")]
+    Io(String),
+    #[error("no connection within t0 ({0:?})")]
+    Connect(Duration),
+    #[error("no STARTDT con within t1 ({0:?})")]
+    Start(Duration),
+    #[error("the station sent a malformed frame: {0}")]
+    Frame(#[from] apci::Malformed),
+    #[error("I-frame N(S) {got} where {expected} was next: frames lost or repeated")]
+    Sequence { expected: u16, got: u16 },
+    #[error("the station acknowledged N(R) {got}, outside the frames sent ({low} to {high})")]
+    Acknowledged { got: u16, low: u16, high: u16 },
+    #[error("an I-frame was not acknowledged within t1 ({0:?})")]
+    Unacknowledged(Duration),
+    #[error("TESTFR act was not confirmed within t1 ({0:?})")]
+    Untested(Duration),
+    #[error("the station closed the connection")]
+    Closed,
+    #[error("the station sent {0} to the controlling station")]
+    Unexpected(&'static str),
+}
+
+impl From<std::io::Error> for Iec104Error {
+    fn from(e: std::io::Error) -> Self {
+        Iec104Error::Io(e.to_string())
+    }
+}
+
+/// The link task's side of an open connection.
+pub(crate) struct Connection {
+    pub(crate) send: mpsc::Sender<Asdu>,
+    pub(crate) router: Arc<Router>,
+    pub(crate) lost: watch::Receiver<Option<Iec104Error>>,
+    pub(crate) state: watch::Receiver<State>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+/// What `/links` shows of the connection.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct State {
+    /// I-frames sent and not acknowledged yet (at most k).
+    pub(crate) unacknowledged: u16,
+    /// I-frames received and not acknowledged yet (at most w).
+    pub(crate) unconfirmed: u16,
+    pub(crate) sent: u64,
+    pub(crate) received: u64,
+}
+
+impl Drop for Connection {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Opens a connection to `(host, port)`: TCP within t0, then STARTDT.
+pub(crate) async fn open(
+    host: &str,
+    port: u16,
+    s: &Settings,
+    router: Arc<Router>,
+) -> Result<Connection, Iec104Error> {
+    let mut io = tokio::time::timeout(s.t0, TcpStream::connect((host, port)))
+        .await
+        .map_err(|_| Iec104Error::Connect(s.t0))??;
+    let _ = io.set_nodelay(true);
+    io.write_all(&Frame::U(Unnumbered::StartAct).encode())
+        .await?;
+    let mut buf = Vec::with_capacity(512);
+    let deadline = Instant::now() + s.t1;
+    loop {
+        match next_frame(&mut io, &mut buf, deadline).await? {
+            Some(Frame::U(Unnumbered::StartCon)) => break,
+            Some(Frame::U(Unnumbered::TestAct)) => {
+                io.write_all(&Frame::U(Unnumbered::TestCon).encode())
+                    .await?;
+            }
+            Some(Frame::U(u)) => return Err(Iec104Error::Unexpected(u.name())),
+            Some(_) => {
+                return Err(Iec104Error::Unexpected(
+                    "an I- or S-frame before STARTDT con",
+                ));
+            }
+            None => return Err(Iec104Error::Start(s.t1)),
+        }
+    }
+    let (send, outgoing) = mpsc::channel(64);
+    let (lost_tx, lost) = watch::channel(None);
+    let (state_tx, state) = watch::channel(State::default());
+    let link = Link {
+        io,
+        buf,
+        k: s.k,
+        w: s.w,
+        t1: s.t1,
+        t2: s.t2,
+        t3: s.t3,
+        router: router.clone(),
+        state: state_tx,
+        vs: 0,
+        vr: 0,
+        sent: VecDeque::new(),
+        unconfirmed: 0,
+        first_unconfirmed: None,
+        heard: Instant::now(),
+        testing: None,
+    };
+    let task = tokio::spawn(async move {
+        let why = link.run(outgoing).await;
+        let _ = lost_tx.send(Some(why));
+    });
+    Ok(Connection {
+        send,
+        router,
+        lost,
+        state,
+        task,
+    })
+}
+
+/// The next whole frame from `io` (`None` past `deadline`).
+async fn next_frame(
+    io: &mut TcpStream,
+    buf: &mut Vec<u8>,
+    deadline: Instant,
+) -> Result<Option<Frame>, Iec104Error> {
+    loop {
+        if let Some((frame, used)) = Frame::decode(buf)? {
+            buf.drain(..used);
+            return Ok(Some(frame));
+        }
+        let mut chunk = [0u8; 512];
+        let n = match tokio::time::timeout_at(deadline, io.read(&mut chunk)).await {
+            Err(_) => return Ok(None),
+            Ok(n) => n?,
+        };
+        if n == 0 {
+            return Err(Iec104Error::Closed);
+        }
+        buf.extend_from_slice(&chunk[..n]);
+    }
+}
+
+/// The connection's task.
+struct Link {
+    io: TcpStream,
+    buf: Vec<u8>,
+    k: u16,
+    w: u16,
+    t1: Duration,
+    t2: Duration,
+    t3: Duration,
+    router: Arc<Router>,
+    state: watch::Sender<State>,
+    /// V(S): the next I-frame's send number; V(R): the next one expected.
+    vs: u16,
+    vr: u16,
+    /// The send numbers of I-frames not acknowledged yet, with when each went.
+    sent: VecDeque<(u16, Instant)>,
+    /// I-frames received and not acknowledged, and when the first of them came.
+    unconfirmed: u16,
+    first_unconfirmed: Option<Instant>,
+    /// When the station was last heard; when a TESTFR act went unanswered.
+    heard: Instant,
+    testing: Option<Instant>,
+}
+
+impl Link {
+    async fn run(mut self, mut outgoing: mpsc::Receiver<Asdu>) -> Iec104Error {
+        loop {
+            if let Err(why) = self.turn(&mut outgoing).await {
+                return why;
+            }
+        }
+    }
+
+    /// Waits for the next thing to do and does it.
+    async fn turn(&mut self, outgoing: &mut mpsc::Receiver<Asdu>) -> Result<(), Iec104Error> {
+        let deadline = self.deadline();
+        let room = (self.sent.len() as u16) < self.k;
+        let mut chunk = [0u8; 1024];
+        tokio::select! {
+            read = self.io.read(&mut chunk) => {
+                let n = read?;
+                if n == 0 {
+                    return Err(Iec104Error::Closed);
+                }
+                self.buf.extend_from_slice(&chunk[..n]);
+                self.heard = Instant::now();
+                while let Some((frame, used)) = Frame::decode(&self.buf)? {
+                    self.buf.drain(..used);
+                    self.take(frame).await?;
+                }
+            }
+            asdu = outgoing.recv(), if room => match asdu {
+                Some(asdu) => self.send(asdu).await?,
+                None => return Err(Iec104Error::Closed),
+            },
+            () = tokio::time::sleep_until(deadline) => self.timers().await?,
+        }
+        let counts = *self.state.borrow();
+        self.state.send_replace(State {
+            unacknowledged: self.sent.len() as u16,
+            unconfirmed: self.unconfirmed,
+            ..counts
+        });
+        Ok(())
+    }
+
+    /// The earliest timer: t1 of the oldest unacknowledged frame or the test, t2 of the
+    /// first unconfirmed frame, t3 of silence.
+    fn deadline(&self) -> Instant {
+        let mut at = self.heard + self.t3;
+        if let Some((_, sent)) = self.sent.front() {
+            at = at.min(*sent + self.t1);
+        }
+        if let Some(t) = self.testing {
+            at = at.min(t + self.t1);
+        }
+        if let Some(first) = self.first_unconfirmed {
+            at = at.min(first + self.t2);
+        }
+        at
+    }
+
+    async fn timers(&mut self) -> Result<(), Iec104Error> {
+        let now = Instant::now();
+        if self.sent.front().is_some_and(|(_, t)| now >= *t + self.t1) {
+            return Err(Iec104Error::Unacknowledged(self.t1));
+        }
+        if self.testing.is_some_and(|t| now >= t + self.t1) {
+            return Err(Iec104Error::Untested(self.t1));
+        }
+        if self.first_unconfirmed.is_some_and(|t| now >= t + self.t2) {
+            self.confirm().await?;
+        }
+        if self.testing.is_none() && now >= self.heard + self.t3 {
+            self.io
+                .write_all(&Frame::U(Unnumbered::TestAct).encode())
+                .await?;
+            self.testing = Some(now);
+        }
+        Ok(())
+    }
+
+    /// Acknowledges every I-frame received (an S-frame).
+    async fn confirm(&mut self) -> Result<(), Iec104Error> {
+        self.io
+            .write_all(&Frame::S { recv: self.vr }.encode())
+            .await?;
+        self.unconfirmed = 0;
+        self.first_unconfirmed = None;
+        Ok(())
+    }
+
+    async fn send(&mut self, asdu: Asdu) -> Result<(), Iec104Error> {
+        let Ok(octets) = asdu.encode() else {
+            return Ok(());
+        };
+        let frame = Frame::I {
+            send: self.vs,
+            recv: self.vr,
+            asdu: octets,
+        };
+        self.io.write_all(&frame.encode()).await?;
+        self.sent.push_back((self.vs, Instant::now()));
+        self.vs = (self.vs + 1) % apci::MODULO;
+        // An I-frame acknowledges what was received, as an S-frame would.
+        self.unconfirmed = 0;
+        self.first_unconfirmed = None;
+        let mut state = *self.state.borrow();
+        state.sent += 1;
+        self.state.send_replace(state);
+        Ok(())
+    }
+
+    /// Takes the acknowledgement N(R): every frame before it is acknowledged.
+    fn acknowledged(&mut self, recv: u16) -> Result<(), Iec104Error> {
+        let oldest = self.sent.front().map_or(self.vs, |(n, _)| *n);
+        let outstanding = apci::distance(oldest, self.vs);
+        if apci::distance(oldest, recv) > outstanding {
+            return Err(Iec104Error::Acknowledged {
+                got: recv,
+                low: oldest,
+                high: self.vs,
+            });
+        }
+        while self.sent.front().is_some_and(|(n, _)| {
+            apci::distance(*n, recv) > 0 && apci::distance(*n, recv) <= outstanding
+        }) {
+            self.sent.pop_front();
+        }
+        Ok(())
+    }
+
+    async fn take(&mut self, frame: Frame) -> Result<(), Iec104Error> {
+        match frame {
+            Frame::I { send, recv, asdu } => {
+                if send != self.vr {
+                    return Err(Iec104Error::Sequence {
+                        expected: self.vr,
+                        got: send,
+                    });
+                }
+                self.acknowledged(recv)?;
+                self.vr = (self.vr + 1) % apci::MODULO;
+                self.unconfirmed += 1;
+                self.first_unconfirmed.get_or_insert_with(Instant::now);
+                let mut state = *self.state.borrow();
+                state.received += 1;
+                self.state.send_replace(state);
+                self.router.take(&asdu);
+                if self.unconfirmed >= self.w {
+                    self.confirm().await?;
+                }
+            }
+            Frame::S { recv } => self.acknowledged(recv)?,
+            Frame::U(Unnumbered::TestAct) => {
+                self.io
+                    .write_all(&Frame::U(Unnumbered::TestCon).encode())
+                    .await?;
+            }
+            Frame::U(Unnumbered::TestCon) => self.testing = None,
+            Frame::U(u) => return Err(Iec104Error::Unexpected(u.name())),
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,315 @@
+//! An open link to a station: its devices' fields registered with the connection's router,
+//! general and counter interrogations (at connect, on their periods, and again when the
+//! station says it initialised), each confirmed and terminated before its values are
+//! judged complete, and commands: an output's value as its command, selected first where
+//! the field says so, the station's confirmation its outcome.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use super::asdu::{Asdu, Object, cause};
+use super::config::Settings;
+use super::conn::{self, Connection, Iec104Error};
+use super::element::Element;
+use super::route::{Answers, Router};
+use super::types::{TypeId, id};
+use super::{Plan, is_input, lost, point, value};
+use crate::cache::{Device, FieldError, Link, WriteError};
+use crate::drivers::{WriteItem, finish, written};
+use crate::link::{LinkFault, TxError};
+
+/// Each connection's number, so that a device's plan knows the connection it was
+/// registered with.
+static GENERATION: AtomicU64 = AtomicU64::new(1);
+
+/// QOI: the station's general interrogation; QCC: every counter, read (no freeze).
+const STATION: u8 = 20;
+const ALL_COUNTERS: u8 = 5;
+
+pub(crate) struct Station {
+    conn: Connection,
+    link: Arc<Link>,
+    settings: Settings,
+    pub(super) generation: u64,
+}
+
+impl Station {
+    /// Connects to the station's address, else to its backup.
+    pub(super) async fn open(s: Settings, link: &Arc<Link>) -> Result<Station, LinkFault> {
+        let router = Arc::new(Router::default());
+        let endpoint = format!("{}:{}", s.host, s.port);
+        let first = conn::open(&s.host, s.port, &s, router.clone()).await;
+        let conn = match (first, &s.backup) {
+            (Ok(c), _) => {
+                link.set_peer("station", endpoint);
+                c
+            }
+            (Err(e), None) => return Err(LinkFault::connect_failed(endpoint, e)),
+            (Err(e), Some((host, port))) => {
+                tracing::warn!(error = %e, endpoint, "IEC 104: the station does not connect; trying its backup address");
+                let backup = format!("{host}:{port}");
+                let c = conn::open(host, *port, &s, router)
+                    .await
+                    .map_err(|e| LinkFault::connect_failed(backup.clone(), e))?;
+                link.set_peer("station", format!("{backup} (the backup)"));
+                c
+            }
+        };
+        link.set_peer("windows", format!("k {}, w {}", s.k, s.w));
+        link.set_peer(
+            "timers",
+            format!("t0 {:?}, t1 {:?}, t2 {:?}, t3 {:?}", s.t0, s.t1, s.t2, s.t3),
+        );
+        Ok(Station {
+            conn,
+            link: link.clone(),
+            settings: s,
+            generation: GENERATION.fetch_add(1, Ordering::Relaxed),
+        })
+    }
+
+    /// Registers the device's input fields with this connection.
+    pub(super) fn register(&self, device: &Arc<Device>, plan: &mut Plan) {
+        plan.common_address = match device.config.at(point::COMMON_ADDRESS) {
+            Some(text) => point::common_address(text),
+            None => Ok(self.settings.common_address),
+        };
+        let ioas: Vec<(usize, u32, Option<TypeId>)> = plan
+            .places
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| is_input(device, *i))
+            .filter_map(|(i, p)| p.as_ref().ok().map(|p| (i, p.ioa, p.fixed)))
+            .collect();
+        for (i, p) in plan.places.iter().enumerate() {
+            if let Err(why) = p {
+                device.publish(i, Err(FieldError::Device(why.clone())));
+            }
+        }
+        if let Ok(ca) = plan.common_address {
+            self.conn.router.register(device, ca, &ioas);
+        }
+        plan.generation = self.generation;
+        plan.interrogated = None;
+        plan.counted = None;
+    }
+
+    /// Interrogates the device's common address when it never was on this connection,
+    /// its period has passed, or the station initialised since.
+    pub(super) async fn interrogate_when_due(
+        &mut self,
+        device: &Arc<Device>,
+        plan: &mut Plan,
+        ca: u16,
+    ) -> Result<(), LinkFault> {
+        let due = |last: Option<Instant>, period: Option<Duration>| match last {
+            None => true,
+            Some(t) => period.is_some_and(|p| t.elapsed() >= p),
+        };
+        self.tell_state();
+        let restarted = self.conn.router.restarted.swap(false, Ordering::Relaxed);
+        let first = plan.interrogated.is_none();
+        if restarted || due(plan.interrogated, self.settings.interrogation) {
+            plan.interrogated = Some(Instant::now());
+            if let Err(why) = self.interrogation(id::C_IC_NA_1, ca, STATION).await? {
+                self.link.progress.ended();
+                device.doubt_reads(&FieldError::Device(why));
+                return Ok(());
+            }
+        }
+        let unseen = self.conn.router.unseen(device, ca);
+        let counters = !unseen.is_empty() && plan.counted.is_none();
+        if counters || due(plan.counted, self.settings.counter_interrogation) {
+            plan.counted = Some(Instant::now());
+            if let Err(why) = self.interrogation(id::C_CI_NA_1, ca, ALL_COUNTERS).await? {
+                tracing::warn!(device = %device.name(), "{why}");
+            }
+        }
+        // The connection is alive (the station answers test frames within t1): it
+        // vouches for every value it has not changed.
+        self.link.progress.ended();
+        if first {
+            for (idx, ioa) in self.conn.router.unseen(device, ca) {
+                let why = format!(
+                    "the station at common address {ca} sent nothing for IOA {ioa} in its answers to general and counter interrogation"
+                );
+                device.publish(idx, Err(FieldError::Device(why)));
+            }
+        }
+        Ok(())
+    }
+
+    /// The connection's windows and counts, as `/links` shows them.
+    fn tell_state(&self) {
+        let st = *self.conn.state.borrow();
+        let r = &self.conn.router;
+        self.link.set_peer(
+            "i_frames",
+            format!(
+                "sent {} ({} unacknowledged of k {}), received {} ({} unconfirmed of w {}); {} malformed ASDUs, {} for nothing configured",
+                st.sent,
+                st.unacknowledged,
+                self.settings.k,
+                st.received,
+                st.unconfirmed,
+                self.settings.w,
+                r.malformed.load(Ordering::Relaxed),
+                r.unrouted.load(Ordering::Relaxed),
+            ),
+        );
+    }
+
+    /// Sends the station an ASDU and waits for its answers.
+    async fn request(&self, asdu: Asdu) -> Result<Answers, LinkFault> {
+        let first = asdu.objects.first().map_or(0, |o| o.ioa);
+        let answers = self
+            .conn
+            .router
+            .expect(asdu.type_id, asdu.common_address, first);
+        if self.conn.send.send(asdu).await.is_err() {
+            return Err(lost(Iec104Error::Closed));
+        }
+        Ok(answers)
+    }
+
+    fn asdu(&self, type_id: u8, ca: u16, ioa: u32, element: Element) -> Asdu {
+        let mut asdu = Asdu::new(
+            TypeId(type_id),
+            cause::ACTIVATION,
+            ca,
+            vec![Object {
+                ioa,
+                element,
+                time: None,
+            }],
+        );
+        asdu.originator = self.settings.originator;
+        asdu
+    }
+
+    /// A general or counter interrogation: confirmed within t1, terminated within four.
+    async fn interrogation(
+        &self,
+        type_id: u8,
+        ca: u16,
+        qualifier: u8,
+    ) -> Result<Result<(), String>, LinkFault> {
+        let element = if type_id == id::C_IC_NA_1 {
+            Element::Interrogation(qualifier)
+        } else {
+            Element::CounterInterrogation(qualifier)
+        };
+        let what = TypeId(type_id).name();
+        let mut answers = self.request(self.asdu(type_id, ca, 0, element)).await?;
+        let t1 = self.settings.t1;
+        self.link.progress.started(Instant::now() + t1 * 5);
+        match answers.next(t1).await {
+            Some(a) if a.cause == cause::ACT_CON && !a.negative => {}
+            Some(a) => {
+                return Ok(Err(format!(
+                    "the station refused {what} at common address {ca}: {}{}",
+                    if a.negative { "negative " } else { "" },
+                    cause::name(a.cause)
+                )));
+            }
+            None => return Ok(Err(format!("no confirmation of {what} within t1 ({t1:?})"))),
+        }
+        let deadline = Instant::now() + t1 * 4;
+        while let Some(a) = answers
+            .next(deadline.saturating_duration_since(Instant::now()))
+            .await
+        {
+            if a.cause == cause::ACT_TERM {
+                return Ok(Ok(()));
+            }
+        }
+        Ok(Err(format!(
+            "{what} at common address {ca} was not terminated within {:?}",
+            t1 * 4
+        )))
+    }
+
+    /// Writes one output as its command, finishing the write with its outcome.
+    pub(super) async fn command(
+        &self,
+        device: &Arc<Device>,
+        plan: &Plan,
+        item: WriteItem,
+    ) -> Result<(), LinkFault> {
+        let refuse = |why: String| finish(device, &item, Err(WriteError::Refused(why)), 0);
+        let (place, ca) = match (&plan.places[item.field], &plan.common_address) {
+            (Ok(p), Ok(ca)) => (*p, *ca),
+            (Err(why), _) | (_, Err(why)) => {
+                refuse(why.clone());
+                return Ok(());
+            }
+        };
+        let ty = device.profile.fields[item.field].ty;
+        let Some(command) = point::command_for(ty, place.fixed) else {
+            refuse(format!("IEC 104 has no command for a {ty}"));
+            return Ok(());
+        };
+        let value = match item.value() {
+            Ok(v) => v.clone(),
+            Err(why) => {
+                refuse(why);
+                return Ok(());
+            }
+        };
+        let steps: &[bool] = if place.select {
+            &[true, false]
+        } else {
+            &[false]
+        };
+        for &select in steps {
+            let element = match value::command(command, &value, select) {
+                Ok(e) => e,
+                Err(why) => {
+                    refuse(why);
+                    return Ok(());
+                }
+            };
+            let asdu = self.asdu(command.0, ca, place.ioa, element);
+            let mut answers = self.request(asdu).await?;
+            let step = if select { "select" } else { "execute" };
+            match answers.next(self.settings.t1).await {
+                Some(a) if a.cause == cause::ACT_CON && !a.negative => {}
+                Some(a) => {
+                    refuse(format!(
+                        "{} {step} at IOA {}: {}{}",
+                        command.name(),
+                        place.ioa,
+                        if a.negative { "negative " } else { "" },
+                        cause::name(a.cause)
+                    ));
+                    return Ok(());
+                }
+                None => {
+                    finish(
+                        device,
+                        &item,
+                        Err(WriteError::NoResponse(TxError::Timeout)),
+                        1,
+                    );
+                    return Ok(());
+                }
+            }
+        }
+        written(device, &item, 1);
+        Ok(())
+    }
+
+    pub(super) async fn stop(self) {
+        drop(self.conn);
+    }
+
+    pub(super) async fn lost_now(&mut self) -> Iec104Error {
+        match self.conn.lost.wait_for(Option::is_some).await {
+            Ok(why) => why.clone().unwrap_or(Iec104Error::Closed),
+            Err(_) => Iec104Error::Closed,
+        }
+    }
+}

@@ -1,0 +1,137 @@
+//! The IEC 104 driver against an independent controlled station (c104, lib60870's Python
+//! binding, `tests/iec104/rtu.py`): every monitored type read through general and counter
+//! interrogation with its time tag, a spontaneous change seen, an invalid value never shown
+//! as good, an IOA the station does not have named, commands direct and selected before
+//! executed reaching the station, and the station killed and restarted.
+
+use iogate_tests::TestGateway;
+use iogate_tests::devices::temp_dir;
+use iogate_tests::iec104::Rtu;
+use serde_json::{Value, json};
+
+const PROFILE: &str = r#"name: Station
+protocol: iec104
+fields:
+  - { name: breaker, type: BOOL, direction: input, ioa: 100 }
+  - { name: switch, type: BOOL, direction: input, ioa: 101 }
+  - { name: flow, type: REAL, direction: input, ioa: 102 }
+  - { name: level, type: INT, direction: input, ioa: 103 }
+  - { name: ratio, type: REAL, direction: input, ioa: 104 }
+  - { name: energy, type: DINT, direction: input, ioa: 105 }
+  - { name: tap, type: SINT, direction: input, ioa: 106 }
+  - { name: bits, type: DWORD, direction: input, ioa: 107 }
+  - { name: pressure, type: REAL, direction: input, ioa: 108, asdu: M_ME_TF_1 }
+  - { name: missing, type: REAL, direction: input, ioa: 999 }
+  - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true }
+  - { name: enable, type: BOOL, direction: output, ioa: 201 }
+  - { name: limit, type: INT, direction: output, ioa: 202 }
+"#;
+
+async fn gateway(name: &str, rtu: &Rtu) -> anyhow::Result<TestGateway> {
+    let dir = temp_dir(name);
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, t0: 2s, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
+        dir.join("profiles").display(),
+        rtu.port,
+    );
+    TestGateway::start(&config).await
+}
+
+fn field<'a>(device: &'a Value, name: &str) -> &'a Value {
+    &device["fields"][name]
+}
+
+const INPUTS: [&str; 9] = [
+    "breaker", "switch", "flow", "level", "ratio", "energy", "tap", "bits", "pressure",
+];
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow::Result<()> {
+    let mut rtu = Rtu::start().await?;
+    let gw = gateway("iec104-values", &rtu).await?;
+    let d = gw
+        .until("/api/v1/devices/station", "interrogated", |d| {
+            INPUTS.iter().all(|f| field(d, f)["quality"] == "good")
+                && field(d, "missing")["quality"] == "bad"
+        })
+        .await?;
+    let v = |n: &str| field(&d, n)["value"].clone();
+    assert_eq!(v("breaker"), json!(true));
+    assert_eq!(v("switch"), json!(true), "a double point ON");
+    assert_eq!(v("flow"), json!(12.5));
+    assert_eq!(v("level"), json!(-7));
+    assert_eq!(v("ratio"), json!(0.5), "normalized 0.5");
+    assert_eq!(v("energy"), json!(42), "by counter interrogation");
+    assert_eq!(v("tap"), json!(3));
+    assert_eq!(v("bits"), json!(0xA5));
+    assert_eq!(v("pressure"), json!(1.25));
+    let missing = field(&d, "missing")["error"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    assert!(missing.contains("IOA 999"), "{missing}");
+
+    // A spontaneous change is seen; an invalid value is not shown as good.
+    rtu.cmd("set 102 20.25").await?;
+    gw.until("/api/v1/devices/station", "the change", |d| {
+        field(d, "flow")["value"] == json!(20.25) && field(d, "flow")["quality"] == "good"
+    })
+    .await?;
+    rtu.cmd("invalid 102").await?;
+    let d = gw
+        .until("/api/v1/devices/station", "invalid", |d| {
+            field(d, "flow")["quality"] == "bad"
+        })
+        .await?;
+    let why = field(&d, "flow")["error"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    assert!(why.contains("invalid (IV)"), "{why}");
+
+    // Commands: direct, and selected before executed.
+    for (name, value, said) in [
+        ("enable", json!(true), "cmd 201 True"),
+        ("limit", json!(-12), "cmd 202 -12"),
+        ("setpoint", json!(2.5), "cmd 200 2.5"),
+    ] {
+        let outcome = gw
+            .write_outcome("station", name, value)
+            .await?
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        assert_eq!(outcome["status"], "written", "{name}: {outcome}");
+        // The station's point 200 takes only a selected command (c104 answers an execute
+        // without a select negatively), and tells its execute.
+        assert_eq!(rtu.said().await?, said);
+    }
+    // A value the command cannot carry is refused before anything is sent.
+    let refused = gw.write_outcome("station", "limit", json!(40000)).await?;
+    assert!(
+        refused.is_err() || refused.as_ref().is_ok_and(|o| o["status"] != "written"),
+        "{refused:?}"
+    );
+
+    let (_, link) = gw.get("/api/v1/links/rtu").await?;
+    assert_eq!(link["peer"]["windows"], "k 12, w 8", "{link}");
+    assert!(
+        link["peer"]["i_frames"]
+            .as_str()
+            .is_some_and(|f| f.contains("0 malformed")),
+        "{link}"
+    );
+
+    // The station killed: the link goes down; started again, it is interrogated again.
+    let port = rtu.port;
+    rtu.kill().await?;
+    gw.until("/api/v1/links/rtu", "down", |l| l["connected"] == false)
+        .await?;
+    let _again = Rtu::start_on(Some(port)).await?;
+    gw.until("/api/v1/devices/station", "read again", |d| {
+        field(d, "flow")["value"] == json!(12.5) && field(d, "flow")["quality"] == "good"
+    })
+    .await?;
+    gw.shutdown().await;
+    Ok(())
+}
