@@ -108,3 +108,105 @@ async fn cut_then_kill(name: &str, store: u16, arbiter: impl Fn(u16) -> String) 
     pair.field.assert_written_once(&log);
     pair.field.assert_only_asked(&log);
 }
+
+/// Someone else removes the holder from the store while the active holds it (deletes
+/// etcd's holder key; empties the Lease's holder): the active finds its record gone at its
+/// next renewal and stands down; the standby does not take a lease whose holder may still
+/// be active. Never two active at once, one field master at a time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_holder_removed_by_someone_else_is_not_two_masters() {
+    let etcd = Etcd::start().await.expect("etcd");
+    let url = format!("http://127.0.0.1:{}", etcd.port);
+    let arbiter = |_| format!("arbiter: etcd, etcd: {{ endpoints: [\"{url}\"] }}");
+    let delete = || async {
+        let key = base64::Engine::encode(
+            &base64::engine::general_purpose::STANDARD,
+            "iogate/ha/iogate/holder",
+        );
+        reqwest::Client::new()
+            .post(format!("{url}/v3/kv/deleterange"))
+            .body(serde_json::json!({ "key": key }).to_string())
+            .send()
+            .await
+            .expect("etcd")
+            .error_for_status()
+            .expect("deleted");
+    };
+    tampered("ha-etcd-tamper", arbiter, delete).await;
+
+    let api = KubeApi::start().await.expect("the Lease API");
+    let token = iogate_tests::devices::temp_dir("ha-kube-tamper-token").join("token");
+    std::fs::write(&token, format!("{}\n", api.token)).expect("token");
+    let (base, bearer) = (format!("http://127.0.0.1:{}", api.port), api.token.clone());
+    let file = token.display().to_string();
+    let arbiter = |_| {
+        format!(
+            "arbiter: kubernetes, kubernetes: {{ api: \"{base}\", namespace: plant, token_file: \"{file}\" }}"
+        )
+    };
+    let empty = || async {
+        let path =
+            format!("{base}/apis/coordination.k8s.io/v1/namespaces/plant/leases/iogate-iogate");
+        let client = reqwest::Client::new();
+        let mut lease: serde_json::Value = client
+            .get(&path)
+            .bearer_auth(&bearer)
+            .send()
+            .await
+            .expect("GET")
+            .json()
+            .await
+            .expect("a Lease");
+        lease["spec"]["holderIdentity"] = serde_json::Value::Null;
+        let status = client
+            .put(&path)
+            .bearer_auth(&bearer)
+            .body(lease.to_string())
+            .send()
+            .await
+            .expect("PUT")
+            .status();
+        assert!(status.is_success(), "{status}");
+    };
+    tampered("ha-kube-tamper", arbiter, empty).await;
+}
+
+async fn tampered<F: std::future::Future<Output = ()>>(
+    name: &str,
+    arbiter: impl Fn(Node) -> String,
+    tamper: impl Fn() -> F,
+) {
+    let broker = Broker::start().await.expect("broker");
+    let pair = Pair::start_with(name, [broker.port; 2], LEASE_S, arbiter)
+        .await
+        .expect("pair");
+    let writer = Writer::start(&pair);
+    writer.until_written(Node::A, 20).await;
+    tamper().await;
+    let since = Instant::now();
+    let mut actives = std::collections::BTreeSet::new();
+    while since.elapsed() < Duration::from_secs(2 * LEASE_S + 2) {
+        let (a, b) = (pair.ha(Node::A).await, pair.ha(Node::B).await);
+        let both = a["role"] == "active" && b["role"] == "active";
+        assert!(
+            !both,
+            "{name}: two active {:?} after: {a} {b}",
+            since.elapsed()
+        );
+        for (node, ha) in [("a", &a), ("b", &b)] {
+            if ha["role"] == "active" {
+                actives.insert((node, ha["epoch"].as_u64()));
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let active = |n| pair.ha(n);
+    let (a, b) = (active(Node::A).await, active(Node::B).await);
+    assert!(
+        (a["role"] == "active") != (b["role"] == "active"),
+        "{name}: one active in the end: {a} {b}"
+    );
+    eprintln!("{name}: active after the tamper: {actives:?}");
+    let log = writer.stop().await;
+    pair.field.assert_one_master_at_a_time_or_one(&log);
+}
