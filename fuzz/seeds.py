@@ -158,6 +158,23 @@ def _eip_rr(mr):
 
 _DINT7 = b"\xcc\x00\x00\x00\xc4\x00\x07\x00\x00\x00"
 _MISSING = b"\xcc\x00\x05\x01\x00\x00"
+# A c104 (lib60870) station's answer to a general interrogation, as it sent it: STARTDT con,
+# ACTCON, a double point, a short float, a single point and a scaled value with
+# CP56Time2a, a step position, a bitstring, a normalized value, ACTTERM.
+IEC104 = [bytes.fromhex(h) for h in [
+    "68040b000000",
+    "680e0000020064010700010000000014",
+    "680e0200020003811400010065000002",
+    "6812040002000d81140001006600000000484100",
+    "68150c0002001e8114000100640000016d0e0f07030c1a",
+    "68170e000200238114000100670000f9ff006d0e0f07030c1a",
+    "680f040002000581140001006a00000300",
+    "6812060002000781140001006b00000000000000",
+    "681008000200098114000100680000004000",
+    "6819100002002481140001006c00000000a03f006e0e0f07030c1a",
+    "680e1200020064010a00010000000014",
+]]
+
 EIP = [
     _eip_rr(b"\x8a\x00\x00\x00\x02\x00\x06\x00" + bytes([6 + len(_DINT7)]) + b"\x00" + _DINT7 + _MISSING),
     _eip_rr(_DINT7),
@@ -206,6 +223,9 @@ def main():
         write("import", "edgex-" + path.name, b"\x01" + path.read_bytes())
     for i, answer in enumerate(S7):
         write("s7_answer", f"answer{i}", answer)
+    write("iec104_frames", "interrogation", b"".join(IEC104))
+    for i, frame in enumerate(IEC104):
+        write("iec104_frames", f"frame{i}", frame)
     for i, answer in enumerate(EIP):
         write("eip_answer", f"answer{i}", answer)
     for i, message in enumerate(grpc()):

@@ -128,6 +128,11 @@ pub fn bacnet_answer(data: &[u8]) {
     crate::drivers::bacnet::fuzz_answer(data);
 }
 
+/// An IEC 104 station's APDUs and ASDUs, and a profile's IEC 104 notation.
+pub fn iec104_frames(data: &[u8]) {
+    crate::drivers::iec104::fuzz_frames(data);
+}
+
 /// A Logix controller's EtherNet/IP answers and Read Tag replies by every type.
 pub fn eip_answer(data: &[u8]) {
     crate::drivers::eip::fuzz_answer(data);
@@ -285,6 +290,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("s7_answer", s7_answer),
     ("eip_answer", eip_answer),
     ("bacnet_answer", bacnet_answer),
+    ("iec104_frames", iec104_frames),
     ("grpc_request", grpc_request),
     ("opcua_binary", opcua_binary),
     ("http_request", http_request),
