@@ -74,6 +74,8 @@ pub(crate) struct Plan {
     generation: u64,
     /// When it was last interrogated (general, counter) on that connection.
     interrogated: Option<tokio::time::Instant>,
+    /// Whether a general interrogation was answered on that connection.
+    answered: bool,
     counted: Option<tokio::time::Instant>,
 }
 
@@ -142,6 +144,7 @@ impl Driver for Iec104 {
             places: places(device),
             generation: 0,
             interrogated: None,
+            answered: false,
             counted: None,
         }
     }

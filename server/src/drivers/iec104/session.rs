@@ -94,6 +94,7 @@ impl Station {
         }
         plan.generation = self.generation;
         plan.interrogated = None;
+        plan.answered = false;
         plan.counted = None;
     }
 
@@ -111,18 +112,32 @@ impl Station {
         };
         self.tell_state();
         let restarted = self.conn.router.restarted.swap(false, Ordering::Relaxed);
-        let first = plan.interrogated.is_none();
-        if restarted || due(plan.interrogated, self.settings.interrogation) {
+        // Until one is answered on this connection, a general interrogation is asked again
+        // every four t1, not every refresh.
+        let period = if plan.answered {
+            self.settings.interrogation
+        } else {
+            Some(self.settings.t1 * 4)
+        };
+        let mut first = false;
+        if restarted || due(plan.interrogated, period) {
             plan.interrogated = Some(Instant::now());
             if let Err(why) = self.interrogation(id::C_IC_NA_1, ca, STATION).await? {
                 self.link.progress.ended();
                 device.doubt_reads(&FieldError::Device(why));
                 return Ok(());
             }
+            first = !std::mem::replace(&mut plan.answered, true);
         }
-        let unseen = self.conn.router.unseen(device, ca);
-        let counters = !unseen.is_empty() && plan.counted.is_none();
-        if counters || due(plan.counted, self.settings.counter_interrogation) {
+        // Counters: asked at the first answer when it left fields unreported (the devices'
+        // fields are scanned only then), and on their period.
+        let counters = if first {
+            plan.counted = Some(Instant::now());
+            !self.conn.router.unseen(device, ca).is_empty()
+        } else {
+            plan.counted.is_some() && due(plan.counted, self.settings.counter_interrogation)
+        };
+        if counters {
             plan.counted = Some(Instant::now());
             if let Err(why) = self.interrogation(id::C_CI_NA_1, ca, ALL_COUNTERS).await? {
                 tracing::warn!(device = %device.name(), "{why}");
