@@ -23,6 +23,7 @@ pub(crate) fn all() -> Vec<Box<dyn FrontEnd>> {
         Box::new(api::modbus_serial::front_end::ModbusSerialFrontEnd),
         Box::new(api::mqtt::MqttFrontEnd),
         Box::new(api::opcua::OpcUaFrontEnd),
+        Box::new(api::iec104_server::Iec104FrontEnd),
     ]
 }
 
@@ -94,10 +95,14 @@ pub(crate) fn read_sections(config: &mut Config) -> Problems {
 
 /// What every front-end's section names outside the file, read as `check` does: one that
 /// cannot be read (a password file, say) is a problem at its section's line.
-pub(crate) fn check_files(config: &Config, base: &Path) -> Problems {
+pub(crate) fn check_files(
+    config: &Config,
+    catalog: &crate::profile::Catalog,
+    base: &Path,
+) -> Problems {
     let mut report = Report::new(&config.source);
     for front_end in all() {
-        if let Err(e) = front_end.check_files(config, base) {
+        if let Err(e) = front_end.check_files(config, catalog, base) {
             let line = config
                 .sections
                 .section(front_end.name())

@@ -69,14 +69,18 @@ enum Command {
         #[arg(long, short)]
         config: Option<PathBuf>,
     },
-    /// Print the Modbus TCP server's map: located address, table and address, field, type.
+    /// Print the Modbus TCP server's map: located address, table and address, field, type
+    /// (`--iec104`: the IEC 104 outstation's, one line per point: IOA ASDU device.field).
     Map {
         /// The config file; default: ./iogate.yaml, else the built-in demo.
         #[arg(long, short)]
         config: Option<PathBuf>,
         /// Print a VAR_GLOBAL block of AT declarations for a remote runtime instead.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "iec104")]
         st: bool,
+        /// Print the IEC 104 outstation's information objects instead.
+        #[arg(long)]
+        iec104: bool,
     },
     /// Function blocks: `iogate fb st` prints the ST declarations of ModbusRead and
     /// ModbusWrite, the raw-transaction blocks of the client crate.
@@ -132,6 +136,7 @@ enum Action {
     Diff(DiffOptions),
     Plan,
     Map { st: bool },
+    MapIec104(Option<PathBuf>),
     St(String),
 }
 
@@ -205,6 +210,7 @@ fn main() -> ExitCode {
     match action {
         Action::St(name) => st(&setup, &name),
         Action::Map { st } => map(&setup, st),
+        Action::MapIec104(config) => map_iec104(&setup, config.as_deref()),
         Action::Diff(options) => diff(&setup, &options),
         Action::Plan => {
             print!("{}", iogate::plan::render(&setup.config, &setup.catalog));
@@ -239,7 +245,12 @@ fn action_of(command: Option<Command>) -> Option<(Option<PathBuf>, Action)> {
         ),
         Some(Command::Check { config, .. }) => (config, Action::Check),
         Some(Command::Plan { config }) => (config, Action::Plan),
-        Some(Command::Map { config, st }) => (config, Action::Map { st }),
+        Some(Command::Map {
+            config,
+            iec104: true,
+            ..
+        }) => (config.clone(), Action::MapIec104(config)),
+        Some(Command::Map { config, st, .. }) => (config, Action::Map { st }),
         Some(Command::Profile {
             command: ProfileCommand::St { name, config },
         }) => (config, Action::St(name)),
@@ -281,6 +292,33 @@ fn map(setup: &Setup, st: bool) -> ExitCode {
         }
         None => {
             eprintln!("no Modbus TCP server is configured (add `modbus_server:` to the config)");
+            ExitCode::from(iogate::EXIT_CONFIG as u8)
+        }
+    }
+}
+
+/// `map --iec104`: the outstation's points, one line each; fields not served on stderr.
+fn map_iec104(setup: &Setup, config: Option<&std::path::Path>) -> ExitCode {
+    let base = config
+        .and_then(|c| c.parent())
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    match setup.iec104_map(base) {
+        Some(Ok((lines, skipped))) => {
+            print!("{lines}");
+            for s in skipped {
+                eprintln!("{s}");
+            }
+            ExitCode::SUCCESS
+        }
+        Some(Err(problems)) => {
+            for p in problems {
+                eprintln!("{p}");
+            }
+            ExitCode::from(iogate::EXIT_CONFIG as u8)
+        }
+        None => {
+            eprintln!("no IEC 104 outstation is configured (add `iec104_server:` to the config)");
             ExitCode::from(iogate::EXIT_CONFIG as u8)
         }
     }
@@ -349,6 +387,9 @@ struct ListenArgs {
     /// The OPC UA server (opcua.listen).
     #[arg(long, value_name = "ADDR")]
     opcua: Option<std::net::SocketAddr>,
+    /// The IEC 104 outstation (iec104_server.listen).
+    #[arg(long, value_name = "ADDR")]
+    iec104: Option<std::net::SocketAddr>,
 }
 
 impl ListenArgs {
@@ -357,7 +398,10 @@ impl ListenArgs {
             http: self.http,
             grpc: self.grpc,
             modbus: self.modbus,
-            sections: self.opcua.map(|a| ("opcua", a)).into_iter().collect(),
+            sections: [("opcua", self.opcua), ("iec104_server", self.iec104)]
+                .into_iter()
+                .filter_map(|(s, a)| a.map(|a| (s, a)))
+                .collect(),
         }
     }
 }

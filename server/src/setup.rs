@@ -138,6 +138,13 @@ impl Setup {
         Err(problems)
     }
 
+    /// The IEC 104 outstation's points, one line each (`IOA ASDU device.field`), and the
+    /// fields it does not serve; its map file read from `base`. `None` without one.
+    pub fn iec104_map(&self, base: &Path) -> Option<Result<(String, Vec<String>), Vec<String>>> {
+        let plan = crate::api::iec104_server::plan(&self.config, &self.catalog, base)?;
+        Some(plan.map(|table| (table.render(), table.skipped.clone())))
+    }
+
     /// What `check` and `serve` print without stopping anything: every profile field that
     /// relies on the default `word_count` of 1 although its type is wider, and every map
     /// binding that cannot show every value of its field (a TIME at `%MD`), every link
@@ -185,7 +192,7 @@ impl Setup {
             crate::transaction::check_standing(&config).err(),
         ];
         problems.extend_all(checks.into_iter().flatten());
-        problems.extend(crate::front_ends::check_files(&config, base));
+        problems.extend(crate::front_ends::check_files(&config, &catalog, base));
         problems.extend(crate::drivers::check_links(&config));
         problems.extend(crate::ha::check(&config, base));
         let map = if dir.is_none() && !config.devices.is_empty() {

@@ -6,6 +6,7 @@ pub(crate) mod convert;
 pub(crate) mod front_end;
 pub(crate) mod grpc;
 pub(crate) mod http;
+pub(crate) mod iec104_server;
 
 pub(crate) use http::{error, rest};
 pub(crate) mod modbus_serial;

@@ -13,6 +13,27 @@ pub enum Deadband {
     Percent(f64),
 }
 
+impl Deadband {
+    /// Whether `new` is within the band of `old` (numbers only; other values differ when
+    /// unequal).
+    pub(crate) fn within(
+        self,
+        old: Option<&crate::codec::Value>,
+        new: Option<&crate::codec::Value>,
+    ) -> bool {
+        match (old, new) {
+            (Some(a), Some(b)) if a == b => true,
+            (Some(a), Some(b)) => match (a.as_f64(), b.as_f64(), self) {
+                (Some(x), Some(y), Deadband::Absolute(d)) => (x - y).abs() < d,
+                (Some(x), Some(y), Deadband::Percent(p)) => (x - y).abs() < x.abs() * p / 100.0,
+                _ => false,
+            },
+            (None, None) => true,
+            _ => false,
+        }
+    }
+}
+
 /// A deadband as written: a number (absolute) or a percentage (`"5%"`).
 pub(crate) fn read_deadband(node: &Node, report: &mut Report, ctx: &str) -> Option<Deadband> {
     let bad = |report: &mut Report, why: &str| {

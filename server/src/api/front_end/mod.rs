@@ -53,7 +53,12 @@ pub(crate) trait FrontEnd: Send + Sync {
 
     /// Reads what its section names outside the file (passwords), as `check` does: a
     /// problem is named and stops the start.
-    fn check_files(&self, _config: &Config, _base: &Path) -> Result<(), String> {
+    fn check_files(
+        &self,
+        _config: &Config,
+        _catalog: &crate::profile::Catalog,
+        _base: &Path,
+    ) -> Result<(), String> {
         Ok(())
     }
 

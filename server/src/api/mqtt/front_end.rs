@@ -62,7 +62,12 @@ impl FrontEnd for MqttFrontEnd {
         })
     }
 
-    fn check_files(&self, config: &Config, base: &Path) -> Result<(), String> {
+    fn check_files(
+        &self,
+        config: &Config,
+        _catalog: &crate::profile::Catalog,
+        base: &Path,
+    ) -> Result<(), String> {
         match section(config) {
             Some(section) => prepare(section, base).map(drop),
             None => Ok(()),

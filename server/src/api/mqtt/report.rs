@@ -134,18 +134,9 @@ impl Reporter {
     }
 }
 
-/// Whether `new` is within `band` of `old` (numbers only; other values differ when unequal).
+/// Whether `new` is within `band` of `old`.
 fn within(band: Deadband, old: Option<&Value>, new: Option<&Value>) -> bool {
-    match (old, new) {
-        (Some(a), Some(b)) if a == b => true,
-        (Some(a), Some(b)) => match (a.as_f64(), b.as_f64(), band) {
-            (Some(x), Some(y), Deadband::Absolute(d)) => (x - y).abs() < d,
-            (Some(x), Some(y), Deadband::Percent(p)) => (x - y).abs() < x.abs() * p / 100.0,
-            _ => false,
-        },
-        (None, None) => true,
-        _ => false,
-    }
+    band.within(old, new)
 }
 
 #[cfg(test)]

@@ -133,7 +133,6 @@ impl Asdu {
         }
     }
 
-    #[cfg(test)]
     /// The answer to this activation with `cause` (its confirmation or termination),
     /// negative when refused: the same type, addresses and objects.
     pub(crate) fn answer(&self, cause: u8, negative: bool) -> Asdu {

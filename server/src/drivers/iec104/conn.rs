@@ -6,7 +6,6 @@
 //! number out of order, an acknowledgement of a frame never sent, a malformed frame, each
 //! close the connection naming it. Received ASDUs go to the connection's `Router`.
 
-use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -19,6 +18,7 @@ use super::apci::{self, Frame, Unnumbered};
 use super::asdu::Asdu;
 use super::config::Settings;
 use super::route::Router;
+use super::window::{Broken, Limits, Window};
 
 /// Why a connection failed or ended.
 #[derive(Debug, Clone, thiserror::Error)]
@@ -31,14 +31,8 @@ pub(crate) enum Iec104Error {
     Start(Duration),
     #[error("the station sent a malformed frame: {0}")]
     Frame(#[from] apci::Malformed),
-    #[error("I-frame N(S) {got} where {expected} was next: frames lost or repeated")]
-    Sequence { expected: u16, got: u16 },
-    #[error("the station acknowledged N(R) {got}, outside the frames sent ({low} to {high})")]
-    Acknowledged { got: u16, low: u16, high: u16 },
-    #[error("an I-frame was not acknowledged within t1 ({0:?})")]
-    Unacknowledged(Duration),
-    #[error("TESTFR act was not confirmed within t1 ({0:?})")]
-    Untested(Duration),
+    #[error("{0}")]
+    Window(#[from] Broken),
     #[error("the station closed the connection")]
     Closed,
     #[error("the station sent {0} to the controlling station")]
@@ -111,23 +105,19 @@ pub(crate) async fn open(
     let (send, outgoing) = mpsc::channel(64);
     let (lost_tx, lost) = watch::channel(None);
     let (state_tx, state) = watch::channel(State::default());
-    let link = Link {
-        io,
-        buf,
+    let limits = Limits {
         k: s.k,
         w: s.w,
         t1: s.t1,
         t2: s.t2,
         t3: s.t3,
+    };
+    let link = Link {
+        io,
+        buf,
+        window: Window::new(limits),
         router: router.clone(),
         state: state_tx,
-        vs: 0,
-        vr: 0,
-        sent: VecDeque::new(),
-        unconfirmed: 0,
-        first_unconfirmed: None,
-        heard: Instant::now(),
-        testing: None,
     };
     let task = tokio::spawn(async move {
         let why = link.run(outgoing).await;
@@ -169,24 +159,9 @@ async fn next_frame(
 struct Link {
     io: TcpStream,
     buf: Vec<u8>,
-    k: u16,
-    w: u16,
-    t1: Duration,
-    t2: Duration,
-    t3: Duration,
+    window: Window,
     router: Arc<Router>,
     state: watch::Sender<State>,
-    /// V(S): the next I-frame's send number; V(R): the next one expected.
-    vs: u16,
-    vr: u16,
-    /// The send numbers of I-frames not acknowledged yet, with when each went.
-    sent: VecDeque<(u16, Instant)>,
-    /// I-frames received and not acknowledged, and when the first of them came.
-    unconfirmed: u16,
-    first_unconfirmed: Option<Instant>,
-    /// When the station was last heard; when a TESTFR act went unanswered.
-    heard: Instant,
-    testing: Option<Instant>,
 }
 
 impl Link {
@@ -200,8 +175,8 @@ impl Link {
 
     /// Waits for the next thing to do and does it.
     async fn turn(&mut self, outgoing: &mut mpsc::Receiver<Asdu>) -> Result<(), Iec104Error> {
-        let deadline = self.deadline();
-        let room = (self.sent.len() as u16) < self.k;
+        let deadline = self.window.deadline();
+        let room = self.window.room();
         let mut chunk = [0u8; 1024];
         tokio::select! {
             read = self.io.read(&mut chunk) => {
@@ -210,7 +185,7 @@ impl Link {
                     return Err(Iec104Error::Closed);
                 }
                 self.buf.extend_from_slice(&chunk[..n]);
-                self.heard = Instant::now();
+                self.window.heard();
                 while let Some((frame, used)) = Frame::decode(&self.buf)? {
                     self.buf.drain(..used);
                     self.take(frame).await?;
@@ -224,56 +199,30 @@ impl Link {
         }
         let counts = *self.state.borrow();
         self.state.send_replace(State {
-            unacknowledged: self.sent.len() as u16,
-            unconfirmed: self.unconfirmed,
+            unacknowledged: self.window.unacknowledged(),
+            unconfirmed: self.window.unconfirmed(),
             ..counts
         });
         Ok(())
     }
 
-    /// The earliest timer: t1 of the oldest unacknowledged frame or the test, t2 of the
-    /// first unconfirmed frame, t3 of silence.
-    fn deadline(&self) -> Instant {
-        let mut at = self.heard + self.t3;
-        if let Some((_, sent)) = self.sent.front() {
-            at = at.min(*sent + self.t1);
-        }
-        if let Some(t) = self.testing {
-            at = at.min(t + self.t1);
-        }
-        if let Some(first) = self.first_unconfirmed {
-            at = at.min(first + self.t2);
-        }
-        at
-    }
-
     async fn timers(&mut self) -> Result<(), Iec104Error> {
-        let now = Instant::now();
-        if self.sent.front().is_some_and(|(_, t)| now >= *t + self.t1) {
-            return Err(Iec104Error::Unacknowledged(self.t1));
-        }
-        if self.testing.is_some_and(|t| now >= t + self.t1) {
-            return Err(Iec104Error::Untested(self.t1));
-        }
-        if self.first_unconfirmed.is_some_and(|t| now >= t + self.t2) {
+        let due = self.window.due()?;
+        if due.confirm {
             self.confirm().await?;
         }
-        if self.testing.is_none() && now >= self.heard + self.t3 {
+        if due.test {
             self.io
                 .write_all(&Frame::U(Unnumbered::TestAct).encode())
                 .await?;
-            self.testing = Some(now);
         }
         Ok(())
     }
 
     /// Acknowledges every I-frame received (an S-frame).
     async fn confirm(&mut self) -> Result<(), Iec104Error> {
-        self.io
-            .write_all(&Frame::S { recv: self.vr }.encode())
-            .await?;
-        self.unconfirmed = 0;
-        self.first_unconfirmed = None;
+        let recv = self.window.confirm();
+        self.io.write_all(&Frame::S { recv }.encode()).await?;
         Ok(())
     }
 
@@ -281,70 +230,38 @@ impl Link {
         let Ok(octets) = asdu.encode() else {
             return Ok(());
         };
+        let (send, recv) = self.window.send();
         let frame = Frame::I {
-            send: self.vs,
-            recv: self.vr,
+            send,
+            recv,
             asdu: octets,
         };
         self.io.write_all(&frame.encode()).await?;
-        self.sent.push_back((self.vs, Instant::now()));
-        self.vs = (self.vs + 1) % apci::MODULO;
-        // An I-frame acknowledges what was received, as an S-frame would.
-        self.unconfirmed = 0;
-        self.first_unconfirmed = None;
         let mut state = *self.state.borrow();
         state.sent += 1;
         self.state.send_replace(state);
         Ok(())
     }
 
-    /// Takes the acknowledgement N(R): every frame before it is acknowledged.
-    fn acknowledged(&mut self, recv: u16) -> Result<(), Iec104Error> {
-        let oldest = self.sent.front().map_or(self.vs, |(n, _)| *n);
-        let outstanding = apci::distance(oldest, self.vs);
-        if apci::distance(oldest, recv) > outstanding {
-            return Err(Iec104Error::Acknowledged {
-                got: recv,
-                low: oldest,
-                high: self.vs,
-            });
-        }
-        while self.sent.front().is_some_and(|(n, _)| {
-            apci::distance(*n, recv) > 0 && apci::distance(*n, recv) <= outstanding
-        }) {
-            self.sent.pop_front();
-        }
-        Ok(())
-    }
-
     async fn take(&mut self, frame: Frame) -> Result<(), Iec104Error> {
         match frame {
             Frame::I { send, recv, asdu } => {
-                if send != self.vr {
-                    return Err(Iec104Error::Sequence {
-                        expected: self.vr,
-                        got: send,
-                    });
-                }
-                self.acknowledged(recv)?;
-                self.vr = (self.vr + 1) % apci::MODULO;
-                self.unconfirmed += 1;
-                self.first_unconfirmed.get_or_insert_with(Instant::now);
+                let confirm = self.window.received(send, recv)?;
                 let mut state = *self.state.borrow();
                 state.received += 1;
                 self.state.send_replace(state);
                 self.router.take(&asdu);
-                if self.unconfirmed >= self.w {
+                if confirm {
                     self.confirm().await?;
                 }
             }
-            Frame::S { recv } => self.acknowledged(recv)?,
+            Frame::S { recv } => self.window.acknowledged(recv)?,
             Frame::U(Unnumbered::TestAct) => {
                 self.io
                     .write_all(&Frame::U(Unnumbered::TestCon).encode())
                     .await?;
             }
-            Frame::U(Unnumbered::TestCon) => self.testing = None,
+            Frame::U(Unnumbered::TestCon) => self.window.tested(),
             Frame::U(u) => return Err(Iec104Error::Unexpected(u.name())),
         }
         Ok(())

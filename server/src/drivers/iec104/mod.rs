@@ -26,6 +26,7 @@ mod session;
 pub(crate) mod time;
 pub(crate) mod types;
 mod value;
+pub(crate) mod window;
 
 use std::sync::Arc;
 use std::time::Duration;

@@ -19,7 +19,6 @@ pub(crate) struct Cp56 {
 impl Cp56 {
     pub(crate) const LEN: usize = 7;
 
-    #[cfg(test)]
     pub(crate) fn at(millis: i64) -> Cp56 {
         Cp56 {
             millis,

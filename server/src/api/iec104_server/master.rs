@@ -1,0 +1,275 @@
+//! One master's connection, the outstation's side of it: nothing but U-frames until the
+//! master starts data transfer (STARTDT act, confirmed), then its ASDUs answered and
+//! spontaneous data sent as the `k` window allows; STOPDT stops it again (confirmed once
+//! what was sent is acknowledged). The windows and timers are the standard's (`k`, `w`, t1
+//! to t3); a frame out of sequence, an acknowledgement of nothing sent, a malformed frame,
+//! t1 expired, or a master that asks faster than it takes answers each end the connection,
+//! logged with why. Every change of the served fields is taken as it comes, so that the
+//! last reported value of each point is known, whether data transfer is on or not.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use futures_util::StreamExt;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::sync::watch;
+use tokio_util::sync::CancellationToken;
+
+use super::config::Iec104ServerConfig;
+use super::served::Served;
+use super::station::Station;
+use crate::drivers::iec104::apci::{Frame, Unnumbered};
+use crate::drivers::iec104::window::{Broken, Limits, Window};
+use crate::service::{Change, Changes, Service};
+
+/// How often commands waiting for their outcome are looked at.
+const OUTCOMES_EVERY: Duration = Duration::from_millis(20);
+
+/// Why a master's connection ended.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum Ended {
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    #[error("the master sent a malformed frame: {0}")]
+    Frame(#[from] crate::drivers::iec104::apci::Malformed),
+    #[error("{0}")]
+    Window(#[from] Broken),
+    #[error("the master closed the connection")]
+    Closed,
+    #[error("the master sent an I-frame before STARTDT")]
+    NotStarted,
+    #[error("the master sent {0}, which only an outstation sends")]
+    Unexpected(&'static str),
+    #[error("the master did not take an answer within t1 ({0:?})")]
+    Stuck(Duration),
+    #[error(
+        "the master asks faster than it takes answers ({} wait)",
+        super::station::MAX_REPLIES
+    )]
+    Flooded,
+    #[error("the outstation stopped")]
+    Stopped,
+}
+
+pub(crate) struct Master {
+    pub(crate) io: TcpStream,
+    pub(crate) peer: SocketAddr,
+    pub(crate) config: Arc<Iec104ServerConfig>,
+    pub(crate) service: Arc<Service>,
+    pub(crate) served: watch::Receiver<Arc<Served>>,
+}
+
+struct Run {
+    io: TcpStream,
+    buf: Vec<u8>,
+    window: Window,
+    t1: Duration,
+    /// Data transfer on (STARTDT confirmed); STOPDT asked and not confirmed yet.
+    started: bool,
+    stopping: bool,
+    station: Station,
+    served: Arc<Served>,
+}
+
+impl Master {
+    pub(crate) async fn serve(mut self, stop: CancellationToken) {
+        let c = &self.config;
+        let limits = Limits {
+            k: c.k,
+            w: c.w,
+            t1: c.t1,
+            t2: c.t2,
+            t3: c.t3,
+        };
+        let served = self.served.borrow_and_update().clone();
+        let mut station = Station::new(
+            self.service.clone(),
+            c.common_address,
+            c.time_tags,
+            c.select_timeout,
+        );
+        station.spontaneous.reset(served.table.points.len());
+        let mut run = Run {
+            io: self.io,
+            buf: Vec::with_capacity(512),
+            window: Window::new(limits),
+            t1: c.t1,
+            started: false,
+            stopping: false,
+            station,
+            served,
+        };
+        let mut changes = self
+            .service
+            .subscribe_for(everything(&self.service), false, Some(self.peer.ip()))
+            .ok();
+        let why = loop {
+            let step = tokio::select! {
+                _ = stop.cancelled() => Err(Ended::Stopped),
+                r = run.turn(&mut changes, &mut self.served) => r,
+            };
+            if let Err(why) = step {
+                break why;
+            }
+        };
+        match why {
+            Ended::Closed | Ended::Stopped => {
+                tracing::info!(peer = %self.peer, "IEC 104 master disconnected: {why}")
+            }
+            why => tracing::warn!(peer = %self.peer, "IEC 104 master's connection closed: {why}"),
+        }
+        let _ = run.io.shutdown().await;
+    }
+}
+
+fn everything(service: &Service) -> crate::service::Selection {
+    service.select::<&str, &str>(&[], &[]).unwrap_or_default()
+}
+
+async fn next_change(changes: &mut Option<Changes>) -> Option<Change> {
+    match changes {
+        Some(c) => c.next().await,
+        None => std::future::pending().await,
+    }
+}
+
+impl Run {
+    async fn turn(
+        &mut self,
+        changes: &mut Option<Changes>,
+        table: &mut watch::Receiver<Arc<Served>>,
+    ) -> Result<(), Ended> {
+        let deadline = self.window.deadline();
+        let waiting = self.station.waiting();
+        let mut chunk = [0u8; 2048];
+        tokio::select! {
+            read = self.io.read(&mut chunk) => {
+                let n = read?;
+                if n == 0 {
+                    return Err(Ended::Closed);
+                }
+                self.buf.extend_from_slice(&chunk[..n]);
+                self.window.heard();
+                while let Some((frame, used)) = Frame::decode(&self.buf)? {
+                    self.buf.drain(..used);
+                    self.take(frame).await?;
+                }
+            }
+            change = next_change(changes) => match change {
+                Some(change) => self.changed(change),
+                None => *changes = None,
+            },
+            Ok(()) = table.changed() => {
+                self.served = table.borrow_and_update().clone();
+                self.station.spontaneous.reset(self.served.table.points.len());
+            }
+            () = tokio::time::sleep(OUTCOMES_EVERY), if waiting => self.station.outcomes(),
+            () = tokio::time::sleep_until(deadline) => {
+                let due = self.window.due()?;
+                if due.confirm {
+                    self.confirm().await?;
+                }
+                if due.test {
+                    self.write(&Frame::U(Unnumbered::TestAct).encode()).await?;
+                }
+            }
+        }
+        if self.station.overflowing() {
+            return Err(Ended::Flooded);
+        }
+        self.flush().await
+    }
+
+    fn changed(&mut self, change: Change) {
+        let Change::Value {
+            device,
+            idx,
+            sample,
+            ..
+        } = change
+        else {
+            return;
+        };
+        let quality = device.quality(&sample, tokio::time::Instant::now());
+        let at = sample.updated.map(|(_, at)| at);
+        let started = self.started && !self.stopping;
+        for &i in self.served.table.monitors(device.name(), idx) {
+            let reading = (sample.value.clone(), quality, at);
+            self.station
+                .spontaneous
+                .changed(&self.served, i, reading, started);
+        }
+    }
+
+    /// Sends what waits while the window has room and data transfer is on.
+    async fn flush(&mut self) -> Result<(), Ended> {
+        while self.started && !self.stopping && self.window.room() && self.station.has_next() {
+            let Some(asdu) = self.station.next(&self.served) else {
+                break;
+            };
+            if asdu.is_empty() {
+                continue;
+            }
+            let (send, recv) = self.window.send();
+            self.write(&Frame::I { send, recv, asdu }.encode()).await?;
+        }
+        if self.stopping && self.window.unacknowledged() == 0 {
+            self.stopping = false;
+            self.started = false;
+            self.write(&Frame::U(Unnumbered::StopCon).encode()).await?;
+        }
+        Ok(())
+    }
+
+    async fn write(&mut self, octets: &[u8]) -> Result<(), Ended> {
+        match tokio::time::timeout(self.t1, self.io.write_all(octets)).await {
+            Ok(r) => Ok(r?),
+            Err(_) => Err(Ended::Stuck(self.t1)),
+        }
+    }
+
+    async fn confirm(&mut self) -> Result<(), Ended> {
+        let recv = self.window.confirm();
+        self.write(&Frame::S { recv }.encode()).await
+    }
+
+    async fn take(&mut self, frame: Frame) -> Result<(), Ended> {
+        match frame {
+            Frame::I { send, recv, asdu } => {
+                if !self.started {
+                    return Err(Ended::NotStarted);
+                }
+                let confirm = self.window.received(send, recv)?;
+                self.station.take(&self.served, &asdu);
+                if confirm {
+                    self.confirm().await?;
+                }
+            }
+            Frame::S { recv } => self.window.acknowledged(recv)?,
+            Frame::U(Unnumbered::StartAct) => {
+                self.started = true;
+                self.stopping = false;
+                self.write(&Frame::U(Unnumbered::StartCon).encode()).await?;
+            }
+            Frame::U(Unnumbered::StopAct) => {
+                // Confirmed once every I-frame sent is acknowledged (`flush`); what was
+                // received is acknowledged now.
+                if self.window.unconfirmed() > 0 {
+                    self.confirm().await?;
+                }
+                self.stopping = self.started;
+                if !self.started {
+                    self.write(&Frame::U(Unnumbered::StopCon).encode()).await?;
+                }
+            }
+            Frame::U(Unnumbered::TestAct) => {
+                self.write(&Frame::U(Unnumbered::TestCon).encode()).await?
+            }
+            Frame::U(Unnumbered::TestCon) => self.window.tested(),
+            Frame::U(u) => return Err(Ended::Unexpected(u.name())),
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,272 @@
+//! The IEC 60870-5-104 outstation (`iec104_server:`): the gateway as a controlled station
+//! for SCADA masters, as its Modbus server is for Modbus ones. Every served field of every
+//! device (any protocol) is an information object (`table.rs`, `served.rs`), answered on
+//! general interrogation and sent spontaneously on change (`spontaneous.rs`); commands
+//! become writes, confirmed and terminated by their outcomes (`station.rs`); each master's
+//! connection keeps the standard's windows and timers (`master.rs`). At most
+//! `max_connections` masters are served, `max_connections_per_client` from one address;
+//! one more is closed at once, logged. The wire format is the 104 driver's
+//! (`drivers::iec104`).
+
+mod config;
+mod master;
+mod served;
+mod spontaneous;
+mod station;
+pub(crate) mod table;
+mod values;
+
+use std::collections::HashMap;
+use std::net::IpAddr;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use futures_util::future::BoxFuture;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio_util::sync::CancellationToken;
+
+use crate::api::front_end::{FrontEnd, Listen, Prepare, Running, Start, Starting};
+use crate::config::{Config, Section};
+use crate::profile::Catalog;
+use crate::service::{Action, Service, restarted_section};
+use crate::yaml::{Node, Report};
+pub(crate) use config::Iec104ServerConfig;
+use served::{Served, Source};
+use table::Table;
+
+pub(crate) struct Iec104FrontEnd;
+
+const NAME: &str = "iec104_server";
+
+/// The section of `config`, when it has one.
+fn section(config: &Config) -> Option<&Iec104ServerConfig> {
+    config.sections.get(NAME)
+}
+
+/// The outstation's points for `config`'s devices, as `iogate map --iec104` prints them:
+/// the table, or every problem of the map file.
+pub(crate) fn plan(
+    config: &Config,
+    catalog: &Catalog,
+    base: &Path,
+) -> Option<Result<Table, Vec<String>>> {
+    let section = section(config)?;
+    let devices: Vec<(&str, &crate::profile::Profile)> = config
+        .devices
+        .iter()
+        .filter_map(|d| {
+            catalog
+                .get(&d.profile)
+                .map(|p| (d.name.as_str(), p.as_ref()))
+        })
+        .collect();
+    Some(match Source::read(&section.map, base) {
+        Err(e) => Err(vec![e]),
+        Ok(Source::Auto) => Ok(Table::auto(devices, None)),
+        Ok(Source::Entries(entries)) => Table::of_entries(&entries, devices),
+    })
+}
+
+impl FrontEnd for Iec104FrontEnd {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn listener(&self) -> Option<&'static str> {
+        Some("iec104")
+    }
+
+    fn has_section(&self) -> bool {
+        true
+    }
+
+    fn read(&self, node: &Node, report: &mut Report) -> Option<Box<dyn Section>> {
+        config::read(node, report).map(|s| Box::new(s) as Box<dyn Section>)
+    }
+
+    fn check_files(&self, config: &Config, catalog: &Catalog, base: &Path) -> Result<(), String> {
+        match plan(config, catalog, base) {
+            Some(Err(problems)) => Err(format!("map: {}", problems.join("; "))),
+            _ => Ok(()),
+        }
+    }
+
+    fn banner(&self, service: &Service) -> Vec<String> {
+        service
+            .listening
+            .bound("iec104")
+            .map(|addr| format!("IEC 104:   {addr} (iogate map --iec104 prints the IOAs)"))
+            .into_iter()
+            .collect()
+    }
+
+    fn changed(&self, old: &Config, new: &Config) -> Option<(Action, Vec<String>)> {
+        let unlined = |c: Option<&Iec104ServerConfig>| {
+            c.cloned().map(|mut s| {
+                s.line = 0;
+                s
+            })
+        };
+        let (old, new) = (unlined(section(old)), unlined(section(new)));
+        (old != new).then(|| {
+            restarted_section(
+                &old,
+                &new,
+                "the IEC 104 outstation",
+                |_, _| vec![],
+                "(its masters reconnect)",
+                "the IEC 104 outstation is restarted: its masters reconnect and interrogate",
+            )
+        })
+    }
+
+    fn prepare<'a>(
+        &'a self,
+        p: &'a Prepare<'a>,
+    ) -> BoxFuture<'a, Result<Option<Box<dyn Starting>>, String>> {
+        Box::pin(async move {
+            let Some(section) = section(p.config).cloned() else {
+                return Ok(None);
+            };
+            let source = Source::read(&section.map, p.base)?;
+            let was = p.old.and_then(section_listen);
+            let key = "iec104_server.listen";
+            let listen = Listen::prepare(p, section.listen, was, key, "--iec104").await?;
+            Ok(Some(Box::new(Iec104Starting {
+                section,
+                source,
+                listen,
+            }) as Box<dyn Starting>))
+        })
+    }
+}
+
+fn section_listen(config: &Config) -> Option<std::net::SocketAddr> {
+    section(config).map(|s| s.listen)
+}
+
+struct Iec104Starting {
+    section: Iec104ServerConfig,
+    source: Source,
+    listen: Listen,
+}
+
+impl Starting for Iec104Starting {
+    fn start(
+        self: Box<Self>,
+        start: Start,
+    ) -> BoxFuture<'static, Result<Box<dyn Running>, String>> {
+        Box::pin(async move {
+            let service = start.service;
+            let Iec104Starting {
+                section,
+                source,
+                listen,
+            } = *self;
+            let serving = service.clone();
+            let serve =
+                move |listener, stop| serve(listener, serving, Arc::new(section), source, stop);
+            listen
+                .serve(
+                    "iec104_server.listen",
+                    "iec104",
+                    &service,
+                    |a| a.to_string(),
+                    serve,
+                )
+                .await
+        })
+    }
+}
+
+/// Masters connected, in all and per address.
+#[derive(Default)]
+struct Slots {
+    open: usize,
+    by_client: HashMap<IpAddr, usize>,
+}
+
+/// Gives a connection its slot back when it ends.
+struct Slot(Arc<Mutex<Slots>>, IpAddr);
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let mut s = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        s.open = s.open.saturating_sub(1);
+        if let Some(n) = s.by_client.get_mut(&self.1) {
+            *n -= 1;
+            if *n == 0 {
+                s.by_client.remove(&self.1);
+            }
+        }
+    }
+}
+
+/// Accepts masters until `stop`; keeps the table over the devices as they come and go.
+async fn serve(
+    listener: TcpListener,
+    service: Arc<Service>,
+    section: Arc<Iec104ServerConfig>,
+    source: Source,
+    stop: CancellationToken,
+) {
+    let first = Served::of(&service, &source, None);
+    if let Source::Entries(entries) = &source {
+        for e in entries.iter().filter(|e| first.table.get(e.ioa).is_none()) {
+            tracing::warn!(ioa = e.ioa, field = %format!("{}.{}", e.device, e.field), "IEC 104 map entry not served: no such running device or field");
+        }
+    }
+    let (table_tx, table) = watch::channel(Arc::new(first));
+    let mut devices = service.watch_devices();
+    let slots = Arc::new(Mutex::new(Slots::default()));
+    loop {
+        let accepted = tokio::select! {
+            _ = stop.cancelled() => break,
+            Ok(()) = devices.changed() => {
+                let next = Served::of(&service, &source, Some(&table_tx.borrow()));
+                table_tx.send_replace(Arc::new(next));
+                continue;
+            }
+            a = listener.accept() => a,
+        };
+        let (io, peer) = match accepted {
+            Ok(a) => a,
+            Err(e) => {
+                tracing::warn!(error = %e, "cannot accept an IEC 104 connection");
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let Some(slot) = take_slot(&slots, &section, peer.ip()) else {
+            tracing::info!(%peer, "IEC 104 master refused: max_connections or max_connections_per_client reached");
+            drop(io);
+            continue;
+        };
+        let _ = io.set_nodelay(true);
+        let master = master::Master {
+            io,
+            peer,
+            config: section.clone(),
+            service: service.clone(),
+            served: table.clone(),
+        };
+        tracing::info!(%peer, "IEC 104 master connected");
+        let stop = stop.clone();
+        service.tasks().spawn(async move {
+            master.serve(stop).await;
+            drop(slot);
+        });
+    }
+}
+
+fn take_slot(slots: &Arc<Mutex<Slots>>, section: &Iec104ServerConfig, ip: IpAddr) -> Option<Slot> {
+    let mut s = slots.lock().unwrap_or_else(|e| e.into_inner());
+    let mine = s.by_client.get(&ip).copied().unwrap_or(0);
+    if s.open >= section.max_connections || mine >= section.max_connections_per_client {
+        return None;
+    }
+    s.open += 1;
+    *s.by_client.entry(ip).or_default() += 1;
+    Some(Slot(slots.clone(), ip))
+}
