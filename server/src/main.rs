@@ -304,9 +304,9 @@ fn map_iec104(setup: &Setup, config: Option<&std::path::Path>) -> ExitCode {
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(std::path::Path::new("."));
     match setup.iec104_map(base) {
-        Some(Ok((lines, skipped))) => {
-            print!("{lines}");
-            for s in skipped {
+        Some(Ok(list)) => {
+            print!("{}", list.lines);
+            for s in list.skipped {
                 eprintln!("{s}");
             }
             ExitCode::SUCCESS

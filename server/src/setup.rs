@@ -140,9 +140,12 @@ impl Setup {
 
     /// The IEC 104 outstation's points, one line each (`IOA ASDU device.field`), and the
     /// fields it does not serve; its map file read from `base`. `None` without one.
-    pub fn iec104_map(&self, base: &Path) -> Option<Result<(String, Vec<String>), Vec<String>>> {
+    pub fn iec104_map(&self, base: &Path) -> Option<Result<PointList, Vec<String>>> {
         let plan = crate::api::iec104_server::plan(&self.config, &self.catalog, base)?;
-        Some(plan.map(|table| (table.render(), table.skipped.clone())))
+        Some(plan.map(|table| PointList {
+            lines: table.render(),
+            skipped: table.skipped.clone(),
+        }))
     }
 
     /// What `check` and `serve` print without stopping anything: every profile field that
@@ -214,4 +217,10 @@ impl Setup {
             map,
         })
     }
+}
+
+/// A front end's points as `map` prints them: one line each, and the fields it leaves out.
+pub struct PointList {
+    pub lines: String,
+    pub skipped: Vec<String>,
 }
