@@ -216,6 +216,8 @@ pub struct TestGateway {
     pub modbus: Option<std::net::SocketAddr>,
     /// The OPC UA server's address, when the config has one.
     pub opcua: Option<std::net::SocketAddr>,
+    /// The IEC 104 outstation's address, when the config has one.
+    pub iec104: Option<std::net::SocketAddr>,
     running: Option<Running>,
 }
 
@@ -260,6 +262,7 @@ impl TestGateway {
             client: reqwest::Client::new(),
             modbus: None,
             opcua: None,
+            iec104: None,
             running: None,
         }
     }
@@ -308,6 +311,7 @@ impl TestGateway {
             client: reqwest::Client::new(),
             modbus: running.modbus_addr,
             opcua: running.bound("opcua"),
+            iec104: running.bound("iec104"),
             running: Some(running),
         };
         gateway.until_ready().await?;

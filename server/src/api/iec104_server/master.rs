@@ -4,8 +4,8 @@
 //! what was sent is acknowledged). The windows and timers are the standard's (`k`, `w`, t1
 //! to t3); a frame out of sequence, an acknowledgement of nothing sent, a malformed frame,
 //! t1 expired, or a master that asks faster than it takes answers each end the connection,
-//! logged with why. Every change of the served fields is taken as it comes, so that the
-//! last reported value of each point is known, whether data transfer is on or not.
+//! logged with why. The served fields' changes are followed from STARTDT to STOPDT only;
+//! an I-frame before STARTDT is acknowledged and not executed.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -38,8 +38,8 @@ pub(crate) enum Ended {
     Window(#[from] Broken),
     #[error("the master closed the connection")]
     Closed,
-    #[error("the master sent an I-frame before STARTDT")]
-    NotStarted,
+    #[error("its changes cannot be followed: {0}")]
+    Refused(String),
     #[error("the master sent {0}, which only an outstation sends")]
     Unexpected(&'static str),
     #[error("the master did not take an answer within t1 ({0:?})")]
@@ -71,6 +71,13 @@ struct Run {
     stopping: bool,
     station: Station,
     served: Arc<Served>,
+    /// The served fields' changes, taken while data transfer is on (current values first,
+    /// what later changes are compared with).
+    changes: Option<Changes>,
+    service: Arc<Service>,
+    peer: SocketAddr,
+    /// I-frames received before STARTDT (acknowledged, not executed).
+    ignored: u64,
 }
 
 impl Master {
@@ -100,15 +107,15 @@ impl Master {
             stopping: false,
             station,
             served,
+            changes: None,
+            service: self.service.clone(),
+            peer: self.peer,
+            ignored: 0,
         };
-        let mut changes = self
-            .service
-            .subscribe_for(everything(&self.service), false, Some(self.peer.ip()))
-            .ok();
         let why = loop {
             let step = tokio::select! {
                 _ = stop.cancelled() => Err(Ended::Stopped),
-                r = run.turn(&mut changes, &mut self.served) => r,
+                r = run.turn(&mut self.served) => r,
             };
             if let Err(why) = step {
                 break why;
@@ -124,10 +131,6 @@ impl Master {
     }
 }
 
-fn everything(service: &Service) -> crate::service::Selection {
-    service.select::<&str, &str>(&[], &[]).unwrap_or_default()
-}
-
 async fn next_change(changes: &mut Option<Changes>) -> Option<Change> {
     match changes {
         Some(c) => c.next().await,
@@ -136,11 +139,7 @@ async fn next_change(changes: &mut Option<Changes>) -> Option<Change> {
 }
 
 impl Run {
-    async fn turn(
-        &mut self,
-        changes: &mut Option<Changes>,
-        table: &mut watch::Receiver<Arc<Served>>,
-    ) -> Result<(), Ended> {
+    async fn turn(&mut self, table: &mut watch::Receiver<Arc<Served>>) -> Result<(), Ended> {
         let deadline = self.window.deadline();
         let waiting = self.station.waiting();
         let mut chunk = [0u8; 2048];
@@ -157,13 +156,16 @@ impl Run {
                     self.take(frame).await?;
                 }
             }
-            change = next_change(changes) => match change {
+            change = next_change(&mut self.changes) => match change {
                 Some(change) => self.changed(change),
-                None => *changes = None,
+                None => self.changes = None,
             },
             Ok(()) = table.changed() => {
                 self.served = table.borrow_and_update().clone();
                 self.station.spontaneous.reset(self.served.table.points.len());
+                if self.changes.is_some() {
+                    self.subscribe()?;
+                }
             }
             () = tokio::time::sleep(OUTCOMES_EVERY), if waiting => self.station.outcomes(),
             () = tokio::time::sleep_until(deadline) => {
@@ -203,6 +205,21 @@ impl Run {
         }
     }
 
+    /// Follows the served fields' changes from now on: their current values first, what
+    /// the next change of each is compared with.
+    fn subscribe(&mut self) -> Result<(), Ended> {
+        self.changes = None;
+        self.station
+            .spontaneous
+            .reset(self.served.table.points.len());
+        let everything = self.service.select::<&str, &str>(&[], &[]);
+        let changes = everything
+            .and_then(|s| self.service.subscribe_for(s, false, Some(self.peer.ip())))
+            .map_err(|e| Ended::Refused(e.to_string()))?;
+        self.changes = Some(changes);
+        Ok(())
+    }
+
     /// Sends what waits while the window has room and data transfer is on.
     async fn flush(&mut self) -> Result<(), Ended> {
         while self.started && !self.stopping && self.window.room() && self.station.has_next() {
@@ -218,6 +235,8 @@ impl Run {
         if self.stopping && self.window.unacknowledged() == 0 {
             self.stopping = false;
             self.started = false;
+            // Nothing is followed while nobody asks.
+            self.changes = None;
             self.write(&Frame::U(Unnumbered::StopCon).encode()).await?;
         }
         Ok(())
@@ -238,17 +257,25 @@ impl Run {
     async fn take(&mut self, frame: Frame) -> Result<(), Ended> {
         match frame {
             Frame::I { send, recv, asdu } => {
-                if !self.started {
-                    return Err(Ended::NotStarted);
-                }
                 let confirm = self.window.received(send, recv)?;
-                self.station.take(&self.served, &asdu);
+                if self.started {
+                    self.station.take(&self.served, &asdu);
+                } else {
+                    // As lib60870's stations do: counted and acknowledged, not executed.
+                    self.ignored += 1;
+                    if self.ignored == 1 {
+                        tracing::warn!(peer = %self.peer, "IEC 104 master sent an I-frame before STARTDT: not executed");
+                    }
+                }
                 if confirm {
                     self.confirm().await?;
                 }
             }
             Frame::S { recv } => self.window.acknowledged(recv)?,
             Frame::U(Unnumbered::StartAct) => {
+                if !self.started {
+                    self.subscribe()?;
+                }
                 self.started = true;
                 self.stopping = false;
                 self.write(&Frame::U(Unnumbered::StartCon).encode()).await?;
