@@ -446,6 +446,6 @@ mod tests {
     #[test]
     fn an_asdu_holds_what_fits_in_249_octets() {
         assert_eq!(per_asdu(TypeId(id::M_ME_TF_1)), 243 / 15);
-        assert_eq!(per_asdu(TypeId(id::M_SP_NA_1)), 121);
+        assert_eq!(per_asdu(TypeId(id::M_SP_NA_1)), 243 / 4);
     }
 }
