@@ -275,3 +275,65 @@ async fn a_scada_master_interrogates_every_field_and_its_commands_reach_the_devi
     gw.shutdown().await;
     Ok(())
 }
+
+/// A master's connection from `from`, started (STARTDT confirmed), or `None` when the
+/// outstation closes it at once.
+async fn started_from(
+    from: &str,
+    to: std::net::SocketAddr,
+) -> anyhow::Result<Option<tokio::net::TcpStream>> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let socket = tokio::net::TcpSocket::new_v4()?;
+    socket.bind(format!("{from}:0").parse()?)?;
+    let mut io = socket.connect(to).await?;
+    io.write_all(&[0x68, 4, 0x07, 0, 0, 0]).await?;
+    let mut answer = [0u8; 6];
+    match tokio::time::timeout(iogate_tests::PATIENCE, io.read_exact(&mut answer)).await? {
+        Ok(_) => {
+            assert_eq!(answer, [0x68, 4, 0x0B, 0, 0, 0], "STARTDT con");
+            Ok(Some(io))
+        }
+        Err(_) => Ok(None),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn masters_are_bounded_in_all_and_per_address() -> anyhow::Result<()> {
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo, refresh_rate: 100ms }\niec104_server:\n  listen: 127.0.0.1:0\n  max_connections: 2\n  max_connections_per_client: 1\n",
+    )
+    .await?;
+    let at = gw.iec104.expect("listening");
+    let first = started_from("127.0.0.1", at).await?;
+    assert!(first.is_some(), "the first master is served");
+    assert!(
+        started_from("127.0.0.1", at).await?.is_none(),
+        "a second from one address is closed at once"
+    );
+    let second = started_from("127.0.0.2", at).await?;
+    assert!(second.is_some(), "another address is served");
+    assert!(
+        started_from("127.0.0.3", at).await?.is_none(),
+        "past max_connections a master is closed at once"
+    );
+    let metrics = gw.metrics().await?;
+    for line in [
+        "iogate_bound_limit{bound=\"iec104_connections\"} 2",
+        "iogate_bound_used{bound=\"iec104_connections\"} 2",
+        "iogate_bound_refused_total{bound=\"iec104_connections\"} 1",
+        "iogate_bound_refused_total{bound=\"iec104_connections_per_client\"} 1",
+    ] {
+        assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
+    }
+    // A place given back is taken again.
+    drop(first);
+    eventually("a place given back", || async {
+        started_from("127.0.0.4", at)
+            .await
+            .is_ok_and(|s| s.is_some())
+    })
+    .await?;
+    drop(second);
+    gw.shutdown().await;
+    Ok(())
+}

@@ -64,21 +64,6 @@ impl crate::config::Section for Iec104ServerConfig {
     }
 }
 
-fn duration(n: &Node, report: &mut Report, ctx: &str, most: Duration) -> Option<Duration> {
-    let text = n.scalar_text(report, ctx)?;
-    match crate::duration::parse(&text) {
-        Ok(d) if d < Duration::from_millis(100) || d > most => {
-            report.push(n.line, ctx, format!("at least 100ms and at most {most:?}"));
-            None
-        }
-        Ok(d) => Some(d),
-        Err(e) => {
-            report.push(n.line, ctx, e.to_string());
-            None
-        }
-    }
-}
-
 fn map_source(n: &Node, report: &mut Report) -> Option<MapSource> {
     let text = n.scalar_text(report, "iec104_server.map")?;
     match text.trim() {
@@ -134,7 +119,12 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<Iec104ServerConfi
     let mut time = |key: &str, default: u64, most: u64, report: &mut Report| {
         map.get(key)
             .map_or(Some(Duration::from_secs(default)), |n| {
-                duration(n, report, &at(key), Duration::from_secs(most))
+                crate::drivers::iec104::config::duration(
+                    n,
+                    report,
+                    &at(key),
+                    Duration::from_secs(most),
+                )
             })
     };
     let t1 = time("t1", 15, 255, report);

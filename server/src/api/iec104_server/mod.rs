@@ -16,10 +16,8 @@ mod station;
 pub(crate) mod table;
 mod values;
 
-use std::collections::HashMap;
-use std::net::IpAddr;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use futures_util::future::BoxFuture;
 use tokio::net::TcpListener;
@@ -180,29 +178,6 @@ impl Starting for Iec104Starting {
     }
 }
 
-/// Masters connected, in all and per address.
-#[derive(Default)]
-struct Slots {
-    open: usize,
-    by_client: HashMap<IpAddr, usize>,
-}
-
-/// Gives a connection its slot back when it ends.
-struct Slot(Arc<Mutex<Slots>>, IpAddr);
-
-impl Drop for Slot {
-    fn drop(&mut self) {
-        let mut s = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        s.open = s.open.saturating_sub(1);
-        if let Some(n) = s.by_client.get_mut(&self.1) {
-            *n -= 1;
-            if *n == 0 {
-                s.by_client.remove(&self.1);
-            }
-        }
-    }
-}
-
 /// Accepts masters until `stop`; keeps the table over the devices as they come and go.
 async fn serve(
     listener: TcpListener,
@@ -219,7 +194,13 @@ async fn serve(
     }
     let (table_tx, table) = watch::channel(Arc::new(first));
     let mut devices = service.watch_devices();
-    let slots = Arc::new(Mutex::new(Slots::default()));
+    let all = service
+        .metrics
+        .bound("iec104_connections", section.max_connections);
+    let per_client = (service.metrics).per_client(
+        "iec104_connections_per_client",
+        section.max_connections_per_client,
+    );
     loop {
         let accepted = tokio::select! {
             _ = stop.cancelled() => break,
@@ -238,7 +219,11 @@ async fn serve(
                 continue;
             }
         };
-        let Some(slot) = take_slot(&slots, &section, peer.ip()) else {
+        // Both places, or neither (a place taken is given back when dropped).
+        let Some(slot) = per_client
+            .take(peer.ip())
+            .and_then(|c| Some((c, all.take()?)))
+        else {
             tracing::info!(%peer, "IEC 104 master refused: max_connections or max_connections_per_client reached");
             drop(io);
             continue;
@@ -258,15 +243,4 @@ async fn serve(
             drop(slot);
         });
     }
-}
-
-fn take_slot(slots: &Arc<Mutex<Slots>>, section: &Iec104ServerConfig, ip: IpAddr) -> Option<Slot> {
-    let mut s = slots.lock().unwrap_or_else(|e| e.into_inner());
-    let mine = s.by_client.get(&ip).copied().unwrap_or(0);
-    if s.open >= section.max_connections || mine >= section.max_connections_per_client {
-        return None;
-    }
-    s.open += 1;
-    *s.by_client.entry(ip).or_default() += 1;
-    Some(Slot(slots.clone(), ip))
 }

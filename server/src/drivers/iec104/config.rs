@@ -66,7 +66,13 @@ pub(crate) fn address(text: &str) -> Result<(String, u16), String> {
     }
 }
 
-fn duration(n: &Node, report: &mut Report, ctx: &str, most: Duration) -> Option<Duration> {
+/// A duration of at least 100 ms and at most `most` (the 104 timers, both sides).
+pub(crate) fn duration(
+    n: &Node,
+    report: &mut Report,
+    ctx: &str,
+    most: Duration,
+) -> Option<Duration> {
     let text = n.scalar_text(report, ctx)?;
     match crate::duration::parse(&text) {
         Ok(d) if d < Duration::from_millis(100) || d > most => {

@@ -17,7 +17,7 @@
 
 pub(crate) mod apci;
 pub(crate) mod asdu;
-mod config;
+pub(crate) mod config;
 mod conn;
 pub(crate) mod element;
 mod point;
