@@ -133,6 +133,12 @@ pub fn iec104_frames(data: &[u8]) {
     crate::drivers::iec104::fuzz_frames(data);
 }
 
+/// A SCADA master's APDUs and ASDUs as the IEC 104 outstation takes them, commands read
+/// as writes of every type, and a map file's text.
+pub fn iec104_master(data: &[u8]) {
+    crate::api::iec104_server::fuzz::master(data);
+}
+
 /// A Logix controller's EtherNet/IP answers and Read Tag replies by every type.
 pub fn eip_answer(data: &[u8]) {
     crate::drivers::eip::fuzz_answer(data);

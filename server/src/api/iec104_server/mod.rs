@@ -9,6 +9,8 @@
 //! (`drivers::iec104`).
 
 mod config;
+#[cfg(any(fuzzing, test))]
+pub(crate) mod fuzz;
 mod master;
 mod served;
 mod spontaneous;

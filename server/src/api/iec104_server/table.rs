@@ -261,8 +261,13 @@ fn entry_point(e: &Entry, devices: &HashMap<&str, &Profile>) -> Result<Point, St
 pub(crate) fn read_file(path: &Path) -> Result<Vec<Entry>, String> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read the map file {}: {e}", path.display()))?;
-    let mut report = Report::new(path.display().to_string());
-    let entries = crate::yaml::parse(&text, &mut report).and_then(|n| entries(&n, &mut report));
+    parse_entries(&text, &path.display().to_string())
+}
+
+/// A map file's text, its problems named with `source`.
+pub(crate) fn parse_entries(text: &str, source: &str) -> Result<Vec<Entry>, String> {
+    let mut report = Report::new(source.to_owned());
+    let entries = crate::yaml::parse(text, &mut report).and_then(|n| entries(&n, &mut report));
     match (entries, report.has_problems()) {
         (Some(entries), false) => Ok(entries),
         _ => Err(report.into_problems().to_string()),
