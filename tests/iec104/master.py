@@ -16,12 +16,19 @@ stdin, each answered with one line:
     cmd IOA TYPE VALUE [select] -> `cmd IOA True|False` (a command, awaited: its ACTCON)
     mute | unmute               -> `mute True|False`  (STOPDT, STARTDT)
 
-    master.py HOST PORT
+With `--count` (for the benchmarks) objects are counted, not printed:
+
+    gi N    -> `gi MS` once N objects of the interrogation came, MS after it was asked
+    stats   -> `stats N P50 P99 MAX`: the spontaneous objects since the last `stats`, and
+               the milliseconds from their time tags to their arrival
+
+    master.py HOST PORT [--count]
 """
 
 import os
 import sys
 import threading
+import time
 
 import c104
 
@@ -50,7 +57,28 @@ def flags(quality):
     return "-" if quality is None or quality.is_good() else str(quality).replace(" ", "")
 
 
+counting = "--count" in sys.argv
+delays = []
+interrogated = [0]
+enough = threading.Event()
+wanted = [0]
+
+
+def count(message):
+    if message.cot == c104.Cot.SPONTANEOUS:
+        stamp = message.info.recorded_at
+        if stamp is not None:
+            delays.append(time.time() * 1000 - stamp.timestamp() * 1000)
+    elif message.cot == c104.Cot.INTERROGATED_BY_STATION:
+        interrogated[0] += 1
+        if interrogated[0] >= wanted[0] > 0:
+            enough.set()
+
+
 def report(message):
+    if counting:
+        count(message)
+        return
     info = message.info
     stamp = "-" if info.recorded_at is None else str(int(info.recorded_at.timestamp() * 1000))
     say("m", message.io_address, message.type.name, number(info.value), flags(info.quality),
@@ -121,7 +149,19 @@ def main():
         words = line.split()
         if not words:
             continue
-        if words[0] == "gi":
+        if words[0] == "gi" and counting:
+            interrogated[0], wanted[0] = 0, int(words[1])
+            enough.clear()
+            asked = time.time()
+            connection.interrogation(common_address=1, wait_for_response=False)
+            enough.wait(120)
+            say("gi", round((time.time() - asked) * 1000, 1))
+        elif words[0] == "stats":
+            taken = sorted(delays)
+            delays.clear()
+            at = lambda q: round(taken[min(len(taken) - 1, int(len(taken) * q))], 1) if taken else 0
+            say("stats", len(taken), at(0.5), at(0.99), at(1.0))
+        elif words[0] == "gi":
             say("gi", connection.interrogation(common_address=1))
         elif words[0] == "ci":
             say("ci", connection.counter_interrogation(common_address=1))

@@ -3,7 +3,7 @@
 //! that one ASDU carries many objects), and the current value of a point read from the
 //! cache. Made again when devices come or go; an automatic map keeps the addresses it gave.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -53,18 +53,19 @@ impl Served {
         let table = match source {
             Source::Auto => Table::auto(named, before.map(|b| &b.table)),
             Source::Entries(entries) => {
-                // A device the file names that is not running is left out (said at start).
+                // A device the file names that is not running is left out (said at start);
+                // an entry that no longer fits its field (a profile reloaded) alone.
+                let running: HashSet<&str> = devices.iter().map(|d| d.name()).collect();
                 let present: Vec<Entry> = entries
                     .iter()
-                    .filter(|e| devices.iter().any(|d| d.name() == e.device))
+                    .filter(|e| running.contains(e.device.as_str()))
                     .cloned()
                     .collect();
-                Table::of_entries(&present, named).unwrap_or_else(|problems| {
-                    for p in problems {
-                        tracing::warn!(problem = %p, "an IEC 104 map entry is not served");
-                    }
-                    Table::default()
-                })
+                let (table, problems) = Table::of_some_entries(&present, named);
+                for p in problems {
+                    tracing::warn!(problem = %p, "an IEC 104 map entry is not served");
+                }
+                table
             }
         };
         let order = |counters: bool| {

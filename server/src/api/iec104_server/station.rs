@@ -320,7 +320,7 @@ impl Station {
         let Some(ty) = found else {
             return self.refuse(&asdu, cause::UNKNOWN_OBJECT, "no point to read there");
         };
-        let Some(i) = served.table.points.iter().position(|p| p.ioa == ioa) else {
+        let Some(i) = served.table.index(ioa) else {
             return;
         };
         let object = self.object(served, i, served.current(i), false);

@@ -204,6 +204,18 @@ impl Table {
         entries: &[Entry],
         devices: impl IntoIterator<Item = (&'a str, &'a Profile)>,
     ) -> Result<Table, Vec<String>> {
+        let (table, problems) = Table::of_some_entries(entries, devices);
+        match problems.is_empty() {
+            true => Ok(table),
+            false => Err(problems),
+        }
+    }
+
+    /// The points of the entries that can be served, and the problems of the others.
+    pub(crate) fn of_some_entries<'a>(
+        entries: &[Entry],
+        devices: impl IntoIterator<Item = (&'a str, &'a Profile)>,
+    ) -> (Table, Vec<String>) {
         let devices: HashMap<&str, &Profile> = devices.into_iter().collect();
         let mut table = Table::default();
         let mut problems = Vec::new();
@@ -215,10 +227,12 @@ impl Table {
                 }
             }
         }
-        match problems.is_empty() {
-            true => Ok(table),
-            false => Err(problems),
-        }
+        (table, problems)
+    }
+
+    /// The index of the point at `ioa`.
+    pub(crate) fn index(&self, ioa: u32) -> Option<usize> {
+        self.by_ioa.get(&ioa).copied()
     }
 
     /// One line per point: `IOA ASDU device.field`.
