@@ -22,7 +22,11 @@ With `--count` (for the benchmarks) objects are counted, not printed:
     stats   -> `stats N P50 P99 MAX`: the spontaneous objects since the last `stats`, and
                the milliseconds from their time tags to their arrival
 
-    master.py HOST PORT [--count]
+With `--tagged` a point first seen in its plain form is kept in its time-tagged one (c104
+keeps one type per point and hands the other form to `on_unexpected_message`, which drops
+what it cannot take at once): for counting spontaneous objects, not interrogated ones.
+
+    master.py HOST PORT [--count] [--tagged]
 """
 
 import os
@@ -90,7 +94,21 @@ def on_point(point: c104.Point, previous_info: c104.Information, message: c104.I
     return c104.ResponseState.SUCCESS
 
 
+TAGGED = {
+    c104.Type.M_SP_NA_1: c104.Type.M_SP_TB_1,
+    c104.Type.M_DP_NA_1: c104.Type.M_DP_TB_1,
+    c104.Type.M_BO_NA_1: c104.Type.M_BO_TB_1,
+    c104.Type.M_ME_NA_1: c104.Type.M_ME_TD_1,
+    c104.Type.M_ME_NB_1: c104.Type.M_ME_TE_1,
+    c104.Type.M_ME_NC_1: c104.Type.M_ME_TF_1,
+    c104.Type.M_IT_NA_1: c104.Type.M_IT_TB_1,
+}
+tagged = "--tagged" in sys.argv
+
+
 def on_new_point(client: c104.Client, station: c104.Station, io_address: int, point_type: c104.Type) -> None:
+    if tagged:
+        point_type = TAGGED.get(point_type, point_type)
     station.add_point(io_address=io_address, type=point_type).on_receive(callable=on_point)
 
 
