@@ -72,6 +72,15 @@ impl Doors {
             .remove(name);
     }
 
+    /// The front-end `name` no longer runs, when `door` is what runs under that name (not
+    /// a successor that attached itself before this one ended).
+    pub(crate) fn detach_if(&self, name: &str, door: &Arc<dyn Door>) {
+        let mut doors = self.0.write().unwrap_or_else(|e| e.into_inner());
+        if doors.get(name).is_some_and(|d| Arc::ptr_eq(d, door)) {
+            doors.remove(name);
+        }
+    }
+
     /// The running front-end `name` as its own type (for its own routes).
     pub(crate) fn get<T: Door>(&self, name: &str) -> Option<Arc<T>> {
         let door = self

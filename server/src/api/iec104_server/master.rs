@@ -20,6 +20,7 @@ use tokio_util::sync::CancellationToken;
 use super::config::Iec104ServerConfig;
 use super::served::Served;
 use super::station::Station;
+use super::status::Iec104Metrics;
 use crate::drivers::iec104::apci::{Frame, Unnumbered};
 use crate::drivers::iec104::window::{Broken, Limits, Window};
 use crate::service::{Change, Changes, Service};
@@ -53,12 +54,30 @@ pub(crate) enum Ended {
     Stopped,
 }
 
+impl Ended {
+    /// Its name in the metrics' `reason` label.
+    pub(crate) fn reason(&self) -> &'static str {
+        match self {
+            Ended::Io(_) => "io",
+            Ended::Frame(_) => "malformed",
+            Ended::Window(_) => "window",
+            Ended::Closed => "closed",
+            Ended::Refused(_) => "refused",
+            Ended::Unexpected(_) => "unexpected",
+            Ended::Stuck(_) => "t1",
+            Ended::Flooded => "flooded",
+            Ended::Stopped => "stopped",
+        }
+    }
+}
+
 pub(crate) struct Master {
     pub(crate) io: TcpStream,
     pub(crate) peer: SocketAddr,
     pub(crate) config: Arc<Iec104ServerConfig>,
     pub(crate) service: Arc<Service>,
     pub(crate) served: watch::Receiver<Arc<Served>>,
+    pub(crate) metrics: Arc<Iec104Metrics>,
 }
 
 struct Run {
@@ -78,6 +97,7 @@ struct Run {
     peer: SocketAddr,
     /// I-frames received before STARTDT (acknowledged, not executed).
     ignored: u64,
+    metrics: Arc<Iec104Metrics>,
 }
 
 impl Master {
@@ -111,7 +131,9 @@ impl Master {
             service: self.service.clone(),
             peer: self.peer,
             ignored: 0,
+            metrics: self.metrics.clone(),
         };
+        run.metrics.connected();
         let why = loop {
             let step = tokio::select! {
                 _ = stop.cancelled() => Err(Ended::Stopped),
@@ -121,6 +143,7 @@ impl Master {
                 break why;
             }
         };
+        run.metrics.ended(run.started, &why);
         match why {
             Ended::Closed | Ended::Stopped => {
                 tracing::info!(peer = %self.peer, "IEC 104 master disconnected: {why}")
@@ -230,11 +253,13 @@ impl Run {
                 continue;
             }
             let (send, recv) = self.window.send();
+            self.metrics.sent(&asdu);
             self.write(&Frame::I { send, recv, asdu }.encode()).await?;
         }
         if self.stopping && self.window.unacknowledged() == 0 {
             self.stopping = false;
             self.started = false;
+            self.metrics.transfer(false);
             // Nothing is followed while nobody asks.
             self.changes = None;
             self.write(&Frame::U(Unnumbered::StopCon).encode()).await?;
@@ -258,6 +283,7 @@ impl Run {
         match frame {
             Frame::I { send, recv, asdu } => {
                 let confirm = self.window.received(send, recv)?;
+                self.metrics.received();
                 if self.started {
                     self.station.take(&self.served, &asdu);
                 } else {
@@ -275,6 +301,7 @@ impl Run {
             Frame::U(Unnumbered::StartAct) => {
                 if !self.started {
                     self.subscribe()?;
+                    self.metrics.transfer(true);
                 }
                 self.started = true;
                 self.stopping = false;

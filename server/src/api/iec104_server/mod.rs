@@ -15,6 +15,7 @@ mod master;
 mod served;
 mod spontaneous;
 mod station;
+mod status;
 pub(crate) mod table;
 mod values;
 
@@ -75,6 +76,16 @@ impl FrontEnd for Iec104FrontEnd {
 
     fn listener(&self) -> Option<&'static str> {
         Some("iec104")
+    }
+
+    fn health_schema(&self) -> Option<crate::service::doors::HealthSchema> {
+        Some(crate::service::doors::HealthSchema {
+            name: NAME,
+            schema_name: "Iec104Health",
+            schema: serde_json::to_value(<status::Iec104Health as utoipa::PartialSchema>::schema())
+                .unwrap_or_default(),
+            description: "The IEC 104 outstation, when one is configured: its masters connected and those in\ndata transfer (detail only).",
+        })
     }
 
     fn has_section(&self) -> bool {
@@ -195,6 +206,9 @@ async fn serve(
         }
     }
     let (table_tx, table) = watch::channel(Arc::new(first));
+    let metrics = service.metrics.kept(status::Iec104Metrics::new);
+    let door: Arc<dyn crate::service::doors::Door> = Arc::new(status::Iec104Door(metrics.clone()));
+    service.doors.attach(door.clone());
     let mut devices = service.watch_devices();
     let all = service
         .metrics
@@ -237,6 +251,7 @@ async fn serve(
             config: section.clone(),
             service: service.clone(),
             served: table.clone(),
+            metrics: metrics.clone(),
         };
         tracing::info!(%peer, "IEC 104 master connected");
         let stop = stop.clone();
@@ -245,4 +260,6 @@ async fn serve(
             drop(slot);
         });
     }
+    // A restarted outstation's successor may have attached its own already.
+    service.doors.detach_if(NAME, &door);
 }
