@@ -4,8 +4,10 @@
 //! read every second and sent spontaneously with its time tag. Measured: the spontaneous
 //! objects the master received a second, the time from each object's time tag (when the
 //! gateway read it) to its arrival at the master (p50, p99, max), the gateway's CPU and
-//! memory (only `iogate serve`'s process); and a general interrogation of the 10,000
-//! points, from asking to the last object received (by a master of its own, first).
+//! memory (only `iogate serve`'s process); the same to a master that only reads the wire
+//! (`tests/iec104/wire_master.py`: what the outstation delivers, without c104's processing
+//! of each object); and a general interrogation of the 10,000 points, from asking to the
+//! last object received (by a c104 master of its own, first).
 //!
 //! `cargo bench -p iogate --bench iec104_server`
 
@@ -59,13 +61,28 @@ struct Master {
     lines: std::io::Lines<std::io::BufReader<std::process::ChildStdout>>,
 }
 
+/// Which master measures.
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    /// c104, its points as the interrogation shows them (for interrogations).
+    C104,
+    /// c104, its points kept in their time-tagged form (spontaneous objects counted).
+    C104Tagged,
+    /// `tests/iec104/wire_master.py`: the frames read off the socket, nothing more.
+    Wire,
+}
+
 impl Master {
-    /// `tagged`: points kept in their time-tagged form (spontaneous objects counted).
-    fn connect(port: u16, tagged: bool) -> anyhow::Result<Master> {
+    fn connect(port: u16, kind: Kind) -> anyhow::Result<Master> {
+        let script = match kind {
+            Kind::Wire => "tests/iec104/wire_master.py",
+            _ => "tests/iec104/master.py",
+        };
         let mut child = Command::new(common::python())
-            .arg(repo().join("tests/iec104/master.py"))
-            .args(["127.0.0.1", &port.to_string(), "--count"])
-            .args(tagged.then_some("--tagged"))
+            .arg(repo().join(script))
+            .args(["127.0.0.1", &port.to_string()])
+            .args((kind != Kind::Wire).then_some("--count"))
+            .args((kind == Kind::C104Tagged).then_some("--tagged"))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -149,7 +166,7 @@ fn main() -> anyhow::Result<()> {
     let gw = gateway(modbus, port)?;
     let pid = gw.child.id();
     let points = DEVICES * REGISTERS;
-    let mut master = Master::connect(port, false)?;
+    let mut master = Master::connect(port, Kind::C104)?;
     // Until every field is read and served (the first interrogation answers them all).
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
@@ -167,15 +184,38 @@ fn main() -> anyhow::Result<()> {
         times.push(master.ask(&format!("gi {points}"))?[0]);
     }
     drop(master);
-    // A second master for the spontaneous objects: c104 keeps them only with points of
-    // their time-tagged types.
-    let mut master = Master::connect(port, true)?;
+    let grpc = format!("http://{}", gw.grpc);
+    // c104 keeps spontaneous objects only with points of their time-tagged types.
+    for (kind, who) in [
+        (Kind::C104Tagged, "a c104 master"),
+        (Kind::Wire, "a master that only reads the wire"),
+    ] {
+        let master = Master::connect(port, kind)?;
+        spontaneous(&runtime, &grpc, pid, master, who)?;
+    }
+    times.sort_by(f64::total_cmp);
+    println!(
+        "IEC 104 outstation, general interrogation of {points} points to the last object at the master: {:.0} ms median of 5 (min {:.0}, max {:.0})",
+        times[2], times[0], times[4]
+    );
+    Ok(())
+}
+
+/// Spontaneous objects to `master` for [`RUN`]: their rate and delays, and the gateway's
+/// CPU, memory and device reads meanwhile.
+fn spontaneous(
+    runtime: &tokio::runtime::Runtime,
+    grpc: &str,
+    pid: u32,
+    mut master: Master,
+    who: &str,
+) -> anyhow::Result<()> {
+    let points = DEVICES * REGISTERS;
     std::thread::sleep(Duration::from_secs(3));
     master.ask("stats")?;
-    let grpc = format!("http://{}", gw.grpc);
-    let reads = |runtime: &tokio::runtime::Runtime| {
+    let reads = || {
         runtime.block_on(async {
-            let mut client = iogate_client::Client::connect(&grpc).await?;
+            let mut client = iogate_client::Client::connect(grpc).await?;
             let devices = client.devices().await?;
             anyhow::Ok(
                 devices
@@ -185,10 +225,10 @@ fn main() -> anyhow::Result<()> {
             )
         })
     };
-    let (cpu0, wall, reads0) = (common::cpu_seconds(pid), Instant::now(), reads(&runtime)?);
+    let (cpu0, wall, reads0) = (common::cpu_seconds(pid), Instant::now(), reads()?);
     std::thread::sleep(RUN);
     let stats = master.ask("stats")?;
-    let device_reads = (reads(&runtime)? - reads0) as f64;
+    let device_reads = (reads()? - reads0) as f64;
     let elapsed = wall.elapsed().as_secs_f64();
     let cpu = (common::cpu_seconds(pid) - cpu0) / elapsed;
     let rss = common::rss_kib(pid) as f64 / 1024.0;
@@ -196,18 +236,13 @@ fn main() -> anyhow::Result<()> {
         anyhow::bail!("the master said {stats:?}");
     };
     println!(
-        "IEC 104 outstation, {points} points changing every 1 s to a c104 master: {:.0} spontaneous objects/s, time tag to master p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms; gateway CPU {:.1} % of a core, {rss:.1} MiB resident",
+        "IEC 104 outstation, {points} points changing every 1 s to {who}: {:.0} spontaneous objects/s, time tag to master p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms; gateway CPU {:.1} % of a core, {rss:.1} MiB resident",
         n / elapsed,
         cpu * 100.0
     );
     println!(
         "  (device reads a second: {:.1}, {DEVICES} devices every 1 s asked)",
         device_reads / elapsed
-    );
-    times.sort_by(f64::total_cmp);
-    println!(
-        "IEC 104 outstation, general interrogation of {points} points to the last object at the master: {:.0} ms median of 5 (min {:.0}, max {:.0})",
-        times[2], times[0], times[4]
     );
     Ok(())
 }
