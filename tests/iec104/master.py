@@ -126,12 +126,13 @@ def command_value(kind, text):
     return float(text)
 
 
-def main():
-    host, port = sys.argv[1], int(sys.argv[2])
+def connect(host, port):
+    """A client connected to HOST:PORT with data transfer started, or None when c104 did
+    not open the connection within 10 s."""
     client = c104.Client(tick_rate_ms=50, command_timeout_ms=5000)
     client.on_new_point(callable=on_new_point)
     connection = client.add_connection(ip=host, port=port, init=c104.Init.ALL)
-    station = connection.add_station(common_address=1)
+    connection.add_station(common_address=1)
     if os.environ.get("IEC104_RAW"):
         def rx(connection: c104.Connection, data: bytes) -> None:
             say("rx", data.hex())
@@ -161,7 +162,24 @@ def main():
 
     connection.on_unexpected_message(callable=on_unexpected)
     client.start()
-    opened.wait()
+    if opened.wait(10):
+        return client, connection
+    client.stop()
+    return None
+
+
+def main():
+    host, port = sys.argv[1], int(sys.argv[2])
+    # c104 at times connects and then sends nothing (not even STARTDT): a new client then.
+    for _ in range(3):
+        opened = connect(host, port)
+        if opened is not None:
+            break
+    else:
+        say("unopened")
+        return
+    client, connection = opened
+    station = connection.get_station(common_address=1)
     say("ready")
     for line in sys.stdin:
         words = line.split()

@@ -383,3 +383,55 @@ async fn masters_are_bounded_in_all_and_per_address() -> anyhow::Result<()> {
     gw.shutdown().await;
     Ok(())
 }
+
+/// The next I-frame's ASDU on `io`, S- and U-frames read past.
+async fn next_asdu(io: &mut tokio::net::TcpStream) -> anyhow::Result<Vec<u8>> {
+    use tokio::io::AsyncReadExt;
+    loop {
+        let mut head = [0u8; 2];
+        tokio::time::timeout(iogate_tests::PATIENCE, io.read_exact(&mut head)).await??;
+        let mut rest = vec![0u8; usize::from(head[1])];
+        io.read_exact(&mut rest).await?;
+        if rest[0] & 1 == 0 {
+            return Ok(rest[4..].to_vec());
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stale_time_tagged_command_and_a_pulse_are_refused_and_not_written() -> anyhow::Result<()>
+{
+    use tokio::io::AsyncWriteExt;
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo, refresh_rate: 100ms }\niec104_server:\n  listen: 127.0.0.1:0\n",
+    )
+    .await?;
+    let mut io = started_from("127.0.0.1", gw.iec104.expect("listening"))
+        .await?
+        .expect("served");
+    // DI_0 at 1, DO_0 at 2 and its command at 3 (`map: auto`).
+    let cp56_2020 = [0, 0, 0, 0, 1, 1, 20];
+    let mut stale = vec![58, 1, 6, 0, 1, 0, 3, 0, 0, 0x01];
+    stale.extend_from_slice(&cp56_2020);
+    // C_SC_NA_1 ON as a short pulse (QU 1).
+    let pulse = vec![45, 1, 6, 0, 1, 0, 3, 0, 0, 0x01 | (1 << 2)];
+    for (n, asdu) in [stale, pulse].into_iter().enumerate() {
+        let send = (n as u16) << 1;
+        let mut frame = vec![0x68, (asdu.len() + 4) as u8];
+        frame.extend_from_slice(&send.to_le_bytes());
+        frame.extend_from_slice(&[0, 0]);
+        frame.extend_from_slice(&asdu);
+        io.write_all(&frame).await?;
+        let answer = next_asdu(&mut io).await?;
+        assert_eq!(answer[0], asdu[0], "the command mirrored: {answer:?}");
+        assert_eq!(answer[2], 7 | 0x40, "a negative ACTCON: {answer:?}");
+    }
+    let (_, f) = gw.get("/api/v1/devices/sim/fields/DO_0").await?;
+    assert_eq!(f["value"], false, "{f}");
+    assert!(f["last_write"].is_null(), "nothing written: {f}");
+    let metrics = gw.metrics().await?;
+    let refused = "iogate_iec104_server_commands_total{outcome=\"refused\"} 2";
+    assert!(metrics.lines().any(|l| l == refused), "{metrics}");
+    gw.shutdown().await;
+    Ok(())
+}

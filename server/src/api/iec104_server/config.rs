@@ -1,8 +1,8 @@
 //! The `iec104_server:` section: where the outstation listens, its common address, which
 //! fields it serves at which information object addresses (`map: auto`, or a file naming
 //! them), the standard's windows and timers on its side (`k`, `w`, `t1`, `t2`, `t3`), how
-//! many masters it serves at once, whether spontaneous data carries time tags, and how
-//! long a selected command waits for its execute.
+//! many masters it serves at once, whether spontaneous data carries time tags, how long a
+//! selected command waits for its execute, and how old a time-tagged command may be.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -23,6 +23,7 @@ const KEYS: &[&str] = &[
     "max_connections_per_client",
     "time_tags",
     "select_timeout",
+    "command_max_age",
 ];
 
 pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:2404";
@@ -51,6 +52,8 @@ pub(crate) struct Iec104ServerConfig {
     /// Spontaneous data as the time-tagged types (CP56Time2a), the time the value was read.
     pub(crate) time_tags: bool,
     pub(crate) select_timeout: Duration,
+    /// A time-tagged command older (or newer) than this is refused; `None`: not checked.
+    pub(crate) command_max_age: Option<Duration>,
     pub(crate) line: u64,
 }
 
@@ -84,26 +87,29 @@ fn map_source(n: &Node, report: &mut Report) -> Option<MapSource> {
     }
 }
 
+/// The `listen` address, its default without one.
+fn listen(node: Option<&Node>, report: &mut Report, ctx: &str) -> Option<SocketAddr> {
+    let Some(n) = node else {
+        return DEFAULT_LISTEN.parse().ok();
+    };
+    let text = n.scalar_text(report, ctx)?;
+    text.parse::<SocketAddr>()
+        .map_err(|_| {
+            report.push(
+                n.line,
+                ctx,
+                format!("`{text}` is not an address (host:port, e.g. 0.0.0.0:2404)"),
+            )
+        })
+        .ok()
+}
+
 /// Reads the section; `None` after reporting its problems.
 pub(super) fn read(node: &Node, report: &mut Report) -> Option<Iec104ServerConfig> {
     let ctx = "iec104_server";
     let at = |k: &str| format!("{ctx}.{k}");
     let mut map = node.map(report, ctx)?;
-    let listen = match map.get("listen") {
-        None => DEFAULT_LISTEN.parse().ok(),
-        Some(n) => {
-            let text = n.scalar_text(report, &at("listen"))?;
-            text.parse::<SocketAddr>()
-                .map_err(|_| {
-                    report.push(
-                        n.line,
-                        at("listen"),
-                        format!("`{text}` is not an address (host:port, e.g. 0.0.0.0:2404)"),
-                    )
-                })
-                .ok()
-        }
-    };
+    let listen = listen(map.get("listen"), report, &at("listen"));
     let source = map
         .get("map")
         .map_or(Some(MapSource::Auto), |n| map_source(n, report));
@@ -131,6 +137,11 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<Iec104ServerConfi
     let t2 = time("t2", 10, 255, report);
     let t3 = time("t3", 20, 172_800, report);
     let select_timeout = time("select_timeout", 10, 600, report);
+    let command_max_age = map
+        .get("command_max_age")
+        .map_or(Some(Some(Duration::from_secs(10))), |n| {
+            crate::drivers::iec104::config::period(n, report, &at("command_max_age"))
+        });
     let time_tags = map.get("time_tags").map_or(Some(true), |n| {
         crate::yaml::boolean(n, report, &at("time_tags"))
     });
@@ -160,6 +171,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<Iec104ServerConfi
         max_connections_per_client: per_client? as usize,
         time_tags: time_tags?,
         select_timeout: select_timeout?,
+        command_max_age: command_max_age?,
         line: node.line,
     })
 }

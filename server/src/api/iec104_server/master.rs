@@ -117,6 +117,7 @@ impl Master {
             c.time_tags,
             c.select_timeout,
         );
+        station.command_max_age = c.command_max_age;
         station.spontaneous.reset(served.table.points.len());
         let mut run = Run {
             io: self.io,

@@ -50,6 +50,8 @@ pub(crate) struct Station {
     pub(crate) common_address: u16,
     pub(crate) time_tags: bool,
     pub(crate) select_timeout: Duration,
+    /// A time-tagged command this far from the gateway's clock is refused.
+    pub(crate) command_max_age: Option<Duration>,
     service: Arc<Service>,
     replies: VecDeque<Vec<u8>>,
     interrogation: Option<Interrogation>,
@@ -94,6 +96,7 @@ impl Station {
             common_address,
             time_tags,
             select_timeout,
+            command_max_age: Some(Duration::from_secs(10)),
             service,
             replies: VecDeque::new(),
             interrogation: None,
@@ -360,6 +363,9 @@ impl Station {
             Ok(v) => v,
             Err(why) => return self.refuse(&asdu, cause::ACT_CON, &why),
         };
+        if let Some(why) = self.stale(&asdu) {
+            return self.refuse(&asdu, cause::ACT_CON, &why);
+        }
         let Some(device) = served.device(&point.device) else {
             return self.refuse(&asdu, cause::ACT_CON, "the device is not running");
         };
@@ -412,6 +418,22 @@ impl Station {
             }
             Err(e) => self.refuse(&asdu, cause::ACT_CON, &e.to_string()),
         }
+    }
+
+    /// Why a time-tagged command is not executed: its time too far from the gateway's
+    /// clock (a command delayed, or stored and sent again), or marked invalid.
+    fn stale(&self, asdu: &Asdu) -> Option<String> {
+        let most = self.command_max_age?;
+        let Some(Time::Full(t)) = asdu.objects.first()?.time else {
+            return None;
+        };
+        if t.invalid {
+            return Some("its time tag is marked invalid (IV)".to_owned());
+        }
+        let off = values::millis(std::time::SystemTime::now()) - t.millis;
+        (off.unsigned_abs() > most.as_millis() as u64).then(|| {
+            format!("its time tag is {off} ms from the gateway's clock (command_max_age {most:?})")
+        })
     }
 
     /// Terminates the commands whose writes have their outcome: ACTTERM, negative when the

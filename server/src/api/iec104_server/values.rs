@@ -88,6 +88,14 @@ fn number(value: &Value) -> Option<f64> {
 pub(crate) fn commanded(element: &Element, ty: IecType) -> Result<(Value, bool), String> {
     let real = |x: f64| Value::from_real(ty, x).map_err(|e| e.to_string());
     Ok(match *element {
+        Element::SingleCommand { qu, .. } | Element::DoubleCommand { qu, .. }
+            if matches!(qu, 1 | 2) =>
+        {
+            return Err(format!(
+                "a {} pulse (QU {qu}) is not executed: the gateway writes values, it does not time pulses",
+                if qu == 1 { "short" } else { "long" }
+            ));
+        }
         Element::SingleCommand { on, select, .. } if ty == IecType::Bool => {
             (Value::Bool(on), select)
         }

@@ -88,7 +88,7 @@ pub(crate) fn duration(
 }
 
 /// A period that may be `off`.
-fn period(n: &Node, report: &mut Report, ctx: &str) -> Option<Option<Duration>> {
+pub(crate) fn period(n: &Node, report: &mut Report, ctx: &str) -> Option<Option<Duration>> {
     let text = n.scalar_text(report, ctx)?;
     if matches!(text.trim(), "off" | "0" | "false") {
         return Some(None);
