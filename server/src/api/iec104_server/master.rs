@@ -11,7 +11,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use futures_util::StreamExt;
+use futures_util::{FutureExt, StreamExt};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::watch;
@@ -25,6 +25,8 @@ use crate::drivers::iec104::apci::{Frame, Unnumbered};
 use crate::drivers::iec104::window::{Broken, Limits, Window};
 use crate::service::{Change, Changes, Service};
 
+/// Changes taken at once, at most, before the connection is looked at again.
+const DRAIN: usize = 1024;
 /// How often commands waiting for their outcome are looked at.
 const OUTCOMES_EVERY: Duration = Duration::from_millis(20);
 
@@ -181,7 +183,10 @@ impl Run {
                 }
             }
             change = next_change(&mut self.changes) => match change {
-                Some(change) => self.changed(change),
+                Some(change) => {
+                    self.changed(change);
+                    self.drain();
+                }
                 None => self.changes = None,
             },
             Ok(()) = table.changed() => {
@@ -226,6 +231,24 @@ impl Run {
             self.station
                 .spontaneous
                 .changed(&self.served, i, reading, started);
+        }
+    }
+
+    /// Takes the changes that came meanwhile (at most [`DRAIN`]) before anything is sent,
+    /// so a device's read goes out in full ASDUs rather than one object a frame.
+    fn drain(&mut self) {
+        for _ in 0..DRAIN {
+            let Some(changes) = self.changes.as_mut() else {
+                return;
+            };
+            match changes.next().now_or_never() {
+                Some(Some(change)) => self.changed(change),
+                Some(None) => {
+                    self.changes = None;
+                    return;
+                }
+                None => return,
+            }
         }
     }
 
