@@ -5,7 +5,10 @@
 //! writable, the value one its type holds), confirmed (ACTCON) when requested or selected,
 //! refused (negative ACTCON) when not, and terminated (ACTTERM) by its outcome, negative
 //! when it failed. Anything else is mirrored negative with the standard's cause: an
-//! unknown type (44), cause (45), common address (46) or information object (47).
+//! unknown type (44), cause (45), common address (46) or information object (47). A
+//! confirmation or termination mirrors its request's common address, the broadcast one
+//! too (as lib60870's masters match them: answered with the station's own, c104 waits out
+//! its command timeout); the objects an interrogation answers carry the station's own.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
@@ -235,7 +238,6 @@ impl Station {
             id::C_RD_NA_1 => self.read(served, asdu),
             id::C_CS_NA_1 | id::C_TS_TA_1 if asdu.cause == cause::ACTIVATION => {
                 let mut answer = asdu.answer(cause::ACT_CON, false);
-                answer.common_address = self.common_address;
                 if ty == id::C_CS_NA_1 {
                     let now = values::millis(std::time::SystemTime::now());
                     answer.objects[0].element = Element::ClockSync(Cp56::at(now));
@@ -274,9 +276,7 @@ impl Station {
             cause::ACTIVATION => {}
             cause::DEACTIVATION => {
                 self.interrogation = None;
-                let mut answer = asdu.answer(cause::DEACT_CON, false);
-                answer.common_address = self.common_address;
-                return self.reply(answer);
+                return self.reply(asdu.answer(cause::DEACT_CON, false));
             }
             _ => {
                 return self.refuse(
@@ -298,8 +298,7 @@ impl Station {
                 "an interrogation qualifier the standard does not have",
             );
         }
-        let mut request = asdu.clone();
-        request.common_address = self.common_address;
+        let request = asdu.clone();
         self.reply(request.answer(cause::ACT_CON, false));
         // Groups have no points: confirmed and terminated.
         let at = if station { 0 } else { usize::MAX };
