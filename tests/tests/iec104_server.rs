@@ -441,3 +441,49 @@ async fn a_stale_time_tagged_command_and_a_pulse_are_refused_and_not_written() -
     gw.shutdown().await;
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_interrogation_under_way_is_answered_whole_and_a_second_of_its_kind_refused()
+-> anyhow::Result<()> {
+    use tokio::io::AsyncWriteExt;
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo, refresh_rate: 100ms }\niec104_server:\n  listen: 127.0.0.1:0\n",
+    )
+    .await?;
+    let mut io = started_from("127.0.0.1", gw.iec104.expect("listening"))
+        .await?
+        .expect("served");
+    let gi = [100, 1, 6, 0, 1, 0, 0, 0, 0, 20];
+    let ci = [101, 1, 6, 0, 1, 0, 0, 0, 0, 5];
+    // Clock synchronisation with a cause other than activation: 45.
+    let cs = [103, 1, 3, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 20];
+    let mut segment = Vec::new();
+    for (n, asdu) in [&gi[..], &gi, &ci, &cs].into_iter().enumerate() {
+        segment.extend_from_slice(&[0x68, (asdu.len() + 4) as u8]);
+        segment.extend_from_slice(&((n as u16) << 1).to_le_bytes());
+        segment.extend_from_slice(&[0, 0]);
+        segment.extend_from_slice(asdu);
+    }
+    io.write_all(&segment).await?;
+    let mut said = Vec::new();
+    while said.len() < 7 {
+        let a = next_asdu(&mut io).await?;
+        said.push((a[0], a[2]));
+    }
+    let (neg, actcon, actterm) = (0x40, 7, 10);
+    assert_eq!(
+        said,
+        [
+            (100, actcon),
+            (100, actcon | neg),
+            (101, actcon),
+            (103, 45 | neg),
+            (1, 20),
+            (100, actterm),
+            (101, actterm),
+        ],
+        "the first interrogation whole, the second refused, the counters' after"
+    );
+    gw.shutdown().await;
+    Ok(())
+}

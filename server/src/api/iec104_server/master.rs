@@ -62,6 +62,7 @@ impl Ended {
         match self {
             Ended::Io(_) => "io",
             Ended::Frame(_) => "malformed",
+            Ended::Window(Broken::Unacknowledged(_) | Broken::Untested(_)) => "t1",
             Ended::Window(_) => "window",
             Ended::Closed => "closed",
             Ended::Refused(_) => "refused",
@@ -176,8 +177,10 @@ impl Run {
                     return Err(Ended::Closed);
                 }
                 self.buf.extend_from_slice(&chunk[..n]);
-                self.window.heard();
+                // Heard when a frame is whole: bytes trickled in one at a time are not a
+                // master's life sign (t3, then TESTFR, then t1 end such a connection).
                 while let Some((frame, used)) = Frame::decode(&self.buf)? {
+                    self.window.heard();
                     self.buf.drain(..used);
                     self.take(frame).await?;
                 }

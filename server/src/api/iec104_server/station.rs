@@ -57,7 +57,8 @@ pub(crate) struct Station {
     pub(crate) command_max_age: Option<Duration>,
     service: Arc<Service>,
     replies: VecDeque<Vec<u8>>,
-    interrogation: Option<Interrogation>,
+    /// Under way, in the order asked: at most one general and one counter interrogation.
+    interrogations: VecDeque<Interrogation>,
     pending: Vec<Pending>,
     selected: HashMap<u32, (Value, Instant)>,
     pub(crate) spontaneous: Spontaneous,
@@ -102,7 +103,7 @@ impl Station {
             command_max_age: Some(Duration::from_secs(10)),
             service,
             replies: VecDeque::new(),
-            interrogation: None,
+            interrogations: VecDeque::new(),
             pending: Vec::new(),
             selected: HashMap::new(),
             spontaneous: Spontaneous::default(),
@@ -121,7 +122,7 @@ impl Station {
 
     /// Whether anything waits to be sent.
     pub(crate) fn has_next(&self) -> bool {
-        !self.replies.is_empty() || self.interrogation.is_some() || self.spontaneous.any()
+        !self.replies.is_empty() || !self.interrogations.is_empty() || self.spontaneous.any()
     }
 
     /// The next ASDU to send: answers first, then an interrogation's, then spontaneous data.
@@ -170,14 +171,14 @@ impl Station {
 
     /// The next ASDU of the interrogation under way, or its termination.
     fn interrogated(&mut self, served: &Served) -> Option<Asdu> {
-        let gi = self.interrogation.as_mut()?;
+        let gi = self.interrogations.front_mut()?;
         let order = if gi.counters {
             &served.counters
         } else {
             &served.general
         };
         let Some(&first) = order.get(gi.at) else {
-            let done = self.interrogation.take()?;
+            let done = self.interrogations.pop_front()?;
             return Some(done.request.answer(cause::ACT_TERM, false));
         };
         let ty = served.point(first).asdu;
@@ -244,6 +245,11 @@ impl Station {
                 }
                 self.reply(answer);
             }
+            id::C_CS_NA_1 | id::C_TS_TA_1 => self.refuse(
+                &asdu,
+                cause::UNKNOWN_CAUSE,
+                "a clock synchronisation or test is an activation (cause 6)",
+            ),
             id::C_RP_NA_1 => {
                 self.refuse(&asdu, cause::ACT_CON, "a reset of the process is not done")
             }
@@ -275,7 +281,7 @@ impl Station {
         match asdu.cause {
             cause::ACTIVATION => {}
             cause::DEACTIVATION => {
-                self.interrogation = None;
+                self.interrogations.retain(|i| i.counters != counters);
                 return self.reply(asdu.answer(cause::DEACT_CON, false));
             }
             _ => {
@@ -287,8 +293,8 @@ impl Station {
             }
         }
         let (valid, station) = match counters {
-            // RQT 1-5 (groups, general), FRZ 0 (read).
-            true => ((1..=5).contains(&(qualifier & 0x3F)), qualifier == 5),
+            // RQT 1-5 (groups, general).
+            true => ((1..=5).contains(&(qualifier & 0x3F)), qualifier & 0x3F == 5),
             false => ((20..=36).contains(&qualifier), qualifier == 20),
         };
         if !valid {
@@ -298,14 +304,32 @@ impl Station {
                 "an interrogation qualifier the standard does not have",
             );
         }
-        let request = asdu.clone();
-        self.reply(request.answer(cause::ACT_CON, false));
-        // Groups have no points: confirmed and terminated.
-        let at = if station { 0 } else { usize::MAX };
-        self.interrogation = Some(Interrogation {
+        if counters && qualifier >> 6 != 0 {
+            // FRZ 1-3: the counters frozen or reset, which the gateway does not do.
+            return self.refuse(
+                &asdu,
+                cause::ACT_CON,
+                "counters are read, not frozen or reset (FRZ 0 only)",
+            );
+        }
+        if !station {
+            // Groups have no points: confirmed and terminated.
+            self.reply(asdu.answer(cause::ACT_CON, false));
+            return self.reply(asdu.answer(cause::ACT_TERM, false));
+        }
+        if self.interrogations.iter().any(|i| i.counters == counters) {
+            // The one under way is answered whole and terminated; this one is not begun.
+            return self.refuse(
+                &asdu,
+                cause::ACT_CON,
+                "an interrogation of this kind is under way",
+            );
+        }
+        self.reply(asdu.answer(cause::ACT_CON, false));
+        self.interrogations.push_back(Interrogation {
             counters,
-            request,
-            at,
+            request: asdu,
+            at: 0,
         });
     }
 

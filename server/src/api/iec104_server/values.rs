@@ -89,11 +89,15 @@ pub(crate) fn commanded(element: &Element, ty: IecType) -> Result<(Value, bool),
     let real = |x: f64| Value::from_real(ty, x).map_err(|e| e.to_string());
     Ok(match *element {
         Element::SingleCommand { qu, .. } | Element::DoubleCommand { qu, .. }
-            if matches!(qu, 1 | 2) =>
+            if !matches!(qu, 0 | 3) =>
         {
+            let what = match qu {
+                1 => "a short pulse",
+                2 => "a long pulse",
+                _ => "a qualifier the gateway does not know",
+            };
             return Err(format!(
-                "a {} pulse (QU {qu}) is not executed: the gateway writes values, it does not time pulses",
-                if qu == 1 { "short" } else { "long" }
+                "{what} (QU {qu}) is not executed: the gateway writes values (QU 0 or 3, persistent), it does not time pulses"
             ));
         }
         Element::SingleCommand { on, select, .. } if ty == IecType::Bool => {

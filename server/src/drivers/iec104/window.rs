@@ -88,12 +88,14 @@ impl Window {
     /// first unconfirmed frame, t3 of silence.
     pub(crate) fn deadline(&self) -> Instant {
         let l = &self.limits;
-        let mut at = self.heard + l.t3;
+        // t3 runs until a test is sent; then t1 on its confirmation (a t3 already past
+        // would wake the task at once, again and again, until t1).
+        let mut at = match self.testing {
+            Some(t) => t + l.t1,
+            None => self.heard + l.t3,
+        };
         if let Some((_, sent)) = self.sent.front() {
             at = at.min(*sent + l.t1);
-        }
-        if let Some(t) = self.testing {
-            at = at.min(t + l.t1);
         }
         if let Some(first) = self.first_unconfirmed {
             at = at.min(first + l.t2);
@@ -227,5 +229,24 @@ mod tests {
                 got: 5
             })
         );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_test_sent_waits_t1_for_its_confirmation_not_t3_again() {
+        let mut w = window(12, 8);
+        let start = Instant::now();
+        assert_eq!(w.deadline(), start + Duration::from_secs(20));
+        tokio::time::advance(Duration::from_secs(20)).await;
+        assert_eq!(
+            w.due(),
+            Ok(Due {
+                confirm: false,
+                test: true
+            })
+        );
+        // Not t3, already past: the task would wake at once until t1.
+        assert_eq!(w.deadline(), start + Duration::from_secs(35));
+        tokio::time::advance(Duration::from_secs(15)).await;
+        assert_eq!(w.due(), Err(Broken::Untested(Duration::from_secs(15))));
     }
 }
