@@ -76,8 +76,9 @@ impl Timer {
         }
     }
 
-    /// The timerfd alone, without the finish on the clock: for the benchmark's comparison.
-    #[doc(hidden)]
+    /// The timerfd alone, without the finish on the clock (no core busy while waiting;
+    /// about 90 µs late at the median): the poller's wait for its next device due, and
+    /// the benchmark's comparison.
     pub async fn sleep_until_coarse(&mut self, deadline: Instant) {
         let left = deadline.saturating_duration_since(Instant::now());
         #[cfg(target_os = "linux")]

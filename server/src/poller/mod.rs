@@ -362,6 +362,10 @@ impl<D: Driver> Driven<D> {
         // goes between two poll cycles, so a device keeps its refresh rate as far as the
         // line carries it, however many requests wait.
         let mut after_request = false;
+        // The wait for the next device due, to its microsecond: tokio's timer rounds up to
+        // its next millisecond, which paced a device at a 1 ms refresh by the timer (a
+        // millisecond and more between cycles) rather than by the refresh and the answers.
+        let mut timer = crate::link::precise::Timer::new();
         loop {
             if token.is_cancelled() {
                 return Ended::Shutdown;
@@ -396,7 +400,7 @@ impl<D: Driver> Driven<D> {
                     .unwrap_or_else(|| Instant::now() + Duration::from_secs(3600));
                 tokio::select! {
                     _ = token.cancelled() => return Ended::Shutdown,
-                    _ = sleep_until(until) => {}
+                    _ = timer.sleep_until_coarse(until) => {}
                     _ = self.link.wake.notified() => {}
                     Ok(()) = self.state.changed() => self.take_state(),
                     fault = session.lost() => return Ended::Lost(fault),
