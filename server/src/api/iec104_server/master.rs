@@ -147,7 +147,7 @@ impl Master {
                 break why;
             }
         };
-        run.metrics.ended(run.started, &why);
+        run.metrics.ended(run.started, why.reason());
         match why {
             Ended::Closed | Ended::Stopped => {
                 tracing::info!(peer = %self.peer, "IEC 104 master disconnected: {why}")

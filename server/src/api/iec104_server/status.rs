@@ -14,7 +14,6 @@ use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::Registry;
 use serde::Serialize;
 
-use super::master::Ended;
 use crate::drivers::iec104::asdu::cause;
 use crate::metrics::OutcomeLabels;
 use crate::service::doors::Door;
@@ -112,14 +111,10 @@ impl Iec104Metrics {
         self.masters(started).inc();
     }
 
-    /// A master's connection ended, with data transfer `started` or not.
-    pub(crate) fn ended(&self, started: bool, why: &Ended) {
+    /// A master's connection ended, with data transfer `started` or not, for `reason`.
+    pub(crate) fn ended(&self, started: bool, reason: &'static str) {
         self.masters(started).dec();
-        self.closed
-            .get_or_create(&ReasonLabels {
-                reason: why.reason(),
-            })
-            .inc();
+        self.closed.get_or_create(&ReasonLabels { reason }).inc();
     }
 
     pub(crate) fn received(&self) {
@@ -242,7 +237,7 @@ mod tests {
         m.connected();
         m.transfer(true);
         assert_eq!((m.count(false), m.count(true)), (1, 1));
-        m.ended(true, &Ended::Closed);
+        m.ended(true, "closed");
         assert_eq!((m.count(false), m.count(true)), (1, 0));
         assert!(text(&m).contains("reason=\"closed\"} 1"));
     }
