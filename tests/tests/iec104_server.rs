@@ -390,6 +390,15 @@ async fn masters_are_bounded_in_all_and_per_address() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The `n`th I-frame a master sends (N(S) `n`, nothing acknowledged), carrying `asdu`.
+fn i_frame(n: usize, asdu: &[u8]) -> Vec<u8> {
+    let mut frame = vec![0x68, (asdu.len() + 4) as u8];
+    frame.extend_from_slice(&((n as u16) << 1).to_le_bytes());
+    frame.extend_from_slice(&[0, 0]);
+    frame.extend_from_slice(asdu);
+    frame
+}
+
 /// The next I-frame's ASDU on `io`, S- and U-frames read past.
 async fn next_asdu(io: &mut tokio::net::TcpStream) -> anyhow::Result<Vec<u8>> {
     use tokio::io::AsyncReadExt;
@@ -422,12 +431,7 @@ async fn a_stale_time_tagged_command_and_a_pulse_are_refused_and_not_written() -
     // C_SC_NA_1 ON as a short pulse (QU 1).
     let pulse = vec![45, 1, 6, 0, 1, 0, 3, 0, 0, 0x01 | (1 << 2)];
     for (n, asdu) in [stale, pulse].into_iter().enumerate() {
-        let send = (n as u16) << 1;
-        let mut frame = vec![0x68, (asdu.len() + 4) as u8];
-        frame.extend_from_slice(&send.to_le_bytes());
-        frame.extend_from_slice(&[0, 0]);
-        frame.extend_from_slice(&asdu);
-        io.write_all(&frame).await?;
+        io.write_all(&i_frame(n, &asdu)).await?;
         let answer = next_asdu(&mut io).await?;
         assert_eq!(answer[0], asdu[0], "the command mirrored: {answer:?}");
         assert_eq!(answer[2], 7 | 0x40, "a negative ACTCON: {answer:?}");
@@ -457,13 +461,11 @@ async fn an_interrogation_under_way_is_answered_whole_and_a_second_of_its_kind_r
     let ci = [101, 1, 6, 0, 1, 0, 0, 0, 0, 5];
     // Clock synchronisation with a cause other than activation: 45.
     let cs = [103, 1, 3, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 20];
-    let mut segment = Vec::new();
-    for (n, asdu) in [&gi[..], &gi, &ci, &cs].into_iter().enumerate() {
-        segment.extend_from_slice(&[0x68, (asdu.len() + 4) as u8]);
-        segment.extend_from_slice(&((n as u16) << 1).to_le_bytes());
-        segment.extend_from_slice(&[0, 0]);
-        segment.extend_from_slice(asdu);
-    }
+    let segment: Vec<u8> = [&gi[..], &gi, &ci, &cs]
+        .into_iter()
+        .enumerate()
+        .flat_map(|(n, asdu)| i_frame(n, asdu))
+        .collect();
     io.write_all(&segment).await?;
     let mut said = Vec::new();
     while said.len() < 7 {

@@ -113,6 +113,12 @@ pub(crate) struct WriteLabels {
     pub(crate) outcome: String,
 }
 
+/// A front-end's messages or frames by direction (`out`/`in`, `sent`/`received`).
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub(crate) struct DirectionLabels {
+    pub(crate) direction: &'static str,
+}
+
 /// A front-end's writes by outcome (`accepted`, `refused`).
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct OutcomeLabels {

@@ -114,13 +114,7 @@ impl Master {
             t3: c.t3,
         };
         let served = self.served.borrow_and_update().clone();
-        let mut station = Station::new(
-            self.service.clone(),
-            c.common_address,
-            c.time_tags,
-            c.select_timeout,
-        );
-        station.command_max_age = c.command_max_age;
+        let mut station = Station::new(self.service.clone(), c);
         station.spontaneous.reset(served.table.points.len());
         let mut run = Run {
             io: self.io,

@@ -90,17 +90,13 @@ fn tagged(ty: u8) -> u8 {
 }
 
 impl Station {
-    pub(crate) fn new(
-        service: Arc<Service>,
-        common_address: u16,
-        time_tags: bool,
-        select_timeout: Duration,
-    ) -> Station {
+    /// A station answering as the section `c` says.
+    pub(crate) fn new(service: Arc<Service>, c: &super::config::Iec104ServerConfig) -> Station {
         Station {
-            common_address,
-            time_tags,
-            select_timeout,
-            command_max_age: Some(Duration::from_secs(10)),
+            common_address: c.common_address,
+            time_tags: c.time_tags,
+            select_timeout: c.select_timeout,
+            command_max_age: c.command_max_age,
             service,
             replies: VecDeque::new(),
             interrogations: VecDeque::new(),

@@ -15,7 +15,7 @@ use prometheus_client::registry::Registry;
 use serde::Serialize;
 
 use crate::drivers::iec104::asdu::cause;
-use crate::metrics::OutcomeLabels;
+use crate::metrics::{DirectionLabels, OutcomeLabels};
 use crate::service::doors::Door;
 
 pub const IEC104_SERVER_MASTERS: &str = "iogate_iec104_server_masters";
@@ -27,11 +27,6 @@ pub const IEC104_SERVER_CLOSED: &str = "iogate_iec104_server_connections_closed"
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub(crate) struct TransferLabels {
     pub(crate) data_transfer: &'static str,
-}
-
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub(crate) struct DirectionLabels {
-    pub(crate) direction: &'static str,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]

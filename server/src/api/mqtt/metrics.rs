@@ -3,7 +3,6 @@
 //! front-end's status at the scrape (one source of truth); the publish latency is observed
 //! by the front-end as messages are confirmed.
 
-use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
@@ -11,7 +10,7 @@ use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
 use prometheus_client::registry::Registry;
 
 use super::status::MqttStatus;
-use crate::metrics::OutcomeLabels;
+use crate::metrics::{DirectionLabels, OutcomeLabels};
 
 pub const MQTT_CONNECTED: &str = "iogate_mqtt_connected";
 pub const MQTT_RECONNECTS: &str = "iogate_mqtt_reconnects";
@@ -25,11 +24,6 @@ pub const MQTT_BUFFER_OLDEST: &str = "iogate_mqtt_buffer_oldest_seconds";
 pub const MQTT_BUFFER_DROPPED: &str = "iogate_mqtt_buffer_dropped";
 pub const MQTT_BUFFER_REPLAYED: &str = "iogate_mqtt_buffer_replayed";
 pub const MQTT_DROPPED_IN: &str = "iogate_mqtt_incoming_dropped";
-
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub(crate) struct DirectionLabels {
-    pub(crate) direction: &'static str,
-}
 
 #[derive(Debug)]
 pub(crate) struct MqttMetrics {
