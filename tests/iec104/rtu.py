@@ -1,13 +1,15 @@
 #!/usr/bin/env python3
 """A controlled station (an RTU) on c104, lib60870's Python binding: common address 1 with
 a point of each monitored type, a command point of each kind, prints its port, then one
-line per command it executes (`cmd IOA VALUE`, `select IOA` for a select). Reads lines on
+line per command it executes (`cmd IOA VALUE`, `select IOA` for a select) and per clock
+synchronisation (`clock SECONDS`, the time it was set to, as seconds since 1970). Reads lines on
 stdin: `set IOA VALUE` changes a point and sends it spontaneously; `invalid IOA` marks it
 invalid and sends it.
 
     rtu.py [PORT]
 """
 
+import datetime
 import socket
 import sys
 import threading
@@ -58,6 +60,11 @@ def main():
     ]:
         add(ioa, kind, None, command_mode=mode).on_receive(callable=on_command)
 
+    def on_clock_sync(server: c104.Server, ip: str, date_time: datetime.datetime) -> c104.ResponseState:
+        print("clock", date_time.timestamp(), flush=True)
+        return c104.ResponseState.SUCCESS
+
+    server.on_clock_sync(callable=on_clock_sync)
     server.start()
     print(port, flush=True)
     for line in sys.stdin:

@@ -5,6 +5,7 @@
 //! executed reaching the station, and the station killed and restarted.
 
 use iogate_tests::TestGateway;
+use iogate_tests::cable::Cable;
 use iogate_tests::devices::temp_dir;
 use iogate_tests::iec104::Rtu;
 use serde_json::{Value, json};
@@ -132,6 +133,159 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
         field(d, "flow")["value"] == json!(12.5) && field(d, "flow")["quality"] == "good"
     })
     .await?;
+    gw.shutdown().await;
+    Ok(())
+}
+
+/// The station's next line that starts with `word`, the others passed over.
+async fn next_said(rtu: &mut Rtu, word: &str) -> anyhow::Result<String> {
+    loop {
+        let line = rtu.said().await?;
+        if line.starts_with(word) {
+            return Ok(line);
+        }
+    }
+}
+
+/// Whether what the gateway sent on a connection holds a STARTDT act.
+fn started(sent: &[u8]) -> bool {
+    sent.windows(6).any(|w| w == [0x68, 4, 0x07, 0, 0, 0])
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_redundancy_group_holds_its_standby_stopped_and_starts_it_when_the_other_is_lost()
+-> anyhow::Result<()> {
+    let mut rtu = Rtu::start().await?;
+    // Two addresses of the one station: a cable to it each, either of which can be pulled.
+    let primary = Cable::to(rtu.port).await?;
+    let backup = Cable::to(rtu.port).await?;
+    let dir = temp_dir("iec104-redundancy");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, backup: '127.0.0.1:{}', clock_sync: true, t0: 2s, t1: 3s, t2: 1s, t3: 2s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
+        dir.join("profiles").display(),
+        primary.port,
+        backup.port,
+    );
+    let gw = TestGateway::start(&config).await?;
+    gw.until("/api/v1/devices/station", "interrogated", |d| {
+        field(d, "flow")["quality"] == "good"
+    })
+    .await?;
+    // The station's clock was set to the gateway's at connect.
+    let clock = next_said(&mut rtu, "clock").await?;
+    let set: f64 = clock.trim_start_matches("clock").trim().parse()?;
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?;
+    assert!((now.as_secs_f64() - set).abs() < 30.0, "{clock} at {now:?}");
+    let (_, link) = gw.get("/api/v1/links/rtu").await?;
+    assert!(
+        link["peer"]["clock"]
+            .as_str()
+            .is_some_and(|c| c.ends_with("confirmed")),
+        "{link}"
+    );
+
+    // The backup is held open, data transfer stopped, and tested (t3 2 s).
+    let link = gw
+        .until("/api/v1/links/rtu", "the standby held", |l| {
+            l["peer"]["standby"]
+                .as_str()
+                .is_some_and(|s| s.contains("data transfer stopped"))
+        })
+        .await?;
+    assert_eq!((primary.open(), backup.open()), (1, 1), "{link}");
+    assert!(started(&primary.sent()[0]));
+    let standby = backup.sent()[0].clone();
+    assert!(!started(&standby), "STARTDT on the standby: {standby:02x?}");
+
+    // The started connection lost: the standby is started and read, a change comes on it,
+    // and a command goes on it.
+    primary.pull();
+    gw.until("/api/v1/links/rtu", "the standby took over", |l| {
+        l["connected"] == true
+            && l["peer"]["station"]
+                .as_str()
+                .is_some_and(|s| s.contains(&format!(":{} (took over", backup.port)))
+    })
+    .await?;
+    assert!(started(&backup.sent()[0]), "STARTDT on the standby now");
+    assert_eq!(
+        backup.accepted(),
+        1,
+        "the standby's own connection, no other"
+    );
+    rtu.cmd("set 102 30.5").await?;
+    gw.until("/api/v1/devices/station", "a change on the standby", |d| {
+        field(d, "flow")["value"] == json!(30.5) && field(d, "flow")["quality"] == "good"
+    })
+    .await?;
+    let outcome = gw
+        .write_outcome("station", "enable", json!(true))
+        .await?
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    assert_eq!(outcome["status"], "written", "{outcome}");
+    assert_eq!(next_said(&mut rtu, "cmd").await?, "cmd 201 True");
+
+    // The lost address back: it is held as the standby again, stopped.
+    primary.plug();
+    gw.until("/api/v1/links/rtu", "the other held again", |l| {
+        l["peer"]["standby"]
+            .as_str()
+            .is_some_and(|s| s.contains(&format!(":{} (connected", primary.port)))
+    })
+    .await?;
+    let again = primary.sent();
+    let last = again.last().cloned().unwrap_or_default();
+    assert!(!started(&last), "STARTDT on the new standby: {last:02x?}");
+    assert_eq!(primary.open(), 1);
+    gw.shutdown().await;
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_standby_address_that_accepts_and_then_fails_is_tried_less_and_less_often()
+-> anyhow::Result<()> {
+    let rtu = Rtu::start().await?;
+    // The backup takes the connection and closes it at the gateway's first frame.
+    let backup = Cable::failing_after(rtu.port, Some(0)).await?;
+    let dir = temp_dir("iec104-standby-fails");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, backup: '127.0.0.1:{}', t0: 2s, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
+        dir.join("profiles").display(),
+        rtu.port,
+        backup.port,
+    );
+    let gw = TestGateway::start(&config).await?;
+    let began = std::time::Instant::now();
+    let link = gw
+        .until("/api/v1/links/rtu", "three attempts", |l| {
+            l["peer"]["standby"]
+                .as_str()
+                .is_some_and(|s| s.contains("attempt 4 in 4s"))
+        })
+        .await?;
+    // Attempts after 1 s and 2 s: three connections in three seconds at least.
+    assert!(
+        began.elapsed() >= std::time::Duration::from_secs(3),
+        "{link}"
+    );
+    assert!(
+        backup.accepted() <= 3,
+        "{} connections: {link}",
+        backup.accepted()
+    );
+    assert!(
+        link["peer"]["standby"]
+            .as_str()
+            .is_some_and(|s| s.contains("closed")),
+        "{link}"
+    );
+    // The started connection is not disturbed by its standby's failures.
+    let d = gw.get("/api/v1/devices/station").await?.1;
+    assert_eq!(field(&d, "flow")["quality"], "good", "{d}");
     gw.shutdown().await;
     Ok(())
 }

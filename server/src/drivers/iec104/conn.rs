@@ -5,6 +5,10 @@
 //! quiet connection after t3 (TESTFR con within t1), and checks every frame: a sequence
 //! number out of order, an acknowledgement of a frame never sent, a malformed frame, each
 //! close the connection naming it. Received ASDUs go to the connection's `Router`.
+//!
+//! A standby connection (the other of a redundancy group) is opened without STARTDT: its
+//! station answers a test frame within t1, and it is tested after t3 of quiet like any
+//! connection, until the gateway starts it (`Connection::start`).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -27,8 +31,8 @@ pub(crate) enum Iec104Error {
     Io(String),
     #[error("no connection within t0 ({0:?})")]
     Connect(Duration),
-    #[error("no STARTDT con within t1 ({0:?})")]
-    Start(Duration),
+    #[error("no {0} within t1 ({1:?})")]
+    Start(&'static str, Duration),
     #[error("the station sent a malformed frame: {0}")]
     Frame(#[from] apci::Malformed),
     #[error("{0}")]
@@ -51,7 +55,24 @@ pub(crate) struct Connection {
     pub(crate) router: Arc<Router>,
     pub(crate) lost: watch::Receiver<Option<Iec104Error>>,
     pub(crate) state: watch::Receiver<State>,
+    /// Asks the task to send STARTDT act (a standby taking over).
+    start: Arc<tokio::sync::Notify>,
     task: tokio::task::JoinHandle<()>,
+}
+
+impl Connection {
+    /// Starts data transfer on a standby connection: STARTDT act now; `state.started`
+    /// says when the station confirmed it.
+    pub(crate) fn start(&self) {
+        self.start.notify_one();
+    }
+}
+
+/// Whether a connection is opened with data transfer started or as a standby.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Opening {
+    Started,
+    Standby,
 }
 
 /// What `/links` shows of the connection.
@@ -63,6 +84,8 @@ pub(crate) struct State {
     pub(crate) unconfirmed: u16,
     pub(crate) sent: u64,
     pub(crate) received: u64,
+    /// STARTDT confirmed: data transfer on.
+    pub(crate) started: bool,
 }
 
 impl Drop for Connection {
@@ -71,24 +94,29 @@ impl Drop for Connection {
     }
 }
 
-/// Opens a connection to `(host, port)`: TCP within t0, then STARTDT.
+/// Opens a connection to `(host, port)`: TCP within t0, then STARTDT (a standby: TESTFR)
+/// confirmed within t1.
 pub(crate) async fn open(
     host: &str,
     port: u16,
     s: &Settings,
     router: Arc<Router>,
+    opening: Opening,
 ) -> Result<Connection, Iec104Error> {
     let mut io = tokio::time::timeout(s.t0, TcpStream::connect((host, port)))
         .await
         .map_err(|_| Iec104Error::Connect(s.t0))??;
     let _ = io.set_nodelay(true);
-    io.write_all(&Frame::U(Unnumbered::StartAct).encode())
-        .await?;
+    let (ask, answer) = match opening {
+        Opening::Started => (Unnumbered::StartAct, Unnumbered::StartCon),
+        Opening::Standby => (Unnumbered::TestAct, Unnumbered::TestCon),
+    };
+    io.write_all(&Frame::U(ask).encode()).await?;
     let mut buf = Vec::with_capacity(512);
     let deadline = Instant::now() + s.t1;
     loop {
         match next_frame(&mut io, &mut buf, deadline).await? {
-            Some(Frame::U(Unnumbered::StartCon)) => break,
+            Some(Frame::U(u)) if u == answer => break,
             Some(Frame::U(Unnumbered::TestAct)) => {
                 io.write_all(&Frame::U(Unnumbered::TestCon).encode())
                     .await?;
@@ -99,12 +127,16 @@ pub(crate) async fn open(
                     "an I- or S-frame before STARTDT con",
                 ));
             }
-            None => return Err(Iec104Error::Start(s.t1)),
+            None => return Err(Iec104Error::Start(answer.name(), s.t1)),
         }
     }
     let (send, outgoing) = mpsc::channel(64);
     let (lost_tx, lost) = watch::channel(None);
-    let (state_tx, state) = watch::channel(State::default());
+    let (state_tx, state) = watch::channel(State {
+        started: opening == Opening::Started,
+        ..State::default()
+    });
+    let start = Arc::new(tokio::sync::Notify::new());
     let limits = Limits {
         k: s.k,
         w: s.w,
@@ -118,6 +150,8 @@ pub(crate) async fn open(
         window: Window::new(limits),
         router: router.clone(),
         state: state_tx,
+        start: start.clone(),
+        starting: false,
     };
     let task = tokio::spawn(async move {
         let why = link.run(outgoing).await;
@@ -128,6 +162,7 @@ pub(crate) async fn open(
         router,
         lost,
         state,
+        start,
         task,
     })
 }
@@ -162,6 +197,9 @@ struct Link {
     window: Window,
     router: Arc<Router>,
     state: watch::Sender<State>,
+    start: Arc<tokio::sync::Notify>,
+    /// STARTDT act sent, its confirmation awaited.
+    starting: bool,
 }
 
 impl Link {
@@ -196,6 +234,10 @@ impl Link {
                 None => return Err(Iec104Error::Closed),
             },
             () = tokio::time::sleep_until(deadline) => self.timers().await?,
+            () = self.start.notified(), if !self.starting && !self.state.borrow().started => {
+                self.starting = true;
+                self.io.write_all(&Frame::U(Unnumbered::StartAct).encode()).await?;
+            }
         }
         let counts = *self.state.borrow();
         self.state.send_replace(State {
@@ -262,6 +304,10 @@ impl Link {
                     .await?;
             }
             Frame::U(Unnumbered::TestCon) => self.window.tested(),
+            Frame::U(Unnumbered::StartCon) if self.starting => {
+                self.starting = false;
+                self.state.send_modify(|s| s.started = true);
+            }
             Frame::U(u) => return Err(Iec104Error::Unexpected(u.name())),
         }
         Ok(())

@@ -1,6 +1,7 @@
 //! IEC 60870-5-104 stations as devices (`protocol: iec104`), the gateway the controlling
 //! station: a link is a connection to a station (`iec104:` with its `host`, the standard's
-//! timers and windows, a `backup` address for a redundant connection), a device is a
+//! timers and windows, a `backup` address: a redundancy group, the second connection held
+//! stopped as the standby, `redundancy.rs`), a device is a
 //! common address on it (the link's unless the device says), a field is an information
 //! object (`ioa:`), its ASDU type taken from the station's answers unless `asdu:` fixes it.
 //! The station is interrogated at connect (general, and counter interrogation for devices
@@ -21,6 +22,7 @@ pub(crate) mod config;
 mod conn;
 pub(crate) mod element;
 mod point;
+mod redundancy;
 mod route;
 mod session;
 pub(crate) mod time;
@@ -165,6 +167,7 @@ impl Session for session::Station {
 
     async fn read(&mut self, device: &Arc<Device>, plan: &mut Plan) -> Result<Read, LinkFault> {
         let started = tokio::time::Instant::now();
+        self.ready().await.map_err(lost)?;
         if plan.generation != self.generation {
             self.register(device, plan);
         }
@@ -175,7 +178,11 @@ impl Session for session::Station {
                 return Ok(Read::Answered(started.elapsed()));
             }
         };
-        self.interrogate_when_due(device, plan, ca).await?;
+        if let Err(fault) = self.interrogate_when_due(device, plan, ca).await {
+            // The connection went while it was asked: a standby takes over (its devices
+            // asked again at their next read), else the link is lost.
+            self.ready().await.map_err(|_| fault)?;
+        }
         Ok(Read::Answered(started.elapsed()))
     }
 
@@ -185,11 +192,17 @@ impl Session for session::Station {
         plan: &mut Plan,
         items: Vec<WriteItem>,
     ) -> Result<Option<FieldError>, LinkFault> {
+        self.ready().await.map_err(lost)?;
         if plan.generation != self.generation {
             self.register(device, plan);
         }
         for item in items {
-            self.command(device, plan, item).await?;
+            // A command the closed connection did not take is sent on the standby that
+            // took over, if one did; nothing was sent of it.
+            if let Err(fault) = self.command(device, plan, item.clone()).await {
+                self.ready().await.map_err(|_| fault)?;
+                self.command(device, plan, item).await?;
+            }
         }
         Ok(None)
     }

@@ -12,8 +12,9 @@ use tokio::time::Instant;
 
 use super::asdu::{Asdu, Object, cause};
 use super::config::Settings;
-use super::conn::{self, Connection, Iec104Error};
+use super::conn::{self, Connection, Iec104Error, Opening};
 use super::element::Element;
+use super::redundancy::Standby;
 use super::route::{Answers, Router};
 use super::types::{TypeId, id};
 use super::{Plan, is_input, lost, point, value};
@@ -34,30 +35,39 @@ pub(crate) struct Station {
     link: Arc<Link>,
     settings: Settings,
     pub(super) generation: u64,
+    /// The other connection of the redundancy group, where the station has a `backup`.
+    standby: Option<Standby>,
+    /// A standby started (STARTDT act sent): its confirmation is due by then.
+    starting: Option<Instant>,
 }
 
 impl Station {
-    /// Connects to the station's address, else to its backup.
+    /// Connects to the station's address, else to its backup; with a backup, the other
+    /// address is held as the standby.
     pub(super) async fn open(s: Settings, link: &Arc<Link>) -> Result<Station, LinkFault> {
         let router = Arc::new(Router::default());
         let endpoint = format!("{}:{}", s.host, s.port);
-        let first = conn::open(&s.host, s.port, &s, router.clone()).await;
-        let conn = match (first, &s.backup) {
+        let first = conn::open(&s.host, s.port, &s, router.clone(), Opening::Started).await;
+        let (conn, active) = match (first, &s.backup) {
             (Ok(c), _) => {
                 link.set_peer("station", endpoint);
-                c
+                (c, 0)
             }
             (Err(e), None) => return Err(LinkFault::connect_failed(endpoint, e)),
             (Err(e), Some((host, port))) => {
                 tracing::warn!(error = %e, endpoint, "IEC 104: the station does not connect; trying its backup address");
                 let backup = format!("{host}:{port}");
-                let c = conn::open(host, *port, &s, router)
+                let c = conn::open(host, *port, &s, router, Opening::Started)
                     .await
                     .map_err(|e| LinkFault::connect_failed(backup.clone(), e))?;
                 link.set_peer("station", format!("{backup} (the backup)"));
-                c
+                (c, 1)
             }
         };
+        let standby = s.backup.clone().map(|backup| {
+            let addresses = [(s.host.clone(), s.port), backup];
+            Standby::hold(addresses, active, s.clone(), link.clone())
+        });
         link.set_peer("windows", format!("k {}, w {}", s.k, s.w));
         link.set_peer(
             "timers",
@@ -68,6 +78,8 @@ impl Station {
             link: link.clone(),
             settings: s,
             generation: GENERATION.fetch_add(1, Ordering::Relaxed),
+            standby,
+            starting: None,
         })
     }
 
@@ -122,6 +134,9 @@ impl Station {
         let mut first = false;
         if restarted || due(plan.interrogated, period) {
             plan.interrogated = Some(Instant::now());
+            if self.settings.clock_sync {
+                self.set_clock(ca).await?;
+            }
             if let Err(why) = self.interrogation(id::C_IC_NA_1, ca, STATION).await? {
                 self.link.progress.ended();
                 device.doubt_reads(&FieldError::Device(why));
@@ -154,6 +169,39 @@ impl Station {
                 device.publish(idx, Err(FieldError::Device(why)));
             }
         }
+        Ok(())
+    }
+
+    /// Sets the station's clock at `ca` to the gateway's (C_CS_NA_1, UTC), its
+    /// confirmation or refusal shown in `/links`; a refusal does not stop the reading.
+    async fn set_clock(&self, ca: u16) -> Result<(), LinkFault> {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
+        let element = Element::ClockSync(super::time::Cp56::at(now));
+        let mut answers = self
+            .request(self.asdu(id::C_CS_NA_1, ca, 0, element))
+            .await?;
+        let outcome = match answers.next(self.settings.t1).await {
+            Some(a) if a.cause == cause::ACT_CON && !a.negative => "confirmed".to_owned(),
+            Some(a) => format!(
+                "refused: {}{}",
+                if a.negative { "negative " } else { "" },
+                cause::name(a.cause)
+            ),
+            None => format!("not confirmed within t1 ({:?})", self.settings.t1),
+        };
+        if !outcome.starts_with('c') {
+            tracing::warn!(
+                common_address = ca,
+                "IEC 104: clock synchronisation {outcome}"
+            );
+        }
+        let at = crate::civil::Civil::from_millis(now).map_or(now.to_string(), |c| c.to_string());
+        self.link.set_peer(
+            "clock",
+            format!("set at common address {ca} to {at} UTC: {outcome}"),
+        );
         Ok(())
     }
 
@@ -321,10 +369,45 @@ impl Station {
         drop(self.conn);
     }
 
+    /// Resolves when the link is lost: the started connection, and no standby took over.
     pub(super) async fn lost_now(&mut self) -> Iec104Error {
-        match self.conn.lost.wait_for(Option::is_some).await {
-            Ok(why) => why.clone().unwrap_or(Iec104Error::Closed),
-            Err(_) => Iec104Error::Closed,
+        loop {
+            if let Err(why) = self.ready().await {
+                return why;
+            }
+            let _ = self.conn.lost.wait_for(Option::is_some).await;
+        }
+    }
+
+    /// Whether the connection is there to be used: the started one alive, or a standby
+    /// started in its place (STARTDT confirmed within t1). Cancelled, it goes on where it
+    /// stopped when called again.
+    pub(super) async fn ready(&mut self) -> Result<(), Iec104Error> {
+        loop {
+            if let Some(deadline) = self.starting {
+                let t1 = self.settings.t1;
+                let mut state = self.conn.state.clone();
+                let started = tokio::time::timeout_at(deadline, state.wait_for(|s| s.started));
+                if !matches!(started.await, Ok(Ok(_))) {
+                    return Err(Iec104Error::Start("STARTDT con", t1));
+                }
+                self.starting = None;
+            }
+            let Some(why) = self.conn.lost.borrow().clone() else {
+                return Ok(());
+            };
+            let Some((standby, at)) = self.standby.as_ref().and_then(Standby::take) else {
+                return Err(why);
+            };
+            tracing::warn!(error = %why, standby = at, "IEC 104: the started connection was lost; starting the standby");
+            standby.start();
+            self.conn = standby;
+            self.generation = GENERATION.fetch_add(1, Ordering::Relaxed);
+            self.starting = Some(Instant::now() + self.settings.t1);
+            self.link.set_peer(
+                "station",
+                format!("{at} (took over when the other connection was lost: {why})"),
+            );
         }
     }
 }
