@@ -57,6 +57,7 @@ def main():
         (200, c104.Type.C_SE_NC_1, c104.CommandMode.SELECT_AND_EXECUTE),
         (201, c104.Type.C_SC_NA_1, c104.CommandMode.DIRECT),
         (202, c104.Type.C_SE_NB_1, c104.CommandMode.DIRECT),
+        (203, c104.Type.C_SC_NA_1, c104.CommandMode.DIRECT),
     ]:
         add(ioa, kind, None, command_mode=mode).on_receive(callable=on_command)
 

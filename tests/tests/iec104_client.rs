@@ -23,8 +23,9 @@ fields:
   - { name: bits, type: DWORD, direction: input, ioa: 107 }
   - { name: pressure, type: REAL, direction: input, ioa: 108, asdu: M_ME_TF_1 }
   - { name: missing, type: REAL, direction: input, ioa: 999 }
-  - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true }
+  - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true, termination: true }
   - { name: enable, type: BOOL, direction: output, ioa: 201 }
+  - { name: enable_terminated, type: BOOL, direction: output, ioa: 203, termination: true }
   - { name: limit, type: INT, direction: output, ioa: 202 }
 "#;
 
@@ -107,6 +108,16 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
         // without a select negatively), and tells its execute.
         assert_eq!(rtu.said().await?, said);
     }
+    // A command the station confirms and does not terminate (c104 terminates only its
+    // selected ones), where the field waits for the termination: not `written`.
+    let outcome = gw
+        .write_outcome("station", "enable_terminated", json!(false))
+        .await?;
+    assert!(
+        outcome.as_ref().is_ok_and(|o| o["status"] != "written"),
+        "{outcome:?}"
+    );
+    assert_eq!(rtu.said().await?, "cmd 203 False");
     // A value the command cannot carry is refused before anything is sent.
     let refused = gw.write_outcome("station", "limit", json!(40000)).await?;
     assert!(

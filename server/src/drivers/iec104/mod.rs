@@ -8,7 +8,8 @@
 //! with counters) and on its period; spontaneous data is taken as it comes, each value with
 //! the station's time tag as its timestamp and its quality descriptor judged. An output's
 //! write is a command (`C_SC`, `C_DC`, `C_SE_*`, `C_BO`), selected first where the field
-//! says `select: true`; its confirmation is its outcome.
+//! says `select: true`; its confirmation is its outcome (and its termination, where the
+//! field says `termination: true`).
 //!
 //! The wire format both sides share: the APCI (`apci.rs`), the ASDU (`asdu.rs`), its types
 //! (`types.rs`) and elements (`element.rs`), the time tags (`time.rs`). The connection and
@@ -61,12 +62,14 @@ const WORDS: Words = Words {
     device_keys: &[point::COMMON_ADDRESS],
 };
 
-/// Where a field is: its object, the type it is fixed to, whether commands are selected.
+/// Where a field is: its object, the type it is fixed to, whether commands are selected
+/// and whether the station terminates them.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Place {
     ioa: u32,
     fixed: Option<TypeId>,
     select: bool,
+    termination: bool,
 }
 
 /// What is kept of a device.
@@ -96,6 +99,7 @@ fn places(device: &Device) -> Vec<Result<Place, String>> {
                     .map(|t| point::asdu(t, Some(f.ty)))
                     .transpose()?,
                 select: p.get(point::SELECT).map_or(Ok(false), point::select)?,
+                termination: p.get(point::TERMINATION).map_or(Ok(false), point::select)?,
             })
         })
         .collect()

@@ -1,7 +1,8 @@
 //! Where an IEC 104 field is: its information object address (`ioa: 4001`, 1 to 16777215),
 //! the ASDU type it is fixed to where the station's own answers must not decide it
 //! (`asdu: M_ME_NC_1` for an input; for an output the command, `asdu: C_DC_NA_1`), and
-//! whether its commands are selected before they are executed (`select: true`). Where a
+//! whether its commands are selected before they are executed (`select: true`) and
+//! terminated by the station (`termination: true`: the outcome waits for ACTTERM). Where a
 //! device is: its `common_address` (the link's unless it says). Checked when the profile or
 //! the configuration is loaded, so a typo is a problem with its line.
 
@@ -12,6 +13,7 @@ use super::types::{Kind, TypeId};
 
 pub(crate) const ASDU: &str = "asdu";
 pub(crate) const SELECT: &str = "select";
+pub(crate) const TERMINATION: &str = "termination";
 pub(crate) const COMMON_ADDRESS: &str = "common_address";
 
 pub(crate) const FIELD_KEYS: &[FieldKey] = &[
@@ -21,6 +23,10 @@ pub(crate) const FIELD_KEYS: &[FieldKey] = &[
     },
     FieldKey {
         key: SELECT,
+        check: check_select,
+    },
+    FieldKey {
+        key: TERMINATION,
         check: check_select,
     },
 ];

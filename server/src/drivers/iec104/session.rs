@@ -327,6 +327,7 @@ impl Station {
         } else {
             &[false]
         };
+        let mut answers = None;
         for &select in steps {
             let element = match value::command(command, &value, select) {
                 Ok(e) => e,
@@ -336,8 +337,8 @@ impl Station {
                 }
             };
             let asdu = self.asdu(command.0, ca, place.ioa, element);
-            let mut answers = self.request(asdu).await?;
             let step = if select { "select" } else { "execute" };
+            let answers = answers.insert(self.request(asdu).await?);
             match answers.next(self.settings.t1).await {
                 Some(a) if a.cause == cause::ACT_CON && !a.negative => {}
                 Some(a) => {
@@ -361,8 +362,42 @@ impl Station {
                 }
             }
         }
+        if place.termination
+            && let Some(answers) = answers.as_mut()
+            && let Err(why) = self.terminated(answers, command, place.ioa).await
+        {
+            finish(device, &item, Err(why), 1);
+            return Ok(());
+        }
         written(device, &item, 1);
         Ok(())
+    }
+
+    /// A confirmed command's termination (ACTTERM) within t1: positive, or why not.
+    async fn terminated(
+        &self,
+        answers: &mut Answers,
+        command: TypeId,
+        ioa: u32,
+    ) -> Result<(), WriteError> {
+        let t1 = self.settings.t1;
+        let deadline = Instant::now() + t1;
+        while let Some(a) = answers
+            .next(deadline.saturating_duration_since(Instant::now()))
+            .await
+        {
+            match a.cause {
+                cause::ACT_TERM if !a.negative => return Ok(()),
+                cause::ACT_TERM => {
+                    return Err(WriteError::Refused(format!(
+                        "{} at IOA {ioa}: confirmed, then a negative actterm",
+                        command.name()
+                    )));
+                }
+                _ => {}
+            }
+        }
+        Err(WriteError::NoResponse(TxError::Timeout))
     }
 
     pub(super) async fn stop(self) {
