@@ -22,6 +22,7 @@ pub mod s7;
 mod started;
 pub mod tap;
 pub mod udp_cable;
+pub mod wireshark;
 
 pub use started::{
     OnBus, SseReader, bus_gateway, bus_gateway_with, config_files, eventually, link_yaml,
