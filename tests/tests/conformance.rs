@@ -1,5 +1,5 @@
 //! One conformance suite every driver passes: the driver's independent peer (a Modbus TCP
-//! device of tokio-modbus (and an RTU line of slaves, misbehaving by themselves), Snap7's S7 server, cpppo's Logix, asyncua's OPC UA server) behind
+//! device of tokio-modbus (and an RTU line of slaves, misbehaving by themselves), Snap7's S7 server, cpppo's Logix, asyncua's OPC UA server, c104's IEC 104 station) behind
 //! a cable that makes it misbehave: silent, garbled headers, answers cut in half with the
 //! connection closed, answers with junk after them, answers dripping a byte at a time. The
 //! same device also on a second link straight to the peer. For every misbehaviour: the
@@ -158,6 +158,26 @@ async fn s7_keeps_the_rules_of_a_guest() -> anyhow::Result<()> {
             profile: "name: Peer\nprotocol: s7\nfields:\n  - { name: N, type: INT, direction: input, address: MW10 }\n".into(),
             value: json!(1234),
             _running: Box::new(plc),
+        },
+    )
+    .await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn iec104_keeps_the_rules_of_a_guest() -> anyhow::Result<()> {
+    // c104's station answers the interrogation every second and test frames after t3.
+    let rtu = iogate_tests::iec104::Rtu::start().await?;
+    conformance(
+        "conformance-iec104",
+        Peer {
+            port: rtu.port,
+            link: Box::new(|p| {
+                format!("iec104: {{ host: 127.0.0.1, port: {p}, t0: 2s, t1: 1s, t2: 500ms, t3: 1s, interrogation: 1s }}")
+            }),
+            device: "",
+            profile: "name: Peer\nprotocol: iec104\nfields:\n  - { name: N, type: REAL, direction: input, ioa: 102 }\n".into(),
+            value: json!(12.5),
+            _running: Box::new(rtu),
         },
     )
     .await
