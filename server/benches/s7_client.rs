@@ -3,7 +3,7 @@
 //! after the other; only `iogate serve`'s process is measured for CPU and memory.
 //!
 //! - 1,000 INT fields of one DB (bytes 0-1999): Snap7's `db_read` of the block against one
-//!   device polled back to back; cycles a second, PDUs a cycle.
+//!   device read back to back (`refresh_rate: 0ms`); cycles a second, PDUs a cycle.
 //! - 200 REAL fields scattered over ten DBs, 100 bytes apart (nothing to merge): Snap7's
 //!   `read_multi_vars` of 20 items at a time against one device.
 //! - 500 INT fields of one DB 8 bytes apart: Snap7's `read_multi_vars` of 20 items at a
@@ -223,7 +223,7 @@ async fn until_read(client: &mut iogate_client::Client, devices: &[&str]) -> any
 
 async fn compare(server: &Snap7, scenario: Scenario) -> anyhow::Result<Vec<common::Row>> {
     let (snap7_rate, snap7_pdus) = reference(server.port, scenario)?;
-    let devices = [("bench".to_owned(), scenario.fields(), "1ms")];
+    let devices = [("bench".to_owned(), scenario.fields(), "0ms")];
     let gateway = gateway(scenario.name(), server.port, &devices, &scenario.link())?;
     let pid = gateway.child.id();
     let mut client = iogate_client::Client::connect(&format!("http://{}", gateway.grpc)).await?;

@@ -10,7 +10,11 @@ use crate::cache::Device;
 
 /// Runs one simulated device until `token` is cancelled.
 pub(crate) async fn run(device: Arc<Device>, token: CancellationToken) {
-    let mut tick = tokio::time::interval(device.config.refresh_rate);
+    let period = device
+        .config
+        .refresh_rate
+        .max(crate::config::rules::MIN_PERIOD);
+    let mut tick = tokio::time::interval(period);
     // On the grid of its refresh rate: a late cycle does not shift the next ones.
     tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
     loop {

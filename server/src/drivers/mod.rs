@@ -186,6 +186,12 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// devices are I/O modules that lose their outputs at power-up and nobody else writes.
     const REWRITES_OUTPUTS: bool = false;
 
+    /// Whether a device at `refresh_rate: 0ms` is read back to back, each cycle as soon as
+    /// the last one's answers came: a protocol whose read asks the device each time. One
+    /// whose values come by themselves (subscriptions, spontaneous data) reads such a
+    /// device every [`MIN_PERIOD`](crate::config::rules::MIN_PERIOD) instead.
+    const READS_BACK_TO_BACK: bool = false;
+
     /// Its words in configuration: its profiles' `protocol`, its fields' point key, its
     /// links' settings key (`None`: Modbus, whose links are `serial` or `tcp` and whose
     /// fields are registers).

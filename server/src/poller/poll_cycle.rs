@@ -8,6 +8,7 @@ use tokio::time::Instant;
 
 use super::{Driven, Step};
 use crate::config::WriteMode;
+use crate::config::rules::MIN_PERIOD;
 use crate::drivers::{Driver, Probed, Read, Session};
 
 impl<D: Driver> Driven<D> {
@@ -53,7 +54,13 @@ impl<D: Driver> Driven<D> {
                 return Ok(());
             }
         }
-        p.next_due = next_on_grid(p.next_due, device.config.refresh_rate, started);
+        p.next_due = match device.config.refresh_rate {
+            // Back to back: due again now, after the devices that were due before this
+            // cycle started.
+            Duration::ZERO if D::READS_BACK_TO_BACK => started,
+            Duration::ZERO => next_on_grid(p.next_due, MIN_PERIOD, started),
+            refresh => next_on_grid(p.next_due, refresh, started),
+        };
         if device.config.write_mode == WriteMode::Reconcile {
             p.reconcile();
         }

@@ -133,3 +133,74 @@ async fn a_dead_device_costs_one_probe_per_backoff_period_and_the_other_keeps_it
     println!("live device: {} cycles in 10 s", alive.io_cycles);
     assert!(alive.io_cycles >= 88, "{} cycles in 10 s", alive.io_cycles);
 }
+
+/// Every slave answers register reads with its request count.
+async fn answering(mut io: DuplexStream, asked: Arc<[AtomicU32; 3]>) {
+    let mut request = [0u8; 8];
+    while io.read_exact(&mut request).await.is_ok() {
+        let slave = usize::from(request[0]).min(2);
+        let n = asked[slave].fetch_add(1, Ordering::Relaxed) + 1;
+        let mut answer = vec![request[0], request[1], 2];
+        answer.extend_from_slice(&(n as u16).to_be_bytes());
+        answer.extend_from_slice(&crc16(&answer).to_le_bytes());
+        if io.write_all(&answer).await.is_err() {
+            return;
+        }
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_device_at_0ms_is_read_back_to_back_and_the_other_keeps_its_rate() {
+    let config = crate::config::parse(
+        "c.yaml",
+        "links:\n  - { name: bus, serial: { port: /dev/null, baud: 19200 } }\ndevices:\n  - { name: fast, profile: One, link: bus, slave_id: 1, refresh_rate: 0ms }\n  - { name: slow, profile: One, link: bus, slave_id: 2, refresh_rate: 100ms }\n",
+    )
+    .expect("config");
+    assert_eq!(config.devices[0].refresh_rate, Duration::ZERO);
+    let profile = crate::profile::load_str(
+        "one.yaml",
+        "name: One\nfields:\n  - { name: N, type: UINT, direction: input, register: { address: 0, kind: input_register } }\n",
+    )
+    .expect("profile");
+    let cache = Cache::new(&config, Catalog::new([profile]));
+    let metrics = Arc::new(Metrics::new());
+    let mut task = Driven::<Modbus>::new(cache.links()[0].clone(), metrics.clone());
+    let (gateway, device_end) = tokio::io::duplex(4096);
+    let asked: Arc<[AtomicU32; 3]> = Arc::new(Default::default());
+    tokio::spawn(answering(device_end, asked.clone()));
+    let timing = LineTiming::new(&SerialSettings {
+        port: String::new(),
+        baud: 19_200,
+        parity: Parity::None,
+        data_bits: 8,
+        stop_bits: 1,
+        framing: Default::default(),
+    });
+    let conn = Connection::Rtu(RtuTransport::new(
+        Box::new(gateway),
+        Some(timing),
+        Duration::ZERO,
+    ));
+    let mut bus = Bus::new(
+        conn,
+        metrics,
+        "bus".into(),
+        Default::default(),
+        Default::default(),
+    );
+    let token = CancellationToken::new();
+    let stop = token.clone();
+    let opened = task.config.clone();
+    let serving = tokio::spawn(async move { task.serve(&mut bus, &stop, &opened).await });
+    tokio::time::sleep(Duration::from_secs(10)).await;
+    token.cancel();
+    assert!(matches!(serving.await, Ok(Ended::Shutdown)));
+    // The slow device keeps its rate (100 cycles in 10 s); the fast one has the rest of
+    // the line, cycle after cycle: hundreds of them, every one asked of the slave.
+    let slow = cache.device("slow").expect("slow").diagnostics().io_cycles;
+    let fast = cache.device("fast").expect("fast").diagnostics().io_cycles;
+    println!("back to back: {fast} cycles in 10 s; at 100 ms: {slow}");
+    assert!(slow >= 95, "{slow} cycles of the 100 ms device");
+    assert!(fast >= 600, "{fast} cycles of the device at 0ms");
+    assert_eq!(u64::from(asked[1].load(Ordering::Relaxed)), fast);
+}

@@ -91,12 +91,22 @@ pub(super) fn read_device(
         ruled(rules::slave_id(id as u64), n.line, &at("slave_id"), report)
     });
     let slave_refused = slave_node.is_some() && slave_id.is_none();
+    // `0ms`: back to back (a device read again as soon as its answers came).
+    let back_to_back = matches!(
+        map.get("refresh_rate"),
+        Some(Node { kind: yaml::Kind::Str(t), .. })
+            if crate::duration::parse(t).is_ok_and(|d| d.is_zero())
+    );
     let mut duration_of = |key: &str, default: Duration, min: Duration| -> Option<Duration> {
         map.get(key).map_or(Some(default), |node| {
             duration_value(node, report, &at(key), min)
         })
     };
-    let refresh_rate = duration_of("refresh_rate", rules::DEFAULT_REFRESH, rules::MIN_PERIOD);
+    let refresh_rate = if back_to_back {
+        Some(Duration::ZERO)
+    } else {
+        duration_of("refresh_rate", rules::DEFAULT_REFRESH, rules::MIN_PERIOD)
+    };
     let timeout = duration_of("timeout", rules::DEFAULT_TIMEOUT, rules::MIN_PERIOD);
     let retries = match map.get("retries") {
         None => Some(rules::DEFAULT_RETRIES),

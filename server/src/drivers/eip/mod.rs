@@ -116,6 +116,7 @@ impl Driver for Eip {
     type Plan = Plan;
     type Session = Controller;
     const NAME: &'static str = "ab-eip";
+    const READS_BACK_TO_BACK: bool = true;
 
     const WORDS: Option<&'static Words> = Some(&WORDS);
     type Settings = config::Settings;

@@ -41,6 +41,8 @@ pub(crate) fn utilisation<'a>(
 ) -> f64 {
     devices
         .into_iter()
+        // A device read back to back (`0ms`) takes what the line has left by design.
+        .filter(|(d, _)| !d.refresh_rate.is_zero())
         .map(|(d, batches)| {
             cycle_time(batches, timing, guard).as_secs_f64()
                 / d.refresh_rate.as_secs_f64().max(1e-6)

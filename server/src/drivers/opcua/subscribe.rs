@@ -199,7 +199,10 @@ pub(super) async fn watch(
         let _ = conn.session.delete_subscription(old.id).await;
         conn.ended();
     }
-    let refresh = device.config.refresh_rate;
+    let refresh = device
+        .config
+        .refresh_rate
+        .max(crate::config::rules::MIN_PERIOD);
     let keep_alive_count =
         (KEEP_ALIVE.as_millis() / refresh.as_millis().max(1)).clamp(1, 1000) as u32;
     let heard = Arc::new(Mutex::new(Instant::now()));
@@ -259,7 +262,10 @@ pub(super) async fn watch(
 
 /// The monitored items of every resolved field; one the server refuses is that field's error.
 async fn items(conn: &Connection, device: &Device, plan: &Plan, id: u32) -> Result<(), LinkFault> {
-    let refresh = device.config.refresh_rate;
+    let refresh = device
+        .config
+        .refresh_rate
+        .max(crate::config::rules::MIN_PERIOD);
     let (handles, requests): (Vec<usize>, Vec<MonitoredItemCreateRequest>) = plan
         .nodes
         .iter()

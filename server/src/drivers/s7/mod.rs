@@ -114,6 +114,7 @@ impl Driver for S7 {
     type Plan = Plan;
     type Session = Plc;
     const NAME: &'static str = PROTOCOL;
+    const READS_BACK_TO_BACK: bool = true;
     /// A connection, its COTP connection and its setup: three exchanges of at most the
     /// link's `timeout` (4 s at most) each. The PLC's identity is read with the first read,
     /// so that a PLC silent to SZL reads (S7-200, LOGO!) opens all the same.
