@@ -102,12 +102,14 @@ pub(crate) fn check_files(
 ) -> Problems {
     let mut report = Report::new(&config.source);
     for front_end in all() {
-        if let Err(e) = front_end.check_files(config, catalog, base) {
+        if let Err(problems) = front_end.check_files(config, catalog, base) {
             let line = config
                 .sections
                 .section(front_end.name())
                 .map_or(0, |s| s.line());
-            report.push(line, front_end.name(), e);
+            for e in problems {
+                report.push(line, front_end.name(), e);
+            }
         }
     }
     report.into_problems()

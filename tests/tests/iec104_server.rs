@@ -489,3 +489,39 @@ async fn an_interrogation_under_way_is_answered_whole_and_a_second_of_its_kind_r
     gw.shutdown().await;
     Ok(())
 }
+
+#[test]
+fn check_names_every_problem_of_a_map_file_each_on_its_own() -> anyhow::Result<()> {
+    let dir = temp_dir("iec104-map-problems");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/pump.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("points.yaml"),
+        "- { ioa: 1, field: pump.temp }\n- { ioa: 2, field: pump.nothing }\n- { ioa: 1, field: pump.speed }\n- { ioa: 3, field: nobody.temp }\n",
+    )?;
+    std::fs::write(
+        dir.join("iogate.yaml"),
+        format!(
+            "profiles: {}\nlinks:\n  - {{ name: line, tcp: {{ host: 127.0.0.1, port: 502 }} }}\ndevices:\n  - {{ name: pump, profile: Pump, link: line, slave_id: 1 }}\niec104_server:\n  listen: 127.0.0.1:0\n  map: {}\n",
+            dir.join("profiles").display(),
+            dir.join("points.yaml").display()
+        ),
+    )?;
+    iogate::drivers::register();
+    let Err(problems) = iogate::app::Setup::load(Some(&dir.join("iogate.yaml"))) else {
+        anyhow::bail!("a map with three bad entries passed");
+    };
+    let text: Vec<String> = problems.iter().map(ToString::to_string).collect();
+    assert_eq!(text.len(), 3, "{text:#?}");
+    for (line, what) in [(2, "pump.nothing"), (3, "IOA 1"), (4, "nobody.temp")] {
+        assert!(
+            text.iter().any(|t| {
+                (t.contains(&format!("line {line}:"))
+                    || t.contains(&format!("points.yaml:{line}:")))
+                    && t.contains(what)
+            }),
+            "line {line} ({what}) in {text:#?}"
+        );
+    }
+    Ok(())
+}

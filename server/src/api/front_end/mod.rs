@@ -51,14 +51,14 @@ pub(crate) trait FrontEnd: Send + Sync {
         None
     }
 
-    /// Reads what its section names outside the file (passwords), as `check` does: a
-    /// problem is named and stops the start.
+    /// Reads what its section names outside the file (passwords, a map), as `check` does:
+    /// every problem is named, each on its own, and stops the start.
     fn check_files(
         &self,
         _config: &Config,
         _catalog: &crate::profile::Catalog,
         _base: &Path,
-    ) -> Result<(), String> {
+    ) -> Result<(), Vec<String>> {
         Ok(())
     }
 

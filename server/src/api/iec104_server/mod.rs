@@ -62,10 +62,18 @@ pub(crate) fn plan(
                 .map(|p| (d.name.as_str(), p.as_ref()))
         })
         .collect();
-    Some(match Source::read(&section.map, base) {
-        Err(e) => Err(vec![e]),
-        Ok(Source::Auto) => Ok(Table::auto(devices, None)),
-        Ok(Source::Entries(entries)) => Table::of_entries(&entries, devices),
+    Some(match &section.map {
+        config::MapSource::Auto => Ok(Table::auto(devices, None)),
+        config::MapSource::File(path) => {
+            // Every problem at once: the file's own, then its entries' against the fields.
+            let (entries, mut problems) = table::read_some(&base.join(path));
+            match Table::of_entries(&entries, devices) {
+                Err(more) => problems.extend(more),
+                Ok(table) if problems.is_empty() => return Some(Ok(table)),
+                Ok(_) => {}
+            }
+            Err(problems)
+        }
     })
 }
 
@@ -96,9 +104,14 @@ impl FrontEnd for Iec104FrontEnd {
         config::read(node, report).map(|s| Box::new(s) as Box<dyn Section>)
     }
 
-    fn check_files(&self, config: &Config, catalog: &Catalog, base: &Path) -> Result<(), String> {
+    fn check_files(
+        &self,
+        config: &Config,
+        catalog: &Catalog,
+        base: &Path,
+    ) -> Result<(), Vec<String>> {
         match plan(config, catalog, base) {
-            Some(Err(problems)) => Err(format!("map: {}", problems.join("; "))),
+            Some(Err(problems)) => Err(problems.iter().map(|p| format!("map: {p}")).collect()),
             _ => Ok(()),
         }
     }
@@ -140,7 +153,7 @@ impl FrontEnd for Iec104FrontEnd {
             let Some(section) = section(p.config).cloned() else {
                 return Ok(None);
             };
-            let source = Source::read(&section.map, p.base)?;
+            let source = Source::read(&section.map, p.base).map_err(|p| p.join("; "))?;
             let was = p.old.and_then(section_listen);
             let key = "iec104_server.listen";
             let listen = Listen::prepare(p, section.listen, was, key, "--iec104").await?;

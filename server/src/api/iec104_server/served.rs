@@ -34,7 +34,7 @@ pub(crate) enum Source {
 
 impl Source {
     /// The source the section names, its file read from `base`.
-    pub(crate) fn read(map: &MapSource, base: &std::path::Path) -> Result<Source, String> {
+    pub(crate) fn read(map: &MapSource, base: &std::path::Path) -> Result<Source, Vec<String>> {
         match map {
             MapSource::Auto => Ok(Source::Auto),
             MapSource::File(path) => {

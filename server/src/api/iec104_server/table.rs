@@ -272,20 +272,37 @@ fn entry_point(e: &Entry, devices: &HashMap<&str, &Profile>) -> Result<Point, St
 }
 
 /// Reads a map file: a list of `{ ioa, field: device.field, asdu }`, each address once.
-pub(crate) fn read_file(path: &Path) -> Result<Vec<Entry>, String> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| format!("cannot read the map file {}: {e}", path.display()))?;
-    parse_entries(&text, &path.display().to_string())
+pub(crate) fn read_file(path: &Path) -> Result<Vec<Entry>, Vec<String>> {
+    let (entries, problems) = read_some(path);
+    if problems.is_empty() {
+        Ok(entries)
+    } else {
+        Err(problems)
+    }
 }
 
-/// A map file's text, its problems named with `source`.
-pub(crate) fn parse_entries(text: &str, source: &str) -> Result<Vec<Entry>, String> {
+/// A map file's entries that are well written, and the problems of the others (as `check`
+/// reads it, to name every problem at once).
+pub(crate) fn read_some(path: &Path) -> (Vec<Entry>, Vec<String>) {
+    match std::fs::read_to_string(path) {
+        Ok(text) => parse_some_entries(&text, &path.display().to_string()),
+        Err(e) => (
+            Vec::new(),
+            vec![format!("cannot read the map file {}: {e}", path.display())],
+        ),
+    }
+}
+
+/// A map file's text: its entries that are well written, and every problem, each on its own
+/// and named with `source`.
+pub(crate) fn parse_some_entries(text: &str, source: &str) -> (Vec<Entry>, Vec<String>) {
     let mut report = Report::new(source.to_owned());
     let entries = crate::yaml::parse(text, &mut report).and_then(|n| entries(&n, &mut report));
-    match (entries, report.has_problems()) {
-        (Some(entries), false) => Ok(entries),
-        _ => Err(report.into_problems().to_string()),
-    }
+    let problems = report.into_problems();
+    (
+        entries.unwrap_or_default(),
+        problems.iter().map(ToString::to_string).collect(),
+    )
 }
 
 fn entries(node: &Node, report: &mut Report) -> Option<Vec<Entry>> {

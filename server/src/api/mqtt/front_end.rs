@@ -67,9 +67,9 @@ impl FrontEnd for MqttFrontEnd {
         config: &Config,
         _catalog: &crate::profile::Catalog,
         base: &Path,
-    ) -> Result<(), String> {
+    ) -> Result<(), Vec<String>> {
         match section(config) {
-            Some(section) => prepare(section, base).map(drop),
+            Some(section) => prepare(section, base).map(drop).map_err(|e| vec![e]),
             None => Ok(()),
         }
     }
