@@ -45,6 +45,7 @@ def main():
     add(106, c104.Type.M_ST_NA_1, c104.Int7(3))
     add(107, c104.Type.M_BO_NA_1, c104.Byte32(bytes([0xA5])))
     add(108, c104.Type.M_ME_TF_1, 1.25)
+    add(109, c104.Type.M_ME_NB_1, c104.Int16(123))
 
     def on_command(point: c104.Point, previous_info: c104.Information, message: c104.IncomingMessage) -> c104.ResponseState:
         if message.is_select_command:
@@ -58,6 +59,7 @@ def main():
         (201, c104.Type.C_SC_NA_1, c104.CommandMode.DIRECT),
         (202, c104.Type.C_SE_NB_1, c104.CommandMode.DIRECT),
         (203, c104.Type.C_SC_NA_1, c104.CommandMode.DIRECT),
+        (204, c104.Type.C_SE_NB_1, c104.CommandMode.DIRECT),
     ]:
         add(ioa, kind, None, command_mode=mode).on_receive(callable=on_command)
 

@@ -23,6 +23,8 @@ fields:
   - { name: bits, type: DWORD, direction: input, ioa: 107 }
   - { name: pressure, type: REAL, direction: input, ioa: 108, asdu: M_ME_TF_1 }
   - { name: missing, type: REAL, direction: input, ioa: 999 }
+  - { name: current, type: REAL, direction: input, ioa: 109, scale: 0.1 }
+  - { name: trip, type: REAL, direction: output, ioa: 204, scale: 0.1, raw_type: INT }
   - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true, termination: true }
   - { name: enable, type: BOOL, direction: output, ioa: 201 }
   - { name: enable_terminated, type: BOOL, direction: output, ioa: 203, termination: true }
@@ -45,8 +47,8 @@ fn field<'a>(device: &'a Value, name: &str) -> &'a Value {
     &device["fields"][name]
 }
 
-const INPUTS: [&str; 9] = [
-    "breaker", "switch", "flow", "level", "ratio", "energy", "tap", "bits", "pressure",
+const INPUTS: [&str; 10] = [
+    "breaker", "switch", "flow", "level", "ratio", "energy", "tap", "bits", "pressure", "current",
 ];
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -69,6 +71,11 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
     assert_eq!(v("tap"), json!(3));
     assert_eq!(v("bits"), json!(0xA5));
     assert_eq!(v("pressure"), json!(1.25));
+    assert_eq!(
+        v("current"),
+        json!(12.3),
+        "a scaled value 123 at a scale of 0.1"
+    );
     let missing = field(&d, "missing")["error"]
         .as_str()
         .unwrap_or_default()
@@ -98,6 +105,8 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
         ("enable", json!(true), "cmd 201 True"),
         ("limit", json!(-12), "cmd 202 -12"),
         ("setpoint", json!(2.5), "cmd 200 2.5"),
+        // 5.55 at a scale of 0.1: C_SE_NB_1 (its raw INT) of 56.
+        ("trip", json!(5.55), "cmd 204 56"),
     ] {
         let outcome = gw
             .write_outcome("station", name, value)
@@ -108,6 +117,9 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
         // without a select negatively), and tells its execute.
         assert_eq!(rtu.said().await?, said);
     }
+    // The written value is shown as the station holds it (5.6), not as asked (5.55).
+    let d = gw.get("/api/v1/devices/station").await?.1;
+    assert_eq!(field(&d, "trip")["value"], json!(5.6), "{d}");
     // A command the station confirms and does not terminate (c104 terminates only its
     // selected ones), where the field waits for the termination: not `written`.
     let outcome = gw

@@ -357,11 +357,12 @@ pub(crate) fn finish(
     }
 }
 
-/// A write the device took: its value published, then its outcome (never a moment that
-/// shows the write done and the old value).
+/// A write the device took: its value published as the device holds it (the value
+/// through its raw form and back), then its outcome (never a moment that shows the write
+/// done and the old value).
 pub(crate) fn written(device: &Device, item: &WriteItem, attempts: u32) {
     if let Some(value) = &item.value {
-        device.publish(item.field, Ok(value.clone()));
+        device.publish(item.field, Ok(device.field(item.field).held(value)));
     }
     finish(device, item, Ok(()), attempts);
 }

@@ -5,6 +5,7 @@ pub mod import;
 pub(crate) mod keywords;
 mod layout;
 mod load;
+mod scale;
 mod words;
 
 pub use words::{FieldKey, Words};

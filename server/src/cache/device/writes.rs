@@ -194,9 +194,16 @@ impl Device {
         (!self.agree(idx, &desired, &actual)).then_some(desired)
     }
 
-    /// Whether two values of field `idx` are the same on the device (the same registers).
+    /// Whether two values of field `idx` are the same on the device (the same registers,
+    /// or the same raw value stored).
     fn agree(&self, idx: usize, a: &Value, b: &Value) -> bool {
         let field = self.field(idx);
+        if field.register.kind == RegisterKind::Point {
+            return match (field.to_raw(a), field.to_raw(b)) {
+                (Ok(x), Ok(y)) => x == y,
+                _ => a == b,
+            };
+        }
         match (field.encoding.encode(a), field.encoding.encode(b)) {
             (Ok(x), Ok(y)) => x == y,
             _ => a == b,

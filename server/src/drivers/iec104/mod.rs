@@ -96,7 +96,7 @@ fn places(device: &Device) -> Vec<Result<Place, String>> {
                 ioa: point::ioa(&p.address)?,
                 fixed: p
                     .get(point::ASDU)
-                    .map(|t| point::asdu(t, Some(f.ty)))
+                    .map(|t| point::asdu(t, Some(f.stored_type())))
                     .transpose()?,
                 select: p.get(point::SELECT).map_or(Ok(false), point::select)?,
                 termination: p.get(point::TERMINATION).map_or(Ok(false), point::select)?,
@@ -140,9 +140,10 @@ impl Driver for Iec104 {
         let Some(Ok(place)) = places(device).into_iter().nth(idx) else {
             return Ok(());
         };
-        let command = point::command_for(field.ty, place.fixed)
-            .ok_or_else(|| format!("IEC 104 has no command for a {}", field.ty))?;
-        value::command(command, value, false).map(drop)
+        let ty = field.stored_type();
+        let command = point::command_for(ty, place.fixed)
+            .ok_or_else(|| format!("IEC 104 has no command for a {ty}"))?;
+        value::command(command, &field.to_raw(value)?, false).map(drop)
     }
 
     fn plan(device: &Device) -> Plan {

@@ -190,8 +190,10 @@ impl Router {
                     continue;
                 }
                 e.seen = true;
-                let ty = e.device.profile.fields[e.idx].ty;
-                match value::reading(&o.element, ty) {
+                let field = &e.device.profile.fields[e.idx];
+                let read = value::reading(&o.element, field.stored_type())
+                    .and_then(|(raw, doubt)| Ok((field.value_of_raw(raw)?, doubt)));
+                match read {
                     Ok((v, doubt)) => {
                         e.device
                             .publish_from(e.idx, Ok(v), doubt.map(FieldError::Device), at, now)

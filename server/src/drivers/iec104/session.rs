@@ -310,13 +310,14 @@ impl Station {
                 return Ok(());
             }
         };
-        let ty = device.profile.fields[item.field].ty;
+        let field = &device.profile.fields[item.field];
+        let ty = field.stored_type();
         let Some(command) = point::command_for(ty, place.fixed) else {
             refuse(format!("IEC 104 has no command for a {ty}"));
             return Ok(());
         };
-        let value = match item.value() {
-            Ok(v) => v.clone(),
+        let value = match item.value().and_then(|v| field.to_raw(v)) {
+            Ok(v) => v,
             Err(why) => {
                 refuse(why);
                 return Ok(());

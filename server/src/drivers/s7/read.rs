@@ -68,7 +68,7 @@ fn publish_span(
                 let at = usize::try_from(offset).unwrap_or(usize::MAX);
                 let mine = bytes.get(at..).unwrap_or_default();
                 value::decode(place.form, place.stored, mine)
-                    .and_then(|raw| value::scaled(device.field(idx), raw))
+                    .and_then(|raw| device.field(idx).value_of_raw(raw))
                     .map_err(FieldError::Device)
             }
             Err((why, _)) => Err(FieldError::Device(why.clone())),

@@ -5,7 +5,6 @@
 
 use super::form::{Form, number_bytes};
 use crate::codec::{IecType, Value};
-use crate::profile::Field;
 
 use super::clock::{self, Civil};
 
@@ -250,54 +249,4 @@ fn counter(ty: IecType, v: &Value) -> Result<u16, String> {
         Ok(n) if n <= 999 => Ok(to_bcd3(n)),
         _ => Err(format!("a counter counts 0-999, not {raw}")),
     }
-}
-
-/// Whether a field's value is the PLC's as it is (no scale, offset or other raw type).
-fn plain(field: &Field) -> bool {
-    let r = &field.register;
-    r.raw_type.is_none_or(|t| t == field.ty) && r.scale == 1.0 && r.offset == 0.0
-}
-
-/// A field's value from the value the PLC stores: `raw * scale + offset`.
-pub(crate) fn scaled(field: &Field, raw: Value) -> Result<Value, String> {
-    if plain(field) {
-        return Ok(raw);
-    }
-    let r = &field.register;
-    let x = raw
-        .as_f64()
-        .ok_or_else(|| format!("{raw} is not a number"))?
-        * r.scale
-        + r.offset;
-    let value = if field.ty.is_real() {
-        Value::from_real(field.ty, x)
-    } else if x.is_finite() {
-        Value::from_int(field.ty, x.round() as i128)
-    } else {
-        return Err(format!("{x} is not a {}", field.ty));
-    };
-    value.map_err(|e| e.to_string())
-}
-
-/// The value the PLC stores for a field's value: `(value - offset) / scale`, rounded for an
-/// integer, refused when it does not fit the type stored.
-pub(crate) fn unscaled(field: &Field, value: &Value) -> Result<Value, String> {
-    if plain(field) {
-        return Ok(value.clone());
-    }
-    let r = &field.register;
-    let stored = r.raw_type.unwrap_or(field.ty);
-    let v = value
-        .as_f64()
-        .ok_or_else(|| format!("{value} is not a number"))?;
-    let x = (v - r.offset) / r.scale;
-    if !x.is_finite() {
-        return Err(format!("{v} scaled is not a number"));
-    }
-    let raw = if stored.is_real() {
-        Value::from_real(stored, x)
-    } else {
-        Value::from_int(stored, x.round() as i128)
-    };
-    raw.map_err(|e| format!("{v} is {x} raw: {e}"))
 }

@@ -35,7 +35,7 @@ fn pieces(plan: &Plan, item: &WriteItem, device: &Device) -> Result<Vec<(Item, V
         Some(Err(why)) => return Err(why.clone()),
         None => return Err("no such field".to_owned()),
     };
-    let raw = value::unscaled(device.field(item.field), item.value()?)?;
+    let raw = device.field(item.field).to_raw(item.value()?)?;
     let (skip, bytes) = value::encode(place.form, place.stored, &raw)?;
     let a = place.address;
     let at = |byte: u32, bit: Option<u8>, length: u16| Item {
@@ -172,7 +172,7 @@ pub(crate) fn check_value(
     let address = super::address::parse(&point.address)?;
     let stored = field.register.raw_type.unwrap_or(field.ty);
     let form = super::form::form(&address, stored, point.length)?;
-    let raw = value::unscaled(field, value)?;
+    let raw = field.to_raw(value)?;
     value::encode(form, stored, &raw).map(|_| ())
 }
 
