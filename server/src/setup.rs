@@ -164,6 +164,7 @@ impl Setup {
     /// and Modbus map: every problem of every stage at once.
     pub fn from_config(mut config: Config, base: &Path) -> Result<Setup, Problems> {
         let mut problems = crate::front_ends::read_sections(&mut config);
+        config.sections.resolve(base);
         let dir = profile::find_dir(config.profiles.as_deref(), base);
         let catalog = match &dir {
             Some(dir) => {

@@ -525,3 +525,57 @@ fn check_names_every_problem_of_a_map_file_each_on_its_own() -> anyhow::Result<(
     }
     Ok(())
 }
+
+/// The IOAs of the objects a general interrogation on a new connection to `at` answers.
+async fn interrogated(at: std::net::SocketAddr) -> anyhow::Result<Vec<u32>> {
+    use tokio::io::AsyncWriteExt;
+    let mut io = started_from("127.0.0.1", at)
+        .await?
+        .ok_or_else(|| anyhow::anyhow!("not served"))?;
+    io.write_all(&i_frame(0, &[100, 1, 6, 0, 1, 0, 0, 0, 0, 20]))
+        .await?;
+    let mut ioas = Vec::new();
+    loop {
+        let asdu = next_asdu(&mut io).await?;
+        if asdu[0] == 100 && asdu[2] & 0x3F == 10 {
+            return Ok(ioas);
+        }
+        if asdu[0] != 100 {
+            // One object each for these small points (SQ = 0): the IOA after the header.
+            ioas.push(u32::from_le_bytes([asdu[6], asdu[7], asdu[8], 0]));
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_changed_map_file_alone_is_reloaded_and_served() -> anyhow::Result<()> {
+    const SIM: &str = "name: SimOne\nprotocol: simulated\nfields:\n  - { name: X, type: INT, direction: input, register: { address: 0, kind: virtual } }\n";
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let config = format!(
+        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nprofiles: profiles\ndevices:\n  - {{ name: sim, profile: SimOne, refresh_rate: 100ms }}\niec104_server:\n  listen: 127.0.0.1:{port}\n  map: points.yaml\n"
+    );
+    let (dir, path) =
+        iogate_tests::config_files("iec104-map-reload", &[("sim.yaml", SIM)], &config);
+    std::fs::write(dir.join("points.yaml"), "- { ioa: 100, field: sim.X }\n")?;
+    let gw = iogate_tests::start_file(&path).await;
+    let at = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    assert_eq!(interrogated(at).await?, vec![100]);
+    std::fs::write(dir.join("points.yaml"), "- { ioa: 200, field: sim.X }\n")?;
+    let (status, body) = gw
+        .send(reqwest::Method::POST, "/api/v1/config/reload", "")
+        .await?;
+    assert_eq!(status, 200, "{body}");
+    let changes = body["report"]["changes"].to_string();
+    assert!(
+        changes.contains("iec104_server") && changes.contains("map file"),
+        "{body}"
+    );
+    eventually("the new map served", || async move {
+        interrogated(at).await.is_ok_and(|ioas| ioas == [200])
+    })
+    .await?;
+    gw.shutdown().await;
+    Ok(())
+}

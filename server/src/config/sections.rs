@@ -22,6 +22,16 @@ pub(crate) trait Section: SectionObject + fmt::Debug + Send + Sync {
     fn listen_mut(&mut self) -> Option<&mut SocketAddr> {
         None
     }
+
+    /// Reads what it names outside the config file (a map file), from `base`, so that a
+    /// change there is a change of the section; the files it read, whose contents a
+    /// reload's hash takes in.
+    fn resolve(&mut self, _base: &std::path::Path) {}
+
+    /// The files outside the config file it reads, as resolved.
+    fn files(&self) -> Vec<std::path::PathBuf> {
+        Vec::new()
+    }
 }
 
 /// What the section rules of [`Section::check_exposure`] depend on.
@@ -143,6 +153,20 @@ impl Sections {
     pub(crate) fn section(&self, key: &str) -> Option<&dyn Section> {
         let entry = self.0.iter().find(|e| e.key == key)?;
         entry.read.as_deref()
+    }
+
+    /// Has every section read what it names outside the config file, from `base`.
+    pub(crate) fn resolve(&mut self, base: &std::path::Path) {
+        for entry in &mut self.0 {
+            if let Some(section) = entry.read.as_mut() {
+                section.resolve(base);
+            }
+        }
+    }
+
+    /// The files outside the config file the sections read.
+    pub(crate) fn files(&self) -> Vec<std::path::PathBuf> {
+        self.read().flat_map(|s| s.files()).collect()
     }
 
     /// Every section read.

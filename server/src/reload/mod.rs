@@ -42,7 +42,11 @@ pub(crate) fn load(path: &Path, serving: Option<&crate::map::Plan>) -> Result<Lo
         setup.map = crate::map::plan_after(&setup.config, &setup.catalog, serving)?;
     }
     let access = config::check_security(&setup.config)?;
-    let hash = hash_files(path, setup.profiles_dir.as_deref());
+    let hash = hash_files(
+        path,
+        setup.profiles_dir.as_deref(),
+        &setup.config.sections.files(),
+    );
     Ok(Loaded {
         setup,
         tokens: access.tokens,
@@ -50,9 +54,10 @@ pub(crate) fn load(path: &Path, serving: Option<&crate::map::Plan>) -> Result<Lo
     })
 }
 
-/// SHA-256 over the config file and every file of the profiles directory (by name), in
-/// hex: equal exactly when the contents are, whatever the timestamps.
-pub(crate) fn hash_files(config: &Path, profiles: Option<&Path>) -> String {
+/// SHA-256 over the config file, every file of the profiles directory (by name) and the
+/// files the sections read (`outside`: an IEC 104 map), in hex: equal exactly when the
+/// contents are, whatever the timestamps.
+pub(crate) fn hash_files(config: &Path, profiles: Option<&Path>, outside: &[PathBuf]) -> String {
     let mut ctx = ring::digest::Context::new(&ring::digest::SHA256);
     let mut add = |name: &[u8], path: &Path| {
         let bytes = std::fs::read(path).unwrap_or_default();
@@ -62,6 +67,9 @@ pub(crate) fn hash_files(config: &Path, profiles: Option<&Path>) -> String {
         ctx.update(&bytes);
     };
     add(b"", config);
+    for file in outside {
+        add(file.to_string_lossy().as_bytes(), file);
+    }
     if let Some(dir) = profiles {
         let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
             .map(|entries| {
@@ -129,7 +137,11 @@ impl Reloader {
         tls: Option<Arc<crate::tls::Tls>>,
         front_ends: Vec<crate::api::front_end::Held>,
     ) -> Arc<Reloader> {
-        let hash = hash_files(&path, setup.profiles_dir.as_deref());
+        let hash = hash_files(
+            &path,
+            setup.profiles_dir.as_deref(),
+            &setup.config.sections.files(),
+        );
         let status = ConfigStatus {
             file: path.display().to_string(),
             profiles: setup.profiles_dir.as_ref().map(|d| d.display().to_string()),
@@ -169,6 +181,11 @@ impl Reloader {
             in_force.setup.profiles_dir.clone(),
             in_force.setup.config.reload,
         )
+    }
+
+    /// The files outside the config file its sections read, in force.
+    pub(crate) async fn outside(&self) -> Vec<PathBuf> {
+        self.in_force.lock().await.setup.config.sections.files()
     }
 
     /// Told after every reload applied, whatever started it.

@@ -177,7 +177,7 @@ async fn look(
     profiles: &Option<PathBuf>,
     refused: &mut Option<(String, String)>,
 ) {
-    let now = contents(config, profiles.clone()).await;
+    let now = contents(config, profiles.clone(), reloader.outside().await).await;
     let in_force = reloader.hash().await;
     if now == in_force || refused.as_ref() == Some(&(now.clone(), in_force.clone())) {
         return;
@@ -187,9 +187,9 @@ async fn look(
 }
 
 /// The hash of the files' contents now.
-async fn contents(config: &Path, profiles: Option<PathBuf>) -> String {
+async fn contents(config: &Path, profiles: Option<PathBuf>, outside: Vec<PathBuf>) -> String {
     let path = config.to_path_buf();
-    tokio::task::spawn_blocking(move || hash_files(&path, profiles.as_deref()))
+    tokio::task::spawn_blocking(move || hash_files(&path, profiles.as_deref(), &outside))
         .await
         .unwrap_or_default()
 }

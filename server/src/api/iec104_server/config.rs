@@ -55,6 +55,9 @@ pub(crate) struct Iec104ServerConfig {
     /// A time-tagged command older (or newer) than this is refused; `None`: not checked.
     pub(crate) command_max_age: Option<Duration>,
     pub(crate) line: u64,
+    /// The map file as resolved from the config's directory, and a digest of its contents
+    /// when last read (a map file changed alone is a change of the section).
+    pub(crate) map_file: Option<(std::path::PathBuf, u64)>,
 }
 
 impl crate::config::Section for Iec104ServerConfig {
@@ -64,6 +67,23 @@ impl crate::config::Section for Iec104ServerConfig {
 
     fn listen_mut(&mut self) -> Option<&mut SocketAddr> {
         Some(&mut self.listen)
+    }
+
+    fn resolve(&mut self, base: &std::path::Path) {
+        use std::hash::{Hash, Hasher};
+        self.map_file = match &self.map {
+            MapSource::Auto => None,
+            MapSource::File(path) => {
+                let path = base.join(path);
+                let mut h = std::collections::hash_map::DefaultHasher::new();
+                std::fs::read(&path).ok().hash(&mut h);
+                Some((path, h.finish()))
+            }
+        };
+    }
+
+    fn files(&self) -> Vec<std::path::PathBuf> {
+        self.map_file.iter().map(|(p, _)| p.clone()).collect()
     }
 }
 
@@ -173,5 +193,6 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<Iec104ServerConfi
         select_timeout: select_timeout?,
         command_max_age: command_max_age?,
         line: node.line,
+        map_file: None,
     })
 }

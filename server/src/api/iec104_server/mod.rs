@@ -138,7 +138,14 @@ impl FrontEnd for Iec104FrontEnd {
                 &old,
                 &new,
                 "the IEC 104 outstation",
-                |_, _| vec![],
+                |a, b| {
+                    let file = |s: &Iec104ServerConfig| s.map_file.as_ref().map(|(p, _)| p.clone());
+                    let same_file = file(a) == file(b) && a.map == b.map;
+                    vec![
+                        (same_file && a.map_file != b.map_file)
+                            .then(|| "its map file's contents changed".to_owned()),
+                    ]
+                },
                 "(its masters reconnect)",
                 "the IEC 104 outstation is restarted: its masters reconnect and interrogate",
             )
