@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """A controlled station (an RTU) on c104, lib60870's Python binding: common address 1 with
 a point of each monitored type, a command point of each kind, prints its port, then one
-line per command it executes (`cmd IOA VALUE`, `select IOA` for a select) and per clock
+line per command it executes (`cmd IOA VALUE`, `select IOA` for a select; point 205
+confirms its commands 2.5 s late) and per clock
 synchronisation (`clock SECONDS`, the time it was set to, as seconds since 1970). Reads lines on
 stdin: `set IOA VALUE` changes a point and sends it spontaneously; `invalid IOA` marks it
 invalid and sends it.
@@ -13,6 +14,7 @@ import datetime
 import socket
 import sys
 import threading
+import time
 
 import c104
 
@@ -52,6 +54,9 @@ def main():
             print("select", point.io_address, flush=True)
         else:
             print("cmd", point.io_address, message.info.value, flush=True)
+        if point.io_address == 205:
+            # A slow station: its confirmation 2.5 s after the command.
+            time.sleep(2.5)
         return c104.ResponseState.SUCCESS
 
     for ioa, kind, mode in [
@@ -60,6 +65,7 @@ def main():
         (202, c104.Type.C_SE_NB_1, c104.CommandMode.DIRECT),
         (203, c104.Type.C_SC_NA_1, c104.CommandMode.DIRECT),
         (204, c104.Type.C_SE_NB_1, c104.CommandMode.DIRECT),
+        (205, c104.Type.C_SC_NA_1, c104.CommandMode.DIRECT),
     ]:
         add(ioa, kind, None, command_mode=mode).on_receive(callable=on_command)
 

@@ -273,6 +273,8 @@ async fn pass(
             }
         }
     });
+    // Cut (this task aborted), the peer's direction ends with it: both sockets close.
+    let _down = Downstream(down.abort_handle());
     let mut buf = vec![0u8; 64 * 1024];
     let (mut seen, mut hushed) = (0, false);
     loop {
@@ -296,6 +298,15 @@ async fn pass(
         }
     }
     down.abort();
+}
+
+/// The peer-to-gateway half of a connection, ended with the other.
+struct Downstream(AbortHandle);
+
+impl Drop for Downstream {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
 
 /// Sends an answer of the peer to the gateway as `m` says; `false` when the connection is

@@ -40,6 +40,14 @@ impl Rtu {
             .ok_or_else(|| anyhow::anyhow!("the station ended"))
     }
 
+    /// The station's next line if it says one within `within`.
+    pub async fn said_within(&mut self, within: std::time::Duration) -> Option<String> {
+        tokio::time::timeout(within, self.piped.lines.next_line())
+            .await
+            .ok()?
+            .ok()?
+    }
+
     /// Sends the station a command line and waits until it says it sent the point.
     pub async fn cmd(&mut self, line: &str) -> anyhow::Result<()> {
         self.piped

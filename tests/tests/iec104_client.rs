@@ -7,6 +7,7 @@
 use iogate_tests::TestGateway;
 use iogate_tests::cable::Cable;
 use iogate_tests::devices::temp_dir;
+use iogate_tests::eventually;
 use iogate_tests::iec104::Rtu;
 use serde_json::{Value, json};
 
@@ -25,6 +26,7 @@ fields:
   - { name: missing, type: REAL, direction: input, ioa: 999 }
   - { name: current, type: REAL, direction: input, ioa: 109, scale: 0.1 }
   - { name: trip, type: REAL, direction: output, ioa: 204, scale: 0.1, raw_type: INT }
+  - { name: slow, type: BOOL, direction: output, ioa: 205 }
   - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true, termination: true }
   - { name: enable, type: BOOL, direction: output, ioa: 201 }
   - { name: enable_terminated, type: BOOL, direction: output, ioa: 203, termination: true }
@@ -117,6 +119,20 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
         // without a select negatively), and tells its execute.
         assert_eq!(rtu.said().await?, said);
     }
+    // A command confirmed 2.5 s late (within t1, 3 s): written, and the inputs the
+    // connection vouches for are good again after it, not left stale.
+    let outcome = gw.write_outcome("station", "slow", json!(true)).await?;
+    assert!(
+        outcome.as_ref().is_ok_and(|o| o["status"] == "written"),
+        "{outcome:?}"
+    );
+    assert_eq!(rtu.said().await?, "cmd 205 True");
+    gw.until(
+        "/api/v1/devices/station",
+        "good after a slow command",
+        |d| field(d, "breaker")["quality"] == "good",
+    )
+    .await?;
     // The written value is shown as the station holds it (5.6), not as asked (5.55).
     let d = gw.get("/api/v1/devices/station").await?.1;
     assert_eq!(field(&d, "trip")["value"], json!(5.6), "{d}");
@@ -218,6 +234,12 @@ async fn a_redundancy_group_holds_its_standby_stopped_and_starts_it_when_the_oth
         })
         .await?;
     assert_eq!((primary.open(), backup.open()), (1, 1), "{link}");
+    // Tested on its quiet connection after t3: TESTFR act at open and again.
+    let testfr = [0x68u8, 4, 0x43, 0, 0, 0];
+    eventually("the standby tested after t3", || async {
+        backup.sent()[0].windows(6).filter(|w| *w == testfr).count() >= 2
+    })
+    .await?;
     assert!(started(&primary.sent()[0]));
     let standby = backup.sent()[0].clone();
     assert!(!started(&standby), "STARTDT on the standby: {standby:02x?}");
@@ -310,5 +332,130 @@ async fn a_standby_address_that_accepts_and_then_fails_is_tried_less_and_less_of
     let d = gw.get("/api/v1/devices/station").await?.1;
     assert_eq!(field(&d, "flow")["quality"], "good", "{d}");
     gw.shutdown().await;
+    Ok(())
+}
+
+/// A station that keeps one connection at a time, the newest: a proxy to `upstream` that
+/// closes the connection it holds when another comes. Counts the connections it took.
+async fn evicting(
+    upstream: u16,
+) -> anyhow::Result<(
+    u16,
+    std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    tokio::task::JoinHandle<()>,
+)> {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let port = listener.local_addr()?.port();
+    let taken = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let count = taken.clone();
+    let task = tokio::spawn(async move {
+        let mut held: Option<tokio::task::JoinHandle<()>> = None;
+        while let Ok((mut client, _)) = listener.accept().await {
+            count.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            if let Some(old) = held.take() {
+                old.abort();
+            }
+            held = Some(tokio::spawn(async move {
+                if let Ok(mut up) = tokio::net::TcpStream::connect(("127.0.0.1", upstream)).await {
+                    let _ = tokio::io::copy_bidirectional(&mut client, &mut up).await;
+                }
+            }));
+        }
+    });
+    Ok((port, taken, task))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_station_that_keeps_one_connection_gets_no_standby_and_is_read_on() -> anyhow::Result<()>
+{
+    let mut rtu = Rtu::start().await?;
+    let (port, taken, proxy) = evicting(rtu.port).await?;
+    let dir = temp_dir("iec104-one-connection");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    // Its two addresses reach the one slot.
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {port}, backup: 'localhost:{port}', t0: 2s, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
+        dir.join("profiles").display(),
+    );
+    let gw = TestGateway::start(&config).await?;
+    gw.until("/api/v1/links/rtu", "the standby given up", |l| {
+        l["peer"]["standby"]
+            .as_str()
+            .is_some_and(|s| s.contains("keeps one connection at a time"))
+    })
+    .await?;
+    rtu.cmd("set 102 40.5").await?;
+    gw.until("/api/v1/devices/station", "read on", |d| {
+        field(d, "flow")["value"] == json!(40.5) && field(d, "flow")["quality"] == "good"
+    })
+    .await?;
+    let (_, link) = gw.get("/api/v1/links/rtu").await?;
+    assert_eq!(link["connected"], true, "{link}");
+    // The started connection and the standby that took its place: no other.
+    assert_eq!(taken.load(std::sync::atomic::Ordering::SeqCst), 2, "{link}");
+    gw.shutdown().await;
+    proxy.abort();
+    Ok(())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_started_connection_lost_while_a_command_is_confirmed_is_taken_over_at_once()
+-> anyhow::Result<()> {
+    let mut rtu = Rtu::start().await?;
+    let primary = Cable::to(rtu.port).await?;
+    let backup = Cable::to(rtu.port).await?;
+    let dir = temp_dir("iec104-lost-while-asked");
+    std::fs::create_dir_all(dir.join("profiles"))?;
+    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    // t1 of 12 s: a loss seen only at t1's end would take that long.
+    let config = format!(
+        "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, backup: '127.0.0.1:{}', t0: 2s, t1: 12s, t2: 1s, t3: 20s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
+        dir.join("profiles").display(),
+        primary.port,
+        backup.port,
+    );
+    let gw = TestGateway::start(&config).await?;
+    gw.until("/api/v1/links/rtu", "the standby held", |l| {
+        l["peer"]["standby"]
+            .as_str()
+            .is_some_and(|s| s.contains("data transfer stopped"))
+    })
+    .await?;
+    let (status, w) = gw
+        .send(
+            reqwest::Method::PUT,
+            "/api/v1/devices/station/fields/slow",
+            json!({ "value": true }).to_string(),
+        )
+        .await?;
+    assert!((200..300).contains(&status), "{w}");
+    assert_eq!(next_said(&mut rtu, "cmd").await?, "cmd 205 True");
+    // The station executes; its confirmation is 2.5 s away when its cable is pulled.
+    let pulled = std::time::Instant::now();
+    primary.pull();
+    gw.until("/api/v1/links/rtu", "taken over", |l| {
+        l["peer"]["station"]
+            .as_str()
+            .is_some_and(|s| s.contains("took over"))
+    })
+    .await?;
+    let took = pulled.elapsed();
+    assert!(
+        took < std::time::Duration::from_secs(6),
+        "taken over after {took:?}"
+    );
+    // The command's outcome is unknown (a timeout), never written twice.
+    let generation = w["generation"].as_u64().unwrap_or_default();
+    let outcome = gw
+        .until(&format!("/api/v1/writes/{generation}"), "an outcome", |w| {
+            w["status"] != "pending"
+        })
+        .await?;
+    assert_ne!(outcome["status"], "written", "{outcome}");
+    gw.shutdown().await;
+    while let Some(line) = rtu.said_within(std::time::Duration::from_millis(500)).await {
+        assert_ne!(line, "cmd 205 True", "executed again");
+    }
     Ok(())
 }

@@ -100,6 +100,17 @@ pub(crate) fn commanded(element: &Element, ty: IecType) -> Result<(Value, bool),
                 "{what} (QU {qu}) is not executed: the gateway writes values (QU 0 or 3, persistent), it does not time pulses"
             ));
         }
+        // QL 1-63 are reserved for the standard's own uses (0 is the default, 64-127 a
+        // station's private ones, which this gateway has none of).
+        Element::SetScaled { ql, .. }
+        | Element::SetNormalized { ql, .. }
+        | Element::SetFloat { ql, .. }
+            if ql != 0 =>
+        {
+            return Err(format!(
+                "a set-point of qualifier QL {ql} is not executed: the gateway takes QL 0 (default) only"
+            ));
+        }
         Element::SingleCommand { on, select, .. } if ty == IecType::Bool => {
             (Value::Bool(on), select)
         }

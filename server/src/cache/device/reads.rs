@@ -94,6 +94,21 @@ impl Device {
         }
     }
 
+    /// The source vouches for every good value it has not changed (a connection that
+    /// lives, whose station sends only changes): a stale spell told of them ends.
+    pub(crate) fn vouch(&self) {
+        for sample in &self.samples {
+            if !sample.borrow().stale_told {
+                continue;
+            }
+            sample.send_if_modified(|s| {
+                let told = s.stale_told && s.quality == Quality::Good;
+                s.stale_told &= !told;
+                told
+            });
+        }
+    }
+
     /// Marks every field read from the bus as bad, keeping the last good values.
     pub(crate) fn fail_reads(&self, reason: &FieldError) {
         for (idx, field) in self.profile.fields.iter().enumerate() {

@@ -106,6 +106,29 @@ pub(crate) fn period(n: &Node, report: &mut Report, ctx: &str) -> Option<Option<
     }
 }
 
+/// `backup`: another address of the station than `own`.
+fn backup(
+    n: &Node,
+    own: Option<&(String, u16)>,
+    report: &mut Report,
+    ctx: &str,
+) -> Option<(String, u16)> {
+    let text = n.scalar_text(report, ctx)?;
+    match address(&text) {
+        Ok(b) if Some(&b) == own => {
+            let why =
+                format!("`{text}` is the station's own address: a backup is its other address");
+            report.push(n.line, ctx, why);
+            None
+        }
+        Ok(b) => Some(b),
+        Err(e) => {
+            report.push(n.line, ctx, e);
+            None
+        }
+    }
+}
+
 /// Reads a link's settings; `None` after reporting every problem.
 pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Settings> {
     let ctx = format!("link {link}: iec104");
@@ -119,12 +142,13 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
         .map_or(Some(i128::from(STANDARD_PORT)), |n| {
             n.int_in(report, &at("port"), 1, 65535)
         });
-    let backup = map.get("backup").map(|n| {
-        let text = n.scalar_text(report, &at("backup"))?;
-        address(&text)
-            .map_err(|e| report.push(n.line, at("backup"), e))
-            .ok()
-    });
+    let own = host
+        .as_ref()
+        .zip(port)
+        .map(|(h, p)| (h.clone(), u16::try_from(p).unwrap_or_default()));
+    let backup = map
+        .get("backup")
+        .map(|n| backup(n, own.as_ref(), report, &at("backup")));
     let mut int = |key: &str, default: i128, lo: i128, hi: i128, report: &mut Report| {
         map.get(key)
             .map_or(Some(default), |n| n.int_in(report, &at(key), lo, hi))

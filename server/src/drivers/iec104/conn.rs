@@ -54,6 +54,8 @@ pub(crate) struct Connection {
     pub(crate) send: mpsc::Sender<Asdu>,
     pub(crate) router: Arc<Router>,
     pub(crate) lost: watch::Receiver<Option<Iec104Error>>,
+    /// When it was lost.
+    pub(crate) lost_at: Arc<std::sync::OnceLock<Instant>>,
     pub(crate) state: watch::Receiver<State>,
     /// Asks the task to send STARTDT act (a standby taking over).
     start: Arc<tokio::sync::Notify>,
@@ -153,14 +155,20 @@ pub(crate) async fn open(
         start: start.clone(),
         starting: false,
     };
+    let lost_at = Arc::new(std::sync::OnceLock::new());
+    let at = lost_at.clone();
     let task = tokio::spawn(async move {
+        let router = link.router.clone();
         let why = link.run(outgoing).await;
+        let _ = at.set(Instant::now());
         let _ = lost_tx.send(Some(why));
+        router.close();
     });
     Ok(Connection {
         send,
         router,
         lost,
+        lost_at,
         state,
         start,
         task,
@@ -287,6 +295,11 @@ impl Link {
 
     async fn take(&mut self, frame: Frame) -> Result<(), Iec104Error> {
         match frame {
+            Frame::I { .. } if !self.state.borrow().started => {
+                return Err(Iec104Error::Unexpected(
+                    "an I-frame on a connection with data transfer stopped",
+                ));
+            }
             Frame::I { send, recv, asdu } => {
                 let confirm = self.window.received(send, recv)?;
                 let mut state = *self.state.borrow();

@@ -19,6 +19,7 @@
 
 pub(crate) mod apci;
 pub(crate) mod asdu;
+mod command;
 pub(crate) mod config;
 mod conn;
 pub(crate) mod element;

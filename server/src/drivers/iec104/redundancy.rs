@@ -4,9 +4,13 @@
 //! (STARTDT) at once and its devices interrogated again; the lost address is then opened
 //! again as the standby. A standby that does not connect, or connects and is lost, is tried
 //! again after a delay that doubles up to a minute, and comes back to a second only after
-//! one was held a minute: a station that accepts and then fails is not stormed.
+//! one was held a minute; the pace is the group's, kept while the link is reopened, so a
+//! station that accepts and then fails is not stormed. A station that closes its started
+//! connection when the standby connects (it keeps one connection at a time) gets no standby
+//! again: its backup is then tried only when the started connection fails.
 
-use std::sync::{Arc, Mutex};
+use std::collections::HashMap;
+use std::sync::{Arc, LazyLock, Mutex};
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -19,16 +23,68 @@ use crate::cache::Link;
 
 const FIRST_DELAY: Duration = Duration::from_secs(1);
 const MOST_DELAY: Duration = Duration::from_secs(60);
+/// A started connection lost between the standby's connect and this long after it was
+/// held was closed for it (a station closes the old connection as it accepts the new).
+const EVICTED_WITHIN: Duration = Duration::from_millis(100);
 
 /// The group's two addresses.
 pub(super) type Addresses = [(String, u16); 2];
 
+/// How a group's standby is tried: kept for the life of the process, by link and addresses.
+#[derive(Debug, Clone, Copy)]
+struct Pace {
+    delay: Duration,
+    /// No attempt before then.
+    next: Option<Instant>,
+    /// The station keeps one connection at a time: no standby is held.
+    single: bool,
+}
+
+static PACES: LazyLock<Mutex<HashMap<String, Pace>>> = LazyLock::new(Mutex::default);
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn pace(key: &str) -> Pace {
+    lock(&PACES).get(key).copied().unwrap_or(Pace {
+        delay: FIRST_DELAY,
+        next: None,
+        single: false,
+    })
+}
+
+fn set_pace(key: &str, f: impl FnOnce(&mut Pace)) {
+    let mut paces = lock(&PACES);
+    let p = paces.entry(key.to_owned()).or_insert(Pace {
+        delay: FIRST_DELAY,
+        next: None,
+        single: false,
+    });
+    f(p);
+}
+
+pub(super) fn endpoint((host, port): &(String, u16)) -> String {
+    format!("{host}:{port}")
+}
+
+/// Where the standby is: none, being connected (since when), or held.
+enum Slot {
+    Empty,
+    Connecting(Instant),
+    Held(Held),
+}
+
 /// The standby of a redundancy group, kept by its own task.
 pub(super) struct Standby {
-    slot: Arc<Mutex<Option<Connection>>>,
+    slot: Arc<watch::Sender<Slot>>,
+    /// How long a standby's opening may take (t0 and t1).
+    opening: Duration,
     /// Which of the two addresses is started (the standby is the other).
     active: watch::Sender<usize>,
     addresses: Arc<Addresses>,
+    key: String,
+    link: Arc<Link>,
     task: tokio::task::JoinHandle<()>,
 }
 
@@ -38,40 +94,71 @@ impl Drop for Standby {
     }
 }
 
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
-}
-
-pub(super) fn endpoint((host, port): &(String, u16)) -> String {
-    format!("{host}:{port}")
-}
-
 impl Standby {
-    /// Holds a standby to the address other than `active`.
+    /// Holds a standby to the address other than `active` (none for a station found to
+    /// keep one connection at a time).
     pub(super) fn hold(
         addresses: Addresses,
         active: usize,
         settings: Settings,
         link: Arc<Link>,
     ) -> Standby {
-        let slot = Arc::new(Mutex::new(None));
+        let key = format!(
+            "{}|{}|{}",
+            link.name(),
+            endpoint(&addresses[0]),
+            endpoint(&addresses[1])
+        );
+        let slot = Arc::new(watch::Sender::new(Slot::Empty));
+        let opening = settings.t0 + settings.t1;
         let (tx, rx) = watch::channel(active);
         let addresses = Arc::new(addresses);
-        let task = tokio::spawn(keep(slot.clone(), rx, addresses.clone(), settings, link));
+        let keeping = Keeping {
+            slot: slot.clone(),
+            active: rx,
+            addresses: addresses.clone(),
+            settings,
+            link: link.clone(),
+            key: key.clone(),
+        };
+        let task = tokio::spawn(keeping.run());
         Standby {
             slot,
+            opening,
             active: tx,
             addresses,
+            key,
+            link,
             task,
         }
     }
 
     /// The standby connection, if one is held and alive, now the started one's: its
-    /// address is then the active one, and the other is held as the standby.
-    pub(super) fn take(&self) -> Option<(Connection, String)> {
-        let conn = lock(&self.slot).take()?;
+    /// address is then the active one, and the other is held as the standby. A standby
+    /// that connected as the started connection was lost (at `lost_at`) took its place at
+    /// the station: it is started, and no standby is held again.
+    pub(super) async fn take(&self, lost_at: Option<Instant>) -> Option<(Connection, String)> {
+        let mut slot = self.slot.subscribe();
+        // One being connected since before the loss (perhaps the cause of it) is waited for.
+        let connecting = matches!(*slot.borrow_and_update(), Slot::Connecting(began) if lost_at.is_some_and(|at| at >= began));
+        if connecting {
+            let opened = slot.wait_for(|s| !matches!(s, Slot::Connecting(_)));
+            let _ = tokio::time::timeout(self.opening, opened).await;
+        }
+        if !matches!(*slot.borrow(), Slot::Held(_)) {
+            return None;
+        }
+        let Slot::Held(Held { conn, began, held }) = self.slot.send_replace(Slot::Empty) else {
+            return None;
+        };
         if conn.lost.borrow().is_some() {
             return None;
+        }
+        if lost_at.is_some_and(|at| at >= began && at <= held + EVICTED_WITHIN) {
+            set_pace(&self.key, |p| p.single = true);
+            self.task.abort();
+            self.link.set_peer("standby", NOT_HELD.to_owned());
+            tracing::warn!(link = %self.link.name(), "IEC 104: the station closed its started connection when the standby connected; no standby is held");
         }
         let now = 1 - *self.active.borrow();
         self.active.send_replace(now);
@@ -79,63 +166,95 @@ impl Standby {
     }
 }
 
-/// The standby's task: opens the address not started, holds it until it is lost or taken.
-async fn keep(
-    slot: Arc<Mutex<Option<Connection>>>,
-    mut active: watch::Receiver<usize>,
+const NOT_HELD: &str = "not held: the station closed its started connection when the standby connected (it keeps one connection at a time); the other address is tried when the started one fails";
+
+/// A standby held: its connection, when its connect began and when it was held.
+struct Held {
+    conn: Connection,
+    began: Instant,
+    held: Instant,
+}
+
+/// What the standby's task keeps.
+struct Keeping {
+    slot: Arc<watch::Sender<Slot>>,
+    active: watch::Receiver<usize>,
     addresses: Arc<Addresses>,
-    s: Settings,
+    settings: Settings,
     link: Arc<Link>,
-) {
-    let mut delay = FIRST_DELAY;
-    let mut attempts = 0u64;
-    loop {
-        let other = &addresses[1 - *active.borrow_and_update()];
-        let at = endpoint(other);
-        attempts += 1;
-        let opened = conn::open(
-            &other.0,
-            other.1,
-            &s,
-            Arc::new(Router::default()),
-            Opening::Standby,
-        )
-        .await;
-        let why = match opened {
-            Ok(c) => {
-                let mut lost = c.lost.clone();
-                let held = Instant::now();
-                *lock(&slot) = Some(c);
-                link.set_peer(
-                    "standby",
-                    format!("{at} (connected, data transfer stopped)"),
-                );
-                tokio::select! {
-                    _ = lost.wait_for(Option::is_some) => {}
-                    _ = active.changed() => {}
-                }
-                if held.elapsed() >= MOST_DELAY {
-                    delay = FIRST_DELAY;
-                }
-                if lock(&slot).take().is_none() {
-                    format!("{at} took over from the started connection")
-                } else {
-                    lost.borrow()
-                        .as_ref()
-                        .map_or("closed".into(), ToString::to_string)
-                }
+    key: String,
+}
+
+impl Keeping {
+    /// Opens the address not started, on the group's pace, and holds it until it is lost
+    /// or taken.
+    async fn run(mut self) {
+        let mut attempts = 0u64;
+        loop {
+            let p = pace(&self.key);
+            if p.single {
+                self.link.set_peer("standby", NOT_HELD.to_owned());
+                return;
             }
-            Err(e) => e.to_string(),
+            if let Some(next) = p.next {
+                tokio::time::sleep_until(next).await;
+            }
+            attempts += 1;
+            let why = self.attempt().await;
+            let delay = pace(&self.key).delay;
+            set_pace(&self.key, |p| {
+                p.next = Some(Instant::now() + delay);
+                p.delay = (delay * 2).min(MOST_DELAY);
+            });
+            let next = endpoint(&self.addresses[1 - *self.active.borrow()]);
+            self.link.set_peer(
+                "standby",
+                format!(
+                    "{next}: not held ({why}); attempt {} in {delay:?}",
+                    attempts + 1
+                ),
+            );
+        }
+    }
+
+    /// One standby: why it is not held any more.
+    async fn attempt(&mut self) -> String {
+        let other = self.addresses[1 - *self.active.borrow_and_update()].clone();
+        let at = endpoint(&other);
+        let router = Arc::new(Router::default());
+        let began = Instant::now();
+        self.slot.send_replace(Slot::Connecting(began));
+        let opened = conn::open(&other.0, other.1, &self.settings, router, Opening::Standby).await;
+        let c = match opened {
+            Ok(c) => c,
+            Err(e) => {
+                self.slot.send_replace(Slot::Empty);
+                return e.to_string();
+            }
         };
-        let next = endpoint(&addresses[1 - *active.borrow()]);
-        link.set_peer(
+        let mut lost = c.lost.clone();
+        let held = Instant::now();
+        self.slot.send_replace(Slot::Held(Held {
+            conn: c,
+            began,
+            held,
+        }));
+        self.link.set_peer(
             "standby",
-            format!(
-                "{next}: not held ({why}); attempt {} in {delay:?}",
-                attempts + 1
-            ),
+            format!("{at} (connected, data transfer stopped)"),
         );
-        tokio::time::sleep(delay).await;
-        delay = (delay * 2).min(MOST_DELAY);
+        tokio::select! {
+            _ = lost.wait_for(Option::is_some) => {}
+            _ = self.active.changed() => {}
+        }
+        if held.elapsed() >= MOST_DELAY {
+            set_pace(&self.key, |p| p.delay = FIRST_DELAY);
+        }
+        if !matches!(self.slot.send_replace(Slot::Empty), Slot::Held(_)) {
+            return format!("{at} took over from the started connection");
+        }
+        lost.borrow()
+            .as_ref()
+            .map_or("closed".into(), ToString::to_string)
     }
 }

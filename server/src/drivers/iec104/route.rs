@@ -39,6 +39,8 @@ pub(crate) struct Router {
     waiting: Mutex<Vec<Waiting>>,
     /// The station said it initialised (M_EI_NA_1): its values are asked again.
     pub(crate) restarted: AtomicBool,
+    /// The connection ended: nothing more comes, and nobody waits.
+    closed: AtomicBool,
     /// ASDUs that were malformed, or for no field and no request.
     pub(crate) malformed: AtomicU64,
     pub(crate) unrouted: AtomicU64,
@@ -122,6 +124,13 @@ impl Router {
         ioa: u32,
     ) -> Answers {
         let (tx, rx) = mpsc::unbounded_channel();
+        if self.closed.load(Ordering::Relaxed) {
+            // Its sender dropped: the wait ends at once.
+            return Answers {
+                router: self.clone(),
+                rx,
+            };
+        }
         lock(&self.waiting).push(Waiting {
             type_id,
             common_address,
@@ -132,6 +141,14 @@ impl Router {
             router: self.clone(),
             rx,
         }
+    }
+
+    /// The connection ended: every request waiting for answers stops waiting now (the
+    /// loss is seen at once, not at the end of t1).
+    pub(crate) fn close(&self) {
+        let mut waiting = lock(&self.waiting);
+        self.closed.store(true, Ordering::Relaxed);
+        waiting.clear();
     }
 
     /// An ASDU the station sent.

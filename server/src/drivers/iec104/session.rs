@@ -17,10 +17,9 @@ use super::element::Element;
 use super::redundancy::Standby;
 use super::route::{Answers, Router};
 use super::types::{TypeId, id};
-use super::{Plan, is_input, lost, point, value};
-use crate::cache::{Device, FieldError, Link, WriteError};
-use crate::drivers::{WriteItem, finish, written};
-use crate::link::{LinkFault, TxError};
+use super::{Plan, is_input, lost, point};
+use crate::cache::{Device, FieldError, Link};
+use crate::link::LinkFault;
 
 /// Each connection's number, so that a device's plan knows the connection it was
 /// registered with.
@@ -32,13 +31,16 @@ const ALL_COUNTERS: u8 = 5;
 
 pub(crate) struct Station {
     conn: Connection,
-    link: Arc<Link>,
-    settings: Settings,
+    pub(super) link: Arc<Link>,
+    pub(super) settings: Settings,
     pub(super) generation: u64,
     /// The other connection of the redundancy group, where the station has a `backup`.
     standby: Option<Standby>,
-    /// A standby started (STARTDT act sent): its confirmation is due by then.
-    starting: Option<Instant>,
+    /// A standby started (STARTDT act sent): its confirmation is due by then, and what
+    /// `/links` says of the station once it came.
+    starting: Option<(Instant, String)>,
+    /// The counts `/links` was last told.
+    told: Option<(conn::State, u64, u64)>,
 }
 
 impl Station {
@@ -80,6 +82,7 @@ impl Station {
             generation: GENERATION.fetch_add(1, Ordering::Relaxed),
             standby,
             starting: None,
+            told: None,
         })
     }
 
@@ -161,6 +164,7 @@ impl Station {
         // The connection is alive (the station answers test frames within t1): it
         // vouches for every value it has not changed.
         self.link.progress.ended();
+        device.vouch();
         if first {
             for (idx, ioa) in self.conn.router.unseen(device, ca) {
                 let why = format!(
@@ -192,6 +196,7 @@ impl Station {
             None => format!("not confirmed within t1 ({:?})", self.settings.t1),
         };
         if !outcome.starts_with('c') {
+            self.lost_while_asked()?;
             tracing::warn!(
                 common_address = ca,
                 "IEC 104: clock synchronisation {outcome}"
@@ -206,9 +211,19 @@ impl Station {
     }
 
     /// The connection's windows and counts, as `/links` shows them.
-    fn tell_state(&self) {
+    fn tell_state(&mut self) {
         let st = *self.conn.state.borrow();
         let r = &self.conn.router;
+        let counts = (
+            st,
+            r.malformed.load(Ordering::Relaxed),
+            r.unrouted.load(Ordering::Relaxed),
+        );
+        // Told only when it changed (a device read every millisecond tells it once).
+        if self.told == Some(counts) {
+            return;
+        }
+        self.told = Some(counts);
         self.link.set_peer(
             "i_frames",
             format!(
@@ -226,7 +241,7 @@ impl Station {
     }
 
     /// Sends the station an ASDU and waits for its answers.
-    async fn request(&self, asdu: Asdu) -> Result<Answers, LinkFault> {
+    pub(super) async fn request(&self, asdu: Asdu) -> Result<Answers, LinkFault> {
         let first = asdu.objects.first().map_or(0, |o| o.ioa);
         let answers = self
             .conn
@@ -238,7 +253,7 @@ impl Station {
         Ok(answers)
     }
 
-    fn asdu(&self, type_id: u8, ca: u16, ioa: u32, element: Element) -> Asdu {
+    pub(super) fn asdu(&self, type_id: u8, ca: u16, ioa: u32, element: Element) -> Asdu {
         let mut asdu = Asdu::new(
             TypeId(type_id),
             cause::ACTIVATION,
@@ -278,7 +293,10 @@ impl Station {
                     cause::name(a.cause)
                 )));
             }
-            None => return Ok(Err(format!("no confirmation of {what} within t1 ({t1:?})"))),
+            None => {
+                self.lost_while_asked()?;
+                return Ok(Err(format!("no confirmation of {what} within t1 ({t1:?})")));
+            }
         }
         let deadline = Instant::now() + t1 * 4;
         while let Some(a) = answers
@@ -289,116 +307,19 @@ impl Station {
                 return Ok(Ok(()));
             }
         }
+        self.lost_while_asked()?;
         Ok(Err(format!(
             "{what} at common address {ca} was not terminated within {:?}",
             t1 * 4
         )))
     }
 
-    /// Writes one output as its command, finishing the write with its outcome.
-    pub(super) async fn command(
-        &self,
-        device: &Arc<Device>,
-        plan: &Plan,
-        item: WriteItem,
-    ) -> Result<(), LinkFault> {
-        let refuse = |why: String| finish(device, &item, Err(WriteError::Refused(why)), 0);
-        let (place, ca) = match (&plan.places[item.field], &plan.common_address) {
-            (Ok(p), Ok(ca)) => (*p, *ca),
-            (Err(why), _) | (_, Err(why)) => {
-                refuse(why.clone());
-                return Ok(());
-            }
-        };
-        let field = &device.profile.fields[item.field];
-        let ty = field.stored_type();
-        let Some(command) = point::command_for(ty, place.fixed) else {
-            refuse(format!("IEC 104 has no command for a {ty}"));
-            return Ok(());
-        };
-        let value = match item.value().and_then(|v| field.to_raw(v)) {
-            Ok(v) => v,
-            Err(why) => {
-                refuse(why);
-                return Ok(());
-            }
-        };
-        let steps: &[bool] = if place.select {
-            &[true, false]
-        } else {
-            &[false]
-        };
-        let mut answers = None;
-        for &select in steps {
-            let element = match value::command(command, &value, select) {
-                Ok(e) => e,
-                Err(why) => {
-                    refuse(why);
-                    return Ok(());
-                }
-            };
-            let asdu = self.asdu(command.0, ca, place.ioa, element);
-            let step = if select { "select" } else { "execute" };
-            let answers = answers.insert(self.request(asdu).await?);
-            match answers.next(self.settings.t1).await {
-                Some(a) if a.cause == cause::ACT_CON && !a.negative => {}
-                Some(a) => {
-                    refuse(format!(
-                        "{} {step} at IOA {}: {}{}",
-                        command.name(),
-                        place.ioa,
-                        if a.negative { "negative " } else { "" },
-                        cause::name(a.cause)
-                    ));
-                    return Ok(());
-                }
-                None => {
-                    finish(
-                        device,
-                        &item,
-                        Err(WriteError::NoResponse(TxError::Timeout)),
-                        1,
-                    );
-                    return Ok(());
-                }
-            }
+    /// The connection's loss, if the wait for an answer ended because it was lost.
+    fn lost_while_asked(&self) -> Result<(), LinkFault> {
+        match self.conn.lost.borrow().clone() {
+            Some(why) => Err(lost(why)),
+            None => Ok(()),
         }
-        if place.termination
-            && let Some(answers) = answers.as_mut()
-            && let Err(why) = self.terminated(answers, command, place.ioa).await
-        {
-            finish(device, &item, Err(why), 1);
-            return Ok(());
-        }
-        written(device, &item, 1);
-        Ok(())
-    }
-
-    /// A confirmed command's termination (ACTTERM) within t1: positive, or why not.
-    async fn terminated(
-        &self,
-        answers: &mut Answers,
-        command: TypeId,
-        ioa: u32,
-    ) -> Result<(), WriteError> {
-        let t1 = self.settings.t1;
-        let deadline = Instant::now() + t1;
-        while let Some(a) = answers
-            .next(deadline.saturating_duration_since(Instant::now()))
-            .await
-        {
-            match a.cause {
-                cause::ACT_TERM if !a.negative => return Ok(()),
-                cause::ACT_TERM => {
-                    return Err(WriteError::Refused(format!(
-                        "{} at IOA {ioa}: confirmed, then a negative actterm",
-                        command.name()
-                    )));
-                }
-                _ => {}
-            }
-        }
-        Err(WriteError::NoResponse(TxError::Timeout))
     }
 
     pub(super) async fn stop(self) {
@@ -420,30 +341,35 @@ impl Station {
     /// stopped when called again.
     pub(super) async fn ready(&mut self) -> Result<(), Iec104Error> {
         loop {
-            if let Some(deadline) = self.starting {
+            if let Some((deadline, told)) = &self.starting {
                 let t1 = self.settings.t1;
                 let mut state = self.conn.state.clone();
-                let started = tokio::time::timeout_at(deadline, state.wait_for(|s| s.started));
+                let started = tokio::time::timeout_at(*deadline, state.wait_for(|s| s.started));
                 if !matches!(started.await, Ok(Ok(_))) {
                     return Err(Iec104Error::Start("STARTDT con", t1));
                 }
+                self.link.set_peer("station", told.clone());
                 self.starting = None;
             }
             let Some(why) = self.conn.lost.borrow().clone() else {
                 return Ok(());
             };
-            let Some((standby, at)) = self.standby.as_ref().and_then(Standby::take) else {
+            let lost_at = self.conn.lost_at.get().copied();
+            let taken = match &self.standby {
+                Some(s) => s.take(lost_at).await,
+                None => None,
+            };
+            let Some((standby, at)) = taken else {
                 return Err(why);
             };
             tracing::warn!(error = %why, standby = at, "IEC 104: the started connection was lost; starting the standby");
             standby.start();
             self.conn = standby;
             self.generation = GENERATION.fetch_add(1, Ordering::Relaxed);
-            self.starting = Some(Instant::now() + self.settings.t1);
-            self.link.set_peer(
-                "station",
-                format!("{at} (took over when the other connection was lost: {why})"),
-            );
+            let told = format!("{at} (took over when the other connection was lost: {why})");
+            self.starting = Some((Instant::now() + self.settings.t1, told));
+            self.link
+                .set_peer("station", format!("{at} (starting: STARTDT sent)"));
         }
     }
 }
