@@ -579,3 +579,55 @@ async fn a_changed_map_file_alone_is_reloaded_and_served() -> anyhow::Result<()>
     gw.shutdown().await;
     Ok(())
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_selection_reserves_its_point_from_another_master() -> anyhow::Result<()> {
+    use tokio::io::AsyncWriteExt;
+    let gw = TestGateway::start(
+        "devices:\n  - { name: sim, profile: SimIo, refresh_rate: 100ms }\niec104_server:\n  listen: 127.0.0.1:0\n",
+    )
+    .await?;
+    let at = gw.iec104.expect("listening");
+    let mut a = started_from("127.0.0.1", at).await?.expect("served");
+    let mut b = started_from("127.0.0.2", at).await?.expect("served");
+    // DO_0's command at IOA 3 (`map: auto`): C_SC_NA_1 ON, selected (S/E) and executed.
+    let select = [45, 1, 6, 0, 1, 0, 3, 0, 0, 0x81];
+    let execute = [45, 1, 6, 0, 1, 0, 3, 0, 0, 0x01];
+    let positive = 7;
+    let negative = 7 | 0x40;
+    a.write_all(&i_frame(0, &select)).await?;
+    assert_eq!(
+        next_asdu(&mut a).await?[2],
+        positive,
+        "A's select confirmed"
+    );
+    // B can neither select nor execute the point A holds.
+    b.write_all(&i_frame(0, &select)).await?;
+    assert_eq!(next_asdu(&mut b).await?[2], negative, "B's select refused");
+    b.write_all(&i_frame(1, &execute)).await?;
+    assert_eq!(next_asdu(&mut b).await?[2], negative, "B's execute refused");
+    let (_, f) = gw.get("/api/v1/devices/sim/fields/DO_0").await?;
+    assert_eq!(f["value"], false, "nothing written for B: {f}");
+    // A's execute goes, and gives the point back.
+    a.write_all(&i_frame(1, &execute)).await?;
+    assert_eq!(
+        next_asdu(&mut a).await?[2],
+        positive,
+        "A's execute confirmed"
+    );
+    gw.until("/api/v1/devices/sim/fields/DO_0", "written", |f| {
+        f["value"] == true
+    })
+    .await?;
+    b.write_all(&i_frame(2, &select)).await?;
+    // The written value came to B spontaneously first (M_SP, cause 3).
+    let answer = loop {
+        let asdu = next_asdu(&mut b).await?;
+        if asdu[0] == 45 {
+            break asdu;
+        }
+    };
+    assert_eq!(answer[2], positive, "free again for B");
+    gw.shutdown().await;
+    Ok(())
+}

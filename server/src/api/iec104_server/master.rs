@@ -81,6 +81,7 @@ pub(crate) struct Master {
     pub(crate) service: Arc<Service>,
     pub(crate) served: watch::Receiver<Arc<Served>>,
     pub(crate) metrics: Arc<Iec104Metrics>,
+    pub(crate) selections: super::selection::Selections,
 }
 
 struct Run {
@@ -114,7 +115,7 @@ impl Master {
             t3: c.t3,
         };
         let served = self.served.borrow_and_update().clone();
-        let mut station = Station::new(self.service.clone(), c);
+        let mut station = Station::new(self.service.clone(), c, self.selections.clone());
         station.spontaneous.reset(served.table.points.len());
         let mut run = Run {
             io: self.io,

@@ -12,6 +12,7 @@ mod config;
 #[cfg(any(fuzzing, test))]
 pub(crate) mod fuzz;
 mod master;
+mod selection;
 mod served;
 mod spontaneous;
 mod station;
@@ -230,6 +231,7 @@ async fn serve(
     let door: Arc<dyn crate::service::doors::Door> = Arc::new(status::Iec104Door(metrics.clone()));
     service.doors.attach(door.clone());
     let mut devices = service.watch_devices();
+    let selections = selection::Selections::default();
     let all = service
         .metrics
         .bound("iec104_connections", section.max_connections);
@@ -272,6 +274,7 @@ async fn serve(
             service: service.clone(),
             served: table.clone(),
             metrics: metrics.clone(),
+            selections: selections.clone(),
         };
         tracing::info!(%peer, "IEC 104 master connected");
         let stop = stop.clone();

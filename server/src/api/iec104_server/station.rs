@@ -10,16 +10,15 @@
 //! too (as lib60870's masters match them: answered with the station's own, c104 waits out
 //! its command timeout); the objects an interrogation answers carry the station's own.
 
-use std::collections::{HashMap, VecDeque};
+use super::selection::{Selected, Selections};
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Duration;
-
-use tokio::time::Instant;
 
 use super::served::Served;
 use super::spontaneous::{Reading, Spontaneous};
 use super::values;
-use crate::codec::{CodecError, Value};
+use crate::codec::CodecError;
 use crate::drivers::iec104::apci::MAX_ASDU;
 use crate::drivers::iec104::asdu::{Asdu, Object, Time, cause};
 use crate::drivers::iec104::element::Element;
@@ -52,7 +51,6 @@ struct Interrogation {
 pub(crate) struct Station {
     pub(crate) common_address: u16,
     pub(crate) time_tags: bool,
-    pub(crate) select_timeout: Duration,
     /// A time-tagged command this far from the gateway's clock is refused.
     pub(crate) command_max_age: Option<Duration>,
     service: Arc<Service>,
@@ -60,7 +58,7 @@ pub(crate) struct Station {
     /// Under way, in the order asked: at most one general and one counter interrogation.
     interrogations: VecDeque<Interrogation>,
     pending: Vec<Pending>,
-    selected: HashMap<u32, (Value, Instant)>,
+    selected: Selected,
     pub(crate) spontaneous: Spontaneous,
 }
 
@@ -91,17 +89,20 @@ fn tagged(ty: u8) -> u8 {
 
 impl Station {
     /// A station answering as the section `c` says.
-    pub(crate) fn new(service: Arc<Service>, c: &super::config::Iec104ServerConfig) -> Station {
+    pub(crate) fn new(
+        service: Arc<Service>,
+        c: &super::config::Iec104ServerConfig,
+        selections: Selections,
+    ) -> Station {
         Station {
             common_address: c.common_address,
             time_tags: c.time_tags,
-            select_timeout: c.select_timeout,
             command_max_age: c.command_max_age,
             service,
             replies: VecDeque::new(),
             interrogations: VecDeque::new(),
             pending: Vec::new(),
-            selected: HashMap::new(),
+            selected: Selected::new(selections, c.select_timeout),
             spontaneous: Spontaneous::default(),
         }
     }
@@ -365,7 +366,7 @@ impl Station {
         match asdu.cause {
             cause::ACTIVATION => self.activate(served, &point, asdu),
             cause::DEACTIVATION => {
-                let selected = self.selected.remove(&ioa).is_some();
+                let selected = self.selected.deselect(ioa);
                 let answer = asdu.answer(cause::DEACT_CON, !selected);
                 self.reply(answer);
             }
@@ -400,24 +401,13 @@ impl Station {
         }
         let ioa = point.ioa;
         if select {
-            self.selected.insert(ioa, (value, Instant::now()));
-            return self.reply(asdu.answer(cause::ACT_CON, false));
+            return match self.selected.select(ioa, value) {
+                Ok(()) => self.reply(asdu.answer(cause::ACT_CON, false)),
+                Err(why) => self.refuse(&asdu, cause::ACT_CON, why),
+            };
         }
-        if let Some((chosen, at)) = self.selected.remove(&ioa) {
-            if at.elapsed() > self.select_timeout {
-                return self.refuse(
-                    &asdu,
-                    cause::ACT_CON,
-                    "the selection ended (select_timeout)",
-                );
-            }
-            if chosen != value {
-                return self.refuse(
-                    &asdu,
-                    cause::ACT_CON,
-                    "the execute carries another value than the select",
-                );
-            }
+        if let Err(why) = self.selected.execute(ioa, &value) {
+            return self.refuse(&asdu, cause::ACT_CON, why);
         }
         if self.pending.len() >= MAX_PENDING {
             return self.refuse(
