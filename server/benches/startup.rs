@@ -175,7 +175,7 @@ async fn every_door() -> anyhow::Result<(f64, f64)> {
     let dir = common::temp_dir("startup-doors")?;
     let mqtt = common::free_port()?;
     let config = format!(
-        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  auto: true\nopcua:\n  listen: 127.0.0.1:0\n  pki_dir: {}\nmqtt:\n  url: mqtt://127.0.0.1:{mqtt}\n  client_id: iogate-startup\niec104_server:\n  listen: 127.0.0.1:0\n",
+        "listen: {{ http: 127.0.0.1:0, grpc: 127.0.0.1:0 }}\nmodbus_server:\n  listen: 127.0.0.1:0\n  auto: true\nopcua:\n  listen: 127.0.0.1:0\n  pki_dir: {}\nmqtt:\n  url: mqtt://127.0.0.1:{mqtt}\n  client_id: iogate-startup\n  sparkplug: {{ group_id: bench, edge_node_id: idle }}\niec104_server:\n  listen: 127.0.0.1:0\n",
         dir.join("pki").display()
     );
     let gw = common::start(&dir, &config)?;
