@@ -453,6 +453,15 @@ async fn a_started_connection_lost_while_a_command_is_confirmed_is_taken_over_at
         })
         .await?;
     assert_ne!(outcome["status"], "written", "{outcome}");
+    // What the station holds now is not known: the field says so, never good.
+    let (_, f) = gw.get("/api/v1/devices/station/fields/slow").await?;
+    assert_ne!(f["quality"], "good", "{f}");
+    assert!(
+        f["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("was not answered")),
+        "{f}"
+    );
     gw.shutdown().await;
     while let Some(line) = rtu.said_within(std::time::Duration::from_millis(500)).await {
         assert_ne!(line, "cmd 205 True", "executed again");

@@ -189,7 +189,7 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// Whether a device at `refresh_rate: 0ms` is read back to back, each cycle as soon as
     /// the last one's answers came: a protocol whose read asks the device each time. One
     /// whose values come by themselves (subscriptions, spontaneous data) reads such a
-    /// device every [`MIN_PERIOD`](crate::config::rules::MIN_PERIOD) instead.
+    /// device every 100 ms instead.
     const READS_BACK_TO_BACK: bool = false;
 
     /// Its words in configuration: its profiles' `protocol`, its fields' point key, its

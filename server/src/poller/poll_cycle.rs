@@ -8,7 +8,6 @@ use tokio::time::Instant;
 
 use super::{Driven, Step};
 use crate::config::WriteMode;
-use crate::config::rules::MIN_PERIOD;
 use crate::drivers::{Driver, Probed, Read, Session};
 
 impl<D: Driver> Driven<D> {
@@ -58,7 +57,9 @@ impl<D: Driver> Driven<D> {
             // Back to back: due again now, after the devices that were due before this
             // cycle started.
             Duration::ZERO if D::READS_BACK_TO_BACK => started,
-            Duration::ZERO => next_on_grid(p.next_due, MIN_PERIOD, started),
+            // A protocol whose values come by themselves has nothing to read back to back:
+            // its link is looked at on a period that costs nothing while nobody asks.
+            Duration::ZERO => next_on_grid(p.next_due, EVENTS_PERIOD, started),
             refresh => next_on_grid(p.next_due, refresh, started),
         };
         if device.config.write_mode == WriteMode::Reconcile {
@@ -77,6 +78,9 @@ pub(crate) fn next_on_grid(due: Instant, period: Duration, started: Instant) -> 
     let periods = late.as_nanos() / period.as_nanos().max(1) + 1;
     due + period * u32::try_from(periods).unwrap_or(u32::MAX)
 }
+
+/// How often a device at `0ms` of a protocol that does not read back to back is read.
+const EVENTS_PERIOD: Duration = Duration::from_millis(100);
 
 /// The least time between two reconciling writes of one output.
 pub(crate) const RECONCILE_MIN: Duration = Duration::from_millis(100);

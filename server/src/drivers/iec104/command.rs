@@ -12,7 +12,7 @@ use super::route::Answers;
 use super::session::Station;
 use super::types::TypeId;
 use super::{Place, Plan, point, value};
-use crate::cache::{Device, WriteError};
+use crate::cache::{Device, FieldError, Stamp, WriteError};
 use crate::codec::Value;
 use crate::drivers::{WriteItem, finish, written};
 use crate::link::{LinkFault, TxError};
@@ -48,6 +48,10 @@ impl Station {
         self.link.progress.ended();
         match outcome? {
             Ok(()) => written(device, &item, 1),
+            Err(why @ WriteError::NoResponse(_)) => {
+                unknown(device, item.field, c.type_id, c.place.ioa);
+                finish(device, &item, Err(why), 1);
+            }
             Err(why) => finish(device, &item, Err(why), 1),
         }
         Ok(())
@@ -130,6 +134,19 @@ impl Station {
             }
         }
         Err(WriteError::NoResponse(TxError::Timeout))
+    }
+}
+
+/// A command with no answer may have been executed: the value shown for its field is not
+/// vouched for any more (kept, stale, with why), until a command's outcome is known.
+fn unknown(device: &Device, idx: usize, command: TypeId, ioa: u32) {
+    let why = FieldError::Device(format!(
+        "{} at IOA {ioa} was not answered: the station may hold the value asked",
+        command.name()
+    ));
+    match device.sample(idx).value {
+        Some(v) => device.publish_from(idx, Ok(v), Some(why), None, Stamp::now()),
+        None => device.publish(idx, Err(why)),
     }
 }
 

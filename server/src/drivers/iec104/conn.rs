@@ -105,10 +105,27 @@ pub(crate) async fn open(
     router: Arc<Router>,
     opening: Opening,
 ) -> Result<Connection, Iec104Error> {
-    let mut io = tokio::time::timeout(s.t0, TcpStream::connect((host, port)))
+    let io = connect(host, port, s).await?;
+    handshake(io, s, router, opening).await
+}
+
+/// TCP to `(host, port)` within t0.
+pub(crate) async fn connect(host: &str, port: u16, s: &Settings) -> Result<TcpStream, Iec104Error> {
+    let io = tokio::time::timeout(s.t0, TcpStream::connect((host, port)))
         .await
         .map_err(|_| Iec104Error::Connect(s.t0))??;
     let _ = io.set_nodelay(true);
+    Ok(io)
+}
+
+/// STARTDT (a standby: TESTFR) on a connected socket, confirmed within t1; then the
+/// connection's task.
+pub(crate) async fn handshake(
+    mut io: TcpStream,
+    s: &Settings,
+    router: Arc<Router>,
+    opening: Opening,
+) -> Result<Connection, Iec104Error> {
     let (ask, answer) = match opening {
         Opening::Started => (Unnumbered::StartAct, Unnumbered::StartCon),
         Opening::Standby => (Unnumbered::TestAct, Unnumbered::TestCon),

@@ -6,8 +6,8 @@
 //! again after a delay that doubles up to a minute, and comes back to a second only after
 //! one was held a minute; the pace is the group's, kept while the link is reopened, so a
 //! station that accepts and then fails is not stormed. A station that closes its started
-//! connection when the standby connects (it keeps one connection at a time) gets no standby
-//! again: its backup is then tried only when the started connection fails.
+//! connection as the standby connects (it keeps one connection at a time) gets no standby
+//! for ten minutes: its backup is tried meanwhile only when the started connection fails.
 
 use std::collections::HashMap;
 use std::sync::{Arc, LazyLock, Mutex};
@@ -23,9 +23,12 @@ use crate::cache::Link;
 
 const FIRST_DELAY: Duration = Duration::from_secs(1);
 const MOST_DELAY: Duration = Duration::from_secs(60);
-/// A started connection lost between the standby's connect and this long after it was
-/// held was closed for it (a station closes the old connection as it accepts the new).
+/// A started connection the station closed between the standby's TCP connect and this
+/// long after it was held was closed for it (a station closes the old connection as it
+/// accepts the new).
 const EVICTED_WITHIN: Duration = Duration::from_millis(100);
+/// How long no standby is held for a station found to keep one connection at a time.
+const SINGLE_FOR: Duration = Duration::from_secs(600);
 
 /// The group's two addresses.
 pub(super) type Addresses = [(String, u16); 2];
@@ -36,8 +39,8 @@ struct Pace {
     delay: Duration,
     /// No attempt before then.
     next: Option<Instant>,
-    /// The station keeps one connection at a time: no standby is held.
-    single: bool,
+    /// The station keeps one connection at a time: no standby is held until then.
+    single: Option<Instant>,
 }
 
 static PACES: LazyLock<Mutex<HashMap<String, Pace>>> = LazyLock::new(Mutex::default);
@@ -50,7 +53,7 @@ fn pace(key: &str) -> Pace {
     lock(&PACES).get(key).copied().unwrap_or(Pace {
         delay: FIRST_DELAY,
         next: None,
-        single: false,
+        single: None,
     })
 }
 
@@ -59,7 +62,7 @@ fn set_pace(key: &str, f: impl FnOnce(&mut Pace)) {
     let p = paces.entry(key.to_owned()).or_insert(Pace {
         delay: FIRST_DELAY,
         next: None,
-        single: false,
+        single: None,
     });
     f(p);
 }
@@ -68,17 +71,18 @@ pub(super) fn endpoint((host, port): &(String, u16)) -> String {
     format!("{host}:{port}")
 }
 
-/// Where the standby is: none, being connected (since when), or held.
+/// Where the standby is: none, its TCP connected and its test frame awaited (the connect
+/// began then), or held.
 enum Slot {
     Empty,
-    Connecting(Instant),
+    Testing(Instant),
     Held(Held),
 }
 
 /// The standby of a redundancy group, kept by its own task.
 pub(super) struct Standby {
     slot: Arc<watch::Sender<Slot>>,
-    /// How long a standby's opening may take (t0 and t1).
+    /// How long a standby's test frame may take (t1).
     opening: Duration,
     /// Which of the two addresses is started (the standby is the other).
     active: watch::Sender<usize>,
@@ -110,7 +114,7 @@ impl Standby {
             endpoint(&addresses[1])
         );
         let slot = Arc::new(watch::Sender::new(Slot::Empty));
-        let opening = settings.t0 + settings.t1;
+        let opening = settings.t1;
         let (tx, rx) = watch::channel(active);
         let addresses = Arc::new(addresses);
         let keeping = Keeping {
@@ -136,14 +140,20 @@ impl Standby {
     /// The standby connection, if one is held and alive, now the started one's: its
     /// address is then the active one, and the other is held as the standby. A standby
     /// that connected as the started connection was lost (at `lost_at`) took its place at
-    /// the station: it is started, and no standby is held again.
-    pub(super) async fn take(&self, lost_at: Option<Instant>) -> Option<(Connection, String)> {
+    /// the station: it is started, and no standby is held for a while. `closed`: the
+    /// station closed the lost connection (the gateway did not).
+    pub(super) async fn take(
+        &self,
+        lost_at: Option<Instant>,
+        closed: bool,
+    ) -> Option<(Connection, String)> {
         let mut slot = self.slot.subscribe();
-        // One being connected since before the loss (perhaps the cause of it) is waited for.
-        let connecting = matches!(*slot.borrow_and_update(), Slot::Connecting(began) if lost_at.is_some_and(|at| at >= began));
-        if connecting {
-            let opened = slot.wait_for(|s| !matches!(s, Slot::Connecting(_)));
-            let _ = tokio::time::timeout(self.opening, opened).await;
+        // One whose TCP connected before the loss (perhaps its cause) is waited for, its
+        // test frame within t1; one whose TCP connect is pending is not.
+        let testing = matches!(*slot.borrow_and_update(), Slot::Testing(began) if lost_at.is_some_and(|at| at >= began));
+        if testing {
+            let tested = slot.wait_for(|s| !matches!(s, Slot::Testing(_)));
+            let _ = tokio::time::timeout(self.opening, tested).await;
         }
         if !matches!(*slot.borrow(), Slot::Held(_)) {
             return None;
@@ -154,11 +164,9 @@ impl Standby {
         if conn.lost.borrow().is_some() {
             return None;
         }
-        if lost_at.is_some_and(|at| at >= began && at <= held + EVICTED_WITHIN) {
-            set_pace(&self.key, |p| p.single = true);
-            self.task.abort();
-            self.link.set_peer("standby", NOT_HELD.to_owned());
-            tracing::warn!(link = %self.link.name(), "IEC 104: the station closed its started connection when the standby connected; no standby is held");
+        if closed && lost_at.is_some_and(|at| at >= began && at <= held + EVICTED_WITHIN) {
+            set_pace(&self.key, |p| p.single = Some(Instant::now() + SINGLE_FOR));
+            tracing::warn!(link = %self.link.name(), "IEC 104: the station closed its started connection when the standby connected; no standby is held for ten minutes");
         }
         let now = 1 - *self.active.borrow();
         self.active.send_replace(now);
@@ -166,7 +174,7 @@ impl Standby {
     }
 }
 
-const NOT_HELD: &str = "not held: the station closed its started connection when the standby connected (it keeps one connection at a time); the other address is tried when the started one fails";
+const NOT_HELD: &str = "not held for ten minutes: the station closed its started connection when the standby connected (it keeps one connection at a time); meanwhile the other address is tried when the started one fails";
 
 /// A standby held: its connection, when its connect began and when it was held.
 struct Held {
@@ -192,9 +200,11 @@ impl Keeping {
         let mut attempts = 0u64;
         loop {
             let p = pace(&self.key);
-            if p.single {
+            if let Some(until) = p.single.filter(|u| *u > Instant::now()) {
                 self.link.set_peer("standby", NOT_HELD.to_owned());
-                return;
+                tokio::time::sleep_until(until).await;
+                set_pace(&self.key, |p| p.single = None);
+                continue;
             }
             if let Some(next) = p.next {
                 tokio::time::sleep_until(next).await;
@@ -223,8 +233,12 @@ impl Keeping {
         let at = endpoint(&other);
         let router = Arc::new(Router::default());
         let began = Instant::now();
-        self.slot.send_replace(Slot::Connecting(began));
-        let opened = conn::open(&other.0, other.1, &self.settings, router, Opening::Standby).await;
+        let io = match conn::connect(&other.0, other.1, &self.settings).await {
+            Ok(io) => io,
+            Err(e) => return e.to_string(),
+        };
+        self.slot.send_replace(Slot::Testing(began));
+        let opened = conn::handshake(io, &self.settings, router, Opening::Standby).await;
         let c = match opened {
             Ok(c) => c,
             Err(e) => {

@@ -21,6 +21,29 @@ use super::{Plan, is_input, lost, point};
 use crate::cache::{Device, FieldError, Link};
 use crate::link::LinkFault;
 
+/// An output on a new connection: a command point is not read back, so what it shows is
+/// the value last written (not vouched for now), or nothing yet; not a lost link's error.
+fn command_point(device: &Device, idx: usize) {
+    let sample = device.sample(idx);
+    use iogate_types::Quality;
+    if matches!(sample.quality, Quality::Good | Quality::NeverRead) {
+        return;
+    }
+    let why = |what: &str| FieldError::Device(format!("a command point, not read back: {what}"));
+    match sample.value {
+        Some(v) => device.publish_from(
+            idx,
+            Ok(v),
+            Some(why(
+                "the value last written before the connection was opened again",
+            )),
+            None,
+            crate::cache::Stamp::now(),
+        ),
+        None => device.publish(idx, Err(why("nothing written yet"))),
+    }
+}
+
 /// Each connection's number, so that a device's plan knows the connection it was
 /// registered with.
 static GENERATION: AtomicU64 = AtomicU64::new(1);
@@ -102,6 +125,8 @@ impl Station {
         for (i, p) in plan.places.iter().enumerate() {
             if let Err(why) = p {
                 device.publish(i, Err(FieldError::Device(why.clone())));
+            } else if !is_input(device, i) {
+                command_point(device, i);
             }
         }
         if let Ok(ca) = plan.common_address {
@@ -346,7 +371,9 @@ impl Station {
                 let mut state = self.conn.state.clone();
                 let started = tokio::time::timeout_at(*deadline, state.wait_for(|s| s.started));
                 if !matches!(started.await, Ok(Ok(_))) {
-                    return Err(Iec104Error::Start("STARTDT con", t1));
+                    // Lost meanwhile (both connections gone): that is why, not t1.
+                    let lost = self.conn.lost.borrow().clone();
+                    return Err(lost.unwrap_or(Iec104Error::Start("STARTDT con", t1)));
                 }
                 self.link.set_peer("station", told.clone());
                 self.starting = None;
@@ -355,8 +382,9 @@ impl Station {
                 return Ok(());
             };
             let lost_at = self.conn.lost_at.get().copied();
+            let closed = matches!(why, Iec104Error::Closed | Iec104Error::Io(_));
             let taken = match &self.standby {
-                Some(s) => s.take(lost_at).await,
+                Some(s) => s.take(lost_at, closed).await,
                 None => None,
             };
             let Some((standby, at)) = taken else {
