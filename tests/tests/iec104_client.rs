@@ -155,6 +155,10 @@ async fn every_monitored_type_is_read_and_commands_reach_the_station() -> anyhow
 
     let (_, link) = gw.get("/api/v1/links/rtu").await?;
     assert_eq!(link["peer"]["windows"], "k 12, w 8", "{link}");
+    assert_eq!(
+        link["peer"]["data_transfer"], "started (STARTDT confirmed)",
+        "{link}"
+    );
     assert!(
         link["peer"]["i_frames"]
             .as_str()

@@ -249,6 +249,12 @@ impl Station {
             return;
         }
         self.told = Some(counts);
+        let transfer = if st.started {
+            "started (STARTDT confirmed)"
+        } else {
+            "stopped"
+        };
+        self.link.set_peer("data_transfer", transfer.to_owned());
         self.link.set_peer(
             "i_frames",
             format!(
