@@ -10,8 +10,10 @@
 //! For each: notifications received against changes made, change-to-client latency (from
 //! the value's SourceTimestamp, when the simulated device took it, to its arrival at the
 //! client; both clocks are this machine's) p50 / p99, the gateway's CPU (share of one core)
-//! and resident memory. The client is async-opcua's (publishing interval 0: the server's
-//! shortest, 10 ms; sampling interval 0).
+//! and resident memory; and the part of the latency before the OPC UA server took the
+//! change (its ServerTimestamp: the device, the cache and the address space's feed). The
+//! client is async-opcua's (publishing interval 0: the server's shortest, 10 ms; sampling
+//! interval 0).
 //!
 //! `cargo bench -p iogate --bench opcua`
 #![allow(clippy::too_many_lines)]
@@ -32,8 +34,10 @@ const DEVICES: usize = 100;
 const FIELDS: usize = 100;
 const RUN: Duration = Duration::from_secs(10);
 
-/// Latencies in ms seen by the clients' callbacks.
-type Seen = Arc<Mutex<Vec<f64>>>;
+/// Latencies in ms seen by the clients' callbacks: from the source timestamp to the
+/// client, and the part of it before the OPC UA server took the change (its server
+/// timestamp).
+type Seen = Arc<Mutex<Vec<(f64, f64)>>>;
 
 async fn session(url: &str, seen: Seen, nodes: Vec<NodeId>) -> anyhow::Result<Arc<Session>> {
     let mut client = ClientBuilder::new()
@@ -71,11 +75,12 @@ async fn session(url: &str, seen: Seen, nodes: Vec<NodeId>) -> anyhow::Result<Ar
             0,
             true,
             DataChangeCallback::new(move |dv: DataValue, _item| {
-                if let Some(source) = dv.source_timestamp {
+                if let (Some(source), Some(server)) = (dv.source_timestamp, dv.server_timestamp) {
                     let now = opcua::types::DateTime::now();
                     let ms = (now.as_chrono() - source.as_chrono()).num_microseconds();
-                    if let (Some(us), Ok(mut seen)) = (ms, seen.lock()) {
-                        seen.push(us as f64 / 1000.0);
+                    let door = (server.as_chrono() - source.as_chrono()).num_microseconds();
+                    if let (Some(us), Some(door), Ok(mut seen)) = (ms, door, seen.lock()) {
+                        seen.push((us as f64 / 1000.0, door as f64 / 1000.0));
                     }
                 }
             }),
@@ -106,6 +111,9 @@ struct Row {
     received: usize,
     p50: f64,
     p99: f64,
+    /// Source to the server's timestamp (the gateway before its OPC UA server).
+    door_p50: f64,
+    door_p99: f64,
     cpu: f64,
     rss_mib: f64,
 }
@@ -174,8 +182,11 @@ async fn scenario(
     tokio::time::sleep(Duration::from_secs(1)).await;
     let cpu = (common::cpu_seconds(pid) - cpu0) / elapsed;
     let rss_mib = common::rss_kib(pid) as f64 / 1024.0;
-    let mut latencies = seen.lock().map_err(|_| anyhow::anyhow!("lock"))?.clone();
+    let seen = seen.lock().map_err(|_| anyhow::anyhow!("lock"))?.clone();
+    let mut latencies: Vec<f64> = seen.iter().map(|s| s.0).collect();
     latencies.sort_by(f64::total_cmp);
+    let mut door: Vec<f64> = seen.iter().map(|s| s.1).collect();
+    door.sort_by(f64::total_cmp);
     for s in opened {
         let _ = s.disconnect().await;
     }
@@ -185,6 +196,8 @@ async fn scenario(
         received: latencies.len(),
         p50: percentile(&latencies, 0.5),
         p99: percentile(&latencies, 0.99),
+        door_p50: percentile(&door, 0.5),
+        door_p99: percentile(&door, 0.99),
         cpu,
         rss_mib,
     })
@@ -263,20 +276,22 @@ async fn main() -> anyhow::Result<()> {
         RUN.as_secs()
     );
     println!(
-        "| load | changes | notifications | latency p50 | latency p99 | gateway CPU | gateway RSS |"
+        "| load | changes | notifications | latency p50 | latency p99 | of which to the server's timestamp p50 / p99 | gateway CPU | gateway RSS |"
     );
-    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     println!(
         "gateway memory per monitored item (RSS with 10,000 items over RSS with no session, same load): {per_item:.2} KiB"
     );
     for r in rows {
         println!(
-            "| {} | {} | {} | {:.1} ms | {:.1} ms | {:.1} % | {:.1} MiB |",
+            "| {} | {} | {} | {:.1} ms | {:.1} ms | {:.1} / {:.1} ms | {:.1} % | {:.1} MiB |",
             r.name,
             r.expected,
             r.received,
             r.p50,
             r.p99,
+            r.door_p50,
+            r.door_p99,
             r.cpu * 100.0,
             r.rss_mib
         );

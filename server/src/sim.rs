@@ -30,8 +30,9 @@ pub(crate) async fn run(device: Arc<Device>, token: CancellationToken) {
         for w in &writes {
             device.finish_write(w.generation, Ok(()));
         }
+        let now = crate::cache::Stamp::now();
         for (idx, value) in values.into_iter().enumerate() {
-            device.publish(idx, Ok(value));
+            device.publish_at(idx, Ok(value), now);
         }
         device.record_cycle(true, started.elapsed());
     }

@@ -589,9 +589,16 @@ impl Server {
                     }
                     tick.reset();
                 }
-                tick.tick().await;
+                // The tick's own time, not the moment its task ran: a subscription whose
+                // publishing interval is the tick's then elapses at every tick, where a tick
+                // run a little earlier after its predecessor than the interval (scheduling
+                // jitter) used to find it not yet elapsed and wait a whole tick more.
+                let scheduled = tick.tick().await.into_std();
 
-                context.subscriptions.periodic_tick(&context).await;
+                context
+                    .subscriptions
+                    .periodic_tick(&context, scheduled)
+                    .await;
             }
         }
     }

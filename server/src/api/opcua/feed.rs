@@ -7,6 +7,8 @@
 //! each field for when one is made). Writes to output variables go to the service, as
 //! REST's do.
 
+use std::borrow::{Borrow, Cow};
+use std::cell::Cell;
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
@@ -32,10 +34,33 @@ const BATCH: usize = 1024;
 
 /// What is in the address space.
 struct Shown {
-    devices: HashMap<String, (Arc<Device>, Vec<String>)>,
+    devices: HashMap<String, ShownDevice>,
     links: HashMap<String, Arc<Link>>,
     /// Filled once: later changes are model changes.
     synced: bool,
+}
+
+/// What renders a variable's value: the change's place in its batch, and the diagnostic it
+/// is of (none: the field's value).
+type Rendered = (usize, Option<&'static str>);
+
+/// A device in the address space: its fields' names and their variables' ids, in the
+/// profile's order (a change names its field by index).
+struct ShownDevice {
+    device: Arc<Device>,
+    fields: Vec<String>,
+    ids: Vec<NodeId>,
+}
+
+impl Shown {
+    /// The id of field `idx` of `device` as shown, if it is (a device replaced since the
+    /// last sync is not yet).
+    fn field_id(&self, device: &Arc<Device>, idx: usize) -> Option<&NodeId> {
+        self.devices
+            .get(device.name())
+            .filter(|d| Arc::ptr_eq(&d.device, device))
+            .and_then(|d| d.ids.get(idx))
+    }
 }
 
 pub(crate) struct Feed {
@@ -77,7 +102,7 @@ impl Feed {
                                 _ => break,
                             }
                         }
-                        self.apply(&batch);
+                        self.apply(&shown, &batch);
                     }
                     None => changes = None,
                 },
@@ -150,10 +175,10 @@ impl Feed {
         let mut model = Vec::new();
         let mut space = self.manager.address_space().write();
         let ids = self.ids;
-        shown.devices.retain(|name, (old, fields)| {
-            let kept = devices.iter().any(|d| Arc::ptr_eq(d, old));
+        shown.devices.retain(|name, old| {
+            let kept = devices.iter().any(|d| Arc::ptr_eq(d, &old.device));
             if !kept {
-                space::remove_device(&mut space, ids, name, fields);
+                space::remove_device(&mut space, ids, name, &old.fields);
                 model.extend(node_changes(ids, ids.device(name), space::DEVICES, false));
             }
             kept
@@ -171,15 +196,21 @@ impl Feed {
                 true,
             ));
             added.push(device.clone());
-            let fields = device
+            let fields: Vec<String> = device
                 .profile
                 .fields
                 .iter()
                 .map(|f| f.name.clone())
                 .collect();
-            shown
-                .devices
-                .insert(device.name().to_owned(), (device.clone(), fields));
+            let field_ids = fields.iter().map(|f| ids.field(device.name(), f)).collect();
+            shown.devices.insert(
+                device.name().to_owned(),
+                ShownDevice {
+                    device: device.clone(),
+                    fields,
+                    ids: field_ids,
+                },
+            );
         }
         shown.links.retain(|name, old| {
             let kept = links.iter().any(|l| Arc::ptr_eq(l, old));
@@ -205,12 +236,12 @@ impl Feed {
     /// is deleted; a re-planned device's kept fields are not.
     fn tell_gone(&self, shown: &Shown, devices: &[Arc<Device>], now: DateTime) {
         let mut gone = Vec::new();
-        for (name, (old, fields)) in &shown.devices {
-            if devices.iter().any(|d| Arc::ptr_eq(d, old)) {
+        for (name, old) in &shown.devices {
+            if devices.iter().any(|d| Arc::ptr_eq(d, &old.device)) {
                 continue;
             }
             let next = devices.iter().find(|d| d.name() == name.as_str());
-            for field in fields {
+            for field in &old.fields {
                 if next.is_none_or(|d| d.field_index(field).is_err()) {
                     gone.push((
                         self.ids.field(name, field),
@@ -245,25 +276,29 @@ impl Feed {
 
     /// A batch of changes to the items that monitor their variables; a value is rendered
     /// only for a variable that has one.
-    fn apply(&self, batch: &[Change]) {
+    fn apply(&self, shown: &Shown, batch: &[Change]) {
         let now = DateTime::now();
-        let mut ids: Vec<(NodeId, (usize, Option<&'static str>))> = Vec::with_capacity(batch.len());
+        let instant = tokio::time::Instant::now();
+        let mut items: Vec<(Cow<'_, NodeId>, Rendered)> = Vec::with_capacity(batch.len());
         for (n, change) in batch.iter().enumerate() {
             match change {
                 Change::Value { device, idx, .. } => {
-                    let field = device.field(*idx);
-                    ids.push((self.ids.field(device.name(), &field.name), (n, None)));
+                    let id = match shown.field_id(device, *idx) {
+                        Some(id) => Cow::Borrowed(id),
+                        None => Cow::Owned(self.ids.field(device.name(), &device.field(*idx).name)),
+                    };
+                    items.push((id, (n, None)));
                 }
                 Change::Diagnostics { device, .. } => {
                     for name in space::DEVICE_DIAGNOSTICS {
                         let id = self.ids.device_diagnostic(device.name(), name);
-                        ids.push((id, (n, Some(name))));
+                        items.push((Cow::Owned(id), (n, Some(name))));
                     }
                 }
                 Change::Removed { .. } => {}
             }
         }
-        self.notify(&ids, |&(_, (n, diagnostic))| {
+        self.notify(&items, |_, &(n, diagnostic)| {
             match (&batch[n], diagnostic) {
                 (
                     Change::Value {
@@ -273,10 +308,7 @@ impl Feed {
                         ..
                     },
                     _,
-                ) => Some(space::data_value(
-                    &self.service.field_view(device, *idx, sample),
-                    now,
-                )),
+                ) => Some(space::sample_value(device, *idx, sample, instant, now)),
                 (Change::Diagnostics { diagnostics, .. }, Some(name)) => {
                     space::device_diagnostics(diagnostics, now)
                         .into_iter()
@@ -321,23 +353,35 @@ impl Feed {
             }
         }
         let now = DateTime::now();
-        self.notify(&ids, |(id, _)| {
+        self.notify(&ids, |id, _| {
             super::live::value(&self.service, self.ids, id, now)
         });
     }
 
     /// Notifies the monitored items of the variables `items` name (each with what renders
-    /// its value), rendering a value only for a variable that has one.
-    fn notify<T>(&self, items: &[(NodeId, T)], render: impl Fn(&(NodeId, T)) -> Option<DataValue>) {
+    /// its value), rendering a value only for a variable that has one. The library asks
+    /// for a variable's value while at that variable, before it takes the next: the item
+    /// last taken is the one asked for (looked up only if it ever were not).
+    fn notify<K: Borrow<NodeId>, T>(
+        &self,
+        items: &[(K, T)],
+        render: impl Fn(&NodeId, &T) -> Option<DataValue>,
+    ) {
         if items.is_empty() {
             return;
         }
-        let by_id: HashMap<&NodeId, &(NodeId, T)> = items.iter().map(|i| (&i.0, i)).collect();
-        let rendered = std::cell::Cell::new(0usize);
+        let at = Cell::new(0usize);
+        let rendered = Cell::new(0usize);
         self.subscriptions.maybe_notify(
-            items.iter().map(|(id, _)| (id, AttributeId::Value)),
+            items.iter().enumerate().map(|(n, (id, _))| {
+                at.set(n);
+                (id.borrow(), AttributeId::Value)
+            }),
             |id, _, _, _| {
-                let value = render(by_id.get(id)?);
+                let item = Some(&items[at.get()])
+                    .filter(|(i, _)| i.borrow() == id)
+                    .or_else(|| items.iter().find(|(i, _)| i.borrow() == id))?;
+                let value = render(id, &item.1);
                 rendered.set(rendered.get() + usize::from(value.is_some()));
                 value
             },

@@ -34,8 +34,8 @@ use opcua::types::{
     ObjectTypeId, QualifiedName, Range, StatusCode, UAString, VariableTypeId, Variant,
 };
 
-use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics};
-use crate::codec::IecType;
+use crate::cache::{Device, Diagnostics, FieldError, Link, LinkDiagnostics, Sample};
+use crate::codec::{IecType, Value};
 pub(crate) use crate::opcua_variant::{data_type, value_of, variant};
 use crate::profile::{Direction, Field};
 use crate::service::{FieldView, Service};
@@ -138,15 +138,19 @@ pub(crate) enum Live {
 
 /// The status code of a field's quality as of now, as the service tells it.
 pub(crate) fn status(view: &FieldView<'_>) -> StatusCode {
-    match view.quality {
+    status_of(view.quality, view.error.as_ref())
+}
+
+fn status_of(quality: Quality, error: Option<&FieldError>) -> StatusCode {
+    match quality {
         Quality::Good => StatusCode::Good,
         Quality::Stale => StatusCode::UncertainLastUsableValue,
-        Quality::NeverRead => match &view.error {
+        Quality::NeverRead => match error {
             Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
             Some(FieldError::NoResponse(_)) => StatusCode::BadCommunicationError,
             _ => StatusCode::BadWaitingForInitialData,
         },
-        Quality::Bad => match &view.error {
+        Quality::Bad => match error {
             Some(FieldError::Unreachable(_)) => StatusCode::BadNoCommunication,
             Some(FieldError::Decode(_)) => StatusCode::BadDecodingError,
             Some(FieldError::Exception(_)) => StatusCode::BadDeviceFailure,
@@ -163,15 +167,49 @@ fn date_time(at: SystemTime) -> DateTime {
 /// Bad status, as OPC UA Part 4, 7.7.1 asks), the status from the quality, the source
 /// timestamp when the device was read.
 pub(crate) fn data_value(view: &FieldView<'_>, now: DateTime) -> DataValue {
-    let status = status(view);
-    let value = match &view.value {
-        Some(v) if !status.is_bad() => variant(view.field.ty, v),
+    rendered(
+        view.field.ty,
+        view.value.as_ref(),
+        status(view),
+        view.timestamp,
+        now,
+    )
+}
+
+/// [`data_value`] of field `idx`'s `sample`, its quality as of `instant`: what a change
+/// needs of the field's view, without the rest (desired value, latest write).
+pub(crate) fn sample_value(
+    device: &Device,
+    idx: usize,
+    sample: &Sample,
+    instant: tokio::time::Instant,
+    now: DateTime,
+) -> DataValue {
+    let status = status_of(device.quality(sample, instant), sample.error.as_deref());
+    rendered(
+        device.field(idx).ty,
+        sample.value.as_ref(),
+        status,
+        sample.updated.map(|(_, wall)| wall),
+        now,
+    )
+}
+
+fn rendered(
+    ty: IecType,
+    value: Option<&Value>,
+    status: StatusCode,
+    timestamp: Option<SystemTime>,
+    now: DateTime,
+) -> DataValue {
+    let value = match value {
+        Some(v) if !status.is_bad() => variant(ty, v),
         _ => Variant::Empty,
     };
     DataValue {
         value: Some(value),
         status: Some(status),
-        source_timestamp: view.timestamp.map(date_time),
+        source_timestamp: timestamp.map(date_time),
         source_picoseconds: None,
         server_timestamp: Some(now),
         server_picoseconds: None,

@@ -33,7 +33,9 @@ const SINGLE_FOR: Duration = Duration::from_secs(600);
 /// The group's two addresses.
 pub(super) type Addresses = [(String, u16); 2];
 
-/// How a group's standby is tried: kept for the life of the process, by link and addresses.
+/// How a group's standby is tried: kept while the link is reopened, by link and
+/// addresses; forgotten once it says nothing a fresh one would not (no delay past the
+/// first, nothing to wait for), so groups configured and gone leave nothing behind.
 #[derive(Debug, Clone, Copy)]
 struct Pace {
     delay: Duration,
@@ -41,6 +43,15 @@ struct Pace {
     next: Option<Instant>,
     /// The station keeps one connection at a time: no standby is held until then.
     single: Option<Instant>,
+}
+
+impl Pace {
+    /// Whether this pace is a fresh one's as of `now`.
+    fn is_fresh(&self, now: Instant) -> bool {
+        self.delay <= FIRST_DELAY
+            && self.next.is_none_or(|n| n <= now)
+            && self.single.is_none_or(|s| s <= now)
+    }
 }
 
 static PACES: LazyLock<Mutex<HashMap<String, Pace>>> = LazyLock::new(Mutex::default);
@@ -65,6 +76,8 @@ fn set_pace(key: &str, f: impl FnOnce(&mut Pace)) {
         single: None,
     });
     f(p);
+    let now = Instant::now();
+    paces.retain(|_, p| !p.is_fresh(now));
 }
 
 pub(super) fn endpoint((host, port): &(String, u16)) -> String {
@@ -270,5 +283,31 @@ impl Keeping {
         lost.borrow()
             .as_ref()
             .map_or("closed".into(), ToString::to_string)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pace_is_kept_while_it_holds_back_and_forgotten_once_fresh() {
+        let key = "pace-test|127.0.0.1:1|127.0.0.1:2";
+        let held = |key: &str| lock(&PACES).contains_key(key);
+        set_pace(key, |p| {
+            p.delay = FIRST_DELAY * 4;
+            p.next = Some(Instant::now() + Duration::from_secs(4));
+        });
+        assert!(held(key), "a doubled delay is kept");
+        assert_eq!(pace(key).delay, FIRST_DELAY * 4);
+        set_pace(key, |p| p.delay = FIRST_DELAY);
+        assert!(held(key), "an attempt still waited for is kept");
+        set_pace(key, |p| p.next = None);
+        assert!(!held(key), "a pace like a fresh one is forgotten");
+        assert_eq!(pace(key).delay, FIRST_DELAY);
+        set_pace(key, |p| p.single = Some(Instant::now() + SINGLE_FOR));
+        assert!(held(key), "a station keeping one connection is remembered");
+        set_pace(key, |p| p.single = Some(Instant::now()));
+        assert!(!held(key));
     }
 }

@@ -141,7 +141,7 @@ impl SubscriptionCache {
     /// This is the periodic subscription tick where we check for
     /// triggered subscriptions.
     ///
-    pub(crate) async fn periodic_tick(&self, context: &ServerContext) {
+    pub(crate) async fn periodic_tick(&self, context: &ServerContext, now_instant: Instant) {
         // TODO: Look into replacing this with a smarter system, in theory it should be possible to
         // always just sleep for the exact time until the next expired publish request, which could
         // be more efficient, and would be more responsive.
@@ -149,7 +149,6 @@ impl SubscriptionCache {
         let mut items_to_delete = Vec::new();
         {
             let now = Utc::now();
-            let now_instant = Instant::now();
             let lck = trace_read_lock!(self.inner);
             for (session_id, sub) in lck.session_subscriptions.iter() {
                 let mut sub_lck = sub.lock();
@@ -770,3 +769,4 @@ impl PersistentSessionKey {
         }
     }
 }
+
