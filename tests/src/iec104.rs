@@ -4,6 +4,42 @@
 //! IOA`), saying each command it executes; and a controlling station, a SCADA master, for
 //! the outstation's (`tests/iec104/master.py`), saying every object it receives.
 
+/// A station's profile for the driver's tests: every kind of monitored point the RTU
+/// serves (and one IOA it does not), and commands with and without select and
+/// termination.
+pub const STATION_PROFILE: &str = r#"name: Station
+protocol: iec104
+fields:
+  - { name: breaker, type: BOOL, direction: input, ioa: 100 }
+  - { name: switch, type: BOOL, direction: input, ioa: 101 }
+  - { name: flow, type: REAL, direction: input, ioa: 102 }
+  - { name: level, type: INT, direction: input, ioa: 103 }
+  - { name: ratio, type: REAL, direction: input, ioa: 104 }
+  - { name: energy, type: DINT, direction: input, ioa: 105 }
+  - { name: tap, type: SINT, direction: input, ioa: 106 }
+  - { name: bits, type: DWORD, direction: input, ioa: 107 }
+  - { name: pressure, type: REAL, direction: input, ioa: 108, asdu: M_ME_TF_1 }
+  - { name: missing, type: REAL, direction: input, ioa: 999 }
+  - { name: current, type: REAL, direction: input, ioa: 109, scale: 0.1 }
+  - { name: trip, type: REAL, direction: output, ioa: 204, scale: 0.1, raw_type: INT }
+  - { name: slow, type: BOOL, direction: output, ioa: 205 }
+  - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true, termination: true }
+  - { name: enable, type: BOOL, direction: output, ioa: 201 }
+  - { name: enable_terminated, type: BOOL, direction: output, ioa: 203, termination: true }
+  - { name: limit, type: INT, direction: output, ioa: 202 }
+"#;
+
+/// A Modbus pump's profile for the outstation's tests: outputs and inputs of each kind.
+pub const PUMP_PROFILE: &str = r#"name: Pump
+fields:
+  - { name: run, type: BOOL, direction: output, register: { address: 0, kind: coil } }
+  - { name: alarm, type: BOOL, direction: input, register: { address: 0, kind: discrete_input } }
+  - { name: speed, type: INT, direction: output, register: { address: 0, kind: holding_register } }
+  - { name: temp, type: REAL, direction: input, register: { address: 0, kind: input_register, word_count: 2 } }
+  - { name: status, type: WORD, direction: input, register: { address: 2, kind: input_register } }
+  - { name: limit, type: REAL, direction: output, register: { address: 2, kind: holding_register, word_count: 2 } }
+"#;
+
 use tokio::io::AsyncWriteExt;
 
 use crate::{PATIENCE, Piped, python, repo_file, run_installer, spawn_piped};

@@ -11,32 +11,13 @@ use iogate_tests::eventually;
 use iogate_tests::iec104::Rtu;
 use serde_json::{Value, json};
 
-const PROFILE: &str = r#"name: Station
-protocol: iec104
-fields:
-  - { name: breaker, type: BOOL, direction: input, ioa: 100 }
-  - { name: switch, type: BOOL, direction: input, ioa: 101 }
-  - { name: flow, type: REAL, direction: input, ioa: 102 }
-  - { name: level, type: INT, direction: input, ioa: 103 }
-  - { name: ratio, type: REAL, direction: input, ioa: 104 }
-  - { name: energy, type: DINT, direction: input, ioa: 105 }
-  - { name: tap, type: SINT, direction: input, ioa: 106 }
-  - { name: bits, type: DWORD, direction: input, ioa: 107 }
-  - { name: pressure, type: REAL, direction: input, ioa: 108, asdu: M_ME_TF_1 }
-  - { name: missing, type: REAL, direction: input, ioa: 999 }
-  - { name: current, type: REAL, direction: input, ioa: 109, scale: 0.1 }
-  - { name: trip, type: REAL, direction: output, ioa: 204, scale: 0.1, raw_type: INT }
-  - { name: slow, type: BOOL, direction: output, ioa: 205 }
-  - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true, termination: true }
-  - { name: enable, type: BOOL, direction: output, ioa: 201 }
-  - { name: enable_terminated, type: BOOL, direction: output, ioa: 203, termination: true }
-  - { name: limit, type: INT, direction: output, ioa: 202 }
-"#;
-
 async fn gateway(name: &str, rtu: &Rtu) -> anyhow::Result<TestGateway> {
     let dir = temp_dir(name);
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/station.yaml"),
+        iogate_tests::iec104::STATION_PROFILE,
+    )?;
     let config = format!(
         "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, t0: 2s, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
         dir.join("profiles").display(),
@@ -204,7 +185,10 @@ async fn a_redundancy_group_holds_its_standby_stopped_and_starts_it_when_the_oth
     let backup = Cable::to(rtu.port).await?;
     let dir = temp_dir("iec104-redundancy");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/station.yaml"),
+        iogate_tests::iec104::STATION_PROFILE,
+    )?;
     let config = format!(
         "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, backup: '127.0.0.1:{}', clock_sync: true, t0: 2s, t1: 3s, t2: 1s, t3: 2s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
         dir.join("profiles").display(),
@@ -300,7 +284,10 @@ async fn a_standby_address_that_accepts_and_then_fails_is_tried_less_and_less_of
     let backup = Cable::failing_after(rtu.port, Some(0)).await?;
     let dir = temp_dir("iec104-standby-fails");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/station.yaml"),
+        iogate_tests::iec104::STATION_PROFILE,
+    )?;
     let config = format!(
         "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, backup: '127.0.0.1:{}', t0: 2s, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
         dir.join("profiles").display(),
@@ -376,7 +363,10 @@ async fn a_station_that_keeps_one_connection_gets_no_standby_and_is_read_on() ->
     let (port, taken, proxy) = evicting(rtu.port).await?;
     let dir = temp_dir("iec104-one-connection");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/station.yaml"),
+        iogate_tests::iec104::STATION_PROFILE,
+    )?;
     // Its two addresses reach the one slot.
     let config = format!(
         "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {port}, backup: 'localhost:{port}', t0: 2s, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
@@ -411,7 +401,10 @@ async fn a_started_connection_lost_while_a_command_is_confirmed_is_taken_over_at
     let backup = Cable::to(rtu.port).await?;
     let dir = temp_dir("iec104-lost-while-asked");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/station.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/station.yaml"),
+        iogate_tests::iec104::STATION_PROFILE,
+    )?;
     // t1 of 12 s: a loss seen only at t1's end would take that long.
     let config = format!(
         "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, backup: '127.0.0.1:{}', t0: 2s, t1: 12s, t2: 1s, t3: 20s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",

@@ -7,16 +7,6 @@
 use iogate_tests::devices::temp_dir;
 use iogate_tests::{TestGateway, eventually};
 
-const PROFILE: &str = r#"name: Pump
-fields:
-  - { name: run, type: BOOL, direction: output, register: { address: 0, kind: coil } }
-  - { name: alarm, type: BOOL, direction: input, register: { address: 0, kind: discrete_input } }
-  - { name: speed, type: INT, direction: output, register: { address: 0, kind: holding_register } }
-  - { name: temp, type: REAL, direction: input, register: { address: 0, kind: input_register, word_count: 2 } }
-  - { name: status, type: WORD, direction: input, register: { address: 2, kind: input_register } }
-  - { name: limit, type: REAL, direction: output, register: { address: 2, kind: holding_register, word_count: 2 } }
-"#;
-
 /// A master's connection from `from`, started (STARTDT confirmed), or `None` when the
 /// outstation closes it at once.
 async fn started_from(
@@ -190,7 +180,10 @@ async fn an_interrogation_under_way_is_answered_whole_and_a_second_of_its_kind_r
 fn check_names_every_problem_of_a_map_file_each_on_its_own() -> anyhow::Result<()> {
     let dir = temp_dir("iec104-map-problems");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/pump.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/pump.yaml"),
+        iogate_tests::iec104::PUMP_PROFILE,
+    )?;
     std::fs::write(
         dir.join("points.yaml"),
         "- { ioa: 1, field: pump.temp }\n- { ioa: 2, field: pump.nothing }\n- { ioa: 1, field: pump.speed }\n- { ioa: 3, field: nobody.temp }\n",

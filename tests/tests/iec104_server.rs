@@ -13,16 +13,6 @@ use iogate_tests::devices::{ModbusDevice, modbus_tcp_server, temp_dir};
 use iogate_tests::iec104::Master;
 use iogate_tests::{TestGateway, eventually, test_setup};
 
-const PROFILE: &str = r#"name: Pump
-fields:
-  - { name: run, type: BOOL, direction: output, register: { address: 0, kind: coil } }
-  - { name: alarm, type: BOOL, direction: input, register: { address: 0, kind: discrete_input } }
-  - { name: speed, type: INT, direction: output, register: { address: 0, kind: holding_register } }
-  - { name: temp, type: REAL, direction: input, register: { address: 0, kind: input_register, word_count: 2 } }
-  - { name: status, type: WORD, direction: input, register: { address: 2, kind: input_register } }
-  - { name: limit, type: REAL, direction: output, register: { address: 2, kind: holding_register, word_count: 2 } }
-"#;
-
 fn words(v: f32) -> [u16; 2] {
     let b = v.to_bits();
     [(b >> 16) as u16, b as u16]
@@ -108,7 +98,10 @@ async fn a_scada_master_interrogates_every_field_and_its_commands_reach_the_devi
     let (port, _server) = modbus_tcp_server(device.clone()).await;
     let dir = temp_dir("iec104-outstation");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/pump.yaml"), PROFILE)?;
+    std::fs::write(
+        dir.join("profiles/pump.yaml"),
+        iogate_tests::iec104::PUMP_PROFILE,
+    )?;
     let config = format!(
         "profiles: {}\nlinks:\n  - {{ name: line, tcp: {{ host: 127.0.0.1, port: {port} }} }}\ndevices:\n  - {{ name: pump, profile: Pump, link: line, slave_id: 1, refresh_rate: 100ms }}\niec104_server:\n  listen: 127.0.0.1:0\n",
         dir.join("profiles").display()

@@ -9,23 +9,6 @@ use iogate_tests::wireshark::{Recorder, dissect, pcap};
 use iogate_tests::{TestGateway, test_setup};
 use serde_json::json;
 
-const STATION: &str = r#"name: Station
-protocol: iec104
-fields:
-  - { name: breaker, type: BOOL, direction: input, ioa: 100 }
-  - { name: switch, type: BOOL, direction: input, ioa: 101 }
-  - { name: flow, type: REAL, direction: input, ioa: 102 }
-  - { name: level, type: INT, direction: input, ioa: 103 }
-  - { name: ratio, type: REAL, direction: input, ioa: 104 }
-  - { name: energy, type: DINT, direction: input, ioa: 105 }
-  - { name: tap, type: SINT, direction: input, ioa: 106 }
-  - { name: bits, type: DWORD, direction: input, ioa: 107 }
-  - { name: pressure, type: REAL, direction: input, ioa: 108 }
-  - { name: setpoint, type: REAL, direction: output, ioa: 200, select: true, termination: true }
-  - { name: enable, type: BOOL, direction: output, ioa: 201 }
-  - { name: limit, type: INT, direction: output, ioa: 202 }
-"#;
-
 /// The ASDU type identifications tshark decoded, each once.
 fn types(decoded: &[String]) -> std::collections::BTreeSet<u8> {
     decoded
@@ -42,7 +25,10 @@ async fn the_drivers_frames_with_a_c104_station_are_well_formed_to_wireshark() -
     let recorder = Recorder::to(rtu.port).await?;
     let dir = temp_dir("iec104-wireshark-driver");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/station.yaml"), STATION)?;
+    std::fs::write(
+        dir.join("profiles/station.yaml"),
+        iogate_tests::iec104::STATION_PROFILE,
+    )?;
     let config = format!(
         "profiles: {}\nlinks:\n  - name: rtu\n    iec104: {{ host: 127.0.0.1, port: {}, clock_sync: true, t1: 3s, t2: 1s, t3: 5s }}\ndevices:\n  - {{ name: station, profile: Station, link: rtu, refresh_rate: 200ms }}\n",
         dir.join("profiles").display(),
@@ -82,14 +68,6 @@ async fn the_drivers_frames_with_a_c104_station_are_well_formed_to_wireshark() -
     Ok(())
 }
 
-const PUMP: &str = r#"name: Pump
-fields:
-  - { name: run, type: BOOL, direction: output, register: { address: 0, kind: coil } }
-  - { name: speed, type: INT, direction: output, register: { address: 0, kind: holding_register } }
-  - { name: temp, type: REAL, direction: input, register: { address: 0, kind: input_register, word_count: 2 } }
-  - { name: status, type: WORD, direction: input, register: { address: 2, kind: input_register } }
-"#;
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_outstations_frames_with_a_c104_master_are_well_formed_to_wireshark()
 -> anyhow::Result<()> {
@@ -97,7 +75,10 @@ async fn the_outstations_frames_with_a_c104_master_are_well_formed_to_wireshark(
     let (port, _server) = modbus_tcp_server(device.clone()).await;
     let dir = temp_dir("iec104-wireshark-outstation");
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/pump.yaml"), PUMP)?;
+    std::fs::write(
+        dir.join("profiles/pump.yaml"),
+        iogate_tests::iec104::PUMP_PROFILE,
+    )?;
     let config = format!(
         "profiles: {}\nlinks:\n  - {{ name: line, tcp: {{ host: 127.0.0.1, port: {port} }} }}\ndevices:\n  - {{ name: pump, profile: Pump, link: line, slave_id: 1, refresh_rate: 100ms }}\niec104_server:\n  listen: 127.0.0.1:0\n",
         dir.join("profiles").display()

@@ -54,6 +54,9 @@ pub struct Device {
     /// Which device this is, as its fields' samples know it: a read is stored only into a
     /// sample that still belongs to the device (and so the place) it was read from.
     place: u64,
+    /// Whether a stale spell may have been told of a good value since the source last
+    /// vouched for its values ([`Device::vouch`] looks at the fields only then).
+    stale_told: std::sync::atomic::AtomicBool,
 }
 
 /// Every device made gets the next place.
@@ -139,6 +142,7 @@ impl Device {
             line: Mutex::new(None),
             rewrite_first: true,
             place,
+            stale_told: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
@@ -233,6 +237,8 @@ impl Device {
         // old place is written to the new one on the gateway's own account.
         next.rewrite_first = false;
         *lock(&next.last_cycle) = *lock(&old.last_cycle);
+        // The kept samples may have been told stale by the old device.
+        *next.stale_told.get_mut() = true;
         next
     }
 

@@ -281,3 +281,26 @@ async fn subscribers_wake_only_on_change() {
     assert!(!rx.has_changed().expect("open"), "same value, no wake-up");
     assert!(io.sample(0).updated.is_some());
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_source_vouching_for_its_values_ends_the_stale_spell_told_and_only_that() {
+    let cache = cache();
+    let io = cache.device("io").expect("device");
+    let di = io.field_index("DI").expect("field");
+    io.publish(di, Ok(Value::Bool(true)));
+    let mut rx = io.subscribe(di);
+    drop(rx.borrow_and_update());
+    io.vouch();
+    assert!(
+        !rx.has_changed().expect("open"),
+        "nothing told: nothing to end"
+    );
+    tokio::time::advance(io.stale_after() + Duration::from_millis(1)).await;
+    io.tell_stale(Instant::now());
+    assert!(rx.borrow_and_update().stale_told, "gone stale: told");
+    io.vouch();
+    assert!(rx.has_changed().expect("open"), "the spell's end is told");
+    assert!(!rx.borrow_and_update().stale_told);
+    io.vouch();
+    assert!(!rx.has_changed().expect("open"), "ended once");
+}

@@ -1,6 +1,8 @@
 //! What reads put into a device's fields: a value or why it could not be read, with its
 //! source's doubt and timestamp; stale spells told; every field failed or doubted at once.
 
+use std::sync::atomic::Ordering;
+
 use super::*;
 
 /// When values came, read once for a batch of them: the monotonic clock (for quality) and
@@ -86,17 +88,24 @@ impl Device {
             if !went_stale(&sample.borrow()) {
                 continue;
             }
-            sample.send_if_modified(|s| {
+            let told = sample.send_if_modified(|s| {
                 let tell = went_stale(s);
                 s.stale_told |= tell;
                 tell
             });
+            if told {
+                self.stale_told.store(true, Ordering::Release);
+            }
         }
     }
 
     /// The source vouches for every good value it has not changed (a connection that
     /// lives, whose station sends only changes): a stale spell told of them ends.
     pub(crate) fn vouch(&self) {
+        // Nothing told since the last time: nothing to end (and no field looked at).
+        if !self.stale_told.swap(false, Ordering::AcqRel) {
+            return;
+        }
         for sample in &self.samples {
             if !sample.borrow().stale_told {
                 continue;
