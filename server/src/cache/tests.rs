@@ -85,14 +85,20 @@ fn before_its_first_answer_a_device_is_not_connected_and_says_why() {
     assert_eq!((d.connected, d.error_code), (true, DeviceCode::Ok));
 }
 
-#[tokio::test(start_paused = true)]
-async fn a_value_gone_stale_is_told_once_and_its_next_refresh_again() {
-    let cache = cache();
-    let io = cache.device("io").expect("device");
+/// Device `io` with its field DI read good (true) and followed, its first value taken.
+fn followed_di(cache: &Cache) -> (Arc<Device>, usize, SlotReceiver<sample::Sample>) {
+    let io = cache.device("io").expect("device").clone();
     let di = io.field_index("DI").expect("field");
     io.publish(di, Ok(Value::Bool(true)));
     let mut rx = io.subscribe(di);
     drop(rx.borrow_and_update());
+    (io, di, rx)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_value_gone_stale_is_told_once_and_its_next_refresh_again() {
+    let cache = cache();
+    let (io, di, mut rx) = followed_di(&cache);
     let quality = |rx: &mut SlotReceiver<sample::Sample>| {
         rx.borrow_and_update()
             .quality_at(Instant::now(), io.stale_after())
@@ -285,11 +291,7 @@ async fn subscribers_wake_only_on_change() {
 #[tokio::test(start_paused = true)]
 async fn a_source_vouching_for_its_values_ends_the_stale_spell_told_and_only_that() {
     let cache = cache();
-    let io = cache.device("io").expect("device");
-    let di = io.field_index("DI").expect("field");
-    io.publish(di, Ok(Value::Bool(true)));
-    let mut rx = io.subscribe(di);
-    drop(rx.borrow_and_update());
+    let (io, _, mut rx) = followed_di(&cache);
     io.vouch();
     assert!(
         !rx.has_changed().expect("open"),

@@ -46,11 +46,16 @@ struct Pace {
 }
 
 impl Pace {
-    /// Whether this pace is a fresh one's as of `now`.
+    /// Whether this pace says nothing a fresh one would not as of `now`: no station
+    /// keeping one connection, and either the first delay with no attempt waited for, or
+    /// no attempt for longer than the longest delay (a group that backs off tries at least
+    /// that often; one that went longer held its standby, or is gone).
     fn is_fresh(&self, now: Instant) -> bool {
-        self.delay <= FIRST_DELAY
-            && self.next.is_none_or(|n| n <= now)
-            && self.single.is_none_or(|s| s <= now)
+        let waited = |n: Instant| n <= now;
+        let quiet = |n: Instant| n + MOST_DELAY <= now;
+        self.single.is_none_or(waited)
+            && ((self.delay <= FIRST_DELAY && self.next.is_none_or(waited))
+                || self.next.is_some_and(quiet))
     }
 }
 
@@ -309,5 +314,18 @@ mod tests {
         assert!(held(key), "a station keeping one connection is remembered");
         set_pace(key, |p| p.single = Some(Instant::now()));
         assert!(!held(key));
+        set_pace(key, |p| {
+            p.delay = MOST_DELAY;
+            p.next = Some(Instant::now());
+        });
+        assert!(held(key), "a group backing off is remembered");
+        let long_ago = Instant::now()
+            .checked_sub(MOST_DELAY + Duration::from_secs(1))
+            .expect("the clock is past a minute");
+        set_pace(key, |p| p.next = Some(long_ago));
+        assert!(
+            !held(key),
+            "no attempt for longer than the longest delay: forgotten"
+        );
     }
 }
