@@ -26,6 +26,10 @@ input is a command, answered by one JSON line:
                                             -> {"good": K, "refused": {STATUS: COUNT}} (N items
                                                on one node, 1,000 a call, on a subscription of
                                                its own)
+    {"cmd": "subscription", "interval": MS, "lifetime": N, "keepalive": K, "node": ID, "count": C}
+                                            -> {"interval", "lifetime", "keepalive", "good": K}
+                                               (a subscription asked for these, as revised,
+                                               with C items on the node)
     {"cmd": "message_sizes"}                -> {"sizes": [K]} (the notifications in each data
                                                change message of that subscription since
                                                the last ask)
@@ -49,6 +53,7 @@ import sys
 from pathlib import Path
 
 from asyncua import Client, ua
+from asyncua.common.subscription import Subscription
 from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
@@ -219,6 +224,21 @@ async def main():
                             else:
                                 good += 1
                     out({"good": good, "refused": refused})
+                elif c["cmd"] == "subscription":
+                    params = ua.CreateSubscriptionParameters()
+                    params.RequestedPublishingInterval = c["interval"]
+                    params.RequestedLifetimeCount = c["lifetime"]
+                    params.RequestedMaxKeepAliveCount = c["keepalive"]
+                    params.PublishingEnabled = True
+                    own = Subscription(client.uaclient, params, handler)
+                    made = await own.init()
+                    items = await own.subscribe_data_change([node(c["node"])] * c["count"])
+                    out({
+                        "interval": made.RevisedPublishingInterval,
+                        "lifetime": made.RevisedLifetimeCount,
+                        "keepalive": made.RevisedMaxKeepAliveCount,
+                        "good": sum(1 for r in items if not isinstance(r, ua.StatusCode)),
+                    })
                 elif c["cmd"] == "message_sizes":
                     out({"sizes": list(sizes)})
                     sizes.clear()

@@ -416,6 +416,11 @@ impl Device {
         self.diagnostics.borrow().clone()
     }
 
+    /// Whether `other` (a successor) keeps this device's diagnostics.
+    pub(crate) fn shares_diagnostics(&self, other: &Device) -> bool {
+        Arc::ptr_eq(&self.diagnostics, &other.diagnostics)
+    }
+
     pub(crate) fn subscribe_diagnostics(&self) -> watch::Receiver<Diagnostics> {
         self.diagnostics.subscribe()
     }

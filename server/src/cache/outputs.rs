@@ -169,6 +169,10 @@ pub(crate) struct Outputs {
     /// Whether the newest requested values are written again after a reconnect or the
     /// device's return (`rewrite_outputs`, resolved by the link's driver).
     rewrites: std::sync::atomic::AtomicBool,
+    /// Whether a slot may hold a pending write: set with one, cleared when every pending
+    /// write is taken (both under the slots' lock), so that a device's task looks at one
+    /// flag each cycle, not at every field.
+    pending: std::sync::atomic::AtomicBool,
 }
 
 impl Outputs {
@@ -178,6 +182,7 @@ impl Outputs {
             log,
             moved: std::sync::atomic::AtomicBool::new(false),
             rewrites: std::sync::atomic::AtomicBool::new(false),
+            pending: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
@@ -206,6 +211,10 @@ impl Outputs {
         for &(before, idx) in kept {
             let (s, t) = (&mut from[before], &mut to[idx]);
             t.pending = s.pending.take();
+            if t.pending.is_some() {
+                self.pending
+                    .store(true, std::sync::atomic::Ordering::Release);
+            }
             // What was asked of the old place is not the new place's desired value (a write
             // still waiting goes on: it was asked of the device by name).
             t.latest = if moved {
@@ -253,6 +262,8 @@ impl Outputs {
         value: Option<Value>,
     ) -> u64 {
         let generation = self.log.begin_from(device, field, value.clone(), origin);
+        self.pending
+            .store(true, std::sync::atomic::Ordering::Release);
         if let Some((old, _)) = slot.pending.replace((generation, value.clone())) {
             self.log.finish(old, WriteStatus::Superseded, None);
         }
@@ -307,7 +318,10 @@ impl Outputs {
 
     /// Takes every pending write.
     pub(crate) fn take(&self) -> Vec<TakenWrite> {
-        lock(&self.slots)
+        let mut slots = lock(&self.slots);
+        self.pending
+            .store(false, std::sync::atomic::Ordering::Release);
+        slots
             .iter_mut()
             .enumerate()
             .filter_map(|(field, slot)| {
@@ -333,7 +347,7 @@ impl Outputs {
     }
 
     pub(crate) fn has_pending(&self) -> bool {
-        lock(&self.slots).iter().any(|s| s.pending.is_some())
+        self.pending.load(std::sync::atomic::Ordering::Acquire)
     }
 
     /// The newest value requested for each output that is written again after a

@@ -21,7 +21,7 @@ use std::time::Duration;
 use crate::yaml::{self, Problems, Report};
 
 pub(crate) use check::{Access, check_devices, check_security, safe_value};
-pub(crate) use parse::CORE_KEYS;
+pub(crate) use parse::{CORE_KEYS, duration_value};
 pub use sections::Sections;
 pub(crate) use sections::{Exposure, Section};
 

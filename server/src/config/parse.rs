@@ -399,7 +399,7 @@ fn read_tcp(node: &Node, link: &str, report: &mut Report) -> Option<Transport> {
 }
 
 /// A duration such as `50ms` or `T#1s`, at least `min`.
-pub(super) fn duration_value(
+pub(crate) fn duration_value(
     node: &Node,
     report: &mut Report,
     ctx: &str,

@@ -476,6 +476,44 @@ mod tests {
         );
     }
 
+    #[tokio::test]
+    async fn diagnostics_are_followed_into_a_successor_with_diagnostics_of_its_own() {
+        use futures_util::StreamExt;
+        let service = demo_service();
+        let sim = service.cache.device("sim").expect("sim");
+        let selection = service
+            .select::<&str, &str>(&["sim"], &[])
+            .expect("selection");
+        let mut changes = service.subscribe(selection, true).expect("stream");
+        let connected = |c: Option<Change>| match c {
+            Some(Change::Diagnostics { diagnostics, .. }) => diagnostics.connected,
+            other => panic!("expected diagnostics, got {other:?}"),
+        };
+        let mut diagnostics = changes
+            .by_ref()
+            .filter(|c| std::future::ready(matches!(c, Change::Diagnostics { .. })));
+        let wait = std::time::Duration::from_secs(5);
+        let mut next_told = async || {
+            tokio::time::timeout(wait, diagnostics.next())
+                .await
+                .ok()
+                .flatten()
+        };
+        assert!(connected(next_told().await), "simulated: connected");
+        // Re-planned as a Modbus TCP device: not connected until it answers.
+        let mut profile = (*sim.profile).clone();
+        profile.protocol = crate::profile::Protocol::ModbusTcp;
+        let next = service.cache.change(|r| {
+            service
+                .cache
+                .replace_device(r, &sim, sim.config.clone(), Arc::new(profile))
+        });
+        assert!(!next.shares_diagnostics(&sim));
+        assert!(!connected(next_told().await), "the successor's own");
+        next.record_cycle(true, std::time::Duration::from_millis(3));
+        assert!(connected(next_told().await), "and as they change");
+    }
+
     #[test]
     fn change_streams_are_bounded_and_their_places_come_back() {
         let service = demo_service();

@@ -128,10 +128,18 @@ impl Followed {
                         Fate::Live => {}
                         Fate::Removed(reason) => return Some(self.removed(reason)),
                         Fate::Replaced(next) => {
-                            if let Watched::Field(idx, _) = &mut self.watched {
-                                match self.device.kept_in(*idx, &next) {
+                            match &mut self.watched {
+                                Watched::Field(idx, _) => match self.device.kept_in(*idx, &next) {
                                     Some(kept) => *idx = kept,
                                     None => return Some(self.removed(FIELD_REMOVED)),
+                                },
+                                // A successor with diagnostics of its own (simulated in a
+                                // real one's place, or the other way) is followed in them.
+                                Watched::Diagnostics(rx) => {
+                                    if !self.device.shares_diagnostics(&next) {
+                                        *rx = next.subscribe_diagnostics();
+                                        rx.mark_changed();
+                                    }
                                 }
                             }
                             self.fate = next.watch_fate();

@@ -2,6 +2,7 @@
 //! names that could collide, browse paths, every session's monitored items bounded together,
 //! diagnostics and links that follow the gateway.
 
+mod gone;
 mod strangers;
 
 use iogate_tests::devices::temp_dir;

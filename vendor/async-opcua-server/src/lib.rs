@@ -79,6 +79,8 @@ pub mod constants {
     pub const MAX_DATA_CHANGE_QUEUE_SIZE: usize = 10;
     /// Maximum time in MS that a session can be inactive before a timeout
     pub const MAX_SESSION_TIMEOUT: u64 = 60_000;
+    /// Longest time a subscription outlives its last publish request
+    pub const MAX_SUBSCRIPTION_LIFETIME_MS: f64 = 120_000.0;
     /// Default keep alive count
     pub const DEFAULT_KEEP_ALIVE_COUNT: u32 = 10;
     /// Maximum keep alive count

@@ -4,6 +4,7 @@
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::time::Duration;
 
 use crate::yaml::boolean;
 use crate::yaml::{Kind, Node, Report};
@@ -25,6 +26,7 @@ const KEYS: &[&str] = &[
     "max_connections",
     "max_connections_per_client",
     "max_notifications_per_publish",
+    "subscription_lifetime",
 ];
 
 pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:4840";
@@ -45,6 +47,9 @@ pub(crate) const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = 64;
 /// would end their session. An answer is also closed at about 160 KiB of notifications.
 pub(crate) const DEFAULT_MAX_NOTIFICATIONS_PER_PUBLISH: usize = 1000;
 const MAX_NOTIFICATIONS_PER_PUBLISH: usize = 100_000;
+/// How long a subscription outlives its client's last publish request, by default: a
+/// vanished client's subscriptions and items go about when its session does.
+pub(crate) const DEFAULT_SUBSCRIPTION_LIFETIME: Duration = Duration::from_secs(60);
 /// The most sessions, subscriptions per session and items per subscription configurable.
 const MAX_SESSIONS: usize = 10_000;
 const MAX_SUBSCRIPTIONS: usize = 1_000;
@@ -127,6 +132,9 @@ pub struct OpcUaConfig {
     pub(crate) max_monitored_items: usize,
     /// Notifications in one publish answer, at most.
     pub(crate) max_notifications_per_publish: usize,
+    /// How long a subscription outlives its client's last publish request, at most (its
+    /// lifetime and keep-alive counts are revised to keep within it).
+    pub(crate) subscription_lifetime: Duration,
     /// TCP connections open at once, and from one IP address.
     pub(crate) max_connections: usize,
     pub(crate) max_connections_per_client: usize,
@@ -177,17 +185,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         None => Some(false),
         Some(n) => boolean(n, report, &at("trust_client_certs")),
     };
-    let users = match map.get("users") {
-        None => Some(Users::Tokens),
-        Some(n) => users(&n.scalar_text(report, &at("users"))?, n.line, report),
-    };
-    let anonymous = match map.get("anonymous") {
-        None => Some(None),
-        Some(n) => match n.kind {
-            Kind::Bool(false) => Some(Some(Anonymous::Refused)),
-            _ => anonymous(&n.scalar_text(report, &at("anonymous"))?, n.line, report).map(Some),
-        },
-    };
+    let (users, anonymous) = who(&mut map, report);
     let [
         max_sessions,
         max_subscriptions,
@@ -197,6 +195,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_per_client,
         max_notifications,
     ] = limits(&mut map, report);
+    let subscription_lifetime = lifetime(&mut map, report);
     map.finish(report, ctx, KEYS);
     if certificate.is_some() != private_key.is_some() {
         report.push(
@@ -224,6 +223,7 @@ pub(super) fn read(node: &Node, report: &mut Report) -> Option<OpcUaConfig> {
         max_connections: max_connections?,
         max_connections_per_client: max_per_client?,
         max_notifications_per_publish: max_notifications?,
+        subscription_lifetime: subscription_lifetime?,
         line: node.line,
     })
 }
@@ -259,6 +259,39 @@ fn uri(n: &Node, report: &mut Report) -> Option<String> {
         return None;
     }
     Some(t)
+}
+
+/// `users` and `anonymous`: where users come from, and what anonymous sessions may do.
+fn who(
+    map: &mut crate::yaml::MapReader<'_>,
+    report: &mut Report,
+) -> (Option<Users>, Option<Option<Anonymous>>) {
+    let users = match map.get("users") {
+        None => Some(Users::Tokens),
+        Some(n) => n
+            .scalar_text(report, "opcua.users")
+            .and_then(|t| users(&t, n.line, report)),
+    };
+    let anonymous = match map.get("anonymous") {
+        None => Some(None),
+        Some(n) => match n.kind {
+            Kind::Bool(false) => Some(Some(Anonymous::Refused)),
+            _ => n
+                .scalar_text(report, "opcua.anonymous")
+                .and_then(|t| anonymous(&t, n.line, report))
+                .map(Some),
+        },
+    };
+    (users, anonymous)
+}
+
+/// `subscription_lifetime`: at least a second.
+fn lifetime(map: &mut crate::yaml::MapReader<'_>, report: &mut Report) -> Option<Duration> {
+    map.get("subscription_lifetime")
+        .map_or(Some(DEFAULT_SUBSCRIPTION_LIFETIME), |n| {
+            let ctx = "opcua.subscription_lifetime";
+            crate::config::duration_value(n, report, ctx, Duration::from_secs(1))
+        })
 }
 
 /// `users`: where users come from (`tokens`).
@@ -409,6 +442,7 @@ mod tests {
         assert_eq!(loopback.listen.to_string(), DEFAULT_LISTEN);
         assert_eq!(loopback.security, Endpoint::ALL.to_vec());
         assert_eq!(loopback.max_monitored_items_per_subscription, 20_000);
+        assert_eq!(loopback.subscription_lifetime, Duration::from_secs(60));
         let (wide, _) = read_text("opcua: { listen: 0.0.0.0:4840 }\n");
         assert!(!wide.expect("read").security.contains(&Endpoint::None));
     }
@@ -425,6 +459,7 @@ mod tests {
   max_sessions: 0
   certificate: own.der
   colour: red
+  subscription_lifetime: 500ms
 ",
         );
         assert!(config.is_none());
@@ -439,6 +474,7 @@ mod tests {
             "7: opcua.max_sessions: 0 is outside the allowed range 1-10000",
             "opcua: an application certificate needs its private_key",
             "opcua: unknown key `colour`",
+            "10: opcua.subscription_lifetime: must be at least 1000ms",
         ] {
             assert!(text.contains(expected), "{expected}\n{text}");
         }

@@ -79,8 +79,10 @@ impl Feed {
             synced: false,
         };
         let mut devices_changed = self.service.watch_devices();
-        self.sync(&mut shown);
+        // Followed before the address space is brought up to date: a change made meanwhile
+        // is in the stream (a subscription begins with the current values).
         let mut changes = self.subscribe();
+        self.sync(&mut shown);
         let mut links = tokio::time::interval(LINKS_EVERY);
         links.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
@@ -88,8 +90,8 @@ impl Feed {
             tokio::select! {
                 _ = token.cancelled() => return,
                 _ = devices_changed.changed() => {
-                    self.sync(&mut shown);
                     changes = self.subscribe();
+                    self.sync(&mut shown);
                 }
                 // Woken when the first item is made: the loop then reads the stream.
                 _ = self.counts.watched(), if !watching => {}
@@ -171,7 +173,7 @@ impl Feed {
         let now = DateTime::now();
         let devices = self.service.devices();
         let links = self.service.links();
-        self.tell_gone(shown, &devices, now);
+        self.tell_gone(shown, &devices, &links, now);
         let mut model = Vec::new();
         let mut space = self.manager.address_space().write();
         let ids = self.ids;
@@ -232,9 +234,16 @@ impl Feed {
         model
     }
 
-    /// Items monitoring a field that goes are told so (Bad_NodeIdUnknown) before its node
-    /// is deleted; a re-planned device's kept fields are not.
-    fn tell_gone(&self, shown: &Shown, devices: &[Arc<Device>], now: DateTime) {
+    /// Items monitoring a variable that goes (a field, or a device's or link's diagnostic)
+    /// are told so (Bad_NodeIdUnknown) before its node is deleted; a re-planned device's
+    /// kept fields and its diagnostics are not.
+    fn tell_gone(
+        &self,
+        shown: &Shown,
+        devices: &[Arc<Device>],
+        links: &[Arc<Link>],
+        now: DateTime,
+    ) {
         let mut gone = Vec::new();
         for (name, old) in &shown.devices {
             if devices.iter().any(|d| Arc::ptr_eq(d, &old.device)) {
@@ -243,19 +252,26 @@ impl Feed {
             let next = devices.iter().find(|d| d.name() == name.as_str());
             for field in &old.fields {
                 if next.is_none_or(|d| d.field_index(field).is_err()) {
-                    gone.push((
-                        self.ids.field(name, field),
-                        DataValue {
-                            value: Some(opcua::types::Variant::Empty),
-                            status: Some(opcua::types::StatusCode::BadNodeIdUnknown),
-                            server_timestamp: Some(now),
-                            ..DataValue::default()
-                        },
-                    ));
+                    gone.push(self.ids.field(name, field));
                 }
             }
+            if next.is_none() {
+                let ids = space::DEVICE_DIAGNOSTICS.map(|v| self.ids.device_diagnostic(name, v));
+                gone.extend(ids);
+            }
         }
-        self.set(gone);
+        for name in shown.links.keys() {
+            if !links.iter().any(|l| l.name() == name.as_str()) {
+                gone.extend(space::LINK_DIAGNOSTICS.map(|v| self.ids.link_diagnostic(name, v)));
+            }
+        }
+        let unknown = DataValue {
+            value: Some(opcua::types::Variant::Empty),
+            status: Some(opcua::types::StatusCode::BadNodeIdUnknown),
+            server_timestamp: Some(now),
+            ..DataValue::default()
+        };
+        self.set(gone.into_iter().map(|id| (id, unknown.clone())).collect());
     }
 
     /// Items that monitored a re-planned device's fields see its values now.

@@ -396,6 +396,7 @@ fn set_limits(builder: &mut ServerBuilder, config: &OpcUaConfig) {
         // negotiate: a burst of changes goes in several answers, each one a client takes.
         limits.subscriptions.max_notifications_per_publish =
             config.max_notifications_per_publish as u64;
+        limits.subscriptions.max_lifetime_ms = config.subscription_lifetime.as_millis() as f64;
         limits.subscriptions.min_publishing_interval_ms = MIN_INTERVAL_MS as f64;
         limits.subscriptions.min_sampling_interval_ms = MIN_INTERVAL_MS as f64;
         // The operation limits the server advertises are the ones it keeps: a request past

@@ -112,6 +112,11 @@ pub struct SubscriptionLimits {
     /// Maximum lifetime count (3 times as large as max keep alive)
     #[serde(default = "defaults::max_lifetime_count")]
     pub max_lifetime_count: u32,
+    /// Longest time in milliseconds a subscription outlives its last publish request (the
+    /// lifetime and keep-alive counts are revised to keep within it, the lifetime at least
+    /// three keep-alives): a client that vanished does not hold its items for hours.
+    #[serde(default = "defaults::max_lifetime_ms")]
+    pub max_lifetime_ms: f64,
     /// Maximum number of notifications per publish message.
     #[serde(default = "defaults::max_notifications_per_publish")]
     pub max_notifications_per_publish: u64,
@@ -134,6 +139,7 @@ impl Default for SubscriptionLimits {
             max_monitored_items_per_sub: defaults::max_monitored_items_per_sub(),
             max_monitored_item_queue_size: defaults::max_monitored_item_queue_size(),
             max_lifetime_count: defaults::max_lifetime_count(),
+            max_lifetime_ms: defaults::max_lifetime_ms(),
             max_notifications_per_publish: defaults::max_notifications_per_publish(),
             max_queued_notifications: defaults::max_queued_notifications(),
         }
@@ -294,6 +300,9 @@ mod defaults {
     pub(super) fn max_lifetime_count() -> u32 {
         constants::MAX_KEEP_ALIVE_COUNT * 3
     }
+    pub(super) fn max_lifetime_ms() -> f64 {
+        constants::MAX_SUBSCRIPTION_LIFETIME_MS
+    }
     pub(super) fn max_notifications_per_publish() -> u64 {
         constants::MAX_NOTIFICATIONS_PER_PUBLISH
     }
@@ -395,6 +404,7 @@ mod tests {
                     max_monitored_items_per_sub: 0,
                     max_monitored_item_queue_size: 10,
                     max_lifetime_count: 90_000,
+                    max_lifetime_ms: 120_000.0,
                     max_notifications_per_publish: 0,
                     max_queued_notifications: 20,
                 },

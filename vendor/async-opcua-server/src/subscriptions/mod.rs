@@ -91,6 +91,25 @@ struct SubscriptionCacheInner {
     monitored_items: HashMap<MonitoredItemKey, HashMap<MonitoredItemHandle, MonitoredItemEntry>>,
 }
 
+impl SubscriptionCacheInner {
+    /// Monitored items that are gone (deleted, or of a subscription that was deleted or
+    /// expired) are no longer notified; a node no item monitors leaves the map.
+    fn forget_items<'a>(&mut self, items: impl IntoIterator<Item = &'a MonitoredItemRef>) {
+        for rf in items {
+            let key = MonitoredItemKeyRef {
+                id: rf.node_id().into(),
+                attribute_id: rf.attribute(),
+            };
+            if let Some(it) = self.monitored_items.get_mut(&key) {
+                it.remove(&rf.handle());
+                if it.is_empty() {
+                    self.monitored_items.remove(&key);
+                }
+            }
+        }
+    }
+}
+
 /// Structure storing all subscriptions and monitored items on the server.
 /// Used to notify users of changes.
 ///
@@ -147,29 +166,47 @@ impl SubscriptionCache {
         // be more efficient, and would be more responsive.
         let mut to_delete = Vec::new();
         let mut items_to_delete = Vec::new();
+        // Subscriptions that expired in the tick leave the count too.
+        let expired;
         {
             let now = Utc::now();
             let lck = trace_read_lock!(self.inner);
+            let mut live = 0;
             for (session_id, sub) in lck.session_subscriptions.iter() {
                 let mut sub_lck = sub.lock();
                 items_to_delete.push((
                     sub_lck.session().clone(),
                     sub_lck.tick(&now, now_instant, TickReason::TickTimerFired),
                 ));
+                live += sub_lck.len();
                 if sub_lck.is_ready_to_delete() {
                     to_delete.push(*session_id);
                 }
             }
+            expired = live != lck.subscription_to_session.len();
         }
-        if !to_delete.is_empty() {
+        if !to_delete.is_empty() || expired {
             let mut lck = trace_write_lock!(self.inner);
             for id in to_delete {
                 lck.session_subscriptions.remove(&id);
             }
+            let inner = &mut *lck;
+            let sessions = &inner.session_subscriptions;
+            inner.subscription_to_session.retain(|sub, session| {
+                sessions
+                    .get(session)
+                    .is_some_and(|s| s.lock().contains(*sub))
+            });
             context
                 .info
                 .diagnostics
                 .set_current_subscription_count(lck.subscription_to_session.len() as u32);
+        }
+        if items_to_delete.iter().any(|(_, items)| !items.is_empty()) {
+            let mut lck = trace_write_lock!(self.inner);
+            for (_, items) in &items_to_delete {
+                lck.forget_items(items);
+            }
         }
         if !items_to_delete.is_empty() {
             Self::delete_expired_monitored_items(context, items_to_delete).await;
@@ -561,17 +598,11 @@ impl SubscriptionCache {
         let mut cache_lck = cache.lock();
         let result = cache_lck.delete_monitored_items(subscription_id, items);
         if let Ok(res) = &result {
-            for (status, rf) in res {
-                if status.is_good() {
-                    let key = MonitoredItemKeyRef {
-                        id: rf.node_id().into(),
-                        attribute_id: rf.attribute(),
-                    };
-                    if let Some(it) = lck.monitored_items.get_mut(&key) {
-                        it.remove(&rf.handle());
-                    }
-                }
-            }
+            lck.forget_items(
+                res.iter()
+                    .filter(|(status, _)| status.is_good())
+                    .map(|(_, rf)| rf),
+            );
         }
         result
     }
@@ -601,17 +632,9 @@ impl SubscriptionCache {
                 continue;
             }
 
-            for rf in item_res {
-                if rf.attribute() == AttributeId::EventNotifier {
-                    let key = MonitoredItemKeyRef {
-                        id: rf.node_id().into(),
-                        attribute_id: rf.attribute(),
-                    };
-                    if let Some(it) = lck.monitored_items.get_mut(&key) {
-                        it.remove(&rf.handle());
-                    }
-                }
-            }
+            // Data items as well as event items: a deleted subscription's items are not
+            // sampled again.
+            lck.forget_items(item_res);
         }
 
         Ok(result)

@@ -99,6 +99,11 @@ impl SessionSubscriptions {
         self.subscriptions.contains_key(&sub_id)
     }
 
+    /// How many subscriptions this session has.
+    pub(super) fn len(&self) -> usize {
+        self.subscriptions.len()
+    }
+
     /// Return a vector of all the subscription IDs in this session.
     pub fn subscription_ids(&self) -> Vec<u32> {
         self.subscriptions.keys().copied().collect()
@@ -497,24 +502,29 @@ impl SessionSubscriptions {
             requested_publishing_interval,
             info.config.limits.subscriptions.min_publishing_interval_ms,
         );
-        let revised_max_keep_alive_count = if requested_max_keep_alive_count
-            > info.config.limits.subscriptions.max_keep_alive_count
-        {
-            info.config.limits.subscriptions.max_keep_alive_count
-        } else if requested_max_keep_alive_count == 0 {
-            info.config.limits.subscriptions.default_keep_alive_count
+        let limits = &info.config.limits.subscriptions;
+        // The counts that keep a subscription without publish requests within the longest
+        // lifetime: its lifetime at most that, at least three keep-alives.
+        let most = (limits.max_lifetime_ms / revised_publishing_interval).floor();
+        let most = if most.is_finite() && most >= 3.0 {
+            most.min(u32::MAX as f64) as u32
+        } else {
+            3
+        };
+        let revised_max_keep_alive_count = if requested_max_keep_alive_count == 0 {
+            limits.default_keep_alive_count
         } else {
             requested_max_keep_alive_count
-        };
+        }
+        .min(limits.max_keep_alive_count)
+        .min(most / 3)
+        .max(1);
         // Lifetime count must exceed keep alive count by at least a multiple of
         let min_lifetime_count = revised_max_keep_alive_count * 3;
-        let revised_lifetime_count = if requested_lifetime_count < min_lifetime_count {
-            min_lifetime_count
-        } else if requested_lifetime_count > info.config.limits.subscriptions.max_lifetime_count {
-            info.config.limits.subscriptions.max_lifetime_count
-        } else {
-            requested_lifetime_count
-        };
+        let revised_lifetime_count = requested_lifetime_count
+            .min(limits.max_lifetime_count)
+            .min(most)
+            .max(min_lifetime_count);
         (
             revised_publishing_interval,
             revised_max_keep_alive_count,

@@ -567,7 +567,8 @@ impl Subscription {
             UpdateStateAction::SubscriptionCreated => TickResult::None,
             UpdateStateAction::SubscriptionExpired => {
                 debug!("Subscription status change to closed / timeout");
-                self.monitored_items.clear();
+                // The items are drained by the session's tick, which has them deleted
+                // (their node managers told, the notifier map cleared).
                 let notification = NotificationMessage::status_change(
                     self.sequence_number.next(),
                     DateTime::from(*now),
@@ -597,8 +598,10 @@ impl Subscription {
         !self.notifications.is_empty()
     }
 
+    /// Closed (expired): its status change went with the publish request waiting, if one
+    /// was; with none, nobody would ever take it, and the subscription goes all the same.
     pub(super) fn ready_to_remove(&self) -> bool {
-        self.state == SubscriptionState::Closed && self.notifications.is_empty()
+        self.state == SubscriptionState::Closed
     }
 
     fn handle_triggers(

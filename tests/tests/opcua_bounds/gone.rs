@@ -1,0 +1,109 @@
+//! What goes from the OPC UA server when its owner does: a vanished client's subscriptions
+//! and items, a removed device's variables (told so to the items that monitored them).
+
+use super::*;
+
+#[tokio::test]
+async fn a_vanished_clients_subscriptions_end_within_their_lifetime_and_free_their_items() {
+    let (gw, _) = plant("opcua-lifetime", "  subscription_lifetime: 2s\n").await;
+    let mut ua = client(&gw).await;
+    // asyncua's own defaults would keep it for hours: 10,000 intervals of 100 ms.
+    let made = ua
+        .cmd(
+            json!({"cmd": "subscription", "interval": 100, "lifetime": 10000,
+                    "keepalive": 3000, "node": "plant.Level", "count": 20}),
+        )
+        .await
+        .expect("subscription");
+    assert_eq!(made["interval"], 100.0, "{made}");
+    let (lifetime, keepalive) = (
+        made["lifetime"].as_u64().unwrap_or(u64::MAX),
+        made["keepalive"].as_u64().unwrap_or(u64::MAX),
+    );
+    assert!(lifetime <= 20, "2 s of 100 ms intervals at most: {made}");
+    assert!(keepalive >= 1 && lifetime >= 3 * keepalive, "{made}");
+    assert_eq!(made["good"], 20, "{made}");
+    let metrics = gw.metrics().await.expect("metrics");
+    for line in [
+        "iogate_opcua_subscriptions 1\n",
+        "iogate_opcua_monitored_items 20\n",
+    ] {
+        assert!(metrics.contains(line), "{line}{metrics}");
+    }
+    // Killed: no CloseSession, no publish request ever again.
+    drop(ua);
+    eventually(
+        "the vanished client's subscription and items gone",
+        || async {
+            gw.metrics().await.is_ok_and(|m| {
+                m.contains("iogate_opcua_subscriptions 0\n")
+                    && m.contains("iogate_opcua_monitored_items 0\n")
+            })
+        },
+    )
+    .await
+    .expect("freed within the lifetime");
+    gw.shutdown().await;
+}
+
+#[tokio::test]
+async fn a_removed_devices_fields_and_diagnostics_are_told_gone() {
+    let (gw, _) = plant("opcua-gone", "").await;
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            "/api/v1/devices/extra",
+            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 201, "{body}");
+    let mut ua = client(&gw).await;
+    let watched = [
+        "extra.DI_0",
+        "Diagnostics/extra/connected",
+        "Diagnostics/extra/error_code",
+        "Diagnostics/extra/io_cycles",
+        "Diagnostics/extra/last_response_ms",
+    ];
+    eventually("the declared device shown", || async {
+        ua_children(&url(&gw), "/iogate/Devices")
+            .await
+            .is_some_and(|c| c.contains("Devices/extra"))
+    })
+    .await
+    .expect("shown");
+    let subscribed = ua
+        .cmd(json!({"cmd": "subscribe", "nodes": watched, "interval": 50}))
+        .await
+        .expect("subscribe");
+    assert_eq!(subscribed["subscribed"], watched.len(), "{subscribed}");
+    let (status, body) = gw
+        .send(Method::DELETE, "/api/v1/devices/extra", "")
+        .await
+        .expect("remove");
+    assert!((200..300).contains(&status), "{body}");
+    let mut gone = std::collections::BTreeSet::new();
+    let deadline = tokio::time::Instant::now() + iogate_tests::PATIENCE;
+    while gone.len() < watched.len() {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "told gone: {gone:?}"
+        );
+        let changes = ua
+            .cmd(json!({"cmd": "changes", "wait": 5}))
+            .await
+            .expect("changes");
+        for change in changes["changes"].as_array().into_iter().flatten() {
+            if change["status"] == "BadNodeIdUnknown" {
+                gone.insert(change["node"].as_str().unwrap_or_default().to_owned());
+            }
+        }
+    }
+    assert_eq!(
+        gone,
+        watched.iter().map(|w| w.to_string()).collect(),
+        "every item on the device"
+    );
+    gw.shutdown().await;
+}
