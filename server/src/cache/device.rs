@@ -114,6 +114,13 @@ impl Device {
         };
         let error_code = binding.code(profile.protocol);
         let place = PLACES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        // As the link's driver will resolve it (Modbus writes again by default, the others
+        // not), so that the device says so before its link takes it in.
+        let outputs = Outputs::new(n, log);
+        outputs.set_rewrites(crate::cache::rewrites(
+            config.rewrite_outputs,
+            profile.protocol.is_modbus(),
+        ));
         Device {
             samples: (0..n)
                 .map(|_| {
@@ -129,7 +136,7 @@ impl Device {
                 io_cycles: 0,
                 last_response_ms: 0.0,
             })),
-            outputs: Outputs::new(n, log),
+            outputs,
             fate: watch::Sender::new(Fate::Live),
             sim: simulated
                 .then(|| Mutex::new(profile.fields.iter().map(|f| Value::zero(f.ty)).collect())),

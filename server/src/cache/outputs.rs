@@ -175,6 +175,11 @@ pub(crate) struct Outputs {
     pending: std::sync::atomic::AtomicBool,
 }
 
+/// Whether outputs are written again: as `setting` says, else the protocol's `default`.
+pub(crate) fn rewrites(setting: Option<crate::config::RewriteOutputs>, default: bool) -> bool {
+    setting.map_or(default, |r| r == crate::config::RewriteOutputs::OnReconnect)
+}
+
 impl Outputs {
     pub(crate) fn new(fields: usize, log: Arc<WriteLog>) -> Self {
         Outputs {

@@ -160,12 +160,8 @@ impl<D: Driver> Driven<D> {
         for device in new {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
             let rewrite = device.rewrite_first();
-            let rewrites = device
-                .config
-                .rewrite_outputs
-                .map_or(D::REWRITES_OUTPUTS, |r| {
-                    r == crate::config::RewriteOutputs::OnReconnect
-                });
+            let rewrites =
+                crate::cache::rewrites(device.config.rewrite_outputs, D::REWRITES_OUTPUTS);
             device.outputs().set_rewrites(rewrites);
             self.devices.push(Polled {
                 plan: D::plan(&device),

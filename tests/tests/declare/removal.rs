@@ -13,11 +13,16 @@ async fn declared_devices_and_links_can_be_removed_and_configured_ones_cannot() 
         .expect("put link");
     assert_eq!(status, 201);
     let bound = json!({"profile": "WaveshareAnalogInput", "link": "plc", "slave_id": 1, "refresh_rate_ms": 50});
-    let (status, _) = gw
+    let (status, answer) = gw
         .send(Method::PUT, "/api/v1/devices/adc", bound.to_string())
         .await
         .expect("put device");
     assert_eq!(status, 201);
+    // The answer says what the device will do, as every later look at it does.
+    assert_eq!(
+        answer["device"]["rewrite_outputs"], "on_reconnect",
+        "{answer}"
+    );
     gw.until("/api/v1/devices/adc", "adc polled", |b| {
         b["fields"]["AI1"]["value"] == 777
     })

@@ -3,18 +3,28 @@
 
 use super::*;
 
+/// A subscription asked for (interval in ms, lifetime and keep-alive counts), with `count`
+/// items on `node`: what the server revised, and how many items it took.
+async fn subscription(
+    ua: &mut UaClient,
+    (interval, lifetime, keepalive): (f64, u32, u32),
+    node: &str,
+    count: usize,
+) -> serde_json::Value {
+    ua.cmd(
+        json!({"cmd": "subscription", "interval": interval, "lifetime": lifetime,
+                  "keepalive": keepalive, "node": node, "count": count}),
+    )
+    .await
+    .expect("subscription")
+}
+
 #[tokio::test]
 async fn a_vanished_clients_subscriptions_end_within_their_lifetime_and_free_their_items() {
     let (gw, _) = plant("opcua-lifetime", "  subscription_lifetime: 2s\n").await;
     let mut ua = client(&gw).await;
     // asyncua's own defaults would keep it for hours: 10,000 intervals of 100 ms.
-    let made = ua
-        .cmd(
-            json!({"cmd": "subscription", "interval": 100, "lifetime": 10000,
-                    "keepalive": 3000, "node": "plant.Level", "count": 20}),
-        )
-        .await
-        .expect("subscription");
+    let made = subscription(&mut ua, (100.0, 10000, 3000), "plant.Level", 20).await;
     assert_eq!(made["interval"], 100.0, "{made}");
     let (lifetime, keepalive) = (
         made["lifetime"].as_u64().unwrap_or(u64::MAX),
@@ -23,9 +33,16 @@ async fn a_vanished_clients_subscriptions_end_within_their_lifetime_and_free_the
     assert!(lifetime <= 20, "2 s of 100 ms intervals at most: {made}");
     assert!(keepalive >= 1 && lifetime >= 3 * keepalive, "{made}");
     assert_eq!(made["good"], 20, "{made}");
+    // An interval that would outlive any count: a third of the lifetime at most. A Value
+    // item on an object (which has none) is refused, its place given back.
+    let long = subscription(&mut ua, (1e300, 10, 3), "Devices/plant", 1).await;
+    let interval = long["interval"].as_f64().unwrap_or(f64::INFINITY);
+    let lifetime = long["lifetime"].as_f64().unwrap_or(f64::INFINITY);
+    assert!(interval * lifetime <= 2000.0 + 1e-6, "{long}");
+    assert_eq!(long["good"], 0, "{long}");
     let metrics = gw.metrics().await.expect("metrics");
     for line in [
-        "iogate_opcua_subscriptions 1\n",
+        "iogate_opcua_subscriptions 2\n",
         "iogate_opcua_monitored_items 20\n",
     ] {
         assert!(metrics.contains(line), "{line}{metrics}");

@@ -140,12 +140,19 @@ impl InMemoryNodeManagerImpl for GatewayNodes {
                 TimestampsToReturn::Both,
             )
             .await;
+        // A node without a value (an object, a folder) has no Value item, as a Read of it
+        // answers; its place is given back.
+        let mut invalid = 0;
         for (value, item) in values.into_iter().zip(items.iter_mut()) {
-            if value.status() != StatusCode::BadAttributeIdInvalid {
+            if value.status() == StatusCode::BadAttributeIdInvalid {
+                item.set_status(StatusCode::BadAttributeIdInvalid);
+                invalid += 1;
+            } else {
                 item.set_initial_value(value);
+                item.set_status(StatusCode::Good);
             }
-            item.set_status(StatusCode::Good);
         }
+        self.counts.items_deleted(invalid);
     }
 
     async fn delete_monitored_items(&self, _context: &RequestContext, items: &[&MonitoredItemRef]) {

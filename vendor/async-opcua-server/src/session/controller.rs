@@ -487,7 +487,9 @@ impl SessionController {
                         Ok(s) => s,
                         Err(e) => {
                             self.info.diagnostics.inc_rejected_requests();
-                            self.info.diagnostics.inc_security_rejected_requests();
+                            if security_refusal(e.response_header().service_result) {
+                                self.info.diagnostics.inc_security_rejected_requests();
+                            }
                             match self
                                 .transport
                                 .enqueue_message_for_send(&mut self.channel, e, id)
@@ -787,13 +789,16 @@ impl SecureChannelState {
     }
 }
 
-/// Whether a refusal is for security: a session, a user's token, a client certificate, a
-/// signature (the published crate counted three codes, so an untrusted certificate or an
-/// unknown token went uncounted).
+/// Whether a refusal is for security: a user's token, a client certificate, a signature
+/// (the published crate counted three codes, so an untrusted certificate or an unknown
+/// token went uncounted). A session that is no longer there is not: a publish still on its
+/// way when a client closes its session is answered so, and so is a client whose session
+/// timed out.
 fn security_refusal(status: StatusCode) -> bool {
     matches!(
         status,
-        StatusCode::BadSessionIdInvalid
+        // Another secure channel's session: the token was not this client's.
+        StatusCode::BadSecureChannelIdInvalid
             | StatusCode::BadSecurityChecksFailed
             | StatusCode::BadUserAccessDenied
             | StatusCode::BadIdentityTokenInvalid

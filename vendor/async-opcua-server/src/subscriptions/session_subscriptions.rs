@@ -498,11 +498,16 @@ impl SessionSubscriptions {
         requested_max_keep_alive_count: u32,
         requested_lifetime_count: u32,
     ) -> (f64, u32, u32) {
+        let limits = &info.config.limits.subscriptions;
+        // At most a third of the longest lifetime (three intervals are the shortest
+        // lifetime), and never infinite: a lifetime of three such intervals is still within
+        // the bound.
+        let longest_interval = (limits.max_lifetime_ms / 3.0).max(limits.min_publishing_interval_ms);
         let revised_publishing_interval = f64::max(
             requested_publishing_interval,
-            info.config.limits.subscriptions.min_publishing_interval_ms,
-        );
-        let limits = &info.config.limits.subscriptions;
+            limits.min_publishing_interval_ms,
+        )
+        .min(longest_interval);
         // The counts that keep a subscription without publish requests within the longest
         // lifetime: its lifetime at most that, at least three keep-alives.
         let most = (limits.max_lifetime_ms / revised_publishing_interval).floor();
