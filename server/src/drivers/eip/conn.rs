@@ -80,7 +80,12 @@ impl Connection {
         command: u16,
         data: &[u8],
     ) -> Result<(cip::Header, Vec<u8>), EipError> {
-        self.context = self.context.wrapping_add(1);
+        // RegisterSession goes with a sender context of zero: any is allowed (Vol. 2,
+        // 2-4.4), and libplctag's ab_server refuses any other.
+        self.context = match command {
+            cip::REGISTER_SESSION => 0,
+            _ => self.context.wrapping_add(1),
+        };
         let packet = cip::encapsulate(command, self.session, self.context, data);
         let timeout = self.timeout;
         tokio::time::timeout(timeout, async {
@@ -214,5 +219,36 @@ impl Connection {
     ) -> Result<Option<(u16, u16, String, u32, String)>, EipError> {
         let (_, body) = self.exchange(cip::LIST_IDENTITY, &[]).await?;
         Ok(cip::identity(&body))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::net::TcpListener;
+
+    /// A controller as strict as libplctag's ab_server: RegisterSession with any sender
+    /// context but zero is refused (encapsulation status 1).
+    #[tokio::test]
+    async fn a_session_is_registered_with_a_sender_context_of_zero() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let port = listener.local_addr().expect("addr").port();
+        let peer = tokio::spawn(async move {
+            let (mut io, _) = listener.accept().await.expect("accept");
+            let mut request = [0u8; cip::HEADER + 4];
+            io.read_exact(&mut request).await.expect("request");
+            let context = u64::from_le_bytes(request[12..20].try_into().expect("8 bytes"));
+            let status = u32::from(context != 0);
+            let mut answer = request;
+            answer[4..8].copy_from_slice(&7u32.to_le_bytes());
+            answer[8..12].copy_from_slice(&status.to_le_bytes());
+            io.write_all(&answer).await.expect("answer");
+            context
+        });
+        let conn = Connection::open(("127.0.0.1", port), Vec::new(), Duration::from_secs(5))
+            .await
+            .expect("registered");
+        assert_eq!(conn.session, 7);
+        assert_eq!(peer.await.expect("peer"), 0);
     }
 }
