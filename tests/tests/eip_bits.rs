@@ -121,14 +121,20 @@ async fn a_bit_is_written_alone_whatever_the_rest_of_its_integer_became() {
 
 #[tokio::test]
 async fn a_controller_without_large_forward_open_or_any_is_read_on_what_it_has() {
-    for (flag, size) in [("--small", "504"), ("--unconnected", "unconnected")] {
+    // The last: a controller with connections, read unconnected as the link asks.
+    for (flag, asked, size) in [
+        (Some("--small"), "", "504"),
+        (Some("--unconnected"), "", "unconnected"),
+        (None, ", connected: false", "unconnected"),
+    ] {
         // pylogix needs a connection: the gateway's own reads are the check here.
-        let plc = LogixPlc::directory(&[flag]).await.expect("controller");
+        let flags: Vec<&str> = flag.into_iter().collect();
+        let plc = LogixPlc::directory(&flags).await.expect("controller");
         let dir = temp_dir("eip-sizes");
         std::fs::create_dir_all(dir.join("profiles")).expect("dir");
         std::fs::write(dir.join("profiles/bits.yaml"), PROFILE).expect("profile");
         let gw = TestGateway::start(&format!(
-            "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {} }} }}\ndevices:\n  - {{ name: bits, profile: Bits, link: plc, refresh_rate: 100ms }}\n",
+            "profiles: {}\nlinks:\n  - {{ name: plc, eip: {{ host: 127.0.0.1, port: {}{asked} }} }}\ndevices:\n  - {{ name: bits, profile: Bits, link: plc, refresh_rate: 100ms }}\n",
             dir.join("profiles").display(),
             plc.port
         ))
@@ -140,9 +146,9 @@ async fn a_controller_without_large_forward_open_or_any_is_read_on_what_it_has()
         .await
         .expect("read");
         let (_, link) = gw.get("/api/v1/links/plc").await.expect("link");
-        assert_eq!(link["peer"]["connection_size"], size, "{flag}: {link}");
+        assert_eq!(link["peer"]["connection_size"], size, "{flag:?}: {link}");
         let outcome = put(&gw, "F4", json!(true)).await.expect("write");
-        assert_eq!(outcome["status"], "written", "{flag}: {outcome}");
+        assert_eq!(outcome["status"], "written", "{flag:?}: {outcome}");
         gw.until("/api/v1/devices/bits", "the bit read back", |d| {
             d["fields"]["Flags"]["value"] == 16
         })

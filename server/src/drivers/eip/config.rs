@@ -7,7 +7,7 @@ use std::time::Duration;
 use crate::config::DriverLink;
 use crate::yaml::Report;
 
-const KEYS: &[&str] = &["host", "port", "path", "timeout"];
+const KEYS: &[&str] = &["host", "port", "path", "timeout", "connected"];
 
 /// The longest `timeout`.
 const MAX_TIMEOUT: Duration = Duration::from_secs(10);
@@ -19,6 +19,9 @@ pub(crate) struct Settings {
     /// The route as CIP port segments.
     pub(crate) route: Vec<u8>,
     pub(crate) timeout: Duration,
+    /// Whether a class 3 connection is asked for (Forward Open); without one every request
+    /// goes unconnected (`connected: false`: a controller with few connections to spare).
+    pub(crate) connected: bool,
 }
 
 /// A route as Logix writes it (`1,0`; `1,0,2,192.168.1.20,1,0`) as port segments.
@@ -102,12 +105,16 @@ pub(crate) fn read(link: &str, d: &DriverLink, report: &mut Report) -> Option<Se
                 }
             }
         });
+    let connected = map.get("connected").map_or(Some(true), |n| {
+        crate::yaml::boolean(n, report, &at("connected"))
+    });
     map.finish(report, &ctx, KEYS);
     Some(Settings {
         host: host?,
         port: u16::try_from(port?).ok()?,
         route: route?,
         timeout: timeout?,
+        connected: connected?,
     })
 }
 
@@ -127,5 +134,32 @@ mod tests {
         for bad in ["1", "0,1", "15,0", "1,x", "1,256"] {
             assert!(route(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_link_is_connected_unless_it_says_not() {
+        let settings = |text: &str| {
+            let (config, problems) = crate::config::read_section(text, "eip", |n, report| {
+                let link = DriverLink {
+                    protocol: "eip",
+                    endpoint: String::new(),
+                    settings: n.clone(),
+                    base: std::path::PathBuf::new(),
+                };
+                read("plc", &link, report)
+            });
+            (config.map(|s| s.connected), problems)
+        };
+        assert_eq!(settings("eip: { host: plc }\n"), (Some(true), vec![]));
+        assert_eq!(
+            settings("eip: { host: plc, connected: false }\n"),
+            (Some(false), vec![])
+        );
+        let (none, problems) = settings("eip: { host: plc, connected: maybe }\n");
+        assert_eq!(none, None);
+        assert!(
+            problems.iter().any(|p| p.contains("eip.connected")),
+            "{problems:?}"
+        );
     }
 }

@@ -168,7 +168,9 @@ impl Driver for Eip {
             .await
             .map_err(failed)?;
         let serial = SERIAL.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        conn.forward_open(serial).await.map_err(failed)?;
+        if s.connected {
+            conn.forward_open(serial).await.map_err(failed)?;
+        }
         link.set_peer(
             "connection_size",
             match conn.connection_size() {
