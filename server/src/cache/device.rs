@@ -114,13 +114,15 @@ impl Device {
         };
         let error_code = binding.code(profile.protocol);
         let place = PLACES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        // As the link's driver will resolve it (Modbus writes again by default, the others
-        // not), so that the device says so before its link takes it in.
+        // Resolved here, once: the device says what it will do before its link takes it in.
         let outputs = Outputs::new(n, log);
-        outputs.set_rewrites(crate::cache::rewrites(
-            config.rewrite_outputs,
-            profile.protocol.is_modbus(),
-        ));
+        outputs.set_rewrites(
+            config
+                .rewrite_outputs
+                .map_or(profile.protocol.rewrites_outputs(), |r| {
+                    r == crate::config::RewriteOutputs::OnReconnect
+                }),
+        );
         Device {
             samples: (0..n)
                 .map(|_| {

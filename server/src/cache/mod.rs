@@ -26,7 +26,7 @@ pub use link::{
     INBOX_CAPACITY, Inbox, Link, LinkState, Passthrough, PassthroughError, Probe, Progress, Stage,
     Utilisation,
 };
-pub(crate) use outputs::{Checked, TakenWrite, WriteError, rewrites};
+pub(crate) use outputs::{Checked, TakenWrite, WriteError};
 pub(crate) use sample::{Diagnostics, FieldError, LinkDiagnostics, Sample};
 pub(crate) use slot::{Forms, SlotReceiver};
 

@@ -167,17 +167,13 @@ pub(crate) struct Outputs {
     /// that comes later is for the successor.
     moved: std::sync::atomic::AtomicBool,
     /// Whether the newest requested values are written again after a reconnect or the
-    /// device's return (`rewrite_outputs`, resolved by the link's driver).
+    /// device's return (`rewrite_outputs`, else the protocol's default), resolved when the
+    /// device is made.
     rewrites: std::sync::atomic::AtomicBool,
     /// Whether a slot may hold a pending write: set with one, cleared when every pending
     /// write is taken (both under the slots' lock), so that a device's task looks at one
     /// flag each cycle, not at every field.
     pending: std::sync::atomic::AtomicBool,
-}
-
-/// Whether outputs are written again: as `setting` says, else the protocol's `default`.
-pub(crate) fn rewrites(setting: Option<crate::config::RewriteOutputs>, default: bool) -> bool {
-    setting.map_or(default, |r| r == crate::config::RewriteOutputs::OnReconnect)
 }
 
 impl Outputs {

@@ -302,7 +302,7 @@ pub struct DeviceConfig {
     /// value than the one requested.
     pub(crate) write_mode: WriteMode,
     /// Whether the newest requested outputs are written again after a reconnect or the
-    /// device's return; `None` is the protocol's default (`Driver::REWRITES_OUTPUTS`).
+    /// device's return; `None` is the protocol's default (`Protocol::rewrites_outputs`).
     pub(crate) rewrite_outputs: Option<RewriteOutputs>,
     /// What happens to outputs a scan-cycle client wrote when it is gone: `None` holds them.
     pub(crate) on_client_loss: Option<ClientLoss>,

@@ -181,11 +181,6 @@ pub(crate) trait Driver: Send + Sized + 'static {
     /// again (a server that vouches for its values when it is back), rather than turn bad.
     const STALE_WHILE_AWAY: bool = false;
 
-    /// Whether a device's newest requested outputs are written again after a reconnect or
-    /// its return, when its `rewrite_outputs` does not say: never, unless the protocol's
-    /// devices are I/O modules that lose their outputs at power-up and nobody else writes.
-    const REWRITES_OUTPUTS: bool = false;
-
     /// Whether a device at `refresh_rate: 0ms` is read back to back, each cycle as soon as
     /// the last one's answers came: a protocol whose read asks the device each time. One
     /// whose values come by themselves (subscriptions, spontaneous data) reads such a

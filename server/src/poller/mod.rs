@@ -160,9 +160,6 @@ impl<D: Driver> Driven<D> {
         for device in new {
             tracing::debug!(link = %self.link.name(), device = %device.name(), "polling device");
             let rewrite = device.rewrite_first();
-            let rewrites =
-                crate::cache::rewrites(device.config.rewrite_outputs, D::REWRITES_OUTPUTS);
-            device.outputs().set_rewrites(rewrites);
             self.devices.push(Polled {
                 plan: D::plan(&device),
                 device,

@@ -55,6 +55,14 @@ impl Protocol {
         }
     }
 
+    /// Whether a device's newest requested outputs are written again after a reconnect or
+    /// its return, when its `rewrite_outputs` does not say: never, unless the protocol's
+    /// devices are I/O modules that lose their outputs at power-up and nobody else writes
+    /// (Modbus); a PLC's program, HMIs and other masters write its tags too.
+    pub(crate) fn rewrites_outputs(self) -> bool {
+        self.is_modbus()
+    }
+
     /// Whether a device of this protocol is a Modbus unit (a link and a slave id).
     pub(crate) fn is_modbus(self) -> bool {
         matches!(self, Protocol::ModbusRtu | Protocol::ModbusTcp)

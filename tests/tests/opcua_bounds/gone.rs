@@ -66,15 +66,7 @@ async fn a_vanished_clients_subscriptions_end_within_their_lifetime_and_free_the
 #[tokio::test]
 async fn a_removed_devices_fields_and_diagnostics_are_told_gone() {
     let (gw, _) = plant("opcua-gone", "").await;
-    let (status, body) = gw
-        .send(
-            Method::PUT,
-            "/api/v1/devices/extra",
-            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
-        )
-        .await
-        .expect("declare");
-    assert_eq!(status, 201, "{body}");
+    declare_sim(&gw, "extra").await;
     let mut ua = client(&gw).await;
     let watched = [
         "extra.DI_0",

@@ -34,6 +34,19 @@ async fn plant(name: &str, extra: &str) -> (TestGateway, std::path::PathBuf) {
     (gw, dir)
 }
 
+/// A simulated device (SimIo, every 100 ms) declared at run time as `name`.
+async fn declare_sim(gw: &TestGateway, name: &str) {
+    let (status, body) = gw
+        .send(
+            Method::PUT,
+            &format!("/api/v1/devices/{name}"),
+            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
+        )
+        .await
+        .expect("declare");
+    assert_eq!(status, 201, "{name}: {body}");
+}
+
 /// An asyncua client of its own, anonymous.
 async fn client(gw: &TestGateway) -> UaClient {
     UaClient::connect(&url(gw), &Options::default())
@@ -48,15 +61,7 @@ async fn a_dotted_device_name_never_takes_another_devices_node() {
     let level = ua.read("plant.Level").await.expect("read");
     assert_eq!(level["type"], "Float", "{level}");
     // A device named `plant.Level` beside it: its own object, its own fields.
-    let (status, body) = gw
-        .send(
-            Method::PUT,
-            "/api/v1/devices/plant.Level",
-            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
-        )
-        .await
-        .expect("declare");
-    assert_eq!(status, 201, "{body}");
+    declare_sim(&gw, "plant.Level").await;
     eventually("the dotted device browsed", || async {
         ua_children(&url(&gw), "Devices/plant.Level")
             .await
@@ -319,15 +324,7 @@ async fn an_event_item_is_told_events_and_never_a_data_value() {
     ua.cmd(json!({"cmd": "subscribe_events", "type": "GeneralModelChangeEventType"}))
         .await
         .expect("events");
-    let (status, body) = gw
-        .send(
-            Method::PUT,
-            "/api/v1/devices/extra",
-            json!({"profile": "SimIo", "refresh_rate_ms": 100}).to_string(),
-        )
-        .await
-        .expect("declare");
-    assert_eq!(status, 201, "{body}");
+    declare_sim(&gw, "extra").await;
     // Everything the event item is told, up to the model change event.
     let mut seen: Vec<serde_json::Value> = Vec::new();
     while !seen.iter().any(|c| c["event"] == 2133) {

@@ -44,7 +44,6 @@ impl Driver for Modbus {
     type Session = Bus;
     const NAME: &'static str = "modbus";
     const READS_BACK_TO_BACK: bool = true;
-    const REWRITES_OUTPUTS: bool = true;
     /// A serial line's or a TCP link's settings are the config reader's own.
     type Settings = ();
 
