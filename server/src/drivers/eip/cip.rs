@@ -37,6 +37,10 @@ pub(crate) enum Malformed {
     Service { asked: u8, got: u8 },
     #[error("{0}")]
     Refused(String),
+    /// The Unconnected Send's own error reply: the request did not reach the controller
+    /// (a module on the route missing or not answering). The link stays in step.
+    #[error("the route to the controller failed: {why}{hint}", why = cip_status(*status, *ext), hint = route_hint(*status))]
+    Route { status: u8, ext: Option<u16> },
 }
 
 fn encapsulation_status(status: u32) -> &'static str {
@@ -48,6 +52,14 @@ fn encapsulation_status(status: u32) -> &'static str {
         0x65 => "invalid length",
         0x69 => "unsupported protocol version",
         _ => "not one the specification names",
+    }
+}
+
+/// What to do about a route refused as unknown (no Connection Manager routes it).
+fn route_hint(status: u8) -> &'static str {
+    match status {
+        0x08 => "; a controller that answers itself (a Micro800, a simulator) takes `path: \"\"`",
+        _ => "",
     }
 }
 
@@ -197,6 +209,28 @@ pub(super) fn routed(message: &[u8], route: &[u8]) -> Vec<u8> {
         data.push(0);
     }
     request(UNCONNECTED_SEND, &[0x20, 0x06, 0x24, 0x01], &data)
+}
+
+/// Whether `answer`, to `message` routed by an Unconnected Send, is the Unconnected Send's
+/// own error reply (Vol. 1, 3-5.5.2: its service with the reply bit, a status not 0). For
+/// a message of Read Tag Fragmented, whose service shares the number, only "connection
+/// failure" (0x01: timed out, no such port or address on the route), which a tag never
+/// answers, is the route's; its other statuses are the read's own.
+pub(super) fn route_failed(message: &[u8], answer: &[u8]) -> Result<(), Malformed> {
+    let fragmented = message.first() == Some(&READ_FRAGMENTED);
+    match reply(answer) {
+        Ok(r)
+            if r.service == UNCONNECTED_SEND | 0x80
+                && r.status != 0
+                && (!fragmented || r.status == 0x01) =>
+        {
+            Err(Malformed::Route {
+                status: r.status,
+                ext: r.ext,
+            })
+        }
+        _ => Ok(()),
+    }
 }
 
 /// SendUnitData's data: `message` on connection `o_t` with sequence count `seq`.

@@ -193,7 +193,11 @@ impl Connection {
         let (_, body) = self
             .exchange(cip::SEND_RR_DATA, &cip::send_rr_data(&routed, seconds))
             .await?;
-        Ok(cip::rr_data_reply(&body)?.to_vec())
+        let answer = cip::rr_data_reply(&body)?;
+        if !self.route.is_empty() {
+            cip::route_failed(message, answer)?;
+        }
+        Ok(answer.to_vec())
     }
 
     /// Leaves: Forward Close of the connection (the controller frees it now, not after
@@ -250,5 +254,92 @@ mod tests {
             .expect("registered");
         assert_eq!(conn.session, 7);
         assert_eq!(peer.await.expect("peer"), 0);
+    }
+
+    /// Answers RegisterSession, then each SendRRData with the next of `replies` (CIP
+    /// reply bytes in an unconnected data item).
+    async fn controller(replies: Vec<Vec<u8>>) -> u16 {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let port = listener.local_addr().expect("addr").port();
+        tokio::spawn(async move {
+            let (mut io, _) = listener.accept().await.expect("accept");
+            let mut first = true;
+            let mut replies = replies.into_iter();
+            loop {
+                let mut head = [0u8; cip::HEADER];
+                if io.read_exact(&mut head).await.is_err() {
+                    return;
+                }
+                let h = cip::header(&head).expect("header");
+                let mut body = vec![0u8; h.length];
+                io.read_exact(&mut body).await.expect("body");
+                let data = match std::mem::take(&mut first) {
+                    true => body,
+                    false => {
+                        let Some(r) = replies.next() else { return };
+                        let mut d = vec![0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0, 0xB2, 0];
+                        d.extend_from_slice(&(r.len() as u16).to_le_bytes());
+                        d.extend_from_slice(&r);
+                        d
+                    }
+                };
+                let answer = cip::encapsulate(h.command, 9, h.context, &data);
+                io.write_all(&answer).await.expect("answer");
+            }
+        });
+        port
+    }
+
+    /// A module on the route that does not answer: the Unconnected Send's own error reply
+    /// (status 0x01, extended 0x0204: timed out) refuses that request, and the connection
+    /// goes on; without a route the reply is the message's, and so is a Read Tag
+    /// Fragmented's of another status.
+    #[tokio::test]
+    async fn an_unconnected_sends_own_error_refuses_the_request_and_the_link_goes_on() {
+        let timed_out = b"\xd2\x00\x01\x01\x04\x02\x00\x00".to_vec();
+        let good = b"\xcc\x00\x00\x00\xc4\x00\x07\x00\x00\x00".to_vec();
+        // A Read Tag Fragmented's own "no such tag" shares the service number.
+        let no_tag = b"\xd2\x00\x05\x00".to_vec();
+        let replies = vec![
+            timed_out.clone(),
+            good.clone(),
+            timed_out.clone(),
+            no_tag.clone(),
+        ];
+        let port = controller(replies).await;
+        let timeout = Duration::from_secs(5);
+        let mut conn = Connection::open(("127.0.0.1", port), vec![1, 0], timeout)
+            .await
+            .expect("registered");
+        let read = cip::read_tag(b"\x91\x01A\x00", 1);
+        let refused = conn.request(&read).await.expect_err("refused");
+        let text = refused.to_string();
+        assert!(
+            matches!(
+                refused,
+                EipError::Malformed(Malformed::Route {
+                    status: 1,
+                    ext: Some(0x0204)
+                })
+            ),
+            "{text}"
+        );
+        assert!(
+            text.contains("the route to the controller failed"),
+            "{text}"
+        );
+        assert_eq!(conn.request(&read).await.expect("read"), good);
+        let fragmented = cip::read_fragmented(b"\x91\x01A\x00", 1, 0);
+        assert!(matches!(
+            conn.request(&fragmented).await,
+            Err(EipError::Malformed(Malformed::Route { status: 1, .. }))
+        ));
+        assert_eq!(conn.request(&fragmented).await.expect("own"), no_tag);
+
+        let port = controller(vec![timed_out.clone()]).await;
+        let mut conn = Connection::open(("127.0.0.1", port), Vec::new(), timeout)
+            .await
+            .expect("registered");
+        assert_eq!(conn.request(&read).await.expect("unrouted"), timed_out);
     }
 }

@@ -214,7 +214,7 @@ impl Controller {
     }
 
     /// A request's reply; `Ok(Err)` when the controller refused it whole (an
-    /// encapsulation status: the connection stays in step), `Err` when the link failed.
+    /// encapsulation status, or the route's refusal: the connection stays in step), `Err` when the link failed.
     async fn request(&mut self, message: &[u8]) -> Result<Result<Vec<u8>, String>, LinkFault> {
         self.progress.started(Instant::now() + self.timeout);
         let answer = self.conn.request(message).await;
@@ -224,6 +224,7 @@ impl Controller {
             Err(EipError::Malformed(m @ cip::Malformed::Encapsulation(_))) => {
                 Ok(Err(format!("the controller refused the request: {m}")))
             }
+            Err(EipError::Malformed(m @ cip::Malformed::Route { .. })) => Ok(Err(m.to_string())),
             Err(e) => Err(lost(e)),
         }
     }
