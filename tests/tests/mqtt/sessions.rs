@@ -34,16 +34,37 @@ async fn a_device_on_a_pty_is_written_by_dcmd_and_set_dies_and_is_born_again() {
         (ai["value"].as_f64().unwrap_or_default() - 12.3).abs() < 1e-4,
         "{ai}"
     );
-    // The device's input changes: DDATA by alias.
-    bus.slave(1, |s| s.tables.input[0] = 150);
-    let data = peer
-        .until(|m| {
-            m.topic == "spBv1.0/plant1/DDATA/line1/io"
-                && metric(m, "AI_0").is_some_and(|x| x["value"].as_f64() == Some(15.0))
-        })
-        .await
-        .expect("DDATA");
-    assert!(data.decode_error.is_none());
+    // The device's inputs change in one poll: one DDATA carries them, by alias (each
+    // change goes as soon as it is seen, so a poll seen in two parts is tried again).
+    let mut together = false;
+    for attempt in 0..5u16 {
+        let raw = [150 + attempt, 160 + attempt, 170 + attempt];
+        bus.slave(1, |s| s.tables.input[..3].copy_from_slice(&raw));
+        let mut seen = [false; 3];
+        while !seen.iter().all(|s| *s) {
+            let data = peer
+                .until(|m| m.topic == "spBv1.0/plant1/DDATA/line1/io")
+                .await
+                .expect("DDATA");
+            assert!(data.decode_error.is_none());
+            let carried: Vec<usize> = (0..3)
+                .filter(|&i| {
+                    metric(&data, &format!("AI_{i}")).is_some_and(|x| {
+                        (x["value"].as_f64().unwrap_or_default() - f64::from(raw[i]) / 10.0).abs()
+                            < 1e-4
+                    })
+                })
+                .collect();
+            together |= carried.len() == 3;
+            for i in carried {
+                seen[i] = true;
+            }
+        }
+        if together {
+            break;
+        }
+    }
+    assert!(together, "a poll's three changes never came in one DDATA");
     // A DCMD and a /set write reach the slave on the line.
     peer.command(
         "spBv1.0/plant1/DCMD/line1/io",

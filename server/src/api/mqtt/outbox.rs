@@ -3,6 +3,11 @@
 
 use super::*;
 
+/// The most live changes taken together into DDATA messages (one a device), and about the
+/// most bytes of their metrics.
+const BATCH: usize = 1000;
+const BATCH_BYTES: usize = 64 * 1024;
+
 impl Task {
     pub(super) fn ticket(&mut self) -> u64 {
         let t = self.next_ticket;
@@ -70,6 +75,9 @@ impl Task {
                     self.publish(online, Out::sparkplug(topic, payload), 0)
                         .await?;
                 }
+                Item::Data { record, change } if record.kind == Kind::Sparkplug => {
+                    self.spark_batch(online, (record, change)).await?;
+                }
                 Item::Data { record, change } => {
                     let Some(out) = self.data_out(online, &record, false) else {
                         continue;
@@ -83,6 +91,112 @@ impl Task {
                     });
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// The live Sparkplug changes waiting from `first` on (up to [`BATCH`] of them and
+    /// [`BATCH_BYTES`]), one DDATA a device (a host takes an edge node's scan of a device as one
+    /// message, not one a field; a device's metrics keep their order). Each record is
+    /// tracked under its message's ticket; what the in-flight window has no room for goes
+    /// back to the outbox's front, in order.
+    async fn spark_batch(
+        &mut self,
+        online: &mut Online,
+        first: (Record, bool),
+    ) -> Result<(), ConnError> {
+        let mut groups: Vec<(String, Vec<(Record, bool)>)> = Vec::new();
+        let mut add = |(record, change): (Record, bool)| match groups
+            .iter_mut()
+            .find(|(d, _)| *d == record.device)
+        {
+            Some((_, g)) => g.push((record, change)),
+            None => groups.push((record.device.clone(), vec![(record, change)])),
+        };
+        // The changes behind it, passing over JSON messages (they keep their order) up to
+        // a Sparkplug message of another kind (a birth or a death keeps its place).
+        let scan = online
+            .outbox
+            .iter()
+            .take(4 * BATCH)
+            .position(|i| matches!(i, Item::Spark { .. } | Item::NodeBirth))
+            .unwrap_or(online.outbox.len().min(4 * BATCH));
+        let (mut taken, mut bytes) = (1, first.0.payload.len());
+        add(first);
+        let mut others = Vec::new();
+        for item in online.outbox.drain(..scan) {
+            match item {
+                Item::Data { record, change }
+                    if record.kind == Kind::Sparkplug && taken < BATCH && bytes < BATCH_BYTES =>
+                {
+                    taken += 1;
+                    bytes += record.payload.len();
+                    add((record, change));
+                }
+                other => others.push(other),
+            }
+        }
+        for item in others.into_iter().rev() {
+            online.outbox.push_front(item);
+        }
+        let mut groups = groups.into_iter();
+        while let Some((device, records)) = groups.next() {
+            if !online.conn.can_publish() {
+                let back: Vec<(Record, bool)> = std::iter::once(records)
+                    .chain(groups.map(|(_, r)| r))
+                    .flatten()
+                    .collect();
+                for (record, change) in back.into_iter().rev() {
+                    online.outbox.push_front(Item::Data { record, change });
+                }
+                break;
+            }
+            self.device_data(online, &device, records).await?;
+        }
+        Ok(())
+    }
+
+    /// One DDATA of a device's live changes.
+    async fn device_data(
+        &mut self,
+        online: &mut Online,
+        device: &str,
+        records: Vec<(Record, bool)>,
+    ) -> Result<(), ConnError> {
+        if !online.node_born || !online.born.contains(device) {
+            return Ok(());
+        }
+        let Some(topic) = self.spark.as_ref().map(|t| t.device("DDATA", device)) else {
+            return Ok(());
+        };
+        // A record whose field is gone is not sent.
+        let kept: Vec<((Record, bool), u64)> = records
+            .into_iter()
+            .filter_map(|(record, change)| {
+                let alias = self.alias(&record.device, &record.field)?;
+                Some(((record, change), alias))
+            })
+            .collect();
+        let metrics: Vec<_> = kept
+            .iter()
+            .filter_map(|((r, _), alias)| Some((sparkplug::sendable(&r.payload)?, *alias)))
+            .collect();
+        if metrics.is_empty() {
+            return Ok(());
+        }
+        let refs: Vec<(&[u8], u64)> = metrics.iter().map(|(m, a)| (m.as_ref(), *a)).collect();
+        let seq = Self::next_seq(online);
+        let payload = sparkplug::data_payload_of(now_ms(), seq, &refs, false);
+        drop(metrics);
+        let ticket = self.ticket();
+        self.publish(online, Out::sparkplug(topic, payload), ticket)
+            .await?;
+        for (item, _) in kept {
+            online.live.push_back(Unconfirmed {
+                ticket,
+                item,
+                confirmed: false,
+            });
         }
         Ok(())
     }
@@ -210,12 +324,19 @@ impl Task {
     }
 
     pub(super) fn confirm(&mut self, online: &mut Online, ticket: u64) {
-        if let Ok(i) = online.live.binary_search_by_key(&ticket, |u| u.ticket) {
-            let u = &mut online.live[i];
+        // Every record of the message (a DDATA carries a device's changes together).
+        let from = online.live.partition_point(|u| u.ticket < ticket);
+        let mut live = false;
+        for u in online.live.range_mut(from..) {
+            if u.ticket != ticket {
+                break;
+            }
             u.confirmed = true;
+            live = true;
             let latency = now_ms().saturating_sub(u.item.0.at_ms);
             self.state.metrics.observe_latency(latency as f64 / 1000.0);
-        } else if let Ok(i) = online.replay.binary_search_by_key(&ticket, |u| u.ticket) {
+        }
+        if !live && let Ok(i) = online.replay.binary_search_by_key(&ticket, |u| u.ticket) {
             online.replay[i].confirmed = true;
         }
     }

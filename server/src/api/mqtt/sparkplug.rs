@@ -305,18 +305,33 @@ pub(crate) fn data_payload(
     alias: u64,
     historical: bool,
 ) -> Vec<u8> {
+    data_payload_of(timestamp, seq, &[(metric, alias)], historical)
+}
+
+/// A DDATA payload of several [`sendable`] metrics of one device, each by its alias, laid
+/// out as [`data_payload`]'s one.
+pub(crate) fn data_payload_of(
+    timestamp: u64,
+    seq: u8,
+    metrics: &[(&[u8], u64)],
+    historical: bool,
+) -> Vec<u8> {
     use prost::encoding::{WireType, encode_key, encode_varint};
-    let mut tail = Vec::with_capacity(12);
-    prost::encoding::uint64::encode(2, &alias, &mut tail);
-    if historical {
-        prost::encoding::bool::encode(5, &true, &mut tail);
-    }
-    let mut out = Vec::with_capacity(metric.len() + tail.len() + 24);
+    let size: usize = metrics.iter().map(|(m, _)| m.len() + 16).sum();
+    let mut out = Vec::with_capacity(size + 24);
     prost::encoding::uint64::encode(1, &timestamp, &mut out);
-    encode_key(2, WireType::LengthDelimited, &mut out);
-    encode_varint((metric.len() + tail.len()) as u64, &mut out);
-    out.extend_from_slice(metric);
-    out.extend_from_slice(&tail);
+    let mut tail = Vec::with_capacity(12);
+    for &(metric, alias) in metrics {
+        tail.clear();
+        prost::encoding::uint64::encode(2, &alias, &mut tail);
+        if historical {
+            prost::encoding::bool::encode(5, &true, &mut tail);
+        }
+        encode_key(2, WireType::LengthDelimited, &mut out);
+        encode_varint((metric.len() + tail.len()) as u64, &mut out);
+        out.extend_from_slice(metric);
+        out.extend_from_slice(&tail);
+    }
     prost::encoding::uint64::encode(3, &u64::from(seq), &mut out);
     out
 }

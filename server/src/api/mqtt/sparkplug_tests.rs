@@ -85,6 +85,40 @@ fn a_kept_metric_is_sent_as_if_it_were_encoded_whole() {
 }
 
 #[test]
+fn several_kept_metrics_are_one_payload_each_by_its_alias_in_order() {
+    let metrics: Vec<Metric> = (0..3u32)
+        .map(|i| Metric {
+            timestamp: Some(1_700_000_000_000 + u64::from(i)),
+            datatype: Some(DataType::UInt16 as u32),
+            value: Some(MetricValue::IntValue(100 + i)),
+            ..Metric::default()
+        })
+        .collect();
+    let kept: Vec<Vec<u8>> = metrics.iter().map(kept_metric).collect();
+    let refs: Vec<(&[u8], u64)> = kept
+        .iter()
+        .zip([20u64, 21, 25])
+        .map(|(k, a)| (k.as_slice(), a))
+        .collect();
+    let payload =
+        Payload::decode(data_payload_of(42, 9, &refs, false).as_slice()).expect("decodes");
+    let expected = Payload {
+        timestamp: Some(42),
+        metrics: metrics
+            .into_iter()
+            .zip([20u64, 21, 25])
+            .map(|(m, a)| Metric {
+                alias: Some(a),
+                ..m
+            })
+            .collect(),
+        seq: Some(9),
+        ..Payload::default()
+    };
+    assert_eq!(payload, expected);
+}
+
+#[test]
 fn a_null_metric_is_a_relinquish_and_a_metric_without_a_value_is_nothing() {
     let null = Metric {
         name: Some("Valve".into()),
