@@ -154,6 +154,11 @@ impl Broker {
             let _ = child.kill().await;
         }
     }
+
+    /// The broker's process id (for its CPU time and resident size in `/proc`).
+    pub fn pid(&self) -> Option<u32> {
+        self.child.as_ref().and_then(|c| c.id())
+    }
 }
 
 /// paho-mqtt subscribed to a topic filter; messages come as JSON values.
