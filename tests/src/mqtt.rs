@@ -56,9 +56,23 @@ impl Broker {
         Broker::start_with_tls(persistent, None).await
     }
 
+    /// A broker that takes no packet larger than `bytes` (its `max_packet_size`, told to
+    /// MQTT 5 clients as the Maximum Packet Size).
+    pub async fn start_limited(bytes: u32) -> anyhow::Result<Broker> {
+        Broker::start_configured(false, None, &format!("max_packet_size {bytes}\n")).await
+    }
+
     async fn start_with_tls(
         persistent: bool,
         tls: Option<(&str, &crate::pki::Pem)>,
+    ) -> anyhow::Result<Broker> {
+        Broker::start_configured(persistent, tls, "").await
+    }
+
+    async fn start_configured(
+        persistent: bool,
+        tls: Option<(&str, &crate::pki::Pem)>,
+        more: &str,
     ) -> anyhow::Result<Broker> {
         install()?;
         let dir = crate::devices::temp_dir("mosquitto");
@@ -100,7 +114,7 @@ impl Broker {
             // lost silently. `user root` keeps it as the user that started it (and does
             // nothing for any other user).
             format!(
-                "user root\nallow_anonymous true\n{persistence}listener {port} 127.0.0.1\n{tls_listener}log_dest file {}\nlog_type all\n",
+                "user root\nallow_anonymous true\n{more}{persistence}listener {port} 127.0.0.1\n{tls_listener}log_dest file {}\nlog_type all\n",
                 dir.join("mosquitto.log").display()
             ),
         )?;

@@ -1,6 +1,7 @@
 //! The MQTT front-end against a real Mosquitto, with paho-mqtt as the independent peer.
 
 mod json_and_sparkplug;
+mod limits;
 mod retained;
 mod sessions;
 

@@ -121,6 +121,8 @@ pub(crate) struct Connection {
     out: Vec<u8>,
     /// QoS 1 publishes in flight at most: [`MAX_INFLIGHT`] or the broker's maximum.
     max_inflight: usize,
+    /// The largest packet the broker takes (its Maximum Packet Size; none said: no limit).
+    max_packet: usize,
 }
 
 impl Connection {
@@ -176,16 +178,21 @@ impl Connection {
             confirmed: Vec::new(),
             out: Vec::new(),
             max_inflight: MAX_INFLIGHT,
+            max_packet: usize::MAX,
         };
         conn.send(&packet::connect(config.version, connect)).await?;
         match conn.read().await? {
             Incoming::ConnAck {
                 code: 0,
                 receive_maximum,
+                maximum_packet,
                 ..
             } => {
                 if let Some(most) = receive_maximum {
                     conn.max_inflight = MAX_INFLIGHT.min(usize::from(most));
+                }
+                if let Some(most) = maximum_packet {
+                    conn.max_packet = usize::try_from(most).unwrap_or(usize::MAX);
                 }
                 Ok(conn)
             }
@@ -319,7 +326,9 @@ impl Connection {
     }
 
     /// Publishes (the bytes go out with the next [`Self::flush`], or at once past
-    /// [`WRITE_BATCH`] bytes); a QoS 1 publish is remembered with `tag` until [`Self::acked`] gives it
+    /// [`WRITE_BATCH`] bytes); `false`, sending nothing, when the packet is larger than the
+    /// broker's Maximum Packet Size (its tag is confirmed: there is nothing to wait for);
+    /// a QoS 1 publish is remembered with `tag` until [`Self::acked`] gives it
     /// back, a QoS 0 one (with a `tag` other than 0) until a ping confirms it
     /// ([`Self::take_confirmed`]).
     pub(crate) async fn publish(
@@ -329,7 +338,14 @@ impl Connection {
         qos: u8,
         retain: bool,
         tag: u64,
-    ) -> Result<(), ConnError> {
+    ) -> Result<bool, ConnError> {
+        if packet::publish_size(self.version, topic, payload.len(), qos) > self.max_packet {
+            // Never sent, so never to be confirmed: let its tracker go.
+            if tag != 0 {
+                self.confirmed.push(tag);
+            }
+            return Ok(false);
+        }
         let pkid = if qos > 0 { self.take_pkid() } else { 0 };
         packet::write_publish(
             self.version,
@@ -347,7 +363,12 @@ impl Connection {
         if self.out.len() >= WRITE_BATCH {
             self.flush().await?;
         }
-        Ok(())
+        Ok(true)
+    }
+
+    /// The largest packet the broker takes.
+    pub(crate) fn max_packet(&self) -> usize {
+        self.max_packet
     }
 
     /// The tag of the publish a PUBACK acknowledges.

@@ -3,10 +3,22 @@
 
 use super::*;
 
-/// The most live changes taken together into DDATA messages (one a device), and about the
-/// most bytes of their metrics.
+/// The most live changes taken together into DDATA messages (one a device), and the most
+/// bytes of one (less where the broker's Maximum Packet Size is less).
 const BATCH: usize = 1000;
 const BATCH_BYTES: usize = 64 * 1024;
+/// A metric's bytes in a DDATA beyond its record's: its key and length, its alias.
+const METRIC_OVERHEAD: usize = 16;
+
+/// A device's changes taken into one DDATA.
+struct Group {
+    device: String,
+    records: Vec<(Record, bool)>,
+    bytes: usize,
+    room: usize,
+    /// A change did not fit: the device's later ones wait for the next message.
+    full: bool,
+}
 
 impl Task {
     pub(super) fn ticket(&mut self) -> u64 {
@@ -21,10 +33,16 @@ impl Task {
         out: Out,
         tag: u64,
     ) -> Result<(), ConnError> {
-        online
+        let sent = online
             .conn
             .publish(&out.topic, &out.payload, out.qos, out.retain, tag)
             .await?;
+        if !sent {
+            // Dropped, and counted so, rather than the connection ended for it by the broker.
+            self.lost += 1;
+            tracing::warn!(topic = %out.topic, bytes = out.payload.len(), most = online.conn.max_packet(), "MQTT: a message larger than the broker's Maximum Packet Size is not sent");
+            return Ok(());
+        }
         self.status.messages_out += 1;
         self.status.bytes_out += out.payload.len() as u64;
         Ok(())
@@ -105,14 +123,39 @@ impl Task {
         online: &mut Online,
         first: (Record, bool),
     ) -> Result<(), ConnError> {
-        let mut groups: Vec<(String, Vec<(Record, bool)>)> = Vec::new();
-        let mut add = |(record, change): (Record, bool)| match groups
-            .iter_mut()
-            .find(|(d, _)| *d == record.device)
-        {
-            Some((_, g)) => g.push((record, change)),
-            None => groups.push((record.device.clone(), vec![(record, change)])),
+        let max_packet = online.conn.max_packet();
+        let Some(spark) = self.spark.as_ref() else {
+            return Ok(());
         };
+        let mut groups: Vec<Group> = Vec::new();
+        // Whether a change is taken into its device's message: not once that one is full
+        // (then the device's later changes wait too, so a field's changes keep their order).
+        let take = |(record, change): (Record, bool), groups: &mut Vec<Group>| {
+            let cost = record.payload.len() + METRIC_OVERHEAD;
+            let at = match groups.iter().position(|g| g.device == record.device) {
+                Some(at) => at,
+                None => {
+                    let topic = spark.device("DDATA", &record.device).len();
+                    groups.push(Group {
+                        device: record.device.clone(),
+                        records: Vec::new(),
+                        bytes: 0,
+                        room: BATCH_BYTES.min(max_packet.saturating_sub(topic + 64)),
+                        full: false,
+                    });
+                    groups.len() - 1
+                }
+            };
+            let g = &mut groups[at];
+            g.full |= !g.records.is_empty() && g.bytes + cost > g.room;
+            if g.full {
+                return Some((record, change));
+            }
+            g.bytes += cost;
+            g.records.push((record, change));
+            None
+        };
+        let _ = take(first, &mut groups);
         // The changes behind it, passing over JSON messages (they keep their order) up to
         // a Sparkplug message of another kind (a birth or a death keeps its place).
         let scan = online
@@ -121,17 +164,17 @@ impl Task {
             .take(4 * BATCH)
             .position(|i| matches!(i, Item::Spark { .. } | Item::NodeBirth))
             .unwrap_or(online.outbox.len().min(4 * BATCH));
-        let (mut taken, mut bytes) = (1, first.0.payload.len());
-        add(first);
+        let mut taken = 1;
         let mut others = Vec::new();
         for item in online.outbox.drain(..scan) {
             match item {
                 Item::Data { record, change }
-                    if record.kind == Kind::Sparkplug && taken < BATCH && bytes < BATCH_BYTES =>
+                    if record.kind == Kind::Sparkplug && taken < BATCH =>
                 {
-                    taken += 1;
-                    bytes += record.payload.len();
-                    add((record, change));
+                    match take((record, change), &mut groups) {
+                        None => taken += 1,
+                        Some((record, change)) => others.push(Item::Data { record, change }),
+                    }
                 }
                 other => others.push(other),
             }
@@ -139,7 +182,7 @@ impl Task {
         for item in others.into_iter().rev() {
             online.outbox.push_front(item);
         }
-        let mut groups = groups.into_iter();
+        let mut groups = groups.into_iter().map(|g| (g.device, g.records));
         while let Some((device, records)) = groups.next() {
             if !online.conn.can_publish() {
                 let back: Vec<(Record, bool)> = std::iter::once(records)

@@ -84,24 +84,27 @@ pub(super) fn connack(body: &[u8]) -> Result<Incoming, PacketError> {
     if body.len() < 2 {
         return Err(PacketError::Malformed("CONNACK"));
     }
-    let receive_maximum = match body.get(2..) {
-        Some(props) if !props.is_empty() => receive_maximum(props)?,
-        _ => None,
+    let (receive_maximum, maximum_packet) = match body.get(2..) {
+        Some(props) if !props.is_empty() => limits(props)?,
+        _ => (None, None),
     };
     Ok(Incoming::ConnAck {
         session_present: body[0] & 1 == 1,
         code: body[1],
         receive_maximum,
+        maximum_packet,
     })
 }
 
-/// The Receive Maximum (0x21) of a CONNACK's properties block (its length first).
-fn receive_maximum(props: &[u8]) -> Result<Option<u16>, PacketError> {
+/// The Receive Maximum (0x21) and the Maximum Packet Size (0x27) of a CONNACK's properties
+/// block (its length first).
+fn limits(props: &[u8]) -> Result<(Option<u16>, Option<u32>), PacketError> {
     const WHAT: &str = "CONNACK properties";
     let end = super::skip_properties(props, 0, WHAT)?;
     // Past the block's length (a variable byte integer).
     let mut i = 1 + props.iter().take_while(|b| *b & 0x80 != 0).count();
     let mut found = None;
+    let mut packet = None;
     while i < end {
         let id = props[i];
         i += 1;
@@ -128,12 +131,17 @@ fn receive_maximum(props: &[u8]) -> Result<Option<u16>, PacketError> {
             // Zero is a protocol error (MQTT 5, 3.2.2.3.3): taken as no maximum given.
             found = Some(super::u16_at(props, i, WHAT)?).filter(|&m| m > 0);
         }
+        if id == 0x27 {
+            // Zero is a protocol error too (3.2.2.3.6).
+            let b = props.get(i..i + 4).ok_or(PacketError::Malformed(WHAT))?;
+            packet = Some(u32::from_be_bytes([b[0], b[1], b[2], b[3]])).filter(|&m| m > 0);
+        }
         i += len;
         if i > end {
             return Err(PacketError::Malformed(WHAT));
         }
     }
-    Ok(found)
+    Ok((found, packet))
 }
 
 /// What a CONNACK's return (3.1.1) or reason (5) code means.

@@ -19,7 +19,7 @@ pub(crate) use ping::pingreq;
 #[cfg(test)]
 pub(crate) use publish::publish;
 use publish::publish_head;
-pub(crate) use publish::{Publish, puback, write_publish};
+pub(crate) use publish::{Publish, puback, publish_size, write_publish};
 pub(crate) use subscribe::subscribe;
 
 /// The largest packet the gateway takes from a broker (MQTT 5 announces it as the Maximum
@@ -34,6 +34,8 @@ pub(crate) enum Incoming {
         session_present: bool,
         code: u8,
         receive_maximum: Option<u16>,
+        /// The broker's Maximum Packet Size (MQTT 5): nothing bigger may be sent to it.
+        maximum_packet: Option<u32>,
     },
     Publish(Publish),
     PubAck {

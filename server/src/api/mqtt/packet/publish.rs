@@ -30,6 +30,25 @@ pub(crate) fn publish(version: MqttVersion, p: &Publish) -> Vec<u8> {
 
 /// A PUBLISH appended to `out` as it goes on the wire (no copy of its own): `flags` are
 /// the QoS and retain.
+/// The bytes of a PUBLISH of `payload_len` bytes on `topic` (as [`write_publish`] writes it).
+pub(crate) fn publish_size(
+    version: MqttVersion,
+    topic: &str,
+    payload_len: usize,
+    qos: u8,
+) -> usize {
+    let topic_len = topic.len().min(usize::from(u16::MAX));
+    let v5 = version == MqttVersion::V5;
+    let remaining = 2 + topic_len + if qos > 0 { 2 } else { 0 } + usize::from(v5) + payload_len;
+    let varint = match remaining {
+        0..128 => 1,
+        128..16_384 => 2,
+        16_384..2_097_152 => 3,
+        _ => 4,
+    };
+    1 + varint + remaining
+}
+
 pub(crate) fn write_publish(
     version: MqttVersion,
     out: &mut Vec<u8>,

@@ -83,6 +83,7 @@ fn acks_and_their_codes_decode() {
             session_present: false,
             code: 0,
             receive_maximum: None,
+            maximum_packet: None,
         }))
     );
     assert_eq!(
@@ -197,7 +198,7 @@ proptest::proptest! {
 }
 
 #[test]
-fn an_mqtt_5_connack_gives_the_brokers_receive_maximum() {
+fn an_mqtt_5_connack_gives_the_brokers_receive_maximum_and_maximum_packet_size() {
     let v = MqttVersion::V5;
     // Properties: Assigned Client Identifier "ab", Topic Alias Maximum 10, Receive Maximum 20.
     let props = [0x12, 0, 2, b'a', b'b', 0x22, 0, 10, 0x21, 0, 20];
@@ -209,6 +210,20 @@ fn an_mqtt_5_connack_gives_the_brokers_receive_maximum() {
             session_present: false,
             code: 0,
             receive_maximum: Some(20),
+            maximum_packet: None,
+        }))
+    );
+    // Receive Maximum 5, Maximum Packet Size 2,048.
+    let props = [0x21, 0, 5, 0x27, 0, 0, 8, 0];
+    let mut b = vec![0x20, 3 + props.len() as u8, 0, 0, props.len() as u8];
+    b.extend_from_slice(&props);
+    assert_eq!(
+        decode(v, &mut b),
+        Ok(Some(Incoming::ConnAck {
+            session_present: false,
+            code: 0,
+            receive_maximum: Some(5),
+            maximum_packet: Some(2048),
         }))
     );
     // Zero is a protocol error: no maximum taken from it.
@@ -219,6 +234,7 @@ fn an_mqtt_5_connack_gives_the_brokers_receive_maximum() {
             session_present: true,
             code: 0,
             receive_maximum: None,
+            maximum_packet: None,
         }))
     );
     // A string property running past the block, and an unknown property: malformed.
