@@ -56,10 +56,10 @@ impl Broker {
         Broker::start_with_tls(persistent, None).await
     }
 
-    /// A broker that takes no packet larger than `bytes` (its `max_packet_size`, told to
-    /// MQTT 5 clients as the Maximum Packet Size).
-    pub async fn start_limited(bytes: u32) -> anyhow::Result<Broker> {
-        Broker::start_configured(false, None, &format!("max_packet_size {bytes}\n")).await
+    /// A broker with more lines of configuration (`max_packet_size 4096`: told to MQTT 5
+    /// clients as the Maximum Packet Size; `max_inflight_messages 1`: as the Receive Maximum).
+    pub async fn start_with_config(more: &str) -> anyhow::Result<Broker> {
+        Broker::start_configured(false, None, more).await
     }
 
     async fn start_with_tls(

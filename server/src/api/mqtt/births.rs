@@ -17,6 +17,7 @@ impl Task {
         online.node_born = true;
         online.born.clear();
         online.outbox.push_back(Item::NodeBirth);
+        online.births_waiting += 1;
         for device in self.devices.clone() {
             if device.diagnostics().connected {
                 self.device_birth(online, &device);
@@ -46,6 +47,7 @@ impl Task {
             (d.connected, d.error_code.code(), Instant::now()),
         );
         online.born.insert(device.name().to_owned());
+        online.births_waiting += 1;
         online.outbox.push_back(Item::Spark {
             kind: "DBIRTH",
             device: device.name().to_owned(),

@@ -309,6 +309,8 @@ struct Online {
     replay_budget: f64,
     /// NBIRTH sent (and the host online, when one is configured).
     node_born: bool,
+    /// NBIRTH and DBIRTHs in the outbox, not yet sent: no replayed data goes before them.
+    births_waiting: usize,
     born: HashSet<String>,
     seq: u8,
     host: Option<HostState>,

@@ -70,6 +70,7 @@ impl Task {
             match item {
                 Item::Plain(out) => self.publish(online, out, 0).await?,
                 Item::NodeBirth => {
+                    online.births_waiting = online.births_waiting.saturating_sub(1);
                     let Some(t) = &self.spark else { continue };
                     let topic = t.node("NBIRTH");
                     online.seq = 1;
@@ -86,6 +87,9 @@ impl Task {
                     device,
                     metrics,
                 } => {
+                    if kind == "DBIRTH" {
+                        online.births_waiting = online.births_waiting.saturating_sub(1);
+                    }
                     let Some(t) = &self.spark else { continue };
                     let topic = t.device(kind, &device);
                     let seq = Self::next_seq(online);
@@ -289,8 +293,8 @@ impl Task {
     /// Sends buffered records, at `replay_rate` and at most [`REPLAY_WINDOW`] unconfirmed,
     /// beside live data (which never waits for the replay).
     pub(super) async fn replay(&mut self, online: &mut Online) -> Result<(), ConnError> {
-        // Sparkplug records wait for the births (and the host).
-        if self.spark.is_some() && !online.node_born {
+        // Sparkplug records wait for the births to be sent (and the host).
+        if self.spark.is_some() && (!online.node_born || online.births_waiting > 0) {
             return Ok(());
         }
         let rate = f64::from(self.prepared.config.buffer.replay_rate.max(1));
@@ -302,7 +306,7 @@ impl Task {
     /// Sends buffered records while the rate's budget and the window allow (again as soon
     /// as the broker confirms some, not only on the replay timer).
     pub(super) async fn replay_more(&mut self, online: &mut Online) -> Result<(), ConnError> {
-        if self.spark.is_some() && !online.node_born {
+        if self.spark.is_some() && (!online.node_born || online.births_waiting > 0) {
             return Ok(());
         }
         while online.replay_budget >= 1.0

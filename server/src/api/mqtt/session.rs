@@ -126,6 +126,7 @@ impl Task {
             replay: VecDeque::new(),
             replay_budget: 0.0,
             node_born: false,
+            births_waiting: 0,
             born: HashSet::new(),
             seq: 0,
             host: None,
@@ -245,6 +246,7 @@ impl Task {
             self.keep(r);
         }
         online.replay.clear();
+        online.births_waiting = 0;
         if let Some(b) = &mut self.buffer {
             b.rewind();
         }
