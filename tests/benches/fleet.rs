@@ -12,42 +12,15 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use iogate_tests::GatewayProcess;
-use iogate_tests::devices::{ModbusDevice, modbus_tcp_server, temp_dir};
+use iogate_tests::devices::{ModbusDevice, input_register_profile, modbus_tcp_server, temp_dir};
 use iogate_tests::mqtt::Broker;
+use iogate_tests::process::{cpu_seconds, rss_mib};
 use tokio::io::AsyncBufReadExt;
 
 const GATEWAYS: usize = 20;
 const DEVICES: usize = 10;
 const FIELDS: usize = 1000;
 const MEASURE: Duration = Duration::from_secs(30);
-
-fn cpu_seconds(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
-fn rss_mib(pid: u32) -> f64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .unwrap_or_default()
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
-        .unwrap_or(0.0)
-        / 1024.0
-}
-
-fn profile() -> String {
-    let mut text = String::from("name: Bench1000\nprotocol: modbus-tcp\nfields:\n");
-    for i in 0..FIELDS {
-        text.push_str(&format!(
-            "  - {{ name: R{i}, type: UINT, direction: input, register: {{ address: {i}, kind: input_register }} }}\n"
-        ));
-    }
-    text
-}
 
 fn config(dir: &Path, g: usize, modbus: u16, broker: u16) -> String {
     let mut c = format!(
@@ -136,7 +109,10 @@ struct Fleet {
 
 async fn fleet(dir: &Path, device: &ModbusDevice, broker: u16) -> anyhow::Result<Fleet> {
     std::fs::create_dir_all(dir.join("profiles"))?;
-    std::fs::write(dir.join("profiles/bench.yaml"), profile())?;
+    std::fs::write(
+        dir.join("profiles/bench.yaml"),
+        input_register_profile("Bench1000", FIELDS),
+    )?;
     let mut gateways = Vec::new();
     let mut pids = Vec::new();
     for g in 0..GATEWAYS {

@@ -14,8 +14,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use iogate_tests::GatewayProcess;
-use iogate_tests::devices::{ModbusDevice, modbus_tcp_server, temp_dir};
+use iogate_tests::devices::{ModbusDevice, input_register_profile, modbus_tcp_server, temp_dir};
 use iogate_tests::mqtt::Broker;
+use iogate_tests::process::{cpu_seconds, rss_mib};
 use mqtt_watch::{Latencies, summary};
 
 mod mqtt_watch;
@@ -23,35 +24,6 @@ mod mqtt_watch;
 const DEVICES: usize = 10;
 const FIELDS: usize = 1000;
 const BUFFERED: u64 = 1_000_000;
-
-fn cpu_seconds(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    // Fields after the command's closing parenthesis; utime and stime are the 12th and 13th.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
-fn rss_mib(pid: u32) -> f64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .unwrap_or_default()
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
-        .unwrap_or(0.0)
-        / 1024.0
-}
-
-fn profile() -> String {
-    let mut text = String::from("name: Bench1000\nprotocol: modbus-tcp\nfields:\n");
-    for i in 0..FIELDS {
-        text.push_str(&format!(
-            "  - {{ name: R{i}, type: UINT, direction: input, register: {{ address: {i}, kind: input_register }} }}\n"
-        ));
-    }
-    text
-}
 
 /// Every 100 ms, `slices` tenths of every device's registers change (1: each field once a
 /// second; 10: ten times a second), until `stop`.
@@ -126,7 +98,10 @@ async fn bench_config(
 ) -> anyhow::Result<(String, Vec<ModbusDevice>, Vec<tokio::task::JoinHandle<()>>)> {
     let profiles = dir.join("profiles");
     std::fs::create_dir_all(&profiles)?;
-    std::fs::write(profiles.join("bench.yaml"), profile())?;
+    std::fs::write(
+        profiles.join("bench.yaml"),
+        input_register_profile("Bench1000", FIELDS),
+    )?;
     let mut config = format!("profiles: {}\nlinks:\n", profiles.display());
     let mut devices = Vec::new();
     let mut servers = Vec::new();

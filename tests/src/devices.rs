@@ -483,3 +483,14 @@ pub fn crc16(data: &[u8]) -> u16 {
     }
     crc
 }
+
+/// A Modbus TCP profile `name` of `fields` UINT input registers `R0` .. from address 0.
+pub fn input_register_profile(name: &str, fields: usize) -> String {
+    let mut text = format!("name: {name}\nprotocol: modbus-tcp\nfields:\n");
+    for i in 0..fields {
+        text.push_str(&format!(
+            "  - {{ name: R{i}, type: UINT, direction: input, register: {{ address: {i}, kind: input_register }} }}\n"
+        ));
+    }
+    text
+}

@@ -18,6 +18,7 @@ pub mod node_ua;
 pub mod opcua;
 pub mod pki;
 pub mod plc;
+pub mod process;
 pub mod s7;
 mod started;
 pub mod tap;

@@ -247,7 +247,10 @@ impl Session {
                 .map_or(0, |o| u32::from_le_bytes([o[0], o[1], o[2], o[3]])),
             _ => 0,
         } as usize;
-        if count == 0 || first + count > elements || !offset.is_multiple_of(4) {
+        if count == 0
+            || first.checked_add(count).is_none_or(|end| end > elements)
+            || !offset.is_multiple_of(4)
+        {
             return error(service, 0x05);
         }
         let whole = 4 * count as usize;

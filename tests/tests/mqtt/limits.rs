@@ -8,12 +8,7 @@ async fn two_devices(mqtt: &str) -> (String, tokio::task::JoinHandle<()>) {
     let dir = temp_dir("mqtt-limits");
     let profiles = dir.join("profiles");
     std::fs::create_dir_all(&profiles).expect("dir");
-    let mut profile = String::from("name: Wide\nprotocol: modbus-tcp\nfields:\n");
-    for i in 0..400 {
-        profile.push_str(&format!(
-            "  - {{ name: R{i}, type: UINT, direction: input, register: {{ address: {i}, kind: input_register }} }}\n"
-        ));
-    }
+    let profile = iogate_tests::devices::input_register_profile("Wide", 400);
     std::fs::write(profiles.join("wide.yaml"), profile).expect("profile");
     std::fs::copy(
         iogate_tests::profiles_dir().join("sim_io.yaml"),
